@@ -1,0 +1,1 @@
+"""nao_skin: artificial skin for the NAO robot (ROS 2)."""

@@ -1,0 +1,119 @@
+"""Thin rclpy helpers to publish latched static transforms on ``/tf_static``.
+
+``tf2_ros.StaticTransformBroadcaster`` does the same in a real ROS install;
+these helpers only need rclpy + tf2_msgs + geometry_msgs, so they also work
+in the pip venv (docker/setup_venv.sh), where tf2_ros is not available.
+
+Usage::
+
+    pub = latched_tf_static_publisher(node)
+    stamp = node.get_clock().now().to_msg()
+    pub.publish(TFMessage(transforms=[
+        to_transform_stamped('base_link', 'skin_patch_0', T, stamp)]))
+
+Note: like tf2_ros' broadcaster, a latched publisher keeps only its LAST
+message (depth 1), so publish all static transforms of a node in one
+TFMessage.
+"""
+import math
+
+import numpy as np
+from geometry_msgs.msg import TransformStamped
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from tf2_msgs.msg import TFMessage
+
+TF_STATIC_TOPIC = '/tf_static'
+
+#: QoS of ``/tf_static`` (same as tf2_ros' StaticTransformBroadcaster):
+#: late-joining subscribers with the same QoS get the last message.
+TF_STATIC_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
+
+def latched_tf_static_publisher(node, topic=TF_STATIC_TOPIC):
+    """Create a latched ``tf2_msgs/TFMessage`` publisher on ``/tf_static``."""
+    return node.create_publisher(TFMessage, topic, TF_STATIC_QOS)
+
+
+def rotation_to_quaternion(rot):
+    """3x3 rotation matrix -> unit quaternion ``(x, y, z, w)`` with ``w >= 0``.
+
+    The input is first projected onto the nearest proper rotation (SVD), so
+    matrices with small numerical drift are accepted. The conversion uses
+    Shepperd's method (pivot on the largest of trace / diagonal terms), which
+    stays accurate near 180 degree rotations.
+    """
+    r = np.asarray(rot, dtype=float)
+    if r.shape != (3, 3) or not np.all(np.isfinite(r)):
+        raise ValueError(f'expected a finite 3x3 rotation matrix, got {r!r}')
+    u, s, vt = np.linalg.svd(r)
+    if s[-1] <= 1e-9 * max(s[0], 1e-300):
+        raise ValueError(f'rotation matrix is singular: {r!r}')
+    d = np.sign(np.linalg.det(u @ vt))
+    if d < 0:
+        raise ValueError(f'matrix is a reflection, not a rotation: {r!r}')
+    r = u @ vt
+
+    m00, m01, m02 = r[0]
+    m10, m11, m12 = r[1]
+    m20, m21, m22 = r[2]
+    trace = m00 + m11 + m22
+    if trace > max(m00, m11, m22):
+        s = 2.0 * math.sqrt(max(1.0 + trace, 0.0))
+        q = np.array([(m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s, 0.25 * s])
+    elif m00 >= m11 and m00 >= m22:
+        s = 2.0 * math.sqrt(max(1.0 + m00 - m11 - m22, 0.0))
+        q = np.array([0.25 * s, (m01 + m10) / s, (m02 + m20) / s, (m21 - m12) / s])
+    elif m11 >= m22:
+        s = 2.0 * math.sqrt(max(1.0 + m11 - m00 - m22, 0.0))
+        q = np.array([(m01 + m10) / s, 0.25 * s, (m12 + m21) / s, (m02 - m20) / s])
+    else:
+        s = 2.0 * math.sqrt(max(1.0 + m22 - m00 - m11, 0.0))
+        q = np.array([(m02 + m20) / s, (m12 + m21) / s, 0.25 * s, (m10 - m01) / s])
+    q /= np.linalg.norm(q)
+    if q[3] < 0.0:
+        q = -q
+    return q
+
+
+def _to_time_msg(stamp):
+    if stamp is None:
+        from builtin_interfaces.msg import Time
+        return Time()
+    if hasattr(stamp, 'to_msg'):  # rclpy.time.Time
+        return stamp.to_msg()
+    if isinstance(stamp, (int, float)):
+        from builtin_interfaces.msg import Time
+        total_ns = int(round(float(stamp) * 1e9))
+        return Time(sec=total_ns // 1_000_000_000, nanosec=total_ns % 1_000_000_000)
+    return stamp  # builtin_interfaces/Time
+
+
+def to_transform_stamped(parent, child, matrix, stamp):
+    """4x4 homogeneous ``parent_T_child`` -> ``geometry_msgs/TransformStamped``.
+
+    ``stamp`` may be a ``builtin_interfaces/Time``, an ``rclpy.time.Time``,
+    seconds as a number, or ``None`` (zero time, fine for static transforms).
+    """
+    t = np.asarray(matrix, dtype=float)
+    if t.shape != (4, 4) or not np.all(np.isfinite(t)):
+        raise ValueError(f'expected a finite 4x4 homogeneous matrix, got {t!r}')
+    if not np.allclose(t[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
+        raise ValueError(f'last row of a homogeneous matrix must be [0 0 0 1]: {t!r}')
+    if not parent or not child:
+        raise ValueError('parent and child frame ids must be non-empty')
+    q = rotation_to_quaternion(t[:3, :3])
+
+    msg = TransformStamped()
+    msg.header.stamp = _to_time_msg(stamp)
+    msg.header.frame_id = str(parent)
+    msg.child_frame_id = str(child)
+    tr = msg.transform.translation
+    tr.x, tr.y, tr.z = (float(v) for v in t[:3, 3])
+    rq = msg.transform.rotation
+    rq.x, rq.y, rq.z, rq.w = (float(v) for v in q)
+    return msg
