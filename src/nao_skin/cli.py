@@ -1,28 +1,51 @@
-"""Command line entry point: ``nao-skin <subcommand> ...``.
+"""Command line entry point: ``nao-skin <command> ...``.
 
-Subcommands are registered in :func:`build_parser`; each one sets
-``func`` (callable taking the parsed args, returning an exit code).
+Each module in :mod:`nao_skin.commands` is one command: it defines ``NAME``,
+``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``. Modules are
+found at start-up, so adding a command never edits this file. Errors of bad
+input (:class:`nao_skin.errors.NaoSkinError`) end the command with their one
+line on stderr and exit code 2.
 """
+from __future__ import annotations
+
 import argparse
+import importlib
+import pkgutil
 import sys
 
+from . import commands
+from .errors import NaoSkinError
 
-def build_parser():
-    parser = argparse.ArgumentParser(
-        prog='nao-skin', description='nao_skin tools')
-    parser.add_subparsers(dest='command', metavar='COMMAND')
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="nao-skin", description="Self-touch calibration of the Nao's artificial skin.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{commands.__name__}.{info.name}")
+        p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        p.set_defaults(func=module.run)
     return parser
 
 
-def main(argv=None):
+def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    func = getattr(args, 'func', None)
+    func = getattr(args, "func", None)
     if func is None:
         parser.print_help()
         return 0 if args.command is None else 2
-    return int(func(args) or 0)
+    try:
+        return int(func(args) or 0)
+    except NaoSkinError as exc:
+        print(f"nao-skin {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"nao-skin {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
-if __name__ == '__main__':
+if __name__ == "__main__":
     sys.exit(main())

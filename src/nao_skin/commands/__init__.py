@@ -1,0 +1,1 @@
+"""One module per ``nao-skin`` command (see :mod:`nao_skin.cli`)."""

@@ -1,0 +1,201 @@
+"""SE(3) as plain functions on numpy arrays.
+
+Poses are 4x4 homogeneous matrices (batched as ``(..., 4, 4)``); small pose
+corrections are 6-vectors ``[tx, ty, tz, rx, ry, rz]``: a translation in
+metres and a rotation vector in radians (axis * angle), never Euler angles.
+A correction ``delta`` applied to a frame ``T`` gives ``T @ pose_matrix(delta)``:
+it is expressed in the frame's own axes, so bounds on its components mean
+"along / about this frame's axes".
+"""
+from __future__ import annotations
+
+import numpy as np
+
+_EPS = 1e-12
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """Skew-symmetric matrices ``[v]x`` for ``(..., 3)`` vectors."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1] = -v[..., 2]
+    out[..., 0, 2] = v[..., 1]
+    out[..., 1, 0] = v[..., 2]
+    out[..., 1, 2] = -v[..., 0]
+    out[..., 2, 0] = -v[..., 1]
+    out[..., 2, 1] = v[..., 0]
+    return out
+
+
+def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula, batched; exact near zero (Taylor terms)."""
+    rotvec = np.asarray(rotvec, dtype=float)
+    theta2 = np.sum(rotvec * rotvec, axis=-1)[..., None, None]
+    theta = np.sqrt(theta2)
+    small = theta2 < 1e-8
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    k = skew(rotvec)
+    eye = np.broadcast_to(np.eye(3), k.shape)
+    return eye + a * k + b * (k @ k)
+
+
+def matrix_to_rotvec(rot: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`rotvec_to_matrix`, batched, stable at 0 and pi."""
+    rot = np.asarray(rot, dtype=float)
+    # Quaternion route avoids the 1/sin(theta) blow-up near pi.
+    quat = matrix_to_quaternion(rot)  # x, y, z, w with w >= 0
+    xyz = quat[..., :3]
+    w = quat[..., 3]
+    s = np.linalg.norm(xyz, axis=-1)
+    angle = 2.0 * np.arctan2(s, w)
+    small = s < 1e-10
+    scale = np.where(small, 2.0 / np.where(w == 0, 1.0, w), angle / np.where(small, 1.0, s))
+    return xyz * scale[..., None]
+
+
+def matrix_to_quaternion(rot: np.ndarray) -> np.ndarray:
+    """Rotation matrices to unit quaternions ``(x, y, z, w)`` with ``w >= 0``."""
+    rot = np.asarray(rot, dtype=float)
+    m = rot.reshape(-1, 3, 3)
+    tr = np.trace(m, axis1=1, axis2=2)
+    # Shepperd's method: pick the largest of w, x, y, z to divide by.
+    cand = np.stack([tr, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], axis=1)
+    pick = np.argmax(cand, axis=1)
+    q = np.empty((m.shape[0], 4))
+    for case in range(4):
+        sel = pick == case
+        if not np.any(sel):
+            continue
+        r = m[sel]
+        if case == 0:
+            s = np.sqrt(1.0 + cand[sel, 0]) * 2.0
+            q[sel] = np.stack([(r[:, 2, 1] - r[:, 1, 2]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s,
+                               (r[:, 1, 0] - r[:, 0, 1]) / s, 0.25 * s], axis=1)
+        elif case == 1:
+            s = np.sqrt(1.0 + r[:, 0, 0] - r[:, 1, 1] - r[:, 2, 2]) * 2.0
+            q[sel] = np.stack([0.25 * s, (r[:, 0, 1] + r[:, 1, 0]) / s,
+                               (r[:, 0, 2] + r[:, 2, 0]) / s, (r[:, 2, 1] - r[:, 1, 2]) / s], axis=1)
+        elif case == 2:
+            s = np.sqrt(1.0 + r[:, 1, 1] - r[:, 0, 0] - r[:, 2, 2]) * 2.0
+            q[sel] = np.stack([(r[:, 0, 1] + r[:, 1, 0]) / s, 0.25 * s,
+                               (r[:, 1, 2] + r[:, 2, 1]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s], axis=1)
+        else:
+            s = np.sqrt(1.0 + r[:, 2, 2] - r[:, 0, 0] - r[:, 1, 1]) * 2.0
+            q[sel] = np.stack([(r[:, 0, 2] + r[:, 2, 0]) / s, (r[:, 1, 2] + r[:, 2, 1]) / s,
+                               0.25 * s, (r[:, 1, 0] - r[:, 0, 1]) / s], axis=1)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[q[:, 3] < 0] *= -1.0
+    return q.reshape(rot.shape[:-2] + (4,))
+
+
+def quaternion_to_matrix(quat: np.ndarray) -> np.ndarray:
+    """Unit quaternions ``(x, y, z, w)`` to rotation matrices."""
+    q = np.asarray(quat, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    out = np.empty(q.shape[:-1] + (3, 3))
+    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    out[..., 0, 1] = 2 * (x * y - z * w)
+    out[..., 0, 2] = 2 * (x * z + y * w)
+    out[..., 1, 0] = 2 * (x * y + z * w)
+    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    out[..., 1, 2] = 2 * (y * z - x * w)
+    out[..., 2, 0] = 2 * (x * z - y * w)
+    out[..., 2, 1] = 2 * (y * z + x * w)
+    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
+
+
+def pose_matrix(delta: np.ndarray) -> np.ndarray:
+    """6-vector(s) ``[t, rotvec]`` to homogeneous matrices."""
+    delta = np.asarray(delta, dtype=float)
+    out = np.zeros(delta.shape[:-1] + (4, 4))
+    out[..., :3, :3] = rotvec_to_matrix(delta[..., 3:6])
+    out[..., :3, 3] = delta[..., :3]
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def pose_vector(mat: np.ndarray) -> np.ndarray:
+    """Homogeneous matrices to 6-vectors ``[t, rotvec]``."""
+    mat = np.asarray(mat, dtype=float)
+    return np.concatenate([mat[..., :3, 3], matrix_to_rotvec(mat[..., :3, :3])], axis=-1)
+
+
+def invert(mat: np.ndarray) -> np.ndarray:
+    """Inverse of rigid transforms, batched (R^T, -R^T t)."""
+    mat = np.asarray(mat, dtype=float)
+    out = np.zeros_like(mat)
+    rt = np.swapaxes(mat[..., :3, :3], -1, -2)
+    out[..., :3, :3] = rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", rt, mat[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def transform_points(mat: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply ``(..., 4, 4)`` transforms to ``(..., 3)`` points (broadcasting)."""
+    mat = np.asarray(mat, dtype=float)
+    points = np.asarray(points, dtype=float)
+    return np.einsum("...ij,...j->...i", mat[..., :3, :3], points) + mat[..., :3, 3]
+
+
+def rotate_vectors(mat: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """Apply only the rotation part of ``(..., 4, 4)`` transforms."""
+    return np.einsum("...ij,...j->...i", np.asarray(mat, dtype=float)[..., :3, :3], vectors)
+
+
+def rpy_from_matrix(rot: np.ndarray) -> np.ndarray:
+    """URDF roll-pitch-yaw (fixed axes X, Y, Z: R = Rz(y) Ry(p) Rx(r)).
+
+    Only for writing URDF ``<origin rpy=...>``; computation never uses Euler angles.
+    """
+    rot = np.asarray(rot, dtype=float)
+    pitch = np.arctan2(-rot[..., 2, 0], np.hypot(rot[..., 0, 0], rot[..., 1, 0]))
+    gimbal = np.hypot(rot[..., 0, 0], rot[..., 1, 0]) < 1e-9
+    roll = np.where(gimbal, 0.0, np.arctan2(rot[..., 2, 1], rot[..., 2, 2]))
+    yaw = np.where(gimbal, np.arctan2(-rot[..., 0, 1], rot[..., 1, 1]),
+                   np.arctan2(rot[..., 1, 0], rot[..., 0, 0]))
+    return np.stack([roll, pitch, yaw], axis=-1)
+
+
+def matrix_from_rpy(rpy: np.ndarray) -> np.ndarray:
+    """URDF roll-pitch-yaw to rotation matrices (R = Rz(yaw) Ry(pitch) Rx(roll))."""
+    rpy = np.asarray(rpy, dtype=float)
+    r, p, y = rpy[..., 0], rpy[..., 1], rpy[..., 2]
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    out = np.empty(rpy.shape[:-1] + (3, 3))
+    out[..., 0, 0] = cy * cp
+    out[..., 0, 1] = cy * sp * sr - sy * cr
+    out[..., 0, 2] = cy * sp * cr + sy * sr
+    out[..., 1, 0] = sy * cp
+    out[..., 1, 1] = sy * sp * sr + cy * cr
+    out[..., 1, 2] = sy * sp * cr - cy * sr
+    out[..., 2, 0] = -sp
+    out[..., 2, 1] = cp * sr
+    out[..., 2, 2] = cp * cr
+    return out
+
+
+def rigid_fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Closed-form least-squares rigid transform T with ``T * source ~ target``.
+
+    Kabsch/Umeyama without scale; ``source`` and ``target`` are ``(N, 3)``.
+    Used as the first guess that makes a 160-degree mount error reachable.
+    """
+    src = np.asarray(source, dtype=float)
+    dst = np.asarray(target, dtype=float)
+    w = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=float)
+    w = w / max(w.sum(), _EPS)
+    mu_s = w @ src
+    mu_d = w @ dst
+    cov = (dst - mu_d).T @ ((src - mu_s) * w[:, None])
+    u, _, vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(u @ vt))
+    rot = u @ np.diag([1.0, 1.0, d]) @ vt
+    out = np.eye(4)
+    out[:3, :3] = rot
+    out[:3, 3] = mu_d - rot @ mu_s
+    return out
