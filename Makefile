@@ -1,0 +1,24 @@
+# nao_skin developer entry points. README commands: `make demo`, `make test`.
+# All targets use the repo-local venv (.venv) made by docker/setup_venv.sh,
+# which is idempotent (a stamp makes re-runs return immediately).
+
+ROOT := $(patsubst %/,%,$(dir $(abspath $(lastword $(MAKEFILE_LIST)))))
+VENV := $(ROOT)/.venv
+
+.PHONY: setup setup-test demo test
+
+## setup: create/refresh .venv (ROS 2 wheels, tf2_msgs, deps, nao_skin editable)
+setup:
+	bash $(ROOT)/docker/setup_venv.sh
+
+## setup-test: setup + YARP Python bindings (needed by the test suite)
+setup-test:
+	bash $(ROOT)/docker/setup_venv.sh --with-yarp
+
+## demo: run the end-to-end demo
+demo: setup
+	cd $(ROOT) && $(VENV)/bin/nao-skin demo
+
+## test: run the test suite
+test: setup-test
+	cd $(ROOT) && $(VENV)/bin/python -m pytest -q test

