@@ -5,6 +5,11 @@
 ROOT := $(patsubst %/,%,$(dir $(abspath $(lastword $(MAKEFILE_LIST)))))
 VENV := $(ROOT)/.venv
 
+# Keep DDS discovery on this machine unless told otherwise
+# (e.g. `make demo ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET`).
+ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export ROS_AUTOMATIC_DISCOVERY_RANGE
+
 .PHONY: setup setup-test demo test
 
 ## setup: create/refresh .venv (ROS 2 wheels, tf2_msgs, deps, nao_skin editable)

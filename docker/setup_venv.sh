@@ -126,7 +126,7 @@ fix_cmake_exports() {
 }
 
 check_tf2_msgs() {
-  "$VENV/bin/python" - <<'EOF' >/dev/null 2>&1
+  ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST "$VENV/bin/python" - <<'EOF' >/dev/null 2>&1
 import rclpy
 from rclpy.context import Context
 from tf2_msgs.msg import TFMessage
