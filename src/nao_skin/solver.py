@@ -1,0 +1,340 @@
+"""Residuals, analytic sparse Jacobians and a bounded robust Levenberg-Marquardt.
+
+The unknowns are the 6-vector corrections ``[t, rotvec]`` of skin frames
+(mounts, patches, triangles). A residual row is ``sum_k w_k x_k`` over its
+terms, ``x_k`` the calibrated base-frame position of one taxel, so a COP pair
+and a taxel pair are the same thing to the solver (see
+:class:`nao_skin.pairing.Pairing`). Each term depends on exactly one chain of
+frames (its part's mount, its patch, its triangle), so the Jacobian is sparse
+with at most 18 non-zeros per term and coordinate; it is assembled from
+closed-form 3x6 blocks, vectorised over all terms.
+
+For a correction ``exp(d) = (R(phi), t)`` between a frame ``G`` (everything
+above it, including the robot's forward kinematics) and a point ``y``
+(everything below it) the position is ``x = G (R(phi) y + t)`` and
+
+    dx/dt   = R_G
+    dx/dphi = -R_G R(phi) [y]x J_r(phi)
+
+with ``J_r`` the right Jacobian of SO(3); exact also for the large mount
+rotations (about 160 degrees) real hands start from.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse
+
+from . import se3
+from .skin import SkinCalibration, SkinModel
+
+LEVELS = ("mount", "patch", "triangle")
+
+
+def right_jacobian_so3(phi: np.ndarray) -> np.ndarray:
+    """Right Jacobian of SO(3) for rotation vectors ``(..., 3)``."""
+    phi = np.asarray(phi, dtype=float)
+    theta2 = np.sum(phi * phi, axis=-1)[..., None, None]
+    theta = np.sqrt(theta2)
+    small = theta2 < 1e-8
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    b = np.where(small, 1.0 / 6.0 - theta2 / 120.0, (safe - np.sin(safe)) / (safe * safe * safe))
+    k = se3.skew(phi)
+    return np.broadcast_to(np.eye(3), k.shape) - a * k + b * (k @ k)
+
+
+@dataclass
+class ParameterLayout:
+    """Column layout of the correction vector over the parts being calibrated.
+
+    Per part: mount (6), then its patches (6 each), then its triangles (6 each),
+    in the order of ``SkinPart.patch_ids`` / ``triangle_ids``.
+    """
+
+    skin: SkinModel
+    part_names: tuple
+    offsets: dict = field(default_factory=dict)   # part -> (mount col, patch col, triangle col, end)
+
+    def __post_init__(self):
+        col = 0
+        for name in self.part_names:
+            part = self.skin.parts[name]
+            m = col
+            p = m + 6
+            t = p + 6 * len(part.patch_ids)
+            end = t + 6 * len(part.triangle_ids)
+            self.offsets[name] = (m, p, t, end)
+            col = end
+        self.size = col
+
+    def block_columns(self, part: str, level: str, rows: np.ndarray) -> np.ndarray:
+        """First column of each block (``rows`` index patches/triangles; ignored for mounts)."""
+        m, p, t, _ = self.offsets[part]
+        if level == "mount":
+            return np.full(np.shape(rows), m)
+        return (p if level == "patch" else t) + 6 * np.asarray(rows)
+
+    def describe(self, col: int) -> str:
+        for name, (m, p, t, end) in self.offsets.items():
+            if m <= col < end:
+                part = self.skin.parts[name]
+                comp = ("tx", "ty", "tz", "rx", "ry", "rz")[(col - m) % 6]
+                if col < p:
+                    return f"{name}/mount/{comp}"
+                if col < t:
+                    return f"{name}/patch_{int(part.patch_ids[(col - p) // 6])}/{comp}"
+                return f"{name}/triangle_{int(part.triangle_ids[(col - t) // 6])}/{comp}"
+        raise IndexError(col)
+
+    def to_vector(self, calib: SkinCalibration) -> np.ndarray:
+        x = np.zeros(self.size)
+        for name, (m, p, t, end) in self.offsets.items():
+            corr = calib.parts[name]
+            x[m:p] = corr.mount
+            x[p:t] = corr.patches.ravel()
+            x[t:end] = corr.triangles.ravel()
+        return x
+
+    def to_calibration(self, x: np.ndarray, base: SkinCalibration) -> SkinCalibration:
+        out = base.copy()
+        for name, (m, p, t, end) in self.offsets.items():
+            corr = out.parts[name]
+            corr.mount = x[m:p].copy()
+            corr.patches = x[p:t].reshape(-1, 6).copy()
+            corr.triangles = x[t:end].reshape(-1, 6).copy()
+        return out
+
+
+class ResidualModel:
+    """Residuals ``r(x)`` and Jacobians for one pairing, vectorised over its terms.
+
+    Forward kinematics of every term's touch is computed once here: joint
+    angles do not change while corrections are estimated.
+    """
+
+    def __init__(self, skin: SkinModel, joints: np.ndarray, pairing, part_names: tuple,
+                 layout: ParameterLayout, base: SkinCalibration):
+        self.skin = skin
+        self.layout = layout
+        self.base = base
+        self.n_rows = len(pairing.row_touch)
+        self.term_row = pairing.term_row
+        self.term_weight = pairing.term_weight
+        self.groups = []   # one per part: (term indices, part, FK per term, slot arrays)
+        term_touch = pairing.row_touch[pairing.term_row]
+        for pidx in np.unique(pairing.term_part):
+            name = part_names[pidx]
+            part = skin.parts[name]
+            sel = np.flatnonzero(pairing.term_part == pidx)
+            slots = pairing.term_slot[sel]
+            tri = part.slot_triangle[slots]
+            if np.any(tri < 0):
+                bad = slots[tri < 0][0]
+                raise ValueError(f"part '{name}': slot {bad} has no taxel in the layout")
+            fk = skin.robot.fk(part.chain, joints[term_touch[sel]])
+            self.groups.append((sel, name, part, fk, slots, tri, part.triangle_patch[tri]))
+
+    # ------------------------------------------------------------------ evaluation
+    def positions(self, calib: SkinCalibration) -> np.ndarray:
+        """(K, 3) base-frame positions of every term's taxel."""
+        out = np.empty((len(self.term_row), 3))
+        for sel, name, part, fk, slots, tri, _ in self.groups:
+            _, _, tri_pose = part.frame_poses(calib.parts[name])
+            out[sel] = se3.transform_points(fk @ tri_pose[tri], part.taxel_local[slots])
+        return out
+
+    def residuals(self, calib: SkinCalibration) -> np.ndarray:
+        """(M, 3) residual vectors, one per pairing row."""
+        x = self.positions(calib) * self.term_weight[:, None]
+        out = np.zeros((self.n_rows, 3))
+        np.add.at(out, self.term_row, x)
+        return out
+
+    def jacobian(self, calib: SkinCalibration, free_levels: dict) -> scipy.sparse.csr_matrix:
+        """Sparse (3M, n) Jacobian of the stacked residuals w.r.t. the layout's columns.
+
+        ``free_levels`` maps part name -> set of levels whose blocks get columns
+        (other blocks are constant and produce no entries).
+        """
+        rows_all, cols_all, vals_all = [], [], []
+        for sel, name, part, fk, slots, tri, patch in self.groups:
+            levels = free_levels.get(name, ())
+            if not levels:
+                continue
+            corr = calib.parts[name]
+            em = se3.pose_matrix(corr.mount)
+            ep = se3.pose_matrix(corr.patches)
+            et = se3.pose_matrix(corr.triangles)
+            q = part.taxel_local[slots]
+            w = self.term_weight[sel][:, None, None]
+            row3 = 3 * self.term_row[sel]
+            # y_T = q ; y_P = T_n exp(dT) q ; y_M = P_n exp(dP) y_P
+            tn_et = part.triangle_nominal @ et
+            y_p = se3.transform_points(tn_et[tri], q)
+            pn_ep = part.patch_nominal @ ep
+            y_m = se3.transform_points(pn_ep[patch], y_p)
+            g_m = fk @ part.mount_nominal
+            specs = []
+            if "mount" in levels:
+                specs.append(("mount", np.zeros(len(sel), int), g_m[:, :3, :3], em[:3, :3], corr.mount[3:], y_m))
+            if "patch" in levels:
+                g_p = g_m @ em @ part.patch_nominal[patch]
+                specs.append(("patch", patch, g_p[:, :3, :3], ep[patch, :3, :3], corr.patches[patch, 3:], y_p))
+            if "triangle" in levels:
+                g_t = g_m @ em @ pn_ep[patch] @ part.triangle_nominal[tri]
+                specs.append(("triangle", tri, g_t[:, :3, :3], et[tri, :3, :3], corr.triangles[tri, 3:], q))
+            for level, block_rows, rg, rc, phi, y in specs:
+                d_t = rg * w
+                d_phi = -(rg @ rc @ se3.skew(y) @ right_jacobian_so3(phi)) * w
+                block = np.concatenate([d_t, d_phi], axis=2)          # (K, 3, 6)
+                col0 = self.layout.block_columns(name, level, block_rows)
+                rr = row3[:, None, None] + np.arange(3)[None, :, None]
+                cc = col0[:, None, None] + np.arange(6)[None, None, :]
+                rows_all.append(np.broadcast_to(rr, block.shape).ravel())
+                cols_all.append(np.broadcast_to(cc, block.shape).ravel())
+                vals_all.append(block.ravel())
+        if not rows_all:
+            return scipy.sparse.csr_matrix((3 * self.n_rows, self.layout.size))
+        return scipy.sparse.coo_matrix(
+            (np.concatenate(vals_all), (np.concatenate(rows_all), np.concatenate(cols_all))),
+            shape=(3 * self.n_rows, self.layout.size)).tocsr()
+
+
+@dataclass
+class SolveOptions:
+    """Options of one least-squares solve, as data (cf. scipy's least_squares)."""
+
+    loss: str = "huber"            # "linear" or "huber" (on each row's distance)
+    f_scale: float = 0.004         # metres: where the robust loss starts to discount a row
+    max_iterations: int = 50
+    ftol: float = 1e-7             # relative cost decrease that ends the solve
+    xtol: float = 1e-9             # step size (scaled) that ends the solve
+    jacobian: str = "analytic"     # or "2-point" (finite differences, for comparison)
+    prior_weight: float = 1e-9     # tiny pull to the prior: keeps unexcited directions there
+
+
+@dataclass
+class SolveResult:
+    x: np.ndarray
+    cost: float
+    iterations: int
+    evaluations: int
+    converged: bool
+    condition: float
+    message: str
+
+
+def _row_weights(dist: np.ndarray, opts: SolveOptions) -> np.ndarray:
+    if opts.loss == "linear":
+        return np.ones_like(dist)
+    if opts.loss == "huber":
+        return np.where(dist <= opts.f_scale, 1.0, opts.f_scale / np.maximum(dist, 1e-15))
+    raise ValueError(f"unknown loss '{opts.loss}' (linear, huber)")
+
+
+def _robust_cost(dist: np.ndarray, opts: SolveOptions) -> float:
+    if opts.loss == "linear":
+        return 0.5 * float(np.sum(dist ** 2))
+    c = opts.f_scale
+    return float(np.sum(np.where(dist <= c, 0.5 * dist ** 2, c * dist - 0.5 * c * c)))
+
+
+def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+          free_levels: dict, opts: SolveOptions, prior: np.ndarray | None = None) -> SolveResult:
+    """Bounded, robust (IRLS) Levenberg-Marquardt over the ``free`` columns.
+
+    Normal equations are small (at most a few hundred unknowns) and dense;
+    the Jacobian that builds them is sparse. Bounds are kept by projection.
+    """
+    layout = model.layout
+    prior = x0.copy() if prior is None else prior
+    cols = np.flatnonzero(free)
+    x = np.clip(x0.copy(), lower, upper)
+
+    def evaluate(xv):
+        calib = layout.to_calibration(xv, model.base)
+        r = model.residuals(calib)
+        return calib, r
+
+    def cost_of(xv, r):
+        dist = np.linalg.norm(r, axis=1)
+        d = xv[cols] - prior[cols]
+        return _robust_cost(dist, opts) + 0.5 * opts.prior_weight * float(d @ d)
+
+    def jac(xv, calib, r):
+        if opts.jacobian == "analytic":
+            return model.jacobian(calib, free_levels)[:, cols]
+        if opts.jacobian == "2-point":
+            out = np.empty((r.size, len(cols)))
+            base = r.ravel()
+            for j, c in enumerate(cols):
+                h = 1e-7 * max(1.0, abs(xv[c]))
+                xp = xv.copy()
+                xp[c] += h
+                out[:, j] = (evaluate(xp)[1].ravel() - base) / h
+            return scipy.sparse.csr_matrix(out)
+        raise ValueError(f"unknown jacobian '{opts.jacobian}' (analytic, 2-point)")
+
+    calib, r = evaluate(x)
+    cost = cost_of(x, r)
+    mu = 1e-3
+    evaluations = 1
+    converged = False
+    message = "maximum iterations"
+    condition = float("nan")
+    it = 0
+    if len(cols) == 0:
+        return SolveResult(x, cost, 0, 1, True, condition, "no free parameter")
+    for it in range(1, opts.max_iterations + 1):
+        dist = np.linalg.norm(r, axis=1)
+        w = np.repeat(_row_weights(dist, opts), 3)
+        j = jac(x, calib, r)
+        jw = j.multiply(w[:, None]).tocsr() if scipy.sparse.issparse(j) else j * w[:, None]
+        h = np.asarray((j.T @ jw).todense() if scipy.sparse.issparse(j) else j.T @ jw)
+        g = np.asarray(jw.T @ r.ravel()).ravel()
+        h[np.diag_indices_from(h)] += opts.prior_weight
+        g += opts.prior_weight * (x[cols] - prior[cols])
+        diag = np.maximum(np.diag(h).copy(), 1e-12)
+        improved = False
+        for _ in range(12):
+            a = h + mu * np.diag(diag)
+            try:
+                step = -scipy.linalg.cho_solve(scipy.linalg.cho_factor(a), g)
+            except np.linalg.LinAlgError:
+                mu *= 10.0
+                continue
+            x_new = x.copy()
+            x_new[cols] = np.clip(x[cols] + step, lower[cols], upper[cols])
+            calib_new, r_new = evaluate(x_new)
+            evaluations += 1
+            cost_new = cost_of(x_new, r_new)
+            if cost_new < cost:
+                rel = (cost - cost_new) / max(cost, 1e-300)
+                small_step = np.linalg.norm((x_new - x)[cols] * np.sqrt(diag)) < opts.xtol * (
+                    np.linalg.norm(x[cols] * np.sqrt(diag)) + opts.xtol)
+                x, calib, r, cost = x_new, calib_new, r_new, cost_new
+                mu = max(mu / 3.0, 1e-9)
+                improved = True
+                if rel < opts.ftol or small_step:
+                    converged = True
+                    message = "cost converged" if rel < opts.ftol else "step converged"
+                break
+            mu *= 4.0
+        if not improved:
+            converged = True
+            message = "no further decrease"
+            break
+        if converged:
+            break
+    # condition number of the Jacobi-scaled normal equations at the solution
+    dist = np.linalg.norm(r, axis=1)
+    j = jac(x, calib, r)
+    jd = np.asarray(j.todense()) if scipy.sparse.issparse(j) else j
+    hn = jd.T @ jd
+    s = np.sqrt(np.maximum(np.diag(hn), 1e-300))
+    ev = np.linalg.eigvalsh(hn / np.outer(s, s))
+    condition = float(ev[-1] / max(ev[0], 1e-300))
+    return SolveResult(x, cost, it, evaluations, converged, condition, message)
