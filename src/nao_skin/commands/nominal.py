@@ -1,0 +1,48 @@
+"""``nao-skin nominal``: the nominal (zero-correction) calibration of a skin config.
+
+The committed ``config/calibration_nominal.yaml`` (the URDF's default skin
+frames) is this command's output for ``config/nao_skin.yaml``; a test checks
+that it is not stale.
+"""
+from __future__ import annotations
+
+import sys
+import tempfile
+from pathlib import Path
+
+NAME = "nominal"
+HELP = "write the nominal (zero-correction) calibration YAML of a skin config"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--skin-config", type=Path, default=None,
+                        help="skin config YAML (default: the package's config/nao_skin.yaml)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="output calibration YAML (default: stdout)")
+
+
+def nominal_calibration_text(skin_config: Path) -> str:
+    """The YAML text ``SkinCalibration.save`` writes for zero corrections of every part."""
+    from ..skin import SkinModel
+
+    skin = SkinModel.from_yaml(skin_config)
+    # The comment names the config by file name only, so the text does not depend on the checkout's path.
+    comment = (f"nominal calibration (all corrections zero) of {Path(skin_config).name};"
+               f" regenerate with: nao-skin nominal --out <this file>")
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "calibration.yaml"
+        skin.zero_calibration().save(path, skin, comment=comment)
+        return path.read_text()
+
+
+def run(args) -> int:
+    from ..config import default_skin_config
+
+    text = nominal_calibration_text(args.skin_config or default_skin_config())
+    if args.out is None:
+        sys.stdout.write(text)
+    else:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text)
+        print(args.out)
+    return 0

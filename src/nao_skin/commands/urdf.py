@@ -1,0 +1,38 @@
+"""``nao-skin urdf``: the expanded URDF (body + skin frames) for a calibration file."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+NAME = "urdf"
+HELP = "expand urdf/nao_skin.urdf.xacro for a calibration YAML and write the URDF"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--calibration", type=Path, default=None,
+                        help="calibration YAML (default: the package's config/calibration_nominal.yaml)")
+    parser.add_argument("--skin-config", type=Path, default=None,
+                        help="skin config the calibration belongs to, used to check it"
+                             " (default: the package's config/nao_skin.yaml)")
+    parser.add_argument("--out", type=Path, default=None, help="output URDF file (default: stdout)")
+
+
+def run(args) -> int:
+    from ..config import default_skin_config
+    from ..skin import SkinModel
+    from ..urdf import check_calibration_origins, expand_xacro
+
+    skin_config = args.skin_config or default_skin_config()
+    skin = SkinModel.from_yaml(skin_config)
+    calibration = args.calibration or Path(skin_config).parent / "calibration_nominal.yaml"
+    # A bad or hand-edited calibration fails here with one line, not deep inside xacro.
+    check_calibration_origins(calibration, skin)
+    robot_config = Path(skin.robot.source)
+    text = expand_xacro(calibration, robot_config=robot_config if robot_config.is_file() else None)
+    if args.out is None:
+        sys.stdout.write(text)
+    else:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text)
+        print(args.out)
+    return 0
