@@ -1,0 +1,214 @@
+"""Forward kinematics of the DH robot model (config/nao_h25.yaml).
+
+Known poses are checked against geometry worked out by hand from the Nao's
+dimensions (shoulder 98 mm beside and 100 mm above the torso origin, upper arm
+105 mm, neck 126.5 mm), batches against an independent per-pose product of
+elementary DH matrices built straight from the YAML rows.
+"""
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from nao_skin.config import config_dir
+from nao_skin.errors import ConfigError, DataError
+from nao_skin.robot import RobotModel, parse_angle
+
+ROBOT_YAML = config_dir() / "nao_h25.yaml"
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return RobotModel.from_yaml(ROBOT_YAML)
+
+
+def pose(robot, **angles):
+    q = np.zeros((1, len(robot.joint_names)))
+    for name, value in angles.items():
+        q[0, robot.joint_index[name]] = value
+    return q
+
+
+def random_q(robot, n, seed):
+    lo, hi = robot.limits.T
+    return np.random.default_rng(seed).uniform(lo, hi, size=(n, len(lo)))
+
+
+def rot_z(t):
+    c, s = math.cos(t), math.sin(t)
+    return np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+
+
+def rot_x(t):
+    c, s = math.cos(t), math.sin(t)
+    return np.array([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1.0]])
+
+
+def trans(x, y, z):
+    out = np.eye(4)
+    out[:3, 3] = (x, y, z)
+    return out
+
+
+def reference_fk(rows, joint_values):
+    """Rz(offset+q) Tz(d) Tx(a) Rx(alpha), multiplied row by row for one pose, from raw YAML rows."""
+    out = np.eye(4)
+    for row in rows:
+        q = joint_values[row["joint"]] if row["joint"] else 0.0
+        a, d = float(row["a"]), float(row["d"])
+        alpha, offset = parse_angle(row["alpha"], "test"), parse_angle(row["offset"], "test")
+        out = out @ rot_z(offset + q) @ trans(0, 0, d) @ trans(a, 0, 0) @ rot_x(alpha)
+    return out
+
+
+# ---------------------------------------------------------------------- known poses
+@pytest.mark.parametrize("chain, side", [("l_arm", 1.0), ("r_arm", -1.0)])
+def test_zero_pose_wrist_is_one_upper_arm_ahead_of_the_shoulder(robot, chain, side):
+    end = robot.fk(chain, pose(robot))[0]
+    np.testing.assert_allclose(end[:3, 3], [0.105, side * 0.098, 0.1], atol=1e-12)
+    # the forearm (-y of the hand frame) points forward (+x of the torso) with the arm stretched out
+    np.testing.assert_allclose(-end[:3, 1], [1.0, 0.0, 0.0], atol=1e-12)
+
+
+def test_shoulder_pitch_of_90_degrees_points_the_arm_down(robot):
+    end = robot.fk("l_arm", pose(robot, LShoulderPitch=math.pi / 2))[0]
+    np.testing.assert_allclose(end[:3, 3], [0.0, 0.098, 0.1 - 0.105], atol=1e-12)
+
+
+def test_shoulder_roll_swings_the_arm_sideways_about_the_shoulder(robot):
+    roll = 1.0
+    left = robot.fk("l_arm", pose(robot, LShoulderRoll=roll))[0]
+    right = robot.fk("r_arm", pose(robot, RShoulderRoll=-roll))[0]
+    np.testing.assert_allclose(left[:3, 3], [0.105 * math.cos(roll), 0.098 + 0.105 * math.sin(roll), 0.1], atol=1e-12)
+    # the right arm mirrors the left one in the sagittal plane
+    np.testing.assert_allclose(right[:3, 3], left[:3, 3] * [1, -1, 1], atol=1e-12)
+
+
+def test_elbow_roll_turns_the_forearm_towards_the_body_midline(robot):
+    bend = -1.0  # left elbow flexion is negative on the Nao
+    end = robot.fk("l_arm", pose(robot, LElbowRoll=bend))[0]
+    np.testing.assert_allclose(end[:3, 3], [0.105, 0.098, 0.1], atol=1e-12)  # the hand frame sits at the elbow
+    np.testing.assert_allclose(-end[:3, 1], [math.cos(bend), math.sin(bend), 0.0], atol=1e-12)
+
+
+def test_head_yaw_and_pitch_turn_the_face(robot):
+    zero = robot.fk("head", pose(robot))[0]
+    np.testing.assert_allclose(zero[:3, 3], [0.0, 0.0, 0.1265], atol=1e-12)
+    np.testing.assert_allclose(zero[:3, 2], [1, 0, 0], atol=1e-12)   # head z: the face, forward at rest
+    np.testing.assert_allclose(zero[:3, 0], [0, 0, 1], atol=1e-12)   # head x: up at rest
+    left = robot.fk("head", pose(robot, HeadYaw=math.pi / 2))[0]
+    np.testing.assert_allclose(left[:3, 2], [0, 1, 0], atol=1e-12)
+    down = robot.fk("head", pose(robot, HeadPitch=0.5))[0]
+    np.testing.assert_allclose(down[:3, 2], [math.cos(0.5), 0, -math.sin(0.5)], atol=1e-12)
+    np.testing.assert_allclose(down[:3, 3], zero[:3, 3], atol=1e-12)
+
+
+def test_base_chain_is_the_identity(robot):
+    q = random_q(robot, 3, seed=0)
+    np.testing.assert_array_equal(robot.fk(None, q), np.broadcast_to(np.eye(4), (3, 4, 4)))
+    assert robot.end_frame(None) == "torso"
+
+
+# ---------------------------------------------------------------------- batches
+@pytest.mark.parametrize("chain", ["head", "l_arm", "r_arm"])
+def test_batch_equals_independent_per_pose_product(robot, chain):
+    rows = yaml.safe_load(ROBOT_YAML.read_text())["chains"][chain]
+    q = random_q(robot, 40, seed=1)
+    batch = robot.fk(chain, q)
+    assert batch.shape == (40, 4, 4)
+    for n in range(len(q)):
+        values = dict(zip(robot.joint_names, q[n]))
+        np.testing.assert_allclose(batch[n], reference_fk(rows, values), atol=1e-12)
+        np.testing.assert_allclose(batch[n], robot.fk(chain, q[n])[0], atol=1e-15)
+
+
+@pytest.mark.parametrize("chain", ["head", "l_arm", "r_arm"])
+def test_every_frame_is_a_rigid_transform(robot, chain):
+    frames = robot.fk_frames(chain, random_q(robot, 200, seed=2))
+    rot = frames[..., :3, :3]
+    np.testing.assert_allclose(np.swapaxes(rot, -1, -2) @ rot, np.broadcast_to(np.eye(3), rot.shape), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(rot), 1.0, atol=1e-12)
+    np.testing.assert_array_equal(frames[..., 3, :], np.broadcast_to([0, 0, 0, 1.0], frames.shape[:-2] + (4,)))
+    np.testing.assert_allclose(frames[:, -1], robot.fk(chain, random_q(robot, 200, seed=2)), atol=0)
+
+
+def test_joint_columns_follow_joint_names(robot):
+    # moving one joint of the left arm moves only the left arm
+    q = pose(robot, LElbowYaw=0.7, RShoulderPitch=0.0)
+    np.testing.assert_allclose(robot.fk("r_arm", q), robot.fk("r_arm", pose(robot)), atol=0)
+    assert not np.allclose(robot.fk("l_arm", pose(robot, LShoulderPitch=0.7)), robot.fk("l_arm", pose(robot)))
+    assert robot.chain_joint_names("l_arm") == ["LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll", "LWristYaw"]
+
+
+# ---------------------------------------------------------------------- joint mappings
+def test_joints_from_mappings_places_values_by_name(robot):
+    poses = [{"HeadYaw": 0.1, "LShoulderPitch": -0.5, "NotAJoint": 3.0}, {"HeadYaw": -0.2}]
+    q = robot.joints_from_mappings(poses, needed=["HeadYaw"])
+    assert q.shape == (2, len(robot.joint_names))
+    assert q[0, robot.joint_index["HeadYaw"]] == 0.1
+    assert q[0, robot.joint_index["LShoulderPitch"]] == -0.5
+    assert q[1, robot.joint_index["HeadYaw"]] == -0.2
+    assert np.isnan(q[1, robot.joint_index["LShoulderPitch"]])
+
+
+def test_missing_joint_names_pose_and_joint_in_one_line(robot):
+    with pytest.raises(DataError) as err:
+        robot.joints_from_mappings([{n: 0.0 for n in robot.joint_names}, {"HeadYaw": 0.0}], where="rec.txt")
+    msg = str(err.value)
+    assert "\n" not in msg
+    assert msg.startswith("rec.txt: pose 1: joint ") and "missing" in msg
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), None])
+def test_non_finite_joint_value_is_rejected(robot, bad):
+    values = {n: 0.0 for n in robot.joint_names}
+    values["LElbowRoll"] = bad
+    with pytest.raises(DataError, match=r"^touches: pose 0: joint 'LElbowRoll' is not a finite angle"):
+        robot.joints_from_mappings([values], where="touches")
+
+
+def test_unknown_chain_is_a_config_error(robot):
+    with pytest.raises(ConfigError, match="unknown chain 'l_leg'"):
+        robot.fk("l_leg", pose(robot))
+
+
+# ---------------------------------------------------------------------- config errors
+def write_robot(tmp_path, mutate):
+    doc = yaml.safe_load(ROBOT_YAML.read_text())
+    mutate(doc)
+    path = tmp_path / "robot.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def test_chain_naming_an_unknown_joint_fails_naming_file_and_joint(tmp_path):
+    path = write_robot(tmp_path, lambda d: d["chains"]["l_arm"][3].update(joint="LElbowYawn"))
+    with pytest.raises(ConfigError) as err:
+        RobotModel.from_yaml(path)
+    msg = str(err.value)
+    assert "\n" not in msg
+    assert msg.startswith(f"{path}: chain 'l_arm' row 3: unknown joint 'LElbowYawn'")
+
+
+@pytest.mark.parametrize("mutate, expected", [
+    (lambda d: d["joints"].update(HeadYaw=[1.0]), "joint 'HeadYaw' limits must be [lower, upper]"),
+    (lambda d: d["joints"].update(HeadYaw=[1.0, -1.0]), "joint 'HeadYaw' lower limit 1.0 is not below upper -1.0"),
+    (lambda d: d["chains"]["head"][1].update(alpha="half a turn"), "chain 'head' row 1: cannot read 'half a turn' as an angle"),
+    (lambda d: d["chains"]["head"][0].pop("d"), "chain 'head' row 0: missing d"),
+    (lambda d: d.pop("chains"), "a robot config needs 'joints' and 'chains' mappings"),
+])
+def test_malformed_robot_config_fails_with_one_line(tmp_path, mutate, expected):
+    path = write_robot(tmp_path, mutate)
+    with pytest.raises(ConfigError) as err:
+        RobotModel.from_yaml(path)
+    assert str(err.value).startswith(f"{path}: {expected}")
+    assert "\n" not in str(err.value)
+
+
+def test_angle_strings(robot):
+    assert parse_angle("-pi/2", "x") == -math.pi / 2
+    assert parse_angle("2*pi/3", "x") == 2 * math.pi / 3
+    assert parse_angle("pi", "x") == math.pi
+    assert parse_angle("0.25", "x") == 0.25
+    np.testing.assert_allclose(robot.limits[robot.joint_index["LElbowRoll"]], [-1.5446, -0.0349])
