@@ -1,0 +1,113 @@
+"""skinManager taxel position files: both forms round-trip, malformed files fail in one line.
+
+Real files: the project's default layouts (header form) and the real Nao
+layouts in /work/shared/data/real_selftouch/ (plain form), read in place.
+"""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nao_skin.config import config_dir
+from nao_skin.errors import DataError
+from nao_skin.taxel_file import SLOTS_PER_TRIANGLE, read_taxel_file, write_taxel_file
+
+REAL = Path("/work/shared/data/real_selftouch")
+REAL_FILES = [REAL / "l_hand.taxels.txt", REAL / "torso.taxels.txt"]
+LAYOUT_FILES = sorted((config_dir() / "layouts").glob("*.txt"))
+needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="real self-touch data not on this machine")
+
+
+def assert_same(a, b):
+    np.testing.assert_array_equal(a.positions, b.positions)
+    np.testing.assert_array_equal(a.normals, b.normals)
+    np.testing.assert_array_equal(a.present, b.present)
+
+
+@pytest.mark.parametrize("with_header", [True, False], ids=["header", "plain"])
+@pytest.mark.parametrize("source", LAYOUT_FILES + [pytest.param(p, marks=needs_real) for p in REAL_FILES],
+                         ids=lambda p: p.name)
+def test_read_write_read_is_identical(tmp_path, source, with_header):
+    first = read_taxel_file(source)
+    out = tmp_path / "copy.txt"
+    write_taxel_file(out, first.positions, first.normals, first.present, "l_hand", with_header=with_header)
+    second = read_taxel_file(out)
+    assert_same(first, second)
+    # and a second write is byte-identical: nothing drifts through repeated round trips
+    again = tmp_path / "again.txt"
+    write_taxel_file(again, second.positions, second.normals, second.present, "l_hand", with_header=with_header)
+    assert again.read_text() == out.read_text()
+    if with_header:
+        assert second.name == "l_hand"
+        assert second.header["spatial_sampling"] == "taxel"
+    else:
+        assert second.header == {}
+        assert second.name == "copy"
+
+
+def test_header_form_maps_unused_slots_and_thermal_pads(tmp_path):
+    first = read_taxel_file(LAYOUT_FILES[0])
+    out = tmp_path / "h.txt"
+    write_taxel_file(out, first.positions, first.normals, first.present, "torso")
+    repr_ids = np.array(read_taxel_file(out).header["taxel2Repr"].strip("() ").split(), dtype=int)
+    k = np.arange(len(repr_ids)) % SLOTS_PER_TRIANGLE
+    np.testing.assert_array_equal(repr_ids[first.present], np.flatnonzero(first.present))
+    assert np.all(repr_ids[~first.present & ((k == 6) | (k == 10))] == -2)
+    assert np.all(repr_ids[~first.present & (k != 6) & (k != 10)] == -1)
+
+
+@needs_real
+def test_real_layouts_have_the_documented_taxel_counts():
+    # README: known slots: left hand 227 of 240 usable, torso 220 of 250 usable
+    assert read_taxel_file(REAL / "l_hand.taxels.txt").present.sum() == 227
+    assert read_taxel_file(REAL / "torso.taxels.txt").present.sum() == 220
+
+
+def test_short_file_pads_missing_slots_with_zeros(tmp_path):
+    path = tmp_path / "short.txt"
+    path.write_text("0.01 0.02 0.03 0 0 1\n\n# a comment line\n0.04 0.05 0.06 0 0 1  // trailing comment\n")
+    taxels = read_taxel_file(path)
+    assert taxels.positions.shape == (384, 3)
+    np.testing.assert_array_equal(taxels.positions[:2], [[0.01, 0.02, 0.03], [0.04, 0.05, 0.06]])
+    assert taxels.present.sum() == 2
+
+
+def header_file(rows):
+    return "name torso\nspatial_sampling taxel\ntaxel2Repr ( 0 1 )\n[calibration]\n" + "".join(r + "\n" for r in rows)
+
+
+GOOD = "0.01 0.02 0.03 0 0 1"
+
+
+@pytest.mark.parametrize("text, line, problem", [
+    (f"{GOOD}\n{GOOD}\n0.01 0.02 0.03 0 0\n", 3, "expected 6 numbers 'x y z nx ny nz', got 5"),
+    (f"{GOOD}\n0.01 0.02 zero 0 0 1\n", 2, "not a number in '0.01 0.02 zero 0 0 1'"),
+    (f"nan 0.02 0.03 0 0 1\n", 1, "non-finite value in 'nan 0.02 0.03 0 0 1'"),
+    (header_file([GOOD, GOOD, "1 2 3 4 5 6 7"]), 7, "expected 6 numbers 'x y z nx ny nz', got 7"),
+], ids=["five-numbers", "not-a-number", "nan", "header-form-line-number"])
+def test_malformed_row_names_file_and_line(tmp_path, text, line, problem):
+    path = tmp_path / "bad_taxels.txt"
+    path.write_text(text)
+    with pytest.raises(DataError) as err:
+        read_taxel_file(path)
+    assert str(err.value) == f"{path}:{line}: {problem}"
+
+
+@pytest.mark.parametrize("text, problem", [
+    ("", "no taxel rows found"),
+    ("# only a comment\n", "no taxel rows found"),
+    (f"{GOOD}\n" * 385, "385 taxel rows, more than the 384 slots of a skin part"),
+])
+def test_malformed_file_names_file_and_problem(tmp_path, text, problem):
+    path = tmp_path / "bad_taxels.txt"
+    path.write_text(text)
+    with pytest.raises(DataError) as err:
+        read_taxel_file(path)
+    assert str(err.value) == f"{path}: {problem}"
+
+
+def test_missing_file_is_one_line(tmp_path):
+    path = tmp_path / "nowhere.txt"
+    with pytest.raises(DataError) as err:
+        read_taxel_file(path)
+    assert str(err.value) == f"{path}: cannot read taxel file (No such file or directory)"
