@@ -1,0 +1,279 @@
+"""Skin model: nominal frames reproduce the layouts, corrections move taxels as geometry says,
+calibration files round-trip, bad configs fail in one line naming the file and the problem.
+
+Expected motions are computed from the layout files alone (centroids, normals),
+not from the model's frames, so a wrong frame convention makes them fail.
+"""
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from nao_skin import se3
+from nao_skin.config import config_dir, default_skin_config
+from nao_skin.errors import ConfigError, DataError
+from nao_skin.skin import SkinCalibration, SkinModel
+from nao_skin.taxel_file import SLOTS_PER_TRIANGLE, read_taxel_file
+
+REAL = Path("/work/shared/data/real_selftouch")
+needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="real self-touch data not on this machine")
+
+
+@pytest.fixture(scope="module")
+def skin():
+    return SkinModel.from_yaml(default_skin_config())
+
+
+def layout(skin, part):
+    spec = yaml.safe_load(default_skin_config().read_text())["parts"][part]
+    return read_taxel_file(default_skin_config().parent / spec["taxel_file"])
+
+
+def random_q(skin, n, seed):
+    lo, hi = skin.robot.limits.T
+    return np.random.default_rng(seed).uniform(lo, hi, size=(n, len(lo)))
+
+
+def random_calibration(skin, seed, mount_angle=2.5):
+    rng = np.random.default_rng(seed)
+    calib = skin.zero_calibration()
+    for corr in calib.parts.values():
+        axis = rng.normal(size=3)
+        corr.mount[:] = np.r_[rng.uniform(-0.005, 0.005, 3), mount_angle * axis / np.linalg.norm(axis)]
+        corr.patches[:] = np.c_[rng.uniform(-0.004, 0.004, corr.patches[:, :3].shape),
+                                rng.uniform(-0.1, 0.1, corr.patches[:, 3:].shape)]
+        corr.triangles[:] = np.c_[rng.uniform(-0.003, 0.003, corr.triangles[:, :3].shape),
+                                  rng.uniform(-0.1, 0.1, corr.triangles[:, 3:].shape)]
+    return calib
+
+
+# ---------------------------------------------------------------------- nominal
+@pytest.mark.parametrize("part", ["r_hand", "l_hand", "torso", "head"])
+def test_nominal_corrections_reproduce_the_layout(skin, part):
+    p = skin.part(part)
+    taxels = layout(skin, part)
+    pos, nor = p.taxel_positions(p.zero_correction())
+    present = taxels.present
+    np.testing.assert_array_equal(p.present, present)
+    np.testing.assert_allclose(pos[present], taxels.positions[present], atol=1e-15)
+    np.testing.assert_allclose(nor[present], taxels.normals[present], atol=1e-15)
+    assert np.all(np.isnan(pos[~present]))
+
+
+@needs_real
+def test_nominal_corrections_reproduce_the_real_layouts(tmp_path):
+    config = tmp_path / "real_skin.yaml"
+    config.write_text(yaml.safe_dump({
+        "robot": str(config_dir() / "nao_h25.yaml"),
+        "parts": {"l_hand": {"chain": "l_arm", "taxel_file": str(REAL / "l_hand.taxels.txt")},
+                  "torso": {"chain": None, "taxel_file": str(REAL / "torso.taxels.txt")}}}))
+    skin = SkinModel.from_yaml(config)
+    for part, name in (("l_hand", "l_hand.taxels.txt"), ("torso", "torso.taxels.txt")):
+        taxels = read_taxel_file(REAL / name)
+        pos, nor = skin.part(part).taxel_positions()
+        np.testing.assert_allclose(pos[taxels.present], taxels.positions[taxels.present], atol=1e-15)
+        np.testing.assert_allclose(nor[taxels.present], taxels.normals[taxels.present], atol=1e-15)
+        # README: patch = triangle // 16 (the default when a config lists no patches)
+        p = skin.part(part)
+        np.testing.assert_array_equal(p.patch_ids[p.triangle_patch], p.triangle_ids // 16)
+
+
+# ---------------------------------------------------------------------- known corrections
+def test_mount_translation_shifts_every_taxel(skin):
+    p = skin.part("l_hand")
+    corr = p.zero_correction()
+    corr.mount[:3] = [0.01, -0.02, 0.005]
+    moved, normals = p.taxel_positions(corr)
+    base, base_normals = p.taxel_positions()
+    # the nominal mount has the chain end's axes, so the shift is the correction itself
+    np.testing.assert_allclose(moved[p.slots] - base[p.slots], np.broadcast_to([0.01, -0.02, 0.005], (len(p.slots), 3)),
+                               atol=1e-15)
+    np.testing.assert_allclose(normals[p.slots], base_normals[p.slots], atol=1e-15)
+
+
+def test_mount_rotation_turns_the_part_about_its_taxel_centroid(skin):
+    p = skin.part("torso")
+    taxels = layout(skin, "torso")
+    pts = taxels.positions[taxels.present]
+    centre = pts.mean(axis=0)
+    angle = 2.8  # large, as the real hand mount error (~160 degrees)
+    corr = p.zero_correction()
+    corr.mount[3:] = [0.0, 0.0, angle]
+    moved, normals = p.taxel_positions(corr)
+    c, s = np.cos(angle), np.sin(angle)
+    rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+    np.testing.assert_allclose(moved[taxels.present], centre + (pts - centre) @ rot.T, atol=1e-14)
+    np.testing.assert_allclose(normals[taxels.present], taxels.normals[taxels.present] @ rot.T, atol=1e-14)
+
+
+def test_triangle_translation_along_its_normal_moves_only_that_triangle(skin):
+    p = skin.part("head")
+    taxels = layout(skin, "head")
+    row = 5
+    tri = p.triangle_ids[row]
+    corr = p.zero_correction()
+    corr.triangles[row, 2] = 0.001            # 1 mm along the triangle frame's z: its outward normal
+    moved, _ = p.taxel_positions(corr)
+    base, _ = p.taxel_positions()
+    slots = np.arange(p.n_slots)
+    mine = p.present & (slots // SLOTS_PER_TRIANGLE == tri)
+    normal = taxels.normals[mine].mean(axis=0)
+    normal /= np.linalg.norm(normal)
+    np.testing.assert_allclose(moved[mine] - base[mine], np.broadcast_to(0.001 * normal, (mine.sum(), 3)), atol=1e-15)
+    others = p.present & ~mine
+    np.testing.assert_array_equal(moved[others], base[others])
+
+
+def test_patch_rotation_turns_only_that_patch_about_its_centroid_and_normal(skin):
+    p = skin.part("r_hand")
+    taxels = layout(skin, "r_hand")
+    spec = yaml.safe_load(default_skin_config().read_text())["parts"]["r_hand"]["patches"]
+    row = 1
+    tri_of_slot = np.arange(p.n_slots) // SLOTS_PER_TRIANGLE
+    mine = p.present & np.isin(tri_of_slot, spec[int(p.patch_ids[row])])
+    pts = taxels.positions[mine]
+    centre = pts.mean(axis=0)
+    axis = taxels.normals[mine].sum(axis=0)
+    axis /= np.linalg.norm(axis)
+    angle = 0.3
+    corr = p.zero_correction()
+    corr.patches[row, 3:] = [0.0, 0.0, angle]   # about the patch frame's z: its mean normal
+    moved, _ = p.taxel_positions(corr)
+    rot = se3.rotvec_to_matrix(angle * axis)
+    np.testing.assert_allclose(moved[mine], centre + (pts - centre) @ rot.T, atol=1e-14)
+    base, _ = p.taxel_positions()
+    np.testing.assert_array_equal(moved[p.present & ~mine], base[p.present & ~mine])
+
+
+# ---------------------------------------------------------------------- batches
+@pytest.mark.parametrize("part", ["r_hand", "l_hand", "torso", "head"])
+def test_taxels_in_base_batch_equals_per_pose(skin, part):
+    calib = random_calibration(skin, seed=3)
+    q = random_q(skin, 25, seed=4)
+    p = skin.part(part)
+    batch = skin.taxels_in_base(part, q, calib)
+    assert batch.shape == (25, p.n_slots, 3)
+    local, _ = p.taxel_positions(calib.parts[part])
+    for n in range(len(q)):
+        chain = skin.robot.fk(p.chain, q[n])[0]
+        expected = local @ chain[:3, :3].T + chain[:3, 3]
+        np.testing.assert_allclose(batch[n][p.slots], expected[p.slots], atol=1e-14)
+    # one slot list per pose: the same numbers, picked per row
+    slots = np.random.default_rng(5).choice(p.slots, size=(25, 7))
+    picked = skin.taxels_in_base(part, q, calib, slots)
+    assert picked.shape == (25, 7, 3)
+    np.testing.assert_array_equal(picked, np.take_along_axis(batch, slots[..., None], axis=1))
+
+
+# ---------------------------------------------------------------------- calibration files
+def test_calibration_save_load_round_trip(skin, tmp_path):
+    calib = random_calibration(skin, seed=6)
+    path = tmp_path / "calibration.yaml"
+    calib.save(path, skin, comment="test round trip\nsecond line")
+    loaded = SkinCalibration.load(path, skin)
+    assert set(loaded.parts) == set(calib.parts)
+    for name, corr in calib.parts.items():
+        got = loaded.parts[name]
+        np.testing.assert_allclose(got.mount, corr.mount, atol=1e-10)      # written with 10 decimals
+        np.testing.assert_allclose(got.patches, corr.patches, atol=1e-10)
+        np.testing.assert_allclose(got.triangles, corr.triangles, atol=1e-10)
+        np.testing.assert_allclose(skin.part(name).taxel_positions(got)[0], skin.part(name).taxel_positions(corr)[0],
+                                   atol=1e-9)
+    text = path.read_text()
+    assert "# test round trip\n# second line\n" in text
+    # what the URDF reads: the calibrated pose relative to the parent frame
+    doc = yaml.safe_load(text)
+    tri = doc["parts"]["head"]["triangles"][int(skin.part("head").triangle_ids[3])]
+    p = skin.part("head")
+    expected = p.triangle_nominal[3] @ se3.pose_matrix(calib.parts["head"].triangles[3])
+    np.testing.assert_allclose(tri["origin"]["xyz"], expected[:3, 3], atol=1e-10)
+    np.testing.assert_allclose(se3.matrix_from_rpy(np.array(tri["origin"]["rpy"])), expected[:3, :3], atol=1e-9)
+    assert tri["parent"] == p.patch_frame(p.patch_ids[p.triangle_patch[3]])
+
+
+def test_partial_calibration_file_leaves_the_rest_nominal(skin, tmp_path):
+    path = tmp_path / "partial.yaml"
+    path.write_text(yaml.safe_dump({"parts": {"torso": {"mount": {"correction": {
+        "translation": [0.001, 0, 0], "rotation_vector": [0, 0, 0.1]}}}}}))
+    calib = SkinCalibration.load(path, skin)
+    np.testing.assert_array_equal(calib.parts["torso"].mount, [0.001, 0, 0, 0, 0, 0.1])
+    assert not np.any(calib.parts["torso"].triangles)
+    assert not np.any(calib.parts["head"].mount)
+
+
+@pytest.mark.parametrize("parts, problem", [
+    ({"l_foot": {}}, "unknown skin part 'l_foot' (configured: r_hand, l_hand, torso, head)"),
+    ({"torso": {"patches": {7: {}}}}, "part 'torso' has no patch 7"),
+    ({"torso": {"triangles": {14: {}}}}, "part 'torso' has no triangle 14"),
+    ({"head": {"mount": {"correction": {"translation": [0, 0], "rotation_vector": [0, 0, 0]}}}},
+     "part 'head' mount: correction must be 3 + 3 finite numbers"),
+    ({"head": {"mount": {"correction": {"translation": [0, 0, ".nan"], "rotation_vector": [0, 0, 0]}}}},
+     "part 'head' mount: correction must be 3 + 3 finite numbers"),
+    ({"head": {"mount": {"correction": {"translation": [0, 0, 0]}}}},
+     "part 'head' mount: needs correction.translation and correction.rotation_vector"),
+])
+def test_malformed_calibration_fails_naming_file_and_entry(skin, tmp_path, parts, problem):
+    path = tmp_path / "calibration.yaml"
+    path.write_text(yaml.safe_dump({"parts": parts}).replace("'.nan'", ".nan"))
+    with pytest.raises(ConfigError) as err:
+        SkinCalibration.load(path, skin)
+    assert str(err.value) == f"{path}: {problem}"
+
+
+# ---------------------------------------------------------------------- config errors
+def write_skin_config(tmp_path, mutate, robot_mutate=None):
+    doc = yaml.safe_load(default_skin_config().read_text())
+    for spec in doc["parts"].values():
+        spec["taxel_file"] = str(default_skin_config().parent / spec["taxel_file"])
+    robot = yaml.safe_load((config_dir() / "nao_h25.yaml").read_text())
+    if robot_mutate:
+        robot_mutate(robot)
+    (tmp_path / "robot.yaml").write_text(yaml.safe_dump(robot))
+    doc["robot"] = "robot.yaml"
+    mutate(doc)
+    path = tmp_path / "skin.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def test_config_naming_an_unknown_joint_fails_naming_file_and_joint(tmp_path):
+    path = write_skin_config(tmp_path, lambda d: None,
+                             robot_mutate=lambda r: r["chains"]["head"][1].update(joint="NeckYaw"))
+    with pytest.raises(ConfigError) as err:
+        SkinModel.from_yaml(path)
+    assert str(err.value) == (f"{tmp_path / 'robot.yaml'}: chain 'head' row 1: unknown joint 'NeckYaw'"
+                              f" (not listed under 'joints')")
+
+
+def test_triangle_listed_in_two_patches_fails_naming_file_part_and_patches(tmp_path):
+    path = write_skin_config(tmp_path, lambda d: d["parts"]["torso"]["patches"][1].append(5))
+    with pytest.raises(ConfigError) as err:
+        SkinModel.from_yaml(path)
+    assert str(err.value) == f"{path}: part 'torso': triangle 5 is listed in patch 0 and in patch 1"
+
+
+def test_malformed_taxel_file_fails_naming_the_taxel_file_and_line(tmp_path):
+    bad = tmp_path / "head_bad.txt"
+    lines = (config_dir() / "layouts" / "head.txt").read_text().splitlines()
+    lines[9] = lines[9] + " 0.5"          # a seventh number on line 10 of the file
+    bad.write_text("\n".join(lines) + "\n")
+    path = write_skin_config(tmp_path, lambda d: d["parts"]["head"].update(taxel_file="head_bad.txt"))
+    with pytest.raises(DataError) as err:
+        SkinModel.from_yaml(path)
+    assert str(err.value) == f"{bad}:10: expected 6 numbers 'x y z nx ny nz', got 7"
+
+
+@pytest.mark.parametrize("mutate, problem", [
+    (lambda d: d["parts"]["head"].update(chain="neck"), "part 'head': unknown chain 'neck' (robot has head, l_arm, r_arm)"),
+    (lambda d: d["parts"]["head"].pop("taxel_file"), "part 'head': needs 'taxel_file' (and 'chain', null for the base)"),
+    (lambda d: d["parts"]["torso"]["patches"][0].append(40), "part 'torso' patch 0: triangle 40 is not in 0..31"),
+    (lambda d: d["parts"]["torso"]["patches"][0].remove(3),
+     "part 'torso': triangles [3] have taxels in the layout but are in no patch"),
+    (lambda d: d.pop("parts"), "a skin config needs a 'parts' mapping"),
+])
+def test_bad_skin_config_fails_in_one_line(tmp_path, mutate, problem):
+    path = write_skin_config(tmp_path, mutate)
+    with pytest.raises(ConfigError) as err:
+        SkinModel.from_yaml(path)
+    assert str(err.value) == f"{path}: {problem}"
