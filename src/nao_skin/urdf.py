@@ -246,7 +246,8 @@ def check_calibration_origins(path: str | Path, skin) -> None:
 
     path = Path(path)
     calib = SkinCalibration.load(path, skin)          # one-line errors for malformed files
-    doc = yaml.safe_load(path.read_text())
+    # C loader when available: this runs on every `nao-skin urdf` and the file has ~100 entries
+    doc = yaml.load(path.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
     expected = calib.to_dict(skin)
     for name, part in expected["parts"].items():
         given = doc["parts"].get(name)
