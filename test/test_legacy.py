@@ -1,0 +1,196 @@
+"""Legacy dataset import (thesis §3.5.1 text format), deduplication and the train/test split.
+
+The real recording is read from /work/shared (never copied into the repo);
+bad-input cases are small files written to tmp_path.
+"""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nao_skin.config import default_skin_config
+from nao_skin.datasets import deduplicate, duplicate_mask, split
+from nao_skin.errors import DataError
+from nao_skin.legacy import read_legacy, skin_model_for
+from nao_skin.robot import RobotModel
+from nao_skin.skin import SkinModel
+from nao_skin.taxel_file import read_taxel_file
+
+REAL = Path("/work/shared/data/real_selftouch")
+ROBOT_YAML = Path(__file__).resolve().parents[1] / "config" / "nao_h25.yaml"
+needs_real = pytest.mark.skipif(not (REAL / "l_hand_torso.legacy.txt").exists(), reason="real recording not present")
+
+
+@pytest.fixture(scope="module")
+def real_skin():
+    robot = RobotModel.from_yaml(ROBOT_YAML)
+    return skin_model_for({"l_hand": REAL / "l_hand.taxels.txt", "torso": REAL / "torso.taxels.txt"}, robot)
+
+
+@pytest.fixture(scope="module")
+def real(real_skin):
+    return read_legacy(REAL / "l_hand_torso.legacy.txt", real_skin)
+
+
+@pytest.fixture(scope="module")
+def skin():
+    return SkinModel.from_yaml(default_skin_config())
+
+
+JOINTS = {"HeadYaw": 0.1, "HeadPitch": -0.2, "LShoulderPitch": 0.5, "LShoulderRoll": 0.3, "LElbowYaw": -1.0,
+          "LElbowRoll": -1.0, "LWristYaw": 0.2, "RShoulderPitch": 0.6, "RShoulderRoll": -0.3, "RElbowYaw": 1.0,
+          "RElbowRoll": 1.0, "RWristYaw": -0.2}
+
+
+def contact(part, slots, cop=(0.01, 0.02, 0.03)):
+    return {"cop": list(cop), "force": None, "normal": [0.0, 0.0, 1.0], "skinPart": part, "linkNumber": 6,
+            "moment": None, "averagePressure": None, "geoCenter": list(cop), "bodyPartId": "x",
+            "taxelInfo": {str(s): [0.0] * 6 for s in slots}}
+
+
+def touch(hand_slots=(0, 1, 2), torso_slots=(0, 1), joints=None):
+    return [{0: contact("l_hand", hand_slots), 1: contact("torso", torso_slots)}, dict(joints or JOINTS)]
+
+
+def write(tmp_path, data, name="data.txt"):
+    """One key per line, as the recorder's pretty-printed dicts: lines name the touch."""
+    path = tmp_path / name
+    body = ",\n".join(f" {k!r}: {v!r}" if not isinstance(v, str) else f" {k!r}: {v}" for k, v in data.items())
+    path.write_text("{\n" + body + "\n}\n")
+    return path
+
+
+# ---------------------------------------------------------------------- the real recording
+@needs_real
+def test_real_file_imports_all_touches(real, real_skin):
+    touches, report = real
+    assert touches.n_touches == 810 and report.n_loaded == 810 and report.n_skipped == 0
+    assert touches.keys[:3] == ["0", "1", "2"]
+    np.testing.assert_array_equal(touches.stamps[:3], [0.0, 1.0, 2.0])
+    assert set(touches.part_names) == {"l_hand", "torso"}
+    # every touch has both parts, every activation a present taxel of its layout
+    assert touches.parts_of_touch().all()
+    for p, name in enumerate(touches.part_names):
+        sel = touches.act_part == p
+        assert real_skin.parts[name].present[touches.act_slot[sel]].all()
+    assert np.isnan(touches.act_pressure).all()        # averagePressure is None in this file
+    assert np.isfinite(touches.joints).all()
+
+
+@needs_real
+def test_real_file_taxel_info_matches_the_taxel_files(real):
+    """The recorder's taxelInfo rows are exactly the taxel file rows (checked once here, then ignored)."""
+    import ast
+
+    text = (REAL / "l_hand_torso.legacy.txt").read_text()
+    first = text[: text.index("'1': [")].rstrip().rstrip(",") + "}"
+    contacts, _ = ast.literal_eval(first)["0"]
+    files = {n: read_taxel_file(REAL / f"{n}.taxels.txt") for n in ("l_hand", "torso")}
+    for c in contacts.values():
+        tf = files[c["skinPart"]]
+        for slot, row in c["taxelInfo"].items():
+            np.testing.assert_allclose(row, np.r_[tf.positions[int(slot)], tf.normals[int(slot)]], atol=1e-9)
+
+
+@needs_real
+def test_real_file_has_25_exact_duplicates(real):
+    touches, _ = real
+    unique, removed = deduplicate(touches)
+    assert removed == 25 and unique.n_touches == 785
+    # a duplicate really repeats an earlier touch: same angles and same taxels
+    dup = np.flatnonzero(duplicate_mask(touches))
+    def taxels(t):
+        sel = touches.act_touch == t
+        return set(zip(touches.act_part[sel].tolist(), touches.act_slot[sel].tolist()))
+
+    for d in dup:
+        same_angles = np.flatnonzero((touches.joints == touches.joints[d]).all(axis=1))
+        assert any(e < d and taxels(e) == taxels(d) for e in same_angles)
+
+
+# ---------------------------------------------------------------------- dedup and split on small sets
+def test_deduplicate_needs_same_angles_and_same_taxels(tmp_path, skin):
+    other_angles = dict(JOINTS, LWristYaw=0.25)
+    data = {"0": touch(), "1": touch(), "2": touch(joints=other_angles), "3": touch(hand_slots=(0, 1, 3)),
+            "4": touch(hand_slots=(2, 1, 0))}
+    touches, _ = read_legacy(write(tmp_path, data), skin)
+    unique, removed = deduplicate(touches)
+    assert removed == 2                     # "1" repeats "0", and "4" lists the same taxels in another order
+    assert unique.keys == ["0", "2", "3"]
+
+
+def test_split_is_reproducible_and_disjoint(tmp_path, skin):
+    data = {str(i): touch(joints=dict(JOINTS, LWristYaw=0.01 * i)) for i in range(20)}
+    touches, _ = read_legacy(write(tmp_path, data), skin)
+    train, test = split(touches, 0.3, seed=7)
+    train2, test2 = split(touches, 0.3, seed=7)
+    assert test.n_touches == 6 and train.n_touches == 14
+    assert train.keys == train2.keys and test.keys == test2.keys
+    assert not set(train.keys) & set(test.keys)
+    assert split(touches, 0.3, seed=8)[1].keys != test.keys
+
+
+# ---------------------------------------------------------------------- keys
+def test_timestamp_keys_become_stamps(tmp_path, skin):
+    data = {"1589880000.25": touch(), "1589880000.5": touch(hand_slots=(3,))}
+    touches, report = read_legacy(write(tmp_path, data), skin)
+    assert report.n_loaded == 2
+    np.testing.assert_allclose(touches.stamps, [1589880000.25, 1589880000.5])
+    assert touches.keys == ["1589880000.25", "1589880000.5"]
+
+
+def test_none_pressure_force_moment_and_real_pressure(tmp_path, skin):
+    t = touch()
+    t[0][0]["averagePressure"] = 3.5
+    touches, _ = read_legacy(write(tmp_path, {"0": t}), skin)
+    hand = touches.act_part == touches.part_index("l_hand")
+    np.testing.assert_array_equal(touches.act_pressure[hand], 3.5)
+    assert np.isnan(touches.act_pressure[~hand]).all()
+    np.testing.assert_allclose(touches.contact_cop[0], [0.01, 0.02, 0.03])
+
+
+# ---------------------------------------------------------------------- bad input
+def test_syntax_error_names_file_and_line(tmp_path, skin):
+    path = write(tmp_path, {"0": touch(), "1": "[{0: {'cop': [1, 2,}}, {}]"})
+    with pytest.raises(DataError) as err:
+        read_legacy(path, skin)
+    msg = str(err.value)
+    assert "\n" not in msg and str(path) in msg and f"{path}:3:" in msg and "syntax" in msg
+
+
+def test_bad_touches_are_skipped_with_one_line_each(tmp_path, skin):
+    bad_slot = touch(hand_slots=(0, 384))
+    thermal = touch(torso_slots=(6,))                      # slot 6 is a thermal pad, not a taxel
+    unknown_part = touch()
+    unknown_part[0][1]["skinPart"] = "l_foot"
+    missing = touch(joints={k: v for k, v in JOINTS.items() if k != "LElbowRoll"})
+    none_angle = touch(joints=dict(JOINTS, LWristYaw=None))
+    head_missing_ok = touch(joints={k: v for k, v in JOINTS.items() if not k.startswith("Head")})
+    data = {"0": touch(), "1": bad_slot, "2": thermal, "3": unknown_part, "4": missing, "5": none_angle,
+            "6": head_missing_ok, "7": "[{0: float('nan')}, {}]"}
+    path = write(tmp_path, data)
+    touches, report = read_legacy(path, skin)
+    assert touches.keys == ["0", "6"]                      # head joints are not needed by l_hand/torso
+    assert report.n_read == 8 and report.n_loaded == 2 and report.n_skipped == 6
+    assert report.skipped == {"bad taxel slot": 2, "unknown skin part": 1, "missing joint": 1,
+                              "bad joint angle": 1, "not a literal": 1}
+    for m in report.messages:
+        assert "\n" not in m and str(path) in m
+    text = " | ".join(report.messages)
+    assert "touch '1'" in text and "slot 384 out of range" in text
+    assert "touch '2'" in text and "slot 6 is not a taxel" in text
+    assert "touch '3'" in text and "'l_foot'" in text
+    assert "touch '4'" in text and "joint 'LElbowRoll' is missing" in text
+    assert "touch '5'" in text and "'LWristYaw'" in text
+    assert "touch '7'" in text and "not a Python literal" in text
+    # the line number points at the touch in the file
+    assert f"{path}:3: touch '1'" in text
+
+
+def test_not_a_dict_and_missing_file(tmp_path, skin):
+    path = tmp_path / "list.txt"
+    path.write_text("[1, 2, 3]\n")
+    with pytest.raises(DataError, match="one dict literal"):
+        read_legacy(path, skin)
+    with pytest.raises(DataError, match="cannot read"):
+        read_legacy(tmp_path / "nope.txt", skin)
