@@ -213,3 +213,16 @@ def test_expand_xacro_with_a_missing_or_broken_file_is_one_line(tmp_path):
         expand_xacro(broken)
     assert str(err.value).startswith(f"{broken}: xacro expansion of nao_skin.urdf.xacro failed")
     assert "\n" not in str(err.value)
+
+
+def test_urdfdom_parses_the_expanded_urdf(tmp_path):
+    """urdfdom is the parser robot_state_publisher uses; its check_urdf comes with pip's cmeel-urdfdom."""
+    exe = Path(sys.executable).with_name("check_urdf")
+    exe = str(exe) if exe.exists() else shutil.which("check_urdf")
+    if not exe:
+        pytest.skip("check_urdf not installed (pip install cmeel-urdfdom)")
+    out = tmp_path / "nao.urdf"
+    out.write_text(expand_xacro())
+    done = subprocess.run([exe, str(out)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "root Link: torso has 4 child(ren)" in done.stdout   # 3 chains + the torso skin mount
