@@ -1,0 +1,299 @@
+"""Which points must coincide in a self-touch (thesis §2.3, §3.2.2), for all touches at once.
+
+For every touch and every pair of skin parts that fire in it, the pairing
+chooses, under the current calibration:
+
+* kind 0 - the closest pair of contact COPs, one contact on each part;
+* kind 1 - the closest pair of activated taxels of those two contacts;
+* kind 2 - up to 5 closest taxel pairs of those two contacts, greedily, each
+  taxel used once (eq. 2.5: L = min(5, P, Q)).
+
+Each choice becomes a residual row ``point_A - point_B`` whose points are
+weighted sums of taxel positions (a COP is the weighted mean of its
+contact's taxels), so a solver can re-evaluate the same rows under new
+parameters without re-pairing, and re-pairing itself is a few vectorised
+passes over all touches (segment minima with ``lexsort``), cheap enough to
+repeat after every calibration step.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import combinations
+
+import numpy as np
+
+from . import se3
+from .contacts import activation_local, cop_weights, segment_mean
+from .errors import DataError
+from .skin import PART_NAMES, SkinCalibration, SkinModel
+from .touches import TouchSet
+
+KIND_COP, KIND_TAXEL, KIND_TAXEL5 = 0, 1, 2
+KIND_NAMES = {"cop": KIND_COP, "taxel": KIND_TAXEL, "taxel5": KIND_TAXEL5}
+MAX_TAXEL_PAIRS = 5
+DEFAULT_COP_RADIUS = 0.012   # thesis rule: taxel of B searched within this distance of COP_B (m)
+
+
+@dataclass
+class Pairing:
+    """Residual rows: each row is (point on side A) - (point on side B), each point a weighted sum of taxel positions."""
+    row_touch: np.ndarray     # (M,) int touch row
+    row_kind: np.ndarray      # (M,) int8: 0 = closest COP pair, 1 = closest taxel pair, 2 = one of up to 5 closest taxel pairs
+    row_parts: np.ndarray     # (M, 2) int: part index (into touches.part_names) of side A and side B
+    term_row: np.ndarray      # (K,) int residual row of each term, sorted ascending
+    term_part: np.ndarray     # (K,) int part index
+    term_slot: np.ndarray     # (K,) int taxel slot
+    term_weight: np.ndarray   # (K,) float: +w on side A, -w on side B; each side's |w| sum to 1
+    distance: np.ndarray      # (M,) float metres, under the calibration used for pairing
+
+    @property
+    def n_rows(self) -> int:
+        return len(self.row_touch)
+
+
+# ---------------------------------------------------------------------- segment helpers
+def _cross_pairs(group_a: np.ndarray, group_b: np.ndarray) -> tuple:
+    """All ``(i, j)`` with ``group_a[i] == group_b[j]``, without a loop over groups."""
+    order_b = np.argsort(group_b, kind="stable")
+    sorted_b = group_b[order_b]
+    start = np.searchsorted(sorted_b, group_a, side="left")
+    count = np.searchsorted(sorted_b, group_a, side="right") - start
+    ia = np.repeat(np.arange(len(group_a)), count)
+    offset = np.arange(len(ia)) - np.repeat(np.cumsum(count) - count, count)
+    return ia, order_b[np.repeat(start, count) + offset]
+
+
+def _argmin_per_group(group: np.ndarray, key: np.ndarray) -> np.ndarray:
+    """Index of the smallest ``key`` in each group (ties: lowest index), ordered by group."""
+    if len(group) == 0:
+        return np.zeros(0, dtype=int)
+    order = np.lexsort((np.arange(len(key)), key, group))
+    g = group[order]
+    return order[np.r_[True, g[1:] != g[:-1]]]
+
+
+def _members(owner: np.ndarray, wanted: np.ndarray) -> tuple:
+    """Rows whose ``owner`` is in ``wanted``: ``(position in wanted, row)``, grouped by ``wanted``."""
+    return _cross_pairs(np.asarray(wanted), owner)
+
+
+def _part_order(touches: TouchSet, parts) -> list:
+    """Ordered (side A, side B) part index pairs: the given pair, or hands before torso/head."""
+    if parts is not None:
+        missing = [p for p in parts if p not in touches.part_names]
+        if len(parts) != 2 or parts[0] == parts[1] or missing:
+            raise DataError(f"pairing: parts {tuple(parts)!r} must be two different skin parts of the touch set"
+                            f" ({', '.join(touches.part_names)})")
+        return [(touches.part_names.index(parts[0]), touches.part_names.index(parts[1]))]
+    rank = sorted(range(len(touches.part_names)),
+                  key=lambda i: (PART_NAMES.index(touches.part_names[i]) if touches.part_names[i] in PART_NAMES
+                                 else len(PART_NAMES), touches.part_names[i]))
+    return list(combinations(rank, 2))
+
+
+# ---------------------------------------------------------------------- positions
+def robot_joints(touches: TouchSet, skin: SkinModel) -> np.ndarray:
+    """The touches' joint angles in the robot model's column order (NaN where a joint is not recorded)."""
+    robot = skin.robot
+    if tuple(touches.joint_names) == tuple(robot.joint_names):
+        return touches.joints
+    q = np.full((touches.n_touches, len(robot.joint_names)), np.nan)
+    for col, name in enumerate(touches.joint_names):
+        if name in robot.joint_index:
+            q[:, robot.joint_index[name]] = touches.joints[:, col]
+    return q
+
+
+def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,
+                         local: np.ndarray | None = None) -> np.ndarray:
+    """(A, 3) calibrated position of every activated taxel in the base frame (one FK per part)."""
+    if local is None:
+        local, _ = activation_local(touches, skin, calib)
+    q = robot_joints(touches, skin)
+    out = np.full_like(local, np.nan)
+    act_touch, act_part = touches.act_touch, touches.act_part
+    for p, name in enumerate(touches.part_names):           # loop over <= 4 parts
+        sel = np.flatnonzero(act_part == p)
+        if len(sel) == 0:
+            continue
+        rows, inverse = np.unique(act_touch[sel], return_inverse=True)
+        chain = skin.chain_poses(name, q[rows])              # (n, 4, 4), one batched FK
+        out[sel] = se3.transform_points(chain[inverse], local[sel])
+    return out
+
+
+# ---------------------------------------------------------------------- pairing
+def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,
+                 kinds=("cop", "taxel", "taxel5"), parts: tuple | None = None, *,
+                 taxel_rule: str = "contacts", cop_radius: float = DEFAULT_COP_RADIUS) -> Pairing:
+    """Pair every touch under ``calib`` (None: nominal layout).
+
+    ``taxel_rule`` chooses the closest taxel pair (kind 1): ``"contacts"`` -
+    the closest pair among all taxels of the two selected contacts (default);
+    ``"thesis"`` - prepareData.m (Pseudocode 5): the taxel of A closest to
+    COP_A, then the taxel of B within ``cop_radius`` of COP_B closest to it
+    (any taxel of B's contact if none is that close).
+    """
+    want = {KIND_NAMES[k] if isinstance(k, str) else int(k) for k in kinds}
+    if taxel_rule not in ("contacts", "thesis"):
+        raise ValueError(f"taxel_rule must be 'contacts' or 'thesis', not {taxel_rule!r}")
+    local, _ = activation_local(touches, skin, calib)
+    pos = activation_positions(touches, skin, calib, local=local)
+    weight = cop_weights(touches)
+    n_c = len(touches.contact_touch)
+    cop = segment_mean(pos, touches.act_contact, n_c, weight)
+
+    rows = []    # per block: touch, kind, part a, part b, distance, order within the touch
+    terms = []   # per block: local row, part, slot, weight  (row numbers offset later)
+    n_rows = 0
+
+    def add(block_touch, kind, pa, pb, dist, seq, t_row, t_part, t_slot, t_weight):
+        nonlocal n_rows
+        m = len(block_touch)
+        rows.append((block_touch, np.full(m, kind), np.full(m, pa), np.full(m, pb), dist, seq))
+        terms.append((t_row + n_rows, t_part, t_slot, t_weight))
+        n_rows += m
+
+    fires = touches.parts_of_touch()
+    for pair_no, (pa, pb) in enumerate(_part_order(touches, parts)):
+        both = fires[:, pa] & fires[:, pb]
+        ca = np.flatnonzero((touches.contact_part == pa) & both[touches.contact_touch])
+        cb = np.flatnonzero((touches.contact_part == pb) & both[touches.contact_touch])
+        ia, ib = _cross_pairs(touches.contact_touch[ca], touches.contact_touch[cb])
+        cA, cB = ca[ia], cb[ib]
+        dcop = np.linalg.norm(cop[cA] - cop[cB], axis=1)
+        best = _argmin_per_group(touches.contact_touch[cA], dcop)
+        sel_a, sel_b, dcop = cA[best], cB[best], dcop[best]
+        group_touch = touches.contact_touch[sel_a]
+        n_g = len(sel_a)
+        order_key = np.full(n_g, pair_no)
+        # taxels of the selected contacts, grouped by group number
+        ga, act_a = _members(touches.act_contact, sel_a)
+        gb, act_b = _members(touches.act_contact, sel_b)
+
+        if KIND_COP in want:
+            add(group_touch, KIND_COP, pa, pb, dcop, order_key * 10,
+                np.r_[ga, gb], np.r_[np.full(len(ga), pa), np.full(len(gb), pb)],
+                np.r_[touches.act_slot[act_a], touches.act_slot[act_b]],
+                np.r_[weight[act_a], -weight[act_b]])
+        if not want & {KIND_TAXEL, KIND_TAXEL5}:
+            continue
+        # candidate taxel pairs within each group
+        i, j = _cross_pairs(ga, gb)
+        pair_group, a_act, b_act = ga[i], act_a[i], act_b[j]
+        dpair = np.linalg.norm(pos[a_act] - pos[b_act], axis=1)
+        if KIND_TAXEL in want:
+            if taxel_rule == "contacts":
+                pick = _argmin_per_group(pair_group, dpair)
+            else:
+                pick = _thesis_pick(pair_group, a_act, b_act, dpair, pos, cop[sel_a], cop[sel_b], cop_radius)
+            _add_taxel_rows(add, group_touch, KIND_TAXEL, pa, pb, pair_no * 10 + 1, pair_group[pick],
+                            a_act[pick], b_act[pick], dpair[pick], touches.act_slot)
+        if KIND_TAXEL5 in want:
+            valid = np.ones(len(dpair), dtype=bool)
+            used = np.zeros(len(touches.act_slot), dtype=bool)
+            picks = []
+            for step in range(MAX_TAXEL_PAIRS):                 # <= 5 greedy rounds over all touches
+                cand = np.flatnonzero(valid)
+                if len(cand) == 0:
+                    break
+                pick = cand[_argmin_per_group(pair_group[cand], dpair[cand])]
+                picks.append((pick, step))
+                used[a_act[pick]] = True
+                used[b_act[pick]] = True
+                valid &= ~used[a_act] & ~used[b_act]
+            if picks:
+                pick = np.concatenate([p for p, _ in picks])
+                step = np.concatenate([np.full(len(p), s) for p, s in picks])
+                _add_taxel_rows(add, group_touch, KIND_TAXEL5, pa, pb, pair_no * 10 + 2 + step / 10.0,
+                                pair_group[pick], a_act[pick], b_act[pick], dpair[pick], touches.act_slot)
+    return _assemble(rows, terms)
+
+
+def _thesis_pick(pair_group, a_act, b_act, dpair, pos, cop_a, cop_b, radius):
+    """prepareData.m: taxel of A nearest COP_A; then the taxel of B near COP_B nearest that taxel."""
+    to_cop_a = np.linalg.norm(pos[a_act] - cop_a[pair_group], axis=1)
+    # only pairs whose A taxel is the one nearest COP_A
+    first = _argmin_per_group(pair_group, to_cop_a)
+    chosen_a = np.full(pair_group.max() + 1 if len(pair_group) else 0, -1)
+    chosen_a[pair_group[first]] = a_act[first]
+    on_a = a_act == chosen_a[pair_group]
+    near_b = np.linalg.norm(pos[b_act] - cop_b[pair_group], axis=1) <= radius
+    # groups with no B taxel within the radius fall back to every B taxel
+    has_near = np.zeros(len(chosen_a), dtype=bool)
+    has_near[pair_group[on_a & near_b]] = True
+    ok = on_a & (near_b | ~has_near[pair_group])
+    cand = np.flatnonzero(ok)
+    return cand[_argmin_per_group(pair_group[cand], dpair[cand])]
+
+
+def _add_taxel_rows(add, group_touch, kind, pa, pb, seq, group, a_act, b_act, dist, act_slot):
+    m = len(group)
+    local_row = np.arange(m)
+    add(group_touch[group], kind, pa, pb, dist, np.broadcast_to(seq, (m,)).astype(float),
+        np.r_[local_row, local_row], np.r_[np.full(m, pa), np.full(m, pb)],
+        np.r_[act_slot[a_act], act_slot[b_act]], np.r_[np.ones(m), -np.ones(m)])
+
+
+def _assemble(rows, terms) -> Pairing:
+    if not rows:
+        z = np.zeros(0, dtype=int)
+        return Pairing(z, z.astype(np.int8), np.zeros((0, 2), int), z, z, z, np.zeros(0), np.zeros(0))
+    touch, kind, pa, pb, dist, seq = (np.concatenate(c) for c in zip(*rows))
+    t_row, t_part, t_slot, t_weight = (np.concatenate(c) for c in zip(*terms))
+    order = np.lexsort((np.arange(len(touch)), seq, touch))       # by touch, then part pair and kind
+    new_row = np.empty(len(order), dtype=int)
+    new_row[order] = np.arange(len(order))
+    t_row = new_row[t_row]
+    t_order = np.argsort(t_row, kind="stable")
+    return Pairing(touch[order].astype(int), kind[order].astype(np.int8),
+                   np.stack([pa[order], pb[order]], axis=1).astype(int),
+                   t_row[t_order], t_part[t_order].astype(int), t_slot[t_order].astype(int),
+                   t_weight[t_order].astype(float), dist[order].astype(float))
+
+
+# ---------------------------------------------------------------------- evaluation
+def residuals(pairing: Pairing, touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None) -> np.ndarray:
+    """(M, 3) residual of every row under ``calib`` (rows fixed, positions re-evaluated)."""
+    q = robot_joints(touches, skin)
+    out = np.zeros((pairing.n_rows, 3))
+    t_touch = pairing.row_touch[pairing.term_row]
+    for p, name in enumerate(touches.part_names):
+        sel = np.flatnonzero(pairing.term_part == p)
+        if len(sel) == 0:
+            continue
+        corr = calib.parts.get(name) if calib is not None else None
+        local, _ = skin.part(name).taxel_positions(corr)
+        rows, inverse = np.unique(t_touch[sel], return_inverse=True)
+        world = se3.transform_points(skin.chain_poses(name, q[rows])[inverse], local[pairing.term_slot[sel]])
+        np.add.at(out, pairing.term_row[sel], world * pairing.term_weight[sel, None])
+    return out
+
+
+def _stats(values_m: np.ndarray, prefix: str) -> dict:
+    v = np.asarray(values_m, dtype=float) * 1000.0
+    if len(v) == 0:
+        return {f"{prefix}_mean_mm": float("nan"), f"{prefix}_median_mm": float("nan"),
+                f"{prefix}_p90_mm": float("nan")}
+    return {f"{prefix}_mean_mm": float(np.mean(v)), f"{prefix}_median_mm": float(np.median(v)),
+            f"{prefix}_p90_mm": float(np.percentile(v, 90))}
+
+
+def metrics(pairing: Pairing) -> dict:
+    """Mean / median / 90th percentile (mm) of per-touch distances for each kind, and the touch count.
+
+    For kind 2 a touch's distance is the mean over its (up to 5) pairs first.
+    A touch with several firing part pairs counts once per pair.
+    """
+    out = {}
+    for name, kind in KIND_NAMES.items():
+        sel = pairing.row_kind == kind
+        dist = pairing.distance[sel]
+        if kind == KIND_TAXEL5 and np.any(sel):
+            key = np.stack([pairing.row_touch[sel], pairing.row_parts[sel, 0], pairing.row_parts[sel, 1]], axis=1)
+            _, group = np.unique(key, axis=0, return_inverse=True)
+            group = group.ravel()
+            dist = np.bincount(group, weights=dist) / np.bincount(group)
+        out.update(_stats(dist, name))
+    out["n_touches"] = int(len(np.unique(pairing.row_touch)))
+    return out
