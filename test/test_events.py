@@ -1,0 +1,157 @@
+"""Self-touch events from separate joint and skin streams (events.EventDetector).
+
+Streams are synthesised here at realistic rates (joints 100 Hz, skin 50 Hz
+per part with its own phase); joint angles move linearly in time so the
+interpolated angles at a skin stamp are known exactly.
+"""
+import numpy as np
+import pytest
+
+from nao_skin.config import default_skin_config
+from nao_skin.events import EventConfig, EventDetector, touchset_from_records
+from nao_skin.skin import SkinModel
+
+
+@pytest.fixture(scope="module")
+def skin():
+    return SkinModel.from_yaml(default_skin_config())
+
+
+def angles(names, t):
+    """Joint angles moving linearly in time: a known answer for interpolation."""
+    return np.array([0.1 * (i + 1) * t + 0.01 * i for i in range(len(names))])
+
+
+def run(det, skin, t_end, presses, joint_rate=100.0, skin_rate=50.0, joint_gap=None, drop_joint=None,
+        phases=None):
+    """Feed time-ordered messages; ``presses``: part -> function(t) giving active slots at t."""
+    names = list(skin.robot.joint_names)
+    if drop_joint:
+        names.remove(drop_joint)
+    msgs = []
+    for t in np.arange(0.0, t_end, 1.0 / joint_rate):
+        if joint_gap and joint_gap[0] <= t < joint_gap[1]:
+            continue
+        msgs.append((t, 0, "joints", None))
+    for k, part in enumerate(presses):
+        phase = (phases or {}).get(part, 0.003 * (k + 1))
+        for t in np.arange(phase, t_end, 1.0 / skin_rate):
+            msgs.append((t, 1, "skin", part))
+    msgs.sort(key=lambda m: (m[0], m[1]))
+    out = []
+    for t, _, what, part in msgs:
+        if what == "joints":
+            out += det.add_joint_state(t, names, angles(skin.robot.joint_names, t)[[skin.robot.joint_index[n] for n in names]])
+        else:
+            out += det.add_skin(t, part, presses[part](t))
+    return out + det.flush()
+
+
+def hand_and_torso(skin, t0=0.2, t1=0.6):
+    hand = skin.parts["l_hand"].slots[:4].tolist()
+    torso = skin.parts["torso"].slots[:3].tolist()
+    return {"l_hand": lambda t: hand if t0 <= t < t1 else [],
+            "torso": lambda t: torso if t0 <= t < t1 else []}
+
+
+def test_one_press_is_one_touch_with_interpolated_joints(skin):
+    det = EventDetector.for_skin(skin)
+    recs = run(det, skin, 1.0, hand_and_torso(skin))
+    assert len(recs) == 1
+    r = recs[0]
+    assert 0.2 <= r.stamp < 0.25
+    np.testing.assert_allclose(r.joints, angles(skin.robot.joint_names, r.stamp), atol=1e-12)
+    assert sorted(det.part_names[c.part] for c in r.contacts) == ["l_hand", "torso"]
+    assert det.counts["touches"] == 1 and det.counts["continued press"] > 5
+
+
+def test_release_and_press_again_gives_a_new_touch(skin):
+    hand = skin.parts["l_hand"].slots[:4].tolist()
+    torso = skin.parts["torso"].slots[:3].tolist()
+    on = lambda t: (0.2 <= t < 0.5) or (0.7 <= t < 0.9)     # noqa: E731
+    presses = {"l_hand": lambda t: hand if on(t) else [], "torso": lambda t: torso if on(t) else []}
+    det = EventDetector.for_skin(skin)
+    assert [round(r.stamp, 1) for r in run(det, skin, 1.2, presses)] == [0.2, 0.7]
+
+
+def test_changing_pattern_during_a_press_is_rate_limited(skin):
+    hand = skin.parts["l_hand"].slots
+    torso = skin.parts["torso"].slots[:3].tolist()
+    # the hand slides: a new taxel set every frame for one second
+    presses = {"l_hand": lambda t: hand[int(t * 50) % 40: int(t * 50) % 40 + 3].tolist(), "torso": lambda t: torso}
+    det = EventDetector.for_skin(skin, EventConfig(min_interval=0.2))
+    recs = run(det, skin, 1.0, presses)
+    stamps = np.array([r.stamp for r in recs])
+    assert 4 <= len(recs) <= 6
+    assert np.all(np.diff(stamps) >= 0.2 - 1e-9)
+    det = EventDetector.for_skin(skin, EventConfig(min_interval=0.0))
+    assert len(run(det, skin, 1.0, presses)) >= 45              # every distinct pattern
+
+
+def test_stale_or_missing_joints_drop_and_count(skin):
+    det = EventDetector.for_skin(skin, EventConfig(joint_tolerance=0.05))
+    assert run(det, skin, 1.0, hand_and_torso(skin), joint_gap=(0.1, 0.4)) == []
+    assert det.counts["stale joints"] == 1
+    assert "more than 0.05 s away" in det.notes[0] and "\n" not in det.notes[0]
+
+    det = EventDetector.for_skin(skin)
+    assert run(det, skin, 1.0, hand_and_torso(skin), drop_joint="LElbowRoll") == []
+    assert det.counts["missing joint"] == 1 and "'LElbowRoll'" in det.notes[0]
+    # a joint no touching part needs may be missing
+    det = EventDetector.for_skin(skin)
+    assert len(run(det, skin, 1.0, hand_and_torso(skin), drop_joint="HeadYaw")) == 1
+
+
+def test_nan_angle_drops_touch(skin):
+    det = EventDetector.for_skin(skin)
+    names = skin.robot.joint_names
+    q = np.zeros(len(names))
+    q[skin.robot.joint_index["LWristYaw"]] = np.nan
+    det.add_joint_state(0.0, names, q)
+    det.add_skin(0.01, "l_hand", [skin.parts["l_hand"].slots[0]])
+    det.add_skin(0.01, "torso", [skin.parts["torso"].slots[0]])
+    det.add_joint_state(0.02, names, q)
+    assert det.flush() == [] and det.counts["missing joint"] == 1
+
+
+def test_joints_arriving_late_still_complete_the_touch(skin):
+    """Skin delivered before the joint state that follows its stamp (different transports)."""
+    det = EventDetector.for_skin(skin)
+    names = skin.robot.joint_names
+    assert det.add_joint_state(0.00, names, angles(names, 0.0)) == []
+    assert det.add_skin(0.013, "l_hand", [skin.parts["l_hand"].slots[0]]) == []
+    assert det.add_skin(0.015, "torso", [skin.parts["torso"].slots[0]]) == []
+    assert det.add_skin(0.080, "torso", []) == []                # closes the moment; joints still missing
+    out = det.add_joint_state(0.02, names, angles(names, 0.02))
+    assert len(out) == 1 and out[0].stamp == pytest.approx(0.015)
+    np.testing.assert_allclose(out[0].joints, angles(names, 0.015), atol=1e-12)
+    # without any later joint state, flush drops and counts it
+    det.add_skin(1.0, "l_hand", [skin.parts["l_hand"].slots[1]])
+    det.add_skin(1.0, "torso", [skin.parts["torso"].slots[1]])
+    assert det.flush() == [] and det.counts["no joint state after"] == 1
+
+
+def test_three_parts_in_one_moment_and_contacts(skin):
+    det = EventDetector.for_skin(skin)
+    names = skin.robot.joint_names
+    det.add_joint_state(0.45, names, np.zeros(len(names)))
+    rh, lh, to = (skin.parts[p].slots for p in ("r_hand", "l_hand", "torso"))
+    det.add_contacts(0.5, "torso", [4], np.array([[0.05, 0.0, 0.02]]))        # contacts before their taxels
+    det.add_skin(0.5, "torso", to[:3], [1.0, 2.0, 3.0], [4, 4, 4])
+    det.add_skin(0.51, "r_hand", rh[:2], None, [1, 2])
+    det.add_skin(0.515, "l_hand", lh[:2])
+    det.add_contacts(0.51, "r_hand", [1, 2], np.array([[0.0, 0.0, 0.1], [0.0, 0.0, 0.2]]))
+    det.add_skin(0.55, "head", [skin.parts["head"].slots[0]])                 # alone, later: no touch
+    det.add_skin(0.6, "nose", [3])
+    recs = det.add_joint_state(0.6, names, np.zeros(len(names))) + det.flush()
+    assert len(recs) == 1 and det.counts["unknown skin part"] == 1
+    ts = touchset_from_records(recs, det.part_names, det.joint_names)
+    assert ts.n_touches == 1 and sorted(ts.part_names[p] for p in set(ts.contact_part)) == ["l_hand", "r_hand", "torso"]
+    by_part = {ts.part_names[p]: i for i, p in enumerate(ts.contact_part)}
+    assert ts.contact_id.tolist().count(-1) == 1                              # l_hand sent no contact ids
+    torso = by_part["torso"]
+    np.testing.assert_allclose(ts.contact_cop[torso], [0.05, 0.0, 0.02])
+    np.testing.assert_allclose(ts.act_pressure[ts.act_contact == torso], [1.0, 2.0, 3.0])
+    r_rows = np.flatnonzero(ts.contact_part == ts.part_index("r_hand"))
+    assert ts.contact_id[r_rows].tolist() == [1, 2]
+    np.testing.assert_allclose(ts.contact_cop[r_rows][:, 2], [0.1, 0.2])
