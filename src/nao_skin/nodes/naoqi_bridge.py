@@ -1,0 +1,150 @@
+"""naoqi_bridge: the robot's head and arm joint angles from NAOqi on ``/joint_states``.
+
+Connects with libqi to ``tcp://<nao_ip>:<nao_port>``, calls ALMotion
+``getAngles(names, True)`` (sensed angles) at ``rate`` Hz in its own thread
+(a slow or dead robot never blocks the ROS executor) and publishes each read
+as one JointState stamped when it was read. When the robot disappears the
+bridge publishes nothing (never the last angles again), reconnects with
+back-off and logs once per outage. Leave it out when another driver (e.g.
+naoqi_driver2) already publishes ``/joint_states``.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from ..reconnect import Backoff
+from .messages import JOINT_STATES_TOPIC, joint_state_msg
+from .runtime import declare, run_node
+
+DEFAULT_JOINTS = ["HeadYaw", "HeadPitch",
+                  "LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll", "LWristYaw",
+                  "RShoulderPitch", "RShoulderRoll", "RElbowYaw", "RElbowRoll", "RWristYaw"]
+
+PARAMS = {
+    "nao_ip": ("127.0.0.1", "IP address or host name of the robot running NAOqi"),
+    "nao_port": (9559, "NAOqi port"),
+    "rate": (50.0, "joint angle reads per second (Hz)"),
+    "joint_names": (DEFAULT_JOINTS, "NAOqi joint names to read and publish"),
+    "use_sensors": (True, "getAngles' useSensors: sensed (true) or commanded (false) angles"),
+    "reconnect_min": (0.5, "first reconnection delay after the robot vanished (s)"),
+    "reconnect_max": (5.0, "longest reconnection delay (s)"),
+}
+
+
+class MotionLink:
+    """A libqi session to ALMotion; every failure closes it (the caller reconnects)."""
+
+    def __init__(self, url: str):
+        self.url = url
+        self.session = None
+        self.motion = None
+
+    def connect(self) -> None:
+        import qi
+
+        session = qi.Session()
+        session.connect(self.url)
+        self.motion = session.service("ALMotion")
+        self.session = session
+
+    def close(self) -> None:
+        session, self.session, self.motion = self.session, None, None
+        if session is not None:
+            try:
+                session.close()
+            except Exception:  # noqa: BLE001 - closing a broken session may fail too; nothing to save
+                pass
+
+    def read(self, names, use_sensors: bool) -> list:
+        return list(self.motion.getAngles(list(names), bool(use_sensors)))
+
+
+class NaoqiBridge(Node):
+    def __init__(self, **kwargs):
+        super().__init__("naoqi_bridge", **kwargs)
+        p = declare(self, PARAMS)
+        self.names = list(p["joint_names"])
+        self.use_sensors = bool(p["use_sensors"])
+        self.period = 1.0 / float(p["rate"])
+        self.url = f"tcp://{p['nao_ip']}:{int(p['nao_port'])}"
+        self.link = MotionLink(self.url)
+        self.backoff = Backoff(f"NAOqi at {self.url}", p["reconnect_min"], p["reconnect_max"])
+        self.publisher = self.create_publisher(JointState, JOINT_STATES_TOPIC, 10)
+        self.stats = {"published": 0, "bad_reads": 0, "outages": 0}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="naoqi_poll", daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        next_tick = time.monotonic()
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if self.link.motion is None:
+                if self.backoff.due(now):
+                    self._try_connect(now)
+                self._stop.wait(0.05 if self.link.motion is None else 0.0)
+                next_tick = time.monotonic()
+                continue
+            self._read_once()
+            next_tick += self.period
+            delay = next_tick - time.monotonic()
+            if delay < -self.period:           # fell behind (slow robot): do not burst to catch up
+                next_tick = time.monotonic()
+            elif delay > 0:
+                self._stop.wait(delay)
+
+    def _try_connect(self, now: float) -> None:
+        try:
+            self.link.connect()
+        except Exception as exc:  # noqa: BLE001 - libqi raises RuntimeError and others; all mean "not now"
+            self.link.close()
+            line = self.backoff.failed(now, f"cannot connect ({_one_line(exc)})")
+            if line:
+                self.get_logger().warning(line)
+            return
+        line = self.backoff.succeeded(time.monotonic())
+        if line:
+            self.get_logger().info(line)
+
+    def _read_once(self) -> None:
+        try:
+            values = self.link.read(self.names, self.use_sensors)
+        except Exception as exc:  # noqa: BLE001 - any failure of the call means the link is gone
+            self.link.close()
+            self.stats["outages"] += 1
+            line = self.backoff.failed(time.monotonic(), f"lost ({_one_line(exc)})")
+            if line:
+                self.get_logger().warning(line)
+            return
+        # Stamp when the angles were read, not when they are published.
+        stamp = self.get_clock().now().to_msg()
+        if len(values) != len(self.names) or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
+            self.stats["bad_reads"] += 1
+            if self.stats["bad_reads"] == 1:
+                self.get_logger().warning(f"ALMotion.getAngles returned {len(values)} values for"
+                                          f" {len(self.names)} joints or non-finite angles; such reads are skipped")
+            return
+        self.publisher.publish(joint_state_msg(self.names, values, stamp))
+        self.stats["published"] += 1
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self.link.close()
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def main(args=None) -> int:
+    return run_node(NaoqiBridge, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,111 @@
+"""naoqi_bridge against a real libqi session serving an ALMotion-shaped service.
+
+Only the robot's body is simulated: ``FakeMotion`` answers ``getAngles``
+with fresh, never repeated angles (a mock of the robot, nothing else). The
+bridge runs as its own process, talks libqi over TCP on loopback and
+publishes over real DDS; the test subscribes to ``/joint_states``. The
+service is stopped and restarted on the same port: the bridge must
+recover, log the outage once, and never publish an angle twice (stale
+angles republished as fresh would repeat a served value).
+"""
+from __future__ import annotations
+
+import itertools
+import socket
+import threading
+
+import pytest
+
+qi = pytest.importorskip("qi")
+from sensor_msgs.msg import JointState  # noqa: E402
+
+from nao_skin.nodes.naoqi_bridge import DEFAULT_JOINTS  # noqa: E402
+from ros_harness import Listener, node_process, ros_env, unique_domain_id  # noqa: E402
+
+
+class FakeMotion:
+    """MOCK of the robot's body: ALMotion.getAngles with unique values per call, recorded."""
+
+    def __init__(self, generation: int):
+        self.generation = generation
+        self.served: list = []
+        self.use_sensors: set = set()
+        self._seq = itertools.count(1)
+        self._lock = threading.Lock()
+
+    def getAngles(self, names, useSensors):  # noqa: N802 - NAOqi's method name
+        with self._lock:
+            seq = next(self._seq)
+            values = [self.generation + seq * 1e-4 + i * 1e-7 for i in range(len(names))]
+            self.served.append((tuple(names), tuple(values)))
+            self.use_sensors.add(bool(useSensors))
+        return values
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def serve(port: int, motion: FakeMotion):
+    session = qi.Session()
+    session.listenStandalone(f"tcp://127.0.0.1:{port}")
+    session.registerService("ALMotion", motion)
+    return session
+
+
+def test_joint_states_and_recovery(tmp_path):
+    port = free_port()
+    domain = unique_domain_id()
+    first = FakeMotion(1)
+    robot = serve(port, first)
+    bridge = listener = None
+    try:
+        bridge = node_process("naoqi_bridge", {"nao_ip": "127.0.0.1", "nao_port": port, "rate": 50.0,
+                                               "reconnect_min": 0.1, "reconnect_max": 0.3},
+                              ros_env(domain), tmp_path)
+        listener = Listener(domain)
+        got = listener.subscribe(JointState, "/joint_states")
+        assert listener.spin_until(lambda: len(got) >= 10, procs=[bridge]), "no /joint_states from the bridge"
+
+        served_first = {v for _, v in first.served}
+        for msg in got:
+            assert list(msg.name) == DEFAULT_JOINTS
+            assert tuple(msg.position) in served_first      # exactly what ALMotion returned, same order
+        assert first.use_sensors == {True}
+        assert all(n == tuple(DEFAULT_JOINTS) for n, _ in first.served)
+
+        # The robot goes away: the bridge must stop publishing, keep retrying quietly.
+        robot.close()
+        robot = None
+        n_at_stop = len(first.served)
+        listener.spin_for(1.5)                    # several reconnect attempts happen meanwhile
+        assert len(first.served) == n_at_stop
+        during_outage = len(got)
+
+        # ... and comes back on the same port with a new body.
+        second = FakeMotion(2)
+        robot = serve(port, second)
+        assert listener.spin_until(lambda: any(m.position[0] >= 2.0 for m in got[during_outage:]),
+                                   procs=[bridge]), "bridge did not recover after the service restarted"
+
+        values = [tuple(m.position) for m in got]
+        assert len(values) == len(set(values)), "an angle set was published twice (stale data republished)"
+        served_all = served_first | {v for _, v in second.served}
+        assert set(values) <= served_all
+        assert all(v[0] < 2.0 for v in got_values_before(got, during_outage))
+    finally:
+        if listener is not None:
+            listener.close()
+        code = bridge.stop() if bridge is not None else None
+        if robot is not None:
+            robot.close()
+    assert code == 0, bridge.stderr()[-2000:]
+    err = bridge.stderr()
+    assert err.count("retrying") == 1, f"outage not logged exactly once:\n{err[-3000:]}"
+    assert err.count("connected again") == 1, err[-3000:]
+
+
+def got_values_before(got, n):
+    return [tuple(m.position) for m in got[:n]]
