@@ -1,0 +1,190 @@
+"""Touch bags: real rosbag2 files (sqlite3 and mcap) written with rosbags, read back through the event detector.
+
+The real recording is read from /work/shared; bags are written to tmp_path.
+"""
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from nao_skin.bagio import BagWriter, read_touches, write_touch_bag
+from nao_skin.config import default_skin_config
+from nao_skin.errors import DataError
+from nao_skin.legacy import read_legacy, skin_model_for
+from nao_skin.pairing import metrics, pair_touches
+from nao_skin.robot import RobotModel
+from nao_skin.skin import SkinModel
+
+REAL = Path("/work/shared/data/real_selftouch")
+ROBOT_YAML = Path(__file__).resolve().parents[1] / "config" / "nao_h25.yaml"
+needs_real = pytest.mark.skipif(not (REAL / "l_hand_torso.legacy.txt").exists(), reason="real recording not present")
+
+
+@pytest.fixture(scope="module")
+def real_skin():
+    robot = RobotModel.from_yaml(ROBOT_YAML)
+    return skin_model_for({"l_hand": REAL / "l_hand.taxels.txt", "torso": REAL / "torso.taxels.txt"}, robot)
+
+
+@pytest.fixture(scope="module")
+def real(real_skin):
+    touches, _ = read_legacy(REAL / "l_hand_torso.legacy.txt", real_skin)
+    return touches
+
+
+@pytest.fixture(scope="module")
+def skin():
+    return SkinModel.from_yaml(default_skin_config())
+
+
+def canonical_pairs(touches, pairing):
+    """Rows as comparable tuples: touch stamp, kind, parts, and each side's sorted (slot, weight) terms."""
+    out = []
+    for r in range(pairing.n_rows):
+        sel = pairing.term_row == r
+        terms = tuple(sorted(zip(pairing.term_part[sel].tolist(), pairing.term_slot[sel].tolist(),
+                                 np.round(pairing.term_weight[sel], 12).tolist())))
+        out.append((round(float(touches.stamps[pairing.row_touch[r]]), 6), int(pairing.row_kind[r]),
+                    tuple(touches.part_names[p] for p in pairing.row_parts[r]), terms,
+                    round(float(pairing.distance[r]), 12)))
+    return sorted(out)
+
+
+# ---------------------------------------------------------------------- round trip of the real recording
+@needs_real
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_real_touches_round_trip_with_identical_pairs(real, real_skin, tmp_path, storage):
+    touches = real if storage == "sqlite3" else real.subset(np.arange(200))
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, touches, real_skin, storage=storage)
+    back, report = read_touches(bag, real_skin)
+    assert report.n_loaded == touches.n_touches and report.n_skipped == 0
+    np.testing.assert_array_equal(back.stamps, touches.stamps)
+    np.testing.assert_array_equal(back.joints, touches.joints)
+    assert len(back.contact_touch) == len(touches.contact_touch)
+    assert sorted(back.contact_id.tolist()) == sorted(touches.contact_id.tolist())
+    np.testing.assert_allclose(np.sort(back.contact_cop, axis=0), np.sort(touches.contact_cop, axis=0), atol=1e-7)
+    assert canonical_pairs(back, pair_touches(back, real_skin)) == canonical_pairs(touches, pair_touches(touches, real_skin))
+    if storage == "sqlite3":
+        m = metrics(pair_touches(back, real_skin))
+        assert m["n_touches"] == 810 and 74.0 < m["cop_mean_mm"] < 80.0
+
+
+@needs_real
+def test_bag_metadata_is_jazzy_readable_and_self_describing(real, real_skin, tmp_path):
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, real.subset(np.arange(5)), real_skin)
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["version"] == 8 and info["storage_identifier"] == "sqlite3"
+    assert info["custom_data"] == {"nao_skin.bag_kind": "touches"}
+    topics = {t["topic_metadata"]["name"]: (t["topic_metadata"]["type"], t["message_count"])
+              for t in info["topics_with_message_count"]}
+    assert topics == {"/joint_states": ("sensor_msgs/msg/JointState", 5),
+                      "/skin/l_hand/taxels": ("sensor_msgs/msg/PointCloud2", 5),
+                      "/skin/l_hand/contacts": ("sensor_msgs/msg/PointCloud2", 5),
+                      "/skin/torso/taxels": ("sensor_msgs/msg/PointCloud2", 5),
+                      "/skin/torso/contacts": ("sensor_msgs/msg/PointCloud2", 5)}
+    # someone with only the bag: a plain rosbags read shows frames, fields, NAOqi names
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(bag) as reader:
+        for conn, _, raw in reader.messages():
+            msg = store.deserialize_cdr(raw, conn.msgtype)
+            if conn.topic == "/skin/l_hand/taxels":
+                assert msg.header.frame_id == real_skin.parts["l_hand"].parent_frame
+                assert [f.name for f in msg.fields] == ["x", "y", "z", "slot", "pressure", "contact"]
+            if conn.topic == "/joint_states":
+                assert "LShoulderPitch" in msg.name
+
+
+@needs_real
+def test_truncated_bags(real, real_skin, tmp_path):
+    touches = real.subset(np.arange(300))
+    for storage, suffix in (("mcap", ".mcap"), ("sqlite3", ".db3")):
+        bag = tmp_path / storage
+        write_touch_bag(bag, touches, real_skin, storage=storage)
+        data = next(bag.glob(f"*{suffix}"))
+        data.write_bytes(data.read_bytes()[: data.stat().st_size // 2])
+        if storage == "mcap":
+            # a cut mcap keeps every complete record before the cut
+            back, report = read_touches(bag, real_skin)
+            assert 100 < back.n_touches < 300
+            assert report.skipped["truncated bag"] == 1
+            line = [m for m in report.messages if "damaged" in m][0]
+            assert str(bag) in line and "the rest is lost" in line and "\n" not in line
+            np.testing.assert_array_equal(back.joints, touches.joints[: back.n_touches])
+        else:
+            # sqlite cannot be read past a cut: one clear line, nothing guessed
+            with pytest.raises(DataError) as err:
+                read_touches(bag, real_skin)
+            assert str(bag) in str(err.value) and "\n" not in str(err.value)
+
+
+# ---------------------------------------------------------------------- streams and bad input, small bags
+def stream_bag(path, skin, storage="sqlite3", bad_slot=False, extra_part=False, nan_joint=False):
+    """A raw stream: joints at 100 Hz, l_hand and torso skin at 50 Hz, one press from 0.2 to 0.6 s."""
+    hand = skin.parts["l_hand"].slots[[0, 1, 2, 40, 41]]         # two far-apart groups: clustered into contacts
+    torso = skin.parts["torso"].slots[:3]
+    names = skin.robot.joint_names
+    with BagWriter(path, storage) as bag:
+        for k in range(100):
+            t = int(k * 10_000_000)
+            q = np.full(len(names), 0.1 * k / 100)
+            if nan_joint and 20 <= k <= 60:
+                q[skin.robot.joint_index["LElbowRoll"]] = np.nan
+            bag.write_joint_state(t, names, q)
+            if k % 2 == 0:
+                for part, slots, phase in (("l_hand", hand, 3_000_000), ("torso", torso, 7_000_000)):
+                    on = 20 <= k < 60
+                    s = slots if on else slots[:0]
+                    if bad_slot and part == "torso" and on:
+                        s = np.r_[s, 500]
+                    frame = skin.parts[part].parent_frame
+                    bag.write_taxels(t + phase, part, frame, skin.parts[part].positions[np.minimum(s, 383)], s,
+                                     np.full(len(s), 2.0), np.full(len(s), -1))
+                if extra_part:
+                    bag.write_taxels(t, "l_foot", "l_ankle", np.zeros((1, 3)), [0], [1.0], [-1])
+
+
+def test_stream_bag_gives_one_touch_per_press_with_clustered_contacts(skin, tmp_path):
+    stream_bag(tmp_path / "stream", skin)
+    touches, report = read_touches(tmp_path / "stream", skin)
+    assert touches.n_touches == 1 and report.n_skipped == 0
+    assert touches.stamps[0] == pytest.approx(0.207)
+    np.testing.assert_allclose(touches.joints[0], 0.1 * 0.207, atol=1e-12)   # interpolated between 0.20 and 0.21
+    hand = touches.part_index("l_hand")
+    assert (touches.contact_part == hand).sum() == 2                          # maxNeighborDist split the hand
+    np.testing.assert_allclose(touches.act_pressure, 2.0)
+
+
+def test_bad_slot_unknown_part_and_nan_joints_are_counted(skin, tmp_path):
+    stream_bag(tmp_path / "bad", skin, storage="mcap", bad_slot=True, extra_part=True)
+    touches, report = read_touches(tmp_path / "bad", skin)
+    assert touches.n_touches == 0
+    assert report.skipped["bad message"] == 20 and report.skipped["unknown skin part"] == 50
+    text = " | ".join(report.messages)
+    assert "topic '/skin/torso/taxels'" in text and "slot 500 out of range" in text
+    assert "'/skin/l_foot/taxels'" in text and "not configured" in text
+    assert all("\n" not in m for m in report.messages)
+
+    stream_bag(tmp_path / "nan", skin, nan_joint=True)
+    touches, report = read_touches(tmp_path / "nan", skin)
+    assert touches.n_touches == 0 and report.skipped["missing joint"] == 1
+    assert any("'LElbowRoll'" in m for m in report.messages)
+
+
+def test_not_a_bag_and_no_overwrite(skin, tmp_path):
+    with pytest.raises(DataError, match="cannot open as a rosbag2"):
+        read_touches(tmp_path / "missing", skin)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DataError) as err:
+        read_touches(tmp_path / "empty", skin)
+    assert str(tmp_path / "empty") in str(err.value)
+    stream_bag(tmp_path / "s", skin)
+    with pytest.raises(DataError, match="exists already"):
+        stream_bag(tmp_path / "s", skin)
+    shutil.rmtree(tmp_path / "s")
