@@ -1,0 +1,82 @@
+"""Activation coverage of the skin in a session: counts per taxel and their colours.
+
+The thesis collected data watching which taxels had been touched at least
+once (§3.3.3); here each taxel counts how many times it has been *activated*
+(a press starts: off in the previous sample of its part, on in this one), so
+a long press counts once and the map shows where more touches are needed.
+
+Colours: never-activated taxels grey, activated ones on a perceptually
+ordered scale (viridis-like, dark blue -> yellow) of ``log(1 + count)``
+relative to the session's maximum, currently pressed taxels a highlight
+colour. Colours are indices into a small fixed palette so that a ROS adapter
+can reuse one ColorRGBA object per palette entry.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: anchor colours of the scale (viridis at 0, 0.25, 0.5, 0.75, 1)
+_SCALE_ANCHORS = np.array([[0.267, 0.005, 0.329], [0.229, 0.322, 0.546], [0.128, 0.567, 0.551],
+                           [0.369, 0.789, 0.383], [0.993, 0.906, 0.144]])
+SCALE_LEVELS = 64
+NEVER_COLOUR = (0.55, 0.55, 0.55, 0.6)          # grey, a little transparent: still to be touched
+PRESSED_COLOUR = (1.0, 0.1, 0.1, 1.0)           # red: touched right now
+NEVER_INDEX = SCALE_LEVELS
+PRESSED_INDEX = SCALE_LEVELS + 1
+
+
+def palette() -> np.ndarray:
+    """(SCALE_LEVELS + 2, 4) RGBA: the scale, then the never-touched and the pressed colours."""
+    x = np.linspace(0.0, 1.0, SCALE_LEVELS)
+    at = np.linspace(0.0, 1.0, len(_SCALE_ANCHORS))
+    rgb = np.stack([np.interp(x, at, _SCALE_ANCHORS[:, c]) for c in range(3)], axis=1)
+    scale = np.concatenate([rgb, np.ones((SCALE_LEVELS, 1))], axis=1)
+    return np.vstack([scale, NEVER_COLOUR, PRESSED_COLOUR])
+
+
+def colour_index(counts: np.ndarray, pressed: np.ndarray, max_count: int) -> np.ndarray:
+    """Palette index per taxel: pressed first, then grey for 0, then the log scale of the count."""
+    counts = np.asarray(counts)
+    level = np.log1p(counts) / np.log1p(max(int(max_count), 1))
+    idx = np.clip(np.rint(level * (SCALE_LEVELS - 1)), 0, SCALE_LEVELS - 1).astype(int)
+    idx = np.where(counts > 0, idx, NEVER_INDEX)
+    return np.where(pressed, PRESSED_INDEX, idx)
+
+
+class ActivationCounts:
+    """Per part: how often each slot has been activated, and what is pressed now."""
+
+    def __init__(self, slots_per_part: dict):
+        self.counts = {p: np.zeros(n, dtype=np.int64) for p, n in slots_per_part.items()}
+        self.pressed = {p: np.zeros(n, dtype=bool) for p, n in slots_per_part.items()}
+        self.version = 0              # bumps on every change: adapters skip unchanged redraws
+
+    def update(self, part: str, slots) -> None:
+        """One skin sample of ``part``: ``slots`` are active now (empty = released)."""
+        now = np.zeros_like(self.pressed[part])
+        slots = np.asarray(slots, dtype=np.int64)
+        slots = slots[(slots >= 0) & (slots < len(now))]
+        now[slots] = True
+        started = now & ~self.pressed[part]
+        if started.any() or (now != self.pressed[part]).any():
+            self.counts[part] += started
+            self.pressed[part] = now
+            self.version += 1
+
+    def max_count(self) -> int:
+        return max((int(c.max()) for c in self.counts.values() if len(c)), default=0)
+
+    def colour_indices(self, part: str) -> np.ndarray:
+        return colour_index(self.counts[part], self.pressed[part], self.max_count())
+
+    def coverage(self, part: str, present: np.ndarray) -> float:
+        """Share of the part's present taxels activated at least once."""
+        present = np.asarray(present, dtype=bool)
+        return float((self.counts[part][present] > 0).sum() / max(present.sum(), 1))
+
+
+def triangle_slots(part) -> list:
+    """``[(triangle id, slots)]`` of a :class:`~nao_skin.skin.SkinPart`: the taxels of each triangle frame."""
+    slots = part.slots
+    rows = part.slot_triangle[slots]
+    return [(int(tid), slots[rows == r]) for r, tid in enumerate(part.triangle_ids)]

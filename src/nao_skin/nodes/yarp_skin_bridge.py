@@ -1,0 +1,212 @@
+"""yarp_skin_bridge: skinManager's YARP output as ROS skin messages, per skin part.
+
+Opens local YARP ports, connects them to skinManager's skin events port
+(skinContactList bottles) and, optionally per part, to a compensated taxel
+port (one value per taxel). Publishes per part, stamped with the YARP
+envelope time (the receive time when a writer sends no envelope):
+
+* ``/skin/<part>/contacts``: the part's contacts of every contact list (empty
+  when the part has none: "released");
+* ``/skin/<part>/taxels``: the taxels of those contacts, or, when the part has
+  a compensated port configured, the taxels above ``compensated_threshold``
+  on that port (contact -1: the pipeline clusters them).
+
+skinManager's numeric skin part ids map to our part names by configuration
+(``part_ids.<part>``): iCub and the Nao build of skinDynLib differ. A
+malformed bottle is counted, logged (first few) and skipped. Vanished ports
+are reconnected every ``reconnect_period`` s, logged once per outage.
+Counters go to ``/skin/bridge_status`` (std_msgs/String, JSON) every second.
+"""
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections import Counter
+
+import numpy as np
+from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import String
+
+from ..config import default_skin_config
+from ..errors import DataError
+from ..reconnect import Backoff
+from ..skin import SkinModel
+from ..skinmanager import activated_taxels, parse_skin_events, part_id_map
+from .messages import (cloud_from_array, contacts_array, contacts_topic, stamp_to_msg, taxels_array,
+                       taxels_topic)
+from .runtime import declare, run_node
+
+# iCub skinDynLib SkinPart ids; the Nao build put the head on the unused right forearm id (thesis §3.1.1).
+DEFAULT_PART_IDS = {"l_hand": 1, "r_hand": 4, "torso": 7, "head": 5}
+MAX_LOGGED_ERRORS = 5
+STATUS_TOPIC = "/skin/bridge_status"
+
+PARAMS = {
+    "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
+    "events_port": ("/skinManager/skin_events:o", "skinManager's skin events (skinContactList) output port"),
+    "local_prefix": ("/nao_skin/skin_bridge", "prefix of the YARP ports this bridge opens"),
+    "compensated_threshold": (0.0, "a compensated taxel value above this counts as activated (0-255 scale)"),
+    "reconnect_period": (1.0, "seconds between checks that the YARP connections still exist"),
+    "status_period": (1.0, "seconds between /skin/bridge_status messages"),
+}
+
+
+class YarpSkinBridge(Node):
+    def __init__(self, **kwargs):
+        super().__init__("yarp_skin_bridge", **kwargs)
+        p = declare(self, PARAMS)
+        self.skin = SkinModel.from_yaml(p["skin_config"] or default_skin_config())
+        parts = list(self.skin.parts)
+        ids = declare(self, {f"part_ids.{n}": (DEFAULT_PART_IDS.get(n, -1),
+                                               f"skinManager skinPart id of '{n}' (-1: not bridged)")
+                             for n in parts})
+        comp = declare(self, {f"compensated_ports.{n}": ("", f"compensated taxel port of '{n}' (empty: none)")
+                              for n in parts})
+        self.part_of_id = part_id_map({v: k.split(".", 1)[1] for k, v in ids.items() if v >= 0}, parts,
+                                      "parameter part_ids")
+        self.comp_port_of = {k.split(".", 1)[1]: v for k, v in comp.items() if v}
+        self.threshold = float(p["compensated_threshold"])
+        self.bridged = sorted(set(self.part_of_id.values()) | set(self.comp_port_of), key=parts.index)
+        self.taxel_pub = {n: self.create_publisher(PointCloud2, taxels_topic(n), 50) for n in self.bridged}
+        self.contact_pub = {n: self.create_publisher(PointCloud2, contacts_topic(n), 50) for n in self.bridged}
+        self.status_pub = self.create_publisher(String, STATUS_TOPIC, 10)
+        self.counts: Counter = Counter()
+        self._logged_errors = 0
+        self._stop = threading.Event()
+        # retry on every check (the back-off is the check period itself)
+        self.retry = float(p["reconnect_period"]) / 2
+
+        import yarp
+
+        self.yarp = yarp
+        yarp.Network.init()
+        self.links = []      # (remote port, local port object, local name, handler, backoff)
+        prefix = p["local_prefix"].rstrip("/")
+        self._add_link(p["events_port"], f"{prefix}/skin_events:i", self._on_events)
+        for part, remote in self.comp_port_of.items():
+            self._add_link(remote, f"{prefix}/{part}_comp:i", lambda b, s, part=part: self._on_compensated(part, b, s))
+        self._threads = [threading.Thread(target=self._read_loop, args=(link,), daemon=True, name=f"yarp {link[2]}")
+                         for link in self.links]
+        for t in self._threads:
+            t.start()
+        self._check_links()
+        self.create_timer(float(p["reconnect_period"]), self._check_links)
+        self.create_timer(float(p["status_period"]), self._publish_status)
+
+    # ------------------------------------------------------------------ YARP plumbing
+    def _add_link(self, remote: str, local: str, handler) -> None:
+        port = self.yarp.BufferedPortBottle()
+        port.setStrict(True)                       # keep every bottle: a touch is never dropped for being late
+        if not port.open(local):
+            raise DataError(f"YARP port {local}: cannot open (is yarpserver running and reachable?)")
+        self.links.append((remote, port, local, handler, Backoff(f"YARP {remote} -> {local}", self.retry, self.retry)))
+
+    def _check_links(self) -> None:
+        net = self.yarp.Network
+        now = time.monotonic()
+        log = self.get_logger()
+        for remote, _, local, _, backoff in self.links:
+            if net.isConnected(remote, local, True):
+                if not backoff.connected:
+                    log.info(backoff.succeeded(now) or f"YARP {remote} -> {local}: connected")
+                continue
+            if backoff.connected:                  # it was up: the writer vanished
+                self.counts["outages"] += 1
+                log.warning(backoff.failed(now, "connection lost"))
+            if not backoff.due(now):
+                continue
+            if net.connect(remote, local, "tcp", True):
+                log.info(backoff.succeeded(now) or f"YARP {remote} -> {local}: connected")
+            else:
+                line = backoff.failed(now, "source port not available")
+                if line:
+                    log.warning(line)
+
+    def _read_loop(self, link) -> None:
+        _, port, local, handler, _ = link
+        envelope = self.yarp.Stamp()
+        while not self._stop.is_set():
+            bottle = port.read(True)
+            if bottle is None or self._stop.is_set():
+                continue
+            if port.getEnvelope(envelope) and envelope.isValid():
+                stamp = envelope.getTime()
+            else:
+                self.counts["no envelope"] += 1
+                stamp = time.time()
+            try:
+                handler(bottle, stamp)
+            except DataError as exc:
+                self.counts[f"malformed {local}"] += 1
+                self.counts["malformed"] += 1
+                if self._logged_errors < MAX_LOGGED_ERRORS:
+                    self._logged_errors += 1
+                    self.get_logger().warning(f"skipped: {exc}")
+
+    # ------------------------------------------------------------------ bottles -> messages
+    def _on_events(self, bottle, stamp: float) -> None:
+        where = f"skin events bottle #{self.counts['bottles'] + 1} on {self.links[0][0]}"
+        self.counts["bottles"] += 1
+        events = parse_skin_events(bottle.toString(), where)
+        unknown = set(np.unique(events.skin_part).tolist()) - set(self.part_of_id)
+        if unknown:
+            self.counts["contacts of unmapped parts"] += int(np.isin(events.skin_part, list(unknown)).sum())
+        for pid, part in self.part_of_id.items():
+            n_slots = self.skin.parts[part].n_slots
+            rows, taxels = events.of_part(pid)
+            bad = events.taxel_id[taxels] >= n_slots
+            if bad.any():
+                raise DataError(f"{where}: taxel id {int(events.taxel_id[taxels][bad][0])} is beyond the"
+                                f" {n_slots} slots of part '{part}'")
+        msg_stamp = stamp_to_msg(stamp)
+        for pid, part in self.part_of_id.items():
+            sp = self.skin.parts[part]
+            rows, taxels = events.of_part(pid)
+            contacts = contacts_array(events.contact_id[rows], events.cop[rows], events.normal[rows],
+                                      events.geo_center[rows], events.force[rows], events.moment[rows],
+                                      events.pressure[rows])
+            self.contact_pub[part].publish(cloud_from_array(contacts, sp.parent_frame, msg_stamp))
+            if part in self.comp_port_of:
+                continue
+            slots = events.taxel_id[taxels]
+            owner = events.taxel_contact[taxels]
+            points = taxels_array(slots, sp.positions[slots], events.pressure[owner], events.contact_id[owner])
+            self.taxel_pub[part].publish(cloud_from_array(points, sp.parent_frame, msg_stamp))
+            self.counts[f"messages {part}"] += 1
+
+    def _on_compensated(self, part: str, bottle, stamp: float) -> None:
+        sp = self.skin.parts[part]
+        where = f"compensated taxels of '{part}' on {self.comp_port_of[part]}"
+        try:   # one numpy parse of the whole vector, not a Python call per taxel
+            values = np.array(bottle.toString().split(), dtype=float)
+        except ValueError:
+            raise DataError(f"{where}: not a vector of numbers") from None
+        slots, vals = activated_taxels(values, self.threshold, where, sp.n_slots)
+        points = taxels_array(slots, sp.positions[slots], vals)
+        self.taxel_pub[part].publish(cloud_from_array(points, sp.parent_frame, stamp_to_msg(stamp)))
+        self.counts[f"messages {part}"] += 1
+
+    def _publish_status(self) -> None:
+        connected = {remote: backoff.connected for remote, _, _, _, backoff in self.links}
+        self.status_pub.publish(String(data=json.dumps({"counts": dict(self.counts), "connected": connected},
+                                                       sort_keys=True)))
+
+    def close(self) -> None:
+        self._stop.set()
+        for _, port, _, _, _ in self.links:
+            port.interrupt()
+        for t in self._threads:
+            t.join(timeout=2.0)
+        for _, port, _, _, _ in self.links:
+            port.close()
+        self.yarp.Network.fini()
+
+
+def main(args=None) -> int:
+    return run_node(YarpSkinBridge, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

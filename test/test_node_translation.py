@@ -1,0 +1,116 @@
+"""The pure pieces under the nodes: message translation, skinManager bottles, heat-map colours, back-off."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nao_skin.config import load_default_skin
+from nao_skin.errors import DataError, NaoSkinError
+from nao_skin.heatmap import NEVER_INDEX, PRESSED_INDEX, SCALE_LEVELS, ActivationCounts, colour_index, palette, triangle_slots
+from nao_skin.reconnect import Backoff
+from nao_skin.skinmanager import activated_taxels, format_skin_events, parse_bottle_text, parse_skin_events
+
+messages = pytest.importorskip("nao_skin.nodes.messages")
+
+
+def test_taxel_cloud_roundtrip_keeps_every_field():
+    pts = messages.taxels_array([5, 17, 383], [[0.1, 0.2, 0.3], [-1, 0, 1], [0, 0, 0]], [1.0, np.nan, 255.0], [2, 2, -1])
+    stamp = messages.stamp_to_msg(1234.000000123)
+    msg = messages.cloud_from_array(pts, "l_wrist", stamp)
+    assert (msg.width, msg.height, msg.point_step) == (3, 1, 24)
+    back = messages.array_from_cloud(msg, messages.TAXEL_DTYPE, "/skin/l_hand/taxels")
+    np.testing.assert_array_equal(back["slot"], [5, 17, 383])
+    np.testing.assert_array_equal(back["contact"], [2, 2, -1])
+    np.testing.assert_allclose(messages.xyz(back), [[0.1, 0.2, 0.3], [-1, 0, 1], [0, 0, 0]], atol=1e-7)
+    assert np.isnan(back["pressure"][1]) and back["pressure"][2] == 255.0
+    assert messages.stamp_ns(msg.header.stamp) == 1234000000123
+
+
+def test_cloud_with_other_field_order_and_missing_field():
+    pts = messages.taxels_array([1, 2], np.zeros((2, 3)))
+    reordered = pts[["contact", "slot", "x", "y", "z", "pressure"]]     # same fields, other offsets
+    packed = np.zeros(2, np.dtype([("contact", "<i4"), ("slot", "<u4"), ("x", "<f4"), ("y", "<f4"),
+                                   ("z", "<f4"), ("pressure", "<f4")]))
+    for n in packed.dtype.names:
+        packed[n] = reordered[n]
+    msg = messages.cloud_from_array(packed, "torso", messages.stamp_to_msg(0))
+    back = messages.array_from_cloud(msg, messages.TAXEL_DTYPE, "t")
+    np.testing.assert_array_equal(back["slot"], [1, 2])
+    msg.fields = [f for f in msg.fields if f.name != "slot"]
+    with pytest.raises(DataError, match="t: PointCloud2 has no field 'slot'"):
+        messages.array_from_cloud(msg, messages.TAXEL_DTYPE, "t")
+
+
+def test_skin_event_text_roundtrip_and_errors():
+    text = ("((3 1 6 7) (0.1 0.2 0.3) (0 0 1.5) (0 0 0) (0.1 0.2 0.3) (0 0 1) (12 13 14) 42.5) "
+            "((4 3 6 4) (1 2 3) (0 0 0) (0 0 0) (1 2 3) (0 1 0) () 0)")
+    ev = parse_skin_events(text, "port /x")
+    np.testing.assert_array_equal(ev.skin_part, [7, 4])
+    np.testing.assert_array_equal(ev.contact_id, [3, 4])
+    np.testing.assert_array_equal(ev.taxel_id, [12, 13, 14])
+    np.testing.assert_array_equal(ev.taxel_contact, [0, 0, 0])
+    np.testing.assert_allclose(ev.pressure, [42.5, 0.0])
+    again = parse_skin_events(format_skin_events(ev), "again")
+    for name in ("skin_part", "contact_id", "taxel_id", "cop", "force", "normal", "pressure"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(ev, name))
+    assert parse_skin_events("", "empty").n_contacts == 0
+    bad = {
+        "((3 1 6) (0 0 0) (0 0 0) (0 0 0) (0 0 0) (0 0 1) (1) 1)": "contactId bodyPart linkNumber skinPart",
+        "((3 1 6 7) (0 0) (0 0 0) (0 0 0) (0 0 0) (0 0 1) (1) 1)": "cop must be a list of 3",
+        "((3 1 6 7) (0 0 0) (0 0 0) (0 0 0) (0 0 0) (0 0 1) (1 x) 1)": "taxel ids holds 'x'",
+        "((3 1 6 7) (0 0 0) (0 0 0) (0 0 0) (0 0 0) (0 0 1) (-1) 1)": "taxel id -1",
+        "((3 1 6 7) (0 0 0) (0 0 0)": "unbalanced",
+        "((3 1 6 7) (0 0 0) (0 0 0) (0 0 0) (0 0 0) (0 0 1) (1) nan)": "finite number",
+    }
+    for text, what in bad.items():
+        with pytest.raises(NaoSkinError, match=what) as info:
+            parse_skin_events(text, "port /skin_events")
+        assert "\n" not in str(info.value) and str(info.value).startswith("port /skin_events")
+    assert parse_bottle_text('1 "a b" (2.5)', "w") == [1, "a b", [2.5]]
+
+
+def test_compensated_vector():
+    slots, vals = activated_taxels([0, 0, 100, 0, 3], 0.0, "p", 384)
+    np.testing.assert_array_equal(slots, [2, 4])
+    np.testing.assert_array_equal(vals, [100, 3])
+    with pytest.raises(DataError, match="more than the part's 4 slots"):
+        activated_taxels(np.zeros(5), 0.0, "p", 4)
+
+
+def test_activation_counts_count_presses_not_samples():
+    h = ActivationCounts({"a": 10, "b": 4})
+    for _ in range(5):                    # one long press of slots 1, 2: counts once
+        h.update("a", [1, 2])
+    h.update("a", [])
+    h.update("a", [2, 3])                 # a new press
+    np.testing.assert_array_equal(h.counts["a"], [0, 1, 2, 1, 0, 0, 0, 0, 0, 0])
+    np.testing.assert_array_equal(h.pressed["a"], np.isin(np.arange(10), [2, 3]))
+    idx = h.colour_indices("a")
+    assert idx[0] == NEVER_INDEX and idx[2] == PRESSED_INDEX and idx[3] == PRESSED_INDEX
+    assert 0 <= idx[1] < SCALE_LEVELS
+    assert h.coverage("a", np.ones(10, bool)) == pytest.approx(0.3)
+    top = colour_index(np.array([1, 4, 16]), np.zeros(3, bool), 16)
+    assert top[0] < top[1] < top[2] == SCALE_LEVELS - 1            # more activations, further up the scale
+    assert palette().shape == (SCALE_LEVELS + 2, 4)
+
+
+def test_triangle_slots_cover_every_present_taxel_once():
+    skin = load_default_skin()
+    for part in skin.parts.values():
+        groups = triangle_slots(part)
+        allslots = np.concatenate([s for _, s in groups])
+        np.testing.assert_array_equal(np.sort(allslots), part.slots)
+        assert all(np.all(s // 12 == t) for t, s in groups)
+
+
+def test_backoff_logs_once_per_outage():
+    b = Backoff("robot", initial=1.0, maximum=4.0)
+    assert b.due(0.0)
+    assert "retrying" in b.failed(0.0, "down")
+    assert not b.due(0.5) and b.due(1.0)
+    assert b.failed(1.0, "down") is None and b.next_attempt == 3.0
+    assert b.failed(3.0, "down") is None and b.next_attempt == 7.0
+    assert b.failed(7.0, "down") is None and b.next_attempt == 11.0          # capped at 4 s
+    assert "after 8.0 s (4 failed attempts)" in b.succeeded(8.0)
+    assert not b.due(9.0)
+    assert "retrying" in b.failed(20.0, "lost again") and b.outages == 2

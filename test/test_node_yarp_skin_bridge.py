@@ -1,0 +1,187 @@
+"""yarp_skin_bridge against a real ``yarpserver`` on loopback and real YARP writer ports.
+
+The test starts its own yarpserver (config in a tmp dir), opens writer
+ports named like skinManager's, and sends skinContactList bottles (the
+skinDynLib wire layout) with envelopes, a compensated taxel vector, and a
+malformed bottle. The bridge runs as its own process and publishes over
+real DDS. Checked: per-part messages with the right taxels, positions,
+pressures, contact ids and envelope stamps; the malformed bottle counted and
+skipped; the writer port vanishing and coming back.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import socket
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+yarp = pytest.importorskip("yarp")
+from sensor_msgs.msg import PointCloud2  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
+
+from nao_skin.config import load_default_skin  # noqa: E402
+from nao_skin.nodes.messages import CONTACT_DTYPE, TAXEL_DTYPE, array_from_cloud, stamp_from_msg, xyz  # noqa: E402
+from nao_skin.skinmanager import SkinEvents, format_skin_events  # noqa: E402
+from ros_harness import Listener, Proc, node_process, ros_env, unique_domain_id  # noqa: E402
+
+EVENTS = "/fake/skinManager/skin_events:o"
+COMP = "/fake/skin/l_hand_comp:o"
+LOCAL = "/test/bridge"
+IDS = {"l_hand": 1, "r_hand": 4, "torso": 7, "head": 5}
+
+
+def yarpserver_exe() -> str:
+    cand = Path(sys.executable).parent / "yarpserver"
+    exe = str(cand) if cand.exists() else shutil.which("yarpserver")
+    if not exe:
+        pytest.skip("yarpserver not installed (docker/setup_venv.sh --with-yarp)")
+    return exe
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def events_for(skin, contacts):
+    """SkinEvents from ``[(part, contact id, slots, pressure)]`` with COPs from the nominal layout."""
+    k = len(contacts)
+    cop = np.zeros((k, 3))
+    t_contact, t_id = [], []
+    for i, (part, _, slots, _) in enumerate(contacts):
+        cop[i] = skin.parts[part].positions[slots].mean(axis=0)
+        t_contact += [i] * len(slots)
+        t_id += list(slots)
+    ids = np.array([c[1] for c in contacts])
+    sp = np.array([IDS[c[0]] for c in contacts])
+    return SkinEvents(sp, ids, np.full(k, 1), np.full(k, 6), cop, np.tile([0.0, 0.0, 1.5], (k, 1)),
+                      np.zeros((k, 3)), cop + 1e-3, np.tile([0.0, 0.0, 1.0], (k, 1)),
+                      np.array([c[3] for c in contacts], float), np.array(t_contact), np.array(t_id))
+
+
+def send(port, text: str, count: int, t: float) -> None:
+    b = port.prepare()
+    b.clear()
+    b.fromString(text)
+    port.setEnvelope(yarp.Stamp(count, t))
+    port.write(True)      # strict: back-to-back bottles are all delivered
+
+
+def open_writer(name: str):
+    port = yarp.BufferedPortBottle()
+    assert port.open(name), f"cannot open YARP port {name}"
+    return port
+
+
+def test_skin_bridge(tmp_path, monkeypatch):
+    conf = tmp_path / "yarpconf"
+    conf.mkdir()
+    yenv = {"YARP_CONFIG_HOME": conf, "YARP_CONF": conf, "YARP_DATA_HOME": conf}
+    for k, v in yenv.items():
+        monkeypatch.setenv(k, str(v))
+    domain = unique_domain_id()
+    skin = load_default_skin()
+    server = bridge = listener = None
+    writers = []
+    try:
+        server = Proc([yarpserver_exe(), "--ip", "127.0.0.1", "--socket", str(free_port())],
+                      ros_env(domain, **yenv), tmp_path, "yarpserver")
+        listener = Listener(domain)
+        assert listener.spin_until(lambda: (conf / "yarp.conf").exists(), procs=[server])
+        yarp.Network.init()
+        assert listener.spin_until(lambda: yarp.Network.checkNetwork(0.5), procs=[server]), "yarpserver not up"
+        events_port = open_writer(EVENTS)
+        comp_port = open_writer(COMP)
+        writers = [events_port, comp_port]
+
+        taxels = {p: listener.subscribe(PointCloud2, f"/skin/{p}/taxels") for p in IDS}
+        contacts = {p: listener.subscribe(PointCloud2, f"/skin/{p}/contacts") for p in IDS}
+        status = listener.subscribe(String, "/skin/bridge_status", keep=lambda m: json.loads(m.data))
+        params = {"events_port": EVENTS, "local_prefix": LOCAL, "compensated_ports.l_hand": COMP,
+                  "reconnect_period": 0.3, "status_period": 0.2}
+        params.update({f"part_ids.{p}": i for p, i in IDS.items()})
+        bridge = node_process("yarp_skin_bridge", params, ros_env(domain, **yenv), tmp_path)
+        connected = lambda: (yarp.Network.isConnected(EVENTS, f"{LOCAL}/skin_events:i", True)  # noqa: E731
+                             and yarp.Network.isConnected(COMP, f"{LOCAL}/l_hand_comp:i", True))
+        assert listener.spin_until(connected, procs=[bridge, server]), "bridge did not connect to the writers"
+        # DDS discovery of the bridge's publishers, then the first bottle
+        assert listener.spin_until(lambda: len(status) > 0, procs=[bridge])
+
+        # 1. a contact list touching torso (two contacts) and the right hand
+        torso, hand = skin.parts["torso"], skin.parts["r_hand"]
+        t_slots_a, t_slots_b, h_slots = torso.slots[:4], torso.slots[40:43], hand.slots[10:15]
+        ev = events_for(skin, [("torso", 3, t_slots_a, 12.5), ("r_hand", 8, h_slots, 30.0),
+                               ("torso", 4, t_slots_b, 7.0)])
+        send(events_port, format_skin_events(ev), 1, 1000.25)
+        stamped = lambda lst, t: [m for m in lst if abs(stamp_from_msg(m.header.stamp) - t) < 1e-6]  # noqa: E731
+        assert listener.spin_until(lambda: all(stamped(taxels[p], 1000.25) for p in ("torso", "r_hand", "head"))
+                                   and all(stamped(contacts[p], 1000.25) for p in IDS), procs=[bridge])
+        tor = array_from_cloud(stamped(taxels["torso"], 1000.25)[0], TAXEL_DTYPE, "torso")
+        np.testing.assert_array_equal(tor["slot"], np.r_[t_slots_a, t_slots_b])
+        np.testing.assert_array_equal(tor["contact"], [3] * 4 + [4] * 3)
+        np.testing.assert_allclose(tor["pressure"], [12.5] * 4 + [7.0] * 3)
+        np.testing.assert_allclose(xyz(tor), torso.positions[tor["slot"]], atol=1e-6)
+        assert stamped(taxels["torso"], 1000.25)[0].header.frame_id == torso.parent_frame
+        rh = array_from_cloud(stamped(taxels["r_hand"], 1000.25)[0], TAXEL_DTYPE, "r_hand")
+        np.testing.assert_array_equal(rh["slot"], h_slots)
+        assert stamped(taxels["r_hand"], 1000.25)[0].header.frame_id == hand.parent_frame
+        assert len(array_from_cloud(stamped(taxels["head"], 1000.25)[0], TAXEL_DTYPE, "head")) == 0  # released
+        tc = array_from_cloud(stamped(contacts["torso"], 1000.25)[0], CONTACT_DTYPE, "torso")
+        np.testing.assert_array_equal(tc["contact"], [3, 4])
+        np.testing.assert_allclose(xyz(tc), ev.cop[[0, 2]], atol=1e-6)
+        np.testing.assert_allclose(xyz(tc, "g"), ev.geo_center[[0, 2]], atol=1e-6)
+        np.testing.assert_allclose(xyz(tc, "n"), ev.normal[[0, 2]], atol=1e-6)
+        np.testing.assert_allclose(tc["fz"], [1.5, 1.5])
+        np.testing.assert_allclose(tc["pressure"], [12.5, 7.0])
+        # l_hand takes its taxels from the compensated port: none from the contact list
+        assert not stamped(taxels["l_hand"], 1000.25)
+        assert len(array_from_cloud(stamped(contacts["l_hand"], 1000.25)[0], CONTACT_DTYPE, "l")) == 0
+
+        # 2. a malformed bottle (a contact with only two items), then a good one: skipped, counted, alive
+        send(events_port, "((1 2 3 7) (0.1 0.2 0.3))", 2, 1000.5)
+        ev2 = events_for(skin, [("head", 9, skin.parts["head"].slots[:3], 5.0)])
+        send(events_port, format_skin_events(ev2), 3, 1000.75)
+        assert listener.spin_until(lambda: stamped(taxels["head"], 1000.75), procs=[bridge])
+        assert listener.spin_until(lambda: status[-1]["counts"].get("malformed") == 1, procs=[bridge])
+        assert not stamped(taxels["torso"], 1000.5), "a malformed bottle produced messages"
+        hd = array_from_cloud(stamped(taxels["head"], 1000.75)[0], TAXEL_DTYPE, "head")
+        np.testing.assert_array_equal(hd["slot"], skin.parts["head"].slots[:3])
+
+        # 3. compensated taxels of the left hand: values above the threshold, contact -1
+        lh = skin.parts["l_hand"]
+        values = np.zeros(lh.n_slots)
+        active = lh.slots[[0, 5, 20]]
+        values[active] = [3.0, 100.0, 255.0]
+        send(comp_port, " ".join(f"{v:g}" for v in values), 1, 2000.5)
+        assert listener.spin_until(lambda: stamped(taxels["l_hand"], 2000.5), procs=[bridge])
+        lt = array_from_cloud(stamped(taxels["l_hand"], 2000.5)[0], TAXEL_DTYPE, "l_hand")
+        np.testing.assert_array_equal(lt["slot"], active)
+        np.testing.assert_allclose(lt["pressure"], [3.0, 100.0, 255.0])
+        np.testing.assert_array_equal(lt["contact"], [-1, -1, -1])
+
+        # 4. skinManager goes away and comes back under the same port name
+        events_port.close()
+        writers.remove(events_port)
+        assert listener.spin_until(lambda: status and status[-1]["connected"][EVENTS] is False, procs=[bridge])
+        events_port = open_writer(EVENTS)
+        writers.append(events_port)
+        assert listener.spin_until(lambda: status[-1]["connected"][EVENTS] is True, procs=[bridge])
+        send(events_port, format_skin_events(ev2), 4, 3000.0)
+        assert listener.spin_until(lambda: stamped(taxels["head"], 3000.0), procs=[bridge]), "no data after reconnect"
+        assert status[-1]["counts"]["outages"] == 1
+    finally:
+        for w in writers:
+            w.close()
+        if listener is not None:
+            listener.close()
+        code = bridge.stop() if bridge is not None else 0
+        if server is not None:
+            server.stop()
+        yarp.Network.fini()
+    assert code == 0, bridge.stderr()[-3000:]
+    assert "skipped:" in bridge.stderr() and "contact 0" in bridge.stderr()
