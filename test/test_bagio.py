@@ -165,7 +165,7 @@ def test_bad_slot_unknown_part_and_nan_joints_are_counted(skin, tmp_path):
     stream_bag(tmp_path / "bad", skin, storage="mcap", bad_slot=True, extra_part=True)
     touches, report = read_touches(tmp_path / "bad", skin)
     assert touches.n_touches == 0
-    assert report.skipped["bad message"] == 20 and report.skipped["unknown skin part"] == 50
+    assert report.skipped["bad taxel slot"] == 20 and report.skipped["unknown skin part"] == 50
     text = " | ".join(report.messages)
     assert "topic '/skin/torso/taxels'" in text and "slot 500 out of range" in text
     assert "'/skin/l_foot/taxels'" in text and "not configured" in text
@@ -188,3 +188,38 @@ def test_not_a_bag_and_no_overwrite(skin, tmp_path):
     with pytest.raises(DataError, match="exists already"):
         stream_bag(tmp_path / "s", skin)
     shutil.rmtree(tmp_path / "s")
+
+
+# ---------------------------------------------------------------------- commands: import, stats
+def test_import_and_stats_commands(skin, tmp_path, capsys):
+    import json
+
+    from nao_skin.cli import main
+
+    hand, torso = skin.parts["l_hand"].slots, skin.parts["torso"].slots
+    joints = {n: 0.1 for n in skin.robot.joint_names}
+    def contact(part, slots):
+        return {"cop": None, "force": None, "moment": None, "averagePressure": None, "skinPart": part,
+                "taxelInfo": {str(s): [0.0] * 6 for s in slots}}
+    data = {"0": [{0: contact("l_hand", hand[:3]), 1: contact("torso", torso[:2])}, joints],
+            "1": [{0: contact("l_hand", hand[:3]), 1: contact("torso", torso[:2])}, joints],
+            "2": [{0: contact("l_hand", hand[5:9]), 1: contact("torso", torso[7:9]), 2: contact("l_foot", [1])},
+                  joints],
+            "3": [{0: contact("l_hand", hand[5:9]), 1: contact("torso", torso[7:9])}, dict(joints, LWristYaw=-0.3)]}
+    legacy = tmp_path / "data.txt"
+    legacy.write_text(repr(data))
+    assert main(["import", str(legacy), "-o", str(tmp_path / "bag"), "--storage", "mcap"]) == 0
+    out = capsys.readouterr().out
+    assert "3 touches loaded of 4 touches read" in out and "unknown skin part" in out and "'l_foot'" in out
+    assert main(["stats", str(tmp_path / "bag"), "--json"]) == 0
+    stats = json.loads(capsys.readouterr().out)
+    assert stats["touches"] == 3 and stats["exact_duplicates"] == 1 and stats["pairs"] == {"l_hand+torso": 3}
+    assert stats["n_touches"] == 3 and stats["cop_mean_mm"] > 0
+    # the same figures straight from the legacy file
+    assert main(["stats", str(legacy), "--json"]) == 0
+    direct = json.loads(capsys.readouterr().out)
+    assert direct["cop_mean_mm"] == stats["cop_mean_mm"] and direct["taxel_mean_mm"] == stats["taxel_mean_mm"]
+    # bad input ends with one line on stderr and exit code 2
+    assert main(["import", str(tmp_path / "nope.txt"), "-o", str(tmp_path / "b2")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "nope.txt" in err

@@ -285,7 +285,7 @@ def read_touches(path: str | Path, skin: SkinModel, config: EventConfig | None =
                 try:
                     records += _feed(detector, store, conn, raw, skin, path)
                 except DataError as exc:
-                    report.skip("bad message", str(exc))
+                    report.skip(getattr(exc, "reason", "bad message"), str(exc))
         except Exception as exc:  # noqa: BLE001 - a broken file raises whatever its storage library raises
             report.skip("truncated bag", f"{path}: unreadable after {n_msgs} messages ({_one_line(exc)});"
                                          f" the rest of the bag is lost")
@@ -403,7 +403,7 @@ def _read_salvaged(path, file, skin, config, max_neighbor_dist, cluster, report,
         try:
             records += _feed(detector, store, _Conn(topic, msgtype), data, skin, path)
         except DataError as exc:
-            report.skip("bad message", str(exc))
+            report.skip(getattr(exc, "reason", "bad message"), str(exc))
     for topic, count in unknown.items():
         report.skip("unknown skin part", f"{path}: topic '{topic}': skin part '{_SKIN_TOPIC.match(topic).group(1)}'"
                                          f" is not configured ({', '.join(skin.parts)}); {count} messages skipped",
@@ -412,6 +412,14 @@ def _read_salvaged(path, file, skin, config, max_neighbor_dist, cluster, report,
                                  f" up to where it {why}, the rest is lost")
     records += detector.flush()
     return _finish(detector, records, n_msgs, skin, max_neighbor_dist, cluster, report)
+
+
+class _BadMessage(DataError):
+    """One unusable message; ``reason`` is the short key it is counted under."""
+
+    def __init__(self, reason: str, message: str):
+        super().__init__(message)
+        self.reason = reason
 
 
 def _one_line(exc: Exception) -> str:
@@ -437,11 +445,11 @@ def _feed(detector: EventDetector, store, conn, raw, skin: SkinModel, path: Path
     part = skin.parts[part_name]
     bad = (slots < 0) | (slots >= part.n_slots)
     if np.any(bad):
-        raise DataError(f"{where}: field 'slot': slot {int(slots[bad][0])} out of range 0..{part.n_slots - 1}"
+        raise _BadMessage("bad taxel slot", f"{where}: field 'slot': slot {int(slots[bad][0])} out of range 0..{part.n_slots - 1}"
                         f" of part '{part_name}'; sample skipped")
     absent = ~part.present[slots]
     if np.any(absent):
-        raise DataError(f"{where}: field 'slot': slot {int(slots[absent][0])} is not a taxel of the"
+        raise _BadMessage("bad taxel slot", f"{where}: field 'slot': slot {int(slots[absent][0])} is not a taxel of the"
                         f" '{part_name}' layout ({part.source}); sample skipped")
     return detector.add_skin(stamp, part_name, slots.tolist(), _field(cloud, "pressure", np.nan, float, where).tolist(),
                              _field(cloud, "contact", -1, int, where).tolist())

@@ -1,0 +1,62 @@
+"""``nao-skin stats INPUT``: what a touch data set holds and how far apart its touching points are."""
+from __future__ import annotations
+
+import json
+from itertools import combinations
+from pathlib import Path
+
+import numpy as np
+
+from .import_legacy import add_skin_arguments, skin_from_args
+
+NAME = "stats"
+HELP = ("print touches, exact duplicates, per-part-pair counts and closest COP / taxel distances"
+        " of a touch bag or legacy dataset, under the nominal layout or a given calibration")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("input", help="touch or stream bag (directory), or a legacy dataset text file")
+    parser.add_argument("--calibration", default=None, help="calibration YAML (default: nominal layout)")
+    parser.add_argument("--parts", default=None, metavar="A,B", help="pair only these two parts, e.g. l_hand,torso")
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    add_skin_arguments(parser)
+
+
+def load_touches(path, skin):
+    """A bag directory or a legacy text file: ``(TouchSet, LoadReport)``."""
+    from ..bagio import read_touches
+    from ..legacy import read_legacy
+
+    path = Path(path)
+    return read_touches(path, skin) if path.is_dir() else read_legacy(path, skin)
+
+
+def run(args) -> int:
+    from ..datasets import deduplicate
+    from ..pairing import metrics, pair_touches
+    from ..skin import SkinCalibration
+
+    skin = skin_from_args(args)
+    calib = SkinCalibration.load(args.calibration, skin) if args.calibration else None
+    touches, report = load_touches(args.input, skin)
+    _, n_dup = deduplicate(touches)
+    fires = touches.parts_of_touch()
+    pair_counts = {f"{a}+{b}": int(np.sum(fires[:, i] & fires[:, j]))
+                   for (i, a), (j, b) in combinations(enumerate(touches.part_names), 2)
+                   if np.any(fires[:, i] & fires[:, j])}
+    parts = tuple(args.parts.split(",")) if args.parts else None
+    m = metrics(pair_touches(touches, skin, calib, parts=parts))
+    out = {"input": str(args.input), "touches": touches.n_touches, "exact_duplicates": n_dup,
+           "skipped": dict(report.skipped), "pairs": pair_counts,
+           "contacts_per_touch": round(len(touches.contact_touch) / max(touches.n_touches, 1), 3),
+           "taxels_per_touch": round(len(touches.act_slot) / max(touches.n_touches, 1), 3),
+           "calibration": args.calibration or "nominal", **{k: (round(v, 3) if isinstance(v, float) else v)
+                                                              for k, v in m.items()}}
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    for line in report.lines():
+        print(line)
+    for key, value in out.items():
+        print(f"{key}: {value}")
+    return 0
