@@ -127,6 +127,7 @@ class BagWriter:
         self.store = _typestore()
         self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=plugins[storage])
         self._writer.set_custom_data(BAG_KIND_KEY, kind)
+        self._kind = kind
         self._connections: dict = {}
         t = self.store.types
         self._Header, self._Time = t["std_msgs/msg/Header"], t["builtin_interfaces/msg/Time"]
@@ -136,7 +137,38 @@ class BagWriter:
 
     def __enter__(self) -> "BagWriter":
         self._writer.open()
+        self._write_provisional_metadata()
         return self
+
+    # Live recording (pairing_recorder): survive ``kill -9``. rosbags writes
+    # metadata.yaml and the mcap summary only on close, so a provisional
+    # metadata.yaml (bag kind, file name, no counts) is written at open, and
+    # flush() puts every message written so far on disk as complete mcap
+    # records (sqlite3: a commit). A killed recorder leaves a cut mcap file that
+    # read_touches salvages up to the last flush, with the right bag kind.
+    def _write_provisional_metadata(self) -> None:
+        import yaml
+
+        storage = self._writer.storage
+        info = {"version": BAG_VERSION, "storage_identifier": self._writer.storage_plugin.name.lower(),
+                "relative_file_paths": [storage.path.name], "duration": {"nanoseconds": 0},
+                "starting_time": {"nanoseconds_since_epoch": 0}, "message_count": 0,
+                "topics_with_message_count": [], "compression_format": "", "compression_mode": "",
+                "files": [], "custom_data": {BAG_KIND_KEY: self._kind}, "ros_distro": "rosbags"}
+        (self.path / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}))
+
+    def flush(self) -> None:
+        """Make everything written so far durable (a later ``kill -9`` loses nothing before this)."""
+        import os
+
+        storage = self._writer.storage
+        if hasattr(storage, "close_chunk"):              # mcap: end the open chunk, write it out
+            if storage.chunk.bio.tell():
+                storage.close_chunk()
+            storage.bio.flush()
+            os.fsync(storage.bio.fileno())
+        elif hasattr(storage, "conn"):                   # sqlite3
+            storage.conn.commit()
 
     def __exit__(self, *exc) -> None:
         self._writer.close()
@@ -381,7 +413,7 @@ def _mcap_messages(buf: bytes):
 
 def _read_salvaged(path, file, skin, config, max_neighbor_dist, cluster, report, open_error) -> tuple:
     """A bag whose mcap file is cut off (e.g. the recorder died): read up to the cut, say what is lost."""
-    detector = EventDetector.for_skin(skin, config or LIVE_CONFIG)   # no metadata: assume a stream
+    detector = EventDetector.for_skin(skin, config or _salvage_config(path))
     store = _typestore()
     records, n_msgs, why = [], 0, "ends cleanly"
     try:
@@ -412,6 +444,18 @@ def _read_salvaged(path, file, skin, config, max_neighbor_dist, cluster, report,
                                  f" up to where it {why}, the rest is lost")
     records += detector.flush()
     return _finish(detector, records, n_msgs, skin, max_neighbor_dist, cluster, report)
+
+
+def _salvage_config(path: Path) -> EventConfig:
+    """Detector settings for a cut bag: its provisional metadata.yaml names the kind; default a stream."""
+    import yaml
+
+    try:
+        info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        kind = str((info.get("custom_data") or {}).get(BAG_KIND_KEY, "stream"))
+    except Exception:  # noqa: BLE001 - no or unreadable metadata: nothing says it is a touch bag
+        kind = "stream"
+    return TOUCH_BAG_CONFIG if kind == "touches" else LIVE_CONFIG
 
 
 class _BadMessage(DataError):
