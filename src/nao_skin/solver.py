@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
-import scipy.sparse
 
 from . import se3
 from .skin import SkinCalibration, SkinModel
@@ -116,7 +115,7 @@ class ResidualModel:
     """
 
     def __init__(self, skin: SkinModel, joints: np.ndarray, pairing, part_names: tuple,
-                 layout: ParameterLayout, base: SkinCalibration):
+                 layout: ParameterLayout, base: SkinCalibration, variable_parts=None):
         self.skin = skin
         self.layout = layout
         self.base = base
@@ -124,6 +123,10 @@ class ResidualModel:
         self.term_row = pairing.term_row
         self.term_weight = pairing.term_weight
         self.groups = []   # one per part: (term indices, part, FK per term, slot arrays)
+        # parts whose corrections are constant while this model lives: positions computed once
+        self.variable_parts = None if variable_parts is None else set(variable_parts)
+        self._constant = np.zeros((self.n_rows, 3))
+        self._constant_done = False
         term_touch = pairing.row_touch[pairing.term_row]
         for pidx in np.unique(pairing.term_part):
             name = part_names[pidx]
@@ -137,29 +140,55 @@ class ResidualModel:
             fk = skin.robot.fk(part.chain, joints[term_touch[sel]])
             self.groups.append((sel, name, part, fk, slots, tri, part.triangle_patch[tri]))
 
+    def _is_variable(self, name: str) -> bool:
+        return self.variable_parts is None or name in self.variable_parts
+
     # ------------------------------------------------------------------ evaluation
+    def _group_positions(self, group, calib: SkinCalibration) -> np.ndarray:
+        sel, name, part, fk, slots, tri, _ = group
+        _, _, tri_pose = part.frame_poses(calib.parts[name])
+        local = se3.transform_points(tri_pose[tri], part.taxel_local[slots])
+        return se3.transform_points(fk, local)
+
     def positions(self, calib: SkinCalibration) -> np.ndarray:
         """(K, 3) base-frame positions of every term's taxel."""
         out = np.empty((len(self.term_row), 3))
-        for sel, name, part, fk, slots, tri, _ in self.groups:
-            _, _, tri_pose = part.frame_poses(calib.parts[name])
-            out[sel] = se3.transform_points(fk @ tri_pose[tri], part.taxel_local[slots])
+        for group in self.groups:
+            out[group[0]] = self._group_positions(group, calib)
         return out
 
     def residuals(self, calib: SkinCalibration) -> np.ndarray:
         """(M, 3) residual vectors, one per pairing row."""
-        x = self.positions(calib) * self.term_weight[:, None]
-        out = np.zeros((self.n_rows, 3))
-        np.add.at(out, self.term_row, x)
+        if not self._constant_done:
+            for group in self.groups:
+                if not self._is_variable(group[1]):
+                    sel = group[0]
+                    x = self._group_positions(group, calib) * self.term_weight[sel][:, None]
+                    for d in range(3):
+                        self._constant[:, d] += np.bincount(self.term_row[sel], weights=x[:, d], minlength=self.n_rows)
+            self._constant_done = True
+        out = self._constant.copy()
+        for group in self.groups:
+            if self._is_variable(group[1]):
+                sel = group[0]
+                x = self._group_positions(group, calib) * self.term_weight[sel][:, None]
+                for d in range(3):
+                    out[:, d] += np.bincount(self.term_row[sel], weights=x[:, d], minlength=self.n_rows)
         return out
 
-    def jacobian(self, calib: SkinCalibration, free_levels: dict) -> scipy.sparse.csr_matrix:
-        """Sparse (3M, n) Jacobian of the stacked residuals w.r.t. the layout's columns.
+    def jacobian(self, calib: SkinCalibration, free_levels: dict, cols: np.ndarray | None = None) -> np.ndarray:
+        """Dense (3M, len(cols)) Jacobian of the stacked residuals w.r.t. the layout columns ``cols``.
 
         ``free_levels`` maps part name -> set of levels whose blocks get columns
-        (other blocks are constant and produce no entries).
+        (other blocks are constant and produce no entries). Built from the
+        sparse per-term blocks with one bincount: the unknowns of one stage
+        are few (at most a few hundred), so dense normal equations are fastest.
         """
-        rows_all, cols_all, vals_all = [], [], []
+        cols = np.arange(self.layout.size) if cols is None else np.asarray(cols)
+        col_of = np.full(self.layout.size, -1)
+        col_of[cols] = np.arange(len(cols))
+        n_cols = len(cols)
+        flat_all, vals_all = [], []
         for sel, name, part, fk, slots, tri, patch in self.groups:
             levels = free_levels.get(name, ())
             if not levels:
@@ -176,31 +205,35 @@ class ResidualModel:
             y_p = se3.transform_points(tn_et[tri], q)
             pn_ep = part.patch_nominal @ ep
             y_m = se3.transform_points(pn_ep[patch], y_p)
-            g_m = fk @ part.mount_nominal
+            r_m = fk[:, :3, :3] @ part.mount_nominal[:3, :3]
             specs = []
             if "mount" in levels:
-                specs.append(("mount", np.zeros(len(sel), int), g_m[:, :3, :3], em[:3, :3], corr.mount[3:], y_m))
-            if "patch" in levels:
-                g_p = g_m @ em @ part.patch_nominal[patch]
-                specs.append(("patch", patch, g_p[:, :3, :3], ep[patch, :3, :3], corr.patches[patch, 3:], y_p))
-            if "triangle" in levels:
-                g_t = g_m @ em @ pn_ep[patch] @ part.triangle_nominal[tri]
-                specs.append(("triangle", tri, g_t[:, :3, :3], et[tri, :3, :3], corr.triangles[tri, 3:], q))
+                specs.append(("mount", np.zeros(len(sel), int), r_m, em[:3, :3], corr.mount[3:], y_m))
+            if "patch" in levels or "triangle" in levels:
+                r_p = r_m @ em[:3, :3] @ part.patch_nominal[patch, :3, :3]
+                if "patch" in levels:
+                    specs.append(("patch", patch, r_p, ep[patch, :3, :3], corr.patches[patch, 3:], y_p))
+                if "triangle" in levels:
+                    r_t = r_p @ ep[patch, :3, :3] @ part.triangle_nominal[tri, :3, :3]
+                    specs.append(("triangle", tri, r_t, et[tri, :3, :3], corr.triangles[tri, 3:], q))
             for level, block_rows, rg, rc, phi, y in specs:
                 d_t = rg * w
                 d_phi = -(rg @ rc @ se3.skew(y) @ right_jacobian_so3(phi)) * w
                 block = np.concatenate([d_t, d_phi], axis=2)          # (K, 3, 6)
                 col0 = self.layout.block_columns(name, level, block_rows)
-                rr = row3[:, None, None] + np.arange(3)[None, :, None]
-                cc = col0[:, None, None] + np.arange(6)[None, None, :]
-                rows_all.append(np.broadcast_to(rr, block.shape).ravel())
-                cols_all.append(np.broadcast_to(cc, block.shape).ravel())
-                vals_all.append(block.ravel())
-        if not rows_all:
-            return scipy.sparse.csr_matrix((3 * self.n_rows, self.layout.size))
-        return scipy.sparse.coo_matrix(
-            (np.concatenate(vals_all), (np.concatenate(rows_all), np.concatenate(cols_all))),
-            shape=(3 * self.n_rows, self.layout.size)).tocsr()
+                cc = col_of[col0[:, None] + np.arange(6)[None, :]]   # (K, 6)
+                keep = cc >= 0
+                if not np.any(keep):
+                    continue
+                flat = (row3[:, None, None] + np.arange(3)[None, :, None]) * n_cols + cc[:, None, :]
+                mask = np.broadcast_to(keep[:, None, :], block.shape)
+                flat_all.append(flat[mask])
+                vals_all.append(block[mask])
+        size = 3 * self.n_rows * n_cols
+        if not flat_all:
+            return np.zeros((3 * self.n_rows, n_cols))
+        return np.bincount(np.concatenate(flat_all), weights=np.concatenate(vals_all),
+                           minlength=size).reshape(3 * self.n_rows, n_cols)
 
 
 @dataclass
@@ -210,7 +243,7 @@ class SolveOptions:
     loss: str = "huber"            # "linear" or "huber" (on each row's distance)
     f_scale: float = 0.004         # metres: where the robust loss starts to discount a row
     max_iterations: int = 50
-    ftol: float = 1e-7             # relative cost decrease that ends the solve
+    ftol: float = 1e-5             # relative cost decrease that ends the solve (re-pairing follows)
     xtol: float = 1e-9             # step size (scaled) that ends the solve
     jacobian: str = "analytic"     # or "2-point" (finite differences, for comparison)
     prior_weight: float = 1e-9     # tiny pull to the prior: keeps unexcited directions there
@@ -247,7 +280,8 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
     """Bounded, robust (IRLS) Levenberg-Marquardt over the ``free`` columns.
 
     Normal equations are small (at most a few hundred unknowns) and dense;
-    the Jacobian that builds them is sparse. Bounds are kept by projection.
+    bounds are kept by projection; the robust loss is applied per residual
+    row (the distance between two paired points), not per coordinate.
     """
     layout = model.layout
     prior = x0.copy() if prior is None else prior
@@ -256,17 +290,15 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
 
     def evaluate(xv):
         calib = layout.to_calibration(xv, model.base)
-        r = model.residuals(calib)
-        return calib, r
+        return calib, model.residuals(calib)
 
     def cost_of(xv, r):
-        dist = np.linalg.norm(r, axis=1)
         d = xv[cols] - prior[cols]
-        return _robust_cost(dist, opts) + 0.5 * opts.prior_weight * float(d @ d)
+        return _robust_cost(np.linalg.norm(r, axis=1), opts) + 0.5 * opts.prior_weight * float(d @ d)
 
     def jac(xv, calib, r):
         if opts.jacobian == "analytic":
-            return model.jacobian(calib, free_levels)[:, cols]
+            return model.jacobian(calib, free_levels, cols)
         if opts.jacobian == "2-point":
             out = np.empty((r.size, len(cols)))
             base = r.ravel()
@@ -275,37 +307,48 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
                 xp = xv.copy()
                 xp[c] += h
                 out[:, j] = (evaluate(xp)[1].ravel() - base) / h
-            return scipy.sparse.csr_matrix(out)
+            return out
         raise ValueError(f"unknown jacobian '{opts.jacobian}' (analytic, 2-point)")
 
     calib, r = evaluate(x)
     cost = cost_of(x, r)
-    mu = 1e-3
     evaluations = 1
+    if len(cols) == 0:
+        return SolveResult(x, cost, 0, 1, True, float("nan"), "no free parameter")
+    mu = 1e-3
     converged = False
     message = "maximum iterations"
-    condition = float("nan")
     it = 0
-    if len(cols) == 0:
-        return SolveResult(x, cost, 0, 1, True, condition, "no free parameter")
     for it in range(1, opts.max_iterations + 1):
-        dist = np.linalg.norm(r, axis=1)
-        w = np.repeat(_row_weights(dist, opts), 3)
+        w = np.repeat(_row_weights(np.linalg.norm(r, axis=1), opts), 3)
         j = jac(x, calib, r)
-        jw = j.multiply(w[:, None]).tocsr() if scipy.sparse.issparse(j) else j * w[:, None]
-        h = np.asarray((j.T @ jw).todense() if scipy.sparse.issparse(j) else j.T @ jw)
-        g = np.asarray(jw.T @ r.ravel()).ravel()
+        jw = j * w[:, None]
+        h = j.T @ jw
+        g = jw.T @ r.ravel()
         h[np.diag_indices_from(h)] += opts.prior_weight
         g += opts.prior_weight * (x[cols] - prior[cols])
         diag = np.maximum(np.diag(h).copy(), 1e-12)
+        # active set: unknowns on a bound whose gradient pushes outwards stay there this
+        # iteration; projecting a full step instead zig-zags along the bounds
+        xc = x[cols]
+        active = ((xc <= lower[cols]) & (g > 0)) | ((xc >= upper[cols]) & (g < 0))
+        inactive = np.flatnonzero(~active)
+        if len(inactive) == 0:
+            converged = True
+            message = "all free unknowns on their bounds"
+            break
+        h_in = h[np.ix_(inactive, inactive)]
+        g_in = g[inactive]
         improved = False
         for _ in range(12):
-            a = h + mu * np.diag(diag)
             try:
-                step = -scipy.linalg.cho_solve(scipy.linalg.cho_factor(a), g)
+                step_in = -scipy.linalg.cho_solve(
+                    scipy.linalg.cho_factor(h_in + mu * np.diag(diag[inactive])), g_in)
             except np.linalg.LinAlgError:
                 mu *= 10.0
                 continue
+            step = np.zeros(len(cols))
+            step[inactive] = step_in
             x_new = x.copy()
             x_new[cols] = np.clip(x[cols] + step, lower[cols], upper[cols])
             calib_new, r_new = evaluate(x_new)
@@ -313,12 +356,11 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
             cost_new = cost_of(x_new, r_new)
             if cost_new < cost:
                 rel = (cost - cost_new) / max(cost, 1e-300)
-                small_step = np.linalg.norm((x_new - x)[cols] * np.sqrt(diag)) < opts.xtol * (
-                    np.linalg.norm(x[cols] * np.sqrt(diag)) + opts.xtol)
+                scaled_step = np.linalg.norm((x_new - x)[cols] * np.sqrt(diag))
                 x, calib, r, cost = x_new, calib_new, r_new, cost_new
                 mu = max(mu / 3.0, 1e-9)
                 improved = True
-                if rel < opts.ftol or small_step:
+                if rel < opts.ftol or scaled_step < opts.xtol:
                     converged = True
                     message = "cost converged" if rel < opts.ftol else "step converged"
                 break
@@ -329,12 +371,15 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
             break
         if converged:
             break
-    # condition number of the Jacobi-scaled normal equations at the solution
-    dist = np.linalg.norm(r, axis=1)
-    j = jac(x, calib, r)
-    jd = np.asarray(j.todense()) if scipy.sparse.issparse(j) else j
-    hn = jd.T @ jd
-    s = np.sqrt(np.maximum(np.diag(hn), 1e-300))
-    ev = np.linalg.eigvalsh(hn / np.outer(s, s))
-    condition = float(ev[-1] / max(ev[0], 1e-300))
-    return SolveResult(x, cost, it, evaluations, converged, condition, message)
+    return SolveResult(x, cost, it, evaluations, converged, float("nan"), message)
+
+
+def condition_number(model: ResidualModel, calib: SkinCalibration, free_levels: dict, cols: np.ndarray) -> float:
+    """Condition number of the Jacobi-scaled normal equations (how well the data pins the unknowns)."""
+    if len(cols) == 0:
+        return float("nan")
+    j = model.jacobian(calib, free_levels, cols)
+    h = j.T @ j
+    s = np.sqrt(np.maximum(np.diag(h), 1e-300))
+    ev = np.linalg.eigvalsh(h / np.outer(s, s))
+    return float(ev[-1] / max(ev[0], 1e-300))
