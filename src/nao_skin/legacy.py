@@ -143,17 +143,24 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
     return joints, contacts
 
 
-def read_legacy(path: str | Path, skin: SkinModel) -> tuple:
-    """Read a legacy dataset: ``(TouchSet, LoadReport)``.
+_NOT_A_LITERAL = object()
+_last_parse: dict = {}     # one entry: (path, mtime, size) -> entries of the last big file parsed
+_CACHE_MIN_BYTES = 1 << 20  # small files parse in milliseconds: not worth keeping
 
-    Touch order is the file's. Stamps are ``float(key)`` (an index key is its
-    own number of seconds); ``keys`` keep the original strings. Activation
-    pressures are the contact's ``averagePressure`` (NaN when None), the
-    recorded ``cop`` becomes ``contact_cop``. A syntax error in the file is a
-    :class:`DataError` naming file and line; a bad touch is skipped and counted.
+
+def _literal_entries(path: Path) -> list:
+    """``(line, key, value)`` per top-level entry; a value that is no literal is ``_NOT_A_LITERAL``.
+
+    Parsing a recording (5 MB: ~3 s of AST building) dominates reading it, so
+    the entries of the last big file are kept: reading the same unchanged file
+    again (stats, then calibrate, in one process) does not parse it twice.
+    Entries are never modified by the reader.
     """
-    path = Path(path)
     try:
+        st = path.stat()
+        cache_key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
+        if cache_key in _last_parse:
+            return _last_parse[cache_key]
         text = path.read_text()
     except OSError as exc:
         raise DataError(f"{path}: cannot read legacy dataset ({exc.strerror})") from None
@@ -169,27 +176,47 @@ def read_legacy(path: str | Path, skin: SkinModel) -> tuple:
     if not isinstance(tree.body, ast.Dict):
         raise DataError(f"{path}:{tree.body.lineno}: expected one dict literal {{key: [skinContacts, joints]}},"
                         f" found {type(tree.body).__name__}")
+    entries = []
+    for key_node, value_node in zip(tree.body.keys, tree.body.values):
+        try:                     # each entry on its own: one bad touch does not lose the others
+            key = ast.literal_eval(key_node) if key_node is not None else None
+        except ValueError:
+            key = None
+        try:
+            value = ast.literal_eval(value_node)
+        except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
+            value = _NOT_A_LITERAL
+        entries.append((getattr(value_node, "lineno", "?"), key, value))
+    if st.st_size >= _CACHE_MIN_BYTES:
+        _last_parse.clear()
+        _last_parse[cache_key] = entries
+    return entries
 
+
+def read_legacy(path: str | Path, skin: SkinModel) -> tuple:
+    """Read a legacy dataset: ``(TouchSet, LoadReport)``.
+
+    Touch order is the file's. Stamps are ``float(key)`` (an index key is its
+    own number of seconds); ``keys`` keep the original strings. Activation
+    pressures are the contact's ``averagePressure`` (NaN when None), the
+    recorded ``cop`` becomes ``contact_cop``. A syntax error in the file is a
+    :class:`DataError` naming file and line; a bad touch is skipped and counted.
+    """
+    path = Path(path)
+    entries = _literal_entries(path)
     report = LoadReport(str(path))
     robot = skin.robot
     part_names = tuple(skin.parts)
     part_index = {n: i for i, n in enumerate(part_names)}
     joint_index = robot.joint_index
     parsed = []
-    for row, (key_node, value_node) in enumerate(zip(tree.body.keys, tree.body.values)):
+    for row, (line, key, value) in enumerate(entries):
         report.n_read += 1
-        line = getattr(value_node, "lineno", "?")
-        try:
-            key = ast.literal_eval(key_node) if key_node is not None else None
-        except ValueError:
-            key = None
         where = f"{path}:{line}: touch {key!r}"
         if not isinstance(key, (str, int, float)):
             report.skip("malformed touch", f"{path}:{line}: touch #{row}: key is not a string or number")
             continue
-        try:
-            value = ast.literal_eval(value_node)
-        except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
+        if value is _NOT_A_LITERAL:
             report.skip("not a literal", f"{where}: not a Python literal (only dicts, lists, numbers,"
                                          f" strings, None are allowed)")
             continue
