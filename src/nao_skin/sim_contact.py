@@ -98,16 +98,20 @@ def fire(skin: SkinModel, truth: SkinCalibration, hand: str, target: str, q: np.
     out = []
     sides = []
     for side, part in enumerate((hand, target)):
-        pos, _, slots = taxels_in_base(skin, part, q, truth)
+        pos, nor, slots = taxels_in_base(skin, part, q, truth)
         lat, height = _local_frame(pos, contact, e1, e2, normal)
-        sides.append(_nearest(lat, height, NEAREST) + (slots,))
+        # only the surface facing the other part can stand for it (not the far side of the hand)
+        facing = np.einsum("nsk,nk->ns", nor, normal) * (1.0 if side == 1 else -1.0) > 0.0
+        lat_near, height_near, cols = _nearest(lat, height, NEAREST)
+        sides.append((lat_near, height_near, cols, slots, np.take_along_axis(facing, cols, axis=1)))
     for side in (0, 1):
-        lat, height, cols, slots = sides[side]
-        o_lat, o_height, _, _ = sides[1 - side]
+        lat, height, cols, slots, _ = sides[side]
+        o_lat, o_height, _, _, o_facing = sides[1 - side]
         for start in range(0, n, CHUNK):
             sl = slice(start, min(start + CHUNK, n))
             # the other part's surface height under each taxel: its laterally nearest taxel
             d = np.linalg.norm(lat[sl][:, :, None] - o_lat[sl][:, None], axis=3)
+            d = np.where(o_facing[sl][:, None], d, np.inf)
             nn = np.argmin(d, axis=2)
             near = np.take_along_axis(d, nn[..., None], axis=2)[..., 0] <= NEIGHBOUR_REACH
             other = np.take_along_axis(o_height[sl], nn, axis=1)

@@ -34,6 +34,7 @@ def hand_mount_truth(skin: SkinModel, part: str, p: SimParams, rng: np.random.Ge
     to_mount = se3.invert(mount)
     axis_point = se3.transform_points(to_mount, np.zeros(3))          # forearm axis, mount coordinates
     axis_dir = se3.rotate_vectors(to_mount, np.array([0.0, 1.0, 0.0]))
+    axis_point -= (axis_point @ axis_dir) * axis_dir                   # pivot level with the skin's centre
     axis = _tilted(axis_dir, np.radians(p.hand_mount_axis_tilt_deg), rng)
     sign = rng.choice([-1.0, 1.0])
     rot = se3.rotvec_to_matrix(axis * np.radians(p.hand_mount_rotation_deg) * sign)

@@ -11,6 +11,7 @@ the touches as a :class:`~nao_skin.touches.TouchSet` with per-touch truth in
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -59,11 +60,13 @@ def simulate(skin: SkinModel, params: SimParams | dict | None, seed: int) -> Sim
     for i, (hand, target) in enumerate(pairs):
         rng_pose = np.random.default_rng(streams[2 + 2 * i])
         rng_skin = np.random.default_rng(streams[3 + 2 * i])
-        poses = find_poses(skin, truth, hand, target, p.n_touches, p, rng_pose)
+        # a few spare poses: a press that fires only one part is not a recorded touch
+        poses = find_poses(skin, truth, hand, target, p.n_touches + p.n_touches // 10 + 2, p, rng_pose)
+        poses, silent = _keep_firing(skin, truth, hand, target, poses, p.n_touches, p, rng_skin)
         acts = _pair_activations(skin, truth, hand, target, poses, p, rng_skin)
         per_pair.append((hand, target, poses, acts))
         report[f"{hand}-{target}"] = {"touches": int(len(poses.q)), "attempted": poses.attempted,
-                                      "unreachable": poses.unreachable}
+                                      "unreachable": poses.unreachable, "silent": silent}
     touches = _assemble(skin, per_pair, p, rng_record)
     for name, info in report.items():
         rows = touches.labels["pair"] == name
@@ -74,6 +77,26 @@ def simulate(skin: SkinModel, params: SimParams | dict | None, seed: int) -> Sim
 
 
 # ---------------------------------------------------------------------------- one pair
+def _keep_firing(skin, truth, hand, target, poses, n, p: SimParams, rng):
+    """The first ``n`` poses whose press fires both parts, and how many did not.
+
+    The probe is the weakest press the activation model can draw (one central
+    spot, smallest size and reach): whatever is drawn later fires at least that.
+    """
+    probe = SimParams(**{**p.to_dict(), "pressure_spots": [1, 1], "spot_size": [p.spot_size[0]] * 2,
+                         "press_reach": [p.press_reach[0]] * 2})
+    touch, side, *_ = sim_contact.fire(skin, truth, hand, target, poses.q, poses.contact, poses.normal,
+                                       poses.gap, probe, rng)
+    both = np.zeros((len(poses.q), 2), bool)
+    both[touch, side] = True
+    fires = both.all(axis=1)
+    rows = np.flatnonzero(fires)[:n]
+    kept = dataclasses.replace(poses, q=poses.q[rows], contact=poses.contact[rows], normal=poses.normal[rows],
+                               gap=poses.gap[rows], hand_triangle=poses.hand_triangle[rows],
+                               target_triangle=poses.target_triangle[rows])
+    return kept, int(np.count_nonzero(~fires))
+
+
 def _pair_activations(skin, truth, hand, target, poses, p: SimParams, rng):
     """Flat activations ``(touch, side, slot, pressure)`` and per-touch defect flags of one pair."""
     n = len(poses.q)
