@@ -251,7 +251,7 @@ def find_poses(skin: SkinModel, truth: SkinCalibration, hand: str, target: str, 
         if need <= 0:
             break
         # least-touched triangles first, but not those that keep failing (out of reach)
-        weight = [(w + 0.5) / (t + 1.0) / (1.0 + c) ** 2 for c, t, w in zip(counts, tries, works)]
+        weight = [((w + 0.5) / (t + 1.0)) ** 2 / (1.0 + c) for c, t, w in zip(counts, tries, works)]
         # rounds of about a third of the set, so coverage steers the next ones
         m = int(min(np.ceil(need / rate * 1.2) + 4, max(n / 3 / rate, 24)))
         t_spots = choose_spots(skin, target, truth, m, weight[1], p, rng)
