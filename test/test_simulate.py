@@ -311,3 +311,26 @@ def test_dataclass_fields_are_documented_in_the_yaml():
     text = default_params_file().read_text()
     for f in dataclasses.fields(SimParams):
         assert f"  {f.name}:" in text, f.name
+
+
+# ------------------------------------------------------------------------------ bundled recording
+BUNDLE = Path(__file__).resolve().parents[1] / "bags" / "sim_default"
+
+
+@pytest.mark.skipif(not (BUNDLE / "simulation.yaml").exists(), reason="bundled recording not generated yet")
+def test_bundled_recording_matches_the_simulator(skin, tmp_path):
+    meta = yaml.safe_load((BUNDLE / "simulation.yaml").read_text())
+    assert meta["seed"] == 0 and meta["preset"] == "default"
+    assert meta["params"] == load_params("default", {"n_touches": 1000}).to_dict()
+    # the truth does not depend on the number of touches: regenerate it cheaply, byte for byte
+    from nao_skin.simulate import write_outputs
+
+    write_outputs(simulate(skin, load_params("default", {"n_touches": 1}), seed=0), skin, tmp_path,
+                  preset="default", with_bag=False)
+    for name in ["truth_calibration.yaml"] + [f"truth_taxels/{p}.txt" for p in skin.parts]:
+        assert (tmp_path / name).read_bytes() == (BUNDLE / name).read_bytes(), name
+    bag_meta = yaml.safe_load((BUNDLE / "touches.bag" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    joint_msgs = {t["topic_metadata"]["name"]: t["message_count"] for t in bag_meta["topics_with_message_count"]}
+    recorded = sum(info["recorded"] for info in meta["pairs"].values())
+    assert joint_msgs["/joint_states"] == recorded
+    assert all(info["touches"] == 1000 for info in meta["pairs"].values())

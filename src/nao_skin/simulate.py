@@ -261,8 +261,10 @@ def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, prese
     meta = {"format": "nao_skin/simulation/1", "seed": result.seed, "preset": preset or "custom",
             "skin": Path(skin.source).name, "pairs": result.pairs, "params": result.params.to_dict()}
     meta_path = out / "simulation.yaml"
-    meta_path.write_text("# parameters and seed of this simulated recording (regenerate with nao-skin simulate)\n"
-                         + yaml.safe_dump(meta, sort_keys=False, width=120))
+    command = (f"nao-skin simulate --preset {preset or 'default'} --seed {result.seed}"
+               f" --touches-per-pair {result.params.n_touches} --out <this directory>")
+    meta_path.write_text("# parameters and seed of this simulated recording; the same bytes again with\n"
+                         f"#   {command}\n" + yaml.safe_dump(meta, sort_keys=False, width=120))
     written.append(meta_path)
     if with_bag:
         from .bagio import write_touch_bag   # the bag writer of the capture pipeline
