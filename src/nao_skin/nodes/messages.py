@@ -65,7 +65,7 @@ def stamp_ns(stamp) -> int:
 
 
 # ---------------------------------------------------------------------- PointCloud2
-def cloud_from_array(points: np.ndarray, frame_id: str, stamp: Time) -> PointCloud2:
+def cloud_from_array(points: np.ndarray, frame_id: str, stamp: Time | None) -> PointCloud2:
     """A dense, unorganised (height 1) PointCloud2 holding the structured array ``points``."""
     points = np.ascontiguousarray(points)
     fields = [PointField(name=name, offset=points.dtype.fields[name][1],
@@ -73,7 +73,8 @@ def cloud_from_array(points: np.ndarray, frame_id: str, stamp: Time) -> PointClo
               for name in points.dtype.names]
     msg = PointCloud2()
     msg.header.frame_id = frame_id
-    msg.header.stamp = stamp
+    if stamp is not None:
+        msg.header.stamp = stamp
     msg.height = 1
     msg.width = len(points)
     msg.fields = fields

@@ -14,7 +14,7 @@ import threading
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
 from ..errors import NaoSkinError
 
@@ -29,7 +29,7 @@ def declare(node, params: dict) -> dict:
     return out
 
 
-def run_node(factory, args=None, threads: int = 2) -> int:
+def run_node(factory, args=None) -> int:
     """Create the node with ``factory()``, spin it, shut it down cleanly on SIGINT/SIGTERM."""
     rclpy.init(args=sys.argv if args is None else args, signal_handler_options=rclpy.SignalHandlerOptions.NO)
     stop = threading.Event()
@@ -47,7 +47,9 @@ def run_node(factory, args=None, threads: int = 2) -> int:
         except NaoSkinError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
-        executor = MultiThreadedExecutor(num_threads=threads)
+        # one thread: a node's callbacks never run concurrently (the recorder's detector is not
+        # thread-safe); slow work (polling NAOqi, YARP reads, calibration) has its own threads
+        executor = SingleThreadedExecutor()
         executor.add_node(node)
         try:
             while not stop.is_set() and rclpy.ok():

@@ -1,0 +1,173 @@
+"""calibrate (node): the calibration engine on bags or the recorder's bag, and the skin frames on /tf_static.
+
+``ros2 run nao_skin calibrate --ros-args -p inputs:=[bag, ...]`` calibrates at
+start; in a record session (``record.launch.py``) it waits for a request on
+``/nao_skin/calibrate`` (std_msgs/String: paths separated by spaces/newlines;
+empty = ``inputs``, else the recorder's bag ``recording``). Results go to
+``out_dir`` (calibration.yaml, taxel files, report) through
+:func:`nao_skin.report.write_outputs`, exactly as ``nao-skin calibrate``.
+
+Skin frames: this node is the ONE publisher of every skin frame (mount,
+patches, triangles of every part, parents and poses as in
+``SkinCalibration.to_dict``). At start it publishes the calibration it is
+given (``calibration``, nominal by default); after each calibration it
+publishes the complete new set, in one ``tf2_msgs/TFMessage`` on
+``/tf_static`` (reliable, transient local, depth 1), so a subscriber
+joining at any time gets exactly the latest calibration. robot_state_publisher
+must get the URDF without skin frames (xacro arg ``skin_frames:=false``) so
+that no frame has two publishers.
+
+Status on ``/nao_skin/calibration/status`` (std_msgs/String, JSON, latched).
+"""
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
+from tf2_msgs.msg import TFMessage
+
+from .. import se3
+from ..config import default_skin_config
+from ..errors import NaoSkinError
+from ..skin import SkinCalibration, SkinModel
+from .runtime import declare, run_node
+from .static_tf import latched_tf_static_publisher, to_transform_stamped
+
+REQUEST_TOPIC = "/nao_skin/calibrate"
+STATUS_TOPIC = "/nao_skin/calibration/status"
+LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+PARAMS = {
+    "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
+    "calibration": ("", "calibration published at start and used as prior (empty: nominal skin)"),
+    "inputs": ([""], "bags (or legacy .txt) to calibrate from; empty entries are ignored"),
+    "recording": ("", "the recorder's bag: calibrated on an empty request when 'inputs' is empty"),
+    "calibrate_on_start": (False, "run on 'inputs' right after start (ros2 run ... calibrate)"),
+    "out_dir": ("nao_skin_calibration", "output directory (replaced when a run succeeds)"),
+    "plots": (False, "write the report's plots too (slower)"),
+    # options of the engine, as `nao-skin calibrate` (src/nao_skin/commands/calibrate.py)
+    "strategy": ("sequential", "sequential (mount, patches, triangles) or all-at-once"),
+    "reference": ("fixed", "fixed (one part is the reference) or simultaneous"),
+    "pairs": ("both", "paired points of patch and triangle stages: cop, taxel, both, taxel5"),
+    "bounded": (True, "bound patch and triangle corrections (thesis)"),
+    "loss": ("huber", "huber or linear"),
+    "jacobian": ("analytic", "analytic or 2-point"),
+    "first_guess": (True, "closed-form rigid fit of the mounts first (finds a 160 deg mount error)"),
+    "gate_mm": (15.0, "set aside touches farther than this after the mount fit (0: off)"),
+    "test_fraction": (0.3, "share of touches held out for the test metrics"),
+    "seed": (0, "seed of the train/test split"),
+}
+
+
+def skin_frame_transforms(skin: SkinModel, calib: SkinCalibration) -> list:
+    """``[(parent, child, 4x4)]`` of every skin frame: the poses of ``SkinCalibration.to_dict``."""
+    out = []
+    for name, part in skin.parts.items():
+        corr = calib.parts.get(name, part.zero_correction())
+        out.append((part.parent_frame, part.mount_frame, part.mount_nominal @ se3.pose_matrix(corr.mount)))
+        patches = part.patch_nominal @ se3.pose_matrix(corr.patches)
+        for i, pid in enumerate(part.patch_ids):
+            out.append((part.mount_frame, part.patch_frame(pid), patches[i]))
+        tris = part.triangle_nominal @ se3.pose_matrix(corr.triangles)
+        for i, tid in enumerate(part.triangle_ids):
+            out.append((part.patch_frame(part.patch_ids[part.triangle_patch[i]]), part.triangle_frame(tid), tris[i]))
+    return out
+
+
+def _plain(obj):
+    return obj.tolist() if hasattr(obj, "tolist") else str(obj)
+
+
+class CalibrateNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("calibrate", **kwargs)
+        self.p = declare(self, PARAMS)
+        self.skin = SkinModel.from_yaml(self.p["skin_config"] or default_skin_config())
+        self.prior = (SkinCalibration.load(self.p["calibration"], self.skin) if self.p["calibration"]
+                      else self.skin.zero_calibration())
+        self.tf_pub = latched_tf_static_publisher(self)
+        self.status_pub = self.create_publisher(String, STATUS_TOPIC, LATCHED)
+        self.generation = 0
+        self._busy = threading.Lock()
+        self._worker = None
+        self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
+        self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
+        inputs = [i for i in self.p["inputs"] if i]
+        if self.p["calibrate_on_start"]:
+            self._start(inputs)
+
+    def publish_calibration(self, calib: SkinCalibration, source: str) -> None:
+        """All skin frames in ONE latched TFMessage: late joiners get exactly this set."""
+        stamp = self.get_clock().now().to_msg()
+        self.tf_pub.publish(TFMessage(transforms=[to_transform_stamped(parent, child, t, stamp)
+                                                  for parent, child, t in skin_frame_transforms(self.skin, calib)]))
+        self.generation += 1
+        self._status({"state": "published", "source": source, "generation": self.generation})
+
+    def _status(self, info: dict) -> None:
+        self.status_pub.publish(String(data=json.dumps(info, sort_keys=True, default=_plain)))
+
+    def _on_request(self, msg: String) -> None:
+        paths = msg.data.split()
+        if not paths:
+            paths = [i for i in self.p["inputs"] if i] or ([self.p["recording"]] if self.p["recording"] else [])
+        self._start(paths)
+
+    def _start(self, paths: list) -> None:
+        if not paths:
+            self._status({"state": "failed", "error": "no input: set 'inputs' or 'recording', or name bags"})
+            return
+        if not self._busy.acquire(blocking=False):
+            self._status({"state": "busy", "error": "a calibration is already running; request ignored"})
+            return
+        self._worker = threading.Thread(target=self._run, args=(paths,), daemon=True, name="calibrate")
+        self._worker.start()
+
+    def _run(self, paths: list) -> None:
+        from ..calibrate import CalibrationOptions, calibrate
+        from ..datasets import deduplicate
+        from ..inputs import load_touches
+        from ..report import write_outputs
+
+        p = self.p
+        log = self.get_logger()
+        try:
+            self._status({"state": "running", "inputs": paths})
+            touches, _, truth = load_touches(paths, self.skin, log=log.info)
+            touches, _ = deduplicate(touches)
+            options = CalibrationOptions(strategy=p["strategy"], reference=p["reference"], pairs=p["pairs"],
+                                         bounded=bool(p["bounded"]), loss=p["loss"], jacobian=p["jacobian"],
+                                         initial_guess="rigid-fit" if p["first_guess"] else "none",
+                                         gate_mm=float(p["gate_mm"]), test_fraction=float(p["test_fraction"]),
+                                         seed=int(p["seed"]))
+            result = calibrate(touches, self.skin, options, prior=self.prior, truth=truth, progress=log.info)
+            out = write_outputs(result, self.skin, p["out_dir"], prior=self.prior, plots=bool(p["plots"]))
+            self.prior = result.calibration
+            self.publish_calibration(result.calibration, str(Path(out) / "calibration.yaml"))
+            final = result.report.get("final", {})
+            self._status({"state": "done", "generation": self.generation, "out_dir": str(out),
+                          "calibration": str(Path(out) / "calibration.yaml"), "touches": int(touches.n_touches),
+                          "final": {k: final.get(k) for k in ("train", "test") if k in final}})
+            log.info(f"calibrated from {len(paths)} input(s): {touches.n_touches} touches -> {out}")
+        except NaoSkinError as exc:
+            log.error(str(exc))
+            self._status({"state": "failed", "error": str(exc)})
+        finally:
+            self._busy.release()
+
+    def close(self) -> None:
+        if self._worker is not None:
+            self._worker.join(timeout=1.0)
+
+
+def main(args=None) -> int:
+    return run_node(CalibrateNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,187 @@
+"""pairing_recorder: self-touch events from the live streams into a touch bag, with progress.
+
+Subscribes to ``/joint_states`` and every part's ``/skin/<part>/taxels`` and
+``/skin/<part>/contacts``, feeds them to the same
+:class:`~nao_skin.events.EventDetector` that reads bags offline, and writes
+each detected touch to a *touch bag* (:class:`~nao_skin.bagio.BagWriter`,
+mcap): one JointState at the touch stamp and the touching parts' skin
+messages. Every ``flush_period`` s what was written is made durable, so a
+``kill -9`` loses at most the last period; SIGINT writes everything and closes
+the bag properly.
+
+Progress on ``/nao_skin/recorder/progress`` (std_msgs/String, JSON) every
+``progress_period`` s: touches per pair (e.g. ``l_hand+torso``), the share of
+each part's taxels touched at least once, dropped events by reason, and the
+processing time per skin message (p50/p99, ms).
+"""
+from __future__ import annotations
+
+import json
+import time
+from collections import Counter, deque
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+from rclpy.node import Node
+from sensor_msgs.msg import JointState, PointCloud2
+from std_msgs.msg import String
+
+from ..bagio import BagWriter
+from ..config import default_skin_config
+from ..errors import DataError
+from ..events import EventConfig, EventDetector
+from ..skin import SkinModel
+from .messages import (CONTACT_DTYPE, JOINT_STATES_TOPIC, TAXEL_DTYPE, array_from_cloud, contacts_topic,
+                       joint_state_arrays, stamp_from_msg, taxels_topic, xyz)
+from .runtime import declare, run_node
+
+PROGRESS_TOPIC = "/nao_skin/recorder/progress"
+MAX_LOGGED_ERRORS = 5
+_D = EventConfig()
+
+PARAMS = {
+    "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
+    "bag_path": ("", "touch bag to create (a new directory; empty: ./nao_skin_touches_<date>_<time>)"),
+    "storage": ("mcap", "bag storage: mcap (survives kill -9 up to the last flush) or sqlite3"),
+    "flush_period": (1.0, "seconds between flushes of the bag to disk"),
+    "progress_period": (1.0, "seconds between progress messages"),
+    "skin_tolerance": (_D.skin_tolerance, "s: skin samples of different parts this close are one moment"),
+    "joint_tolerance": (_D.joint_tolerance, "s: bracketing joint states must be this close to the touch"),
+    "min_interval": (_D.min_interval, "s: during one continuous press, at most one touch per interval"),
+    "release_gap": (_D.release_gap, "s: a part silent this long counts as released"),
+}
+
+
+class PairingRecorder(Node):
+    def __init__(self, **kwargs):
+        super().__init__("pairing_recorder", **kwargs)
+        p = declare(self, PARAMS)
+        self.skin = SkinModel.from_yaml(p["skin_config"] or default_skin_config())
+        config = EventConfig(skin_tolerance=p["skin_tolerance"], joint_tolerance=p["joint_tolerance"],
+                             min_interval=p["min_interval"], release_gap=p["release_gap"])
+        self.detector = EventDetector.for_skin(self.skin, config)
+        self.parts = list(self.skin.parts)
+        self.joint_names = list(self.skin.robot.joint_names)
+        path = p["bag_path"] or f"nao_skin_touches_{datetime.now():%Y%m%d_%H%M%S}"
+        self.bag_path = Path(path).expanduser().resolve()
+        self.bag = BagWriter(self.bag_path, p["storage"], kind="touches")
+        self.bag.__enter__()
+        self.get_logger().info(f"recording touches to {self.bag_path}")
+        self.n_touches = 0
+        self.pairs: Counter = Counter()
+        self.touched = {n: np.zeros(self.skin.parts[n].n_slots, bool) for n in self.parts}
+        self.errors: Counter = Counter()
+        self._logged = 0
+        self.skin_ms: deque = deque(maxlen=20000)     # processing time of recent skin messages
+        self._dirty = False
+        self._closed = False
+        self.create_subscription(JointState, JOINT_STATES_TOPIC, self._on_joints, 200)
+        for n in self.parts:
+            self.create_subscription(PointCloud2, taxels_topic(n), lambda m, n=n: self._on_taxels(n, m), 200)
+            self.create_subscription(PointCloud2, contacts_topic(n), lambda m, n=n: self._on_contacts(n, m), 200)
+        self.progress_pub = self.create_publisher(String, PROGRESS_TOPIC, 10)
+        self.create_timer(float(p["flush_period"]), self._flush)
+        self.create_timer(float(p["progress_period"]), self._publish_progress)
+
+    # ------------------------------------------------------------------ input (one callback group: serial)
+    def _on_joints(self, msg) -> None:
+        try:
+            stamp, names, positions = joint_state_arrays(msg)
+        except DataError as exc:
+            return self._bad(exc)
+        self._write(self.detector.add_joint_state(stamp, names, positions))
+
+    def _on_taxels(self, part: str, msg) -> None:
+        t0 = time.perf_counter()
+        try:
+            points = array_from_cloud(msg, TAXEL_DTYPE, taxels_topic(part))
+            slots = points["slot"].astype(np.int64)
+            sp = self.skin.parts[part]
+            bad = (slots >= sp.n_slots) | ~sp.present[np.minimum(slots, sp.n_slots - 1)]
+            if bad.any():
+                raise DataError(f"{taxels_topic(part)}: slot {int(slots[bad][0])} is not a taxel of '{part}'")
+        except DataError as exc:
+            return self._bad(exc)
+        records = self.detector.add_skin(stamp_from_msg(msg.header.stamp), part, slots.tolist(),
+                                         points["pressure"].astype(float).tolist(),
+                                         points["contact"].astype(int).tolist())
+        self._write(records)
+        self.skin_ms.append((time.perf_counter() - t0) * 1e3)
+
+    def _on_contacts(self, part: str, msg) -> None:
+        t0 = time.perf_counter()
+        try:
+            points = array_from_cloud(msg, CONTACT_DTYPE, contacts_topic(part))
+        except DataError as exc:
+            return self._bad(exc)
+        self.detector.add_contacts(stamp_from_msg(msg.header.stamp), part, points["contact"].astype(int).tolist(),
+                                   xyz(points))
+        self.skin_ms.append((time.perf_counter() - t0) * 1e3)
+
+    def _bad(self, exc: Exception) -> None:
+        self.errors["bad message"] += 1
+        if self._logged < MAX_LOGGED_ERRORS:
+            self._logged += 1
+            self.get_logger().warning(f"skipped: {exc}")
+
+    # ------------------------------------------------------------------ output
+    def _write(self, records) -> None:
+        for rec in records:
+            stamp_ns = int(round(rec.stamp * 1e9))
+            self.bag.write_joint_state(stamp_ns, self.joint_names, rec.joints)
+            by_part: dict = {}
+            for c in rec.contacts:
+                by_part.setdefault(c.part, []).append(c)
+            names = []
+            for pi, contacts in by_part.items():
+                name = self.detector.part_names[pi]
+                names.append(name)
+                sp = self.skin.parts[name]
+                slots = np.concatenate([c.slots for c in contacts]).astype(int)
+                pressures = np.concatenate([c.pressures for c in contacts])
+                ids = np.concatenate([np.full(len(c.slots), c.contact_id) for c in contacts])
+                self.bag.write_taxels(stamp_ns, name, sp.parent_frame, sp.positions[slots], slots, pressures, ids)
+                known = [c for c in contacts if c.contact_id >= 0]
+                self.bag.write_contacts(stamp_ns, name, sp.parent_frame, np.array([c.contact_id for c in known], int),
+                                        np.array([c.cop for c in known], float).reshape(-1, 3))
+                self.touched[name][slots] = True
+            self.pairs["+".join(sorted(names, key=self.parts.index))] += 1
+            self.n_touches += 1
+            self._dirty = True
+
+    def _flush(self) -> None:
+        if self._dirty and not self._closed:
+            self.bag.flush()
+            self._dirty = False
+
+    def progress(self) -> dict:
+        ms = np.array(self.skin_ms) if self.skin_ms else np.zeros(1)
+        drops = {k: v for k, v in self.detector.counts.items() if k not in ("touches", "continued press")}
+        return {
+            "bag": str(self.bag_path), "touches": self.n_touches, "pairs": dict(self.pairs),
+            "coverage": {n: round(float(self.touched[n][self.skin.parts[n].present].mean()), 4) for n in self.parts},
+            "dropped": drops | dict(self.errors),
+            "skin_message_ms": {"n": len(self.skin_ms), "p50": round(float(np.percentile(ms, 50)), 4),
+                                "p99": round(float(np.percentile(ms, 99)), 4), "max": round(float(ms.max()), 4)},
+        }
+
+    def _publish_progress(self) -> None:
+        self.progress_pub.publish(String(data=json.dumps(self.progress(), sort_keys=True)))
+
+    def close(self) -> None:
+        """End of the session: resolve what waits, write it, close the bag (metadata)."""
+        if self._closed:
+            return
+        self._write(self.detector.flush())
+        self._closed = True
+        self.bag.__exit__(None, None, None)
+        self.get_logger().info(f"wrote {self.n_touches} touches to {self.bag_path}: {json.dumps(dict(self.pairs))}")
+
+
+def main(args=None) -> int:
+    return run_node(PairingRecorder, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,171 @@
+"""sim_robot: the simulated robot live, on the same topics as the real bridges.
+
+Runs the self-touch simulator (:func:`nao_skin.simulate.simulate`, seeded, so
+a test can recompute exactly what was played) and plays its touches with
+:class:`nao_skin.playback.Playback`: ``/joint_states`` at ``joint_rate`` Hz,
+``/skin/<part>/taxels`` and ``/skin/<part>/contacts`` for every part at
+``skin_rate`` Hz (empty clouds = released, as the YARP bridge sends), one
+press per touch. Publishes ``/sim_robot/status`` (std_msgs/String, JSON:
+touches played / total, done) once per second.
+
+With ``wait_for_subscribers: N`` the play starts only when every skin taxels
+topic has N subscribers and the other topics at least one (bounded by
+``wait_timeout``), so nothing played is lost to DDS discovery.
+"""
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+from rclpy.node import Node
+from sensor_msgs.msg import JointState, PointCloud2
+from std_msgs.msg import String
+
+from ..config import default_skin_config
+from ..playback import Playback
+from ..sim_params import load_params
+from ..simulate import simulate
+from ..skin import SkinModel
+from .messages import (JOINT_STATES_TOPIC, cloud_from_array, contacts_array, contacts_topic, joint_state_msg,
+                       taxels_array, taxels_topic)
+from .runtime import declare, run_node
+
+STATUS_TOPIC = "/sim_robot/status"
+
+PARAMS = {
+    "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
+    "preset": ("default", "simulation preset of config/simulation.yaml"),
+    "seed": (1, "simulator seed: the same seed plays the same touches"),
+    "touches_per_pair": (20, "accepted touches per self-touch pair"),
+    "pairs": ([""], "pairs to play as 'hand-part' (e.g. l_hand-torso); empty: the preset's pairs"),
+    "joint_rate": (100.0, "joint state rate (Hz)"),
+    "skin_rate": (50.0, "skin message rate per part (Hz), like skinManager's period"),
+    "touch_period": (1.0, "seconds between the starts of two presses"),
+    "press_duration": (0.3, "seconds each press lasts"),
+    "hold": (0.1, "seconds the arm holds still before and after a press"),
+    "loop": (False, "start again after the last touch"),
+    "wait_for_subscribers": (0, "start only when each skin taxels topic has this many subscribers (0: at once)"),
+    "wait_timeout": (20.0, "longest wait for subscribers (s), then play anyway"),
+}
+
+
+def sim_overrides(touches_per_pair: int, pairs) -> dict:
+    """Simulator parameter overrides from the node's parameters (also used by tests to recompute)."""
+    out = {"n_touches": int(touches_per_pair)}
+    pairs = [p for p in pairs if p]
+    if pairs:
+        out["pairs"] = [p.split("-", 1) for p in pairs]
+    return out
+
+
+class SimRobot(Node):
+    def __init__(self, **kwargs):
+        super().__init__("sim_robot", **kwargs)
+        p = declare(self, PARAMS)
+        self.skin = SkinModel.from_yaml(p["skin_config"] or default_skin_config())
+        params = load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"]))
+        result = simulate(self.skin, params, int(p["seed"]))
+        self.playback = Playback(result.touches, self.skin, p["touch_period"], p["press_duration"], p["hold"])
+        self.get_logger().info(f"simulated {len(self.playback)} touches (seed {p['seed']}); playing them,"
+                               f" one every {p['touch_period']:g} s")
+        self.joint_period = 1.0 / float(p["joint_rate"])
+        self.skin_every = max(1, round(float(p["joint_rate"]) / float(p["skin_rate"])))
+        self.loop = bool(p["loop"])
+        self.parts = list(self.skin.parts)
+        self.joint_pub = self.create_publisher(JointState, JOINT_STATES_TOPIC, 100)
+        self.taxel_pub = {n: self.create_publisher(PointCloud2, taxels_topic(n), 100) for n in self.parts}
+        self.contact_pub = {n: self.create_publisher(PointCloud2, contacts_topic(n), 100) for n in self.parts}
+        self.status_pub = self.create_publisher(String, STATUS_TOPIC, 10)
+        self.wait_for = int(p["wait_for_subscribers"])
+        self.wait_timeout = float(p["wait_timeout"])
+        self.played = 0
+        self.done = False
+        self._empty = {n: (cloud_from_array(taxels_array([], []), self.skin.parts[n].parent_frame, None),
+                           cloud_from_array(contacts_array([], []), self.skin.parts[n].parent_frame, None))
+                       for n in self.parts}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._play, name="sim_play", daemon=True)
+        self._thread.start()
+        self.create_timer(1.0, self._publish_status)
+
+    def _subscribers_ready(self) -> bool:
+        if self.wait_for <= 0:
+            return True
+        return (all(pub.get_subscription_count() >= self.wait_for for pub in self.taxel_pub.values())
+                and self.joint_pub.get_subscription_count() >= 1
+                and all(pub.get_subscription_count() >= 1 for pub in self.contact_pub.values()))
+
+    def _play(self) -> None:
+        deadline = time.monotonic() + self.wait_timeout
+        while not self._subscribers_ready() and time.monotonic() < deadline and not self._stop.is_set():
+            self._stop.wait(0.05)
+        if not self._subscribers_ready():
+            self.get_logger().warning(f"playing although not every topic has {self.wait_for} subscribers")
+        while not self._stop.is_set():
+            self._play_once()
+            if not self.loop:
+                break
+        self.done = True
+        self._publish_status()
+        # keep the arm where it is: joint states go on, the skin is released
+        tick = 0
+        while not self._stop.wait(self.joint_period):
+            self._publish(self.playback.duration, tick)
+            tick += 1
+
+    def _play_once(self) -> None:
+        t0 = time.monotonic()
+        tick = 0
+        last_touch = -1
+        while not self._stop.is_set():
+            t = tick * self.joint_period
+            if t > self.playback.duration:
+                break
+            delay = t0 + t - time.monotonic()
+            if delay > 0:
+                self._stop.wait(delay)
+            k = self._publish(t, tick)
+            if k > last_touch:
+                last_touch = k
+                self.played += 1
+            tick += 1
+
+    def _publish(self, t: float, tick: int) -> int:
+        stamp = self.get_clock().now().to_msg()
+        self.joint_pub.publish(joint_state_msg(self.playback.joint_names, self.playback.joints_at(t), stamp))
+        if tick % self.skin_every:
+            return -1
+        k = self.playback.touch_at(t)
+        pressed = self.playback.samples[k] if k >= 0 else {}
+        for name in self.parts:
+            frame = self.skin.parts[name].parent_frame
+            s = pressed.get(name)
+            if s is None:
+                taxels, contacts = self._empty[name]
+                taxels.header.stamp = stamp
+                contacts.header.stamp = stamp
+            else:
+                taxels = cloud_from_array(taxels_array(s.slots, s.positions, s.pressures, s.contact_ids), frame, stamp)
+                contacts = cloud_from_array(contacts_array(s.contact_list, s.cop, s.normal, s.geo_center,
+                                                           pressure=s.pressure), frame, stamp)
+            # contacts first: the recorder attaches them to the taxel sample of the same stamp
+            self.contact_pub[name].publish(contacts)
+            self.taxel_pub[name].publish(taxels)
+        return k
+
+    def _publish_status(self) -> None:
+        self.status_pub.publish(String(data=json.dumps({"played": self.played, "total": len(self.playback),
+                                                        "done": self.done})))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+
+def main(args=None) -> int:
+    return run_node(SimRobot, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,124 @@
+"""skin_heatmap: live coverage heat-map of the skin for RViz (visualization_msgs/MarkerArray).
+
+Every taxel of every part is a sphere, coloured by how often it has been
+activated in this session (:mod:`nao_skin.heatmap`: grey = never, then a
+viridis-like log scale), currently pressed taxels red. One SPHERE_LIST marker
+per triangle, in the triangle's own frame (``<part>_skin_triangle_<t>``,
+namespace = part, id = triangle number, points in slot order), so the
+positions follow the current calibration through TF without this node
+knowing it. A colour-bar legend (namespace ``legend``) sits next to the torso.
+Published at ``rate`` Hz (default 10).
+"""
+from __future__ import annotations
+
+import numpy as np
+from builtin_interfaces.msg import Duration
+from geometry_msgs.msg import Point
+from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
+
+from ..config import default_skin_config
+from ..errors import DataError
+from ..heatmap import SCALE_LEVELS, ActivationCounts, palette, triangle_slots
+from ..skin import SkinModel
+from .messages import TAXEL_DTYPE, array_from_cloud, taxels_topic
+from .runtime import declare, run_node
+
+TOPIC = "/nao_skin/heatmap"
+LEGEND_NS = "legend"
+
+PARAMS = {
+    "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
+    "rate": (10.0, "marker updates per second (Hz)"),
+    "taxel_diameter": (0.005, "sphere diameter of a taxel (m)"),
+    "legend_origin": ([0.0, -0.25, 0.15], "where the colour bar starts, in the base frame (m)"),
+}
+
+
+class SkinHeatmap(Node):
+    def __init__(self, **kwargs):
+        super().__init__("skin_heatmap", **kwargs)
+        p = declare(self, PARAMS)
+        self.skin = SkinModel.from_yaml(p["skin_config"] or default_skin_config())
+        self.counts = ActivationCounts({n: part.n_slots for n, part in self.skin.parts.items()})
+        self.palette = [ColorRGBA(r=float(c[0]), g=float(c[1]), b=float(c[2]), a=float(c[3])) for c in palette()]
+        d = float(p["taxel_diameter"])
+        # Everything but the colours is fixed: build markers once, recolour them per update.
+        self.markers = []          # (part, slots, marker)
+        for name, part in self.skin.parts.items():
+            for tid, slots in triangle_slots(part):
+                m = Marker()
+                m.header.frame_id = part.triangle_frame(tid)
+                m.ns, m.id, m.type, m.action = name, tid, Marker.SPHERE_LIST, Marker.ADD
+                m.pose.orientation.w = 1.0
+                m.scale.x = m.scale.y = m.scale.z = d
+                m.frame_locked = True
+                m.lifetime = Duration()
+                m.points = [Point(x=float(v[0]), y=float(v[1]), z=float(v[2])) for v in part.taxel_local[slots]]
+                self.markers.append((name, slots, m))
+        self.legend = self._legend(np.asarray(p["legend_origin"], float), d)
+        self.publisher = self.create_publisher(MarkerArray, TOPIC, 10)
+        for n in self.skin.parts:
+            self.create_subscription(PointCloud2, taxels_topic(n), lambda m, n=n: self._on_taxels(n, m), 200)
+        self.errors = 0
+        self.published = 0
+        self.create_timer(1.0 / float(p["rate"]), self._publish)
+
+    def _on_taxels(self, part: str, msg) -> None:
+        try:
+            points = array_from_cloud(msg, TAXEL_DTYPE, taxels_topic(part))
+        except DataError as exc:
+            self.errors += 1
+            if self.errors <= 5:
+                self.get_logger().warning(f"skipped: {exc}")
+            return
+        self.counts.update(part, points["slot"])
+
+    def _legend(self, origin: np.ndarray, d: float) -> list:
+        base = self.skin.robot.base_frame
+        bar = Marker()
+        bar.header.frame_id = base
+        bar.ns, bar.id, bar.type, bar.action = LEGEND_NS, 0, Marker.CUBE_LIST, Marker.ADD
+        bar.pose.orientation.w = 1.0
+        bar.scale.x = bar.scale.y = d
+        bar.scale.z = 2 * d / SCALE_LEVELS * 8
+        step = bar.scale.z
+        bar.points = [Point(x=float(origin[0]), y=float(origin[1]), z=float(origin[2] + i * step))
+                      for i in range(SCALE_LEVELS)]
+        bar.colors = self.palette[:SCALE_LEVELS]
+        texts = []
+        for i, z in enumerate((origin[2] - 2 * d, origin[2] + SCALE_LEVELS * step + 2 * d)):
+            t = Marker()
+            t.header.frame_id = base
+            t.ns, t.id, t.type, t.action = LEGEND_NS, 1 + i, Marker.TEXT_VIEW_FACING, Marker.ADD
+            t.pose.position.x, t.pose.position.y, t.pose.position.z = float(origin[0]), float(origin[1]), float(z)
+            t.pose.orientation.w = 1.0
+            t.scale.z = 3 * d
+            t.color = ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0)
+            texts.append(t)
+        return [bar] + texts
+
+    def _publish(self) -> None:
+        stamp = self.get_clock().now().to_msg()
+        colours = {n: self.counts.colour_indices(n) for n in self.skin.parts}
+        get = self.palette.__getitem__
+        for name, slots, m in self.markers:
+            m.header.stamp = stamp
+            # palette objects shared by every taxel of a colour: map() in C, no message built per taxel
+            m.colors = list(map(get, colours[name][slots].tolist()))
+        self.legend[1].text = "0 activations (grey: never)"
+        self.legend[2].text = f"{self.counts.max_count()} activations (red: pressed now)"
+        for m in self.legend:
+            m.header.stamp = stamp
+        self.publisher.publish(MarkerArray(markers=[m for _, _, m in self.markers] + self.legend))
+        self.published += 1
+
+
+def main(args=None) -> int:
+    return run_node(SkinHeatmap, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,164 @@
+"""Record sessions with the simulated robot over real DDS.
+
+1. ``nao-skin record`` (the launch file's nodes as processes) for a few
+   seconds, stopped with SIGINT: the bag's touches are exactly what the
+   simulator played (recomputed here from the same seed), and the heat-map
+   colours exactly the activated taxels, each by how often it was pressed.
+2. The recorder killed with SIGKILL mid-session: the bag still opens and
+   holds every touch the recorder had reported before its last flush, equal
+   to the simulator's first touches.
+"""
+from __future__ import annotations
+
+import json
+import signal
+import sys
+from collections import Counter
+
+import numpy as np
+import pytest
+
+from ros_harness import ROOT, Listener, Proc, node_process, ros_env, unique_domain_id
+
+from nao_skin.bagio import read_touches  # noqa: E402
+from nao_skin.config import load_default_skin  # noqa: E402
+from nao_skin.heatmap import ActivationCounts, palette, triangle_slots  # noqa: E402
+from nao_skin.sim_params import load_params  # noqa: E402
+from nao_skin.simulate import simulate  # noqa: E402
+
+pytest.importorskip("rclpy")
+from std_msgs.msg import String  # noqa: E402
+from visualization_msgs.msg import MarkerArray  # noqa: E402
+
+from nao_skin.nodes.sim_robot import sim_overrides  # noqa: E402
+
+FAST_PLAY = {"touch_period": 0.5, "press_duration": 0.2, "hold": 0.05}
+
+
+def expected_touches(skin, per_pair: int, seed: int):
+    return simulate(skin, load_params("default", sim_overrides(per_pair, [""])), seed).touches
+
+
+def activation_sets(touches):
+    """Per touch: sorted (part name, slot, contact id) and the pressures in that order; joints."""
+    out = []
+    names = np.array(touches.part_names)
+    for t in range(touches.n_touches):
+        a = np.flatnonzero(touches.act_touch == t)
+        key = list(zip(names[touches.act_part[a]].tolist(), touches.act_slot[a].tolist(),
+                       touches.contact_id[touches.act_contact[a]].tolist()))
+        order = sorted(range(len(a)), key=lambda i: key[i])
+        out.append(([key[i] for i in order], touches.act_pressure[a][order], touches.joints[t]))
+    return out
+
+
+def assert_same_touches(got, want):
+    """Same touches in the same order: activations, contact ids, pressures (float32 on the wire), joints."""
+    g, w = activation_sets(got), activation_sets(want)
+    assert len(g) == len(w)
+    for k, ((gk, gp, gq), (wk, wp, wq)) in enumerate(zip(g, w)):
+        assert gk == wk, f"touch {k}: activations differ"
+        np.testing.assert_allclose(gp, wp, rtol=1e-6, equal_nan=True, err_msg=f"touch {k}: pressures")
+        want_q = dict(zip(want.joint_names, wq))
+        np.testing.assert_array_equal([gq[got.joint_names.index(j)] for j in want.joint_names],
+                                      [want_q[j] for j in want.joint_names], err_msg=f"touch {k}: joints")
+
+
+def record_cmd(bag, seed, per_pair):
+    argv = [sys.executable, "-m", "nao_skin.cli", "record", "--robot", "sim", "--bag", str(bag),
+            "--param", f"sim_robot.seed={seed}", "--param", f"sim_robot.touches_per_pair={per_pair}"]
+    for k, v in FAST_PLAY.items():
+        argv += ["--param", f"sim_robot.{k}={v}"]
+    return argv
+
+
+def test_record_session_bag_and_heatmap(tmp_path):
+    skin = load_default_skin()
+    seed, per_pair = 7, 2
+    want = expected_touches(skin, per_pair, seed)
+    domain = unique_domain_id()
+    bag = tmp_path / "touches"
+    listener = session = None
+    heat: list = []
+    try:
+        listener = Listener(domain)
+        heat = listener.subscribe(MarkerArray, "/nao_skin/heatmap", qos=5)
+        status = listener.subscribe(String, "/sim_robot/status", keep=lambda m: json.loads(m.data))
+        session = Proc(record_cmd(bag, seed, per_pair), ros_env(domain), tmp_path, "record")
+        assert listener.spin_until(lambda: status and status[-1]["done"], timeout=60, procs=[session]), \
+            "the simulated robot did not finish playing"
+        assert status[-1]["played"] == want.n_touches
+        n_heat = len(heat)
+        assert listener.spin_until(lambda: len(heat) >= n_heat + 3, procs=[session])   # redrawn after the end
+    finally:
+        if listener is not None:
+            listener.close()
+        code = session.stop(signal.SIGINT, timeout=30) if session is not None else None
+    assert code == 0, session.stderr()[-3000:]
+    assert "wrote" in session.stderr()
+
+    got, report = read_touches(bag, skin)
+    assert not report.skipped, report.lines()
+    assert_same_touches(got, want)
+
+    # heat-map: exactly the activated taxels coloured, each by its number of presses
+    counts = ActivationCounts({n: p.n_slots for n, p in skin.parts.items()})
+    for t in range(want.n_touches):
+        a = np.flatnonzero(want.act_touch == t)
+        for p in np.unique(want.act_part[a]):
+            counts.update(want.part_names[p], want.act_slot[a][want.act_part[a] == p])
+        for name in skin.parts:
+            counts.update(name, [])
+    pal = palette()
+    markers = {(m.ns, m.id): m for m in heat[-1].markers}
+    for name, part in skin.parts.items():
+        expect = counts.colour_indices(name)
+        touched_seen = set()
+        for tid, slots in triangle_slots(part):
+            m = markers[(name, tid)]
+            assert m.header.frame_id == part.triangle_frame(tid)
+            colours = np.array([[c.r, c.g, c.b, c.a] for c in m.colors])
+            np.testing.assert_allclose(colours, pal[expect[slots]], atol=1e-6,
+                                       err_msg=f"{name} triangle {tid}: colours")
+            np.testing.assert_allclose([[q.x, q.y, q.z] for q in m.points], part.taxel_local[slots], atol=1e-9)
+            touched_seen |= {int(s) for s, c in zip(slots, colours) if not np.allclose(c, pal[-2], atol=1e-6)}
+        activated = {int(s) for s in want.act_slot[want.act_part == want.part_index(name)]} \
+            if name in want.part_names else set()
+        assert touched_seen == activated, f"{name}: heat-map shows other taxels than were activated"
+
+
+def test_recorder_killed_keeps_flushed_touches(tmp_path):
+    skin = load_default_skin()
+    seed, per_pair = 11, 3
+    want = expected_touches(skin, per_pair, seed)
+    domain = unique_domain_id()
+    env = ros_env(domain)
+    bag = tmp_path / "touches"
+    listener = recorder = sim = None
+    params_file = ROOT / "config" / "record.yaml"
+    try:
+        listener = Listener(domain)
+        progress = listener.subscribe(String, "/nao_skin/recorder/progress", keep=lambda m: json.loads(m.data))
+        recorder = node_process("pairing_recorder", {"bag_path": str(bag)}, env, tmp_path, params_file=params_file)
+        sim = node_process("sim_robot", {"seed": seed, "touches_per_pair": per_pair, "wait_for_subscribers": 1,
+                                         **FAST_PLAY}, env, tmp_path, params_file=params_file)
+        assert listener.spin_until(lambda: progress and progress[-1]["touches"] >= 4, timeout=60,
+                                   procs=[recorder, sim]), "recorder reported no touches"
+        reported = progress[-1]["touches"]
+        n_msgs = len(progress)
+        # two more progress periods: the flush (every 1 s) has written what was reported
+        assert listener.spin_until(lambda: len(progress) >= n_msgs + 2, procs=[recorder])
+        assert progress[-1]["touches"] < want.n_touches, "the play ended before the kill; use more touches"
+        recorder.stop(signal.SIGKILL)
+    finally:
+        if listener is not None:
+            listener.close()
+        for p in (sim, recorder):
+            if p is not None:
+                p.stop()
+    assert recorder.popen.returncode == -signal.SIGKILL
+    got, report = read_touches(bag, skin)
+    assert reported <= got.n_touches < want.n_touches
+    assert "truncated bag" in report.skipped             # it says the bag was cut
+    assert_same_touches(got, want.subset(np.arange(got.n_touches)))
+    assert Counter(report.skipped) == Counter({"truncated bag": report.skipped["truncated bag"]})
