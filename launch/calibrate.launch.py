@@ -1,0 +1,34 @@
+"""Calibrate recorded bags: ``ros2 launch nao_skin calibrate.launch.py inputs:="a.bag b.bag" out_dir:=DIR``.
+
+Runs the calibrate node once on the inputs at start (options: config/record.yaml,
+section ``calibrate``), writes DIR/calibration.yaml and the report, and keeps
+publishing the calibrated skin frames on /tf_static. Do not run it next to a
+record session: that session's calibrate node already publishes the skin
+frames (calibrate there with ``ros2 topic pub --once /nao_skin/calibrate ...``).
+"""
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+
+def _node(context):
+    from nao_skin.config import config_dir
+
+    inputs = LaunchConfiguration("inputs").perform(context).split()
+    overrides = {"inputs": inputs or [""], "calibrate_on_start": True,
+                 "out_dir": LaunchConfiguration("out_dir").perform(context)}
+    calibration = LaunchConfiguration("calibration").perform(context)
+    if calibration:
+        overrides["calibration"] = calibration
+    return [Node(package="nao_skin", executable="calibrate", name="calibrate", output="screen",
+                 parameters=[str(config_dir() / "record.yaml"), overrides])]
+
+
+def generate_launch_description():
+    return LaunchDescription([
+        DeclareLaunchArgument("inputs", description="bags (or legacy .txt), separated by spaces"),
+        DeclareLaunchArgument("out_dir", default_value="nao_skin_calibration", description="output directory"),
+        DeclareLaunchArgument("calibration", default_value="", description="prior calibration (default: nominal)"),
+        OpaqueFunction(function=_node),
+    ])

@@ -1,0 +1,62 @@
+"""Record self-touch: ``ros2 launch nao_skin record.launch.py [robot:=sim|nao] [nao_ip:=...] [rviz:=true]``.
+
+Starts (the same set as ``nao-skin record``, from nao_skin.nodes.session):
+
+* robot:=sim (default): sim_robot, the simulated robot on the live topics;
+  robot:=nao: naoqi_bridge (unless naoqi:=false, e.g. naoqi_driver2 already
+  publishes /joint_states) and yarp_skin_bridge (events_port:=...);
+* pairing_recorder writing the touch bag ``bag:=DIR`` (default
+  ./nao_skin_touches_<date>_<time>), skin_heatmap, and the calibrate node;
+* robot_state_publisher with the xacro URDF *without* skin frames, and
+  rviz2 with config/nao_skin.rviz when rviz:=true.
+
+Skin frames have exactly one publisher: the calibrate node publishes the
+current calibration (``calibration:=FILE``, nominal by default) on
+/tf_static and replaces it after each calibration
+(``ros2 topic pub --once /nao_skin/calibrate std_msgs/String "{data: ''}"``
+calibrates on this session's bag). robot_state_publisher gets
+``skin_frames:=false``, so the two never disagree about a frame.
+Parameters: config/record.yaml and config/bridges.yaml.
+"""
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
+
+ARGUMENTS = {
+    "robot": ("sim", "sim: simulated robot; nao: the real Nao through NAOqi and YARP"),
+    "nao_ip": ("", "robot address for naoqi_bridge (default: config/bridges.yaml)"),
+    "naoqi": ("true", "start naoqi_bridge (false when another driver publishes /joint_states)"),
+    "events_port": ("", "skinManager's skin events port (default: config/bridges.yaml)"),
+    "bag": ("", "touch bag directory to write (default: ./nao_skin_touches_<date>_<time>)"),
+    "calibration": ("", "calibration to start from (default: the nominal skin)"),
+    "rviz": ("false", "start rviz2 with config/nao_skin.rviz"),
+}
+
+
+def _nodes(context):
+    from nao_skin.nodes.session import record_session, robot_description
+
+    arg = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
+    specs = record_session(arg["robot"], nao_ip=arg["nao_ip"], naoqi=arg["naoqi"].lower() == "true",
+                           events_port=arg["events_port"], bag_path=arg["bag"], calibration=arg["calibration"],
+                           rviz=arg["rviz"].lower() == "true")
+    actions = []
+    for spec in specs:
+        overrides = {}
+        for key, value in spec.overrides.items():
+            if isinstance(value, tuple) and value and value[0] == "__urdf__":
+                value = ParameterValue(robot_description(value[1], skin_frames=False), value_type=str)
+            overrides[key] = value
+        parameters = [str(f) for f in spec.params_files] + ([overrides] if overrides else [])
+        actions.append(Node(package=spec.package, executable=spec.executable, name=spec.name,
+                            parameters=parameters, arguments=list(spec.arguments), output="screen"))
+    return actions
+
+
+def generate_launch_description():
+    return LaunchDescription(
+        [DeclareLaunchArgument(name, default_value=default, description=text)
+         for name, (default, text) in ARGUMENTS.items()]
+        + [OpaqueFunction(function=_nodes)])

@@ -1,0 +1,92 @@
+"""The record session's description: parameter files match the nodes, one publisher per frame.
+
+``launch/record.launch.py`` and ``nao-skin record`` both start what
+:func:`nao_skin.nodes.session.record_session` lists; here its parameter files
+are checked against the parameters each node declares (no typo goes
+unnoticed, every parameter is commented), and the URDF given to
+robot_state_publisher is checked to share no frame with the calibrate node
+while still being the parent of every skin mount.
+"""
+from __future__ import annotations
+
+import importlib
+import re
+import xml.etree.ElementTree as ET
+
+import pytest
+import yaml
+
+from ros_harness import ROOT
+
+from nao_skin.config import load_default_skin
+from nao_skin.nodes.session import command_line, record_session, robot_description
+
+pytest.importorskip("rclpy")
+from nao_skin.nodes.calibrate import skin_frame_transforms  # noqa: E402
+
+NODE_MODULES = {"sim_robot": "sim_robot", "pairing_recorder": "pairing_recorder", "skin_heatmap": "skin_heatmap",
+                "calibrate": "calibrate", "naoqi_bridge": "naoqi_bridge", "yarp_skin_bridge": "yarp_skin_bridge"}
+
+
+def declared(node: str, parts) -> set:
+    module = importlib.import_module(f"nao_skin.nodes.{NODE_MODULES[node]}")
+    names = set(module.PARAMS)
+    if node == "yarp_skin_bridge":          # declared per configured skin part
+        names |= {f"part_ids.{p}" for p in parts} | {f"compensated_ports.{p}" for p in parts}
+    return names
+
+
+def flatten(d: dict, prefix: str = "") -> set:
+    out = set()
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out |= flatten(v, f"{prefix}{k}.")
+        else:
+            out.add(prefix + k)
+    return out
+
+
+@pytest.mark.parametrize("config", ["record.yaml", "bridges.yaml"])
+def test_params_files_match_the_nodes(config):
+    parts = list(load_default_skin().parts)
+    path = ROOT / "config" / config
+    doc = yaml.safe_load(path.read_text())
+    for node, body in doc.items():
+        given = flatten(body["ros__parameters"])
+        assert given == declared(node, parts), f"{config}: {node}"
+    # every parameter line carries a comment saying what it is
+    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+        m = re.match(r"^\s{4,}(\w+):\s*(\S.*)$", line)
+        if m and m.group(1) != "ros__parameters" and not line.lstrip().startswith("#"):
+            assert "#" in line or line.rstrip().endswith(",") or m.group(2).startswith("["), \
+                f"{config}:{lineno}: parameter without a comment"
+
+
+def test_session_nodes_and_shared_bag(tmp_path):
+    sim = {s.name: s for s in record_session("sim", bag_path=str(tmp_path / "b"))}
+    assert set(sim) == {"sim_robot", "pairing_recorder", "skin_heatmap", "calibrate", "robot_state_publisher"}
+    assert sim["pairing_recorder"].overrides["bag_path"] == sim["calibrate"].overrides["recording"]
+    nao = {s.name for s in record_session("nao", nao_ip="10.0.0.2", rviz=True)}
+    assert {"naoqi_bridge", "yarp_skin_bridge", "rviz2"} <= nao and "sim_robot" not in nao
+    assert "naoqi_bridge" not in {s.name for s in record_session("nao", naoqi=False)}
+    spec = record_session("sim", overrides={"sim_robot": {"seed": 3}})[0]
+    argv = command_line(spec, tmp_path)
+    assert argv[1:3] == ["-m", "nao_skin.nodes.sim_robot"] and "seed:=3" in argv
+    assert str(ROOT / "config" / "record.yaml") in argv
+
+
+def test_urdf_for_the_session_leaves_skin_frames_to_the_calibrate_node():
+    skin = load_default_skin()
+    links = {link.get("name") for link in ET.fromstring(robot_description()).iter("link")}
+    tf = skin_frame_transforms(skin, skin.zero_calibration())
+    children = [child for _, child, _ in tf]
+    assert len(children) == len(set(children))
+    assert not links & set(children), "a skin frame would have two publishers"
+    assert {parent for parent, _, _ in tf} <= links | set(children), "skin frames not attached to the body"
+    full = {link.get("name") for link in ET.fromstring(robot_description(skin_frames=True)).iter("link")}
+    assert set(children) <= full                   # same frames as the URDF with skin frames
+
+
+def test_launch_files_compile():
+    for name in ("record.launch.py", "calibrate.launch.py"):
+        compile((ROOT / "launch" / name).read_text(), name, "exec")
