@@ -1,0 +1,121 @@
+"""``nao-skin bench-live``: throughput of the live suite over real DDS (a benchmark, not a test).
+
+Starts sim_robot (looping, joint states at 100 Hz, 4 skin parts at 50 Hz
+with taxels and contacts), pairing_recorder and skin_heatmap as processes on
+a private ROS domain, listens for ``--seconds`` and prints:
+
+* the load actually delivered (joint states and skin messages per second);
+* the recorder's processing time per skin message (p50 / p99 / max, measured
+  in its callbacks; target p99 <= 5 ms);
+* the heat-map's publish rate with all taxels of all parts (target 10 Hz).
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+NAME = "bench-live"
+HELP = "benchmark the live suite: recorder time per skin message, heat-map rate (prints numbers)"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--seconds", type=float, default=15.0, help="measurement window (s)")
+    parser.add_argument("--domain", type=int, default=0, help="ROS domain id (default: from the pid)")
+    parser.add_argument("--touch-period", type=float, default=0.6, help="s between simulated presses")
+
+
+def run(args) -> int:
+    import numpy as np
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from sensor_msgs.msg import JointState, PointCloud2
+    from std_msgs.msg import String
+    from visualization_msgs.msg import MarkerArray
+
+    from ..config import config_dir, load_default_skin
+
+    domain = args.domain or 10 + os.getpid() % 90
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               PYTHONUNBUFFERED="1")
+    work = Path(tempfile.mkdtemp(prefix="nao_skin_bench_"))
+    params = str(config_dir() / "record.yaml")
+    nodes = {
+        "sim_robot": {"loop": True, "touches_per_pair": 10, "touch_period": args.touch_period,
+                      "press_duration": min(0.3, args.touch_period / 2), "hold": 0.05, "wait_for_subscribers": 2},
+        "pairing_recorder": {"bag_path": str(work / "touches")},
+        "skin_heatmap": {},
+    }
+    procs = []
+    os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    node = Node("bench_live", context=ctx)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
+    counts = {"joints": 0, "skin": 0, "heat": 0}
+    progress, heat_stamps, heat_taxels = [], [], []
+    node.create_subscription(JointState, "/joint_states", lambda m: counts.__setitem__("joints", counts["joints"] + 1), 200)
+    node.create_subscription(PointCloud2, "/skin/torso/taxels", lambda m: counts.__setitem__("skin", counts["skin"] + 1), 200)
+    node.create_subscription(String, "/nao_skin/recorder/progress", lambda m: progress.append(json.loads(m.data)), 10)
+
+    def on_heat(m):
+        heat_stamps.append(time.monotonic())
+        heat_taxels.append(sum(len(x.points) for x in m.markers if x.ns in skin_parts))
+
+    skin_parts = set(load_default_skin().parts)
+    node.create_subscription(MarkerArray, "/nao_skin/heatmap", on_heat, 10)
+    try:
+        for name, over in nodes.items():
+            argv = [sys.executable, "-m", f"nao_skin.nodes.{name}", "--ros-args", "--params-file", params]
+            for k, v in over.items():
+                argv += ["-p", f"{k}:={json.dumps(v) if not isinstance(v, str) else repr(v)}"]
+            procs.append(subprocess.Popen(argv, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
+                                          stderr=open(work / f"{name}.err", "wb")))
+        # wait until the play has started (the recorder reports touches), then measure a clean window
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (progress and progress[-1]["touches"] > 0):
+            executor.spin_once(timeout_sec=0.05)
+        if not progress:
+            print("bench-live: the recorder never reported progress; see", work, file=sys.stderr)
+            return 1
+        start_counts = dict(counts)
+        start_heat = len(heat_stamps)
+        start_progress_n = progress[-1]["skin_message_ms"]["n"]
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < args.seconds:
+            executor.spin_once(timeout_sec=0.05)
+        window = time.monotonic() - t0
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGINT)
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+        executor.shutdown()
+        node.destroy_node()
+        ctx.try_shutdown()
+    last = progress[-1]
+    ms = last["skin_message_ms"]
+    joints_hz = (counts["joints"] - start_counts["joints"]) / window
+    skin_hz = (counts["skin"] - start_counts["skin"]) / window
+    hs = np.array(heat_stamps[start_heat:])
+    heat_hz = (len(hs) - 1) / (hs[-1] - hs[0]) if len(hs) > 1 else 0.0
+    print(f"load: /joint_states {joints_hz:.1f} Hz, skin {skin_hz:.1f} Hz per part x {len(skin_parts)} parts"
+          f" (taxels + contacts: {2 * len(skin_parts) * skin_hz:.0f} skin messages/s), window {window:.1f} s")
+    print(f"recorder: {ms['n'] - start_progress_n} skin messages in the window ({ms['n']} recent kept),"
+          f" time per skin message p50 {ms['p50']:.3f} ms, p99 {ms['p99']:.3f} ms, max {ms['max']:.3f} ms"
+          f" (target p99 <= 5 ms); {last['touches']} touches recorded")
+    print(f"heat-map: {heat_hz:.2f} Hz with {heat_taxels[-1] if heat_taxels else 0} taxels per message"
+          f" (target 10 Hz)")
+    return 0
