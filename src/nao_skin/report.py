@@ -29,7 +29,7 @@ def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Pat
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
-        calibrated = sorted({p for s in result.report["plan"] for p in _parts_of(s)}, key=_order)
+        calibrated = list(result.report["parts"])
         result.calibration.save(tmp / "calibration.yaml", skin,
                                 comment=f"parts calibrated from touches: {', '.join(calibrated)}")
         (tmp / "taxels").mkdir()
@@ -46,10 +46,6 @@ def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Pat
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out_dir
-
-
-def _parts_of(step_name: str) -> list:
-    return step_name.split(" from ")[0].split("+")
 
 
 def _jsonable(obj):
@@ -78,6 +74,8 @@ def markdown_report(report: dict) -> str:
     rows = [("before", report["before"], None)]
     rows += [(s["name"], s, s["seconds"]) for s in report["stages"]]
     rows += [("final", report["final"], None)]
+    accepted = {"train": report["final"].get("train_accepted", {}), "test": report["final"].get("test_accepted", {})}
+    rows += [("final, touches a self-contact explains", accepted, None)]
     for name, entry, secs in rows:
         for split in ("train", "test"):
             m = entry.get(split, {})
@@ -116,9 +114,7 @@ def _plots(result: CalibrationResult, skin: SkinModel, prior: SkinCalibration, o
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    pairs = sorted({tuple(sorted((a, b), key=_order)) for s in result.report["plan"]
-                    for a in s.replace(" from ", "+").split("+") for b in s.replace(" from ", "+").split("+") if a != b})
-    pairs = [p for p in pairs if p[0] in result.train.part_names and p[1] in result.train.part_names]
+    pairs = [tuple(p) for p in result.report["pairs"]]
 
     # 1. error distributions before/after
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))

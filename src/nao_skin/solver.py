@@ -115,7 +115,8 @@ class ResidualModel:
     """
 
     def __init__(self, skin: SkinModel, joints: np.ndarray, pairing, part_names: tuple,
-                 layout: ParameterLayout, base: SkinCalibration, variable_parts=None):
+                 layout: ParameterLayout, base: SkinCalibration, variable_parts=None,
+                 surface_offset: float = 0.0):
         self.skin = skin
         self.layout = layout
         self.base = base
@@ -138,16 +139,19 @@ class ResidualModel:
                 bad = slots[tri < 0][0]
                 raise ValueError(f"part '{name}': slot {bad} has no taxel in the layout")
             fk = skin.robot.fk(part.chain, joints[term_touch[sel]])
-            self.groups.append((sel, name, part, fk, slots, tri, part.triangle_patch[tri]))
+            # touching skins meet at their fabric surfaces, not at the taxel centres:
+            # lift each taxel along its normal (fixed in its triangle frame)
+            point = part.taxel_local[slots] + surface_offset * part.normal_local[slots]
+            self.groups.append((sel, name, part, fk, point, tri, part.triangle_patch[tri]))
 
     def _is_variable(self, name: str) -> bool:
         return self.variable_parts is None or name in self.variable_parts
 
     # ------------------------------------------------------------------ evaluation
     def _group_positions(self, group, calib: SkinCalibration) -> np.ndarray:
-        sel, name, part, fk, slots, tri, _ = group
+        sel, name, part, fk, point, tri, _ = group
         _, _, tri_pose = part.frame_poses(calib.parts[name])
-        local = se3.transform_points(tri_pose[tri], part.taxel_local[slots])
+        local = se3.transform_points(tri_pose[tri], point)
         return se3.transform_points(fk, local)
 
     def positions(self, calib: SkinCalibration) -> np.ndarray:
@@ -189,7 +193,7 @@ class ResidualModel:
         col_of[cols] = np.arange(len(cols))
         n_cols = len(cols)
         flat_all, vals_all = [], []
-        for sel, name, part, fk, slots, tri, patch in self.groups:
+        for sel, name, part, fk, point, tri, patch in self.groups:
             levels = free_levels.get(name, ())
             if not levels:
                 continue
@@ -197,7 +201,7 @@ class ResidualModel:
             em = se3.pose_matrix(corr.mount)
             ep = se3.pose_matrix(corr.patches)
             et = se3.pose_matrix(corr.triangles)
-            q = part.taxel_local[slots]
+            q = point
             w = self.term_weight[sel][:, None, None]
             row3 = 3 * self.term_row[sel]
             # y_T = q ; y_P = T_n exp(dT) q ; y_M = P_n exp(dP) y_P
@@ -276,7 +280,8 @@ def _robust_cost(dist: np.ndarray, opts: SolveOptions) -> float:
 
 
 def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-          free_levels: dict, opts: SolveOptions, prior: np.ndarray | None = None) -> SolveResult:
+          free_levels: dict, opts: SolveOptions, prior: np.ndarray | None = None,
+          prior_weights: np.ndarray | None = None) -> SolveResult:
     """Bounded, robust (IRLS) Levenberg-Marquardt over the ``free`` columns.
 
     Normal equations are small (at most a few hundred unknowns) and dense;
@@ -287,6 +292,11 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
     prior = x0.copy() if prior is None else prior
     cols = np.flatnonzero(free)
     x = np.clip(x0.copy(), lower, upper)
+    # Gaussian prior on each unknown (m^2 per unit^2): a tiny floor keeps directions the data
+    # do not excite at their prior; larger weights (prior_weights) make the fit a MAP estimate
+    pw = np.full(len(cols), opts.prior_weight)
+    if prior_weights is not None:
+        pw = np.maximum(pw, prior_weights[cols])
 
     def evaluate(xv):
         calib = layout.to_calibration(xv, model.base)
@@ -294,7 +304,7 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
 
     def cost_of(xv, r):
         d = xv[cols] - prior[cols]
-        return _robust_cost(np.linalg.norm(r, axis=1), opts) + 0.5 * opts.prior_weight * float(d @ d)
+        return _robust_cost(np.linalg.norm(r, axis=1), opts) + 0.5 * float(pw @ (d * d))
 
     def jac(xv, calib, r):
         if opts.jacobian == "analytic":
@@ -325,8 +335,8 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
         jw = j * w[:, None]
         h = j.T @ jw
         g = jw.T @ r.ravel()
-        h[np.diag_indices_from(h)] += opts.prior_weight
-        g += opts.prior_weight * (x[cols] - prior[cols])
+        h[np.diag_indices_from(h)] += pw
+        g += pw * (x[cols] - prior[cols])
         diag = np.maximum(np.diag(h).copy(), 1e-12)
         # active set: unknowns on a bound whose gradient pushes outwards stay there this
         # iteration; projecting a full step instead zig-zags along the bounds

@@ -30,6 +30,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--gate-mm", type=float, default=d.gate_mm, help="set aside touches farther than this after the mount fit (0: off)")
     parser.add_argument("--test-fraction", type=float, default=d.test_fraction)
     parser.add_argument("--seed", type=int, default=d.seed, help="seed of the train/test split")
+    parser.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
+                        help="any field of CalibrationOptions, e.g. --set lateral_weight=0.3; repeatable")
     parser.add_argument("--no-plots", action="store_true")
     parser.add_argument("--quiet", action="store_true", help="print only the final line")
 
@@ -37,10 +39,37 @@ def add_arguments(parser) -> None:
 def build_options(args):
     from ..calibrate import CalibrationOptions
 
-    return CalibrationOptions(strategy=args.strategy, reference=args.reference, pairs=args.pairs,
-                              bounded=not args.free, loss=args.loss, jacobian=args.jacobian,
-                              initial_guess="none" if args.no_first_guess else "rigid-fit",
-                              gate_mm=args.gate_mm, test_fraction=args.test_fraction, seed=args.seed)
+    options = CalibrationOptions(strategy=args.strategy, reference=args.reference, pairs=args.pairs,
+                                 bounded=not args.free, loss=args.loss, jacobian=args.jacobian,
+                                 initial_guess="none" if args.no_first_guess else "rigid-fit",
+                                 gate_mm=args.gate_mm, test_fraction=args.test_fraction, seed=args.seed)
+    return apply_settings(options, args.set)
+
+
+def apply_settings(options, settings):
+    """``KEY=VALUE`` strings onto a CalibrationOptions, typed like the field's default."""
+    import dataclasses
+
+    import yaml
+
+    from ..errors import DataError
+
+    fields = {f.name for f in dataclasses.fields(options)}
+    for item in settings:
+        key, sep, raw = item.partition("=")
+        if not sep or key not in fields:
+            raise DataError(f"--set {item!r}: expected OPTION=VALUE with OPTION one of {', '.join(sorted(fields))}")
+        value = yaml.safe_load(raw)
+        current = getattr(options, key)
+        if isinstance(current, bool) and not isinstance(value, bool):
+            raise DataError(f"--set {item!r}: {key} takes true or false")
+        if isinstance(current, float) and isinstance(value, int):
+            value = float(value)
+        if isinstance(current, tuple) and isinstance(value, list):
+            value = tuple(value)
+        setattr(options, key, value)
+    options.validate()
+    return options
 
 
 def load_skin(args):
