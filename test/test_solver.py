@@ -97,3 +97,25 @@ def test_solver_recovers_a_mount_correction(skin):
                 {"l_hand": {"mount"}}, SolveOptions(loss="linear"))
     np.testing.assert_allclose(res.x[:6], truth.parts["l_hand"].mount, atol=1e-6)
     assert res.converged
+
+
+def test_sparse_and_dense_jacobians_agree(skin, monkeypatch):
+    """Large stages keep the Jacobian sparse; it must equal the dense one."""
+    import nao_skin.solver as solver
+
+    rng = np.random.default_rng(5)
+    n = 10
+    q = rng.uniform(skin.robot.limits[:, 0], skin.robot.limits[:, 1], (n, len(skin.robot.joint_names)))
+    pairing = _random_rows(skin, n, rng)
+    calib = skin.zero_calibration()
+    calib.parts["l_hand"].mount = rng.normal(0, 1.0, 6)
+    layout = ParameterLayout(skin, ("l_hand", "torso"))
+    model = ResidualModel(skin, q, pairing, ("l_hand", "torso"), layout, calib)
+    levels = {"l_hand": {"mount", "patch", "triangle"}, "torso": {"patch"}}
+    cols = np.arange(3, layout.size - 7)
+    dense = model.jacobian(calib, levels, cols)
+    monkeypatch.setattr(solver, "DENSE_LIMIT", 0)
+    sparse = model.jacobian(calib, levels, cols)
+    assert solver.scipy.sparse.issparse(sparse)
+    np.testing.assert_allclose(sparse.toarray(), dense, atol=1e-15)
+    np.testing.assert_allclose(solver.gram(sparse), solver.gram(dense), atol=1e-12)

@@ -29,7 +29,7 @@ from . import se3
 from .errors import DataError
 from .pairing import Pairing, metrics, pair_touches
 from .skin import PART_NAMES, SkinCalibration, SkinModel
-from .solver import ParameterLayout, ResidualModel, SolveOptions, condition_number, solve
+from .solver import ParameterLayout, ResidualModel, SolveOptions, condition_number, gram, solve
 from .touches import TouchSet
 
 HANDS = ("r_hand", "l_hand")
@@ -246,8 +246,7 @@ def _hold_unobservable(model: ResidualModel, calib: SkinCalibration, free: np.nd
     cols = np.flatnonzero(free)
     if len(cols) == 0:
         return []
-    j = model.jacobian(calib, free_levels, cols)
-    h = j.T @ j
+    h = gram(model.jacobian(calib, free_levels, cols))
     d = np.diag(h)
     informed = d > 1e-12 * max(d.max(), 1e-300)
     held = set(cols[~informed].tolist())

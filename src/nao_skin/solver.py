@@ -25,11 +25,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse
 
 from . import se3
 from .skin import SkinCalibration, SkinModel
 
 LEVELS = ("mount", "patch", "triangle")
+DENSE_LIMIT = 2_000_000     # Jacobian entries above which it is kept sparse
+
+
+def gram(j, w=None) -> np.ndarray:
+    """Dense ``J^T diag(w) J`` for a dense or sparse Jacobian."""
+    jw = j if w is None else (j.multiply(w[:, None]).tocsr() if scipy.sparse.issparse(j) else j * w[:, None])
+    h = j.T @ jw
+    return h.toarray() if scipy.sparse.issparse(h) else h
+
+
+def jt_dot(j, v: np.ndarray) -> np.ndarray:
+    return np.asarray(j.T @ v).ravel()
 
 
 def right_jacobian_so3(phi: np.ndarray) -> np.ndarray:
@@ -192,7 +205,7 @@ class ResidualModel:
         col_of = np.full(self.layout.size, -1)
         col_of[cols] = np.arange(len(cols))
         n_cols = len(cols)
-        flat_all, vals_all = [], []
+        rows_all, cols_all, vals_all = [], [], []
         for sel, name, part, fk, point, tri, patch in self.groups:
             levels = free_levels.get(name, ())
             if not levels:
@@ -229,15 +242,19 @@ class ResidualModel:
                 keep = cc >= 0
                 if not np.any(keep):
                     continue
-                flat = (row3[:, None, None] + np.arange(3)[None, :, None]) * n_cols + cc[:, None, :]
+                rr = np.broadcast_to(row3[:, None, None] + np.arange(3)[None, :, None], block.shape)
                 mask = np.broadcast_to(keep[:, None, :], block.shape)
-                flat_all.append(flat[mask])
+                rows_all.append(rr[mask])
+                cols_all.append(np.broadcast_to(cc[:, None, :], block.shape)[mask])
                 vals_all.append(block[mask])
-        size = 3 * self.n_rows * n_cols
-        if not flat_all:
-            return np.zeros((3 * self.n_rows, n_cols))
-        return np.bincount(np.concatenate(flat_all), weights=np.concatenate(vals_all),
-                           minlength=size).reshape(3 * self.n_rows, n_cols)
+        shape = (3 * self.n_rows, n_cols)
+        if not rows_all:
+            return np.zeros(shape)
+        rows, cols_, vals = np.concatenate(rows_all), np.concatenate(cols_all), np.concatenate(vals_all)
+        if shape[0] * shape[1] > DENSE_LIMIT:
+            # many unknowns at once (a joint stage): keep the block sparsity
+            return scipy.sparse.csr_matrix((vals, (rows, cols_)), shape=shape)
+        return np.bincount(rows * n_cols + cols_, weights=vals, minlength=shape[0] * shape[1]).reshape(shape)
 
 
 @dataclass
@@ -332,9 +349,8 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
     for it in range(1, opts.max_iterations + 1):
         w = np.repeat(_row_weights(np.linalg.norm(r, axis=1), opts), 3)
         j = jac(x, calib, r)
-        jw = j * w[:, None]
-        h = j.T @ jw
-        g = jw.T @ r.ravel()
+        h = gram(j, w)
+        g = jt_dot(j, w * r.ravel())
         h[np.diag_indices_from(h)] += pw
         g += pw * (x[cols] - prior[cols])
         diag = np.maximum(np.diag(h).copy(), 1e-12)
@@ -388,8 +404,7 @@ def condition_number(model: ResidualModel, calib: SkinCalibration, free_levels: 
     """Condition number of the Jacobi-scaled normal equations (how well the data pins the unknowns)."""
     if len(cols) == 0:
         return float("nan")
-    j = model.jacobian(calib, free_levels, cols)
-    h = j.T @ j
+    h = gram(model.jacobian(calib, free_levels, cols))
     s = np.sqrt(np.maximum(np.diag(h), 1e-300))
     ev = np.linalg.eigvalsh(h / np.outer(s, s))
     return float(ev[-1] / max(ev[0], 1e-300))

@@ -1,0 +1,58 @@
+"""``nao-skin demo``: the main job on the bundled data, end to end.
+
+Reads the bundled simulated recording (``bags/sim_default``: a rosbag2 touch
+bag with its ground truth), calibrates all four skin parts with the default
+(thesis) plan, writes the results where users apply them and a URDF with the
+calibrated skin frames, and prints how far the skin was and is from the truth.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+NAME = "demo"
+HELP = "calibrate the bundled simulated recording (bags/sim_default) and write out/demo"
+
+
+def bundled_recording() -> Path:
+    from ..config import config_dir
+
+    return config_dir().parent / "bags" / "sim_default"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--input", default=None, help="recording to calibrate (default: bags/sim_default)")
+    parser.add_argument("--out", default="out/demo", help="output directory (default: out/demo)")
+    parser.add_argument("--quiet", action="store_true")
+
+
+def run(args) -> int:
+    from ..calibrate import CalibrationOptions, calibrate
+    from ..config import load_default_skin
+    from ..datasets import deduplicate
+    from ..errors import DataError
+    from ..inputs import load_touches
+    from ..report import write_outputs
+    from ..urdf import expand_xacro
+
+    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
+    source = Path(args.input) if args.input else bundled_recording()
+    if not source.exists():
+        raise DataError(f"{source}: bundled recording not found (regenerate it: see bags/README.md)")
+    skin = load_default_skin()
+    log(f"reading {source}")
+    touches, _, truth = load_touches([source], skin, log=log)
+    touches, n_dup = deduplicate(touches)
+    log(f"{touches.n_touches} touches after removing {n_dup} exact duplicates; calibrating (thesis plan + joint refinement)")
+    result = calibrate(touches, skin, CalibrationOptions(), truth=truth, progress=log)
+    out = write_outputs(result, skin, args.out)
+    (out / "nao_skin.urdf").write_text(expand_xacro(out / "calibration.yaml"))
+    final, before = result.report["final"], result.report["before"]
+    print(f"closest COP pair:   {before['test']['cop_mean_mm']:.1f} mm before -> {final['test']['cop_mean_mm']:.2f} mm after (test set mean)")
+    print(f"closest taxel pair: {before['test']['taxel_mean_mm']:.1f} mm before -> {final['test']['taxel_mean_mm']:.2f} mm after (test set mean)")
+    if truth is not None:
+        tb, tf = before["truth_taxel_error_mm"], final["truth_taxel_error_mm"]
+        for part in [p for p in tf if p != "all"] + ["all"]:
+            print(f"true taxel error {part:>7}: median {tb[part]['median']:6.2f} -> {tf[part]['median']:.2f} mm,"
+                  f" p95 {tb[part]['p95']:6.2f} -> {tf[part]['p95']:.2f} mm")
+    print(f"{result.report['total_seconds']:.1f} s; results in {out}/ (calibration.yaml, taxels/, report.md, report.json, *.png, nao_skin.urdf)")
+    return 0
