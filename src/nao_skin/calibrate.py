@@ -167,20 +167,50 @@ def _select_rows(pairing: Pairing, kinds: tuple, inliers: np.ndarray | None = No
                    term_weight=pairing.term_weight[tkeep], distance=pairing.distance[keep])
 
 
+_SUBSETS: dict = {}
+
+
+def _pair_subset(touches: TouchSet, pa: str, pb: str):
+    """The touches where both parts fire, and their rows in ``touches`` (cached: pairing runs
+    many times on the same set, and most touches of a multi-pair recording involve other pairs)."""
+    key = (id(touches), touches.n_touches, pa, pb)
+    hit = _SUBSETS.get(key)
+    if hit is not None and hit[0] is touches:
+        return hit[1], hit[2]
+    fired = touches.parts_of_touch()
+    rows = np.flatnonzero(fired[:, touches.part_index(pa)] & fired[:, touches.part_index(pb)])
+    sub = touches.subset(rows)
+    if len(_SUBSETS) > 64:
+        _SUBSETS.clear()
+    _SUBSETS[key] = (touches, sub, rows)
+    return sub, rows
+
+
+def pair_parts(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, pa: str, pb: str,
+               kinds=("cop", "taxel", "taxel5")) -> Pairing:
+    """``pair_touches`` for one pair of parts, computed on the touches where both fire only."""
+    sub, rows = _pair_subset(touches, pa, pb)
+    p = pair_touches(sub, skin, calib, kinds=kinds, parts=(pa, pb))
+    remap = np.array([touches.part_index(n) for n in sub.part_names], dtype=int)
+    return Pairing(row_touch=rows[p.row_touch], row_kind=p.row_kind, row_parts=remap[p.row_parts],
+                   term_row=p.term_row, term_part=remap[p.term_part], term_slot=p.term_slot,
+                   term_weight=p.term_weight, distance=p.distance)
+
+
 def _pair_step(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, step: Step,
                kinds=("cop", "taxel", "taxel5")) -> Pairing:
     """Pair the touches of every (target, reference) combination of a step."""
     names = step.targets + step.references
-    combos = []
+    parts = []
     for i, a in enumerate(names):
         for b in names[i + 1:]:
-            if a in step.targets or b in step.targets:
-                combos.append((a, b))
-    parts = []
-    for a, b in combos:
-        pa, pb = sorted((a, b), key=lambda n: PART_NAMES.index(n) if n in PART_NAMES else 99)
-        if pa in touches.part_names and pb in touches.part_names:
-            parts.append(pair_touches(touches, skin, calib, kinds=kinds, parts=(pa, pb)))
+            if a not in step.targets and b not in step.targets:
+                continue
+            pa, pb = sorted((a, b), key=lambda n: PART_NAMES.index(n) if n in PART_NAMES else 99)
+            if pa in touches.part_names and pb in touches.part_names:
+                p = pair_parts(touches, skin, calib, pa, pb, kinds)
+                if len(p.row_touch):
+                    parts.append(p)
     if not parts:
         return None
     return _concat_pairings(parts)
@@ -368,7 +398,7 @@ def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: 
         return {"n_touches": 0}
     pairs = sorted({tuple(sorted((a, b), key=lambda n: PART_NAMES.index(n) if n in PART_NAMES else 99))
                     for s in steps for a in s.targets + s.references for b in s.targets + s.references if a != b})
-    pairings = [pair_touches(touches, skin, calib, parts=p) for p in pairs
+    pairings = [pair_parts(touches, skin, calib, p[0], p[1]) for p in pairs
                 if p[0] in touches.part_names and p[1] in touches.part_names]
     pairings = [p for p in pairings if len(p.row_touch)]
     if not pairings:
