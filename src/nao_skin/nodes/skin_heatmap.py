@@ -28,6 +28,7 @@ from .runtime import declare, run_node
 
 TOPIC = "/nao_skin/heatmap"
 LEGEND_NS = "legend"
+LEGEND_HEIGHT = 0.12      # m: height of the colour bar
 
 PARAMS = {
     "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
@@ -82,9 +83,9 @@ class SkinHeatmap(Node):
         bar.header.frame_id = base
         bar.ns, bar.id, bar.type, bar.action = LEGEND_NS, 0, Marker.CUBE_LIST, Marker.ADD
         bar.pose.orientation.w = 1.0
-        bar.scale.x = bar.scale.y = d
-        bar.scale.z = 2 * d / SCALE_LEVELS * 8
-        step = bar.scale.z
+        step = LEGEND_HEIGHT / SCALE_LEVELS          # one cube per colour level, stacked upwards
+        bar.scale.x = bar.scale.y = 2 * d
+        bar.scale.z = step
         bar.points = [Point(x=float(origin[0]), y=float(origin[1]), z=float(origin[2] + i * step))
                       for i in range(SCALE_LEVELS)]
         bar.colors = self.palette[:SCALE_LEVELS]
