@@ -16,7 +16,7 @@ from nao_skin.robot import RobotModel
 from nao_skin.skin import SkinModel
 from nao_skin.taxel_file import read_taxel_file
 
-REAL = Path("/work/shared/data/real_selftouch")
+from real_data import REAL_DIR as REAL  # noqa: E402
 ROBOT_YAML = Path(__file__).resolve().parents[1] / "config" / "nao_h25.yaml"
 needs_real = pytest.mark.skipif(not (REAL / "l_hand_torso.legacy.txt").exists(), reason="real recording not present")
 

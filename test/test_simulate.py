@@ -23,9 +23,11 @@ from nao_skin.sim_params import SimParams, default_params_file, load_params, mak
 from nao_skin.simulate import simulate
 from nao_skin.skin import SkinModel
 
-REAL = Path("/work/shared/data/real_selftouch/l_hand_torso.legacy.txt")
-REAL_HAND_LAYOUT = Path("/work/shared/data/real_selftouch/l_hand.taxels.txt")
-REAL_TORSO_LAYOUT = Path("/work/shared/data/real_selftouch/torso.taxels.txt")
+from real_data import REAL_DIR  # noqa: E402
+
+REAL = REAL_DIR / "l_hand_torso.legacy.txt"
+REAL_HAND_LAYOUT = REAL_DIR / "l_hand.taxels.txt"
+REAL_TORSO_LAYOUT = REAL_DIR / "torso.taxels.txt"
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,7 @@ from nao_skin.errors import ConfigError, DataError
 from nao_skin.skin import SkinCalibration, SkinModel
 from nao_skin.taxel_file import SLOTS_PER_TRIANGLE, read_taxel_file
 
-REAL = Path("/work/shared/data/real_selftouch")
+from real_data import REAL_DIR as REAL  # noqa: E402
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="real self-touch data not on this machine")
 
 

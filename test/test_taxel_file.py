@@ -12,7 +12,7 @@ from nao_skin.config import config_dir
 from nao_skin.errors import DataError
 from nao_skin.taxel_file import SLOTS_PER_TRIANGLE, read_taxel_file, write_taxel_file
 
-REAL = Path("/work/shared/data/real_selftouch")
+from real_data import REAL_DIR as REAL  # noqa: E402
 REAL_FILES = [REAL / "l_hand.taxels.txt", REAL / "torso.taxels.txt"]
 LAYOUT_FILES = sorted((config_dir() / "layouts").glob("*.txt"))
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="real self-touch data not on this machine")

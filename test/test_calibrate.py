@@ -1,0 +1,165 @@
+"""Calibration engine and `nao-skin calibrate`: behaviour on simulated truth, real data and bad input.
+
+Accuracy and speed targets are the benchmark's business (`nao-skin bench`);
+these tests check that the engine does what it says: it finds a hand mount
+160 degrees off without help, it moves toward the truth, it writes its files
+(all or nothing), and bad input stops it with one line.
+"""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from nao_skin.calibrate import CalibrationOptions, calibrate, plan_steps
+from nao_skin.config import load_default_skin
+from nao_skin.datasets import deduplicate
+from nao_skin.errors import DataError
+from nao_skin.report import write_outputs
+from nao_skin.sim_params import load_params
+from nao_skin.simulate import simulate
+from nao_skin.skin import SkinCalibration
+
+from real_data import REAL_DIR as REAL  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def skin():
+    return load_default_skin()
+
+
+@pytest.fixture(scope="module")
+def left_hand_sim(skin):
+    """120 simulated left hand-torso touches with the default defects and a 160-degree hand mount."""
+    params = load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 120})
+    result = simulate(skin, params, seed=3)
+    touches, _ = deduplicate(result.touches)
+    return touches, result.truth
+
+
+@pytest.fixture(scope="module")
+def left_hand_result(skin, left_hand_sim):
+    touches, truth = left_hand_sim
+    return calibrate(touches, skin, CalibrationOptions(), truth=truth)
+
+
+def test_plan_follows_the_thesis(skin):
+    """Hands from the torso first, then torso and head from the calibrated hands."""
+    params = load_params("default", {"n_touches": 12})
+    touches = simulate(skin, params, seed=1).touches
+    steps = [s.name for s in plan_steps(touches, CalibrationOptions())]
+    assert steps == ["r_hand from torso", "l_hand from torso", "torso from r_hand+l_hand", "head from r_hand+l_hand"]
+    simultaneous = plan_steps(touches, CalibrationOptions(reference="simultaneous"))
+    assert [s.targets for s in simultaneous] == [("r_hand", "l_hand", "torso", "head")]
+
+
+def test_finds_a_160_degree_hand_mount_without_a_manual_guess(skin, left_hand_result, left_hand_sim):
+    _, truth = left_hand_sim
+    rot = np.linalg.norm(truth.parts["l_hand"].mount[3:])
+    assert rot > np.deg2rad(140)                       # the case really is the hard one
+    before = left_hand_result.report["before"]["truth_taxel_error_mm"]["l_hand"]["median"]
+    after = left_hand_result.report["final"]["truth_taxel_error_mm"]["l_hand"]["median"]
+    assert before > 40.0
+    assert after < 2.5, left_hand_result.report["final"]["truth_taxel_error_mm"]
+
+
+def test_every_stage_reports_what_the_issue_asks(left_hand_result):
+    report = left_hand_result.report
+    keys = {"n_touches", "cop_mean_mm", "taxel_mean_mm", "taxel5_mean_mm", "cop_median_mm", "taxel_p90_mm"}
+    for entry in [report["before"], report["final"], *report["stages"]]:
+        for split in ("train", "test"):
+            assert keys <= set(entry[split]), (entry.get("name"), split)
+    names = [s["name"] for s in report["stages"]]
+    assert names[:3] == ["l_hand from torso: mount", "l_hand from torso: patch", "l_hand from torso: triangle"]
+    assert all(s["seconds"] >= 0 and s["iterations"] >= 0 and s["repairings"] >= 1 for s in report["stages"])
+    assert report["total_seconds"] > 0
+    assert report["final"]["train"]["cop_mean_mm"] < report["before"]["train"]["cop_mean_mm"] / 5
+    assert report["final"]["test"]["taxel_mean_mm"] < report["before"]["test"]["taxel_mean_mm"] / 5
+
+
+def test_set_aside_touches_are_mostly_injected_outliers(skin, left_hand_sim, left_hand_result):
+    touches, _ = left_hand_sim
+    outlier_keys = {touches.keys[i] for i in np.flatnonzero(touches.labels["outlier"])}
+    aside = {s["touch"] for s in left_hand_result.set_aside}
+    assert aside, "the default recording has non-self contacts; some must be set aside"
+    assert len(aside & outlier_keys) / len(aside) > 0.5
+    assert all("mm after the mount fit" in s["reason"] for s in left_hand_result.set_aside)
+
+
+def test_triangles_with_few_activations_are_held_and_listed(skin):
+    params = load_params("few-touches", {"pairs": [["l_hand", "torso"]], "n_touches": 40})
+    result = simulate(skin, params, seed=2)
+    touches, _ = deduplicate(result.touches)
+    out = calibrate(touches, skin, CalibrationOptions(), truth=result.truth)
+    held = out.report["held"]
+    assert any(h.startswith("l_hand/triangle_") for h in held)
+    part = skin.parts["l_hand"]
+    # a fully held triangle keeps exactly its prior correction (zero)
+    for h in held:
+        if h.startswith("l_hand/triangle_") and "(" not in h:
+            tid = int(h.split("_")[-1])
+            row = list(part.triangle_ids).index(tid)
+            assert np.allclose(out.calibration.parts["l_hand"].triangles[row], 0.0)
+
+
+def test_outputs_are_written_where_users_apply_them(tmp_path, skin, left_hand_result):
+    out = write_outputs(left_hand_result, skin, tmp_path / "cal")
+    names = {p.name for p in out.iterdir()}
+    assert {"calibration.yaml", "report.json", "report.md", "taxels", "errors_before_after.png",
+            "triangle_errors.png", "skin_before_after.png"} <= names
+    loaded = SkinCalibration.load(out / "calibration.yaml", skin)
+    np.testing.assert_allclose(loaded.parts["l_hand"].mount, left_hand_result.calibration.parts["l_hand"].mount, atol=1e-9)
+    report = json.loads((out / "report.json").read_text())
+    assert report["final"]["truth_taxel_error_mm"]["l_hand"]["median"] > 0
+    from nao_skin.taxel_file import read_taxel_file
+    calibrated = read_taxel_file(out / "taxels" / "l_hand.txt")
+    pos, _ = skin.parts["l_hand"].taxel_positions(left_hand_result.calibration.parts["l_hand"])
+    present = skin.parts["l_hand"].present
+    np.testing.assert_allclose(calibrated.positions[present], pos[present], atol=1e-8)
+    assert "| final |" in (out / "report.md").read_text()
+
+
+def test_too_few_touches_stop_with_one_line_and_write_nothing(tmp_path, skin):
+    params = load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 8})
+    touches = simulate(skin, params, seed=4).touches
+    with pytest.raises(DataError) as err:
+        calibrate(touches, skin, CalibrationOptions())
+    msg = str(err.value)
+    assert "\n" not in msg and "l_hand" in msg and "needs at least" in msg
+
+
+def test_unknown_option_value_is_one_line(skin, left_hand_sim):
+    touches, _ = left_hand_sim
+    with pytest.raises(DataError, match="strategy"):
+        calibrate(touches, skin, CalibrationOptions(strategy="random"))
+
+
+def test_real_recording_through_the_command(tmp_path):
+    """The real left hand-torso recording: the command runs end to end and gets within centimetres to millimetres."""
+    out = tmp_path / "real"
+    cmd = [sys.executable, "-m", "nao_skin.cli", "calibrate", str(REAL / "l_hand_torso.legacy.txt"),
+           "--taxels", f"l_hand={REAL / 'l_hand.taxels.txt'}", "--taxels", f"torso={REAL / 'torso.taxels.txt'}",
+           "--out", str(out), "--quiet", "--no-plots"]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert report["input"]["duplicates_removed"] == 25
+    assert report["before"]["train"]["cop_mean_mm"] > 60
+    for split in ("train", "test"):
+        assert report["final"][split]["cop_mean_mm"] < 8.0
+        assert report["final"][split]["taxel_mean_mm"] < 5.0
+
+
+def test_command_fails_with_one_line_on_a_bad_input(tmp_path):
+    bad = tmp_path / "broken.txt"
+    bad.write_text("{'0': [{0: {'cop': [0, 0,")
+    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "calibrate", str(bad), "--out", str(tmp_path / "o")],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "broken.txt" in lines[0]
+    assert not (tmp_path / "o").exists()
