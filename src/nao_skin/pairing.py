@@ -67,7 +67,11 @@ def _argmin_per_group(group: np.ndarray, key: np.ndarray) -> np.ndarray:
     """Index of the smallest ``key`` in each group (ties: lowest index), ordered by group."""
     if len(group) == 0:
         return np.zeros(0, dtype=int)
-    order = np.lexsort((np.arange(len(key)), key, group))
+    # one stable argsort of "group + key scaled into [0, 1)" instead of a three-key lexsort
+    key = np.asarray(key, dtype=float)
+    span = float(np.max(key) - np.min(key)) if len(key) else 0.0
+    scaled = (key - np.min(key)) / (span * (1.0 + 1e-9)) if span > 0 else np.zeros_like(key)
+    order = np.argsort(group.astype(float) + scaled, kind="stable")
     g = group[order]
     return order[np.r_[True, g[1:] != g[:-1]]]
 
