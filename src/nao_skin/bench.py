@@ -264,6 +264,19 @@ def held_frames(held: list) -> list:
     return out
 
 
+def untouched_triangles(touches: TouchSet, skin: SkinModel, parts) -> list:
+    """'part/triangle_N' of every triangle no activation of ``touches`` falls on: the data cannot place it."""
+    out = []
+    for name in parts:
+        if name not in touches.part_names:
+            continue
+        part = skin.parts[name]
+        slots = touches.act_slot[touches.act_part == touches.part_index(name)]
+        touched = np.unique(part.slot_triangle[slots])
+        out += [f"{name}/triangle_{int(t)}" for i, t in enumerate(part.triangle_ids) if i not in touched]
+    return out
+
+
 def held_frame_check(skin: SkinModel, calib: SkinCalibration, truth: SkinCalibration, held: list) -> list:
     """Held frames whose taxels end farther from the truth than on the nominal skin.
 
@@ -321,6 +334,9 @@ def run_hard_case(skin: SkinModel, preset: str, seed: int, setup: HardCaseSetup 
         row["held"] = list(rep["held"])
         row["held_frames"] = len(held_frames(rep["held"]))
         row["held_violations"] = held_frame_check(skin, result.calibration, sim.truth, rep["held"])
+        fully_held = {h for h in rep["held"] if " " not in h}
+        row["untouched_not_held"] = [f for f in untouched_triangles(result.train, skin, rep["parts"])
+                                     if f not in fully_held]
         row.update(_outlier_recall(result))
         row["converged"] = bool(row["true_median_mm"] <= CONVERGED_MM)
         nans = [k for k in ("true_median_mm", "true_p95_mm", "true_max_mm") if math.isnan(row[k])]
@@ -406,6 +422,7 @@ def hard_case_summary(rows: list) -> list:
              "condition": float(np.max([r["condition"] for r in ok])) if ok else float("nan"),
              "held_frames": float(np.median([r["held_frames"] for r in ok])) if ok else float("nan"),
              "violations": int(sum(len(r["held_violations"]) for r in ok)),
+             "untouched_free": int(sum(len(r["untouched_not_held"]) for r in ok)),
              "min_recall": float(np.min([r["recall"] for r in ok if not math.isnan(r.get("recall", math.nan))]))
              if any(not math.isnan(r.get("recall", math.nan)) for r in ok) else float("nan")}
         s["target"], s["met"] = _target(preset, s, ok, default_median)
@@ -430,6 +447,8 @@ def _target(preset: str, s: dict, ok: list, default_median: float) -> tuple:
             problems.append(f"recall below target in {len(low)} runs (min {s['min_recall']:.2f})")
     elif preset in ("few-touches", "planar-poses"):
         target = "held frames listed, none worse than nominal"
+        if s["untouched_free"]:
+            problems.append(f"{s['untouched_free']} untouched triangles not held")
         if s["violations"]:
             problems.append(f"{s['violations']} held frames worse than nominal")
         if ok and all(r["held_frames"] == 0 for r in ok):
@@ -492,14 +511,14 @@ def hard_case_tables(rows: list) -> str:
     summary = hard_case_summary(rows)
     head = ["preset", "runs", "converged", "failed", "true median mm (median / worst)", "worst p95 mm",
             "iterations", "re-pairings", "max condition", "held frames", "held worse than nominal",
-            "min outlier recall", "target", "met"]
+            "untouched not held", "min outlier recall", "target", "met"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for s in summary:
         lines.append("| " + " | ".join([
             s["preset"], str(s["runs"]), f"{s['converged']}/{s['runs']}", str(s["failed"]),
             f"{_f(s['median_mm'], 3)} / {_f(s['worst_median_mm'], 3)}", _f(s["worst_p95_mm"], 3),
             _f(s["iterations"], 0), _f(s["repairings"], 0), _f(s["condition"], 0), _f(s["held_frames"], 0),
-            str(s["violations"]), _f(s["min_recall"]), s["target"], s["met"]]) + " |")
+            str(s["violations"]), str(s["untouched_free"]), _f(s["min_recall"]), s["target"], s["met"]]) + " |")
     head2 = ["preset", "seed", "converged", "true median mm", "p95 mm", "iterations", "re-pairings", "condition",
              "held", "set aside (injected outliers among them)", "held worse than nominal", "status"]
     lines += ["", "| " + " | ".join(head2) + " |", "|" + "---|" * len(head2)]
