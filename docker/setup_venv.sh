@@ -261,6 +261,9 @@ setup_yarp() {
       || die "pip install yarp-middleware failed"
   fi
   "$VENV/bin/python" -c 'import yarp' || die "'import yarp' fails in $VENV"
+  # urdfdom's check_urdf (the parser robot_state_publisher uses) checks the expanded URDF in the tests
+  step "pip: cmeel-urdfdom (check_urdf for the URDF test)"
+  pip_install cmeel-urdfdom || die "pip install cmeel-urdfdom failed"
   if [[ ! -x "$VENV/bin/yarpserver" ]]; then
     local ys; ys="$(find_yarpserver)" || die "yarp-middleware installed but no yarpserver executable found"
     step "exposing $ys as $VENV/bin/yarpserver"

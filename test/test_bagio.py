@@ -3,40 +3,25 @@
 The real recording is read from /work/shared; bags are written to tmp_path.
 """
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
 from nao_skin.bagio import BagWriter, read_touches, write_touch_bag
-from nao_skin.config import default_skin_config
 from nao_skin.errors import DataError
-from nao_skin.legacy import read_legacy, skin_model_for
 from nao_skin.pairing import metrics, pair_touches
-from nao_skin.robot import RobotModel
-from nao_skin.skin import SkinModel
 
-from real_data import REAL_DIR as REAL  # noqa: E402
-ROBOT_YAML = Path(__file__).resolve().parents[1] / "config" / "nao_h25.yaml"
-needs_real = pytest.mark.skipif(not (REAL / "l_hand_torso.legacy.txt").exists(), reason="real recording not present")
 
 
 @pytest.fixture(scope="module")
-def real_skin():
-    robot = RobotModel.from_yaml(ROBOT_YAML)
-    return skin_model_for({"l_hand": REAL / "l_hand.taxels.txt", "torso": REAL / "torso.taxels.txt"}, robot)
+def real(real_loaded):
+    return real_loaded[0]
 
 
 @pytest.fixture(scope="module")
-def real(real_skin):
-    touches, _ = read_legacy(REAL / "l_hand_torso.legacy.txt", real_skin)
-    return touches
-
-
-@pytest.fixture(scope="module")
-def skin():
-    return SkinModel.from_yaml(default_skin_config())
+def skin(default_skin):
+    return default_skin
 
 
 def canonical_pairs(touches, pairing):
@@ -53,7 +38,6 @@ def canonical_pairs(touches, pairing):
 
 
 # ---------------------------------------------------------------------- round trip of the real recording
-@needs_real
 @pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
 def test_real_touches_round_trip_with_identical_pairs(real, real_skin, tmp_path, storage):
     touches = real if storage == "sqlite3" else real.subset(np.arange(200))
@@ -72,7 +56,6 @@ def test_real_touches_round_trip_with_identical_pairs(real, real_skin, tmp_path,
         assert m["n_touches"] == 810 and 74.0 < m["cop_mean_mm"] < 80.0
 
 
-@needs_real
 def test_bag_metadata_is_jazzy_readable_and_self_describing(real, real_skin, tmp_path):
     bag = tmp_path / "touches"
     write_touch_bag(bag, real.subset(np.arange(5)), real_skin)
@@ -101,7 +84,6 @@ def test_bag_metadata_is_jazzy_readable_and_self_describing(real, real_skin, tmp
                 assert "LShoulderPitch" in msg.name
 
 
-@needs_real
 def test_truncated_bags(real, real_skin, tmp_path):
     touches = real.subset(np.arange(300))
     for storage, suffix in (("mcap", ".mcap"), ("sqlite3", ".db3")):

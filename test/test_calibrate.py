@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from nao_skin.calibrate import CalibrationOptions, calibrate, plan_steps
 from nao_skin.config import load_default_skin

@@ -3,38 +3,26 @@
 The real recording is read from /work/shared (never copied into the repo);
 bad-input cases are small files written to tmp_path.
 """
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from nao_skin.config import default_skin_config
 from nao_skin.datasets import deduplicate, duplicate_mask, split
 from nao_skin.errors import DataError
-from nao_skin.legacy import read_legacy, skin_model_for
-from nao_skin.robot import RobotModel
-from nao_skin.skin import SkinModel
+from nao_skin.legacy import read_legacy
 from nao_skin.taxel_file import read_taxel_file
 
 from real_data import REAL_DIR as REAL  # noqa: E402
-ROBOT_YAML = Path(__file__).resolve().parents[1] / "config" / "nao_h25.yaml"
-needs_real = pytest.mark.skipif(not (REAL / "l_hand_torso.legacy.txt").exists(), reason="real recording not present")
 
 
 @pytest.fixture(scope="module")
-def real_skin():
-    robot = RobotModel.from_yaml(ROBOT_YAML)
-    return skin_model_for({"l_hand": REAL / "l_hand.taxels.txt", "torso": REAL / "torso.taxels.txt"}, robot)
+def real(real_loaded):
+    return real_loaded
 
 
 @pytest.fixture(scope="module")
-def real(real_skin):
-    return read_legacy(REAL / "l_hand_torso.legacy.txt", real_skin)
-
-
-@pytest.fixture(scope="module")
-def skin():
-    return SkinModel.from_yaml(default_skin_config())
+def skin(default_skin):
+    return default_skin
 
 
 JOINTS = {"HeadYaw": 0.1, "HeadPitch": -0.2, "LShoulderPitch": 0.5, "LShoulderRoll": 0.3, "LElbowYaw": -1.0,
@@ -61,7 +49,6 @@ def write(tmp_path, data, name="data.txt"):
 
 
 # ---------------------------------------------------------------------- the real recording
-@needs_real
 def test_real_file_imports_all_touches(real, real_skin):
     touches, report = real
     assert touches.n_touches == 810 and report.n_loaded == 810 and report.n_skipped == 0
@@ -77,7 +64,6 @@ def test_real_file_imports_all_touches(real, real_skin):
     assert np.isfinite(touches.joints).all()
 
 
-@needs_real
 def test_real_file_taxel_info_matches_the_taxel_files(real):
     """The recorder's taxelInfo rows are exactly the taxel file rows (checked once here, then ignored)."""
     import ast
@@ -92,7 +78,6 @@ def test_real_file_taxel_info_matches_the_taxel_files(real):
             np.testing.assert_allclose(row, np.r_[tf.positions[int(slot)], tf.normals[int(slot)]], atol=1e-9)
 
 
-@needs_real
 def test_real_file_has_25_exact_duplicates(real):
     touches, _ = real
     unique, removed = deduplicate(touches)

@@ -4,39 +4,24 @@ The vectorised pairing is checked against a plain per-touch oracle written
 here from the definitions (using SkinModel.taxels_in_base), on the real
 recording, under the nominal layout and under a moved calibration.
 """
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from nao_skin.config import default_skin_config
-from nao_skin.legacy import read_legacy, skin_model_for
 from nao_skin.pairing import (KIND_COP, KIND_TAXEL, KIND_TAXEL5, activation_positions, metrics, pair_touches,
                               residuals)
-from nao_skin.robot import RobotModel
-from nao_skin.skin import SkinModel
 from nao_skin.touches import TouchSet
 
-from real_data import REAL_DIR as REAL  # noqa: E402
-ROBOT_YAML = Path(__file__).resolve().parents[1] / "config" / "nao_h25.yaml"
-needs_real = pytest.mark.skipif(not (REAL / "l_hand_torso.legacy.txt").exists(), reason="real recording not present")
 
 
 @pytest.fixture(scope="module")
-def real_skin():
-    robot = RobotModel.from_yaml(ROBOT_YAML)
-    return skin_model_for({"l_hand": REAL / "l_hand.taxels.txt", "torso": REAL / "torso.taxels.txt"}, robot)
+def real(real_loaded):
+    return real_loaded[0]
 
 
 @pytest.fixture(scope="module")
-def real(real_skin):
-    touches, _ = read_legacy(REAL / "l_hand_torso.legacy.txt", real_skin)
-    return touches
-
-
-@pytest.fixture(scope="module")
-def skin():
-    return SkinModel.from_yaml(default_skin_config())
+def skin(default_skin):
+    return default_skin
 
 
 def moved_calibration(skin):
@@ -103,7 +88,6 @@ def check_against_oracle(touches, skin, calib, rows):
 
 
 # ---------------------------------------------------------------------- the real recording
-@needs_real
 def test_real_figures_under_identity_mount(real, real_skin):
     m = metrics(pair_touches(real, real_skin))
     assert m["n_touches"] == 810
@@ -113,13 +97,11 @@ def test_real_figures_under_identity_mount(real, real_skin):
     assert m["cop_median_mm"] <= m["cop_p90_mm"]
 
 
-@needs_real
 def test_real_pairing_matches_per_touch_oracle_nominal(real, real_skin):
     rows = np.random.default_rng(1).choice(real.n_touches, 40, replace=False)
     check_against_oracle(real, real_skin, None, rows)
 
 
-@needs_real
 def test_real_repairing_under_a_moved_calibration_matches_oracle(real, real_skin):
     calib = moved_calibration(real_skin)
     rows = np.random.default_rng(2).choice(real.n_touches, 40, replace=False)
@@ -129,7 +111,6 @@ def test_real_repairing_under_a_moved_calibration_matches_oracle(real, real_skin
         metrics(pair_touches(real, real_skin))["cop_mean_mm"], abs=1.0)
 
 
-@needs_real
 def test_rows_rebuild_their_distances(real, real_skin):
     """Each row's weighted taxel sum reproduces its pairing distance; each side's weights sum to 1."""
     calib = moved_calibration(real_skin)
@@ -147,7 +128,6 @@ def test_rows_rebuild_their_distances(real, real_skin):
     np.testing.assert_array_equal(pairing.term_part, pairing.row_parts[pairing.term_row, side])
 
 
-@needs_real
 def test_thesis_taxel_rule_is_never_closer_than_closest_pair(real, real_skin):
     """prepareData.m's rule picks one of the candidate pairs, so it can only be farther."""
     closest = pair_touches(real, real_skin, kinds=("taxel",))
