@@ -235,3 +235,18 @@ def test_touch_sweep_variants_set_max_touches():
         changed = [k for k in vars(d) if getattr(v.options(), k) != getattr(d, k)]
         assert len(changed) == (0 if v is default else 1), (v.name, changed)
     assert np.all([v.single_run == (v.knobs.get("jacobian") == "2-point") for v in names.values()])
+
+
+def test_target_lines_name_each_miss():
+    sim = {"input": "sim", "knobs": {}, "status": "ok", "seconds": 1.0,
+           "part_true_mm": {"l_hand": {"median": 0.4, "p95": 1.0}, "torso": {"median": 0.7, "p95": 1.6}}}
+    real = {"input": "real", "knobs": {}, "status": "ok", "seconds": 3.0, "train_cop_mm": 5.4, "test_cop_mm": 5.6,
+            "train_taxel_mm": 2.0, "test_taxel_mm": float("nan")}
+    failed = {"input": "bad", "knobs": {}, "status": "FAILED: DataError: x"}
+    lines = bench.target_lines([sim, real, failed])
+    assert lines[0].endswith("NOT met: torso median 0.70 > 0.5 mm; torso p95 1.60 > 1.5 mm")
+    assert "test closest COP 5.60 > 5.5 mm" in lines[1] and "test closest taxel nan > 2.2 mm" in lines[1]
+    assert "train closest" not in lines[1] and "3.00 s > 2 s" in lines[1]
+    assert lines[2] == "bad: default row FAILED: DataError: x"
+    sim["part_true_mm"]["torso"] = {"median": 0.3, "p95": 1.2}
+    assert bench.target_lines([sim])[0].endswith(": met")

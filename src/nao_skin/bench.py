@@ -126,7 +126,8 @@ def _errors(result, inp: BenchInput) -> dict:
         err = truth_error(inp.skin, result.calibration, inp.truth, rep["parts"])
         before = truth_error(inp.skin, inp.skin.zero_calibration(), inp.truth, rep["parts"])
         out.update(true_median_mm=err["all"]["median"], true_p95_mm=err["all"]["p95"],
-                   true_max_mm=err["all"]["max"], before_true_median_mm=before["all"]["median"])
+                   true_max_mm=err["all"]["max"], before_true_median_mm=before["all"]["median"],
+                   part_true_mm={p: {"median": err[p]["median"], "p95": err[p]["p95"]} for p in rep["parts"]})
     final = rep["final"]
     for split in ("train", "test"):
         out[f"{split}_cop_mm"] = final[split].get("cop_mean_mm", float("nan"))
@@ -225,6 +226,42 @@ def headline(rows: list, input_name: str) -> str:
     if fd is not None and default["status"] == fd["status"] == "ok" and default["seconds"] > 0:
         text += f"; speed-up x{fd['seconds'] / default['seconds']:.1f}"
     return text
+
+
+# the accuracy and speed the project promises (issue 5), checked on the default rows
+REAL_TARGET_MM = {"cop": 5.5, "taxel": 2.2}       # mean closest COP / closest taxel, train and test
+REAL_TARGET_SECONDS = 2.0                          # whole sequential calibration of the real recording
+SIM_TARGET_MM = {"median": 0.5, "p95": 1.5}       # true taxel error of every calibrated part
+
+
+def target_lines(rows: list) -> list:
+    """One line per input: the default row against the promised accuracy (and speed, for real inputs)."""
+    out = []
+    for name in dict.fromkeys(r["input"] for r in rows):
+        row = next((r for r in rows if r["input"] == name and not r["knobs"]), None)
+        if row is None or row["status"] != "ok":
+            out.append(f"{name}: default row {'missing' if row is None else row['status']}")
+            continue
+        misses = []
+        if "part_true_mm" in row:
+            for part, e in row["part_true_mm"].items():
+                for stat, limit in SIM_TARGET_MM.items():
+                    if e[stat] > limit:
+                        misses.append(f"{part} {stat} {e[stat]:.2f} > {limit} mm")
+            goal = (f"true taxel error median <= {SIM_TARGET_MM['median']} mm and p95 <= {SIM_TARGET_MM['p95']} mm"
+                    f" for each of {', '.join(row['part_true_mm'])}")
+        else:
+            for kind, limit in REAL_TARGET_MM.items():
+                for split in ("train", "test"):
+                    v = row[f"{split}_{kind}_mm"]
+                    if not v <= limit:
+                        misses.append(f"{split} closest {kind.upper() if kind == 'cop' else kind} {v:.2f} > {limit} mm")
+            if row["seconds"] > REAL_TARGET_SECONDS:
+                misses.append(f"{row['seconds']:.2f} s > {REAL_TARGET_SECONDS:g} s")
+            goal = (f"closest COP <= {REAL_TARGET_MM['cop']} mm, closest taxel <= {REAL_TARGET_MM['taxel']} mm"
+                    f" (train and test, all touches), <= {REAL_TARGET_SECONDS:g} s")
+        out.append(f"{name}: {goal}: " + ("met" if not misses else "NOT met: " + "; ".join(misses)))
+    return out
 
 
 # ------------------------------------------------------------------------------ hard cases
