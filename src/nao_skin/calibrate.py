@@ -234,15 +234,9 @@ def _concat_pairings(pairings: list) -> Pairing:
 def _bounds(layout: ParameterLayout, targets: tuple, levels: set, x: np.ndarray, options: CalibrationOptions):
     lower = np.full(layout.size, -np.inf)
     upper = np.full(layout.size, np.inf)
-    free = np.zeros(layout.size, dtype=bool)
+    free = _free_mask(layout, targets, levels)
     for name in targets:
         m, p, t, end = layout.offsets[name]
-        if "mount" in levels:
-            free[m:p] = True
-        if "patch" in levels:
-            free[p:t] = True
-        if "triangle" in levels:
-            free[t:end] = True
         if options.bounded:
             for (a, b), (bt, br) in (((p, t), options.patch_bounds), ((t, end), options.triangle_bounds)):
                 lim = np.tile([bt, bt, bt, br, br, br], (b - a) // 6)

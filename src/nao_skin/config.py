@@ -5,6 +5,21 @@ import os
 from pathlib import Path
 
 
+def read_yaml(path: str | Path, what: str):
+    """The YAML document in ``path``; one-line ConfigError naming the file when unreadable."""
+    import yaml
+
+    from .errors import ConfigError
+
+    path = Path(path)
+    try:
+        return yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read {what} ({exc.strerror})") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+
+
 def config_dir() -> Path:
     """``config/`` of the package: $NAO_SKIN_CONFIG, the source tree, or the ROS share dir."""
     env = os.environ.get("NAO_SKIN_CONFIG")

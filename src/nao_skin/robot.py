@@ -8,8 +8,8 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
-import yaml
 
+from .config import read_yaml
 from .errors import ConfigError, DataError
 
 _ANGLE_RE = re.compile(r"^\s*([+-]?)\s*(\d*\.?\d*)\s*\*?\s*pi\s*(?:/\s*(\d+(?:\.\d*)?))?\s*$")
@@ -73,12 +73,7 @@ class RobotModel:
     @classmethod
     def from_yaml(cls, path: str | Path) -> "RobotModel":
         path = Path(path)
-        try:
-            doc = yaml.safe_load(path.read_text())
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read robot config ({exc.strerror})") from None
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        doc = read_yaml(path, "robot config")
         if not isinstance(doc, dict) or "chains" not in doc or "joints" not in doc:
             raise ConfigError(f"{path}: a robot config needs 'joints' and 'chains' mappings")
         limits = {}

@@ -12,7 +12,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
-import yaml
 
 from .errors import ConfigError
 
@@ -94,12 +93,9 @@ def default_params_file() -> Path:
 
 
 def _read_doc(path: Path) -> dict:
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read simulation parameters ({exc.strerror})") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    from .config import read_yaml
+
+    doc = read_yaml(path, "simulation parameters")
     if not isinstance(doc, dict):
         raise ConfigError(f"{path}: expected 'defaults:' and 'presets:' mappings")
     return doc

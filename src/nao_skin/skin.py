@@ -29,6 +29,7 @@ import numpy as np
 import yaml
 
 from . import se3
+from .config import read_yaml
 from .errors import ConfigError, DataError
 from .robot import RobotModel
 from .taxel_file import SLOTS_PER_TRIANGLE, TaxelFile, read_taxel_file, write_taxel_file
@@ -229,12 +230,7 @@ class SkinModel:
     def from_yaml(cls, path: str | Path, robot: RobotModel | None = None) -> "SkinModel":
         """Load ``config/nao_skin.yaml``-style files (paths inside are relative to the file)."""
         path = Path(path)
-        try:
-            doc = yaml.safe_load(path.read_text())
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read skin config ({exc.strerror})") from None
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        doc = read_yaml(path, "skin config")
         if not isinstance(doc, dict) or not isinstance(doc.get("parts"), dict):
             raise ConfigError(f"{path}: a skin config needs a 'parts' mapping")
         if robot is None:
@@ -343,12 +339,7 @@ class SkinCalibration:
     @classmethod
     def load(cls, path: str | Path, skin: SkinModel) -> "SkinCalibration":
         path = Path(path)
-        try:
-            doc = yaml.safe_load(path.read_text())
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read calibration ({exc.strerror})") from None
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        doc = read_yaml(path, "calibration")
         if not isinstance(doc, dict) or not isinstance(doc.get("parts"), dict):
             raise ConfigError(f"{path}: a calibration needs a 'parts' mapping")
         calib = skin.zero_calibration()

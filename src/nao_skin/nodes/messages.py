@@ -22,16 +22,12 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from sensor_msgs.msg import JointState, PointCloud2, PointField
 
+from ..bagio import CONTACT_DTYPE, TAXEL_DTYPE  # the one definition of the point layouts
 from ..errors import DataError
 
 SKIN_TOPIC_PREFIX = "/skin"
 JOINT_STATES_TOPIC = "/joint_states"
 
-TAXEL_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("slot", "<u4"),
-                        ("pressure", "<f4"), ("contact", "<i4")])
-CONTACT_DTYPE = np.dtype([(n, "<f4") for n in ("x", "y", "z", "nx", "ny", "nz", "gx", "gy", "gz",
-                                                 "fx", "fy", "fz", "mx", "my", "mz", "pressure")]
-                         + [("contact", "<i4")])
 
 # sensor_msgs/PointField datatype codes <-> numpy little-endian types
 _FIELD_CODE = {np.dtype("<i1"): PointField.INT8, np.dtype("<u1"): PointField.UINT8,
