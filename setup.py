@@ -30,8 +30,13 @@ data_files = [
     (share, ['package.xml']),
     (os.path.join(share, 'launch'), files('launch/*.py')),
     (os.path.join(share, 'config'), files('config/*')),
+    (os.path.join(share, 'config', 'layouts'), files('config/layouts/*')),
     (os.path.join(share, 'urdf'), files('urdf/*')),
 ]
+# the bundled recording (bags/sim_default/...), directory structure kept
+for dirpath, _, _ in sorted(os.walk(os.path.join(here, 'bags'))):
+    rel = os.path.relpath(dirpath, here)
+    data_files.append((os.path.join(share, rel), files(os.path.join(rel, '*'))))
 # setuptools is fine with empty lists, but keep the metadata clean.
 data_files = [(dest, srcs) for dest, srcs in data_files if srcs]
 
