@@ -123,12 +123,13 @@ def test_outputs_are_written_where_users_apply_them(tmp_path, skin, left_hand_re
 
 
 def test_too_few_touches_stop_with_one_line_and_write_nothing(tmp_path, skin):
-    params = load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 8})
+    params = load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 5})
     touches = simulate(skin, params, seed=4).touches
     with pytest.raises(DataError) as err:
         calibrate(touches, skin, CalibrationOptions())
     msg = str(err.value)
     assert "\n" not in msg and "l_hand" in msg and "needs at least" in msg
+    assert not (tmp_path / "out").exists()
 
 
 def test_unknown_option_value_is_one_line(skin, left_hand_sim):

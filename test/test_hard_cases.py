@@ -110,8 +110,9 @@ def test_outlier_recall_counts_keys_of_the_training_split(skin):
 
 
 @pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "engine: calibrate() refuses the preset (DataError: part 'r_hand': 13 training touches with torso; needs at"
-    " least 20) instead of calibrating what the data determines and holding the rest; reported to the lead"))
+    "engine: with ~17 training touches per pair the mounts and patches of torso and head are fitted from little"
+    " data, and held triangles that follow them end up to ~0.4 mm worse than on the nominal skin (seed 0:"
+    " head/triangle_17 2.62 vs 2.18 mm); known limitation, see the closing note of issue 7"))
 def test_few_touches_holds_what_the_data_cannot_determine(case):
     row = _ok(case("few-touches"))
     assert row["held_frames"] > 0

@@ -526,11 +526,10 @@ def _check_enough(train: TouchSet, steps: list, options: CalibrationOptions) -> 
             t = train.part_index(target)
             with_ref = fired[:, t] & np.any(fired[:, [train.part_index(o) for o in others]], axis=1)
             n = int(with_ref.sum())
-            need = options.min_mount_touches if options.strategy == "sequential" else options.min_patch_touches
-            need = max(need, options.min_patch_touches)
+            need = options.min_mount_touches
             if n < need:
-                raise DataError(f"part '{target}': {n} training touches with {'/'.join(others)}; calibrating its mount and"
-                                f" patches needs at least {need} (about {int(np.ceil(need / (1 - options.test_fraction)))}"
+                raise DataError(f"part '{target}': {n} training touches with {'/'.join(others)}; calibrating its mount"
+                                f" needs at least {need} (about {int(np.ceil(need / (1 - options.test_fraction)))}"
                                 f" touches before the {int(options.test_fraction * 100)} % test split)")
 
 
@@ -618,6 +617,14 @@ def _run_stage(touches, skin, calib, step, free_parts, levels, options, inliers,
                               variable_parts=free_parts, surface_offset=options.fabric_thickness)
         if free is None:   # what the data determines is decided once, on the first pairing
             free, lower, upper = _bounds(layout, free_parts, levels, x, options)
+            if "patch" in levels:   # patches need about twice the mount's data (thesis 2.5)
+                for p in free_parts:
+                    pidx = touches.part_index(p)
+                    n_with = len(np.unique(pairing.row_touch[pairing.term_row[pairing.term_part == pidx]]))
+                    if n_with < options.min_patch_touches:
+                        _, pp, t, _ = layout.offsets[p]
+                        free[pp:t] = False
+                        say(f"{name}: {p} has {n_with} paired touches (< {options.min_patch_touches}): patches held")
             if "triangle" in levels:
                 for p in free_parts:
                     counts = _activation_counts(pairing, touches, skin, p)
