@@ -65,6 +65,9 @@ class CalibrationOptions:
     max_touches: int | None = None      # use only this many training touches (speed/error sweeps)
     fabric_thickness: float = 0.001     # m of fabric over the taxels of each part: touching skins meet
                                         # at their fabric surfaces, 2 x this apart at the taxel centres
+    estimate_fabric: bool = True        # estimate the (pressed) fabric thickness from the touches,
+                                        # starting from fabric_thickness, within fabric_bounds
+    fabric_bounds: tuple = (0.0, 0.003)
     prior_strength: float = 3.0         # > 0: patches and triangles get a Gaussian prior whose std is
                                         # their bound / this; residual noise taken as residual_sigma
     residual_sigma: float = 0.002       # m, per coordinate of a paired-point difference
@@ -453,6 +456,7 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
     if truth is not None:
         report["before"]["truth_taxel_error_mm"] = truth_error(skin, calib, truth)
     inliers = np.ones(train.n_touches, bool)
+    fabric = options.fabric_thickness
     set_aside = []
     levels_seq = ([{"mount"}, {"patch"}, {"triangle"}] if options.strategy == "sequential"
                   else [{"mount", "patch", "triangle"}])
@@ -483,7 +487,8 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
                         calib = guess
                 say(f"{prefix}{step.name}: rigid-fit first guess ({time.perf_counter() - t0:.2f} s)")
             for levels in levels_seq:
-                stage = _run_stage(train, skin, calib, step, step.targets, levels, options, inliers, say)
+                stage = _run_stage(train, skin, calib, step, step.targets, levels, options, inliers, say, fabric)
+                fabric = stage["fabric_thickness_mm"] / 1000.0
                 stage["name"] = prefix + stage["name"]
                 calib = stage.pop("calibration")
                 if "mount" in levels and options.gate_mm > 0:
@@ -510,6 +515,7 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
         report["final"][f"{split_name}_accepted"]["n_not_explained"] = int((~explained).sum())
     if truth is not None:
         report["final"]["truth_taxel_error_mm"] = truth_error(skin, calib, truth)
+    report["fabric_thickness_mm"] = 1000.0 * fabric
     report["set_aside"] = set_aside
     report["n_set_aside"] = len(set_aside)
     report["held"] = sorted({h for s in report["stages"] for h in s["held"]})
@@ -584,7 +590,7 @@ def _gate(touches, skin, calib, step, gate_mm, inliers) -> list:
     return sorted(out.items())
 
 
-def _run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, say) -> dict:
+def _run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, say, fabric) -> dict:
     """One stage: pair, solve, re-pair under the new calibration, until the pairing settles."""
     t0 = time.perf_counter()
     name = f"{step.name}: {'+'.join(sorted(levels, key=['mount', 'patch', 'triangle'].index))}"
@@ -593,7 +599,7 @@ def _run_stage(touches, skin, calib, step, free_parts, levels, options, inliers,
     kinds = KIND_ROWS[options.mount_pairs if levels == {"mount"} else options.pairs]
     kind_names = tuple({0: "cop", 1: "taxel", 2: "taxel5"}[k] for k in kinds)
     free_levels = {p: set(levels) for p in free_parts}
-    prior_x = layout.to_vector(calib)
+    prior_x = layout.to_vector(calib, fabric)
     x = prior_x.copy()
     hashes = None
     iterations = repairings = 0
@@ -614,9 +620,12 @@ def _run_stage(touches, skin, calib, step, free_parts, levels, options, inliers,
             break
         hashes = new_hashes
         model = ResidualModel(skin, touches.joints, pairing, touches.part_names, layout, calib,
-                              variable_parts=free_parts, surface_offset=options.fabric_thickness)
+                              variable_parts=free_parts, fabric=x[layout.fabric_col])
         if free is None:   # what the data determines is decided once, on the first pairing
             free, lower, upper = _bounds(layout, free_parts, levels, x, options)
+            # the fabric is a property of the whole skin: estimated once the mounts are in place
+            free[layout.fabric_col] = options.estimate_fabric and levels != {"mount"}
+            lower[layout.fabric_col], upper[layout.fabric_col] = options.fabric_bounds
             if "patch" in levels:   # patches need about twice the mount's data (thesis 2.5)
                 for p in free_parts:
                     pidx = touches.part_index(p)
@@ -645,7 +654,8 @@ def _run_stage(touches, skin, calib, step, free_parts, levels, options, inliers,
     calib_out = layout.to_calibration(x, calib)
     cond = condition_number(model, calib_out, free_levels, np.flatnonzero(free)) if model is not None else None
     return {"name": name, "calibration": calib_out, "iterations": iterations, "repairings": repairings,
-            "condition": cond, "held": _compress_held(held_names), "seconds": time.perf_counter() - t0}
+            "condition": cond, "held": _compress_held([h for h in held_names if h != "fabric_thickness"]),
+            "fabric_thickness_mm": 1000.0 * float(x[layout.fabric_col]), "seconds": time.perf_counter() - t0}
 
 
 def _prior_weights(layout, parts, options):

@@ -80,7 +80,9 @@ class ParameterLayout:
             end = t + 6 * len(part.triangle_ids)
             self.offsets[name] = (m, p, t, end)
             col = end
-        self.size = col
+        # last column: the fabric thickness over the taxels (m), shared by every part
+        self.fabric_col = col
+        self.size = col + 1
 
     def block_columns(self, part: str, level: str, rows: np.ndarray) -> np.ndarray:
         """First column of each block (``rows`` index patches/triangles; ignored for mounts)."""
@@ -90,6 +92,8 @@ class ParameterLayout:
         return (p if level == "patch" else t) + 6 * np.asarray(rows)
 
     def describe(self, col: int) -> str:
+        if col == self.fabric_col:
+            return "fabric_thickness"
         for name, (m, p, t, end) in self.offsets.items():
             if m <= col < end:
                 part = self.skin.parts[name]
@@ -101,8 +105,9 @@ class ParameterLayout:
                 return f"{name}/triangle_{int(part.triangle_ids[(col - t) // 6])}/{comp}"
         raise IndexError(col)
 
-    def to_vector(self, calib: SkinCalibration) -> np.ndarray:
+    def to_vector(self, calib: SkinCalibration, fabric: float = 0.0) -> np.ndarray:
         x = np.zeros(self.size)
+        x[self.fabric_col] = fabric
         for name, (m, p, t, end) in self.offsets.items():
             corr = calib.parts[name]
             x[m:p] = corr.mount
@@ -129,8 +134,12 @@ class ResidualModel:
 
     def __init__(self, skin: SkinModel, joints: np.ndarray, pairing, part_names: tuple,
                  layout: ParameterLayout, base: SkinCalibration, variable_parts=None,
-                 surface_offset: float = 0.0):
+                 fabric: float = 0.0):
         self.skin = skin
+        # touching skins meet at their fabric surfaces, not at the taxel centres: each taxel
+        # is lifted along its normal (fixed in its triangle frame) by the fabric thickness,
+        # which is read from x[fabric_col] (an unknown like the corrections)
+        self.fabric = float(fabric)
         self.layout = layout
         self.base = base
         self.n_rows = len(pairing.row_touch)
@@ -152,20 +161,22 @@ class ResidualModel:
                 bad = slots[tri < 0][0]
                 raise ValueError(f"part '{name}': slot {bad} has no taxel in the layout")
             fk = skin.robot.fk(part.chain, joints[term_touch[sel]])
-            # touching skins meet at their fabric surfaces, not at the taxel centres:
-            # lift each taxel along its normal (fixed in its triangle frame)
-            point = part.taxel_local[slots] + surface_offset * part.normal_local[slots]
-            self.groups.append((sel, name, part, fk, point, tri, part.triangle_patch[tri]))
+            self.groups.append((sel, name, part, fk, slots, tri, part.triangle_patch[tri]))
 
     def _is_variable(self, name: str) -> bool:
         return self.variable_parts is None or name in self.variable_parts
 
     # ------------------------------------------------------------------ evaluation
     def _group_positions(self, group, calib: SkinCalibration) -> np.ndarray:
-        sel, name, part, fk, point, tri, _ = group
+        sel, name, part, fk, slots, tri, _ = group
         _, _, tri_pose = part.frame_poses(calib.parts[name])
-        local = se3.transform_points(tri_pose[tri], point)
-        return se3.transform_points(fk, local)
+        point = part.taxel_local[slots] + self.fabric * part.normal_local[slots]
+        return se3.transform_points(fk, se3.transform_points(tri_pose[tri], point))
+
+    def _group_normals(self, group, calib: SkinCalibration) -> np.ndarray:
+        sel, name, part, fk, slots, tri, _ = group
+        _, _, tri_pose = part.frame_poses(calib.parts[name])
+        return se3.rotate_vectors(fk, se3.rotate_vectors(tri_pose[tri], part.normal_local[slots]))
 
     def positions(self, calib: SkinCalibration) -> np.ndarray:
         """(K, 3) base-frame positions of every term's taxel."""
@@ -174,8 +185,12 @@ class ResidualModel:
             out[group[0]] = self._group_positions(group, calib)
         return out
 
-    def residuals(self, calib: SkinCalibration) -> np.ndarray:
+    def residuals(self, calib: SkinCalibration, fabric: float | None = None) -> np.ndarray:
         """(M, 3) residual vectors, one per pairing row."""
+        if fabric is not None and fabric != self.fabric:
+            self.fabric = float(fabric)
+            self._constant = np.zeros((self.n_rows, 3))
+            self._constant_done = False
         if not self._constant_done:
             for group in self.groups:
                 if not self._is_variable(group[1]):
@@ -206,7 +221,15 @@ class ResidualModel:
         col_of[cols] = np.arange(len(cols))
         n_cols = len(cols)
         rows_all, cols_all, vals_all = [], [], []
-        for sel, name, part, fk, point, tri, patch in self.groups:
+        fabric_j = col_of[self.layout.fabric_col] if self.layout.fabric_col < len(col_of) else -1
+        if fabric_j >= 0:   # d r / d fabric: the weighted sum of the rows' taxel normals
+            for group in self.groups:
+                sel = group[0]
+                nrm = self._group_normals(group, calib) * self.term_weight[sel][:, None]
+                rows_all.append((3 * self.term_row[sel][:, None] + np.arange(3)[None, :]).ravel())
+                cols_all.append(np.full(3 * len(sel), fabric_j))
+                vals_all.append(nrm.ravel())
+        for sel, name, part, fk, slots, tri, patch in self.groups:
             levels = free_levels.get(name, ())
             if not levels:
                 continue
@@ -214,7 +237,7 @@ class ResidualModel:
             em = se3.pose_matrix(corr.mount)
             ep = se3.pose_matrix(corr.patches)
             et = se3.pose_matrix(corr.triangles)
-            q = point
+            q = part.taxel_local[slots] + self.fabric * part.normal_local[slots]
             w = self.term_weight[sel][:, None, None]
             row3 = 3 * self.term_row[sel]
             # y_T = q ; y_P = T_n exp(dT) q ; y_M = P_n exp(dP) y_P
@@ -317,7 +340,7 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
 
     def evaluate(xv):
         calib = layout.to_calibration(xv, model.base)
-        return calib, model.residuals(calib)
+        return calib, model.residuals(calib, xv[layout.fabric_col])
 
     def cost_of(xv, r):
         d = xv[cols] - prior[cols]
