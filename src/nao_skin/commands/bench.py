@@ -158,6 +158,7 @@ def run(args) -> int:
             md += ["", f"### {inp.name}", "", bench.speed_table(rows, inp.name)]
         bench.plot_speed_vs_error(rows, out / "speed_vs_error.png")
         md += ["", "![speed against error](speed_vs_error.png)", ""]
+        _write(out, md, results, listing)      # kept even if a later section fails
         failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in t for t in bench.target_lines(rows))
 
     if "hard" in sections:
@@ -190,12 +191,17 @@ def run(args) -> int:
 
     results["seconds"] = time.perf_counter() - t_start
     md.append(f"Benchmark wall time: {results['seconds']:.0f} s.")
-    text = "\n".join(md) + "\n"
-    (out / "bench_results.md").write_text(text.replace(LISTING, listing))
-    (out / "bench_results.json").write_text(json.dumps(_jsonable(results), indent=1) + "\n")
+    text = _write(out, md, results, listing)
     print(text.replace(LISTING, f"(in {out / 'bench_results.md'})"))
     print(f"-> {out / 'bench_results.md'}, {out / 'speed_vs_error.png'}" if inputs else f"-> {out / 'bench_results.md'}")
     return 1 if (args.strict and failures) else 0
+
+
+def _write(out: Path, md: list, results: dict, listing: str) -> str:
+    text = "\n".join(md) + "\n"
+    (out / "bench_results.md").write_text(text.replace(LISTING, listing))
+    (out / "bench_results.json").write_text(json.dumps(_jsonable(results), indent=1) + "\n")
+    return text
 
 
 def _jsonable(obj):
