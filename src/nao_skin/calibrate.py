@@ -71,6 +71,7 @@ class CalibrationOptions:
     prior_strength: float = 3.0         # > 0: patches and triangles get a Gaussian prior whose std is
                                         # their bound / this; residual noise taken as residual_sigma
     residual_sigma: float = 0.002       # m, per coordinate of a paired-point difference
+    joint_levels: tuple = ("mount", "patch", "triangle")   # what the joint refinement frees
     rounds: int = 1                     # passes over the plan of fixed-reference steps
     joint_refinement: bool = True       # finish with every part free at once (same stages): a part fitted
                                         # to a fixed reference inherits that reference's error, which a
@@ -486,7 +487,12 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
                     if _stage_cost(train, skin, guess, guess_step, inliers) < before:
                         calib = guess
                 say(f"{prefix}{step.name}: rigid-fit first guess ({time.perf_counter() - t0:.2f} s)")
+            joint_step = not step.references and options.reference == "fixed"
             for levels in levels_seq:
+                if joint_step and not levels & set(options.joint_levels):
+                    continue
+                if joint_step:
+                    levels = levels & set(options.joint_levels)
                 stage = _run_stage(train, skin, calib, step, step.targets, levels, options, inliers, say, fabric)
                 fabric = stage["fabric_thickness_mm"] / 1000.0
                 stage["name"] = prefix + stage["name"]
