@@ -279,7 +279,7 @@ def _hold_unobservable(model: ResidualModel, calib: SkinCalibration, free: np.nd
     informed = d > 1e-12 * max(d.max(), 1e-300)
     held = set(cols[~informed].tolist())
     idx = np.flatnonzero(informed)
-    for _ in range(20):
+    for _ in range(3):   # one decomposition usually settles it; a second pass checks
         if len(idx) == 0:
             break
         sub = h[np.ix_(idx, idx)]
@@ -288,7 +288,13 @@ def _hold_unobservable(model: ResidualModel, calib: SkinCalibration, free: np.nd
         weak = np.flatnonzero(ev < ev[-1] / limit)
         if len(weak) == 0:
             break
-        drop = {int(idx[np.argmax(np.abs(vec[:, k]))]) for k in weak}
+        # each weak direction holds the unknown that dominates it (distinct ones first)
+        drop = set()
+        for k in weak:
+            for i in np.argsort(-np.abs(vec[:, k])):
+                if int(idx[i]) not in drop:
+                    drop.add(int(idx[i]))
+                    break
         held |= {int(cols[i]) for i in drop}
         idx = np.array([i for i in idx if i not in drop], dtype=int)
     return sorted(held)
