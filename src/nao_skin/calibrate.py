@@ -499,10 +499,19 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
                     continue
                 if joint_step:
                     levels = levels & set(options.joint_levels)
+                cost_before = _stage_cost(train, skin, calib, step, inliers)
                 stage = _run_stage(train, skin, calib, step, step.targets, levels, options, inliers, say, fabric)
-                fabric = stage["fabric_thickness_mm"] / 1000.0
                 stage["name"] = prefix + stage["name"]
-                calib = stage.pop("calibration")
+                cost_after = _stage_cost(train, skin, stage["calibration"], step, inliers)
+                if cost_after > 1.25 * cost_before and not (round_no == 0 and "mount" in levels):
+                    # never silently diverge: a stage that leaves the touches much farther apart is undone
+                    stage.pop("calibration")
+                    stage["reverted"] = (f"undone: mean closest COP {1000 * cost_after:.2f} mm after vs"
+                                         f" {1000 * cost_before:.2f} mm before")
+                    say(f"{stage['name']}: {stage['reverted']}")
+                else:
+                    fabric = stage["fabric_thickness_mm"] / 1000.0
+                    calib = stage.pop("calibration")
                 if "mount" in levels and options.gate_mm > 0:
                     gate = _gate(train, skin, calib, step, options.gate_mm, inliers)
                     for row, dist in gate:
@@ -652,10 +661,12 @@ def _run_stage(touches, skin, calib, step, free_parts, levels, options, inliers,
                     _, _, t, _ = layout.offsets[p]
                     for tr in np.flatnonzero(counts < options.min_triangle_activations):
                         free[t + 6 * tr: t + 6 * tr + 6] = False
-            free[_hold_unobservable(model, current, free, free_levels, options.condition_limit)] = False
-            held_names = [layout.describe(c) for c in np.flatnonzero(_free_mask(layout, free_parts, levels) & ~free)]
-            if not np.any(free):
-                break
+        # directions the touches do not excite are held; checked again after each re-pairing
+        # because a new pairing can lose what the last one excited (holds only accumulate)
+        free[_hold_unobservable(model, current, free, free_levels, options.condition_limit)] = False
+        held_names = [layout.describe(c) for c in np.flatnonzero(_free_mask(layout, free_parts, levels) & ~free)]
+        if not np.any(free):
+            break
         result = solve(model, x, free, lower, upper, free_levels, options.solve_options(), prior=prior_x,
                        prior_weights=_prior_weights(layout, free_parts, options))
         iterations += result.iterations

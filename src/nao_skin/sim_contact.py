@@ -92,6 +92,9 @@ def fire(skin: SkinModel, truth: SkinCalibration, hand: str, target: str, q: np.
     1 = target, and ``event`` the spot that pressed the taxel.
     """
     n = len(q)
+    if n == 0:   # no pose of this pair was found (e.g. a narrow planar band): nothing fires
+        empty = np.zeros(0, dtype=int)
+        return empty, empty, empty, np.zeros(0), empty
     centres, radius = draw_spots(n, p, rng)
     reach = rng.uniform(*p.press_reach, size=n)
     e1, e2 = tangent_basis(normal)
