@@ -464,6 +464,7 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
         report["before"]["truth_taxel_error_mm"] = truth_error(skin, calib, truth)
     inliers = np.ones(train.n_touches, bool)
     fabric = options.fabric_thickness
+    last_step, last_cost, last_inliers = None, np.inf, -1
     set_aside = []
     levels_seq = ([{"mount"}, {"patch"}, {"triangle"}] if options.strategy == "sequential"
                   else [{"mount", "patch", "triangle"}])
@@ -488,6 +489,8 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
                 for target, refs in _guess_targets(step):
                     guess_step = Step((target,), refs)
                     before = _stage_cost(train, skin, calib, guess_step, inliers)
+                    if before * 1000.0 < options.gate_mm / 2:
+                        continue   # already in the basin (e.g. the torso): the local solver takes it from here
                     guess = calib.copy()
                     guess.parts[target].mount = rigid_mount_guess(train, skin, calib, target, refs)
                     if _stage_cost(train, skin, guess, guess_step, inliers) < before:
@@ -499,7 +502,8 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
                     continue
                 if joint_step:
                     levels = levels & set(options.joint_levels)
-                cost_before = _stage_cost(train, skin, calib, step, inliers)
+                cost_before = (last_cost if last_step is step and last_inliers == int(inliers.sum())
+                               else _stage_cost(train, skin, calib, step, inliers))
                 stage = _run_stage(train, skin, calib, step, step.targets, levels, options, inliers, say, fabric)
                 stage["name"] = prefix + stage["name"]
                 cost_after = _stage_cost(train, skin, stage["calibration"], step, inliers)
@@ -512,6 +516,8 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
                 else:
                     fabric = stage["fabric_thickness_mm"] / 1000.0
                     calib = stage.pop("calibration")
+                    cost_before = cost_after
+                last_step, last_cost, last_inliers = step, cost_before, int(inliers.sum())
                 if "mount" in levels and options.gate_mm > 0:
                     gate = _gate(train, skin, calib, step, options.gate_mm, inliers)
                     for row, dist in gate:

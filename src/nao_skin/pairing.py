@@ -108,6 +108,23 @@ def robot_joints(touches: TouchSet, skin: SkinModel) -> np.ndarray:
     return q
 
 
+_FK_CACHE: dict = {}
+
+
+def _chain_poses(skin: SkinModel, name: str, q: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """FK of the touches' chain ends; re-pairing the same touches under a new calibration
+    reuses it (joint angles never change, only the skin's corrections do)."""
+    key = (id(skin), name, id(q))
+    hit = _FK_CACHE.get(key)
+    if hit is not None and hit[0] is q and np.array_equal(hit[1], rows):
+        return hit[2]
+    chain = skin.chain_poses(name, q[rows])
+    if len(_FK_CACHE) > 32:
+        _FK_CACHE.clear()
+    _FK_CACHE[key] = (q, rows, chain)
+    return chain
+
+
 def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,
                          local: np.ndarray | None = None) -> np.ndarray:
     """(A, 3) calibrated position of every activated taxel in the base frame (one FK per part)."""
@@ -121,7 +138,7 @@ def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibrat
         if len(sel) == 0:
             continue
         rows, inverse = np.unique(act_touch[sel], return_inverse=True)
-        chain = skin.chain_poses(name, q[rows])              # (n, 4, 4), one batched FK
+        chain = _chain_poses(skin, name, q, rows)            # (n, 4, 4), one batched FK
         out[sel] = se3.transform_points(chain[inverse], local[sel])
     return out
 

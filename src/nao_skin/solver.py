@@ -238,34 +238,49 @@ class ResidualModel:
             ep = se3.pose_matrix(corr.patches)
             et = se3.pose_matrix(corr.triangles)
             q = part.taxel_local[slots] + self.fabric * part.normal_local[slots]
-            w = self.term_weight[sel][:, None, None]
-            row3 = 3 * self.term_row[sel]
-            # y_T = q ; y_P = T_n exp(dT) q ; y_M = P_n exp(dP) y_P
-            tn_et = part.triangle_nominal @ et
-            y_p = se3.transform_points(tn_et[tri], q)
-            pn_ep = part.patch_nominal @ ep
-            y_m = se3.transform_points(pn_ep[patch], y_p)
-            r_m = fk[:, :3, :3] @ part.mount_nominal[:3, :3]
-            specs = []
-            if "mount" in levels:
-                specs.append(("mount", np.zeros(len(sel), int), r_m, em[:3, :3], corr.mount[3:], y_m))
-            if "patch" in levels or "triangle" in levels:
-                r_p = r_m @ em[:3, :3] @ part.patch_nominal[patch, :3, :3]
+            # y_T = q ; y_P = T_n exp(dT) q ; y_M = P_n exp(dP) y_P  (only what a free level needs)
+            specs = []   # (level, block of each term, the term's point below the correction)
+            if "mount" in levels or "patch" in levels:
+                y_p = se3.transform_points((part.triangle_nominal @ et)[tri], q)
+                if "mount" in levels:
+                    y_m = se3.transform_points((part.patch_nominal @ ep)[patch], y_p)
+                    specs.append(("mount", np.zeros(len(sel), int), y_m))
                 if "patch" in levels:
-                    specs.append(("patch", patch, r_p, ep[patch, :3, :3], corr.patches[patch, 3:], y_p))
-                if "triangle" in levels:
-                    r_t = r_p @ ep[patch, :3, :3] @ part.triangle_nominal[tri, :3, :3]
-                    specs.append(("triangle", tri, r_t, et[tri, :3, :3], corr.triangles[tri, 3:], q))
-            for level, block_rows, rg, rc, phi, y in specs:
-                d_t = rg * w
-                d_phi = -(rg @ rc @ se3.skew(y) @ right_jacobian_so3(phi)) * w
-                block = np.concatenate([d_t, d_phi], axis=2)          # (K, 3, 6)
-                col0 = self.layout.block_columns(name, level, block_rows)
-                cc = col_of[col0[:, None] + np.arange(6)[None, :]]   # (K, 6)
+                    specs.append(("patch", patch, y_p))
+            if "triangle" in levels:
+                specs.append(("triangle", tri, q))
+            term_row = self.term_row[sel]
+            wv = self.term_weight[sel]
+            for level, block_rows, y in specs:
+                # Terms of one residual row under the same block share everything but y, and
+                # the position is affine in y: sum them first (sum w y, sum w), one block each.
+                key = term_row * (int(block_rows.max()) + 1 if len(block_rows) else 1) + block_rows
+                uniq, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+                wy = np.stack([np.bincount(inverse, weights=wv * y[:, d], minlength=len(uniq)) for d in range(3)], 1)
+                wsum = np.bincount(inverse, weights=wv, minlength=len(uniq))
+                # rotation of the frame above the correction, only for one term per block
+                rg_g = fk[first, :3, :3] @ part.mount_nominal[:3, :3]
+                if level == "mount":
+                    rc_g, phi_g = em[:3, :3], corr.mount[3:]
+                else:
+                    pg = patch[first]
+                    rg_g = rg_g @ em[:3, :3] @ part.patch_nominal[pg, :3, :3]
+                    if level == "patch":
+                        rc_g, phi_g = ep[pg, :3, :3], corr.patches[pg, 3:]
+                    else:
+                        tg = tri[first]
+                        rg_g = rg_g @ ep[pg, :3, :3] @ part.triangle_nominal[tg, :3, :3]
+                        rc_g, phi_g = et[tg, :3, :3], corr.triangles[tg, 3:]
+                d_t = rg_g * wsum[:, None, None]
+                d_phi = -(rg_g @ rc_g @ se3.skew(wy) @ right_jacobian_so3(phi_g))
+                block = np.concatenate([d_t, d_phi], axis=2)          # (G, 3, 6)
+                col0 = self.layout.block_columns(name, level, block_rows[first])
+                cc = col_of[col0[:, None] + np.arange(6)[None, :]]   # (G, 6)
                 keep = cc >= 0
                 if not np.any(keep):
                     continue
-                rr = np.broadcast_to(row3[:, None, None] + np.arange(3)[None, :, None], block.shape)
+                row3g = 3 * term_row[first]
+                rr = np.broadcast_to(row3g[:, None, None] + np.arange(3)[None, :, None], block.shape)
                 mask = np.broadcast_to(keep[:, None, :], block.shape)
                 rows_all.append(rr[mask])
                 cols_all.append(np.broadcast_to(cc[:, None, :], block.shape)[mask])
