@@ -57,7 +57,7 @@ class CalibrationOptions:
     min_patch_touches: int = 20         # the thesis: patches need about twice the mount's data
     condition_limit: float = 1e7        # of the Jacobi-scaled normal equations
     max_repairings: int = 8
-    repair_tolerance: float = 0.03     # stop re-pairing when fewer touches than this share change pairs
+    repair_tolerance: float = 0.01     # stop re-pairing when fewer touches than this share change pairs
     max_iterations: int = 50
     gate_mm: float = 15.0               # touches farther than this after the mount fit are set aside
     test_fraction: float = 0.3

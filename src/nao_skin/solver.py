@@ -125,6 +125,23 @@ class ParameterLayout:
         return out
 
 
+_FK: dict = {}
+
+
+def _touch_fk(skin: SkinModel, chain, joints: np.ndarray) -> np.ndarray:
+    """Chain-end poses of every touch, computed once per set of joint angles (they never change
+    while a calibration runs; only the skin's corrections do)."""
+    key = (id(skin), chain, id(joints))
+    hit = _FK.get(key)
+    if hit is not None and hit[0] is joints:
+        return hit[1]
+    if len(_FK) > 32:
+        _FK.clear()
+    fk = skin.robot.fk(chain, joints)
+    _FK[key] = (joints, fk)
+    return fk
+
+
 class ResidualModel:
     """Residuals ``r(x)`` and Jacobians for one pairing, vectorised over its terms.
 
@@ -160,7 +177,7 @@ class ResidualModel:
             if np.any(tri < 0):
                 bad = slots[tri < 0][0]
                 raise ValueError(f"part '{name}': slot {bad} has no taxel in the layout")
-            fk = skin.robot.fk(part.chain, joints[term_touch[sel]])
+            fk = _touch_fk(skin, part.chain, joints)[term_touch[sel]]
             self.groups.append((sel, name, part, fk, slots, tri, part.triangle_patch[tri]))
 
     def _is_variable(self, name: str) -> bool:
