@@ -20,6 +20,8 @@ QUICK = {"repeat": 1, "seeds": 2, "sweep": (50, 200), "sim_touches": 400, "hard_
 
 
 def add_arguments(parser) -> None:
+    parser.add_argument("--readme", metavar="README.md",
+                        help="also put the tables into this README's results section and the plot beside it")
     parser.add_argument("--out", default="out/bench", help="output directory (default: out/bench)")
     parser.add_argument("--quick", action="store_true",
                         help=f"smoke run: {QUICK['repeat']} repetition, {QUICK['seeds']} seeds, sweep "
@@ -194,7 +196,33 @@ def run(args) -> int:
     text = _write(out, md, results, listing)
     print(text.replace(LISTING, f"(in {out / 'bench_results.md'})"))
     print(f"-> {out / 'bench_results.md'}, {out / 'speed_vs_error.png'}" if inputs else f"-> {out / 'bench_results.md'}")
+    if args.readme:
+        update_readme(Path(args.readme), out)
+        print(f"-> {args.readme} (results section and plot)")
     return 1 if (args.strict and failures) else 0
+
+
+README_START, README_END = "<!-- BENCH:START -->", "<!-- BENCH:END -->"
+README_PLOT = "README-speed-vs-error.png"
+
+
+def update_readme(readme: Path, out: Path) -> None:
+    """Put the benchmark's tables between the README's markers and its plot beside the README."""
+    import shutil
+
+    from ..errors import DataError
+
+    text = readme.read_text()
+    if README_START not in text or README_END not in text:
+        raise DataError(f"{readme}: no '{README_START}' ... '{README_END}' section to fill")
+    body = (out / "bench_results.md").read_text()
+    body = body.split("\n", 1)[1].lstrip("\n")                       # drop the '# nao-skin bench' title
+    body = body.replace("](speed_vs_error.png)", f"]({README_PLOT})").replace("\n## ", "\n### ")
+    if (out / "speed_vs_error.png").exists():
+        shutil.copyfile(out / "speed_vs_error.png", readme.parent / README_PLOT)
+    head, rest = text.split(README_START, 1)
+    _, tail = rest.split(README_END, 1)
+    readme.write_text(f"{head}{README_START}\n{body.strip()}\n{README_END}{tail}")
 
 
 def _write(out: Path, md: list, results: dict, listing: str) -> str:
