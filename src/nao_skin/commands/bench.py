@@ -217,7 +217,7 @@ def update_readme(readme: Path, out: Path) -> None:
         raise DataError(f"{readme}: no '{README_START}' ... '{README_END}' section to fill")
     body = (out / "bench_results.md").read_text()
     body = body.split("\n", 1)[1].lstrip("\n")                       # drop the '# nao-skin bench' title
-    body = body.replace("](speed_vs_error.png)", f"]({README_PLOT})").replace("\n## ", "\n### ")
+    body = ("\n" + body).replace("](speed_vs_error.png)", f"]({README_PLOT})").replace("\n## ", "\n### ")
     if (out / "speed_vs_error.png").exists():
         shutil.copyfile(out / "speed_vs_error.png", readme.parent / README_PLOT)
     head, rest = text.split(README_START, 1)
