@@ -38,7 +38,7 @@ def yarpserver_exe() -> str:
     cand = Path(sys.executable).parent / "yarpserver"
     exe = str(cand) if cand.exists() else shutil.which("yarpserver")
     if not exe:
-        pytest.skip("yarpserver not installed (docker/setup_venv.sh --with-yarp)")
+        pytest.fail("yarpserver not installed: run docker/setup_venv.sh --with-yarp (make test does)")
     return exe
 
 

@@ -319,7 +319,6 @@ def test_dataclass_fields_are_documented_in_the_yaml():
 BUNDLE = Path(__file__).resolve().parents[1] / "bags" / "sim_default"
 
 
-@pytest.mark.skipif(not (BUNDLE / "simulation.yaml").exists(), reason="bundled recording not generated yet")
 def test_bundled_recording_matches_the_simulator(skin, tmp_path):
     meta = yaml.safe_load((BUNDLE / "simulation.yaml").read_text())
     assert meta["seed"] == 0 and meta["preset"] == "default"

@@ -4,7 +4,6 @@ calibration files round-trip, bad configs fail in one line naming the file and t
 Expected motions are computed from the layout files alone (centroids, normals),
 not from the model's frames, so a wrong frame convention makes them fail.
 """
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,7 +16,6 @@ from nao_skin.skin import SkinCalibration, SkinModel
 from nao_skin.taxel_file import SLOTS_PER_TRIANGLE, read_taxel_file
 
 from real_data import REAL_DIR as REAL  # noqa: E402
-needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="real self-touch data not on this machine")
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +59,6 @@ def test_nominal_corrections_reproduce_the_layout(skin, part):
     assert np.all(np.isnan(pos[~present]))
 
 
-@needs_real
 def test_nominal_corrections_reproduce_the_real_layouts(tmp_path):
     config = tmp_path / "real_skin.yaml"
     config.write_text(yaml.safe_dump({

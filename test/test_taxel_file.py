@@ -3,7 +3,6 @@
 Real files: the project's default layouts (header form) and the real Nao
 layouts in /work/shared/data/real_selftouch/ (plain form), read in place.
 """
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +14,6 @@ from nao_skin.taxel_file import SLOTS_PER_TRIANGLE, read_taxel_file, write_taxel
 from real_data import REAL_DIR as REAL  # noqa: E402
 REAL_FILES = [REAL / "l_hand.taxels.txt", REAL / "torso.taxels.txt"]
 LAYOUT_FILES = sorted((config_dir() / "layouts").glob("*.txt"))
-needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="real self-touch data not on this machine")
 
 
 def assert_same(a, b):
@@ -25,7 +23,7 @@ def assert_same(a, b):
 
 
 @pytest.mark.parametrize("with_header", [True, False], ids=["header", "plain"])
-@pytest.mark.parametrize("source", LAYOUT_FILES + [pytest.param(p, marks=needs_real) for p in REAL_FILES],
+@pytest.mark.parametrize("source", LAYOUT_FILES + list(REAL_FILES),
                          ids=lambda p: p.name)
 def test_read_write_read_is_identical(tmp_path, source, with_header):
     first = read_taxel_file(source)
@@ -56,7 +54,6 @@ def test_header_form_maps_unused_slots_and_thermal_pads(tmp_path):
     assert np.all(repr_ids[~first.present & (k != 6) & (k != 10)] == -1)
 
 
-@needs_real
 def test_real_layouts_have_the_documented_taxel_counts():
     # README: known slots: left hand 227 of 240 usable, torso 220 of 250 usable
     assert read_taxel_file(REAL / "l_hand.taxels.txt").present.sum() == 227
