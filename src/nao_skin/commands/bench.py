@@ -217,6 +217,17 @@ def update_readme(readme: Path, out: Path) -> None:
         raise DataError(f"{readme}: no '{README_START}' ... '{README_END}' section to fill")
     body = (out / "bench_results.md").read_text()
     body = body.split("\n", 1)[1].lstrip("\n")                       # drop the '# nao-skin bench' title
+    # the README keeps the summaries; per-seed rows and touch keys stay in bench_results.md
+    kept, skipping = [], False
+    for line in body.splitlines():
+        if line.startswith("| preset | seed |") or line.startswith("Touches set aside in the outlier case"):
+            skipping = True
+            kept.append(f"(Per-seed rows and the keys of the touches set aside: `{out / 'bench_results.md'}`.)")
+        elif skipping and (line.startswith("Benchmark wall time") or line.startswith("## ")):
+            skipping = False
+        if not skipping:
+            kept.append(line)
+    body = "\n".join(line for i, line in enumerate(kept) if i == 0 or line != kept[i - 1])
     body = ("\n" + body).replace("](speed_vs_error.png)", f"]({README_PLOT})").replace("\n## ", "\n### ")
     if (out / "speed_vs_error.png").exists():
         shutil.copyfile(out / "speed_vs_error.png", readme.parent / README_PLOT)
