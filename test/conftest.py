@@ -26,3 +26,14 @@ def real_loaded(real_skin):
 @pytest.fixture(scope="session")
 def default_skin():
     return SkinModel.from_yaml(default_skin_config())
+
+
+@pytest.fixture(scope="session")
+def real(real_loaded):
+    """The real recording's touches (files that need the load report define their own)."""
+    return real_loaded[0]
+
+
+@pytest.fixture(scope="session")
+def skin(default_skin):
+    return default_skin

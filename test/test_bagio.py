@@ -14,14 +14,6 @@ from nao_skin.pairing import metrics, pair_touches
 
 
 
-@pytest.fixture(scope="module")
-def real(real_loaded):
-    return real_loaded[0]
-
-
-@pytest.fixture(scope="module")
-def skin(default_skin):
-    return default_skin
 
 
 def canonical_pairs(touches, pairing):
