@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .calibrate import CalibrationResult, _concat_pairings
+from .calib_pairs import concat_pairings
+from .calibrate import CalibrationResult
 from .pairing import pair_touches
 from .skin import PART_NAMES, SkinCalibration, SkinModel
 
@@ -105,7 +106,7 @@ def _pair_distances(touches, skin, calib, pairs):
     pairings = [p for p in pairings if len(p.row_touch)]
     if not pairings:
         return None
-    return _concat_pairings(pairings)
+    return concat_pairings(pairings)
 
 
 def _plots(result: CalibrationResult, skin: SkinModel, prior: SkinCalibration, out: Path, calibrated: list):

@@ -1,0 +1,76 @@
+"""How good a calibration is: closest-pair distances, true taxel error, which touches a self-contact explains."""
+from __future__ import annotations
+
+import numpy as np
+
+from .calib_pairs import concat_pairings, pair_parts, pair_step
+from .calib_plan import part_rank
+from .pairing import metrics
+from .skin import SkinCalibration, SkinModel
+from .touches import TouchSet
+
+def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: list) -> dict:
+    """Closest-COP / closest-taxel / 5-taxel distances over every touching pair of the plan."""
+    if touches.n_touches == 0:
+        return {"n_touches": 0}
+    pairs = sorted({tuple(sorted((a, b), key=part_rank))
+                    for s in steps for a in s.targets + s.references for b in s.targets + s.references if a != b})
+    pairings = [pair_parts(touches, skin, calib, p[0], p[1]) for p in pairs
+                if p[0] in touches.part_names and p[1] in touches.part_names]
+    pairings = [p for p in pairings if len(p.row_touch)]
+    if not pairings:
+        return {"n_touches": 0}
+    return metrics(concat_pairings(pairings))
+
+def truth_error(skin: SkinModel, calib: SkinCalibration, truth: SkinCalibration, parts=None) -> dict:
+    """Distance of every calibrated taxel from its true position (chain-end frame), in mm."""
+    out = {}
+    errs_all = []
+    for name in parts or skin.parts:
+        if name not in truth.parts:
+            continue
+        p = skin.parts[name]
+        est, _ = p.taxel_positions(calib.parts[name])
+        true, _ = p.taxel_positions(truth.parts[name])
+        e = np.linalg.norm(est[p.present] - true[p.present], axis=1) * 1000.0
+        errs_all.append(e)
+        out[name] = {"median": float(np.median(e)), "p95": float(np.percentile(e, 95)), "max": float(e.max())}
+    if errs_all:
+        e = np.concatenate(errs_all)
+        out["all"] = {"median": float(np.median(e)), "p95": float(np.percentile(e, 95)), "max": float(e.max())}
+    return out
+
+
+# ---------------------------------------------------------------------- main entry
+
+def closest_cop_cost(touches, skin, calib, step, inliers) -> float:
+    pairing = pair_step(touches, skin, calib, step, ("cop",))
+    if pairing is None or len(pairing.row_touch) == 0:
+        return np.inf
+    rows = pairing.row_kind == 0
+    d = pairing.distance[rows]
+    d = d[inliers[pairing.row_touch[rows]]]
+    return float(np.mean(np.minimum(d, 0.05)))  # capped: a far-off minority must not decide
+
+def explained(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: list, gate_mm: float) -> np.ndarray:
+    """Touches whose closest COP pair (over the plan's part pairs) is within ``gate_mm``."""
+    ok = np.ones(touches.n_touches, bool)
+    if gate_mm <= 0 or touches.n_touches == 0:
+        return ok
+    best = np.full(touches.n_touches, np.inf)
+    for step in steps:
+        p = pair_step(touches, skin, calib, step, ("cop",))
+        if p is not None and len(p.row_touch):
+            np.minimum.at(best, p.row_touch, p.distance * 1000.0)
+    return ok & ((best <= gate_mm) | ~np.isfinite(best))
+
+def gate_touches(touches, skin, calib, step, gate_mm, inliers) -> list:
+    pairing = pair_step(touches, skin, calib, step, ("cop",))
+    rows = np.flatnonzero(pairing.row_kind == 0)
+    out = {}
+    for r in rows:
+        t = int(pairing.row_touch[r])
+        d = float(pairing.distance[r]) * 1000.0
+        if inliers[t] and d > gate_mm:
+            out[t] = max(out.get(t, 0.0), d)
+    return sorted(out.items())

@@ -1,0 +1,112 @@
+"""Closed-form first guess of a mount: a rigid fit of per-touch contact points, refined ICP-style.
+
+Real hand mounts sit ~160 degrees off nominal: a local solver started there
+does not find them; this puts it in the right basin without anyone rotating
+a frame by hand.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import se3
+from .calib_pairs import pair_step, select_rows
+from .calib_plan import HANDS, REFERENCE_BODY, Step
+from .errors import DataError
+from .pairing import Pairing
+from .skin import SkinCalibration, SkinModel
+from .touches import TouchSet
+
+def guess_targets(step: Step) -> list:
+    """(target, references) for the closed-form mount fit: a fixed step's targets, or in a
+    simultaneous step each hand against the body parts it touches."""
+    if step.references:
+        return [(t, step.references) for t in step.targets]
+    bodies = tuple(p for p in step.targets if p in REFERENCE_BODY)
+    return [(h, bodies) for h in step.targets if h in HANDS and bodies]
+
+def _touch_centroids(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, part: str, frame: str):
+    """Per-touch mean of the part's activated taxels: in its chain-end frame ('local') or the base."""
+    pidx = touches.part_index(part)
+    sel = touches.act_part == pidx
+    touch = touches.act_touch[sel]
+    local, _ = skin.parts[part].taxel_positions(calib.parts[part])
+    pts = local[touches.act_slot[sel]]
+    if frame == "base":
+        pts = se3.transform_points(skin.robot.fk(skin.parts[part].chain, touches.joints[touch]), pts)
+    sums = np.zeros((touches.n_touches, 3))
+    np.add.at(sums, touch, pts)
+    counts = np.bincount(touch, minlength=touches.n_touches)
+    return sums / np.maximum(counts, 1)[:, None], counts > 0
+
+def rigid_mount_guess(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, target: str,
+                      references: tuple, iterations: int = 6, trim: float = 0.25) -> np.ndarray:
+    """Closed-form mount correction of ``target``: rigid fit of its touch points onto the references'.
+
+    First per-touch centroids of all activations (pairing is meaningless while
+    the mount is far off), then a few ICP rounds on the closest COP pairs
+    with the worst ``trim`` share of touches left out (experimenter's hand).
+    """
+    part = skin.parts[target]
+    ref_sum = np.zeros((touches.n_touches, 3))
+    ref_ok = np.zeros(touches.n_touches, bool)
+    for ref in references:
+        c, ok = _touch_centroids(touches, skin, calib, ref, "base")
+        use = ok & ~ref_ok
+        ref_sum[use] = c[use]
+        ref_ok |= ok
+    own, own_ok = _touch_centroids(touches, skin, calib, target, "local")
+    both = np.flatnonzero(ref_ok & own_ok)
+    if len(both) < 3:
+        raise DataError(f"part '{target}': {len(both)} touches with a reference part, at least 3 needed for a mount fit")
+    chain = skin.robot.fk(part.chain, touches.joints[both])
+    ref_local = se3.transform_points(se3.invert(chain), ref_sum[both])      # reference points in the chain-end frame
+    # mount-frame coordinates of the target's points under the current correction
+    mount_now = part.mount_nominal @ se3.pose_matrix(calib.parts[target].mount)
+    own_mount = se3.transform_points(se3.invert(mount_now), own[both])
+    fit = se3.rigid_fit(own_mount, ref_local)                               # chain-end <- mount
+    for _ in range(iterations):
+        resid = np.linalg.norm(se3.transform_points(fit, own_mount) - ref_local, axis=1)
+        keep = resid <= np.quantile(resid, 1.0 - trim)
+        fit = se3.rigid_fit(own_mount[keep], ref_local[keep])
+    corr = calib.copy()
+    corr.parts[target].mount = se3.pose_vector(se3.invert(part.mount_nominal) @ fit)
+    # ICP on closest COP pairs: pairing becomes meaningful once the mount is near
+    step = Step((target,), tuple(references))
+    for _ in range(iterations):
+        pairing = pair_step(touches, skin, corr, step, ("cop",))
+        if pairing is None:
+            break
+        rows = select_rows(pairing, (0,))
+        src, dst = _cop_points(rows, touches, skin, corr, target)
+        if len(src) < 3:
+            break
+        mount_now = part.mount_nominal @ se3.pose_matrix(corr.parts[target].mount)
+        src_m = se3.transform_points(se3.invert(mount_now), src)
+        resid = np.linalg.norm(se3.transform_points(mount_now, src_m) - dst, axis=1)
+        keep = resid <= np.quantile(resid, 1.0 - trim)
+        fit = se3.rigid_fit(src_m[keep], dst[keep])
+        corr.parts[target].mount = se3.pose_vector(se3.invert(part.mount_nominal) @ fit)
+    return corr.parts[target].mount
+
+def _cop_points(rows: Pairing, touches: TouchSet, skin: SkinModel, calib: SkinCalibration, target: str):
+    """For COP rows: the target's COP in its chain-end frame and the reference COP in the same frame."""
+    tidx = touches.part_index(target)
+    part = skin.parts[target]
+    local, _ = part.taxel_positions(calib.parts[target])
+    m = len(rows.row_touch)
+    own = np.zeros((m, 3))
+    is_target = rows.term_part == tidx
+    np.add.at(own, rows.term_row[is_target], np.abs(rows.term_weight[is_target])[:, None] * local[rows.term_slot[is_target]])
+    other = np.zeros((m, 3))
+    for pidx in np.unique(rows.term_part[~is_target]):
+        sel = rows.term_part == pidx
+        name = touches.part_names[pidx]
+        loc, _ = skin.parts[name].taxel_positions(calib.parts[name])
+        fk = skin.robot.fk(skin.parts[name].chain, touches.joints[rows.row_touch[rows.term_row[sel]]])
+        np.add.at(other, rows.term_row[sel],
+                  np.abs(rows.term_weight[sel])[:, None] * se3.transform_points(fk, loc[rows.term_slot[sel]]))
+    chain = skin.robot.fk(part.chain, touches.joints[rows.row_touch])
+    return own, se3.transform_points(se3.invert(chain), other)
+
+
+# ---------------------------------------------------------------------- evaluation
