@@ -192,7 +192,6 @@ def penetrates(skin: SkinModel, hand: str, target: str, q: np.ndarray, target_sp
     tangent plane at the spot; the elbow and the hand's end must be outside a
     box around the torso.
     """
-    n = len(q)
     hp = skin.parts[hand]
     local, _ = hp.taxel_positions(truth.parts.get(hand) if truth else None)
     local = local[hp.slots]

@@ -158,7 +158,7 @@ def _assemble(skin: SkinModel, per_pair, p: SimParams, rng) -> TouchSet:
     used = {part for hand, target, _, _ in per_pair for part in (hand, target)}
     part_names = tuple([n for n in PART_NAMES if n in used] + sorted(used - set(PART_NAMES)))
     robot = skin.robot
-    src_rows, pair_of, q_true, contact, normal, gap = [], [], [], [], [], []
+    pair_of, q_true, contact, normal, gap = [], [], [], [], []
     act = []
     flags = {"experimenter_hand": [], "non_self_contact": [], "spurious": []}
     offset = 0
