@@ -27,18 +27,34 @@ def skew(v: np.ndarray) -> np.ndarray:
     return out
 
 
-def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula, batched; exact near zero (Taylor terms)."""
+def so3_series(rotvec: np.ndarray):
+    """``sin(t)/t``, ``(1 - cos t)/t^2``, ``(t - sin t)/t^3`` for ``t = |rotvec|``, shaped ``(..., 1, 1)``.
+
+    The coefficients of Rodrigues' formula and of the SO(3) Jacobians; Taylor
+    terms near zero keep them exact where the closed forms divide by ~0.
+    """
     rotvec = np.asarray(rotvec, dtype=float)
     theta2 = np.sum(rotvec * rotvec, axis=-1)[..., None, None]
-    theta = np.sqrt(theta2)
     small = theta2 < 1e-8
-    safe = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    t = np.where(small, 1.0, np.sqrt(theta2))
+    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(t) / t)
+    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(t)) / (t * t))
+    c = np.where(small, 1.0 / 6.0 - theta2 / 120.0, (t - np.sin(t)) / (t * t * t))
+    return a, b, c
+
+
+def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula, batched: I + a [r]x + b [r]x^2."""
+    a, b, _ = so3_series(rotvec)
     k = skew(rotvec)
-    eye = np.broadcast_to(np.eye(3), k.shape)
-    return eye + a * k + b * (k @ k)
+    return np.broadcast_to(np.eye(3), k.shape) + a * k + b * (k @ k)
+
+
+def right_jacobian(rotvec: np.ndarray) -> np.ndarray:
+    """Right Jacobian of SO(3): R(r + d) = R(r) Exp(J_r(r) d) to first order; I - b [r]x + c [r]x^2."""
+    _, b, c = so3_series(rotvec)
+    k = skew(rotvec)
+    return np.broadcast_to(np.eye(3), k.shape) - b * k + c * (k @ k)
 
 
 def matrix_to_rotvec(rot: np.ndarray) -> np.ndarray:

@@ -16,7 +16,7 @@ above it, including the robot's forward kinematics) and a point ``y``
     dx/dt   = R_G
     dx/dphi = -R_G R(phi) [y]x J_r(phi)
 
-with ``J_r`` the right Jacobian of SO(3); exact also for the large mount
+with ``J_r`` the right Jacobian of SO(3) (:func:`se3.right_jacobian`); exact also for the large mount
 rotations (about 160 degrees) real hands start from.
 """
 from __future__ import annotations
@@ -45,17 +45,6 @@ def jt_dot(j, v: np.ndarray) -> np.ndarray:
     return np.asarray(j.T @ v).ravel()
 
 
-def right_jacobian_so3(phi: np.ndarray) -> np.ndarray:
-    """Right Jacobian of SO(3) for rotation vectors ``(..., 3)``."""
-    phi = np.asarray(phi, dtype=float)
-    theta2 = np.sum(phi * phi, axis=-1)[..., None, None]
-    theta = np.sqrt(theta2)
-    small = theta2 < 1e-8
-    safe = np.where(small, 1.0, theta)
-    a = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
-    b = np.where(small, 1.0 / 6.0 - theta2 / 120.0, (safe - np.sin(safe)) / (safe * safe * safe))
-    k = se3.skew(phi)
-    return np.broadcast_to(np.eye(3), k.shape) - a * k + b * (k @ k)
 
 
 @dataclass
@@ -289,7 +278,7 @@ class ResidualModel:
                         rg_g = rg_g @ ep[pg, :3, :3] @ part.triangle_nominal[tg, :3, :3]
                         rc_g, phi_g = et[tg, :3, :3], corr.triangles[tg, 3:]
                 d_t = rg_g * wsum[:, None, None]
-                d_phi = -(rg_g @ rc_g @ se3.skew(wy) @ right_jacobian_so3(phi_g))
+                d_phi = -(rg_g @ rc_g @ se3.skew(wy) @ se3.right_jacobian(phi_g))
                 block = np.concatenate([d_t, d_phi], axis=2)          # (G, 3, 6)
                 col0 = self.layout.block_columns(name, level, block_rows[first])
                 cc = col_of[col0[:, None] + np.arange(6)[None, :]]   # (G, 6)
