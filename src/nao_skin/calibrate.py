@@ -158,60 +158,59 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
     report["pairs"] = sorted(sorted(p, key=part_rank)
                              for p in touching_pairs(train))
     for round_no, step in schedule:
-        if True:
-            prefix = f"round {round_no + 1}: " if options.rounds > 1 and step.references else ""
-            if not step.references and options.reference == "fixed":
-                prefix = "joint refinement: "
-            # closed-form first guess of each mount that has a reference to be fitted to
-            if options.initial_guess == "rigid-fit" and round_no == 0 and (step.references or options.reference == "simultaneous"):
-                t0 = time.perf_counter()
-                for target, refs in guess_targets(step):
-                    guess_step = Step((target,), refs)
-                    before = closest_cop_cost(train, skin, calib, guess_step, inliers)
-                    if before * 1000.0 < options.gate_mm / 2:
-                        continue   # already in the basin (e.g. the torso): the local solver takes it from here
-                    guess = calib.copy()
-                    guess.parts[target].mount = rigid_mount_guess(train, skin, calib, target, refs)
-                    if closest_cop_cost(train, skin, guess, guess_step, inliers) < before:
-                        calib = guess
-                say(f"{prefix}{step.name}: rigid-fit first guess ({time.perf_counter() - t0:.2f} s)")
-            joint_step = not step.references and options.reference == "fixed"
-            for levels in levels_seq:
-                if joint_step and not levels & set(options.joint_levels):
-                    continue
-                if joint_step:
-                    levels = levels & set(options.joint_levels)
-                cost_before = (last_cost if last_step is step and last_inliers == int(inliers.sum())
-                               else closest_cop_cost(train, skin, calib, step, inliers))
-                stage = run_stage(train, skin, calib, step, step.targets, levels, options, inliers, say, fabric)
-                stage["name"] = prefix + stage["name"]
-                cost_after = closest_cop_cost(train, skin, stage["calibration"], step, inliers)
-                if cost_after > 1.25 * cost_before and not (round_no == 0 and "mount" in levels):
-                    # never silently diverge: a stage that leaves the touches much farther apart is undone
-                    stage.pop("calibration")
-                    stage["reverted"] = (f"undone: mean closest COP {1000 * cost_after:.2f} mm after vs"
-                                         f" {1000 * cost_before:.2f} mm before")
-                    say(f"{stage['name']}: {stage['reverted']}")
-                else:
-                    fabric = stage["fabric_thickness_mm"] / 1000.0
-                    calib = stage.pop("calibration")
-                    cost_before = cost_after
-                last_step, last_cost, last_inliers = step, cost_before, int(inliers.sum())
-                if "mount" in levels and options.gate_mm > 0:
-                    gate = gate_touches(train, skin, calib, step, options.gate_mm, inliers)
-                    for row, dist in gate:
-                        inliers[row] = False
-                        set_aside.append({"touch": str(train.keys[row]), "step": prefix + step.name,
-                                          "reason": f"closest COP pair {dist:.1f} mm after the mount fit > gate {options.gate_mm:.0f} mm"})
-                    stage["set_aside"] = len(gate)
-                stage["train"] = evaluate(train, skin, calib, [step])
-                stage["test"] = evaluate(test, skin, calib, [step])
-                if truth is not None:
-                    stage["truth_taxel_error_mm"] = truth_error(skin, calib, truth, step.targets)
-                report["stages"].append(stage)
-                say(f"{stage['name']}: train closest COP {stage['train'].get('cop_mean_mm', float('nan')):.2f} mm,"
-                    f" taxel {stage['train'].get('taxel_mean_mm', float('nan')):.2f} mm"
-                    f" ({stage['iterations']} iterations, {stage['repairings']} pairings, {stage['seconds']:.2f} s)")
+        prefix = f"round {round_no + 1}: " if options.rounds > 1 and step.references else ""
+        if not step.references and options.reference == "fixed":
+            prefix = "joint refinement: "
+        # closed-form first guess of each mount that has a reference to be fitted to
+        if options.initial_guess == "rigid-fit" and round_no == 0 and (step.references or options.reference == "simultaneous"):
+            t0 = time.perf_counter()
+            for target, refs in guess_targets(step):
+                guess_step = Step((target,), refs)
+                before = closest_cop_cost(train, skin, calib, guess_step, inliers)
+                if before * 1000.0 < options.gate_mm / 2:
+                    continue   # already in the basin (e.g. the torso): the local solver takes it from here
+                guess = calib.copy()
+                guess.parts[target].mount = rigid_mount_guess(train, skin, calib, target, refs)
+                if closest_cop_cost(train, skin, guess, guess_step, inliers) < before:
+                    calib = guess
+            say(f"{prefix}{step.name}: rigid-fit first guess ({time.perf_counter() - t0:.2f} s)")
+        joint_step = not step.references and options.reference == "fixed"
+        for levels in levels_seq:
+            if joint_step and not levels & set(options.joint_levels):
+                continue
+            if joint_step:
+                levels = levels & set(options.joint_levels)
+            cost_before = (last_cost if last_step is step and last_inliers == int(inliers.sum())
+                           else closest_cop_cost(train, skin, calib, step, inliers))
+            stage = run_stage(train, skin, calib, step, step.targets, levels, options, inliers, say, fabric)
+            stage["name"] = prefix + stage["name"]
+            cost_after = closest_cop_cost(train, skin, stage["calibration"], step, inliers)
+            if cost_after > 1.25 * cost_before and not (round_no == 0 and "mount" in levels):
+                # never silently diverge: a stage that leaves the touches much farther apart is undone
+                stage.pop("calibration")
+                stage["reverted"] = (f"undone: mean closest COP {1000 * cost_after:.2f} mm after vs"
+                                     f" {1000 * cost_before:.2f} mm before")
+                say(f"{stage['name']}: {stage['reverted']}")
+            else:
+                fabric = stage["fabric_thickness_mm"] / 1000.0
+                calib = stage.pop("calibration")
+                cost_before = cost_after
+            last_step, last_cost, last_inliers = step, cost_before, int(inliers.sum())
+            if "mount" in levels and options.gate_mm > 0:
+                gate = gate_touches(train, skin, calib, step, options.gate_mm, inliers)
+                for row, dist in gate:
+                    inliers[row] = False
+                    set_aside.append({"touch": str(train.keys[row]), "step": prefix + step.name,
+                                      "reason": f"closest COP pair {dist:.1f} mm after the mount fit > gate {options.gate_mm:.0f} mm"})
+                stage["set_aside"] = len(gate)
+            stage["train"] = evaluate(train, skin, calib, [step])
+            stage["test"] = evaluate(test, skin, calib, [step])
+            if truth is not None:
+                stage["truth_taxel_error_mm"] = truth_error(skin, calib, truth, step.targets)
+            report["stages"].append(stage)
+            say(f"{stage['name']}: train closest COP {stage['train'].get('cop_mean_mm', float('nan')):.2f} mm,"
+                f" taxel {stage['train'].get('taxel_mean_mm', float('nan')):.2f} mm"
+                f" ({stage['iterations']} iterations, {stage['repairings']} pairings, {stage['seconds']:.2f} s)")
     report["final"] = {"train": evaluate(train, skin, calib, steps), "test": evaluate(test, skin, calib, steps)}
     # the same gate on both splits: touches whose closest COP pair stays farther than gate_mm
     # are not explained by a self-contact (experimenter's hand, stray activations)
