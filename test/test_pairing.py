@@ -197,3 +197,27 @@ def test_single_part_touch_gives_no_row_and_metrics_of_nothing(skin):
     assert pairing.n_rows == 0
     m = metrics(pairing)
     assert m["n_touches"] == 0 and np.isnan(m["cop_mean_mm"])
+
+
+def test_normal_rows_ask_the_touching_normals_to_cancel(real_skin, real):
+    """The solver's normal rows: one per closest-taxel row (COP rows when there are none),
+    both sides' normals added with the weight, so facing surfaces give zero."""
+    from nao_skin.calib_pairs import select_rows, with_normal_rows
+    from nao_skin.pairing import KIND_COP, KIND_NORMAL, KIND_TAXEL
+
+    touches = real.subset(np.arange(40))
+    full = pair_touches(touches, real_skin, None, kinds=("cop", "taxel"))
+    selected = select_rows(full, (KIND_COP, KIND_TAXEL))
+    out = with_normal_rows(selected, full, 0.005)
+    normal = out.row_kind == KIND_NORMAL
+    n_taxel = int(np.sum(full.row_kind == KIND_TAXEL))
+    assert normal.sum() == n_taxel and out.n_rows == selected.n_rows + n_taxel
+    w = out.term_weight[normal[out.term_row]]
+    assert np.all(w > 0)
+    # each normal row's weights sum to the weight on each side (two sides)
+    sums = np.bincount(out.term_row, weights=out.term_weight, minlength=out.n_rows)[normal]
+    np.testing.assert_allclose(sums, 2 * 0.005)
+    cop_only = select_rows(full, (KIND_COP,))
+    from_cop = with_normal_rows(cop_only, cop_only, 0.005)
+    assert int(np.sum(from_cop.row_kind == KIND_NORMAL)) == cop_only.n_rows
+    assert with_normal_rows(selected, full, 0.0) is selected

@@ -1,4 +1,4 @@
-"""Solver core: analytic Jacobian equals finite differences; a known correction is recovered."""
+"""Solver core: analytic Jacobian equals finite differences (point and normal rows); a known correction is recovered."""
 import types
 
 import numpy as np
@@ -6,6 +6,7 @@ import pytest
 
 from nao_skin import se3
 from nao_skin.config import load_default_skin
+from nao_skin.pairing import KIND_NORMAL
 from nao_skin.solver import ParameterLayout, ResidualModel, SolveOptions, solve
 
 
@@ -14,16 +15,20 @@ def skin():
     return load_default_skin()
 
 
-def _random_rows(skin, n, rng):
-    """Residual rows 'mean of 3 hand taxels - mean of 2 torso taxels' (COP-like rows)."""
+def _random_rows(skin, n, rng, normal_rows=0):
+    """Residual rows 'mean of 3 hand taxels - mean of 2 torso taxels' (COP-like rows), then
+    ``normal_rows`` rows 'mean hand normal + mean torso normal' (the solver's normal rows)."""
     hand, torso = skin.parts["l_hand"].slots, skin.parts["torso"].slots
     rows, parts, slots, weights = [], [], [], []
-    for m in range(n):
+    for m in range(n + normal_rows):
+        sign = 1 if m >= n else -1
         for s in rng.choice(hand, 3, replace=False):
             rows.append(m), parts.append(0), slots.append(s), weights.append(1 / 3)
         for s in rng.choice(torso, 2, replace=False):
-            rows.append(m), parts.append(1), slots.append(s), weights.append(-1 / 2)
-    return types.SimpleNamespace(row_touch=np.arange(n), term_row=np.array(rows), term_part=np.array(parts),
+            rows.append(m), parts.append(1), slots.append(s), weights.append(sign / 2)
+    kind = np.r_[np.zeros(n, np.int8), np.full(normal_rows, KIND_NORMAL, np.int8)]
+    return types.SimpleNamespace(row_touch=np.r_[np.arange(n), np.arange(normal_rows) % n], row_kind=kind,
+                                 term_row=np.array(rows), term_part=np.array(parts),
                                  term_slot=np.array(slots), term_weight=np.array(weights))
 
 
@@ -45,7 +50,7 @@ def test_analytic_jacobian_equals_central_differences(skin):
     rng = np.random.default_rng(0)
     n = 15
     q = rng.uniform(skin.robot.limits[:, 0], skin.robot.limits[:, 1], (n, len(skin.robot.joint_names)))
-    pairing = _random_rows(skin, n, rng)
+    pairing = _random_rows(skin, n, rng, normal_rows=6)
     calib = skin.zero_calibration()
     for name in ("l_hand", "torso"):
         c = calib.parts[name]
@@ -83,7 +88,8 @@ def test_solver_recovers_a_mount_correction(skin):
     slots = rng.choice(hand.slots, n)
     target = skin.taxels_in_base("l_hand", q, truth, slots[:, None])[:, 0]
     # express targets as torso taxels is not possible; use a single-part model and subtract targets
-    pairing = types.SimpleNamespace(row_touch=np.arange(n), term_row=np.arange(n), term_part=np.zeros(n, int),
+    pairing = types.SimpleNamespace(row_touch=np.arange(n), row_kind=np.zeros(n, np.int8), term_row=np.arange(n),
+                                    term_part=np.zeros(n, int),
                                     term_slot=slots, term_weight=np.ones(n))
     layout = ParameterLayout(skin, ("l_hand",))
     model = ResidualModel(skin, q, pairing, ("l_hand",), layout, skin.zero_calibration())

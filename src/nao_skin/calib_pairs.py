@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .calib_plan import Step, part_rank
-from .pairing import Pairing, pair_touches
+from .pairing import KIND_COP, KIND_NORMAL, KIND_TAXEL, Pairing, pair_touches
 from .skin import SkinCalibration, SkinModel
 from .touches import TouchSet
 
@@ -21,6 +21,32 @@ def select_rows(pairing: Pairing, kinds: tuple, inliers: np.ndarray | None = Non
                    row_parts=pairing.row_parts[keep], term_row=new_index[pairing.term_row[tkeep]],
                    term_part=pairing.term_part[tkeep], term_slot=pairing.term_slot[tkeep],
                    term_weight=pairing.term_weight[tkeep], distance=pairing.distance[keep])
+
+def with_normal_rows(selected: Pairing, pairing: Pairing, weight: float, inliers: np.ndarray | None = None) -> Pairing:
+    """``selected`` plus one normal row per closest-taxel row of ``pairing`` (closest-COP
+    rows where it has no taxel rows, e.g. in a mount stage).
+
+    Touching surfaces face each other, so the normals at the contact cancel:
+    the row is ``weight * (n_A + n_B)`` (``weight`` in metres per radian of
+    disagreement), ``n`` the closest taxels' normals or the contacts' mean
+    normals. Points alone leave the rotation about a band of contacts nearly
+    free; the normals pin it (simulated planar poses: a hand mount 45 degrees
+    off fits the points better than the truth, while its normals disagree by
+    30 degrees against 0.5 at the truth). A taxel row has two terms against a
+    COP row's dozen: the same information for a fraction of the Jacobian.
+    """
+    if weight <= 0:
+        return selected
+    source = KIND_TAXEL if np.any(pairing.row_kind == KIND_TAXEL) else KIND_COP
+    cop = select_rows(pairing, (source,), inliers)
+    if len(cop.row_touch) == 0:
+        return selected
+    normal = Pairing(row_touch=cop.row_touch, row_kind=np.full(len(cop.row_touch), KIND_NORMAL, np.int8),
+                     row_parts=cop.row_parts, term_row=cop.term_row, term_part=cop.term_part,
+                     term_slot=cop.term_slot, term_weight=weight * np.abs(cop.term_weight),
+                     distance=np.full(len(cop.row_touch), np.nan))
+    return concat_pairings([selected, normal])
+
 
 _SUBSETS: dict = {}
 

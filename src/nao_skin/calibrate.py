@@ -53,6 +53,9 @@ class CalibrationOptions:
     mount_pairs: str = "cop"            # rows for the mount stage (robust while far off)
     loss: str = "huber"
     f_scale: float = 0.004              # m
+    normal_weight: float = 0.005        # m per rad: touching surfaces face each other; each closest
+                                        # COP pair also asks its two mean normals to cancel (0: off)
+    normal_levels: tuple = ("mount", "patch", "triangle")   # stages whose unknowns include these use normal rows
     jacobian: str = "analytic"          # or "2-point"
     initial_guess: str = "rigid-fit"    # or "none"
     min_triangle_activations: int = 10  # thesis' threshold

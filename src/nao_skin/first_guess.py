@@ -24,19 +24,33 @@ def guess_targets(step: Step) -> list:
     bodies = tuple(p for p in step.targets if p in REFERENCE_BODY)
     return [(h, bodies) for h in step.targets if h in HANDS and bodies]
 
+# Surface normals enter the rigid fit with this weight (m^2 per touch, i.e. like points spread
+# over ~10 mm): negligible against contacts spread over a part, decisive about the axis that
+# points alone leave free when every contact lies on one band of the skin.
+NORMAL_WEIGHT = 0.01 ** 2
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+
+
 def _touch_centroids(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, part: str, frame: str):
-    """Per-touch mean of the part's activated taxels: in its chain-end frame ('local') or the base."""
+    """Per-touch mean of the part's activated taxels and their mean normal: in its
+    chain-end frame ('local') or the base; and which touches have any."""
     pidx = touches.part_index(part)
     sel = touches.act_part == pidx
     touch = touches.act_touch[sel]
-    local, _ = skin.parts[part].taxel_positions(calib.parts[part])
-    pts = local[touches.act_slot[sel]]
+    local, normals = skin.parts[part].taxel_positions(calib.parts[part])
+    pts, nor = local[touches.act_slot[sel]], normals[touches.act_slot[sel]]
     if frame == "base":
-        pts = se3.transform_points(skin.robot.fk(skin.parts[part].chain, touches.joints[touch]), pts)
+        fk = skin.robot.fk(skin.parts[part].chain, touches.joints[touch])
+        pts, nor = se3.transform_points(fk, pts), se3.rotate_vectors(fk, nor)
     sums = np.zeros((touches.n_touches, 3))
+    nsum = np.zeros((touches.n_touches, 3))
     np.add.at(sums, touch, pts)
+    np.add.at(nsum, touch, nor)
     counts = np.bincount(touch, minlength=touches.n_touches)
-    return sums / np.maximum(counts, 1)[:, None], counts > 0
+    return sums / np.maximum(counts, 1)[:, None], _unit(nsum), counts > 0
 
 def rigid_mount_guess(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, target: str,
                       references: tuple, iterations: int = 6, trim: float = 0.25) -> np.ndarray:
@@ -48,26 +62,30 @@ def rigid_mount_guess(touches: TouchSet, skin: SkinModel, calib: SkinCalibration
     """
     part = skin.parts[target]
     ref_sum = np.zeros((touches.n_touches, 3))
+    ref_nor = np.zeros((touches.n_touches, 3))
     ref_ok = np.zeros(touches.n_touches, bool)
     for ref in references:
-        c, ok = _touch_centroids(touches, skin, calib, ref, "base")
+        c, n, ok = _touch_centroids(touches, skin, calib, ref, "base")
         use = ok & ~ref_ok
-        ref_sum[use] = c[use]
+        ref_sum[use], ref_nor[use] = c[use], n[use]
         ref_ok |= ok
-    own, own_ok = _touch_centroids(touches, skin, calib, target, "local")
+    own, own_nor, own_ok = _touch_centroids(touches, skin, calib, target, "local")
     both = np.flatnonzero(ref_ok & own_ok)
     if len(both) < 3:
         raise DataError(f"part '{target}': {len(both)} touches with a reference part, at least 3 needed for a mount fit")
     chain = skin.robot.fk(part.chain, touches.joints[both])
     ref_local = se3.transform_points(se3.invert(chain), ref_sum[both])      # reference points in the chain-end frame
+    # touching surfaces face each other: the target's normal maps onto minus the reference's
+    ref_dirs = -se3.rotate_vectors(se3.invert(chain), ref_nor[both])
     # mount-frame coordinates of the target's points under the current correction
     mount_now = part.mount_nominal @ se3.pose_matrix(calib.parts[target].mount)
     own_mount = se3.transform_points(se3.invert(mount_now), own[both])
-    fit = se3.rigid_fit(own_mount, ref_local)                               # chain-end <- mount
+    own_dirs = se3.rotate_vectors(se3.invert(mount_now), own_nor[both])
+    fit = se3.rigid_fit(own_mount, ref_local, None, own_dirs, ref_dirs, NORMAL_WEIGHT)   # chain-end <- mount
     for _ in range(iterations):
         resid = np.linalg.norm(se3.transform_points(fit, own_mount) - ref_local, axis=1)
         keep = resid <= np.quantile(resid, 1.0 - trim)
-        fit = se3.rigid_fit(own_mount[keep], ref_local[keep])
+        fit = se3.rigid_fit(own_mount[keep], ref_local[keep], None, own_dirs[keep], ref_dirs[keep], NORMAL_WEIGHT)
     corr = calib.copy()
     corr.parts[target].mount = se3.pose_vector(se3.invert(part.mount_nominal) @ fit)
     # ICP on closest COP pairs: pairing becomes meaningful once the mount is near
@@ -77,36 +95,42 @@ def rigid_mount_guess(touches: TouchSet, skin: SkinModel, calib: SkinCalibration
         if pairing is None:
             break
         rows = select_rows(pairing, (0,))
-        src, dst = _cop_points(rows, touches, skin, corr, target)
+        src, dst, src_n, dst_n = _cop_points(rows, touches, skin, corr, target)
         if len(src) < 3:
             break
         mount_now = part.mount_nominal @ se3.pose_matrix(corr.parts[target].mount)
         src_m = se3.transform_points(se3.invert(mount_now), src)
+        src_mn = se3.rotate_vectors(se3.invert(mount_now), src_n)
         resid = np.linalg.norm(se3.transform_points(mount_now, src_m) - dst, axis=1)
         keep = resid <= np.quantile(resid, 1.0 - trim)
-        fit = se3.rigid_fit(src_m[keep], dst[keep])
+        fit = se3.rigid_fit(src_m[keep], dst[keep], None, src_mn[keep], -dst_n[keep], NORMAL_WEIGHT)
         corr.parts[target].mount = se3.pose_vector(se3.invert(part.mount_nominal) @ fit)
     return corr.parts[target].mount
 
 def _cop_points(rows: Pairing, touches: TouchSet, skin: SkinModel, calib: SkinCalibration, target: str):
-    """For COP rows: the target's COP in its chain-end frame and the reference COP in the same frame."""
+    """For COP rows: the target's COP and mean normal in its chain-end frame, and the
+    reference COP and mean normal in the same frame."""
     tidx = touches.part_index(target)
     part = skin.parts[target]
-    local, _ = part.taxel_positions(calib.parts[target])
+    local, local_n = part.taxel_positions(calib.parts[target])
     m = len(rows.row_touch)
-    own = np.zeros((m, 3))
+    own, own_n = np.zeros((m, 3)), np.zeros((m, 3))
     is_target = rows.term_part == tidx
-    np.add.at(own, rows.term_row[is_target], np.abs(rows.term_weight[is_target])[:, None] * local[rows.term_slot[is_target]])
-    other = np.zeros((m, 3))
+    w = np.abs(rows.term_weight[is_target])[:, None]
+    np.add.at(own, rows.term_row[is_target], w * local[rows.term_slot[is_target]])
+    np.add.at(own_n, rows.term_row[is_target], w * local_n[rows.term_slot[is_target]])
+    other, other_n = np.zeros((m, 3)), np.zeros((m, 3))
     for pidx in np.unique(rows.term_part[~is_target]):
         sel = rows.term_part == pidx
         name = touches.part_names[pidx]
-        loc, _ = skin.parts[name].taxel_positions(calib.parts[name])
+        loc, loc_n = skin.parts[name].taxel_positions(calib.parts[name])
         fk = skin.robot.fk(skin.parts[name].chain, touches.joints[rows.row_touch[rows.term_row[sel]]])
-        np.add.at(other, rows.term_row[sel],
-                  np.abs(rows.term_weight[sel])[:, None] * se3.transform_points(fk, loc[rows.term_slot[sel]]))
-    chain = skin.robot.fk(part.chain, touches.joints[rows.row_touch])
-    return own, se3.transform_points(se3.invert(chain), other)
+        w = np.abs(rows.term_weight[sel])[:, None]
+        np.add.at(other, rows.term_row[sel], w * se3.transform_points(fk, loc[rows.term_slot[sel]]))
+        np.add.at(other_n, rows.term_row[sel], w * se3.rotate_vectors(fk, loc_n[rows.term_slot[sel]]))
+    to_chain = se3.invert(skin.robot.fk(part.chain, touches.joints[rows.row_touch]))
+    return (own, se3.transform_points(to_chain, other), _unit(own_n),
+            _unit(se3.rotate_vectors(to_chain, other_n)))
 
 
 # ---------------------------------------------------------------------- evaluation

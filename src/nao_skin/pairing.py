@@ -29,6 +29,7 @@ from .skin import PART_NAMES, SkinCalibration, SkinModel
 from .touches import TouchSet
 
 KIND_COP, KIND_TAXEL, KIND_TAXEL5 = 0, 1, 2
+KIND_NORMAL = 3   # solver-only rows (calib_pairs.with_normal_rows): the two contacts' mean normals must cancel
 KIND_NAMES = {"cop": KIND_COP, "taxel": KIND_TAXEL, "taxel5": KIND_TAXEL5}
 MAX_TAXEL_PAIRS = 5
 DEFAULT_COP_RADIUS = 0.012   # thesis rule: taxel of B searched within this distance of COP_B (m)

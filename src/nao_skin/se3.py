@@ -195,11 +195,17 @@ def matrix_from_rpy(rpy: np.ndarray) -> np.ndarray:
     return out
 
 
-def rigid_fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+def rigid_fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None,
+              source_dirs: np.ndarray | None = None, target_dirs: np.ndarray | None = None,
+              dir_weight: float = 0.0) -> np.ndarray:
     """Closed-form least-squares rigid transform T with ``T * source ~ target``.
 
     Kabsch/Umeyama without scale; ``source`` and ``target`` are ``(N, 3)``.
     Used as the first guess that makes a 160-degree mount error reachable.
+    Optional unit direction pairs (``R @ source_dirs ~ target_dirs``, e.g.
+    surface normals) enter the rotation with ``dir_weight`` (m^2 per pair, so
+    that they compare with the points' spread): they fix the rotation about
+    an axis that points alone leave free, e.g. when all points lie on a line.
     """
     src = np.asarray(source, dtype=float)
     dst = np.asarray(target, dtype=float)
@@ -208,6 +214,8 @@ def rigid_fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None
     mu_s = w @ src
     mu_d = w @ dst
     cov = (dst - mu_d).T @ ((src - mu_s) * w[:, None])
+    if dir_weight > 0 and source_dirs is not None and target_dirs is not None:
+        cov = cov + dir_weight * (np.asarray(target_dirs, float).T @ (np.asarray(source_dirs, float) * w[:, None]))
     u, _, vt = np.linalg.svd(cov)
     d = np.sign(np.linalg.det(u @ vt))
     rot = u @ np.diag([1.0, 1.0, d]) @ vt

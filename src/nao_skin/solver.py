@@ -4,7 +4,8 @@ The unknowns are the 6-vector corrections ``[t, rotvec]`` of skin frames
 (mounts, patches, triangles). A residual row is ``sum_k w_k x_k`` over its
 terms, ``x_k`` the calibrated base-frame position of one taxel, so a COP pair
 and a taxel pair are the same thing to the solver (see
-:class:`nao_skin.pairing.Pairing`). Each term depends on exactly one chain of
+:class:`nao_skin.pairing.Pairing`). In a normal row (``KIND_NORMAL``) ``x_k``
+is the taxel's base-frame normal instead: rotated like a point, never moved. Each term depends on exactly one chain of
 frames (its part's mount, its patch, its triangle), so the Jacobian is sparse
 with at most 18 non-zeros per term and coordinate; it is assembled from
 closed-form 3x6 blocks, vectorised over all terms.
@@ -28,6 +29,7 @@ import scipy.linalg
 import scipy.sparse
 
 from . import se3
+from .pairing import KIND_NORMAL
 from .skin import SkinCalibration, SkinModel
 
 LEVELS = ("mount", "patch", "triangle")
@@ -168,16 +170,25 @@ class ResidualModel:
                 raise ValueError(f"part '{name}': slot {bad} has no taxel in the layout")
             fk = _touch_fk(skin, part.chain, joints)[term_touch[sel]]
             self.groups.append((sel, name, part, fk, slots, tri, part.triangle_patch[tri]))
+        # terms of normal rows carry a direction (rotated, never translated, no fabric)
+        self.term_is_dir = pairing.row_kind[pairing.term_row] == KIND_NORMAL
+        self.has_dirs = bool(np.any(self.term_is_dir))
 
     def _is_variable(self, name: str) -> bool:
         return self.variable_parts is None or name in self.variable_parts
 
     # ------------------------------------------------------------------ evaluation
     def _group_positions(self, group, calib: SkinCalibration) -> np.ndarray:
+        """Base-frame position of each term's taxel (its normal, for terms of normal rows)."""
         sel, name, part, fk, slots, tri, _ = group
         _, _, tri_pose = part.frame_poses(calib.parts[name])
         point = part.taxel_local[slots] + self.fabric * part.normal_local[slots]
-        return se3.transform_points(fk, se3.transform_points(tri_pose[tri], point))
+        out = se3.transform_points(fk, se3.transform_points(tri_pose[tri], point))
+        if self.has_dirs:
+            d = np.flatnonzero(self.term_is_dir[sel])
+            if len(d):
+                out[d] = se3.rotate_vectors(fk[d], se3.rotate_vectors(tri_pose[tri[d]], part.normal_local[slots[d]]))
+        return out
 
     def _group_normals(self, group, calib: SkinCalibration) -> np.ndarray:
         sel, name, part, fk, slots, tri, _ = group
@@ -229,11 +240,20 @@ class ResidualModel:
         rows_all, cols_all, vals_all = [], [], []
         fabric_j = col_of[self.layout.fabric_col] if self.layout.fabric_col < len(col_of) else -1
         if fabric_j >= 0:   # d r / d fabric: the weighted sum of the rows' taxel normals
-            for group in self.groups:
-                sel = group[0]
-                nrm = self._group_normals(group, calib) * self.term_weight[sel][:, None]
-                rows_all.append((3 * self.term_row[sel][:, None] + np.arange(3)[None, :]).ravel())
-                cols_all.append(np.full(3 * len(sel), fabric_j))
+            for sel, name, part, fk, slots, tri, _ in self.groups:
+                w = self.term_weight[sel]
+                if self.has_dirs:
+                    w = np.where(self.term_is_dir[sel], 0.0, w)   # a normal row does not depend on the fabric
+                # terms of one row on one triangle share its rotation: sum their local normals first
+                term_row = self.term_row[sel]
+                _, first, inverse = np.unique(term_row * len(part.triangle_ids) + tri,
+                                              return_index=True, return_inverse=True)
+                wn = np.stack([np.bincount(inverse, weights=w * part.normal_local[slots, d], minlength=len(first))
+                               for d in range(3)], 1)
+                _, _, tri_pose = part.frame_poses(calib.parts[name])
+                nrm = se3.rotate_vectors(fk[first], se3.rotate_vectors(tri_pose[tri[first]], wn))
+                rows_all.append((3 * term_row[first][:, None] + np.arange(3)[None, :]).ravel())
+                cols_all.append(np.full(3 * len(first), fabric_j))
                 vals_all.append(nrm.ravel())
         for sel, name, part, fk, slots, tri, patch in self.groups:
             levels = free_levels.get(name, ())
@@ -244,12 +264,22 @@ class ResidualModel:
             ep = se3.pose_matrix(corr.patches)
             et = se3.pose_matrix(corr.triangles)
             q = part.taxel_local[slots] + self.fabric * part.normal_local[slots]
+            is_dir = self.term_is_dir[sel] if self.has_dirs else None
+            if is_dir is not None:
+                q = np.where(is_dir[:, None], part.normal_local[slots], q)
+
+            def below(frames, y):
+                # a point goes through the whole transform, a direction only through its rotation
+                out = se3.transform_points(frames, y)
+                if is_dir is not None:
+                    out[is_dir] = se3.rotate_vectors(frames[is_dir], y[is_dir])
+                return out
             # y_T = q ; y_P = T_n exp(dT) q ; y_M = P_n exp(dP) y_P  (only what a free level needs)
             specs = []   # (level, block of each term, the term's point below the correction)
             if "mount" in levels or "patch" in levels:
-                y_p = se3.transform_points((part.triangle_nominal @ et)[tri], q)
+                y_p = below((part.triangle_nominal @ et)[tri], q)
                 if "mount" in levels:
-                    y_m = se3.transform_points((part.patch_nominal @ ep)[patch], y_p)
+                    y_m = below((part.patch_nominal @ ep)[patch], y_p)
                     specs.append(("mount", np.zeros(len(sel), int), y_m))
                 if "patch" in levels:
                     specs.append(("patch", patch, y_p))
@@ -257,17 +287,21 @@ class ResidualModel:
                 specs.append(("triangle", tri, q))
             term_row = self.term_row[sel]
             wv = self.term_weight[sel]
+            wv_t = wv if is_dir is None else np.where(is_dir, 0.0, wv)   # directions do not translate
             for level, block_rows, y in specs:
                 # Terms of one residual row under the same block share everything but y, and
                 # the position is affine in y: sum them first (sum w y, sum w), one block each.
                 key = term_row * (int(block_rows.max()) + 1 if len(block_rows) else 1) + block_rows
                 uniq, first, inverse = np.unique(key, return_index=True, return_inverse=True)
                 wy = np.stack([np.bincount(inverse, weights=wv * y[:, d], minlength=len(uniq)) for d in range(3)], 1)
-                wsum = np.bincount(inverse, weights=wv, minlength=len(uniq))
+                wsum = np.bincount(inverse, weights=wv_t, minlength=len(uniq))
                 # rotation of the frame above the correction, only for one term per block
                 rg_g = fk[first, :3, :3] @ part.mount_nominal[:3, :3]
-                if level == "mount":
-                    rc_g, phi_g = em[:3, :3], corr.mount[3:]
+                if level == "mount":   # one correction for all blocks: constant factors right of R_G
+                    d_t = rg_g * wsum[:, None, None]
+                    rc_jr = em[:3, :3] @ se3.right_jacobian(corr.mount[3:])
+                    # R_c [wy]x J_r = [R_c wy]x R_c J_r
+                    d_phi = -(rg_g @ se3.skew(wy @ em[:3, :3].T)) @ rc_jr
                 else:
                     pg = patch[first]
                     rg_g = rg_g @ em[:3, :3] @ part.patch_nominal[pg, :3, :3]
@@ -277,8 +311,9 @@ class ResidualModel:
                         tg = tri[first]
                         rg_g = rg_g @ ep[pg, :3, :3] @ part.triangle_nominal[tg, :3, :3]
                         rc_g, phi_g = et[tg, :3, :3], corr.triangles[tg, 3:]
-                d_t = rg_g * wsum[:, None, None]
-                d_phi = -(rg_g @ rc_g @ se3.skew(wy) @ se3.right_jacobian(phi_g))
+                if level != "mount":
+                    d_t = rg_g * wsum[:, None, None]
+                    d_phi = -(rg_g @ rc_g @ se3.skew(wy) @ se3.right_jacobian(phi_g))
                 block = np.concatenate([d_t, d_phi], axis=2)          # (G, 3, 6)
                 col0 = self.layout.block_columns(name, level, block_rows[first])
                 cc = col_of[col0[:, None] + np.arange(6)[None, :]]   # (G, 6)

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .calib_pairs import KIND_ROWS, pair_step, select_rows, touch_hashes
+from .calib_pairs import KIND_ROWS, pair_step, select_rows, touch_hashes, with_normal_rows
 from .errors import DataError
 from .pairing import Pairing
 from .skin import SkinCalibration, SkinModel
@@ -25,6 +25,9 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     layout = ParameterLayout(skin, parts_in)
     kinds = KIND_ROWS[options.mount_pairs if levels == {"mount"} else options.pairs]
     kind_names = tuple({0: "cop", 1: "taxel", 2: "taxel5"}[k] for k in kinds)
+    # normal rows are built from the closest COP pairs, which must then be paired too
+    normal_weight = options.normal_weight if set(levels) & set(options.normal_levels) else 0.0
+    pair_kinds = kind_names if normal_weight <= 0 or "cop" in kind_names else kind_names + ("cop",)
     free_levels = {p: set(levels) for p in free_parts}
     prior_x = layout.to_vector(calib, fabric)
     x = prior_x.copy()
@@ -36,12 +39,13 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     last_cost = np.inf
     for repairings in range(1, options.max_repairings + 1):
         current = layout.to_calibration(x, calib)
-        pairing = pair_step(touches, skin, current, step, kind_names)
-        if pairing is None:
+        pairing_all = pair_step(touches, skin, current, step, pair_kinds)
+        if pairing_all is None:
             raise DataError(f"{name}: no touch pairs the parts {', '.join(parts_in)}")
-        pairing = select_rows(pairing, kinds, inliers)
+        pairing = select_rows(pairing_all, kinds, inliers)
         if len(pairing.row_touch) == 0:
             raise DataError(f"{name}: no paired activations left to fit")
+        pairing = with_normal_rows(pairing, pairing_all, normal_weight, inliers)
         new_hashes = touch_hashes(pairing, touches.n_touches)
         if hashes is not None and np.mean(np.abs(new_hashes - hashes) > 1e-9) < options.repair_tolerance:
             break
