@@ -111,8 +111,9 @@ def test_outlier_recall_counts_keys_of_the_training_split(skin):
 
 @pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
     "engine: with ~17 training touches per pair the mounts and patches of torso and head are fitted from little"
-    " data, and held triangles that follow them end up to ~0.4 mm worse than on the nominal skin (seed 0:"
-    " head/triangle_17 2.62 vs 2.18 mm); known limitation, see the closing note of issue 7"))
+    " data, and held triangles that follow them can end up worse than on the nominal skin where the true"
+    " mount and patch shifts happen to cancel (seed 0: head/triangle_17 3.20 vs 2.18 mm); known limitation,"
+    " see the closing notes of issue 7"))
 def test_few_touches_holds_what_the_data_cannot_determine(case):
     row = _ok(case("few-touches"))
     assert row["held_frames"] > 0
@@ -127,8 +128,8 @@ def test_planar_poses_lists_held_frames(case):
 
 
 @pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "engine (at d0f09c5): held triangles end worse than nominal because their patch moves (seed 0, 100 touches"
-    " per pair: torso/triangle_11 2.33 vs 1.80 mm, torso/triangle_3 2.17 vs 2.07 mm); reported to the lead"))
+    "engine: held triangles can end slightly worse than nominal because their patch moves (seed 0, 100 touches"
+    " per pair: torso/triangle_11 1.83 vs 1.80 mm, torso/triangle_3 2.08 vs 2.07 mm); see issue 7's notes"))
 def test_planar_poses_never_makes_a_held_frame_worse_than_nominal(case):
     row = _ok(case("planar-poses"))
     assert row["held_violations"] == [], row["held_violations"]
