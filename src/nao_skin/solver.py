@@ -190,11 +190,6 @@ class ResidualModel:
                 out[d] = se3.rotate_vectors(fk[d], se3.rotate_vectors(tri_pose[tri[d]], part.normal_local[slots[d]]))
         return out
 
-    def _group_normals(self, group, calib: SkinCalibration) -> np.ndarray:
-        sel, name, part, fk, slots, tri, _ = group
-        _, _, tri_pose = part.frame_poses(calib.parts[name])
-        return se3.rotate_vectors(fk, se3.rotate_vectors(tri_pose[tri], part.normal_local[slots]))
-
     def positions(self, calib: SkinCalibration) -> np.ndarray:
         """(K, 3) base-frame positions of every term's taxel."""
         out = np.empty((len(self.term_row), 3))
