@@ -38,13 +38,13 @@ def with_normal_rows(selected: Pairing, pairing: Pairing, weight: float, inliers
     if weight <= 0:
         return selected
     source = KIND_TAXEL if np.any(pairing.row_kind == KIND_TAXEL) else KIND_COP
-    cop = select_rows(pairing, (source,), inliers)
-    if len(cop.row_touch) == 0:
+    src = select_rows(pairing, (source,), inliers)
+    if len(src.row_touch) == 0:
         return selected
-    normal = Pairing(row_touch=cop.row_touch, row_kind=np.full(len(cop.row_touch), KIND_NORMAL, np.int8),
-                     row_parts=cop.row_parts, term_row=cop.term_row, term_part=cop.term_part,
-                     term_slot=cop.term_slot, term_weight=weight * np.abs(cop.term_weight),
-                     distance=np.full(len(cop.row_touch), np.nan))
+    normal = Pairing(row_touch=src.row_touch, row_kind=np.full(len(src.row_touch), KIND_NORMAL, np.int8),
+                     row_parts=src.row_parts, term_row=src.term_row, term_part=src.term_part,
+                     term_slot=src.term_slot, term_weight=weight * np.abs(src.term_weight),
+                     distance=np.full(len(src.row_touch), np.nan))
     return concat_pairings([selected, normal])
 
 

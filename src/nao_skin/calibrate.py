@@ -54,7 +54,8 @@ class CalibrationOptions:
     loss: str = "huber"
     f_scale: float = 0.004              # m
     normal_weight: float = 0.005        # m per rad: touching surfaces face each other; each closest
-                                        # COP pair also asks its two mean normals to cancel (0: off)
+                                        # taxel pair (COP pair in mount stages) also asks its two
+                                        # normals to cancel (0: off)
     normal_levels: tuple = ("mount", "patch", "triangle")   # stages whose unknowns include these use normal rows
     jacobian: str = "analytic"          # or "2-point"
     initial_guess: str = "rigid-fit"    # or "none"

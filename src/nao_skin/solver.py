@@ -5,9 +5,10 @@ The unknowns are the 6-vector corrections ``[t, rotvec]`` of skin frames
 terms, ``x_k`` the calibrated base-frame position of one taxel, so a COP pair
 and a taxel pair are the same thing to the solver (see
 :class:`nao_skin.pairing.Pairing`). In a normal row (``KIND_NORMAL``) ``x_k``
-is the taxel's base-frame normal instead: rotated like a point, never moved. Each term depends on exactly one chain of
-frames (its part's mount, its patch, its triangle), so the Jacobian is sparse
-with at most 18 non-zeros per term and coordinate; it is assembled from
+is the taxel's base-frame normal instead: rotated like a point, never moved.
+Each term depends on exactly one chain of frames (its part's mount, its
+patch, its triangle), so the Jacobian is sparse with at most 18 non-zeros per
+term and coordinate; it is assembled from
 closed-form 3x6 blocks, vectorised over all terms.
 
 For a correction ``exp(d) = (R(phi), t)`` between a frame ``G`` (everything

@@ -25,9 +25,10 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     layout = ParameterLayout(skin, parts_in)
     kinds = KIND_ROWS[options.mount_pairs if levels == {"mount"} else options.pairs]
     kind_names = tuple({0: "cop", 1: "taxel", 2: "taxel5"}[k] for k in kinds)
-    # normal rows are built from the closest COP pairs, which must then be paired too
+    # normal rows are built from the closest taxel (or COP) pairs: pair COPs too if neither is fitted
     normal_weight = options.normal_weight if set(levels) & set(options.normal_levels) else 0.0
-    pair_kinds = kind_names if normal_weight <= 0 or "cop" in kind_names else kind_names + ("cop",)
+    pair_kinds = (kind_names if normal_weight <= 0 or {"cop", "taxel"} & set(kind_names)
+                  else kind_names + ("cop",))
     free_levels = {p: set(levels) for p in free_parts}
     prior_x = layout.to_vector(calib, fabric)
     x = prior_x.copy()
