@@ -38,10 +38,12 @@ class ContactGeometry:
     n_taxels: np.ndarray     # (C,) activated taxels
 
 
-def activation_local(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None) -> tuple:
-    """``(positions, normals)`` of every activation, ``(A, 3)`` each, in its part's local frame."""
+def activation_local(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,
+                     normals: bool = True) -> tuple:
+    """``(positions, normals)`` of every activation, ``(A, 3)`` each, in its part's local frame
+    (normals None unless asked for: pairing needs only the positions)."""
     pos = np.full((len(touches.act_slot), 3), np.nan)
-    nor = np.full_like(pos, np.nan)
+    nor = np.full_like(pos, np.nan) if normals else None
     act_part = touches.act_part
     for p, name in enumerate(touches.part_names):        # loop over <= 4 parts
         sel = np.flatnonzero(act_part == p)
@@ -51,7 +53,8 @@ def activation_local(touches: TouchSet, skin: SkinModel, calib: SkinCalibration 
         corr = calib.parts.get(name) if calib is not None else None
         local_pos, local_nor = part.taxel_positions(corr)
         pos[sel] = local_pos[touches.act_slot[sel]]
-        nor[sel] = local_nor[touches.act_slot[sel]]
+        if normals:
+            nor[sel] = local_nor[touches.act_slot[sel]]
     return pos, nor
 
 
@@ -79,9 +82,10 @@ def segment_mean(values: np.ndarray, segment: np.ndarray, n_segments: int, weigh
     if weights is None:
         count = np.bincount(segment, minlength=n_segments).astype(float)
         weights = 1.0 / count[segment]
-    out = np.zeros((n_segments, values.shape[1]))
-    np.add.at(out, segment, values * weights[:, None])
-    return out
+    # one bincount per column: np.add.at is an order of magnitude slower on hot paths (pairing)
+    weighted = values * weights[:, None]
+    return np.stack([np.bincount(segment, weights=weighted[:, d], minlength=n_segments)
+                     for d in range(values.shape[1])], axis=1).reshape(n_segments, values.shape[1])
 
 
 def contact_geometry(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,

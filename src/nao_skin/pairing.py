@@ -109,38 +109,40 @@ def robot_joints(touches: TouchSet, skin: SkinModel) -> np.ndarray:
     return q
 
 
-_FK_CACHE: dict = {}
+_CHAIN_CACHE: dict = {}
 
 
-def _chain_poses(skin: SkinModel, name: str, q: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """FK of the touches' chain ends; re-pairing the same touches under a new calibration
-    reuses it (joint angles never change, only the skin's corrections do)."""
-    key = (id(skin), name, id(q))
-    hit = _FK_CACHE.get(key)
-    if hit is not None and hit[0] is q and np.array_equal(hit[1], rows):
+def _activation_chains(touches: TouchSet, skin: SkinModel, p: int, name: str, sel: np.ndarray) -> tuple:
+    """``(R, t)`` of the chain end of every activation ``sel`` of part ``p``; re-pairing the same
+    touches under a new calibration reuses it (joint angles never change, only the skin's
+    corrections do)."""
+    key = (id(touches), id(skin), p)
+    hit = _CHAIN_CACHE.get(key)
+    if hit is not None and hit[0] is touches and hit[1] is skin:
         return hit[2]
-    chain = skin.chain_poses(name, q[rows])
-    if len(_FK_CACHE) > 32:
-        _FK_CACHE.clear()
-    _FK_CACHE[key] = (q, rows, chain)
-    return chain
+    q = robot_joints(touches, skin)
+    rows, inverse = np.unique(touches.act_touch[sel], return_inverse=True)
+    chain = skin.chain_poses(name, q[rows])[inverse]        # one batched FK per touch, gathered
+    if len(_CHAIN_CACHE) > 32:
+        _CHAIN_CACHE.clear()
+    out = (np.ascontiguousarray(chain[:, :3, :3]), np.ascontiguousarray(chain[:, :3, 3]))
+    _CHAIN_CACHE[key] = (touches, skin, out)
+    return out
 
 
 def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,
                          local: np.ndarray | None = None) -> np.ndarray:
     """(A, 3) calibrated position of every activated taxel in the base frame (one FK per part)."""
     if local is None:
-        local, _ = activation_local(touches, skin, calib)
-    q = robot_joints(touches, skin)
+        local, _ = activation_local(touches, skin, calib, normals=False)
     out = np.full_like(local, np.nan)
-    act_touch, act_part = touches.act_touch, touches.act_part
+    act_part = touches.act_part
     for p, name in enumerate(touches.part_names):           # loop over <= 4 parts
         sel = np.flatnonzero(act_part == p)
         if len(sel) == 0:
             continue
-        rows, inverse = np.unique(act_touch[sel], return_inverse=True)
-        chain = _chain_poses(skin, name, q, rows)            # (n, 4, 4), one batched FK
-        out[sel] = se3.transform_points(chain[inverse], local[sel])
+        rot, trans = _activation_chains(touches, skin, p, name, sel)
+        out[sel] = np.einsum("aij,aj->ai", rot, local[sel]) + trans
     return out
 
 
@@ -159,7 +161,7 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
     want = {KIND_NAMES[k] if isinstance(k, str) else int(k) for k in kinds}
     if taxel_rule not in ("contacts", "thesis"):
         raise ValueError(f"taxel_rule must be 'contacts' or 'thesis', not {taxel_rule!r}")
-    local, _ = activation_local(touches, skin, calib)
+    local, _ = activation_local(touches, skin, calib, normals=False)
     pos = activation_positions(touches, skin, calib, local=local)
     weight = cop_weights(touches)
     n_c = len(touches.contact_touch)

@@ -174,6 +174,18 @@ class ResidualModel:
         # terms of normal rows carry a direction (rotated, never translated, no fabric)
         self.term_is_dir = pairing.row_kind[pairing.term_row] == KIND_NORMAL
         self.has_dirs = bool(np.any(self.term_is_dir))
+        # the pairing is fixed while the model lives: which terms share a (row, block) is too
+        self._blocks: dict = {}
+        self._last_jacobian = None   # (key, J): the hold check and the first solve step share it
+
+    def _row_blocks(self, key: tuple, term_row: np.ndarray, block_rows: np.ndarray):
+        """``(first, inverse, n)`` of the unique (row, block) combinations of one group's terms."""
+        hit = self._blocks.get(key)
+        if hit is None:
+            code = term_row * (int(block_rows.max()) + 1 if len(block_rows) else 1) + block_rows
+            uniq, first, inverse = np.unique(code, return_index=True, return_inverse=True)
+            hit = self._blocks[key] = (first, inverse, len(uniq))
+        return hit
 
     def _is_variable(self, name: str) -> bool:
         return self.variable_parts is None or name in self.variable_parts
@@ -183,13 +195,14 @@ class ResidualModel:
         """Base-frame position of each term's taxel (its normal, for terms of normal rows)."""
         sel, name, part, fk, slots, tri, _ = group
         _, _, tri_pose = part.frame_poses(calib.parts[name])
-        point = part.taxel_local[slots] + self.fabric * part.normal_local[slots]
-        out = se3.transform_points(fk, se3.transform_points(tri_pose[tri], point))
-        if self.has_dirs:
-            d = np.flatnonzero(self.term_is_dir[sel])
-            if len(d):
-                out[d] = se3.rotate_vectors(fk[d], se3.rotate_vectors(tri_pose[tri[d]], part.normal_local[slots[d]]))
-        return out
+        # chain-end position of every slot of the part once (<= 384), then gathered per term
+        frames = tri_pose[part.slot_triangle]
+        local = se3.transform_points(frames, part.taxel_local + self.fabric * part.normal_local)[slots]
+        if not self.has_dirs:
+            return se3.transform_points(fk, local)
+        is_dir = self.term_is_dir[sel]
+        local = np.where(is_dir[:, None], se3.rotate_vectors(frames, part.normal_local)[slots], local)
+        return se3.rotate_vectors(fk, local) + np.where(is_dir[:, None], 0.0, fk[:, :3, 3])
 
     def positions(self, calib: SkinCalibration) -> np.ndarray:
         """(K, 3) base-frame positions of every term's taxel."""
@@ -230,86 +243,95 @@ class ResidualModel:
         are few (at most a few hundred), so dense normal equations are fastest.
         """
         cols = np.arange(self.layout.size) if cols is None else np.asarray(cols)
+        key = (self.layout.to_vector(calib, self.fabric).tobytes(), cols.tobytes(),
+               tuple(sorted((k, tuple(sorted(v))) for k, v in free_levels.items())),
+               3 * self.n_rows * len(cols) > DENSE_LIMIT)
+        if self._last_jacobian is not None and self._last_jacobian[0] == key:
+            return self._last_jacobian[1]
+        jac = self._jacobian(calib, free_levels, cols)
+        self._last_jacobian = (key, jac)
+        return jac
+
+    def _jacobian(self, calib: SkinCalibration, free_levels: dict, cols: np.ndarray):
         col_of = np.full(self.layout.size, -1)
         col_of[cols] = np.arange(len(cols))
         n_cols = len(cols)
         rows_all, cols_all, vals_all = [], [], []
         fabric_j = col_of[self.layout.fabric_col] if self.layout.fabric_col < len(col_of) else -1
-        if fabric_j >= 0:   # d r / d fabric: the weighted sum of the rows' taxel normals
-            for sel, name, part, fk, slots, tri, _ in self.groups:
-                w = self.term_weight[sel]
-                if self.has_dirs:
-                    w = np.where(self.term_is_dir[sel], 0.0, w)   # a normal row does not depend on the fabric
-                # terms of one row on one triangle share its rotation: sum their local normals first
-                term_row = self.term_row[sel]
-                _, first, inverse = np.unique(term_row * len(part.triangle_ids) + tri,
-                                              return_index=True, return_inverse=True)
-                wn = np.stack([np.bincount(inverse, weights=w * part.normal_local[slots, d], minlength=len(first))
-                               for d in range(3)], 1)
-                _, _, tri_pose = part.frame_poses(calib.parts[name])
-                nrm = se3.rotate_vectors(fk[first], se3.rotate_vectors(tri_pose[tri[first]], wn))
-                rows_all.append((3 * term_row[first][:, None] + np.arange(3)[None, :]).ravel())
-                cols_all.append(np.full(3 * len(first), fabric_j))
-                vals_all.append(nrm.ravel())
-        for sel, name, part, fk, slots, tri, patch in self.groups:
+        # the fabric column sums over both sides of a row: accumulated apart from the blocks
+        fabric_column = np.zeros(3 * self.n_rows) if fabric_j >= 0 else None
+        for g, (sel, name, part, fk, slots, tri, patch) in enumerate(self.groups):
             levels = free_levels.get(name, ())
-            if not levels:
+            if not levels and fabric_j < 0:
                 continue
             corr = calib.parts[name]
-            em = se3.pose_matrix(corr.mount)
-            ep = se3.pose_matrix(corr.patches)
-            et = se3.pose_matrix(corr.triangles)
-            q = part.taxel_local[slots] + self.fabric * part.normal_local[slots]
-            is_dir = self.term_is_dir[sel] if self.has_dirs else None
-            if is_dir is not None:
-                q = np.where(is_dir[:, None], part.normal_local[slots], q)
-
-            def below(frames, y):
-                # a point goes through the whole transform, a direction only through its rotation
-                out = se3.transform_points(frames, y)
-                if is_dir is not None:
-                    out[is_dir] = se3.rotate_vectors(frames[is_dir], y[is_dir])
-                return out
-            # y_T = q ; y_P = T_n exp(dT) q ; y_M = P_n exp(dP) y_P  (only what a free level needs)
-            specs = []   # (level, block of each term, the term's point below the correction)
-            if "mount" in levels or "patch" in levels:
-                y_p = below((part.triangle_nominal @ et)[tri], q)
-                if "mount" in levels:
-                    y_m = below((part.patch_nominal @ ep)[patch], y_p)
-                    specs.append(("mount", np.zeros(len(sel), int), y_m))
-                if "patch" in levels:
-                    specs.append(("patch", patch, y_p))
-            if "triangle" in levels:
-                specs.append(("triangle", tri, q))
+            r_m = se3.rotvec_to_matrix(corr.mount[3:])
+            r_p = se3.rotvec_to_matrix(corr.patches[:, 3:])
+            r_t = se3.rotvec_to_matrix(corr.triangles[:, 3:])
             term_row = self.term_row[sel]
             wv = self.term_weight[sel]
-            wv_t = wv if is_dir is None else np.where(is_dir, 0.0, wv)   # directions do not translate
-            for level, block_rows, y in specs:
+            is_dir = self.term_is_dir[sel] if self.has_dirs else np.zeros(len(sel), bool)
+            wv_t = np.where(is_dir, 0.0, wv)   # directions neither translate nor depend on the fabric
+            # rotation of each patch / triangle frame relative to the corrected mount frame
+            r_patch = r_m @ part.patch_nominal[:, :3, :3]                                   # C of a patch
+            r_tri = (r_patch @ r_p)[part.triangle_patch] @ part.triangle_nominal[:, :3, :3]  # C of a triangle
+            if fabric_j >= 0:   # d r / d fabric: the weighted sum of the rows' taxel normals
+                # terms of one row on one triangle share its rotation: sum their local normals first
+                first, inverse, n_uniq = self._row_blocks((g, "triangle"), term_row, tri)
+                wn = np.stack([np.bincount(inverse, weights=wv_t * part.normal_local[slots, d], minlength=n_uniq)
+                               for d in range(3)], 1)
+                a = self._chain_rotation(g, "triangle", fk, first, part)
+                nrm = np.einsum("gij,gj->gi", a, np.einsum("gij,gj->gi", (r_tri @ r_t)[tri[first]], wn))
+                fabric_column += np.bincount((3 * term_row[first][:, None] + np.arange(3)[None, :]).ravel(),
+                                             weights=nrm.ravel(), minlength=3 * self.n_rows)
+            if not levels:
+                continue
+            # every slot's point below each correction, computed once per slot (a part has <= 384)
+            # and gathered per term: y_T = q ; y_P = T_n exp(dT) q ; y_M = P_n exp(dP) y_P
+            q_pt = part.taxel_local + self.fabric * part.normal_local
+            q_dir = part.normal_local
+            below = {"triangle": (q_pt, q_dir)}
+            if "mount" in levels or "patch" in levels:
+                st = part.slot_triangle
+                t_rot = part.triangle_nominal[st, :3, :3] @ r_t[st]
+                t_off = (np.einsum("sij,sj->si", part.triangle_nominal[st, :3, :3], corr.triangles[st, :3])
+                         + part.triangle_nominal[st, :3, 3])
+                below["patch"] = (np.einsum("sij,sj->si", t_rot, q_pt) + t_off, np.einsum("sij,sj->si", t_rot, q_dir))
+                if "mount" in levels:
+                    sp = part.triangle_patch[st]
+                    p_rot = part.patch_nominal[sp, :3, :3] @ r_p[sp]
+                    p_off = (np.einsum("sij,sj->si", part.patch_nominal[sp, :3, :3], corr.patches[sp, :3])
+                             + part.patch_nominal[sp, :3, 3])
+                    y_pt, y_dir = below["patch"]
+                    below["mount"] = (np.einsum("sij,sj->si", p_rot, y_pt) + p_off, np.einsum("sij,sj->si", p_rot, y_dir))
+            for level in ("mount", "patch", "triangle"):
+                if level not in levels:
+                    continue
+                y_pt, y_dir = below[level]
+                y = np.where(is_dir[:, None], y_dir[slots], y_pt[slots])
+                block_rows = {"mount": np.zeros(len(sel), int), "patch": patch, "triangle": tri}[level]
                 # Terms of one residual row under the same block share everything but y, and
                 # the position is affine in y: sum them first (sum w y, sum w), one block each.
-                key = term_row * (int(block_rows.max()) + 1 if len(block_rows) else 1) + block_rows
-                uniq, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-                wy = np.stack([np.bincount(inverse, weights=wv * y[:, d], minlength=len(uniq)) for d in range(3)], 1)
-                wsum = np.bincount(inverse, weights=wv_t, minlength=len(uniq))
-                # rotation of the frame above the correction, only for one term per block
-                rg_g = fk[first, :3, :3] @ part.mount_nominal[:3, :3]
-                if level == "mount":   # one correction for all blocks: constant factors right of R_G
-                    d_t = rg_g * wsum[:, None, None]
-                    rc_jr = em[:3, :3] @ se3.right_jacobian(corr.mount[3:])
-                    # R_c [wy]x J_r = [R_c wy]x R_c J_r
-                    d_phi = -(rg_g @ se3.skew(wy @ em[:3, :3].T)) @ rc_jr
+                first, inverse, n_uniq = self._row_blocks((g, level), term_row, block_rows)
+                wy = np.stack([np.bincount(inverse, weights=wv * y[:, d], minlength=n_uniq) for d in range(3)], 1)
+                wsum = np.bincount(inverse, weights=wv_t, minlength=n_uniq)
+                # R_G = A C_b: A (the touch's chain end and nominal mount) is fixed while the model
+                # lives, C_b (above the block, below the mount) is per block. With R_c the
+                # correction, J_r its right Jacobian and D_b = C_b R_c:
+                #   A C_b R_c [wy]x J_r = [A D_b wy]x A D_b J_r
+                a = self._chain_rotation(g, level, fk, first, part)
+                if level == "mount":
+                    c_b, r_c, phi = np.eye(3)[None], r_m[None], corr.mount[None, 3:]
+                    blk = np.zeros(n_uniq, int)
+                elif level == "patch":
+                    c_b, r_c, phi, blk = r_patch, r_p, corr.patches[:, 3:], patch[first]
                 else:
-                    pg = patch[first]
-                    rg_g = rg_g @ em[:3, :3] @ part.patch_nominal[pg, :3, :3]
-                    if level == "patch":
-                        rc_g, phi_g = ep[pg, :3, :3], corr.patches[pg, 3:]
-                    else:
-                        tg = tri[first]
-                        rg_g = rg_g @ ep[pg, :3, :3] @ part.triangle_nominal[tg, :3, :3]
-                        rc_g, phi_g = et[tg, :3, :3], corr.triangles[tg, 3:]
-                if level != "mount":
-                    d_t = rg_g * wsum[:, None, None]
-                    d_phi = -(rg_g @ rc_g @ se3.skew(wy) @ se3.right_jacobian(phi_g))
+                    c_b, r_c, phi, blk = r_tri, r_t, corr.triangles[:, 3:], tri[first]
+                d_b = c_b @ r_c
+                n_b = d_b @ se3.right_jacobian(phi)
+                a_v = np.einsum("gij,gj->gi", a, np.einsum("gij,gj->gi", d_b[blk], wy))
+                d_phi = -(se3.skew(a_v) @ (a @ n_b[blk]))
+                d_t = (a @ c_b[blk]) * wsum[:, None, None]
                 block = np.concatenate([d_t, d_phi], axis=2)          # (G, 3, 6)
                 col0 = self.layout.block_columns(name, level, block_rows[first])
                 cc = col_of[col0[:, None] + np.arange(6)[None, :]]   # (G, 6)
@@ -323,13 +345,30 @@ class ResidualModel:
                 cols_all.append(np.broadcast_to(cc[:, None, :], block.shape)[mask])
                 vals_all.append(block[mask])
         shape = (3 * self.n_rows, n_cols)
+        if fabric_column is not None:
+            nz = np.flatnonzero(fabric_column)
+            rows_all.append(nz)
+            cols_all.append(np.full(len(nz), fabric_j))
+            vals_all.append(fabric_column[nz])
         if not rows_all:
             return np.zeros(shape)
         rows, cols_, vals = np.concatenate(rows_all), np.concatenate(cols_all), np.concatenate(vals_all)
         if shape[0] * shape[1] > DENSE_LIMIT:
             # many unknowns at once (a joint stage): keep the block sparsity
             return scipy.sparse.csr_matrix((vals, (rows, cols_)), shape=shape)
-        return np.bincount(rows * n_cols + cols_, weights=vals, minlength=shape[0] * shape[1]).reshape(shape)
+        # each (row, column) entry is written once: a row's terms were summed per block above,
+        # blocks of different levels or parts own different columns, the fabric column was summed
+        out = np.zeros(shape)
+        out.ravel()[rows * n_cols + cols_] = vals
+        return out
+
+    def _chain_rotation(self, g: int, level: str, fk: np.ndarray, first: np.ndarray, part) -> np.ndarray:
+        """Rotation of the touch's chain end times the nominal mount, one per (row, block) of a level."""
+        key = (g, level, "A")
+        hit = self._blocks.get(key)
+        if hit is None:
+            hit = self._blocks[key] = fk[first, :3, :3] @ part.mount_nominal[:3, :3]
+        return hit
 
 
 @dataclass
