@@ -37,7 +37,7 @@ from .evaluation import closest_cop_cost, evaluate, explained, gate_touches, tru
 from .first_guess import guess_targets, rigid_mount_guess
 from .skin import SkinCalibration, SkinModel
 from .solver import SolveOptions
-from .stages import run_stage
+from .stages import compress_held, run_stage
 from .touches import TouchSet
 
 @dataclass
@@ -56,7 +56,10 @@ class CalibrationOptions:
     normal_weight: float = 0.005        # m per rad: touching surfaces face each other; each closest
                                         # taxel pair (COP pair in mount stages) also asks its two
                                         # normals to cancel (0: off)
-    normal_levels: tuple = ("mount", "patch", "triangle")   # stages whose unknowns include these use normal rows
+    normal_levels: tuple = ("mount",)   # stages whose unknowns include these use normal rows: the mounts,
+                                        # whose rotation about a band of contacts points leave free; at
+                                        # patch and triangle level the layout's own normals (plane fits)
+                                        # are no better than the few degrees being estimated
     jacobian: str = "analytic"          # or "2-point"
     initial_guess: str = "rigid-fit"    # or "none"
     min_triangle_activations: int = 10  # thesis' threshold
@@ -149,6 +152,7 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
     fabric = options.fabric_thickness
     last_step, last_cost, last_inliers = None, np.inf, -1
     set_aside = []
+    held_components, estimated_components = set(), set()   # 'part/frame/comp' over all stages
     levels_seq = ([{"mount"}, {"patch"}, {"triangle"}] if options.strategy == "sequential"
                   else [{"mount", "patch", "triangle"}])
     schedule = [(r, step) for r in range(max(1, options.rounds)) for step in steps]
@@ -188,6 +192,8 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
                            else closest_cop_cost(train, skin, calib, step, inliers))
             stage = run_stage(train, skin, calib, step, step.targets, levels, options, inliers, say, fabric)
             stage["name"] = prefix + stage["name"]
+            stage_estimated, stage_held = stage.pop("_estimated"), stage.pop("_held")
+            held_components |= stage_held
             cost_after = closest_cop_cost(train, skin, stage["calibration"], step, inliers)
             if cost_after > 1.25 * cost_before and not (round_no == 0 and "mount" in levels):
                 # never silently diverge: a stage that leaves the touches much farther apart is undone
@@ -198,6 +204,7 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
             else:
                 fabric = stage["fabric_thickness_mm"] / 1000.0
                 calib = stage.pop("calibration")
+                estimated_components |= stage_estimated
                 cost_before = cost_after
             last_step, last_cost, last_inliers = step, cost_before, int(inliers.sum())
             if "mount" in levels and options.gate_mm > 0:
@@ -227,7 +234,9 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
     report["fabric_thickness_mm"] = 1000.0 * fabric
     report["set_aside"] = set_aside
     report["n_set_aside"] = len(set_aside)
-    report["held"] = sorted({h for s in report["stages"] for h in s["held"]})
+    # held: what no stage estimated (a triangle held while fitted to one reference and freed by the
+    # joint refinement, where both references reach ten activations, was estimated: not listed)
+    report["held"] = sorted(compress_held(sorted(held_components - estimated_components)))
     report["total_seconds"] = time.perf_counter() - t_start
     return CalibrationResult(calib, report, train, test, set_aside)
 

@@ -87,8 +87,13 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
         last_cost = result.cost
     calib_out = layout.to_calibration(x, calib)
     cond = condition_number(model, calib_out, free_levels, np.flatnonzero(free)) if model is not None else None
+    wanted = free_mask(layout, free_parts, levels)
+    estimated = ({layout.describe(c) for c in np.flatnonzero(wanted & free)} if free is not None else set())
     return {"name": name, "calibration": calib_out, "iterations": iterations, "repairings": repairings,
             "condition": cond, "held": compress_held([h for h in held_names if h != "fabric_thickness"]),
+            # unknowns ('part/frame/comp') this stage set free or held: the report's final list of
+            # held frames is what no stage estimated (popped by calibrate, not reported per stage)
+            "_estimated": estimated, "_held": set(held_names) - {"fabric_thickness"},
             "fabric_thickness_mm": 1000.0 * float(x[layout.fabric_col]), "seconds": time.perf_counter() - t0}
 
 def _bounds(layout: ParameterLayout, targets: tuple, levels: set, x: np.ndarray, options: "CalibrationOptions"):
@@ -183,4 +188,5 @@ def compress_held(names: list) -> list:
     for n in names:
         frame, comp = n.rsplit("/", 1)
         by_frame.setdefault(frame, []).append(comp)
-    return [f if len(c) == 6 else f"{f} ({','.join(c)})" for f, c in by_frame.items()]
+    order = ("tx", "ty", "tz", "rx", "ry", "rz")
+    return [f if len(c) == 6 else f"{f} ({','.join(sorted(c, key=order.index))})" for f, c in by_frame.items()]

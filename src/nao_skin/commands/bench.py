@@ -183,8 +183,13 @@ def run(args) -> int:
                f" default options. Converged: final true median taxel error <= {bench.CONVERGED_MM:g} mm over the"
                f" calibrated parts. Condition: Jacobi-scaled normal equations of the last stage. Injected outliers:"
                f" touches labelled '{bench.INJECTED_OUTLIER_LABEL}' in the training split (the experimenter's hand"
-               f" and stray taxels leave the true contact in the touch). Held worse than nominal: held frames whose"
-               f" taxels' mean true error exceeds the nominal skin's.", "", bench.hard_case_tables(rows), "",
+               f" and stray taxels leave the true contact in the touch). Held frames: what no stage estimated (a triangle"
+               f" with < 10 paired activations in every stage, a patch or mount direction the touches do not"
+               f" excite). Own correction worse than nominal: a held frame's taxels, every other frame at the truth,"
+               f" end farther from the truth with the frame's correction than with its held components at nominal"
+               f" (the frame was moved where the data says nothing). Absolute: the held frames' taxels under the"
+               f" whole calibration against the nominal skin, mean over runs, and how many frames end farther"
+               f" (information: they ride on their patch and mount, which the data determined).", "", bench.hard_case_tables(rows), "",
                "Touches set aside in the outlier case (keys):", "", LISTING, ""]
         listing = bench.outlier_listing(rows) or "(none run)"
         summary = bench.hard_case_summary(rows)
