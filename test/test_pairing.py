@@ -221,3 +221,17 @@ def test_normal_rows_ask_the_touching_normals_to_cancel(real_skin, real):
     from_cop = with_normal_rows(cop_only, cop_only, 0.005)
     assert int(np.sum(from_cop.row_kind == KIND_NORMAL)) == cop_only.n_rows
     assert with_normal_rows(selected, full, 0.0) is selected
+
+
+def test_argmin_per_group_matches_its_definition_sorted_or_not():
+    """The sort-free path (groups already contiguous) and the sorting path agree with a plain loop,
+    ties going to the lowest index."""
+    from nao_skin.pairing import _argmin_per_group
+
+    rng = np.random.default_rng(0)
+    for trial in range(200):
+        n = int(rng.integers(1, 150))
+        group = np.sort(rng.integers(0, 20, n)) if trial % 2 == 0 else rng.integers(0, 20, n)
+        key = rng.integers(0, 4, n).astype(float) if trial % 3 == 0 else rng.normal(size=n)
+        expected = [np.flatnonzero(group == g)[np.argmin(key[group == g])] for g in np.unique(group)]
+        assert np.array_equal(_argmin_per_group(group, key), expected), trial

@@ -68,6 +68,14 @@ def _argmin_per_group(group: np.ndarray, key: np.ndarray) -> np.ndarray:
     """Index of the smallest ``key`` in each group (ties: lowest index), ordered by group."""
     if len(group) == 0:
         return np.zeros(0, dtype=int)
+    key = np.asarray(key, dtype=float)
+    new_group = group[1:] != group[:-1]
+    if np.all(group[1:] >= group[:-1]) and not np.isnan(key).any():
+        # already grouped (pairs of one touch or contact are built together): no sort needed
+        starts = np.flatnonzero(np.r_[True, new_group])
+        segment = np.cumsum(np.r_[0, new_group])
+        cand = np.flatnonzero(key == np.minimum.reduceat(key, starts)[segment])
+        return cand[np.r_[True, segment[cand][1:] != segment[cand][:-1]]]
     # one stable argsort of "group + key scaled into [0, 1)" instead of a three-key lexsort
     key = np.asarray(key, dtype=float)
     span = float(np.max(key) - np.min(key)) if len(key) else 0.0
