@@ -163,3 +163,41 @@ def test_command_fails_with_one_line_on_a_bad_input(tmp_path):
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "broken.txt" in lines[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_a_stage_is_judged_at_the_fabric_surfaces(skin):
+    """At the simulated truth (1 mm of fabric on each skin, no noise) the paired points meet at the
+    fabric surfaces: measured there the fit is tight, measured at the taxel centres it is not. The
+    guard that undoes a diverging stage uses the former (a stage that finds the fabric is no divergence)."""
+    from nao_skin.calib_plan import Step
+    from nao_skin.evaluation import closest_cop_cost, fitted_pair_cost
+
+    params = load_params("ideal", {"pairs": [["l_hand", "torso"]], "n_touches": 60})
+    sim = simulate(skin, params, seed=4)
+    touches, truth = sim.touches, sim.truth
+    step, inliers = Step(("l_hand",), ("torso",)), np.ones(touches.n_touches, bool)
+    at_surface = fitted_pair_cost(touches, skin, truth, step, inliers, ("cop", "taxel"), fabric=0.001)
+    at_centres = fitted_pair_cost(touches, skin, truth, step, inliers, ("cop", "taxel"), fabric=0.0)
+    assert at_surface < 0.75 * at_centres, (at_surface, at_centres)
+    assert closest_cop_cost(touches, skin, truth, step, inliers) > at_surface
+
+
+def test_a_stage_that_drives_the_touches_apart_is_undone(skin, left_hand_sim, monkeypatch):
+    """Never a silent divergence: a stage whose result leaves the paired touches much farther apart
+    is reverted and says so; the calibration keeps what the stages before it found."""
+    import nao_skin.calibrate as engine
+
+    touches, truth = left_hand_sim
+    real_stage = engine.run_stage
+
+    def patch_stage_diverges(train, skin_, calib, step, parts, levels, *args):
+        out = real_stage(train, skin_, calib, step, parts, levels, *args)
+        if levels == {"patch"}:
+            out["calibration"].parts[parts[0]].patches[:, 0] += 0.02      # every patch 2 cm off
+        return out
+
+    monkeypatch.setattr(engine, "run_stage", patch_stage_diverges)
+    result = calibrate(touches, skin, CalibrationOptions(), truth=truth)
+    patch_stages = [s for s in result.report["stages"] if s["name"].endswith(": patch")]
+    assert patch_stages and all("reverted" in s and s["reverted"].startswith("undone") for s in patch_stages)
+    assert np.all(np.abs(result.calibration.parts["l_hand"].patches[:, 0]) < 0.01)

@@ -44,13 +44,36 @@ def truth_error(skin: SkinModel, calib: SkinCalibration, truth: SkinCalibration,
 # ---------------------------------------------------------------------- main entry
 
 def closest_cop_cost(touches, skin, calib, step, inliers) -> float:
+    """Mean closest-COP distance (m) of the inlier touches, each capped at 50 mm (a far-off
+    minority must not decide)."""
     pairing = pair_step(touches, skin, calib, step, ("cop",))
     if pairing is None or len(pairing.row_touch) == 0:
         return np.inf
-    rows = pairing.row_kind == 0
-    d = pairing.distance[rows]
-    d = d[inliers[pairing.row_touch[rows]]]
-    return float(np.mean(np.minimum(d, 0.05)))  # capped: a far-off minority must not decide
+    rows = (pairing.row_kind == 0) & inliers[pairing.row_touch]
+    return float(np.mean(np.minimum(pairing.distance[rows], 0.05))) if np.any(rows) else np.inf
+
+
+def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float) -> float:
+    """What a stage fits, measured as it fits it: the touches paired under ``calib`` for ``kinds``,
+    distances between the paired points lifted to the fabric surfaces (``fabric`` m over the
+    taxels), each kind's capped mean (50 mm), averaged over the kinds.
+
+    Taxel-centre distances alone grow when the fabric estimate grows, however good the fit.
+    """
+    from .solver import ParameterLayout, ResidualModel
+
+    pairing = pair_step(touches, skin, calib, step, kinds)
+    if pairing is None or len(pairing.row_touch) == 0:
+        return np.inf
+    parts = tuple(p for p in step.targets + step.references if p in touches.part_names)
+    model = ResidualModel(skin, touches.joints, pairing, touches.part_names, ParameterLayout(skin, parts),
+                          calib, fabric=fabric)
+    dist = np.linalg.norm(model.residuals(calib), axis=1)
+    means = [float(np.mean(np.minimum(dist[rows], 0.05)))
+             for rows in ((pairing.row_kind == k) & inliers[pairing.row_touch] for k in np.unique(pairing.row_kind))
+             if np.any(rows)]
+    return float(np.mean(means)) if means else np.inf
+
 
 def explained(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: list, gate_mm: float) -> np.ndarray:
     """Touches whose closest COP pair (over the plan's part pairs) is within ``gate_mm``."""

@@ -73,8 +73,11 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
                     for tr in np.flatnonzero(counts < options.min_triangle_activations):
                         free[t + 6 * tr: t + 6 * tr + 6] = False
         # directions the touches do not excite are held; checked again after each re-pairing
-        # because a new pairing can lose what the last one excited (holds only accumulate)
-        free[_hold_unobservable(model, current, free, free_levels, options.condition_limit)] = False
+        # because a new pairing can lose what the last one excited (holds only accumulate).
+        # Held means at the prior: what an earlier solve of this stage moved there goes back.
+        newly_held = _hold_unobservable(model, current, free, free_levels, options.condition_limit)
+        free[newly_held] = False
+        x[newly_held] = prior_x[newly_held]
         held_names = [layout.describe(c) for c in np.flatnonzero(free_mask(layout, free_parts, levels) & ~free)]
         if not np.any(free):
             break
