@@ -239,8 +239,10 @@ class ResidualModel:
 
         ``free_levels`` maps part name -> set of levels whose blocks get columns
         (other blocks are constant and produce no entries). Built from the
-        sparse per-term blocks with one bincount: the unknowns of one stage
-        are few (at most a few hundred), so dense normal equations are fastest.
+        per-(row, block) 3x6 blocks written into a dense array: the unknowns of
+        one stage are few (at most a few hundred), so dense normal equations
+        are fastest. The last Jacobian is kept: the check for unexcited
+        directions and the first solver step ask for the same one.
         """
         cols = np.arange(self.layout.size) if cols is None else np.asarray(cols)
         key = (self.layout.to_vector(calib, self.fabric).tobytes(), cols.tobytes(),
