@@ -378,7 +378,7 @@ class SolveOptions:
     """Options of one least-squares solve, as data (cf. scipy's least_squares)."""
 
     loss: str = "huber"            # "linear" or "huber" (on each row's distance)
-    f_scale: float = 0.004         # metres: where the robust loss starts to discount a row
+    f_scale: float = 0.002         # metres: where the robust loss starts to discount a row
     max_iterations: int = 50
     ftol: float = 1e-5             # relative cost decrease that ends the solve (re-pairing follows)
     xtol: float = 1e-9             # step size (scaled) that ends the solve
