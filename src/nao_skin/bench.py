@@ -373,13 +373,16 @@ def held_frame_drift(skin: SkinModel, calib: SkinCalibration, truth: SkinCalibra
     farther (cad-rotation: nominal is exact but for the hand mounts).
     """
     nominal = skin.zero_calibration()
+    errors = {}   # part -> per-slot true error (m) calibrated, nominal
     final, nom, worse = [], [], 0
     for part_name, frame in held_frames(held):
         part = skin.parts[part_name]
-        true_pos, _ = part.taxel_positions(truth.parts[part_name])
+        if part_name not in errors:
+            true_pos, _ = part.taxel_positions(truth.parts[part_name])
+            errors[part_name] = [np.linalg.norm(part.taxel_positions(c.parts[part_name])[0] - true_pos, axis=1)
+                                 for c in (calib, nominal)]
         slots = _frame_slots(part, frame)
-        e_final, e_nom = (1000.0 * float(np.linalg.norm(part.taxel_positions(c.parts[part_name])[0][slots]
-                                                         - true_pos[slots], axis=1).mean()) for c in (calib, nominal))
+        e_final, e_nom = (1000.0 * float(e[slots].mean()) for e in errors[part_name])
         final.append(e_final)
         nom.append(e_nom)
         worse += e_final > e_nom + 1e-6

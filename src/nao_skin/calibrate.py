@@ -37,7 +37,7 @@ from .evaluation import closest_cop_cost, evaluate, explained, fitted_pair_cost,
 from .first_guess import guess_targets, rigid_mount_guess
 from .skin import SkinCalibration, SkinModel
 from .solver import SolveOptions
-from .stages import compress_held, run_stage
+from .stages import compress_held, fitted_kinds, run_stage
 from .touches import TouchSet
 
 @dataclass
@@ -194,8 +194,7 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
             # fabric surfaces): taxel-centre distances grow with the fabric estimate however good
             # the fit (simulator, outliers-20 seed 12: a head patch stage took the true error from
             # 2.21 to 0.97 mm while the closest COP grew 30 % and was undone)
-            kinds = tuple({0: "cop", 1: "taxel", 2: "taxel5"}[k]
-                          for k in KIND_ROWS[options.mount_pairs if levels == {"mount"} else options.pairs])
+            kinds = fitted_kinds(options, levels)
             cost_before = (last_cost if last_step is step and last_inliers == int(inliers.sum())
                            and last_kinds == kinds else fitted_pair_cost(train, skin, calib, step, inliers, kinds, fabric))
             stage = run_stage(train, skin, calib, step, step.targets, levels, options, inliers, say, fabric)

@@ -85,7 +85,7 @@ def segment_mean(values: np.ndarray, segment: np.ndarray, n_segments: int, weigh
     # one bincount per column: np.add.at is an order of magnitude slower on hot paths (pairing)
     weighted = values * weights[:, None]
     return np.stack([np.bincount(segment, weights=weighted[:, d], minlength=n_segments)
-                     for d in range(values.shape[1])], axis=1).reshape(n_segments, values.shape[1])
+                     for d in range(values.shape[1])], axis=1)
 
 
 def contact_geometry(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,

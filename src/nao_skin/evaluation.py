@@ -7,6 +7,7 @@ from .calib_pairs import concat_pairings, pair_parts, pair_step
 from .calib_plan import part_rank
 from .pairing import metrics
 from .skin import SkinCalibration, SkinModel
+from .solver import ParameterLayout, ResidualModel
 from .touches import TouchSet
 
 def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: list) -> dict:
@@ -60,8 +61,6 @@ def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float) 
 
     Taxel-centre distances alone grow when the fabric estimate grows, however good the fit.
     """
-    from .solver import ParameterLayout, ResidualModel
-
     pairing = pair_step(touches, skin, calib, step, kinds)
     if pairing is None or len(pairing.row_touch) == 0:
         return np.inf

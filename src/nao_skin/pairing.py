@@ -77,7 +77,6 @@ def _argmin_per_group(group: np.ndarray, key: np.ndarray) -> np.ndarray:
         cand = np.flatnonzero(key == np.minimum.reduceat(key, starts)[segment])
         return cand[np.r_[True, segment[cand][1:] != segment[cand][:-1]]]
     # one stable argsort of "group + key scaled into [0, 1)" instead of a three-key lexsort
-    key = np.asarray(key, dtype=float)
     span = float(np.max(key) - np.min(key)) if len(key) else 0.0
     scaled = (key - np.min(key)) / (span * (1.0 + 1e-9)) if span > 0 else np.zeros_like(key)
     order = np.argsort(group.astype(float) + scaled, kind="stable")

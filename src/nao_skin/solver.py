@@ -174,17 +174,18 @@ class ResidualModel:
         # terms of normal rows carry a direction (rotated, never translated, no fabric)
         self.term_is_dir = pairing.row_kind[pairing.term_row] == KIND_NORMAL
         self.has_dirs = bool(np.any(self.term_is_dir))
-        # the pairing is fixed while the model lives: which terms share a (row, block) is too
-        self._blocks: dict = {}
+        # the pairing is fixed while the model lives, so are which terms share a (row, block) and
+        # the chain-end rotation of each (row, block): computed once per level
+        self._per_pairing: dict = {}
         self._last_jacobian = None   # (key, J): the hold check and the first solve step share it
 
     def _row_blocks(self, key: tuple, term_row: np.ndarray, block_rows: np.ndarray):
         """``(first, inverse, n)`` of the unique (row, block) combinations of one group's terms."""
-        hit = self._blocks.get(key)
+        hit = self._per_pairing.get(key)
         if hit is None:
             code = term_row * (int(block_rows.max()) + 1 if len(block_rows) else 1) + block_rows
             uniq, first, inverse = np.unique(code, return_index=True, return_inverse=True)
-            hit = self._blocks[key] = (first, inverse, len(uniq))
+            hit = self._per_pairing[key] = (first, inverse, len(uniq))
         return hit
 
     def _is_variable(self, name: str) -> bool:
@@ -367,9 +368,9 @@ class ResidualModel:
     def _chain_rotation(self, g: int, level: str, fk: np.ndarray, first: np.ndarray, part) -> np.ndarray:
         """Rotation of the touch's chain end times the nominal mount, one per (row, block) of a level."""
         key = (g, level, "A")
-        hit = self._blocks.get(key)
+        hit = self._per_pairing.get(key)
         if hit is None:
-            hit = self._blocks[key] = fk[first, :3, :3] @ part.mount_nominal[:3, :3]
+            hit = self._per_pairing[key] = fk[first, :3, :3] @ part.mount_nominal[:3, :3]
         return hit
 
 

@@ -8,13 +8,19 @@ import numpy as np
 
 from .calib_pairs import KIND_ROWS, pair_step, select_rows, touch_hashes, with_normal_rows
 from .errors import DataError
-from .pairing import Pairing
+from .pairing import KIND_NAMES, Pairing
 from .skin import SkinCalibration, SkinModel
 from .solver import ParameterLayout, ResidualModel, condition_number, gram, solve
 from .touches import TouchSet
 
 if TYPE_CHECKING:   # only for annotations: calibrate imports this module
     from .calibrate import CalibrationOptions
+
+
+def fitted_kinds(options: "CalibrationOptions", levels: set) -> tuple:
+    """Names of the pair kinds ('cop', 'taxel', 'taxel5') a stage of these levels fits."""
+    names = {v: k for k, v in KIND_NAMES.items()}
+    return tuple(names[k] for k in KIND_ROWS[options.mount_pairs if levels == {"mount"} else options.pairs])
 
 
 def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, say, fabric) -> dict:
@@ -24,7 +30,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     parts_in = tuple(p for p in step.targets + step.references if p in touches.part_names)
     layout = ParameterLayout(skin, parts_in)
     kinds = KIND_ROWS[options.mount_pairs if levels == {"mount"} else options.pairs]
-    kind_names = tuple({0: "cop", 1: "taxel", 2: "taxel5"}[k] for k in kinds)
+    kind_names = fitted_kinds(options, levels)
     # normal rows are built from the closest taxel (or COP) pairs: pair COPs too if neither is fitted
     normal_weight = options.normal_weight if set(levels) & set(options.normal_levels) else 0.0
     pair_kinds = (kind_names if normal_weight <= 0 or {"cop", "taxel"} & set(kind_names)
@@ -90,13 +96,14 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
         last_cost = result.cost
     calib_out = layout.to_calibration(x, calib)
     cond = condition_number(model, calib_out, free_levels, np.flatnonzero(free)) if model is not None else None
-    wanted = free_mask(layout, free_parts, levels)
-    estimated = ({layout.describe(c) for c in np.flatnonzero(wanted & free)} if free is not None else set())
+    held = [h for h in held_names if h != "fabric_thickness"]
+    estimated = ({layout.describe(c) for c in np.flatnonzero(free_mask(layout, free_parts, levels) & free)}
+                 if free is not None else set())
     return {"name": name, "calibration": calib_out, "iterations": iterations, "repairings": repairings,
-            "condition": cond, "held": compress_held([h for h in held_names if h != "fabric_thickness"]),
+            "condition": cond, "held": compress_held(held),
             # unknowns ('part/frame/comp') this stage set free or held: the report's final list of
             # held frames is what no stage estimated (popped by calibrate, not reported per stage)
-            "_estimated": estimated, "_held": set(held_names) - {"fabric_thickness"},
+            "_estimated": estimated, "_held": set(held),
             "fabric_thickness_mm": 1000.0 * float(x[layout.fabric_col]), "seconds": time.perf_counter() - t0}
 
 def _bounds(layout: ParameterLayout, targets: tuple, levels: set, x: np.ndarray, options: "CalibrationOptions"):

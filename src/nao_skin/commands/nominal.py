@@ -6,9 +6,10 @@ that it is not stale.
 """
 from __future__ import annotations
 
-import sys
 import tempfile
 from pathlib import Path
+
+from . import write_output
 
 NAME = "nominal"
 HELP = "write the nominal (zero-correction) calibration YAML of a skin config"
@@ -39,10 +40,5 @@ def run(args) -> int:
     from ..config import default_skin_config
 
     text = nominal_calibration_text(args.skin_config or default_skin_config())
-    if args.out is None:
-        sys.stdout.write(text)
-    else:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
-        print(args.out)
+    write_output(text, args.out)
     return 0

@@ -1,8 +1,9 @@
 """``nao-skin urdf``: the expanded URDF (body + skin frames) for a calibration file."""
 from __future__ import annotations
 
-import sys
 from pathlib import Path
+
+from . import write_output
 
 NAME = "urdf"
 HELP = "expand urdf/nao_skin.urdf.xacro for a calibration YAML and write the URDF"
@@ -29,10 +30,5 @@ def run(args) -> int:
     check_calibration_origins(calibration, skin)
     robot_config = Path(skin.robot.source)
     text = expand_xacro(calibration, robot_config=robot_config if robot_config.is_file() else None)
-    if args.out is None:
-        sys.stdout.write(text)
-    else:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
-        print(args.out)
+    write_output(text, args.out)
     return 0
