@@ -82,6 +82,7 @@ def strategy_variants(sweep=TOUCH_SWEEP) -> list:
         Variant("COP pairs only", {"pairs": "cop"}),
         Variant("taxel pairs only", {"pairs": "taxel"}),
         Variant("free (no bounds; Gaussian prior kept)", {"bounded": False}),
+        Variant("fixed prior (bound/3, not widened by the touches)", {"prior_scale": "fixed"}),
         Variant("robust loss off (linear)", {"loss": "linear"}),
         Variant("finite-difference Jacobian (2-point)", {"jacobian": "2-point"}, single_run=True),
     ]

@@ -37,7 +37,7 @@ from .evaluation import closest_cop_cost, evaluate, explained, fitted_pair_cost,
 from .first_guess import guess_targets, rigid_mount_guess
 from .skin import SkinCalibration, SkinModel
 from .solver import SolveOptions
-from .stages import compress_held, fitted_kinds, run_stage
+from .stages import compress_held, fitted_kinds, initial_prior_sigma, run_stage
 from .touches import TouchSet
 
 @dataclass
@@ -80,8 +80,11 @@ class CalibrationOptions:
     estimate_fabric: bool = True        # estimate the (pressed) fabric thickness from the touches,
                                         # starting from fabric_thickness, within fabric_bounds
     fabric_bounds: tuple = (0.0, 0.003)
-    prior_strength: float = 3.0         # > 0: patches and triangles get a Gaussian prior whose std is
-                                        # their bound / this; residual noise taken as residual_sigma
+    prior_strength: float = 3.0         # > 0: patches and triangles get a Gaussian prior whose std starts
+                                        # at their bound / this; residual noise taken as residual_sigma
+    prior_scale: str = "empirical"      # "empirical": each prior std re-estimated from the touches
+                                        # (evidence approximation, stages.evidence_prior_sigma);
+                                        # "fixed": bound / prior_strength throughout
     residual_sigma: float = 0.002       # m, per coordinate of a paired-point difference
     joint_levels: tuple = ("mount", "patch", "triangle")   # what the joint refinement frees
     rounds: int = 1                     # passes over the plan of fixed-reference steps
@@ -102,6 +105,7 @@ class CalibrationOptions:
             "loss": (self.loss, ("huber", "linear")),
             "jacobian": (self.jacobian, ("analytic", "2-point")),
             "initial_guess": (self.initial_guess, ("rigid-fit", "none")),
+            "prior_scale": (self.prior_scale, ("empirical", "fixed")),
         }
         for name, (value, allowed) in checks.items():
             if value not in allowed:
@@ -152,6 +156,7 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
         report["before"]["truth_taxel_error_mm"] = truth_error(skin, calib, truth)
     inliers = np.ones(train.n_touches, bool)
     fabric = options.fabric_thickness
+    prior_sigma = initial_prior_sigma(options)
     last_step, last_cost, last_inliers, last_kinds = None, np.inf, -1, ()
     set_aside = []
     held_components, estimated_components = set(), set()   # 'part/frame/comp' over all stages
@@ -197,7 +202,8 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
             kinds = fitted_kinds(options, levels)
             cost_before = (last_cost if last_step is step and last_inliers == int(inliers.sum())
                            and last_kinds == kinds else fitted_pair_cost(train, skin, calib, step, inliers, kinds, fabric))
-            stage = run_stage(train, skin, calib, step, step.targets, levels, options, inliers, say, fabric)
+            stage = run_stage(train, skin, calib, step, step.targets, levels, options, inliers, say, fabric,
+                              prior_sigma)
             stage["name"] = prefix + stage["name"]
             stage_estimated, stage_held = stage.pop("_estimated"), stage.pop("_held")
             held_components |= stage_held
@@ -211,6 +217,7 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
                 say(f"{stage['name']}: {stage['reverted']}")
             else:
                 fabric = stage["fabric_thickness_mm"] / 1000.0
+                prior_sigma = stage["prior_sigma"]
                 calib = stage.pop("calibration")
                 estimated_components |= stage_estimated
                 cost_before = cost_after
@@ -240,6 +247,7 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
     if truth is not None:
         report["final"]["truth_taxel_error_mm"] = truth_error(skin, calib, truth)
     report["fabric_thickness_mm"] = 1000.0 * fabric
+    report["prior_sigma"] = prior_sigma
     report["set_aside"] = set_aside
     report["n_set_aside"] = len(set_aside)
     # held: what no stage estimated (a triangle held while fitted to one reference and freed by the

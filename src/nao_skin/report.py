@@ -90,6 +90,12 @@ def markdown_report(report: dict) -> str:
         for part, v in truth.items():
             lines.append(f"| {part} | {_fmt(before.get(part, {}).get('median'))} | {_fmt(v['median'])} | "
                          f"{_fmt(v['p95'])} | {_fmt(v['max'])} |")
+    lines += ["", "## What the touches say about the skin", "",
+              f"- fabric over the taxels (each skin): {_fmt(report.get('fabric_thickness_mm'))} mm"]
+    sigma = report.get("prior_sigma") or {}
+    for group, value in sigma.items():   # prior std per component of every patch / triangle
+        unit, scale = ("mm", 1000.0) if group.endswith("translation") else ("deg", np.degrees(1.0))
+        lines.append(f"- prior std of {group.replace('_', ' ')}: {_fmt(scale * value)} {unit}")
     if report.get("held"):
         lines += ["", "## Held at their prior (not determined by the touches)", ""]
         lines += [f"- {h}" for h in report["held"]]

@@ -396,6 +396,9 @@ class SolveResult:
     converged: bool
     condition: float
     message: str
+    # Gauss-Newton normal matrix (robust row weights, prior weights on the diagonal) over the
+    # free columns, from the last iteration: its inverse is the posterior covariance / sigma^2
+    normal_matrix: np.ndarray | None = None
 
 
 def _row_weights(dist: np.ndarray, opts: SolveOptions) -> np.ndarray:
@@ -463,6 +466,7 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
     converged = False
     message = "maximum iterations"
     it = 0
+    h = None
     for it in range(1, opts.max_iterations + 1):
         w = np.repeat(_row_weights(np.linalg.norm(r, axis=1), opts), 3)
         j = jac(x, calib, r)
@@ -514,7 +518,7 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
             break
         if converged:
             break
-    return SolveResult(x, cost, it, evaluations, converged, float("nan"), message)
+    return SolveResult(x, cost, it, evaluations, converged, float("nan"), message, h)
 
 
 def condition_number(model: ResidualModel, calib: SkinCalibration, free_levels: dict, cols: np.ndarray) -> float:

@@ -1,0 +1,90 @@
+"""The Gaussian prior of patches and triangles, and how the touches widen it (evidence approximation)."""
+import types
+
+import numpy as np
+import pytest
+
+from nao_skin.calibrate import CalibrationOptions, calibrate
+from nao_skin.datasets import deduplicate
+from nao_skin.solver import ParameterLayout
+from nao_skin.stages import _group_columns, _prior_weights, evidence_prior_sigma, initial_prior_sigma
+
+PART = ("l_hand",)
+
+
+@pytest.fixture(scope="module")
+def layout(default_skin):
+    return ParameterLayout(default_skin, PART)
+
+
+def _solve_result(layout, options, x, data_information):
+    """What a solve hands back: the corrections and the normal matrix over the free triangle columns
+    (data information per column plus the prior weights on the diagonal, as the solver builds it)."""
+    free = np.zeros(layout.size, bool)
+    _, _, t, end = layout.offsets[PART[0]]
+    free[t:end] = True
+    weights = _prior_weights(layout, PART, options, initial_prior_sigma(options))
+    cols = np.flatnonzero(free)
+    normal = np.diag(data_information * weights[cols] + weights[cols])
+    return types.SimpleNamespace(normal_matrix=normal), free, weights
+
+
+def _triangle_corrections(layout, rng, translation_std, rotation_std):
+    x = np.zeros(layout.size)
+    for group, std in (("triangle_translation", translation_std), ("triangle_rotation", rotation_std)):
+        cols = _group_columns(layout, PART, group)
+        x[cols] = rng.normal(0.0, std, len(cols))
+    return x
+
+
+def test_well_determined_corrections_set_the_prior_width_to_their_spread(layout):
+    options = CalibrationOptions()
+    x = _triangle_corrections(layout, np.random.default_rng(0), 0.0004, 0.06)
+    result, free, weights = _solve_result(layout, options, x, data_information=1e4)
+    sigma = evidence_prior_sigma(result, x, free, weights, layout, PART, {"triangle"},
+                                 initial_prior_sigma(options), options)
+    for group in ("triangle_translation", "triangle_rotation"):
+        spread = np.sqrt(np.mean(x[_group_columns(layout, PART, group)] ** 2))
+        assert sigma[group] == pytest.approx(spread, rel=1e-3)
+    # half determined (data information = prior information): half the components count
+    result, free, weights = _solve_result(layout, options, x, data_information=1.0)
+    half = evidence_prior_sigma(result, x, free, weights, layout, PART, {"triangle"},
+                                initial_prior_sigma(options), options)
+    assert half["triangle_translation"] == pytest.approx(np.sqrt(2) * sigma["triangle_translation"], rel=1e-3)
+    # groups the solve did not fit keep their width
+    for group in ("patch_translation", "patch_rotation"):
+        assert sigma[group] == initial_prior_sigma(options)[group]
+
+
+def test_the_prior_only_widens_and_stays_finite(layout):
+    """Small corrections keep the assumed width (the update collapses for weakly determined groups);
+    huge ones stop at 3 x the bound; undetermined groups keep what was assumed."""
+    options = CalibrationOptions()
+    initial = initial_prior_sigma(options)
+    rng = np.random.default_rng(1)
+    small = _triangle_corrections(layout, rng, 0.00002, 0.002)
+    result, free, weights = _solve_result(layout, options, small, data_information=1e4)
+    assert evidence_prior_sigma(result, small, free, weights, layout, PART, {"triangle"}, initial, options) == initial
+
+    huge = _triangle_corrections(layout, rng, 0.01, 1.0)
+    result, free, weights = _solve_result(layout, options, huge, data_information=1e4)
+    sigma = evidence_prior_sigma(result, huge, free, weights, layout, PART, {"triangle"}, initial, options)
+    assert sigma["triangle_translation"] == pytest.approx(3 * options.triangle_bounds[0])
+    assert sigma["triangle_rotation"] == pytest.approx(3 * options.triangle_bounds[1])
+
+    result, free, weights = _solve_result(layout, options, huge, data_information=1e-6)
+    assert evidence_prior_sigma(result, huge, free, weights, layout, PART, {"triangle"}, initial, options) == initial
+
+
+def test_on_the_real_skin_the_touches_widen_the_triangle_prior(real_skin, real):
+    """The real recording's triangles sit farther from the layout than bound / 3 says: the evidence
+    widens their prior, the report says so, and the held-out touches come closer than with the fixed prior."""
+    touches, _ = deduplicate(real)
+    empirical = calibrate(touches, real_skin, CalibrationOptions())
+    fixed = calibrate(touches, real_skin, CalibrationOptions(prior_scale="fixed"))
+    initial = initial_prior_sigma(CalibrationOptions())
+    assert fixed.report["prior_sigma"] == initial
+    assert empirical.report["prior_sigma"]["triangle_translation"] > 1.5 * initial["triangle_translation"]
+    assert empirical.report["prior_sigma"]["triangle_rotation"] > 1.5 * initial["triangle_rotation"]
+    assert (empirical.report["final"]["test"]["taxel_mean_mm"]
+            < fixed.report["final"]["test"]["taxel_mean_mm"])
