@@ -192,7 +192,7 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
         cb = np.flatnonzero((touches.contact_part == pb) & both[touches.contact_touch])
         ia, ib = _cross_pairs(touches.contact_touch[ca], touches.contact_touch[cb])
         cA, cB = ca[ia], cb[ib]
-        dcop = np.linalg.norm(cop[cA] - cop[cB], axis=1)
+        dcop = se3.vector_norms(cop[cA] - cop[cB])
         best = _argmin_per_group(touches.contact_touch[cA], dcop)
         sel_a, sel_b, dcop = cA[best], cB[best], dcop[best]
         group_touch = touches.contact_touch[sel_a]
@@ -212,7 +212,7 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
         # candidate taxel pairs within each group
         i, j = _cross_pairs(ga, gb)
         pair_group, a_act, b_act = ga[i], act_a[i], act_b[j]
-        dpair = np.linalg.norm(pos[a_act] - pos[b_act], axis=1)
+        dpair = se3.vector_norms(pos[a_act] - pos[b_act])
         if KIND_TAXEL in want:
             if taxel_rule == "contacts":
                 pick = _argmin_per_group(pair_group, dpair)

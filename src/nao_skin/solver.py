@@ -441,7 +441,7 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
 
     def cost_of(xv, r):
         d = xv[cols] - prior[cols]
-        return _robust_cost(np.linalg.norm(r, axis=1), opts) + 0.5 * float(pw @ (d * d))
+        return _robust_cost(se3.vector_norms(r), opts) + 0.5 * float(pw @ (d * d))
 
     def jac(xv, calib, r):
         if opts.jacobian == "analytic":
@@ -468,7 +468,7 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
     it = 0
     h = None
     for it in range(1, opts.max_iterations + 1):
-        w = np.repeat(_row_weights(np.linalg.norm(r, axis=1), opts), 3)
+        w = np.repeat(_row_weights(se3.vector_norms(r), opts), 3)
         j = jac(x, calib, r)
         h = gram(j, w)
         g = jt_dot(j, w * r.ravel())

@@ -59,6 +59,7 @@ PARAMS = {
     "jacobian": ("analytic", "analytic or 2-point"),
     "first_guess": (True, "closed-form rigid fit of the mounts first (finds a 160 deg mount error)"),
     "gate_mm": (15.0, "set aside touches farther than this after the mount fit (0: off)"),
+    "prior_scale": ("empirical", "patch/triangle prior width: empirical (widened by the touches) or fixed (bound/3)"),
     "test_fraction": (0.3, "share of touches held out for the test metrics"),
     "seed": (0, "seed of the train/test split"),
 }
@@ -143,7 +144,8 @@ class CalibrateNode(Node):
             options = CalibrationOptions(strategy=p["strategy"], reference=p["reference"], pairs=p["pairs"],
                                          bounded=bool(p["bounded"]), loss=p["loss"], jacobian=p["jacobian"],
                                          initial_guess="rigid-fit" if p["first_guess"] else "none",
-                                         gate_mm=float(p["gate_mm"]), test_fraction=float(p["test_fraction"]),
+                                         gate_mm=float(p["gate_mm"]), prior_scale=p["prior_scale"],
+                                         test_fraction=float(p["test_fraction"]),
                                          seed=int(p["seed"]))
             result = calibrate(touches, self.skin, options, prior=self.prior, truth=truth, progress=log.info)
             out = write_outputs(result, self.skin, p["out_dir"], prior=self.prior, plots=bool(p["plots"]))
