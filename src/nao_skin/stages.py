@@ -234,7 +234,7 @@ def evidence_prior_sigma(result, x: np.ndarray, free: np.ndarray, weights: np.nd
     zero (simulator, triangles: 0.05 mm where the truth is 0.17 mm per
     component, true error up 10 %), so the assumed width is the floor.
     """
-    if result.normal_matrix is None or not prior_sigma:
+    if result.normal_matrix is None or not prior_sigma or not set(levels) & {"patch", "triangle"}:
         return prior_sigma
     cols = np.flatnonzero(free)
     try:
