@@ -241,6 +241,8 @@ def evidence_prior_sigma(result, x: np.ndarray, free: np.ndarray, weights: np.nd
         inv_diag = np.diag(np.linalg.inv(result.normal_matrix))
     except np.linalg.LinAlgError:
         return prior_sigma
+    if not np.all(np.isfinite(inv_diag)):
+        return prior_sigma
     bounds = {"patch": options.patch_bounds, "triangle": options.triangle_bounds}
     floor = initial_prior_sigma(options)
     out = dict(prior_sigma)
