@@ -201,3 +201,19 @@ def test_a_stage_that_drives_the_touches_apart_is_undone(skin, left_hand_sim, mo
     patch_stages = [s for s in result.report["stages"] if s["name"].endswith(": patch")]
     assert patch_stages and all("reverted" in s and s["reverted"].startswith("undone") for s in patch_stages)
     assert np.all(np.abs(result.calibration.parts["l_hand"].patches[:, 0]) < 0.01)
+
+
+def test_joint_columns_in_any_order_give_the_same_calibration(skin, left_hand_sim, left_hand_result):
+    """A recording may list its joints in any order: pairing, first guess and solver all read them by
+    NAOqi name (the robot model's order), never by column position."""
+    import dataclasses
+
+    touches, truth = left_hand_sim
+    reordered = dataclasses.replace(touches, joint_names=tuple(reversed(touches.joint_names)),
+                                    joints=np.ascontiguousarray(touches.joints[:, ::-1]))
+    assert reordered.joint_names != touches.joint_names
+    result = calibrate(reordered, skin, CalibrationOptions(), truth=truth)
+    for name, corr in left_hand_result.calibration.parts.items():
+        np.testing.assert_allclose(result.calibration.parts[name].mount, corr.mount, atol=1e-9)
+        np.testing.assert_allclose(result.calibration.parts[name].triangles, corr.triangles, atol=1e-9)
+    assert result.report["final"]["train"] == left_hand_result.report["final"]["train"]

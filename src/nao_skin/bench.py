@@ -34,6 +34,7 @@ import numpy as np
 
 from .calibrate import CalibrationOptions, calibrate, truth_error
 from .skin import SkinCalibration, SkinModel
+from .solver import COMPONENTS
 from .touches import TouchSet
 
 CONVERGED_MM = 1.0                  # final true median taxel error that counts as converged
@@ -276,23 +277,27 @@ class HardCaseSetup:
     options: CalibrationOptions = field(default_factory=CalibrationOptions)
 
 
-def _frame_slots(part, frame: str) -> np.ndarray:
-    """Slots of the taxels carried by a frame named like the calibration report ('mount', 'patch_3', 'triangle_12')."""
-    present = part.slots
+def _frame_row(part, frame: str) -> tuple:
+    """``(kind, row)`` of a frame named like the calibration report ('mount', 'patch_3', 'triangle_12'):
+    ``row`` indexes the part's patch or triangle arrays (None for the mount)."""
     if frame == "mount":
-        return present
+        return "mount", None
     kind, _, number = frame.partition("_")
+    ids = {"patch": part.patch_ids, "triangle": part.triangle_ids}.get(kind)
+    rows = np.flatnonzero(ids == int(number)) if ids is not None and number.isdigit() else []
+    if len(rows) != 1:
+        raise ValueError(f"unknown frame '{frame}'")
+    return kind, int(rows[0])
+
+
+def _frame_slots(part, frame: str) -> np.ndarray:
+    """Slots of the taxels a frame carries."""
+    kind, row = _frame_row(part, frame)
+    present = part.slots
+    if kind == "mount":
+        return present
     tri_rows = part.slot_triangle[present]
-    if kind == "triangle":
-        row = np.flatnonzero(part.triangle_ids == int(number))
-        return present[np.isin(tri_rows, row)]
-    if kind == "patch":
-        prow = np.flatnonzero(part.patch_ids == int(number))
-        return present[np.isin(part.triangle_patch[tri_rows], prow)]
-    raise ValueError(f"unknown frame '{frame}'")
-
-
-COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")
+    return present[(tri_rows if kind == "triangle" else part.triangle_patch[tri_rows]) == row]
 
 
 def held_frames(held: list) -> list:
@@ -326,14 +331,10 @@ def untouched_triangles(touches: TouchSet, skin: SkinModel, parts) -> list:
 
 def _frame_correction(corr, part, frame: str) -> np.ndarray:
     """View of one frame's 6-vector correction in a part's corrections."""
-    if frame == "mount":
+    kind, row = _frame_row(part, frame)
+    if kind == "mount":
         return corr.mount
-    kind, _, number = frame.partition("_")
-    ids = part.patch_ids if kind == "patch" else part.triangle_ids
-    rows = np.flatnonzero(ids == int(number))
-    if kind not in ("patch", "triangle") or len(rows) != 1:
-        raise ValueError(f"unknown frame '{frame}'")
-    return (corr.patches if kind == "patch" else corr.triangles)[rows[0]]
+    return (corr.patches if kind == "patch" else corr.triangles)[row]
 
 
 def held_frame_check(skin: SkinModel, calib: SkinCalibration, truth: SkinCalibration, held: list) -> list:

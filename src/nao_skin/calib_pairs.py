@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .calib_plan import Step, part_rank
+from .memo import per_objects
 from .pairing import KIND_COP, KIND_NORMAL, KIND_TAXEL, Pairing, pair_touches
 from .skin import SkinCalibration, SkinModel
 from .touches import TouchSet
@@ -48,22 +49,14 @@ def with_normal_rows(selected: Pairing, pairing: Pairing, weight: float, inliers
     return concat_pairings([selected, normal])
 
 
-_SUBSETS: dict = {}
-
 def _pair_subset(touches: TouchSet, pa: str, pb: str):
-    """The touches where both parts fire, and their rows in ``touches`` (cached: pairing runs
+    """The touches where both parts fire, and their rows in ``touches`` (kept: pairing runs
     many times on the same set, and most touches of a multi-pair recording involve other pairs)."""
-    key = (id(touches), touches.n_touches, pa, pb)
-    hit = _SUBSETS.get(key)
-    if hit is not None and hit[0] is touches:
-        return hit[1], hit[2]
-    fired = touches.parts_of_touch()
-    rows = np.flatnonzero(fired[:, touches.part_index(pa)] & fired[:, touches.part_index(pb)])
-    sub = touches.subset(rows)
-    if len(_SUBSETS) > 64:
-        _SUBSETS.clear()
-    _SUBSETS[key] = (touches, sub, rows)
-    return sub, rows
+    def subset():
+        fired = touches.parts_of_touch()
+        rows = np.flatnonzero(fired[:, touches.part_index(pa)] & fired[:, touches.part_index(pb)])
+        return touches.subset(rows), rows
+    return per_objects((touches,), ("pair subset", pa, pb), subset)
 
 def pair_parts(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, pa: str, pb: str,
                kinds=("cop", "taxel", "taxel5")) -> Pairing:
@@ -112,6 +105,3 @@ def touch_hashes(pairing: Pairing, n_touches: int) -> np.ndarray:
     code = (pairing.term_part.astype(float) * 4099.0 + pairing.term_slot + 1.0) * (1.0 + pairing.row_kind[pairing.term_row])
     touch = pairing.row_touch[pairing.term_row]
     return np.bincount(touch, weights=np.sin(code * 0.7071067811865476) * np.sign(pairing.term_weight), minlength=n_touches)
-
-
-# ---------------------------------------------------------------------- first guess

@@ -69,6 +69,3 @@ def plan_steps(touches: TouchSet, options: "CalibrationOptions") -> list:
         if not any(set(s.targets) | set(s.references) >= {a, b} for s in steps):
             steps.append(Step((b,), (a,)))
     return steps
-
-
-# ---------------------------------------------------------------------- helpers

@@ -5,7 +5,7 @@ import numpy as np
 
 from .calib_pairs import concat_pairings, pair_parts, pair_step
 from .calib_plan import part_rank
-from .pairing import metrics
+from .pairing import metrics, robot_joints
 from .skin import SkinCalibration, SkinModel
 from .solver import ParameterLayout, ResidualModel
 from .touches import TouchSet
@@ -42,8 +42,6 @@ def truth_error(skin: SkinModel, calib: SkinCalibration, truth: SkinCalibration,
     return out
 
 
-# ---------------------------------------------------------------------- main entry
-
 def closest_cop_cost(touches, skin, calib, step, inliers) -> float:
     """Mean closest-COP distance (m) of the inlier touches, each capped at 50 mm (a far-off
     minority must not decide)."""
@@ -65,7 +63,7 @@ def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float) 
     if pairing is None or len(pairing.row_touch) == 0:
         return np.inf
     parts = tuple(p for p in step.targets + step.references if p in touches.part_names)
-    model = ResidualModel(skin, touches.joints, pairing, touches.part_names, ParameterLayout(skin, parts),
+    model = ResidualModel(skin, robot_joints(touches, skin), pairing, touches.part_names, ParameterLayout(skin, parts),
                           calib, fabric=fabric)
     dist = np.linalg.norm(model.residuals(calib), axis=1)
     means = [float(np.mean(np.minimum(dist[rows], 0.05)))
@@ -87,12 +85,11 @@ def explained(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps:
     return ok & ((best <= gate_mm) | ~np.isfinite(best))
 
 def gate_touches(touches, skin, calib, step, gate_mm, inliers) -> list:
+    """``(touch, mm)`` of the inlier touches whose closest COP pair (any part pair of the step) is
+    farther than ``gate_mm``, the farthest pair's distance each, by touch."""
     pairing = pair_step(touches, skin, calib, step, ("cop",))
-    rows = np.flatnonzero(pairing.row_kind == 0)
-    out = {}
-    for r in rows:
-        t = int(pairing.row_touch[r])
-        d = float(pairing.distance[r]) * 1000.0
-        if inliers[t] and d > gate_mm:
-            out[t] = max(out.get(t, 0.0), d)
-    return sorted(out.items())
+    rows = pairing.row_kind == 0
+    worst = np.full(touches.n_touches, -np.inf)
+    np.maximum.at(worst, pairing.row_touch[rows], pairing.distance[rows] * 1000.0)
+    far = np.flatnonzero(inliers & (worst > gate_mm))
+    return [(int(t), float(worst[t])) for t in far]

@@ -12,7 +12,8 @@ from . import se3
 from .calib_pairs import pair_step, select_rows
 from .calib_plan import HANDS, REFERENCE_BODY, Step
 from .errors import DataError
-from .pairing import Pairing
+from .contacts import segment_mean
+from .pairing import Pairing, chain_end_poses, robot_joints
 from .skin import SkinCalibration, SkinModel
 from .touches import TouchSet
 
@@ -43,14 +44,11 @@ def _touch_centroids(touches: TouchSet, skin: SkinModel, calib: SkinCalibration,
     local, normals = skin.parts[part].taxel_positions(calib.parts[part])
     pts, nor = local[touches.act_slot[sel]], normals[touches.act_slot[sel]]
     if frame == "base":
-        fk = skin.robot.fk(skin.parts[part].chain, touches.joints[touch])
+        fk = chain_end_poses(skin, part, robot_joints(touches, skin))[touch]
         pts, nor = se3.transform_points(fk, pts), se3.rotate_vectors(fk, nor)
-    sums = np.zeros((touches.n_touches, 3))
-    nsum = np.zeros((touches.n_touches, 3))
-    np.add.at(sums, touch, pts)
-    np.add.at(nsum, touch, nor)
     counts = np.bincount(touch, minlength=touches.n_touches)
-    return sums / np.maximum(counts, 1)[:, None], _unit(nsum), counts > 0
+    return (segment_mean(pts, touch, touches.n_touches), _unit(segment_mean(nor, touch, touches.n_touches)),
+            counts > 0)
 
 def rigid_mount_guess(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, target: str,
                       references: tuple, iterations: int = 6, trim: float = 0.25) -> np.ndarray:
@@ -73,7 +71,7 @@ def rigid_mount_guess(touches: TouchSet, skin: SkinModel, calib: SkinCalibration
     both = np.flatnonzero(ref_ok & own_ok)
     if len(both) < 3:
         raise DataError(f"part '{target}': {len(both)} touches with a reference part, at least 3 needed for a mount fit")
-    chain = skin.robot.fk(part.chain, touches.joints[both])
+    chain = chain_end_poses(skin, target, robot_joints(touches, skin))[both]
     ref_local = se3.transform_points(se3.invert(chain), ref_sum[both])      # reference points in the chain-end frame
     # touching surfaces face each other: the target's normal maps onto minus the reference's
     ref_dirs = -se3.rotate_vectors(se3.invert(chain), ref_nor[both])
@@ -114,23 +112,19 @@ def _cop_points(rows: Pairing, touches: TouchSet, skin: SkinModel, calib: SkinCa
     part = skin.parts[target]
     local, local_n = part.taxel_positions(calib.parts[target])
     m = len(rows.row_touch)
-    own, own_n = np.zeros((m, 3)), np.zeros((m, 3))
+    joints = robot_joints(touches, skin)
     is_target = rows.term_part == tidx
-    w = np.abs(rows.term_weight[is_target])[:, None]
-    np.add.at(own, rows.term_row[is_target], w * local[rows.term_slot[is_target]])
-    np.add.at(own_n, rows.term_row[is_target], w * local_n[rows.term_slot[is_target]])
+    row, slot, w = rows.term_row[is_target], rows.term_slot[is_target], np.abs(rows.term_weight[is_target])
+    own, own_n = segment_mean(local[slot], row, m, w), segment_mean(local_n[slot], row, m, w)
     other, other_n = np.zeros((m, 3)), np.zeros((m, 3))
-    for pidx in np.unique(rows.term_part[~is_target]):
+    for pidx in np.unique(rows.term_part[~is_target]):     # the reference parts (<= 3)
         sel = rows.term_part == pidx
         name = touches.part_names[pidx]
         loc, loc_n = skin.parts[name].taxel_positions(calib.parts[name])
-        fk = skin.robot.fk(skin.parts[name].chain, touches.joints[rows.row_touch[rows.term_row[sel]]])
-        w = np.abs(rows.term_weight[sel])[:, None]
-        np.add.at(other, rows.term_row[sel], w * se3.transform_points(fk, loc[rows.term_slot[sel]]))
-        np.add.at(other_n, rows.term_row[sel], w * se3.rotate_vectors(fk, loc_n[rows.term_slot[sel]]))
-    to_chain = se3.invert(skin.robot.fk(part.chain, touches.joints[rows.row_touch]))
+        row, slot, w = rows.term_row[sel], rows.term_slot[sel], np.abs(rows.term_weight[sel])
+        fk = chain_end_poses(skin, name, joints)[rows.row_touch[row]]
+        other += segment_mean(se3.transform_points(fk, loc[slot]), row, m, w)
+        other_n += segment_mean(se3.rotate_vectors(fk, loc_n[slot]), row, m, w)
+    to_chain = se3.invert(chain_end_poses(skin, target, joints)[rows.row_touch])
     return (own, se3.transform_points(to_chain, other), _unit(own_n),
             _unit(se3.rotate_vectors(to_chain, other_n)))
-
-
-# ---------------------------------------------------------------------- evaluation

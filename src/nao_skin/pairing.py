@@ -25,6 +25,7 @@ import numpy as np
 from . import se3
 from .contacts import activation_local, cop_weights, segment_mean
 from .errors import DataError
+from .memo import per_objects
 from .skin import PART_NAMES, SkinCalibration, SkinModel
 from .touches import TouchSet
 
@@ -105,36 +106,38 @@ def _part_order(touches: TouchSet, parts) -> list:
 
 # ---------------------------------------------------------------------- positions
 def robot_joints(touches: TouchSet, skin: SkinModel) -> np.ndarray:
-    """The touches' joint angles in the robot model's column order (NaN where a joint is not recorded)."""
+    """The touches' joint angles in the robot model's column order (NaN where a joint is not recorded);
+    the same array for the same touches, so that :func:`chain_end_poses` is computed once."""
     robot = skin.robot
     if tuple(touches.joint_names) == tuple(robot.joint_names):
         return touches.joints
-    q = np.full((touches.n_touches, len(robot.joint_names)), np.nan)
-    for col, name in enumerate(touches.joint_names):
-        if name in robot.joint_index:
-            q[:, robot.joint_index[name]] = touches.joints[:, col]
-    return q
+
+    def reorder():
+        q = np.full((touches.n_touches, len(robot.joint_names)), np.nan)
+        for col, name in enumerate(touches.joint_names):
+            if name in robot.joint_index:
+                q[:, robot.joint_index[name]] = touches.joints[:, col]
+        return q
+    return per_objects((touches, robot), ("robot joints",), reorder)
 
 
-_CHAIN_CACHE: dict = {}
+def chain_end_poses(skin: SkinModel, part: str, joints: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) pose of the part's chain end for every row of ``joints`` (robot column order).
+
+    One batched FK per joint array: pairing and solving re-use it under every
+    new calibration (joint angles never change while calibrating, only the
+    skin's corrections do).
+    """
+    chain = skin.parts[part].chain
+    return per_objects((skin.robot, joints), ("fk", chain), lambda: skin.robot.fk(chain, joints))
 
 
 def _activation_chains(touches: TouchSet, skin: SkinModel, p: int, name: str, sel: np.ndarray) -> tuple:
-    """``(R, t)`` of the chain end of every activation ``sel`` of part ``p``; re-pairing the same
-    touches under a new calibration reuses it (joint angles never change, only the skin's
-    corrections do)."""
-    key = (id(touches), id(skin), p)
-    hit = _CHAIN_CACHE.get(key)
-    if hit is not None and hit[0] is touches and hit[1] is skin:
-        return hit[2]
-    q = robot_joints(touches, skin)
-    rows, inverse = np.unique(touches.act_touch[sel], return_inverse=True)
-    chain = skin.chain_poses(name, q[rows])[inverse]        # one batched FK per touch, gathered
-    if len(_CHAIN_CACHE) > 32:
-        _CHAIN_CACHE.clear()
-    out = (np.ascontiguousarray(chain[:, :3, :3]), np.ascontiguousarray(chain[:, :3, 3]))
-    _CHAIN_CACHE[key] = (touches, skin, out)
-    return out
+    """``(R, t)`` of the chain end of every activation ``sel`` of part ``p``, contiguous for einsum."""
+    def gather():
+        chain = chain_end_poses(skin, name, robot_joints(touches, skin))[touches.act_touch[sel]]
+        return np.ascontiguousarray(chain[:, :3, :3]), np.ascontiguousarray(chain[:, :3, 3])
+    return per_objects((touches, skin), ("activation chains", p), gather)
 
 
 def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,

@@ -30,7 +30,7 @@ import scipy.linalg
 import scipy.sparse
 
 from . import se3
-from .pairing import KIND_NORMAL
+from .pairing import KIND_NORMAL, chain_end_poses
 from .skin import SkinCalibration, SkinModel
 
 LEVELS = ("mount", "patch", "triangle")
@@ -48,6 +48,7 @@ def jt_dot(j, v: np.ndarray) -> np.ndarray:
     return np.asarray(j.T @ v).ravel()
 
 
+COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")   # of a 6-vector correction, as reports name them
 
 
 @dataclass
@@ -89,7 +90,7 @@ class ParameterLayout:
         for name, (m, p, t, end) in self.offsets.items():
             if m <= col < end:
                 part = self.skin.parts[name]
-                comp = ("tx", "ty", "tz", "rx", "ry", "rz")[(col - m) % 6]
+                comp = COMPONENTS[(col - m) % 6]
                 if col < p:
                     return f"{name}/mount/{comp}"
                 if col < t:
@@ -115,23 +116,6 @@ class ParameterLayout:
             corr.patches = x[p:t].reshape(-1, 6).copy()
             corr.triangles = x[t:end].reshape(-1, 6).copy()
         return out
-
-
-_FK: dict = {}
-
-
-def _touch_fk(skin: SkinModel, chain, joints: np.ndarray) -> np.ndarray:
-    """Chain-end poses of every touch, computed once per set of joint angles (they never change
-    while a calibration runs; only the skin's corrections do)."""
-    key = (id(skin), chain, id(joints))
-    hit = _FK.get(key)
-    if hit is not None and hit[0] is joints:
-        return hit[1]
-    if len(_FK) > 32:
-        _FK.clear()
-    fk = skin.robot.fk(chain, joints)
-    _FK[key] = (joints, fk)
-    return fk
 
 
 class ResidualModel:
@@ -169,7 +153,7 @@ class ResidualModel:
             if np.any(tri < 0):
                 bad = slots[tri < 0][0]
                 raise ValueError(f"part '{name}': slot {bad} has no taxel in the layout")
-            fk = _touch_fk(skin, part.chain, joints)[term_touch[sel]]
+            fk = chain_end_poses(skin, name, joints)[term_touch[sel]]
             self.groups.append((sel, name, part, fk, slots, tri, part.triangle_patch[tri]))
         # terms of normal rows carry a direction (rotated, never translated, no fabric)
         self.term_is_dir = pairing.row_kind[pairing.term_row] == KIND_NORMAL
@@ -394,7 +378,6 @@ class SolveResult:
     iterations: int
     evaluations: int
     converged: bool
-    condition: float
     message: str
     # Gauss-Newton normal matrix (robust row weights, prior weights on the diagonal) over the
     # free columns, from the last iteration: its inverse is the posterior covariance / sigma^2
@@ -461,7 +444,7 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
     cost = cost_of(x, r)
     evaluations = 1
     if len(cols) == 0:
-        return SolveResult(x, cost, 0, 1, True, float("nan"), "no free parameter")
+        return SolveResult(x, cost, 0, 1, True, "no free parameter")
     mu = 1e-3
     converged = False
     message = "maximum iterations"
@@ -518,7 +501,7 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
             break
         if converged:
             break
-    return SolveResult(x, cost, it, evaluations, converged, float("nan"), message, h)
+    return SolveResult(x, cost, it, evaluations, converged, message, h)
 
 
 def condition_number(model: ResidualModel, calib: SkinCalibration, free_levels: dict, cols: np.ndarray) -> float:

@@ -8,9 +8,9 @@ import numpy as np
 
 from .calib_pairs import KIND_ROWS, pair_step, select_rows, touch_hashes, with_normal_rows
 from .errors import DataError
-from .pairing import KIND_NAMES, Pairing
+from .pairing import KIND_NAMES, Pairing, robot_joints
 from .skin import SkinCalibration, SkinModel
-from .solver import ParameterLayout, ResidualModel, condition_number, gram, solve
+from .solver import COMPONENTS, ParameterLayout, ResidualModel, condition_number, gram, solve
 from .touches import TouchSet
 
 if TYPE_CHECKING:   # only for annotations: calibrate imports this module
@@ -36,8 +36,8 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     name = f"{step.name}: {'+'.join(sorted(levels, key=['mount', 'patch', 'triangle'].index))}"
     parts_in = tuple(p for p in step.targets + step.references if p in touches.part_names)
     layout = ParameterLayout(skin, parts_in)
-    kinds = KIND_ROWS[options.mount_pairs if levels == {"mount"} else options.pairs]
     kind_names = fitted_kinds(options, levels)
+    kinds = tuple(KIND_NAMES[k] for k in kind_names)
     # normal rows are built from the closest taxel (or COP) pairs: pair COPs too if neither is fitted
     normal_weight = options.normal_weight if set(levels) & set(options.normal_levels) else 0.0
     pair_kinds = (kind_names if normal_weight <= 0 or {"cop", "taxel"} & set(kind_names)
@@ -65,7 +65,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
         if hashes is not None and np.mean(np.abs(new_hashes - hashes) > 1e-9) < options.repair_tolerance:
             break
         hashes = new_hashes
-        model = ResidualModel(skin, touches.joints, pairing, touches.part_names, layout, calib,
+        model = ResidualModel(skin, robot_joints(touches, skin), pairing, touches.part_names, layout, calib,
                               variable_parts=free_parts, fabric=x[layout.fabric_col])
         if free is None:   # what the data determines is decided once, on the first pairing
             free, lower, upper = _bounds(layout, free_parts, levels, x, options)
@@ -277,5 +277,4 @@ def compress_held(names: list) -> list:
     for n in names:
         frame, comp = n.rsplit("/", 1)
         by_frame.setdefault(frame, []).append(comp)
-    order = ("tx", "ty", "tz", "rx", "ry", "rz")
-    return [f if len(c) == 6 else f"{f} ({','.join(sorted(c, key=order.index))})" for f, c in by_frame.items()]
+    return [f if len(c) == 6 else f"{f} ({','.join(sorted(c, key=COMPONENTS.index))})" for f, c in by_frame.items()]

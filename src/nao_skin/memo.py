@@ -1,0 +1,25 @@
+"""Results kept per input object: a calibration pairs and solves the same touches dozens of times.
+
+Keyed by the identity of the inputs (touch sets and joint arrays are large and
+never modified once built), with the inputs themselves kept so that an id
+reused by a new object never returns a stale result.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+_STORE: dict = {}
+_LIMIT = 128
+
+
+def per_objects(owners: tuple, key: tuple, compute: Callable):
+    """``compute()`` once per ``key`` and identity of every object in ``owners``."""
+    full = (*map(id, owners), *key)
+    hit = _STORE.get(full)
+    if hit is not None and all(a is b for a, b in zip(hit[0], owners)):
+        return hit[1]
+    if len(_STORE) > _LIMIT:
+        _STORE.clear()
+    value = compute()
+    _STORE[full] = (owners, value)
+    return value
