@@ -21,6 +21,7 @@ from nao_skin.report import write_outputs
 from nao_skin.sim_params import load_params
 from nao_skin.simulate import simulate
 from nao_skin.skin import SkinCalibration
+from nao_skin.taxel_file import read_taxel_file
 
 from real_data import REAL_DIR as REAL  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
@@ -217,3 +218,55 @@ def test_joint_columns_in_any_order_give_the_same_calibration(skin, left_hand_si
         np.testing.assert_allclose(result.calibration.parts[name].mount, corr.mount, atol=1e-9)
         np.testing.assert_allclose(result.calibration.parts[name].triangles, corr.triangles, atol=1e-9)
     assert result.report["final"]["train"] == left_hand_result.report["final"]["train"]
+
+
+def _write_thesis_file(path: Path, touches, skin) -> None:
+    """The touches in the thesis' text format, as its recorder wrote them: timestamp keys, skinManager
+    contacts with the nominal taxel positions and their mean as the COP (no pressure known)."""
+    nominal = {name: skin.parts[name].taxel_positions(None) for name in touches.part_names}
+    entries = {}
+    for t in range(touches.n_touches):
+        contacts = {}
+        for c in np.flatnonzero(touches.contact_touch == t):
+            part = touches.part_names[touches.contact_part[c]]
+            slots = touches.act_slot[touches.act_contact == c]
+            pos, nor = nominal[part]
+            cop = [float(v) for v in pos[slots].mean(axis=0)]
+            contacts[len(contacts)] = {
+                "cop": cop, "geoCenter": cop, "normal": [float(v) for v in nor[slots].mean(axis=0)],
+                "skinPart": part, "bodyPartId": 0, "linkNumber": 0, "force": None, "moment": None,
+                "averagePressure": None,
+                "taxelInfo": {str(int(s)): [float(v) for v in np.r_[pos[s], nor[s]]] for s in slots}}
+        joints = {name: float(touches.joints[t, k]) for k, name in enumerate(touches.joint_names)}
+        entries[f"{touches.stamps[t]:.6f}"] = [contacts, joints]
+    path.write_text(repr(entries))
+
+
+def test_a_right_hand_head_recording_in_the_thesis_format(tmp_path, skin):
+    """The real recording is left hand-torso; the other thesis pairs arrive the same way. A simulated
+    right hand-head session (the simulator stands in for the robot), written in the thesis' format
+    with timestamp keys and the parts' own taxel files, calibrates through the command: right-arm
+    and head chains, the hand fitted to an uncalibrated head, every taxel near its true place."""
+    params = load_params("default", {"pairs": [["r_hand", "head"]], "n_touches": 300})
+    sim = simulate(skin, params, seed=5)
+    _write_thesis_file(tmp_path / "r_hand_head.txt", sim.touches, skin)
+    taxel_args = []
+    for part in ("r_hand", "head"):
+        skin.parts[part].write_taxel_file(tmp_path / f"{part}.taxels.txt")
+        taxel_args += ["--taxels", f"{part}={tmp_path / f'{part}.taxels.txt'}"]
+    out = tmp_path / "out"
+    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "calibrate", str(tmp_path / "r_hand_head.txt"),
+                          *taxel_args, "--out", str(out), "--quiet", "--no-plots"],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert report["parts"] == ["r_hand", "head"]
+    for part in ("r_hand", "head"):
+        calibrated = read_taxel_file(out / "taxels" / f"{part}.txt")
+        true_pos, _ = sim.true_taxels[part]
+        nominal_pos, _ = skin.parts[part].taxel_positions(None)
+        rows = skin.parts[part].present
+        error = np.linalg.norm(calibrated.positions[rows] - true_pos[rows], axis=1)
+        before = np.linalg.norm(nominal_pos[rows] - true_pos[rows], axis=1)
+        # the hand mount starts 160 degrees off (centimetres), the head a few millimetres
+        assert np.median(error) < min(0.0015, 0.5 * np.median(before)), (part, np.median(error), np.median(before))
