@@ -69,10 +69,13 @@ def test_finds_a_160_degree_hand_mount_without_a_manual_guess(skin, left_hand_re
 
 def test_every_stage_reports_what_the_issue_asks(left_hand_result):
     report = left_hand_result.report
-    keys = {"n_touches", "cop_mean_mm", "taxel_mean_mm", "taxel5_mean_mm", "cop_median_mm", "taxel_p90_mm"}
+    keys = {"n_touches", "cop_mean_mm", "taxel_mean_mm", "taxel5_mean_mm", "cop_median_mm", "taxel_p90_mm",
+            "contact_taxel_mean_mm"}
     for entry in [report["before"], report["final"], *report["stages"]]:
         for split in ("train", "test"):
             assert keys <= set(entry[split]), (entry.get("name"), split)
+            # the closest pair over the whole touch is never farther than the selected contacts' pair
+            assert entry[split]["taxel_mean_mm"] <= entry[split]["contact_taxel_mean_mm"] + 1e-9
     names = [s["name"] for s in report["stages"]]
     assert names[:3] == ["l_hand from torso: mount", "l_hand from torso: patch", "l_hand from torso: triangle"]
     assert all(s["seconds"] >= 0 and s["iterations"] >= 0 and s["repairings"] >= 1 for s in report["stages"])

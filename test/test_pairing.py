@@ -8,8 +8,10 @@ recording, under the nominal layout and under a moved calibration.
 import numpy as np
 import pytest
 
-from nao_skin.pairing import (KIND_COP, KIND_TAXEL, KIND_TAXEL5, activation_positions, metrics, pair_touches,
-                              residuals)
+from nao_skin.pairing import (KIND_CONTACT_TAXEL, KIND_COP, KIND_TAXEL, KIND_TAXEL5, activation_positions, metrics,
+                              pair_for_metrics, pair_touches, residuals)
+from nao_skin.sim_params import load_params
+from nao_skin.simulate import simulate
 from nao_skin.touches import TouchSet
 
 
@@ -127,6 +129,61 @@ def test_thesis_taxel_rule_is_never_closer_than_closest_pair(real, real_skin):
     np.testing.assert_array_equal(closest.row_touch, thesis.row_touch)
     assert np.all(thesis.distance >= closest.distance - 1e-15)
     assert np.any(thesis.distance > closest.distance + 1e-6)
+
+
+# ---------------------------------------------------------------------- the reported closest taxel pair
+def touch_oracle(touches, skin, calib, t, pa, pb):
+    """Closest pair among every activated taxel of parts ``pa`` and ``pb`` in touch ``t``: (slot A, slot B, m)."""
+    q = np.zeros((1, len(skin.robot.joint_names)))
+    for c, name in enumerate(touches.joint_names):
+        q[0, skin.robot.joint_index[name]] = touches.joints[t, c]
+    def taxels_of(p):
+        slots = touches.act_slot[(touches.act_touch == t) & (touches.act_part == p)]
+        return slots, skin.taxels_in_base(touches.part_names[p], q, calib, slots[None])[0]
+    (sa, pos_a), (sb, pos_b) = taxels_of(pa), taxels_of(pb)
+    d = np.linalg.norm(pos_a[:, None] - pos_b[None], axis=2)
+    i, j = np.unravel_index(np.argmin(d), d.shape)
+    return sa[i], sb[j], d[i, j]
+
+
+def check_touch_rule(touches, skin, calib, pa, pb):
+    """Every touch's reported closest taxel pair is the oracle's; the fitted pair (kind 4) is the
+    ``"contacts"`` rule's kind 1 and never closer."""
+    p = pair_for_metrics(touches, skin, calib, parts=(pa, pb))
+    fitted = pair_touches(touches, skin, calib, kinds=("taxel",), parts=(pa, pb))
+    ia, ib = touches.part_index(pa), touches.part_index(pb)
+    rows = np.flatnonzero(p.row_kind == KIND_TAXEL)
+    assert len(rows) == len(np.unique(p.row_touch)) > 0
+    for r in rows:
+        slot_a, slot_b, dist = touch_oracle(touches, skin, calib, p.row_touch[r], ia, ib)
+        terms = p.term_row == r
+        assert p.distance[r] == pytest.approx(dist, abs=1e-12)
+        assert p.term_slot[terms & (p.term_weight > 0)].tolist() == [slot_a]
+        assert p.term_slot[terms & (p.term_weight < 0)].tolist() == [slot_b]
+    contact = p.row_kind == KIND_CONTACT_TAXEL
+    np.testing.assert_array_equal(p.row_touch[contact], fitted.row_touch)
+    np.testing.assert_array_equal(p.distance[contact], fitted.distance)
+    assert np.all(p.distance[rows] <= p.distance[contact] + 1e-15)
+    return p.distance[rows], p.distance[contact]
+
+
+def test_reported_closest_taxel_pair_searches_every_activated_taxel_of_the_touch(real, real_skin):
+    for calib in (None, moved_calibration(real_skin)):
+        touch_wide, in_contacts = check_touch_rule(real, real_skin, calib, "l_hand", "torso")
+        # the real touches hold several contacts per part: the wider search finds closer pairs
+        assert np.sum(touch_wide < in_contacts - 1e-6) > 20
+    m = metrics(pair_for_metrics(real, real_skin))
+    assert m["taxel_mean_mm"] < m["contact_taxel_mean_mm"] == pytest.approx(
+        metrics(pair_touches(real, real_skin))["taxel_mean_mm"], abs=1e-12)
+
+
+def test_reported_closest_taxel_pair_where_the_skins_meet(skin):
+    """Simulated touches under their true calibration: the skins meet, so the pairs that could beat
+    the selected contacts' pair are few and the search prunes hardest - it must still find the closest.
+    Stray contacts (outliers-20) add the far ones."""
+    for preset, pair in (("default", ("l_hand", "torso")), ("outliers-20", ("r_hand", "head"))):
+        sim = simulate(skin, load_params(preset, {"pairs": [list(pair)], "n_touches": 40}), 7)
+        check_touch_rule(sim.touches, skin, sim.truth, *pair)
 
 
 # ---------------------------------------------------------------------- small hand-made touches

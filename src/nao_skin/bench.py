@@ -135,6 +135,7 @@ def _errors(result, inp: BenchInput) -> dict:
     for split in ("train", "test"):
         out[f"{split}_cop_mm"] = final[split].get("cop_mean_mm", float("nan"))
         out[f"{split}_taxel_mm"] = final[split].get("taxel_mean_mm", float("nan"))
+        out[f"{split}_contact_taxel_mm"] = final[split].get("contact_taxel_mean_mm", float("nan"))
         acc = final.get(f"{split}_accepted", {})
         out[f"{split}_cop_explained_mm"] = acc.get("cop_mean_mm", float("nan"))
         out[f"{split}_taxel_explained_mm"] = acc.get("taxel_mean_mm", float("nan"))
@@ -263,7 +264,14 @@ def target_lines(rows: list) -> list:
                 misses.append(f"{row['seconds']:.2f} s > {REAL_TARGET_SECONDS:g} s")
             goal = (f"closest COP <= {REAL_TARGET_MM['cop']} mm, closest taxel <= {REAL_TARGET_MM['taxel']} mm"
                     f" (train and test, all touches), <= {REAL_TARGET_SECONDS:g} s")
-        out.append(f"{name}: {goal}: " + ("met" if not misses else "NOT met: " + "; ".join(misses)))
+        note = ""
+        if "train_contact_taxel_mm" in row:
+            # the pair the solver fits, said beside the target for whoever reads the target as that pair
+            fitted = (row["train_contact_taxel_mm"], row["test_contact_taxel_mm"])
+            note = (f" (the selected contacts' closest taxel pair: {fitted[0]:.2f} / {fitted[1]:.2f} mm,"
+                    f" {'also' if max(fitted) <= REAL_TARGET_MM['taxel'] else 'not'} within"
+                    f" {REAL_TARGET_MM['taxel']} mm)")
+        out.append(f"{name}: {goal}: " + ("met" if not misses else "NOT met: " + "; ".join(misses)) + note)
     return out
 
 
@@ -586,8 +594,8 @@ def speed_table(rows: list, input_name: str) -> str:
                 "re-pairings", "status"]
     else:
         head = ["strategy", "seconds (median)", "runs", "closest COP mm train / test",
-                "closest taxel mm train / test", "explained: COP / taxel mm test", "iterations", "re-pairings",
-                "status"]
+                "closest taxel mm train / test", "selected contacts' closest taxel mm train / test",
+                "explained: COP / taxel mm test", "iterations", "re-pairings", "status"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rs:
         runs = f"{r['runs']}" + (" (slow: once)" if r["single_run"] else "")
@@ -601,6 +609,7 @@ def speed_table(rows: list, input_name: str) -> str:
             cells = [r["strategy"], _f(r["seconds"]), runs,
                      f"{_f(r.get('train_cop_mm'))} / {_f(r.get('test_cop_mm'))}",
                      f"{_f(r.get('train_taxel_mm'))} / {_f(r.get('test_taxel_mm'))}",
+                     f"{_f(r.get('train_contact_taxel_mm'))} / {_f(r.get('test_contact_taxel_mm'))}",
                      f"{_f(r.get('test_cop_explained_mm'))} / {_f(r.get('test_taxel_explained_mm'))}",
                      _f(r.get("iterations")), _f(r.get("repairings")), status]
         lines.append("| " + " | ".join(cells) + " |")

@@ -59,10 +59,10 @@ def _pair_subset(touches: TouchSet, pa: str, pb: str):
     return per_objects((touches,), ("pair subset", pa, pb), subset)
 
 def pair_parts(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, pa: str, pb: str,
-               kinds=("cop", "taxel", "taxel5")) -> Pairing:
+               kinds=("cop", "taxel", "taxel5"), taxel_rule: str = "contacts") -> Pairing:
     """``pair_touches`` for one pair of parts, computed on the touches where both fire only."""
     sub, rows = _pair_subset(touches, pa, pb)
-    p = pair_touches(sub, skin, calib, kinds=kinds, parts=(pa, pb))
+    p = pair_touches(sub, skin, calib, kinds=kinds, parts=(pa, pb), taxel_rule=taxel_rule)
     remap = np.array([touches.part_index(n) for n in sub.part_names], dtype=int)
     return Pairing(row_touch=rows[p.row_touch], row_kind=p.row_kind, row_parts=remap[p.row_parts],
                    term_row=p.term_row, term_part=remap[p.term_part], term_slot=p.term_slot,

@@ -5,18 +5,19 @@ import numpy as np
 
 from .calib_pairs import concat_pairings, pair_parts, pair_step
 from .calib_plan import part_rank
-from .pairing import metrics, robot_joints
+from .pairing import METRIC_KINDS, METRIC_TAXEL_RULE, metrics, robot_joints
 from .skin import SkinCalibration, SkinModel
 from .solver import ParameterLayout, ResidualModel
 from .touches import TouchSet
 
 def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: list) -> dict:
-    """Closest-COP / closest-taxel / 5-taxel distances over every touching pair of the plan."""
+    """Closest-COP / closest-taxel / 5-taxel distances (and the fitted pair of the selected contacts,
+    ``contact_taxel``) over every touching pair of the plan (:func:`pairing.pair_for_metrics`)."""
     if touches.n_touches == 0:
         return {"n_touches": 0}
     pairs = sorted({tuple(sorted((a, b), key=part_rank))
                     for s in steps for a in s.targets + s.references for b in s.targets + s.references if a != b})
-    pairings = [pair_parts(touches, skin, calib, p[0], p[1]) for p in pairs
+    pairings = [pair_parts(touches, skin, calib, p[0], p[1], METRIC_KINDS, METRIC_TAXEL_RULE) for p in pairs
                 if p[0] in touches.part_names and p[1] in touches.part_names]
     pairings = [p for p in pairings if len(p.row_touch)]
     if not pairings:

@@ -16,7 +16,7 @@ import numpy as np
 
 from .calib_pairs import concat_pairings
 from .calibrate import CalibrationResult
-from .pairing import pair_touches
+from .pairing import pair_for_metrics
 from .skin import PART_NAMES, SkinCalibration, SkinModel
 
 
@@ -66,12 +66,15 @@ def _fmt(v) -> str:
 
 
 def markdown_report(report: dict) -> str:
-    keys = ("cop_mean_mm", "taxel_mean_mm", "taxel5_mean_mm")
+    keys = ("cop_mean_mm", "taxel_mean_mm", "contact_taxel_mean_mm", "taxel5_mean_mm")
     lines = ["# Skin calibration report", "",
              f"Plan: {' → '.join(report['plan'])}", "",
              f"Total time: {report['total_seconds']:.2f} s. Touches set aside: {report['n_set_aside']}.", "",
-             "| stage | set | touches | closest COP mean (mm) | closest taxel mean (mm) | 5 taxel pairs mean (mm) | seconds |",
-             "|---|---|---|---|---|---|---|"]
+             "Closest taxel: the closest pair among every activated taxel of the two touching parts; selected"
+             " contacts': the closest pair of the two contacts whose COPs are closest (what the solver fits).", "",
+             "| stage | set | touches | closest COP mean (mm) | closest taxel mean (mm)"
+             " | selected contacts' closest taxel mean (mm) | 5 taxel pairs mean (mm) | seconds |",
+             "|---|---|---|---|---|---|---|---|"]
     rows = [("before", report["before"], None)]
     rows += [(s["name"], s, s["seconds"]) for s in report["stages"]]
     rows += [("final", report["final"], None)]
@@ -108,7 +111,7 @@ def markdown_report(report: dict) -> str:
 
 def _pair_distances(touches, skin, calib, pairs):
     """Closest-taxel distances per touch and the triangle each used on every part."""
-    pairings = [pair_touches(touches, skin, calib, parts=p) for p in pairs]
+    pairings = [pair_for_metrics(touches, skin, calib, parts=p) for p in pairs]
     pairings = [p for p in pairings if len(p.row_touch)]
     if not pairings:
         return None

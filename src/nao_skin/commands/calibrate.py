@@ -112,9 +112,13 @@ def run(args) -> int:
                               "duplicates_removed": n_dup}
     out = write_outputs(result, skin, args.out, prior=prior, plots=not args.no_plots)
     final = result.report["final"]
+
+    def train_test(key):
+        return " / ".join(f"{final[split].get(key, float('nan')):.2f}" for split in ("train", "test"))
+
     line = (f"calibrated {', '.join(result.report['plan'])} in {result.report['total_seconds']:.2f} s: "
-            f"closest COP {final['train'].get('cop_mean_mm', float('nan')):.2f} / {final['test'].get('cop_mean_mm', float('nan')):.2f} mm,"
-            f" closest taxel {final['train'].get('taxel_mean_mm', float('nan')):.2f} / {final['test'].get('taxel_mean_mm', float('nan')):.2f} mm (train / test)")
+            f"closest COP {train_test('cop_mean_mm')} mm, closest taxel {train_test('taxel_mean_mm')} mm"
+            f" (selected contacts' {train_test('contact_taxel_mean_mm')} mm) (train / test)")
     if "truth_taxel_error_mm" in final:
         t = final["truth_taxel_error_mm"]["all"]
         line += f"; true taxel error median {t['median']:.2f} mm, p95 {t['p95']:.2f} mm"

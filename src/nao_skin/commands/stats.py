@@ -33,7 +33,7 @@ def load_touches(path, skin):
 
 def run(args) -> int:
     from ..datasets import deduplicate
-    from ..pairing import metrics, pair_touches
+    from ..pairing import metrics, pair_for_metrics
     from ..skin import SkinCalibration
 
     skin = skin_from_args(args)
@@ -45,7 +45,7 @@ def run(args) -> int:
                    for (i, a), (j, b) in combinations(enumerate(touches.part_names), 2)
                    if np.any(fires[:, i] & fires[:, j])}
     parts = tuple(args.parts.split(",")) if args.parts else None
-    m = metrics(pair_touches(touches, skin, calib, parts=parts))
+    m = metrics(pair_for_metrics(touches, skin, calib, parts=parts))
     out = {"input": str(args.input), "touches": touches.n_touches, "exact_duplicates": n_dup,
            "skipped": dict(report.skipped), "pairs": pair_counts,
            "contacts_per_touch": round(len(touches.contact_touch) / max(touches.n_touches, 1), 3),
