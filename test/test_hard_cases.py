@@ -251,12 +251,18 @@ def test_target_lines_name_each_miss():
     sim = {"input": "sim", "knobs": {}, "status": "ok", "seconds": 1.0,
            "part_true_mm": {"l_hand": {"median": 0.4, "p95": 1.0}, "torso": {"median": 0.7, "p95": 1.6}}}
     real = {"input": "real", "knobs": {}, "status": "ok", "seconds": 3.0, "train_cop_mm": 5.4, "test_cop_mm": 5.6,
-            "train_taxel_mm": 2.0, "test_taxel_mm": float("nan")}
+            "train_taxel_mm": 2.0, "test_taxel_mm": float("nan"), "train_contact_taxel_mm": 2.1,
+            "test_contact_taxel_mm": 2.3}
     failed = {"input": "bad", "knobs": {}, "status": "FAILED: DataError: x"}
     lines = bench.target_lines([sim, real, failed])
     assert lines[0].endswith("NOT met: torso median 0.70 > 0.5 mm; torso p95 1.60 > 1.5 mm")
     assert "test closest COP 5.60 > 5.5 mm" in lines[1] and "test closest taxel nan > 2.2 mm" in lines[1]
     assert "train closest" not in lines[1] and "3.00 s > 2 s" in lines[1]
+    # the solver's own pair is said beside the target, never counted in it
+    assert lines[1].endswith("(the selected contacts' closest taxel pair: 2.10 / 2.30 mm, not within 2.2 mm)")
+    real.update(test_taxel_mm=2.1, test_cop_mm=5.0, seconds=1.5)
+    assert bench.target_lines([real])[0].endswith(": met (the selected contacts' closest taxel pair: 2.10 / 2.30 mm,"
+                                                   " not within 2.2 mm)")
     assert lines[2] == "bad: default row FAILED: DataError: x"
     sim["part_true_mm"]["torso"] = {"median": 0.3, "p95": 1.2}
     assert bench.target_lines([sim])[0].endswith(": met")

@@ -265,7 +265,7 @@ def target_lines(rows: list) -> list:
             goal = (f"closest COP <= {REAL_TARGET_MM['cop']} mm, closest taxel <= {REAL_TARGET_MM['taxel']} mm"
                     f" (train and test, all touches), <= {REAL_TARGET_SECONDS:g} s")
         note = ""
-        if "train_contact_taxel_mm" in row:
+        if "part_true_mm" not in row:
             # the pair the solver fits, said beside the target for whoever reads the target as that pair
             fitted = (row["train_contact_taxel_mm"], row["test_contact_taxel_mm"])
             note = (f" (the selected contacts' closest taxel pair: {fitted[0]:.2f} / {fitted[1]:.2f} mm,"

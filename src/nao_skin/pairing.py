@@ -419,9 +419,11 @@ def metrics(pairing: Pairing) -> dict:
         sel = pairing.row_kind == kind
         dist = pairing.distance[sel]
         if kind == KIND_TAXEL5 and np.any(sel):
-            key = np.stack([pairing.row_touch[sel], pairing.row_parts[sel, 0], pairing.row_parts[sel, 1]], axis=1)
-            _, group = np.unique(key, axis=0, return_inverse=True)
-            group = group.ravel()
+            # a touch's pairs of one part pair are consecutive rows (pair_touches orders rows by touch,
+            # then part pair and kind; concatenated pairings keep that within each part pair)
+            touch, parts = pairing.row_touch[sel], pairing.row_parts[sel]
+            new = np.r_[True, (touch[1:] != touch[:-1]) | np.any(parts[1:] != parts[:-1], axis=1)]
+            group = np.cumsum(new) - 1
             dist = np.bincount(group, weights=dist) / np.bincount(group)
         out.update(_stats(dist, name))
     out["n_touches"] = int(len(np.unique(pairing.row_touch)))

@@ -124,9 +124,12 @@ class SkinPart:
     def frame_poses(self, corr: PartCorrection | None = None):
         """Calibrated poses in the chain-end frame: mount (4,4), patches (P,4,4), triangles (T,4,4)."""
         corr = corr or self.zero_correction()
-        mount = self.mount_nominal @ se3.pose_matrix(corr.mount)
-        patches = mount @ self.patch_nominal @ se3.pose_matrix(corr.patches)
-        triangles = patches[self.triangle_patch] @ self.triangle_nominal @ se3.pose_matrix(corr.triangles)
+        # one batched Rodrigues for every frame: this runs at every residual and re-pairing
+        n_p = len(corr.patches)
+        deltas = se3.pose_matrix(np.concatenate([np.reshape(corr.mount, (1, 6)), corr.patches, corr.triangles]))
+        mount = self.mount_nominal @ deltas[0]
+        patches = mount @ self.patch_nominal @ deltas[1:1 + n_p]
+        triangles = patches[self.triangle_patch] @ self.triangle_nominal @ deltas[1 + n_p:]
         return mount, patches, triangles
 
     def taxel_positions(self, corr: PartCorrection | None = None):
