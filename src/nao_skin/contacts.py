@@ -21,6 +21,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from .memo import per_objects
 from .skin import SkinCalibration, SkinModel
 from .touches import TouchSet
 
@@ -44,9 +45,7 @@ def activation_local(touches: TouchSet, skin: SkinModel, calib: SkinCalibration 
     (normals None unless asked for: pairing needs only the positions)."""
     pos = np.full((len(touches.act_slot), 3), np.nan)
     nor = np.full_like(pos, np.nan) if normals else None
-    act_part = touches.act_part
-    for p, name in enumerate(touches.part_names):        # loop over <= 4 parts
-        sel = np.flatnonzero(act_part == p)
+    for p, (name, sel) in enumerate(zip(touches.part_names, activations_by_part(touches))):   # <= 4 parts
         if len(sel) == 0:
             continue
         part = skin.part(name)
@@ -58,12 +57,28 @@ def activation_local(touches: TouchSet, skin: SkinModel, calib: SkinCalibration 
     return pos, nor
 
 
+def activations_by_part(touches: TouchSet) -> list:
+    """Rows of the activations of each part (in ``part_names`` order); computed once per touch set."""
+    return per_objects((touches,), ("activations by part",),
+                       lambda: [_read_only(np.flatnonzero(touches.act_part == p)) for p in range(len(touches.part_names))])
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)      # shared by every caller through the memo
+    return a
+
+
 def cop_weights(touches: TouchSet) -> np.ndarray:
     """(A,) weight of each activation in its contact's COP; each contact's weights sum to 1.
 
     Pressure-normalised when every taxel of the contact has a finite positive
-    pressure sum, else 1/n (a binarised or pressure-less recording).
+    pressure sum, else 1/n (a binarised or pressure-less recording). Computed
+    once per touch set (pairing asks at every re-pairing).
     """
+    return per_objects((touches,), ("cop weights",), lambda: _read_only(_cop_weights(touches)))
+
+
+def _cop_weights(touches: TouchSet) -> np.ndarray:
     n_c = len(touches.contact_touch)
     c = touches.act_contact
     p = touches.act_pressure

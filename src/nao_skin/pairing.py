@@ -30,7 +30,7 @@ from itertools import combinations
 import numpy as np
 
 from . import se3
-from .contacts import activation_local, cop_weights, segment_mean
+from .contacts import activation_local, activations_by_part, cop_weights, segment_mean
 from .errors import DataError
 from .memo import per_objects
 from .skin import PART_NAMES, SkinCalibration, SkinModel
@@ -181,9 +181,7 @@ def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibrat
     if local is None:
         local, _ = activation_local(touches, skin, calib, normals=False)
     out = np.full_like(local, np.nan)
-    act_part = touches.act_part
-    for p, name in enumerate(touches.part_names):           # loop over <= 4 parts
-        sel = np.flatnonzero(act_part == p)
+    for p, (name, sel) in enumerate(zip(touches.part_names, activations_by_part(touches))):   # <= 4 parts
         if len(sel) == 0:
             continue
         rot, trans = _activation_chains(touches, skin, p, name, sel)
