@@ -33,7 +33,8 @@ import numpy as np
 from .calib_pairs import KIND_ROWS
 from .calib_plan import Step, part_rank, plan_steps, touching_pairs
 from .errors import DataError
-from .evaluation import closest_cop_cost, evaluate, explained, fitted_pair_cost, gate_touches, truth_error
+from .evaluation import (closest_cop_cost, evaluate, explained, fitted_pair_cost, gate_touches, plan_pairs,
+                         truth_error)
 from .first_guess import guess_targets, rigid_mount_guess
 from .skin import SkinCalibration, SkinModel
 from .solver import SolveOptions
@@ -159,6 +160,7 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
     prior_sigma = initial_prior_sigma(options)
     last_step, last_cost, last_inliers, last_kinds = None, np.inf, -1, ()
     set_aside = []
+    last_measured = (None, None, None, None)    # (calibration, part pairs, train, test) of the last stage
     held_components, estimated_components = set(), set()   # 'part/frame/comp' over all stages
     levels_seq = ([{"mount"}, {"patch"}, {"triangle"}] if options.strategy == "sequential"
                   else [{"mount", "patch", "triangle"}])
@@ -231,13 +233,18 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
                 stage["set_aside"] = len(gate)
             stage["train"] = evaluate(train, skin, calib, [step])
             stage["test"] = evaluate(test, skin, calib, [step])
+            last_measured = (calib, plan_pairs([step]), stage["train"], stage["test"])
             if truth is not None:
                 stage["truth_taxel_error_mm"] = truth_error(skin, calib, truth, step.targets)
             report["stages"].append(stage)
             say(f"{stage['name']}: train closest COP {stage['train'].get('cop_mean_mm', float('nan')):.2f} mm,"
                 f" taxel {stage['train'].get('taxel_mean_mm', float('nan')):.2f} mm"
                 f" ({stage['iterations']} iterations, {stage['repairings']} pairings, {stage['seconds']:.2f} s)")
-    report["final"] = {"train": evaluate(train, skin, calib, steps), "test": evaluate(test, skin, calib, steps)}
+    if last_measured[0] is calib and last_measured[1] == plan_pairs(steps):
+        # the last stage measured this very calibration over the same part pairs
+        report["final"] = {"train": dict(last_measured[2]), "test": dict(last_measured[3])}
+    else:
+        report["final"] = {"train": evaluate(train, skin, calib, steps), "test": evaluate(test, skin, calib, steps)}
     # the same gate on both splits: touches whose closest COP pair stays farther than gate_mm
     # are not explained by a self-contact (experimenter's hand, stray activations)
     for split_name, ts in (("train", train), ("test", test)):

@@ -15,14 +15,19 @@ def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: 
     ``contact_taxel``) over every touching pair of the plan (:func:`pairing.pair_for_metrics`)."""
     if touches.n_touches == 0:
         return {"n_touches": 0}
-    pairs = sorted({tuple(sorted((a, b), key=part_rank))
-                    for s in steps for a in s.targets + s.references for b in s.targets + s.references if a != b})
+    pairs = plan_pairs(steps)
     pairings = [pair_parts(touches, skin, calib, p[0], p[1], METRIC_KINDS, METRIC_TAXEL_RULE) for p in pairs
                 if p[0] in touches.part_names and p[1] in touches.part_names]
     pairings = [p for p in pairings if len(p.row_touch)]
     if not pairings:
         return {"n_touches": 0}
     return metrics(concat_pairings(pairings))
+
+def plan_pairs(steps: list) -> list:
+    """The part pairs that touch within the steps (each pair once, hands first): what :func:`evaluate` measures."""
+    return sorted({tuple(sorted((a, b), key=part_rank))
+                   for s in steps for a in s.targets + s.references for b in s.targets + s.references if a != b})
+
 
 def truth_error(skin: SkinModel, calib: SkinCalibration, truth: SkinCalibration, parts=None) -> dict:
     """Distance of every calibrated taxel from its true position (chain-end frame), in mm."""

@@ -88,16 +88,16 @@ def _argmin_per_group(group: np.ndarray, key: np.ndarray) -> np.ndarray:
     new_group = group[1:] != group[:-1]
     if np.all(group[1:] >= group[:-1]) and not np.isnan(key).any():
         # already grouped (pairs of one touch or contact are built together): no sort needed
-        starts = np.flatnonzero(np.r_[True, new_group])
-        segment = np.cumsum(np.r_[0, new_group])
+        starts = np.flatnonzero(np.concatenate(([True], new_group)))
+        segment = np.cumsum(np.concatenate(([0], new_group)))
         cand = np.flatnonzero(key == np.minimum.reduceat(key, starts)[segment])
-        return cand[np.r_[True, segment[cand][1:] != segment[cand][:-1]]]
+        return cand[np.concatenate(([True], segment[cand][1:] != segment[cand][:-1]))]
     # one stable argsort of "group + key scaled into [0, 1)" instead of a three-key lexsort
     span = float(np.max(key) - np.min(key)) if len(key) else 0.0
     scaled = (key - np.min(key)) / (span * (1.0 + 1e-9)) if span > 0 else np.zeros_like(key)
     order = np.argsort(group.astype(float) + scaled, kind="stable")
     g = group[order]
-    return order[np.r_[True, g[1:] != g[:-1]]]
+    return order[np.concatenate(([True], g[1:] != g[:-1]))]
 
 
 def _gathered_distances(coords_a: np.ndarray, rows_a: np.ndarray, coords_b: np.ndarray, rows_b: np.ndarray):
@@ -114,7 +114,7 @@ def _segment_max(values: np.ndarray, segment: np.ndarray, n_segments: int) -> np
     step = np.diff(segment)
     if len(segment) and segment[0] == 0 and segment[-1] == n_segments - 1 and np.all((step == 0) | (step == 1)):
         # every segment present, in order (how touch sets store activations): no scatter needed
-        return np.maximum.reduceat(values, np.flatnonzero(np.r_[True, segment[1:] != segment[:-1]]))
+        return np.maximum.reduceat(values, np.flatnonzero(np.concatenate(([True], segment[1:] != segment[:-1]))))
     out = np.zeros(n_segments)
     np.maximum.at(out, segment, values)
     return out
@@ -256,9 +256,9 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
 
         if KIND_COP in want:
             add(group_touch, KIND_COP, pa, pb, dcop, order_key * 10,
-                np.r_[ga, gb], np.r_[np.full(len(ga), pa), np.full(len(gb), pb)],
-                np.r_[touches.act_slot[act_a], touches.act_slot[act_b]],
-                np.r_[weight[act_a], -weight[act_b]])
+                np.concatenate((ga, gb)), np.concatenate((np.full(len(ga), pa), np.full(len(gb), pb))),
+                np.concatenate((touches.act_slot[act_a], touches.act_slot[act_b])),
+                np.concatenate((weight[act_a], -weight[act_b])))
         if not want & {KIND_TAXEL, KIND_TAXEL5, KIND_CONTACT_TAXEL}:
             continue
         pair_group, a_act, b_act, dpair = candidates(ga, act_a, gb, act_b)
@@ -358,8 +358,8 @@ def _add_taxel_rows(add, group_touch, kind, pa, pb, seq, group, a_act, b_act, di
     m = len(group)
     local_row = np.arange(m)
     add(group_touch[group], kind, pa, pb, dist, np.broadcast_to(seq, (m,)).astype(float),
-        np.r_[local_row, local_row], np.r_[np.full(m, pa), np.full(m, pb)],
-        np.r_[act_slot[a_act], act_slot[b_act]], np.r_[np.ones(m), -np.ones(m)])
+        np.concatenate((local_row, local_row)), np.concatenate((np.full(m, pa), np.full(m, pb))),
+        np.concatenate((act_slot[a_act], act_slot[b_act])), np.concatenate((np.ones(m), -np.ones(m))))
 
 
 def _assemble(rows, terms) -> Pairing:
@@ -420,7 +420,7 @@ def metrics(pairing: Pairing) -> dict:
             # a touch's pairs of one part pair are consecutive rows (pair_touches orders rows by touch,
             # then part pair and kind; concatenated pairings keep that within each part pair)
             touch, parts = pairing.row_touch[sel], pairing.row_parts[sel]
-            new = np.r_[True, (touch[1:] != touch[:-1]) | np.any(parts[1:] != parts[:-1], axis=1)]
+            new = np.concatenate(([True], (touch[1:] != touch[:-1]) | np.any(parts[1:] != parts[:-1], axis=1)))
             group = np.cumsum(new) - 1
             dist = np.bincount(group, weights=dist) / np.bincount(group)
         out.update(_stats(dist, name))

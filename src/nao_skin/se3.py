@@ -42,9 +42,10 @@ def so3_series(rotvec: np.ndarray):
     theta2 = np.sum(rotvec * rotvec, axis=-1)[..., None, None]
     small = theta2 < 1e-8
     t = np.where(small, 1.0, np.sqrt(theta2))
-    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(t) / t)
+    sin_t = np.sin(t)
+    a = np.where(small, 1.0 - theta2 / 6.0, sin_t / t)
     b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(t)) / (t * t))
-    c = np.where(small, 1.0 / 6.0 - theta2 / 120.0, (t - np.sin(t)) / (t * t * t))
+    c = np.where(small, 1.0 / 6.0 - theta2 / 120.0, (t - sin_t) / (t * t * t))
     return a, b, c
 
 
