@@ -178,9 +178,9 @@ def test_reported_closest_taxel_pair_searches_every_activated_taxel_of_the_touch
 
 
 def test_reported_closest_taxel_pair_where_the_skins_meet(skin):
-    """Simulated touches under their true calibration: the skins meet, so the pairs that could beat
-    the selected contacts' pair are few and the search prunes hardest - it must still find the closest.
-    Stray contacts (outliers-20) add the far ones."""
+    """Simulated touches under their true calibration: the skins meet, so the pruning bound is a
+    millimetre or two with other contacts close by, a regime unlike the nominal skin's 7 cm; the
+    search must still find the closest pair. Stray contacts (outliers-20) add far ones."""
     for preset, pair in (("default", ("l_hand", "torso")), ("outliers-20", ("r_hand", "head"))):
         sim = simulate(skin, load_params(preset, {"pairs": [list(pair)], "n_touches": 40}), 7)
         check_touch_rule(sim.touches, skin, sim.truth, *pair)
