@@ -24,6 +24,7 @@ from nao_skin.skin import SkinCalibration
 from nao_skin.taxel_file import read_taxel_file
 
 from real_data import REAL_DIR as REAL  # noqa: E402
+from thesis_format import write_thesis_file  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -223,26 +224,6 @@ def test_joint_columns_in_any_order_give_the_same_calibration(skin, left_hand_si
     assert result.report["final"]["train"] == left_hand_result.report["final"]["train"]
 
 
-def _write_thesis_file(path: Path, touches, skin) -> None:
-    """The touches in the thesis' text format, as its recorder wrote them: timestamp keys, skinManager
-    contacts with the nominal taxel positions and their mean as the COP (no pressure known)."""
-    nominal = {name: skin.parts[name].taxel_positions(None) for name in touches.part_names}
-    entries = {}
-    for t in range(touches.n_touches):
-        contacts = {}
-        for c in np.flatnonzero(touches.contact_touch == t):
-            part = touches.part_names[touches.contact_part[c]]
-            slots = touches.act_slot[touches.act_contact == c]
-            pos, nor = nominal[part]
-            cop = [float(v) for v in pos[slots].mean(axis=0)]
-            contacts[len(contacts)] = {
-                "cop": cop, "geoCenter": cop, "normal": [float(v) for v in nor[slots].mean(axis=0)],
-                "skinPart": part, "bodyPartId": 0, "linkNumber": 0, "force": None, "moment": None,
-                "averagePressure": None,
-                "taxelInfo": {str(int(s)): [float(v) for v in np.r_[pos[s], nor[s]]] for s in slots}}
-        joints = {name: float(touches.joints[t, k]) for k, name in enumerate(touches.joint_names)}
-        entries[f"{touches.stamps[t]:.6f}"] = [contacts, joints]
-    path.write_text(repr(entries))
 
 
 def test_a_right_hand_head_recording_in_the_thesis_format(tmp_path, skin):
@@ -252,7 +233,7 @@ def test_a_right_hand_head_recording_in_the_thesis_format(tmp_path, skin):
     and head chains, the hand fitted to an uncalibrated head, every taxel near its true place."""
     params = load_params("default", {"pairs": [["r_hand", "head"]], "n_touches": 300})
     sim = simulate(skin, params, seed=5)
-    _write_thesis_file(tmp_path / "r_hand_head.txt", sim.touches, skin)
+    write_thesis_file(tmp_path / "r_hand_head.txt", sim.touches, skin)
     taxel_args = []
     for part in ("r_hand", "head"):
         skin.parts[part].write_taxel_file(tmp_path / f"{part}.taxels.txt")

@@ -9,7 +9,7 @@ import pytest
 
 from nao_skin.datasets import deduplicate, duplicate_mask, split
 from nao_skin.errors import DataError
-from nao_skin.legacy import read_legacy
+from nao_skin.legacy import _ast_entries, _json_entries, read_legacy
 from nao_skin.taxel_file import read_taxel_file
 
 from real_data import REAL_DIR as REAL  # noqa: E402
@@ -179,3 +179,56 @@ def test_not_a_dict_and_missing_file(tmp_path, skin):
         read_legacy(path, skin)
     with pytest.raises(DataError, match="cannot read"):
         read_legacy(tmp_path / "nope.txt", skin)
+
+
+# ------------------------------------------------------------------------------ the fast reader
+def _same(a, b) -> bool:
+    """Equal values, NaN equal to NaN; dict keys compared as text (JSON keys are strings)."""
+    if isinstance(a, dict):
+        return isinstance(b, dict) and len(a) == len(b) and all(
+            str(ka) == str(kb) and _same(va, vb) for (ka, va), (kb, vb) in zip(a.items(), b.items()))
+    if isinstance(a, list):
+        return isinstance(b, list) and len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, float) and np.isnan(a):
+        return isinstance(b, float) and np.isnan(b)
+    return a == b and type(a) is type(b)
+
+
+def _same_entries(fast, exact) -> bool:
+    return len(fast) == len(exact) and all(
+        lf == le and str(kf) == str(ke) and _same(vf, ve) for (lf, kf, vf), (le, ke, ve) in zip(fast, exact))
+
+
+def test_the_fast_reader_reads_the_real_file_exactly_as_python_does():
+    text = (REAL / "l_hand_torso.legacy.txt").read_text()
+    fast = _json_entries(text)
+    assert fast is not None, "the recorder's own output must take the fast path"
+    assert _same_entries(fast, _ast_entries(text, REAL / "l_hand_torso.legacy.txt"))
+
+
+def test_the_fast_reader_takes_what_the_recorder_writes_and_leaves_the_rest_to_python(tmp_path, skin):
+    names = touch(joints=dict(JOINTS, LWristYaw=float("nan"), RWristYaw=float("-inf")))
+    names[0][-3] = names[0].pop(1)                              # a negative contactId
+    names[0][0]["averagePressure"] = True
+    plain = {"0": touch(), "1": names, "2.5": touch(), "3": "[{0: {'skinPart': 'l_hand', 'taxelInfo': {}}}, {}]"}
+    path = write(tmp_path, plain)
+    text = path.read_text()
+    assert _json_entries(text) is not None and _same_entries(_json_entries(text), _ast_entries(text, path))
+    # escapes, tuples, calls, a trailing comma: the exact reader, with the same touches and reasons
+    for odd in ('"it\'s"', "(1, 2)", "float('nan')", "[1, 2,]"):
+        data = dict(plain, **{"4": f"[{{0: {{'skinPart': {odd}}}}}, {{}}]"})
+        path = write(tmp_path, data, name="odd.txt")
+        assert _json_entries(path.read_text()) is None, odd
+        touches, report = read_legacy(path, skin)
+        assert touches.keys == ["0", "2.5"], odd
+    touches, report = read_legacy(write(tmp_path, plain, name="plain.txt"), skin)
+    assert touches.keys == ["0", "2.5"]
+    assert report.skipped == {"bad joint angle": 1, "empty contact": 1}
+    assert "joint 'LWristYaw' is not a finite angle (nan)" in " | ".join(report.messages)
+
+
+def test_a_broken_file_still_names_its_line_through_the_exact_reader(tmp_path, skin):
+    path = write(tmp_path, {"0": touch(), "1": touch(), "2": "[{0: {'cop': [1, 2,}}, {}]"})
+    assert _json_entries(path.read_text()) is None
+    with pytest.raises(DataError, match=f"{path}:4: Python syntax error"):
+        read_legacy(path, skin)

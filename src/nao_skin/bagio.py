@@ -113,9 +113,15 @@ def _typestore():
 
 # ---------------------------------------------------------------------- writing
 class BagWriter:
-    """Write the nao_skin topics to a new rosbag2 (context manager). Used for touch and stream bags."""
+    """Write the nao_skin topics to a new rosbag2 (context manager). Used for touch and stream bags.
 
-    def __init__(self, path: str | Path, storage: str = "sqlite3", kind: str = "stream"):
+    ``live``: a recording that grows while others may read it (pairing_recorder).
+    While open, the bag directory holds :data:`LOCK_FILE` naming the writing
+    process, so a reader can tell a recording in progress from one whose
+    recorder died; it is removed once the bag is closed (metadata complete).
+    """
+
+    def __init__(self, path: str | Path, storage: str = "sqlite3", kind: str = "stream", live: bool = False):
         from rosbags.rosbag2 import StoragePlugin, Writer
 
         plugins = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}
@@ -128,6 +134,7 @@ class BagWriter:
         self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=plugins[storage])
         self._writer.set_custom_data(BAG_KIND_KEY, kind)
         self._kind = kind
+        self._live = live
         self._connections: dict = {}
         t = self.store.types
         self._Header, self._Time = t["std_msgs/msg/Header"], t["builtin_interfaces/msg/Time"]
@@ -137,6 +144,8 @@ class BagWriter:
 
     def __enter__(self) -> "BagWriter":
         self._writer.open()
+        if self._live:          # first: no reader may take the bag for an abandoned one
+            _write_lock(self.path)
         self._write_provisional_metadata()
         return self
 
@@ -144,8 +153,9 @@ class BagWriter:
     # metadata.yaml and the mcap summary only on close, so a provisional
     # metadata.yaml (bag kind, file name, no counts) is written at open, and
     # flush() puts every message written so far on disk as complete mcap
-    # records (sqlite3: a commit). A killed recorder leaves a cut mcap file that
-    # read_touches salvages up to the last flush, with the right bag kind.
+    # records (sqlite3: a commit). A killed recorder leaves a cut mcap file (or
+    # a sqlite3 file without listed messages) that read_touches reads up to the
+    # last flush, with the right bag kind.
     def _write_provisional_metadata(self) -> None:
         import yaml
 
@@ -172,6 +182,8 @@ class BagWriter:
 
     def __exit__(self, *exc) -> None:
         self._writer.close()
+        if self._live:          # only now: a reader seeing no lock finds complete metadata
+            (self.path / LOCK_FILE).unlink(missing_ok=True)
 
     def _header(self, stamp_ns: int, frame: str):
         return self._Header(stamp=self._Time(sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000)),
@@ -278,12 +290,19 @@ def read_touches(path: str | Path, skin: SkinModel, config: EventConfig | None =
     ``config`` defaults to the bag's kind (touch bag: exact stamps; stream:
     live tolerances). Taxels without a skinManager contact are clustered
     with ``max_neighbor_dist`` unless ``cluster`` is False. A bag that breaks
-    off (truncated file) keeps what was read before, and says so.
+    off (truncated file) keeps what was read before, and says so. A bag that
+    was never closed (recording in progress, or its recorder died) is read
+    from its storage file as far as it was written, and the report says which
+    of the two it is.
     """
     from rosbags.rosbag2 import Reader
 
     path = Path(path)
     report = LoadReport(str(path))
+    # metadata.yaml lists the messages only once the bag is closed: read an unclosed sqlite3 file itself
+    unclosed = _unclosed_sqlite(path)
+    if unclosed is not None:
+        return _read_unclosed_sqlite(path, *unclosed, skin, config, max_neighbor_dist, cluster, report)
     try:
         reader = Reader(path)
         reader.open()
@@ -317,7 +336,7 @@ def read_touches(path: str | Path, skin: SkinModel, config: EventConfig | None =
                 try:
                     records += _feed(detector, store, conn, raw, skin, path)
                 except DataError as exc:
-                    report.skip(getattr(exc, "reason", "bad message"), str(exc))
+                    report.skip(getattr(exc, "reason", "bad message"), str(exc), part=getattr(exc, "part", None))
         except Exception as exc:  # noqa: BLE001 - a broken file raises whatever its storage library raises
             report.skip("truncated bag", f"{path}: unreadable after {n_msgs} messages ({_one_line(exc)});"
                                          f" the rest of the bag is lost")
@@ -412,16 +431,36 @@ def _mcap_messages(buf: bytes):
 
 
 def _read_salvaged(path, file, skin, config, max_neighbor_dist, cluster, report, open_error) -> tuple:
-    """A bag whose mcap file is cut off (e.g. the recorder died): read up to the cut, say what is lost."""
-    detector = EventDetector.for_skin(skin, config or _salvage_config(path))
-    store = _typestore()
-    records, n_msgs, why = [], 0, "ends cleanly"
+    """A bag whose mcap file is cut off (recording in progress, recorder died, damage): read up to the cut."""
+    writer = _recording_lock(path)        # before reading: a recorder closing meanwhile is still "open" here
     try:
         buf = file.read_bytes()
     except OSError as exc:
         raise DataError(f"{path}: cannot read {file.name} ({exc.strerror})") from None
+    detector, records, n_msgs, why = _read_messages(path, _mcap_messages(buf), skin, config, report)
+    if writer is None:
+        report.skip("truncated bag", f"{path}: {file.name} is damaged ({_one_line(open_error)}); read {n_msgs}"
+                                     f" messages up to where it {why}, the rest is lost")
+    elif writer.state == "died":
+        report.skip("truncated bag", f"{path}: {writer.who} died before closing the bag; read {n_msgs} messages"
+                                     f" of {file.name} (the file {why}); anything after its last flush is lost")
+    touches, report = _finish(detector, records, n_msgs, skin, max_neighbor_dist, cluster, report)
+    if writer is not None and writer.state != "died":
+        report.notes.append(writer.still_open(path, file, n_msgs, touches.n_touches))
+    return touches, report
+
+
+def _read_messages(path, messages, skin, config, report) -> tuple:
+    """Feed ``(topic, msgtype, data)`` of a bag read without rosbags to a detector.
+
+    ``(None, why, None)`` ends the messages where the file breaks off. Returns
+    ``(detector, records, messages fed, how the messages end)``.
+    """
+    detector = EventDetector.for_skin(skin, config or _salvage_config(path))
+    store = _typestore()
+    records, n_msgs, why = [], 0, "ends cleanly"
     unknown = Counter()
-    for topic, msgtype, data in _mcap_messages(buf):
+    for topic, msgtype, data in messages:
         if topic is None:
             why = msgtype
             break
@@ -435,15 +474,178 @@ def _read_salvaged(path, file, skin, config, max_neighbor_dist, cluster, report,
         try:
             records += _feed(detector, store, _Conn(topic, msgtype), data, skin, path)
         except DataError as exc:
-            report.skip(getattr(exc, "reason", "bad message"), str(exc))
+            report.skip(getattr(exc, "reason", "bad message"), str(exc), part=getattr(exc, "part", None))
     for topic, count in unknown.items():
         report.skip("unknown skin part", f"{path}: topic '{topic}': skin part '{_SKIN_TOPIC.match(topic).group(1)}'"
                                          f" is not configured ({', '.join(skin.parts)}); {count} messages skipped",
                     count=count)
-    report.skip("truncated bag", f"{path}: {file.name} is damaged ({_one_line(open_error)}); read {n_msgs} messages"
-                                 f" up to where it {why}, the rest is lost")
     records += detector.flush()
-    return _finish(detector, records, n_msgs, skin, max_neighbor_dist, cluster, report)
+    return detector, records, n_msgs, why
+
+
+# ---------------------------------------------------------------------- recordings never closed
+LOCK_FILE = "recording.lock"          # in a live bag's directory while its writer has it open
+
+
+class _Lock:
+    """A bag's :data:`LOCK_FILE`: who writes it, and whether that process still runs."""
+
+    def __init__(self, pid, host, state: str):
+        self.pid, self.host, self.state = pid, host, state      # state: open, died or unknown
+
+    @property
+    def who(self) -> str:
+        return f"the recorder (pid {self.pid} on {self.host})"
+
+    def still_open(self, path, file, n_msgs: int, n_touches: int) -> str:
+        """The report line of a recording read while (maybe) still being written."""
+        read = f"read {n_msgs} messages of {file.name} written so far: {n_touches} touches"
+        if self.state == "open":
+            return f"{path}: the recording is still open (being recorded by pid {self.pid} on {self.host}); {read}"
+        if self.pid is None:
+            return f"{path}: {LOCK_FILE} is unreadable: the recording may still be open or its recorder died; {read}"
+        return (f"{path}: {LOCK_FILE} names pid {self.pid} on host {self.host}, which cannot be checked from here:"
+                f" the recording is open if that recorder still runs, else it died; {read}")
+
+
+def _write_lock(path: Path) -> None:
+    import json
+    import os
+    import socket
+
+    info = {"pid": os.getpid(), "host": socket.gethostname(), "start": _process_start(os.getpid())}
+    (path / LOCK_FILE).write_text(json.dumps(info) + "\n")
+
+
+def _process_start(pid: int) -> str | None:
+    """A running process's start time (Linux); None when it is gone or a zombie, or there is no /proc."""
+    try:
+        fields = Path(f"/proc/{int(pid)}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError, ValueError):
+        return None
+    return None if fields[0] in ("Z", "X") else fields[19]
+
+
+def _recording_lock(path: Path) -> _Lock | None:
+    """The bag's lock, if its writer left one: it holds the bag open now (state open) or died without closing it."""
+    import json
+    import os
+    import socket
+
+    lock = path / LOCK_FILE if path.is_dir() else None
+    if lock is None or not lock.exists():
+        return None
+    try:
+        info = json.loads(lock.read_text())
+        pid, host, start = int(info["pid"]), str(info["host"]), info.get("start")
+    except (OSError, ValueError, KeyError, TypeError):
+        return _Lock(None, None, "unknown")
+    if host != socket.gethostname():
+        return _Lock(pid, host, "unknown")
+    if Path("/proc/self/stat").exists():
+        # the start time tells the recorder from a later process that got its pid
+        now = _process_start(pid)
+        return _Lock(pid, host, "open" if now is not None and start in (None, now) else "died")
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return _Lock(pid, host, "died")
+    except PermissionError:
+        pass
+    return _Lock(pid, host, "open")
+
+
+def _unclosed_sqlite(path: Path) -> tuple | None:
+    """``(db3 file, reason, why)`` of a sqlite3 bag whose metadata.yaml does not list its messages."""
+    import yaml
+
+    files = sorted(path.glob("*.db3")) if path.is_dir() else []
+    if len(files) != 1:
+        return None
+    meta = path / "metadata.yaml"
+    if not meta.exists():
+        return files[0], "no metadata", "it has no metadata.yaml"
+    try:
+        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+        listed = bool(info.get("files") or info.get("topics_with_message_count"))
+    except Exception as exc:  # noqa: BLE001 - yaml and a malformed layout raise assorted types
+        return files[0], "no metadata", f"its metadata.yaml is unreadable ({_one_line(exc)})"
+    # BagWriter's provisional metadata (written at open) lists neither; the real one, written on close, both
+    return None if listed else (files[0], "truncated bag", "metadata.yaml is incomplete (the recorder did not close"
+                                                           " the bag; anything after its last commit is lost)")
+
+
+def _sqlite_messages(path: Path, file: Path) -> list:
+    """``(topic, msgtype, data)`` of every message committed to a rosbag2 sqlite3 file, in time order.
+
+    Read-only, in one query: a live recorder's next commit waits at most that long.
+    """
+    import sqlite3
+    from contextlib import closing
+
+    query = ("SELECT t.name, t.type, m.data FROM messages AS m JOIN topics AS t ON m.topic_id = t.id"
+             " ORDER BY m.timestamp, m.id")
+    try:
+        with closing(sqlite3.connect(f"{file.resolve().as_uri()}?mode=ro", uri=True, timeout=1.0)) as conn:
+            return conn.execute(query).fetchall()
+    except sqlite3.Error as exc:
+        name = getattr(exc, "sqlite_errorname", "")
+        if not (name in ("SQLITE_READONLY_ROLLBACK", "SQLITE_BUSY") or "readonly" in str(exc)
+                or "locked" in str(exc)):
+            raise DataError(f"{path}: cannot read {file.name} ({_one_line(exc)})") from None
+    # the writer's open transaction has reached the file (it holds the file locked, or died so): sqlite
+    # must roll its journal back, which a read-only reader cannot; do it on a copy, leave the recording be
+    return _sqlite_messages_of_copy(path, file, query)
+
+
+def _sqlite_messages_of_copy(path: Path, file: Path, query: str, attempts: int = 5) -> list:
+    import shutil
+    import sqlite3
+    import tempfile
+    from contextlib import closing
+
+    journal = file.with_name(file.name + "-journal")
+
+    def state():
+        return tuple((f.stat().st_size, f.stat().st_mtime_ns) if f.exists() else None for f in (file, journal))
+
+    with tempfile.TemporaryDirectory(prefix="nao_skin_db3_") as tmp:
+        copy = Path(tmp) / file.name
+        for _ in range(attempts):
+            before = state()
+            try:
+                shutil.copyfile(file, copy)
+                if before[1] is not None:
+                    shutil.copyfile(journal, copy.with_name(journal.name))
+            except FileNotFoundError:       # the writer committed meanwhile (journal gone): again
+                pass
+            else:
+                if state() == before:       # a live writer changed neither file while they were copied
+                    break
+            for f in Path(tmp).iterdir():
+                f.unlink()
+        else:
+            raise DataError(f"{path}: {file.name} kept changing while it was read; read it again")
+        try:
+            with closing(sqlite3.connect(copy)) as conn:
+                return conn.execute(query).fetchall()
+        except sqlite3.Error as exc:
+            raise DataError(f"{path}: cannot read {file.name} ({_one_line(exc)})") from None
+
+
+def _read_unclosed_sqlite(path, file, reason, why, skin, config, max_neighbor_dist, cluster, report) -> tuple:
+    """A sqlite3 bag never closed: every committed message, from the file itself; say whether it is still open."""
+    writer = _recording_lock(path)        # before reading: a recorder closing meanwhile is still "open" here
+    detector, records, n_msgs, _ = _read_messages(path, _sqlite_messages(path, file), skin, config, report)
+    if writer is None:
+        report.skip(reason, f"{path}: {why}; read {n_msgs} messages from {file.name} directly")
+    elif writer.state == "died":
+        report.skip("truncated bag", f"{path}: {writer.who} died before closing the bag; read {n_msgs} messages"
+                                     f" from {file.name} directly, up to its last flush; anything after that is lost")
+    touches, report = _finish(detector, records, n_msgs, skin, max_neighbor_dist, cluster, report)
+    if writer is not None and writer.state != "died":
+        report.notes.append(writer.still_open(path, file, n_msgs, touches.n_touches))
+    return touches, report
 
 
 def _salvage_config(path: Path) -> EventConfig:
@@ -461,9 +663,10 @@ def _salvage_config(path: Path) -> EventConfig:
 class _BadMessage(DataError):
     """One unusable message; ``reason`` is the short key it is counted under."""
 
-    def __init__(self, reason: str, message: str):
+    def __init__(self, reason: str, message: str, part: str | None = None):
         super().__init__(message)
         self.reason = reason
+        self.part = part        # set when the part's layout lacks a named slot
 
 
 def _one_line(exc: Exception) -> str:
@@ -490,10 +693,10 @@ def _feed(detector: EventDetector, store, conn, raw, skin: SkinModel, path: Path
     bad = (slots < 0) | (slots >= part.n_slots)
     if np.any(bad):
         raise _BadMessage("bad taxel slot", f"{where}: field 'slot': slot {int(slots[bad][0])} out of range 0..{part.n_slots - 1}"
-                        f" of part '{part_name}'; sample skipped")
+                        f" of part '{part_name}'; sample skipped", part_name)
     absent = ~part.present[slots]
     if np.any(absent):
         raise _BadMessage("bad taxel slot", f"{where}: field 'slot': slot {int(slots[absent][0])} is not a taxel of the"
-                        f" '{part_name}' layout ({part.source}); sample skipped")
+                        f" '{part_name}' layout ({part.layout_file}); sample skipped", part_name)
     return detector.add_skin(stamp, part_name, slots.tolist(), _field(cloud, "pressure", np.nan, float, where).tolist(),
                              _field(cloud, "contact", -1, int, where).tolist())

@@ -12,14 +12,22 @@ import argparse
 import importlib
 import pkgutil
 import sys
+import time
 
 from . import commands
 from .errors import NaoSkinError
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a mistake on the command line is one line (and exit 2), as every other mistake."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="nao-skin", description="Self-touch calibration of the Nao's artificial skin.")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    parser = _Parser(prog="nao-skin", description="Self-touch calibration of the Nao's artificial skin.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
         if info.name.startswith("_"):
             continue
@@ -31,8 +39,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    started = time.perf_counter()
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:            # --help, or a mistake already said in one line
+        return int(exc.code or 0)
+    args.started = started
     func = getattr(args, "func", None)
     if func is None:
         parser.print_help()

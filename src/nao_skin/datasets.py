@@ -25,17 +25,24 @@ class LoadReport:
     skipped: Counter = field(default_factory=Counter)
     messages: list = field(default_factory=list)
     unit: str = "touches"          # what n_read counts: touches (text formats) or messages (bags)
+    unknown_slots: Counter = field(default_factory=Counter)   # per part: skipped for slots not in its layout
+    notes: list = field(default_factory=list)      # what was kept but is worth a look (one line each)
 
     @property
     def n_skipped(self) -> int:
         return int(sum(self.skipped.values()))
 
-    def skip(self, reason: str, message: str, count: int = 1) -> None:
+    def skip(self, reason: str, message: str, count: int = 1, part: str | None = None) -> None:
+        """Count a skip; ``part``: the skin part whose layout lacks the named slot (reason 'bad taxel slot')."""
         self.skipped[reason] += count
         self.messages.append(" ".join(str(message).split()))
+        if part is not None:
+            self.unknown_slots[part] += count
 
     def merge(self, other: "LoadReport") -> None:
         self.skipped.update(other.skipped)
+        self.unknown_slots.update(other.unknown_slots)
+        self.notes.extend(other.notes)
         self.messages.extend(other.messages)
 
     def summary(self) -> str:
@@ -46,7 +53,7 @@ class LoadReport:
 
     def lines(self, limit: int = MAX_LISTED_MESSAGES) -> list:
         """Summary then the first ``limit`` skip messages (and how many more there are)."""
-        out = [self.summary()] + self.messages[:limit]
+        out = [self.summary()] + self.notes + self.messages[:limit]
         if len(self.messages) > limit:
             out.append(f"... and {len(self.messages) - limit} more")
         return out

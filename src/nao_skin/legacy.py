@@ -11,7 +11,9 @@ one-line reason while the rest of the file still loads.
 from __future__ import annotations
 
 import ast
+import json
 import math
+import re
 from pathlib import Path
 from typing import Mapping
 
@@ -20,32 +22,28 @@ import numpy as np
 from .datasets import LoadReport
 from .errors import DataError
 from .robot import RobotModel
-from .skin import SkinModel, build_part
-from .taxel_file import read_taxel_file
+from .skin import DEFAULT_CHAINS, SkinModel, part_from_layout
 from .touches import TouchSet
-
-DEFAULT_CHAINS = {"r_hand": "r_arm", "l_hand": "l_arm", "torso": None, "head": "head"}
-
 
 def skin_model_for(taxel_files: Mapping[str, str | Path], robot: RobotModel,
                    chains: Mapping[str, str | None] | None = None) -> SkinModel:
-    """A skin model from a recording's own taxel files (patches = triangle // 16, the Nao convention)."""
+    """A skin model of just these parts, from a recording's own taxel files."""
     chains = dict(DEFAULT_CHAINS, **(chains or {}))
     parts = {}
     for name, path in taxel_files.items():
         if name not in chains:
             raise DataError(f"{path}: skin part '{name}' has no known chain (give one for it)")
-        chain = chains[name]
-        parts[name] = build_part(name, chain, robot.end_frame(chain), read_taxel_file(path), None, str(path))
+        parts[name] = part_from_layout(name, chains[name], robot, path)
     return SkinModel(robot, parts, source=", ".join(str(p) for p in taxel_files.values()))
 
 
 class _SkipTouch(DataError):
     """A touch that cannot be used; ``reason`` is the short key it is counted under."""
 
-    def __init__(self, reason: str, message: str):
+    def __init__(self, reason: str, message: str, part: str | None = None):
         super().__init__(message)
         self.reason = reason
+        self.part = part        # set when the part's layout lacks a named slot
 
 
 def _vector3(value, where: str) -> np.ndarray:
@@ -77,6 +75,14 @@ class _Touch:
         self.key, self.stamp, self.joints, self.contacts = key, stamp, joints, contacts
 
 
+def _is_int(text) -> bool:
+    try:
+        int(text)
+    except (TypeError, ValueError):
+        return False
+    return True
+
+
 def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapping[str, int],
                  part_index: Mapping[str, int]):
     """Validate one ``[skinContacts, joints]`` entry; raise DataError naming the field."""
@@ -86,30 +92,30 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
     contacts_in, joints_in = value
     contacts = []
     for cid, contact in contacts_in.items():
-        cwhere = f"{where}: contact {cid!r}"
+        cwhere = f"{where}: contact {cid}"
         if not isinstance(contact, dict):
             raise _SkipTouch("malformed touch", f"{cwhere}: expected a dict")
         part = contact.get("skinPart")
-        if part not in skin.parts:
+        if not isinstance(part, str) or part not in skin.parts:
             raise _SkipTouch("unknown skin part", f"{cwhere}: field 'skinPart': unknown skin part {part!r}"
                             f" (configured: {', '.join(skin.parts)})")
         info = contact.get("taxelInfo")
         if not isinstance(info, dict) or not info:
             raise _SkipTouch("empty contact", f"{cwhere}: field 'taxelInfo': no activated taxel listed")
         sp = skin.parts[part]
-        slots = []
-        for s in info:
-            try:
-                slot = int(s)
-            except (TypeError, ValueError):
-                raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {s!r} is not an integer") from None
-            if not 0 <= slot < sp.n_slots:
-                raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {slot} out of range 0..{sp.n_slots - 1}"
-                                f" of part '{part}'")
-            if not sp.present[slot]:
-                raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {slot} is not a taxel of the"
-                                f" '{part}' layout ({sp.source})")
-            slots.append(slot)
+        try:
+            slots = np.fromiter((int(s) for s in info), dtype=int, count=len(info))
+        except (TypeError, ValueError):
+            bad = next(s for s in info if not _is_int(s))
+            raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {bad!r} is not an integer") from None
+        outside = (slots < 0) | (slots >= len(sp.present))
+        if outside.any():
+            raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {slots[outside][0]} out of range"
+                            f" 0..{len(sp.present) - 1} of part '{part}'", part)
+        absent = ~sp.present[slots]
+        if absent.any():
+            raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {slots[absent][0]} is not a taxel"
+                            f" of the '{part}' layout ({sp.layout_file})", part)
         pressure = contact.get("averagePressure")
         try:
             pressure = np.nan if pressure is None else float(pressure)
@@ -120,7 +126,7 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
             contact_id = int(cid)
         except (TypeError, ValueError):
             contact_id = -1
-        contacts.append((part_index[part], contact_id, cop, np.array(slots, dtype=int), pressure))
+        contacts.append((part_index[part], contact_id, cop, slots, pressure))
     if not contacts:
         raise _SkipTouch("empty contact", f"{where}: no skin contact")
     joints = np.full(len(joint_index), np.nan)
@@ -144,28 +150,95 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
 
 
 _NOT_A_LITERAL = object()
-_last_parse: dict = {}     # one entry: (path, mtime, size) -> entries of the last big file parsed
-_CACHE_MIN_BYTES = 1 << 20  # small files parse in milliseconds: not worth keeping
+_NON_FINITE = {"nan": math.nan, "NaN": math.nan, "inf": math.inf, "Infinity": math.inf}
+# Python names the recorder writes, as JSON spells them (outside strings only)
+_JSON_NAMES = (("None", "null"), ("True", "true"), ("False", "false"), ("nan", "NaN"), ("inf", "Infinity"))
+# a number right before ':' is a dict key (a skinManager contactId); JSON wants it quoted. Matched on the
+# reversed text, where the pattern starts at the rare ':' instead of at every digit of every number.
+_REVERSED_NUMBER_KEY = re.compile(r":(\s*)([0-9.]+-?)(?=\s*[{,])")
+_SPACE = re.compile(r"\s*")
+
+
+class _NonFiniteNames(ast.NodeTransformer):
+    """``nan`` and ``inf`` as Python prints them (a driver's NaN angle) become float constants."""
+
+    def visit_Name(self, node):
+        if node.id in _NON_FINITE:
+            return ast.copy_location(ast.Constant(_NON_FINITE[node.id]), node)
+        return node
+
+
+def _literal_with_non_finite(node):
+    """The literal of ``node`` if its only non-literal names are nan/inf (then checked as angles), else a marker."""
+    try:
+        return ast.literal_eval(_NonFiniteNames().visit(node))
+    except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
+        return _NOT_A_LITERAL
 
 
 def _literal_entries(path: Path) -> list:
     """``(line, key, value)`` per top-level entry; a value that is no literal is ``_NOT_A_LITERAL``.
 
-    Parsing a recording (5 MB: ~3 s of AST building) dominates reading it, so
-    the entries of the last big file are kept: reading the same unchanged file
-    again (stats, then calibrate, in one process) does not parse it twice.
-    Entries are never modified by the reader.
+    Files as the thesis' recorder writes them (Python's repr of a dict: no
+    escapes, no tuples) take the fast path, read as JSON; anything else a
+    Python literal allows, or a broken file, takes the exact path through
+    :mod:`ast`, which names the line of each problem. Both give the same entries.
     """
     try:
-        st = path.stat()
-        cache_key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
-        if cache_key in _last_parse:
-            return _last_parse[cache_key]
         text = path.read_text()
     except OSError as exc:
         raise DataError(f"{path}: cannot read legacy dataset ({exc.strerror})") from None
     except UnicodeDecodeError as exc:
         raise DataError(f"{path}: not a text file ({exc.reason} at byte {exc.start})") from None
+    entries = _json_entries(text)
+    return entries if entries is not None else _ast_entries(text, path)
+
+
+def _json_entries(text: str) -> list | None:
+    """The entries of a plain recorder file, through the C JSON decoder; None when it is not one."""
+    if '"' in text or "\\" in text or "\x00" in text:
+        return None                       # strings with escapes: the exact path
+    parts = text.split("'")               # odd items: the strings' contents, even items: everything else
+    if len(parts) % 2 == 0:
+        return None
+    code = "\x00".join(parts[0::2])
+    for name, spelled in _JSON_NAMES:
+        if name in code:
+            code = code.replace(name, spelled)
+    code = _REVERSED_NUMBER_KEY.sub(r':\1"\2"', code[::-1])[::-1]
+    parts[0::2] = code.split("\x00")
+    text = '"'.join(parts)                # same lines as the file: nothing added or removed a newline
+    decoder = json.JSONDecoder()
+    entries, line, counted = [], 1, 0
+    try:
+        i = _SPACE.match(text).end()
+        if text[i] != "{":
+            return None
+        i = _SPACE.match(text, i + 1).end()
+        while text[i] != "}":
+            key, i = decoder.raw_decode(text, i)
+            i = _SPACE.match(text, i).end()
+            if text[i] != ":":
+                return None
+            i = _SPACE.match(text, i + 1).end()
+            line += text.count("\n", counted, i)
+            counted = i
+            value, i = decoder.raw_decode(text, i)
+            entries.append((line, key, value))
+            i = _SPACE.match(text, i).end()
+            if text[i] == ",":
+                i = _SPACE.match(text, i + 1).end()
+            elif text[i] != "}":
+                return None
+        if text[i + 1:].strip():
+            return None
+    except (ValueError, IndexError, RecursionError):
+        return None
+    return entries
+
+
+def _ast_entries(text: str, path: Path) -> list:
+    """The entries of any file Python's literal syntax accepts; one bad entry does not lose the others."""
     try:
         tree = ast.parse(text, filename=str(path), mode="eval")
     except SyntaxError as exc:
@@ -178,18 +251,17 @@ def _literal_entries(path: Path) -> list:
                         f" found {type(tree.body).__name__}")
     entries = []
     for key_node, value_node in zip(tree.body.keys, tree.body.values):
-        try:                     # each entry on its own: one bad touch does not lose the others
+        try:
             key = ast.literal_eval(key_node) if key_node is not None else None
         except ValueError:
             key = None
         try:
             value = ast.literal_eval(value_node)
-        except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
+        except ValueError:
+            value = _literal_with_non_finite(value_node)
+        except (TypeError, SyntaxError, MemoryError, RecursionError):
             value = _NOT_A_LITERAL
         entries.append((getattr(value_node, "lineno", "?"), key, value))
-    if st.st_size >= _CACHE_MIN_BYTES:
-        _last_parse.clear()
-        _last_parse[cache_key] = entries
     return entries
 
 
@@ -223,7 +295,7 @@ def read_legacy(path: str | Path, skin: SkinModel) -> tuple:
         try:
             joints, contacts = _parse_touch(value, str(key), where, skin, joint_index, part_index)
         except _SkipTouch as exc:
-            report.skip(exc.reason, str(exc))
+            report.skip(exc.reason, str(exc), part=exc.part)
             continue
         parsed.append(_Touch(str(key), _stamp_of(key, row), joints, contacts))
     report.n_loaded = len(parsed)

@@ -16,6 +16,7 @@ import numpy as np
 
 from .calib_pairs import concat_pairings
 from .calibrate import CalibrationResult
+from .outdir import CALIBRATION, replace_dir, write_marker
 from .pairing import pair_for_metrics
 from .skin import PART_NAMES, SkinCalibration, SkinModel
 
@@ -25,8 +26,16 @@ def _order(name: str) -> int:
 
 
 def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Path,
-                  prior: SkinCalibration | None = None, plots: bool = True) -> Path:
-    out_dir = Path(out_dir)
+                  prior: SkinCalibration | None = None, plots: bool = True, command: str = "calibrate",
+                  extra=None) -> Path:
+    """Write the calibration into ``out_dir``, marked as written by ``nao-skin COMMAND``.
+
+    ``extra(directory)`` may add files beside ours before the directory is
+    marked and moved into place (they are then ours too). An earlier output
+    in ``out_dir`` is replaced only when :mod:`nao_skin.outdir` allows it;
+    callers check the directory with ``check_output_dir`` before any work.
+    """
+    given, out_dir = Path(out_dir), Path(os.path.realpath(out_dir))
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
@@ -40,13 +49,14 @@ def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Pat
         (tmp / "report.md").write_text(markdown_report(result.report))
         if plots:
             _plots(result, skin, prior or skin.zero_calibration(), tmp, calibrated)
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        os.replace(tmp, out_dir)
+        if extra is not None:
+            extra(tmp)
+        write_marker(tmp, command, CALIBRATION)
+        replace_dir(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    return out_dir
+    return given
 
 
 def _jsonable(obj):

@@ -244,32 +244,50 @@ def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, prese
     ``touches.bag`` (rosbag2, via :mod:`nao_skin.bagio`), ``truth_calibration.yaml``
     (the calibration format), ``truth_taxels/<part>.txt`` (true taxel positions,
     skinManager format) and ``simulation.yaml`` (parameters, seed, counts).
+    Written into a temporary sibling and moved into place at the end (an
+    earlier output in ``out_dir`` is replaced only as :mod:`nao_skin.outdir`
+    allows), so a failed run leaves no half-written recording.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
-    truth_path = out / "truth_calibration.yaml"
-    result.truth.save(truth_path, skin, comment=f"ground truth of nao-skin simulate (seed {result.seed}"
-                                                 + (f", preset {preset}" if preset else "") + ")")
-    written.append(truth_path)
-    taxel_dir = out / "truth_taxels"
-    taxel_dir.mkdir(exist_ok=True)
-    for name, part in skin.parts.items():
-        path = taxel_dir / f"{name}.txt"
-        part.write_taxel_file(path, result.truth.parts[name])
-        written.append(path)
-    meta = {"format": "nao_skin/simulation/1", "seed": result.seed, "preset": preset or "custom",
-            "skin": Path(skin.source).name, "pairs": result.pairs, "params": result.params.to_dict()}
-    meta_path = out / "simulation.yaml"
-    command = (f"nao-skin simulate --preset {preset or 'default'} --seed {result.seed}"
-               f" --touches-per-pair {result.params.n_touches} --out <this directory>")
-    meta_path.write_text("# parameters and seed of this simulated recording; the same bytes again with\n"
-                         f"#   {command}\n" + yaml.safe_dump(meta, sort_keys=False, width=120))
-    written.append(meta_path)
-    if with_bag:
-        from .bagio import write_touch_bag   # the bag writer of the capture pipeline
+    import os
+    import shutil
+    import tempfile
 
-        bag = out / "touches.bag"
-        write_touch_bag(bag, result.touches, skin, storage=storage)
-        written.append(bag)
-    return written
+    from .outdir import RECORDING, replace_dir, write_marker
+
+    out = Path(out_dir)
+    final = Path(os.path.realpath(out))
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", dir=final.parent))
+    written = []
+    try:
+        truth_path = tmp / "truth_calibration.yaml"
+        result.truth.save(truth_path, skin, comment=f"ground truth of nao-skin simulate (seed {result.seed}"
+                                                     + (f", preset {preset}" if preset else "") + ")")
+        written.append(truth_path)
+        taxel_dir = tmp / "truth_taxels"
+        taxel_dir.mkdir(exist_ok=True)
+        for name, part in skin.parts.items():
+            path = taxel_dir / f"{name}.txt"
+            part.write_taxel_file(path, result.truth.parts[name])
+            written.append(path)
+        meta = {"format": "nao_skin/simulation/1", "seed": result.seed, "preset": preset or "custom",
+                "skin": Path(skin.source).name, "pairs": result.pairs, "params": result.params.to_dict()}
+        meta_path = tmp / "simulation.yaml"
+        command = (f"nao-skin simulate --preset {preset or 'default'} --seed {result.seed}"
+                   f" --touches-per-pair {result.params.n_touches} --out <this directory>")
+        meta_path.write_text("# parameters and seed of this simulated recording; the same bytes again with\n"
+                             f"#   {command}\n" + yaml.safe_dump(meta, sort_keys=False, width=120))
+        written.append(meta_path)
+        if with_bag:
+            from .bagio import write_touch_bag   # the bag writer of the capture pipeline
+
+            bag = tmp / "touches.bag"
+            write_touch_bag(bag, result.touches, skin, storage=storage)
+            written.append(bag)
+        # no time in the marker: the same seed gives the same bytes, marker included
+        write_marker(tmp, "simulate", RECORDING, stamp=False)
+        replace_dir(tmp, final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return [out / p.relative_to(tmp) for p in written]

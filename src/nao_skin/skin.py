@@ -35,6 +35,7 @@ from .robot import RobotModel
 from .taxel_file import SLOTS_PER_TRIANGLE, TaxelFile, read_taxel_file, write_taxel_file
 
 PART_NAMES = ("r_hand", "l_hand", "torso", "head")   # skinManager part names on the Nao
+DEFAULT_CHAINS = {"r_hand": "r_arm", "l_hand": "l_arm", "torso": None, "head": "head"}
 
 
 def _frame_from(origin: np.ndarray, z_axis: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
@@ -95,6 +96,21 @@ class SkinPart:
     triangle_nominal: np.ndarray     # (T, 4, 4) relative to its patch
     taxel_local: np.ndarray          # (S, 3) in the nominal triangle frame
     normal_local: np.ndarray         # (S, 3) in the nominal triangle frame
+    layout_file: str = ""            # the taxel file the layout came from
+
+    @property
+    def layout_sha256(self) -> str:
+        """Hash of the layout itself (slots, positions, normals): same taxels, same hash, whatever the file.
+
+        A calibration is only meaningful on the layout it was made with; this is
+        what ``calibration.yaml`` records and checks.
+        """
+        import hashlib
+
+        h = hashlib.sha256(np.packbits(self.present).tobytes())
+        for a in (self.positions, self.normals):
+            h.update(np.ascontiguousarray(np.round(np.where(self.present[:, None], a, 0.0), 9) + 0.0).tobytes())
+        return h.hexdigest()
 
     # ------------------------------------------------------------------ sizes and names
     @property
@@ -150,7 +166,7 @@ class SkinPart:
 
 def build_part(name: str, chain: str | None, parent_frame: str, taxels: TaxelFile,
                patches: Mapping[int, list] | None, source: str,
-               mount_pose: np.ndarray | None = None) -> SkinPart:
+               mount_pose: np.ndarray | None = None, layout_file: str = "") -> SkinPart:
     """Derive the nominal frame tree of a part from its layout and patch table."""
     n_slots = len(taxels.positions)
     present = taxels.present
@@ -218,7 +234,7 @@ def build_part(name: str, chain: str | None, parent_frame: str, taxels: TaxelFil
     normal_local[idx] = se3.rotate_vectors(inv, nor[idx])
     return SkinPart(name, chain, parent_frame, source, pos.copy(), nor.copy(), present.copy(),
                     triangle_ids, patch_ids, triangle_patch, slot_triangle, mount_abs, patch_rel,
-                    tri_rel, taxel_local, normal_local)
+                    tri_rel, taxel_local, normal_local, layout_file or source)
 
 
 class SkinModel:
@@ -248,7 +264,8 @@ class SkinModel:
             chain = spec.get("chain")
             if chain is not None and chain not in robot.chains:
                 raise ConfigError(f"{where}: unknown chain '{chain}' (robot has {', '.join(robot.chains)})")
-            taxels = read_taxel_file(path.parent / spec["taxel_file"], int(spec.get("slots", 384)))
+            taxel_path = path.parent / spec["taxel_file"]
+            taxels = read_taxel_file(taxel_path, int(spec.get("slots", 384)))
             patches = spec.get("patches")
             if patches is not None:
                 patches = {int(k): v for k, v in patches.items()}
@@ -257,7 +274,7 @@ class SkinModel:
                 m = spec["mount"]
                 mount = se3.pose_matrix(np.r_[m.get("xyz", [0, 0, 0]), m.get("rotvec", [0, 0, 0])])
             parts[str(name)] = build_part(str(name), chain, robot.end_frame(chain), taxels, patches,
-                                          str(path), mount)
+                                          str(path), mount, str(taxel_path))
         return cls(robot, parts, str(path))
 
     def part(self, name: str) -> SkinPart:
@@ -320,6 +337,8 @@ class SkinCalibration:
             tris = part.triangle_nominal @ se3.pose_matrix(corr.triangles)
             out["parts"][name] = {
                 "chain": part.chain,
+                # the layout the corrections belong to: load() refuses another one
+                "layout": {"file": Path(part.layout_file).name, "sha256": part.layout_sha256},
                 "mount": entry(part.mount_frame, part.parent_frame, corr.mount, mount),
                 "patches": {int(pid): entry(part.patch_frame(pid), part.mount_frame, corr.patches[i], patches[i])
                             for i, pid in enumerate(part.patch_ids)},
@@ -361,6 +380,7 @@ class SkinCalibration:
             if name not in skin.parts:
                 raise ConfigError(f"{path}: unknown skin part '{name}' (configured: {', '.join(skin.parts)})")
             part = skin.parts[name]
+            _check_layout(path, name, spec.get("layout"), part)
             corr = calib.parts[name]
             if "mount" in spec:
                 corr.mount = vec(spec["mount"], f"part '{name}' mount")
@@ -375,3 +395,47 @@ class SkinCalibration:
                     raise ConfigError(f"{path}: part '{name}' has no triangle {tid}")
                 corr.triangles[rows[int(tid)]] = vec(entry, f"part '{name}' triangle {tid}")
         return calib
+
+
+def _check_layout(path: Path, name: str, recorded, part: SkinPart) -> None:
+    """A calibration applies only to the layout it was made with (older files, without a record, pass)."""
+    if not isinstance(recorded, dict) or "sha256" not in recorded:
+        return
+    if str(recorded["sha256"]) != part.layout_sha256:
+        raise ConfigError(f"{path}: part '{name}' was calibrated on the layout {recorded.get('file', '?')}"
+                          f" (sha256 {str(recorded['sha256'])[:12]}), not on {Path(part.layout_file).name}"
+                          f" (sha256 {part.layout_sha256[:12]}) used here; give the same layout"
+                          f" (--taxels {name}=FILE)")
+
+
+def part_from_layout(name: str, chain: str | None, robot: RobotModel, taxel_file: str | Path) -> SkinPart:
+    """A part built from a taxel file alone (patches: 16 triangles each, the Nao convention)."""
+    return build_part(name, chain, robot.end_frame(chain), read_taxel_file(taxel_file), None, str(taxel_file),
+                      layout_file=str(taxel_file))
+
+
+def load_skin(skin_config: str | Path | None = None, taxel_files: Mapping[str, str | Path] | None = None,
+              robot_config: str | Path | None = None) -> SkinModel:
+    """The skin every command uses: the skin config, with the named parts' layouts from their own files.
+
+    A part named in ``taxel_files`` keeps its chain from the config (or the
+    skinManager part's usual chain) and takes its layout from the file, e.g. a
+    recording's own; every other part stays as configured.
+    """
+    from .config import default_skin_config
+
+    robot = RobotModel.from_yaml(robot_config) if robot_config else None
+    skin = SkinModel.from_yaml(skin_config or default_skin_config(), robot)
+    parts = dict(skin.parts)
+    for name, path in (taxel_files or {}).items():
+        if name in parts:
+            chain = parts[name].chain
+        elif name in DEFAULT_CHAINS:
+            chain = DEFAULT_CHAINS[name]
+        else:
+            raise ConfigError(f"--taxels {name}={path}: unknown skin part '{name}'"
+                              f" (skinManager parts: {', '.join(sorted(set(parts) | set(DEFAULT_CHAINS)))})")
+        parts[name] = part_from_layout(name, chain, skin.robot, path)
+    if not taxel_files:
+        return skin
+    return SkinModel(skin.robot, parts, f"{skin.source} + " + ", ".join(str(p) for p in taxel_files.values()))

@@ -2,7 +2,13 @@
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
+
+
+def wall_seconds(args) -> float:
+    """Seconds since the command started (``cli.main`` stamps ``args.started``): what a user waited."""
+    return time.perf_counter() - getattr(args, "started", time.perf_counter())
 
 
 def write_output(text: str, out: Path | None) -> None:
@@ -13,3 +19,39 @@ def write_output(text: str, out: Path | None) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
     print(out)
+
+
+def add_skin_arguments(parser) -> None:
+    """The options that say which skin layout the data belongs to: the same in every command."""
+    parser.add_argument("--skin", default=None, metavar="YAML",
+                        help="skin config YAML (default: the package's config/nao_skin.yaml)")
+    parser.add_argument("--taxels", action="append", default=[], metavar="PART=FILE",
+                        help="skinManager taxel file of a part (e.g. the recording's own, l_hand=l_hand.taxels.txt);"
+                             " it replaces that part's layout in the skin config; repeatable")
+    parser.add_argument("--robot", default=None, metavar="YAML",
+                        help="robot config YAML (default: the one the skin config names, config/nao_h25.yaml)")
+
+
+def taxel_files(items) -> dict:
+    """``PART=FILE`` strings of ``--taxels`` as ``{part: Path}``."""
+    from ..errors import ConfigError
+
+    files = {}
+    for item in items:
+        part, sep, path = item.partition("=")
+        if not sep or not part or not path:
+            raise ConfigError(f"--taxels {item!r}: expected PART=FILE, e.g. l_hand=l_hand.taxels.txt")
+        if part in files:
+            raise ConfigError(f"--taxels {item!r}: part '{part}' is given twice")
+        if not Path(path).is_file():
+            raise ConfigError(f"--taxels {item!r}: {path}: no such file")
+        files[part] = Path(path)
+    return files
+
+
+def skin_from_args(args):
+    """The skin model of ``--skin``, ``--taxels`` and ``--robot`` (:func:`nao_skin.skin.load_skin`)."""
+    from ..skin import load_skin
+
+    return load_skin(getattr(args, "skin", None), taxel_files(getattr(args, "taxels", None) or []),
+                     getattr(args, "robot", None))

@@ -2,6 +2,8 @@
 
 Writes ``bench_results.md`` (the tables), ``speed_vs_error.png`` and
 ``bench_results.json`` (every row) into ``--out`` and prints the tables.
+``--out`` must be new, empty, or an earlier bench's output (then with
+``--force``); see :mod:`nao_skin.outdir`.
 """
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ HELP = "benchmark calibration strategies (seconds against error) and the simulat
 
 SECTIONS = ("speed", "real", "hard")
 LISTING = "<outlier listing>"      # long: written to the file, not printed
+OUTPUTS = ("bench_results.md", "bench_results.json", "speed_vs_error.png")
 QUICK = {"repeat": 1, "seeds": 2, "sweep": (50, 200), "sim_touches": 400, "hard_pairs": "l_hand-torso",
          "hard_touches": 150}
 
@@ -22,7 +25,11 @@ QUICK = {"repeat": 1, "seeds": 2, "sweep": (50, 200), "sim_touches": 400, "hard_
 def add_arguments(parser) -> None:
     parser.add_argument("--readme", metavar="README.md",
                         help="also put the tables into this README's results section and the plot beside it")
-    parser.add_argument("--out", default="out/bench", help="output directory (default: out/bench)")
+    parser.add_argument("--out", default="out/bench",
+                        help="output directory (default: out/bench): new, empty, or an earlier bench output"
+                             " (with --force)")
+    parser.add_argument("--force", action="store_true",
+                        help="replace the outputs of an earlier bench in --out (never a file nao-skin did not write)")
     parser.add_argument("--quick", action="store_true",
                         help=f"smoke run: {QUICK['repeat']} repetition, {QUICK['seeds']} seeds, sweep "
                              f"{'/'.join(map(str, QUICK['sweep']))} touches, {QUICK['sim_touches']} simulated touches,"
@@ -101,9 +108,9 @@ def _real_inputs(args, say) -> list:
     from ..bench import BenchInput
     from ..datasets import deduplicate
     from ..inputs import load_touches
-    from .calibrate import load_skin
+    from . import skin_from_args
 
-    skin = load_skin(args)
+    skin = skin_from_args(args)
     out = []
     for path in args.real:
         touches, _, truth = load_touches([path], skin, log=say)
@@ -115,8 +122,9 @@ def _real_inputs(args, say) -> list:
 
 def run(args) -> int:
     from .. import bench
-    from ..config import load_default_skin
+    from ..config import config_dir, load_default_skin
     from ..errors import DataError
+    from ..outdir import BENCHMARK, check_output_dir, clear_for_writing
 
     say = lambda msg: print(msg, flush=True)  # noqa: E731
     sections = set(args.only or SECTIONS)
@@ -127,11 +135,29 @@ def run(args) -> int:
     sweep = QUICK["sweep"] if args.quick else bench.TOUCH_SWEEP
     if repeat < 1 or seeds < 1:
         raise DataError(f"--repeat {repeat} / --seeds {seeds}: both must be at least 1")
+    presets = [p.strip() for p in args.presets.split(",")] if args.presets else list(bench.HARD_PRESETS)
+    hard_pairs = QUICK["hard_pairs"] if args.quick and args.hard_pairs == "all" else args.hard_pairs
+    if "hard" in sections:       # mistakes in the arguments are told before the output directory is touched
+        from ..sim_params import preset_names
+
+        unknown = sorted(set(presets) - set(preset_names()))
+        if unknown:
+            raise DataError(f"--presets: unknown preset(s) {', '.join(unknown)} (known: {', '.join(preset_names())})")
+        _pairs(hard_pairs)
+    if "speed" in sections:
+        _pairs(args.sim_pairs)
+    sim = (args.sim or config_dir().parent / "bags" / "sim_default") if "speed" in sections else None
+    check_output_dir(args.out, BENCHMARK, force=args.force,
+                     inputs=[sim, *args.real, *(item.partition("=")[2] for item in args.taxels), args.skin,
+                             args.readme])
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    # written section by section below (so a later failure keeps the earlier tables), not via a temporary dir
+    clear_for_writing(out, NAME, BENCHMARK, OUTPUTS)
     t_start = time.perf_counter()
+    # with --force, the quoted command also runs again where its earlier output is
+    argv = sys.argv[2:] + ([] if "--force" in sys.argv[2:] else ["--force"])
     md = [f"# nao-skin bench{' (quick)' if args.quick else ''}", "",
-          f"Command: `nao-skin bench {' '.join(sys.argv[2:])}`".rstrip("` ") + "`", ""]
+          f"Command: `nao-skin bench {' '.join(argv)}`", ""]
     results: dict = {"quick": args.quick, "repeat": repeat, "seeds": seeds}
     failures = 0
     listing = ""
@@ -164,13 +190,6 @@ def run(args) -> int:
         failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in t for t in bench.target_lines(rows))
 
     if "hard" in sections:
-        presets = [p.strip() for p in args.presets.split(",")] if args.presets else list(bench.HARD_PRESETS)
-        from ..sim_params import preset_names
-
-        unknown = sorted(set(presets) - set(preset_names()))
-        if unknown:
-            raise DataError(f"--presets: unknown preset(s) {', '.join(unknown)} (known: {', '.join(preset_names())})")
-        hard_pairs = QUICK["hard_pairs"] if args.quick and args.hard_pairs == "all" else args.hard_pairs
         setup = bench.HardCaseSetup(pairs=_pairs(hard_pairs),
                                     n_touches=args.hard_touches or (QUICK["hard_touches"] if args.quick else None))
         scene = (", ".join(f"{a}-{b}" for a, b in setup.pairs) if setup.pairs else "all four thesis pairs")

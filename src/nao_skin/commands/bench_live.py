@@ -8,15 +8,20 @@ a private ROS domain, listens for ``--seconds`` and prints:
 * the recorder's processing time per skin message (p50 / p99 / max, measured
   in its callbacks; target p99 <= 5 ms);
 * the heat-map's publish rate with all taxels of all parts (target 10 Hz).
+
+The nodes' logs and the recorder's bag go to a temporary directory, removed
+when the command ends (also on error or Ctrl-C) unless ``--keep-temp``.
 """
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -28,9 +33,23 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seconds", type=float, default=15.0, help="measurement window (s)")
     parser.add_argument("--domain", type=int, default=0, help="ROS domain id (default: from the pid)")
     parser.add_argument("--touch-period", type=float, default=0.6, help="s between simulated presses")
+    parser.add_argument("--keep-temp", action="store_true",
+                        help="keep the temporary directory with the nodes' logs and the recorded bag"
+                             " (default: removed when the command ends)")
 
 
 def run(args) -> int:
+    work = Path(tempfile.mkdtemp(prefix="nao_skin_bench_"))
+    try:
+        return _measure(args, work)
+    finally:
+        if args.keep_temp:
+            print(f"bench-live: nodes' logs and the recorded bag kept in {work}", file=sys.stderr)
+        else:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+def _measure(args, work: Path) -> int:
     import numpy as np
     import rclpy
     from rclpy.context import Context
@@ -45,7 +64,6 @@ def run(args) -> int:
     domain = args.domain or 10 + os.getpid() % 90
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                PYTHONUNBUFFERED="1")
-    work = Path(tempfile.mkdtemp(prefix="nao_skin_bench_"))
     params = str(config_dir() / "record.yaml")
     nodes = {
         "sim_robot": {"loop": True, "touches_per_pair": 10, "touch_period": args.touch_period,
@@ -56,7 +74,9 @@ def run(args) -> int:
     procs = []
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=domain)
+    # Ctrl-C only sets a flag the loops below check: rclpy's own handler would shut the context down and let the
+    # window run on, and a KeyboardInterrupt raised inside rclpy's C++ calls comes out as a RuntimeError
+    rclpy.init(context=ctx, domain_id=domain, signal_handler_options=rclpy.SignalHandlerOptions.NO)
     node = Node("bench_live", context=ctx)
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(node)
@@ -72,6 +92,8 @@ def run(args) -> int:
 
     skin_parts = set(load_default_skin().parts)
     node.create_subscription(MarkerArray, "/nao_skin/heatmap", on_heat, 10)
+    interrupted = threading.Event()
+    previous_handler = signal.signal(signal.SIGINT, lambda signum, frame: interrupted.set())
     try:
         for name, over in nodes.items():
             argv = [sys.executable, "-m", f"nao_skin.nodes.{name}", "--ros-args", "--params-file", params]
@@ -81,17 +103,23 @@ def run(args) -> int:
                                           stderr=open(work / f"{name}.err", "wb")))
         # wait until the play has started (the recorder reports touches), then measure a clean window
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not (progress and progress[-1]["touches"] > 0):
+        while (time.monotonic() < deadline and not (progress and progress[-1]["touches"] > 0)
+               and not interrupted.is_set()):
             executor.spin_once(timeout_sec=0.05)
+        if interrupted.is_set():
+            raise KeyboardInterrupt
         if not progress:
-            print("bench-live: the recorder never reported progress; see", work, file=sys.stderr)
+            where = f"see {work}" if args.keep_temp else "run again with --keep-temp to keep the nodes' logs"
+            print(f"bench-live: the recorder never reported progress; {where}", file=sys.stderr)
             return 1
         start_counts = dict(counts)
         start_heat = len(heat_stamps)
         start_progress_n = progress[-1]["skin_message_ms"]["n"]
         t0 = time.monotonic()
-        while time.monotonic() - t0 < args.seconds:
+        while time.monotonic() - t0 < args.seconds and not interrupted.is_set():
             executor.spin_once(timeout_sec=0.05)
+        if interrupted.is_set():
+            raise KeyboardInterrupt
         window = time.monotonic() - t0
     finally:
         for p in procs:
@@ -105,6 +133,7 @@ def run(args) -> int:
         executor.shutdown()
         node.destroy_node()
         ctx.try_shutdown()
+        signal.signal(signal.SIGINT, previous_handler)
     last = progress[-1]
     ms = last["skin_message_ms"]
     joints_hz = (counts["joints"] - start_counts["joints"]) / window

@@ -4,109 +4,100 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from . import add_skin_arguments, skin_from_args, wall_seconds
+
 NAME = "calibrate"
 HELP = "calibrate skin mounts, patches and triangles from self-touch recordings (bags or legacy .txt)"
 
 
-def add_arguments(parser) -> None:
-    from ..calibrate import CalibrationOptions
+CHOICE_FLAGS = {"--strategy": "strategy", "--reference": "reference", "--pairs": "pairs", "--loss": "loss",
+                "--jacobian": "jacobian"}
+NUMBER_FLAGS = {"--gate-mm": ("gate_mm", float), "--test-fraction": ("test_fraction", float),
+                "--seed": ("seed", int)}
 
-    d = CalibrationOptions()
+
+def add_arguments(parser) -> None:
+    from ..calibrate import OPTION_FIELDS
+
     parser.add_argument("inputs", nargs="+", metavar="INPUT", help="rosbag2 recordings or legacy .txt data sets")
-    parser.add_argument("--out", required=True, help="output directory (replaced when the run succeeds)")
-    parser.add_argument("--skin", help="skin config YAML (default: the package's config/nao_skin.yaml)")
-    parser.add_argument("--taxels", action="append", default=[], metavar="PART=FILE",
-                        help="use this skinManager taxel file for a part (e.g. from the recording); repeatable")
+    parser.add_argument("--out", required=True,
+                        help="output directory: new, empty, or an earlier nao-skin output (with --force);"
+                             " written when the run succeeds")
+    parser.add_argument("--force", action="store_true",
+                        help="replace the outputs of an earlier run in --out (never a file nao-skin did not write)")
+    add_skin_arguments(parser)
     parser.add_argument("--prior", help="start from this calibration.yaml instead of the nominal skin")
     parser.add_argument("--truth", help="ground-truth calibration (simulation) to report true taxel errors")
-    parser.add_argument("--strategy", choices=["sequential", "all-at-once"], default=d.strategy)
-    parser.add_argument("--reference", choices=["fixed", "simultaneous"], default=d.reference)
-    parser.add_argument("--pairs", choices=["cop", "taxel", "both", "taxel5"], default=d.pairs,
-                        help="which paired points enter the residuals of patch and triangle stages")
+    for flag, name in CHOICE_FLAGS.items():
+        spec = OPTION_FIELDS[name]
+        parser.add_argument(flag, choices=spec.metadata["rule"].choices, default=None,
+                            help=f"{spec.metadata['help']} (default {spec.default})")
+    for flag, (name, kind) in NUMBER_FLAGS.items():
+        spec = OPTION_FIELDS[name]
+        parser.add_argument(flag, type=kind, default=None, help=f"{spec.metadata['help']} (default {spec.default})")
     parser.add_argument("--free", action="store_true", help="no bounds on patch and triangle corrections")
-    parser.add_argument("--loss", choices=["huber", "linear"], default=d.loss)
-    parser.add_argument("--jacobian", choices=["analytic", "2-point"], default=d.jacobian)
     parser.add_argument("--no-first-guess", action="store_true", help="skip the closed-form mount fit")
-    parser.add_argument("--gate-mm", type=float, default=d.gate_mm, help="set aside touches farther than this after the mount fit (0: off)")
-    parser.add_argument("--test-fraction", type=float, default=d.test_fraction)
-    parser.add_argument("--seed", type=int, default=d.seed, help="seed of the train/test split")
     parser.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
-                        help="any field of CalibrationOptions, e.g. --set lateral_weight=0.3; repeatable")
-    parser.add_argument("--no-plots", action="store_true")
-    parser.add_argument("--quiet", action="store_true", help="print only the final line")
+                        help="any calibration option (YAML value), e.g. --set normal_weight=0.01; repeatable."
+                             " Options: " + ", ".join(OPTION_FIELDS))
+    parser.add_argument("--no-plots", action="store_true", help="do not draw the report's plots (faster)")
+    parser.add_argument("--quiet", action="store_true",
+                        help="print only the final line (and what loading skipped, if anything)")
 
 
 def build_options(args):
-    from ..calibrate import CalibrationOptions
-
-    options = CalibrationOptions(strategy=args.strategy, reference=args.reference, pairs=args.pairs,
-                                 bounded=not args.free, loss=args.loss, jacobian=args.jacobian,
-                                 initial_guess="none" if args.no_first_guess else "rigid-fit",
-                                 gate_mm=args.gate_mm, test_fraction=args.test_fraction, seed=args.seed)
-    return apply_settings(options, args.set)
-
-
-def apply_settings(options, settings):
-    """``KEY=VALUE`` strings onto a CalibrationOptions, typed like the field's default."""
-    import dataclasses
-
+    """The options of the flags and ``--set`` items, each checked by its rule before any data is read."""
     import yaml
 
+    from ..calibrate import CalibrationOptions
     from ..errors import DataError
 
-    fields = {f.name for f in dataclasses.fields(options)}
-    for item in settings:
+    options = CalibrationOptions()
+    flags = {**CHOICE_FLAGS, **{flag: name for flag, (name, _) in NUMBER_FLAGS.items()}}
+    for flag, name in flags.items():
+        value = getattr(args, flag[2:].replace("-", "_"))
+        if value is not None:
+            options.set(name, value, where=f"{flag} {value}")
+    if args.free:
+        options.bounded = False
+    if args.no_first_guess:
+        options.initial_guess = "none"
+    for item in args.set:
         key, sep, raw = item.partition("=")
-        if not sep or key not in fields:
-            raise DataError(f"--set {item!r}: expected OPTION=VALUE with OPTION one of {', '.join(sorted(fields))}")
-        value = yaml.safe_load(raw)
-        current = getattr(options, key)
-        if isinstance(current, bool) and not isinstance(value, bool):
-            raise DataError(f"--set {item!r}: {key} takes true or false")
-        if isinstance(current, float) and isinstance(value, int):
-            value = float(value)
-        if isinstance(current, tuple) and isinstance(value, list):
-            value = tuple(value)
-        setattr(options, key, value)
+        if not sep or not key:
+            raise DataError(f"--set {item!r}: expected OPTION=VALUE, e.g. --set normal_weight=0.01")
+        try:
+            value = yaml.safe_load(raw)
+        except yaml.YAMLError:
+            value = raw
+        options.set(key.strip(), value, where=f"--set {item}")
     options.validate()
     return options
-
-
-def load_skin(args):
-    from ..config import default_skin_config
-    from ..errors import DataError
-    from ..legacy import skin_model_for
-    from ..skin import SkinModel
-
-    skin = SkinModel.from_yaml(args.skin or default_skin_config())
-    if args.taxels:
-        files = {}
-        for item in args.taxels:
-            part, sep, path = item.partition("=")
-            if not sep:
-                raise DataError(f"--taxels {item!r}: expected PART=FILE")
-            files[part] = path
-        override = skin_model_for(files, skin.robot)
-        skin.parts.update(override.parts)
-    return skin
 
 
 def run(args) -> int:
     from ..calibrate import calibrate
     from ..datasets import deduplicate
     from ..inputs import load_touches
+    from ..outdir import CALIBRATION, check_output_dir
     from ..report import write_outputs
     from ..skin import SkinCalibration
 
+    # before anything is read: a mistaken --out must cost nothing and destroy nothing
+    check_output_dir(args.out, CALIBRATION, force=args.force,
+                     inputs=[*args.inputs, args.skin, args.robot, args.prior, args.truth,
+                             *(item.partition("=")[2] for item in args.taxels)])
+    options = build_options(args)
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
-    skin = load_skin(args)
-    touches, load_report, truth = load_touches(args.inputs, skin, log=log)
+    skin = skin_from_args(args)
+    touches, load_report, truth = load_touches(args.inputs, skin, log=log,
+                                               summary=lambda msg: print(msg, file=sys.stderr, flush=True))
     touches, n_dup = deduplicate(touches)
     log(f"{touches.n_touches} touches after removing {n_dup} exact duplicates")
     prior = SkinCalibration.load(args.prior, skin) if args.prior else None
     if args.truth:
         truth = SkinCalibration.load(args.truth, skin)
-    result = calibrate(touches, skin, build_options(args), prior=prior, truth=truth, progress=log)
+    result = calibrate(touches, skin, options, prior=prior, truth=truth, progress=log)
     result.report["input"] = {"files": [str(p) for p in args.inputs], "touches_read": load_report.n_read,
                               "touches_loaded": load_report.n_loaded, "skipped": dict(load_report.skipped),
                               "duplicates_removed": n_dup}
@@ -116,11 +107,12 @@ def run(args) -> int:
     def train_test(key):
         return " / ".join(f"{final[split].get(key, float('nan')):.2f}" for split in ("train", "test"))
 
-    line = (f"calibrated {', '.join(result.report['plan'])} in {result.report['total_seconds']:.2f} s: "
+    line = (f"calibrated {', '.join(result.report['plan'])}: "
             f"closest COP {train_test('cop_mean_mm')} mm, closest taxel {train_test('taxel_mean_mm')} mm"
             f" (selected contacts' {train_test('contact_taxel_mean_mm')} mm) (train / test)")
     if "truth_taxel_error_mm" in final:
         t = final["truth_taxel_error_mm"]["all"]
         line += f"; true taxel error median {t['median']:.2f} mm, p95 {t['p95']:.2f} mm"
-    print(line + f" -> {Path(out)}", file=sys.stdout)
+    line += f" -> {Path(out)} (engine {result.report['total_seconds']:.2f} s, whole command {wall_seconds(args):.1f} s)"
+    print(line, file=sys.stdout)
     return 0

@@ -21,8 +21,11 @@ def bundled_recording() -> Path:
 
 def add_arguments(parser) -> None:
     parser.add_argument("--input", default=None, help="recording to calibrate (default: bags/sim_default)")
-    parser.add_argument("--out", default="out/demo", help="output directory (default: out/demo)")
-    parser.add_argument("--quiet", action="store_true")
+    parser.add_argument("--out", default="out/demo",
+                        help="output directory (default: out/demo); an earlier demo's output there is replaced")
+    parser.add_argument("--force", action="store_true",
+                        help="replace another nao-skin command's outputs in --out (never a file nao-skin did not write)")
+    parser.add_argument("--quiet", action="store_true", help="print only the summary lines")
 
 
 def run(args) -> int:
@@ -31,11 +34,15 @@ def run(args) -> int:
     from ..datasets import deduplicate
     from ..errors import DataError
     from ..inputs import load_touches
+    from ..outdir import CALIBRATION, check_output_dir, read_marker
     from ..report import write_outputs
     from ..urdf import expand_xacro
 
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     source = Path(args.input) if args.input else bundled_recording()
+    # the demo is meant to be run again and again: its own earlier output (marked) is replaced without --force
+    force = args.force or (read_marker(args.out) or {}).get("command") == f"nao-skin {NAME}"
+    check_output_dir(args.out, CALIBRATION, inputs=[source], force=force)
     if not source.exists():
         raise DataError(f"{source}: bundled recording not found (regenerate it: see bags/README.md)")
     skin = load_default_skin()
@@ -44,8 +51,8 @@ def run(args) -> int:
     touches, n_dup = deduplicate(touches)
     log(f"{touches.n_touches} touches after removing {n_dup} exact duplicates; calibrating (thesis plan + joint refinement)")
     result = calibrate(touches, skin, CalibrationOptions(), truth=truth, progress=log)
-    out = write_outputs(result, skin, args.out)
-    (out / "nao_skin.urdf").write_text(expand_xacro(out / "calibration.yaml"))
+    out = write_outputs(result, skin, args.out, command=NAME,
+                        extra=lambda d: (d / "nao_skin.urdf").write_text(expand_xacro(d / "calibration.yaml")))
     final, before = result.report["final"], result.report["before"]
     print(f"closest COP pair:   {before['test']['cop_mean_mm']:.1f} mm before -> {final['test']['cop_mean_mm']:.2f} mm after (test set mean)")
     print(f"closest taxel pair: {before['test']['taxel_mean_mm']:.1f} mm before -> {final['test']['taxel_mean_mm']:.2f} mm after (test set mean)")

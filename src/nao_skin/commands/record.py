@@ -1,15 +1,23 @@
 """``nao-skin record``: the record session of ``launch/record.launch.py`` without ``ros2 launch``.
 
 Starts the same nodes with the same parameter files and overrides
-(:func:`nao_skin.nodes.session.record_session`) as child processes, forwards
-SIGINT/SIGTERM to them (the recorder then writes and closes its bag), and
-stops when one of them fails or after ``--duration`` seconds. External
+(:func:`nao_skin.nodes.session.record_session`) as child processes, stops
+them on SIGINT/SIGTERM/SIGHUP (the recorder then writes and closes its bag),
+when one of them fails, or after ``--duration`` seconds. External
 executables (robot_state_publisher, rviz2) are started when installed and
 skipped with a note otherwise.
+
+The nodes never outlive this process: on Linux each gets SIGTERM from the
+kernel when it dies, however it dies (``kill -9`` included), and each of our
+nodes also watches its parent (:data:`~nao_skin.nodes.session.PARENT_ENV`).
+Overrides and the Python modules a node needs are checked before anything
+starts. Generated parameter files live in a temporary directory removed at
+the end unless ``--keep-temp``.
 """
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -19,6 +27,8 @@ from pathlib import Path
 
 NAME = "record"
 HELP = "record self-touch: start the bridges or the simulated robot, the recorder, heat-map and calibrate node"
+PR_SET_PDEATHSIG = 1           # linux/prctl.h
+STOP_SIGNALS = tuple(getattr(signal, s) for s in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, s))
 
 
 def add_arguments(parser) -> None:
@@ -31,14 +41,17 @@ def add_arguments(parser) -> None:
     parser.add_argument("--calibration", default="", help="calibration to start from (default: nominal)")
     parser.add_argument("--rviz", action="store_true", help="also start rviz2 with config/nao_skin.rviz")
     parser.add_argument("--param", action="append", default=[], metavar="NODE.NAME=VALUE",
-                        help="override a node parameter, e.g. sim_robot.touches_per_pair=5 (repeatable)")
+                        help="override a node parameter, e.g. sim_robot.touches_per_pair=5 (repeatable); checked"
+                             " against the parameters the node declares before anything starts")
     parser.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: until Ctrl-C)")
     parser.add_argument("--print", action="store_true", help="print the node command lines and exit")
+    parser.add_argument("--keep-temp", action="store_true",
+                        help="keep the temporary directory of generated parameter files (e.g. the URDF for"
+                             " robot_state_publisher) and print its path; by default it is removed when record ends")
 
 
 def parse_overrides(items) -> dict:
-    import yaml
-
+    """``NODE.NAME=VALUE`` items as ``{node: {name: value text}}``; the node's declared type parses the text."""
     from ..errors import ConfigError
 
     out: dict = {}
@@ -47,42 +60,78 @@ def parse_overrides(items) -> dict:
         node, dot, name = key.partition(".")
         if not sep or not dot or not name:
             raise ConfigError(f"--param {item!r}: expected NODE.NAME=VALUE")
-        out.setdefault(node, {})[name] = yaml.safe_load(value) if value else ""
+        out.setdefault(node, {})[name] = value
     return out
 
 
+def check_needs(specs) -> None:
+    """Every Python module a node needs imports here (same interpreter): else one line saying what to install."""
+    import importlib
+
+    from ..errors import ConfigError
+
+    for spec in specs:
+        for module, hint in spec.needs.items():
+            try:
+                importlib.import_module(module)
+            except ImportError as exc:
+                raise ConfigError(f"{hint} (import {module}: {' '.join(str(exc).split())})") from None
+
+
 def run(args) -> int:
-    from ..nodes.session import command_line, record_session
+    from ..nodes.session import record_session
 
     specs = record_session(args.robot, nao_ip=args.nao_ip, naoqi=not args.no_naoqi, events_port=args.events_port,
                            bag_path=args.bag, calibration=args.calibration, rviz=args.rviz,
                            overrides=parse_overrides(args.param))
-    work = Path(tempfile.mkdtemp(prefix="nao_skin_record_"))
-    commands = []
-    for spec in specs:
-        argv = command_line(spec, work)
-        if argv is None:
-            print(f"record: {spec.executable} ({spec.package}) is not installed here; skipped", file=sys.stderr)
-            continue
-        commands.append((spec.name, argv))
-    if args.print:
-        for name, argv in commands:
-            print(f"{name}: {' '.join(argv)}")
-        return 0
-
+    if not args.print:
+        check_needs(specs)
     stop = {"signal": None}
 
     def on_signal(signum, frame):      # noqa: ARG001 - signal handler signature
         stop["signal"] = signum
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    # from here on a signal only sets the flag: the finally blocks below always run
+    old = {s: signal.signal(s, on_signal) for s in STOP_SIGNALS}
+    work = Path(tempfile.mkdtemp(prefix="nao_skin_record_"))
+    try:
+        return _session(specs, work, args, stop)
+    finally:
+        if args.keep_temp:
+            _say(f"record: kept the temporary files in {work}")
+        else:
+            shutil.rmtree(work, ignore_errors=True)
+        for s, handler in old.items():
+            signal.signal(s, handler)
+
+
+def _session(specs, work: Path, args, stop: dict) -> int:
+    from ..nodes.session import PARENT_ENV, command_line
+
+    commands = []
+    for spec in specs:
+        argv = command_line(spec, work)
+        if argv is None:
+            _say(f"record: {spec.executable} ({spec.package}) is not installed here; skipped")
+            continue
+        commands.append((spec.name, argv))
+    if args.print:
+        for name, argv in commands:
+            print(f"{name}: {' '.join(argv)}")
+        if not args.keep_temp and any(str(work) in a for _, argv in commands for a in argv):
+            _say(f"record: the parameter files under {work} are removed on exit; --keep-temp keeps them")
+        return 0
+
+    env = dict(os.environ, **{PARENT_ENV: str(os.getpid())})
+    preexec = _die_with_parent(os.getpid())
     procs = []
     try:
         for name, argv in commands:
+            if stop["signal"] is not None:
+                break
             # own process group: a Ctrl-C in the terminal reaches the children only through us, in order
-            procs.append((name, subprocess.Popen(argv, start_new_session=True)))
-        print(f"record: started {', '.join(n for n, _ in procs)} (pids {' '.join(str(p.pid) for _, p in procs)})",
-              file=sys.stderr, flush=True)
+            procs.append((name, subprocess.Popen(argv, start_new_session=True, env=env, preexec_fn=preexec)))
+        _say(f"record: started {', '.join(n for n, _ in procs)} (pids {' '.join(str(p.pid) for _, p in procs)})")
         deadline = time.monotonic() + args.duration if args.duration > 0 else None
         failed = None
         while stop["signal"] is None and failed is None:
@@ -93,33 +142,69 @@ def run(args) -> int:
                     failed = (name, p.returncode)
             time.sleep(0.1)
         if failed is not None:
-            print(f"record: {failed[0]} exited with code {failed[1]}; stopping the session", file=sys.stderr)
+            _say(f"record: {failed[0]} exited with code {failed[1]}; stopping the session")
     finally:
         codes = _stop_all(procs)
-        for s, handler in old.items():
-            signal.signal(s, handler)
     bad = {n: c for n, c in codes.items() if c not in (0, None)}
     if bad:
-        print(f"record: exit codes {bad}", file=sys.stderr)
+        _say(f"record: exit codes {bad}")
         return 1
     return 0
 
 
+def _die_with_parent(parent_pid: int):
+    """``preexec_fn`` for a child: the kernel sends it SIGTERM when this process ends (Linux), or None.
+
+    The parent-death signal fires when the thread that forked the child exits;
+    children are started from the main thread, which lives as long as record.
+    """
+    import ctypes
+
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None                    # not Linux: the nodes' own parent watch stops them
+    prctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong]
+    prctl.restype = ctypes.c_int
+
+    def preexec() -> None:
+        prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+        if os.getppid() != parent_pid:     # record died before the prctl: that signal will never come
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    return preexec
+
+
+def _say(line: str) -> None:
+    """One line on stderr; a closed terminal (SIGHUP) must not keep record from stopping its nodes."""
+    try:
+        print(line, file=sys.stderr, flush=True)
+    except OSError:
+        pass
+
+
 def _stop_all(procs, timeout: float = 20.0) -> dict:
-    """SIGINT every child (the recorder closes its bag), wait, then SIGKILL what is left."""
+    """SIGTERM every child (the recorder closes its bag), wait, then SIGKILL what is left.
+
+    A node stops on SIGTERM as on SIGINT once it runs; one still starting up
+    (importing, no handler yet) ends by SIGTERM's default action, quietly and
+    before it held any data: that counts as stopped (code 0), unlike a
+    KeyboardInterrupt traceback in the middle of an import.
+    """
     for _, p in procs:
         if p.poll() is None:
             try:
-                os.killpg(p.pid, signal.SIGINT)
+                os.killpg(p.pid, signal.SIGTERM)
             except ProcessLookupError:
                 pass
     deadline = time.monotonic() + timeout
     codes = {}
     for name, p in procs:
         try:
-            codes[name] = p.wait(timeout=max(0.1, deadline - time.monotonic()))
+            code = p.wait(timeout=max(0.1, deadline - time.monotonic()))
+            codes[name] = 0 if code == -signal.SIGTERM else code
         except subprocess.TimeoutExpired:
-            print(f"record: {name} did not stop after SIGINT; killed", file=sys.stderr)
+            _say(f"record: {name} did not stop after SIGTERM; killed")
             os.killpg(p.pid, signal.SIGKILL)
             codes[name] = p.wait()
     return codes

@@ -4,11 +4,13 @@ Writes ``DIR/touches.bag`` (rosbag2 touch bag), ``DIR/truth_calibration.yaml``,
 ``DIR/truth_taxels/<part>.txt`` and ``DIR/simulation.yaml``. The same seed and
 options give the same bytes, e.g. the bundled recording::
 
-    nao-skin simulate --preset default --seed 0 --touches-per-pair 1000 --out bags/sim_default
+    nao-skin simulate --preset default --seed 0 --touches-per-pair 1000 --out bags/sim_default --force
+
+DIR must be new, empty, or the output of an earlier simulate run (then with
+``--force``); see :mod:`nao_skin.outdir`.
 """
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 NAME = "simulate"
@@ -22,21 +24,25 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed (same seed, same bytes)")
     parser.add_argument("--touches-per-pair", type=int, default=None, metavar="N",
                         help="touches per hand/part pair (default: the preset's n_touches)")
-    parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    parser.add_argument("--out", required=True, metavar="DIR",
+                        help="output directory: new, empty, or an earlier simulate output (with --force)")
     parser.add_argument("--params", default=None, metavar="YAML",
                         help="simulation parameters file (default: config/simulation.yaml)")
     parser.add_argument("--skin", default=None, metavar="YAML", help="skin config (default: config/nao_skin.yaml)")
     parser.add_argument("--storage", default="sqlite3", choices=("sqlite3", "mcap"), help="rosbag2 storage")
-    parser.add_argument("--force", action="store_true", help="replace the outputs of an earlier run in DIR")
+    parser.add_argument("--force", action="store_true",
+                        help="replace the outputs of an earlier run in DIR (never a file nao-skin did not write)")
 
 
 def run(args) -> int:
     from ..config import default_skin_config
     from ..errors import ConfigError
+    from ..outdir import RECORDING, check_output_dir
     from ..sim_params import load_params
     from ..simulate import simulate, write_outputs
     from ..skin import SkinModel
 
+    check_output_dir(args.out, RECORDING, inputs=(args.params, args.skin), force=args.force)
     overrides = {}
     if args.touches_per_pair is not None:
         if args.touches_per_pair < 1:
@@ -44,14 +50,8 @@ def run(args) -> int:
         overrides["n_touches"] = args.touches_per_pair
     params = load_params(args.preset, overrides, args.params)
     skin = SkinModel.from_yaml(args.skin or default_skin_config())
-    out = Path(args.out)
-    bag = out / "touches.bag"
-    if bag.exists():
-        if not args.force:
-            raise ConfigError(f"{bag}: exists already (use --force to replace this simulation's outputs)")
-        shutil.rmtree(bag)
     result = simulate(skin, params, args.seed)
-    for path in write_outputs(result, skin, out, preset=args.preset, storage=args.storage):
+    for path in write_outputs(result, skin, Path(args.out), preset=args.preset, storage=args.storage):
         print(path)
     for pair, info in result.pairs.items():
         print(f"{pair}: {info['recorded']} touches recorded ({info['touches']} poses, {info['duplicates']} duplicates,"

@@ -2,12 +2,13 @@
 from __future__ import annotations
 
 import json
+import sys
 from itertools import combinations
 from pathlib import Path
 
 import numpy as np
 
-from .import_legacy import add_skin_arguments, skin_from_args
+from . import add_skin_arguments, skin_from_args
 
 NAME = "stats"
 HELP = ("print touches, exact duplicates, per-part-pair counts and closest COP / taxel distances"
@@ -15,36 +16,34 @@ HELP = ("print touches, exact duplicates, per-part-pair counts and closest COP /
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("input", help="touch or stream bag (directory), or a legacy dataset text file")
+    parser.add_argument("input", help="touch or stream bag, a simulator output directory, or a legacy dataset text file")
     parser.add_argument("--calibration", default=None, help="calibration YAML (default: nominal layout)")
     parser.add_argument("--parts", default=None, metavar="A,B", help="pair only these two parts, e.g. l_hand,torso")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     add_skin_arguments(parser)
 
 
-def load_touches(path, skin):
-    """A bag directory or a legacy text file: ``(TouchSet, LoadReport)``."""
-    from ..bagio import read_touches
-    from ..legacy import read_legacy
-
-    path = Path(path)
-    return read_touches(path, skin) if path.is_dir() else read_legacy(path, skin)
-
-
 def run(args) -> int:
     from ..datasets import deduplicate
+    from ..inputs import check_inputs, load_touches
     from ..pairing import metrics, pair_for_metrics
     from ..skin import SkinCalibration
 
+    check_inputs([args.input])
     skin = skin_from_args(args)
     calib = SkinCalibration.load(args.calibration, skin) if args.calibration else None
-    touches, report = load_touches(args.input, skin)
+    lines = []
+    touches, report, _ = load_touches([args.input], skin, log=lines.append)
     _, n_dup = deduplicate(touches)
     fires = touches.parts_of_touch()
     pair_counts = {f"{a}+{b}": int(np.sum(fires[:, i] & fires[:, j]))
                    for (i, a), (j, b) in combinations(enumerate(touches.part_names), 2)
                    if np.any(fires[:, i] & fires[:, j])}
     parts = tuple(args.parts.split(",")) if args.parts else None
+    if parts is not None and (len(parts) != 2 or any(p not in skin.parts for p in parts)):
+        from ..errors import ConfigError
+
+        raise ConfigError(f"--parts {args.parts!r}: expected two skin parts A,B of {', '.join(skin.parts)}")
     m = metrics(pair_for_metrics(touches, skin, calib, parts=parts))
     out = {"input": str(args.input), "touches": touches.n_touches, "exact_duplicates": n_dup,
            "skipped": dict(report.skipped), "pairs": pair_counts,
@@ -52,10 +51,12 @@ def run(args) -> int:
            "taxels_per_touch": round(len(touches.act_slot) / max(touches.n_touches, 1), 3),
            "calibration": args.calibration or "nominal", **{k: (round(v, 3) if isinstance(v, float) else v)
                                                               for k, v in m.items()}}
-    if args.json:
+    if args.json:           # what loading said goes beside the JSON, not into it
+        for line in lines:
+            print(line, file=sys.stderr)
         print(json.dumps(out))
         return 0
-    for line in report.lines():
+    for line in lines:
         print(line)
     for key, value in out.items():
         print(f"{key}: {value}")

@@ -31,6 +31,7 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
 from .. import se3
+from ..calibrate import OPTION_FIELDS, CalibrationOptions
 from ..config import default_skin_config
 from ..errors import NaoSkinError
 from ..skin import SkinCalibration, SkinModel
@@ -42,6 +43,10 @@ STATUS_TOPIC = "/nao_skin/calibration/status"
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
+# the calibration options a node parameter sets, by the option's own name
+NODE_OPTIONS = ("strategy", "reference", "pairs", "bounded", "loss", "jacobian", "initial_guess", "gate_mm",
+                "prior_scale", "estimate_fabric", "fabric_thickness", "test_fraction", "seed")
+
 PARAMS = {
     "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
     "calibration": ("", "calibration published at start and used as prior (empty: nominal skin)"),
@@ -50,18 +55,8 @@ PARAMS = {
     "calibrate_on_start": (False, "run on 'inputs' right after start (ros2 run ... calibrate)"),
     "out_dir": ("nao_skin_calibration", "output directory (replaced when a run succeeds)"),
     "plots": (False, "write the report's plots too (slower)"),
-    # options of the engine, as `nao-skin calibrate` (src/nao_skin/commands/calibrate.py)
-    "strategy": ("sequential", "sequential (mount, patches, triangles) or all-at-once"),
-    "reference": ("fixed", "fixed (one part is the reference) or simultaneous"),
-    "pairs": ("both", "paired points of patch and triangle stages: cop, taxel, both, taxel5"),
-    "bounded": (True, "bound patch and triangle corrections (thesis)"),
-    "loss": ("huber", "huber or linear"),
-    "jacobian": ("analytic", "analytic or 2-point"),
-    "first_guess": (True, "closed-form rigid fit of the mounts first (finds a 160 deg mount error)"),
-    "gate_mm": (15.0, "set aside touches farther than this after the mount fit (0: off)"),
-    "prior_scale": ("empirical", "patch/triangle prior width: empirical (widened by the touches) or fixed (bound/3)"),
-    "test_fraction": (0.3, "share of touches held out for the test metrics"),
-    "seed": (0, "seed of the train/test split"),
+    # engine options (their defaults and help come from CalibrationOptions' table, OPTION_FIELDS)
+    **{name: (OPTION_FIELDS[name].default, OPTION_FIELDS[name].metadata["help"]) for name in NODE_OPTIONS},
 }
 
 
@@ -80,6 +75,15 @@ def skin_frame_transforms(skin: SkinModel, calib: SkinCalibration) -> list:
     return out
 
 
+def options_from_params(params: dict) -> CalibrationOptions:
+    """The engine options of the node's parameters, each checked by its rule (ints for floats are fine)."""
+    options = CalibrationOptions()
+    for name in NODE_OPTIONS:
+        options.set(name, params[name], where=f"parameter {name}:={params[name]!r}")
+    options.validate()
+    return options
+
+
 def _plain(obj):
     return obj.tolist() if hasattr(obj, "tolist") else str(obj)
 
@@ -88,6 +92,7 @@ class CalibrateNode(Node):
     def __init__(self, **kwargs):
         super().__init__("calibrate", **kwargs)
         self.p = declare(self, PARAMS)
+        self.options = options_from_params(self.p)      # a wrong value stops the node at start, in one line
         self.skin = SkinModel.from_yaml(self.p["skin_config"] or default_skin_config())
         self.prior = (SkinCalibration.load(self.p["calibration"], self.skin) if self.p["calibration"]
                       else self.skin.zero_calibration())
@@ -96,6 +101,7 @@ class CalibrateNode(Node):
         self.generation = 0
         self._busy = threading.Lock()
         self._worker = None
+        self._running: dict = {}          # the latched status of the calibration under way
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
         inputs = [i for i in self.p["inputs"] if i]
@@ -124,31 +130,35 @@ class CalibrateNode(Node):
             self._status({"state": "failed", "error": "no input: set 'inputs' or 'recording', or name bags"})
             return
         if not self._busy.acquire(blocking=False):
-            self._status({"state": "busy", "error": "a calibration is already running; request ignored"})
+            # the latched state stays the running calibration's; the refusal is counted in it and logged
+            self._running["ignored_requests"] = self._running.get("ignored_requests", 0) + 1
+            self._status(self._running)
+            self.get_logger().warning(f"a calibration is already running; request for {' '.join(paths)} ignored")
             return
+        self._running = {"state": "running", "inputs": paths}
+        self._status(self._running)
         self._worker = threading.Thread(target=self._run, args=(paths,), daemon=True, name="calibrate")
         self._worker.start()
 
     def _run(self, paths: list) -> None:
-        from ..calibrate import CalibrationOptions, calibrate
+        from ..calibrate import calibrate
         from ..datasets import deduplicate
         from ..inputs import load_touches
+        from ..outdir import CALIBRATION, check_output_dir
         from ..report import write_outputs
 
         p = self.p
         log = self.get_logger()
         try:
-            self._status({"state": "running", "inputs": paths})
+            # checked per request, before loading: the node replaces its own out_dir on every success
+            # (force), but never one that holds an input or files nao-skin did not write
+            check_output_dir(p["out_dir"], CALIBRATION, inputs=[*paths, p["skin_config"], p["calibration"]],
+                             force=True, label="out_dir")
             touches, _, truth = load_touches(paths, self.skin, log=log.info)
             touches, _ = deduplicate(touches)
-            options = CalibrationOptions(strategy=p["strategy"], reference=p["reference"], pairs=p["pairs"],
-                                         bounded=bool(p["bounded"]), loss=p["loss"], jacobian=p["jacobian"],
-                                         initial_guess="rigid-fit" if p["first_guess"] else "none",
-                                         gate_mm=float(p["gate_mm"]), prior_scale=p["prior_scale"],
-                                         test_fraction=float(p["test_fraction"]),
-                                         seed=int(p["seed"]))
-            result = calibrate(touches, self.skin, options, prior=self.prior, truth=truth, progress=log.info)
-            out = write_outputs(result, self.skin, p["out_dir"], prior=self.prior, plots=bool(p["plots"]))
+            result = calibrate(touches, self.skin, self.options, prior=self.prior, truth=truth, progress=log.info)
+            out = write_outputs(result, self.skin, p["out_dir"], prior=self.prior, plots=bool(p["plots"]),
+                                command="calibrate (node)")
             self.prior = result.calibration
             self.publish_calibration(result.calibration, str(Path(out) / "calibration.yaml"))
             final = result.report.get("final", {})
@@ -159,7 +169,12 @@ class CalibrateNode(Node):
         except NaoSkinError as exc:
             log.error(str(exc))
             self._status({"state": "failed", "error": str(exc)})
+        except Exception as exc:  # noqa: BLE001 - whatever breaks, the latched status must not stay "running"
+            line = " ".join(f"{type(exc).__name__}: {exc}".split())
+            log.error(f"calibration failed: {line}")
+            self._status({"state": "failed", "error": f"internal error: {line}"})
         finally:
+            self._running = {}
             self._busy.release()
 
     def close(self) -> None:

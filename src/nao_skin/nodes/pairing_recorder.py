@@ -65,7 +65,7 @@ class PairingRecorder(Node):
         self.joint_names = list(self.skin.robot.joint_names)
         path = p["bag_path"] or f"nao_skin_touches_{datetime.now():%Y%m%d_%H%M%S}"
         self.bag_path = Path(path).expanduser().resolve()
-        self.bag = BagWriter(self.bag_path, p["storage"], kind="touches")
+        self.bag = BagWriter(self.bag_path, p["storage"], kind="touches", live=True)
         self.bag.__enter__()
         self.get_logger().info(f"recording touches to {self.bag_path}")
         self.n_touches = 0

@@ -3,42 +3,130 @@
 Every node module has ``main(args=None)`` calling :func:`run_node`: it
 initialises rclpy (``--ros-args`` from the command line, so ``ros2 run``,
 ``ros2 launch`` and ``nao-skin record`` pass parameters the same way), spins
-until SIGINT/SIGTERM, then calls the node's ``close()`` so that buffered data
-is written before the process ends.
+until SIGINT, SIGTERM or SIGHUP (terminal closed), then calls the node's
+``close()`` so that buffered data is written before the process ends. A node
+started by ``nao-skin record`` (:data:`~nao_skin.nodes.session.PARENT_ENV`
+set) stops the same way when record is gone, however record ended.
 """
 from __future__ import annotations
 
+import array
+import os
 import signal
 import sys
 import threading
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.parameter import Parameter
 
-from ..errors import NaoSkinError
+from ..errors import ConfigError, NaoSkinError
+from .session import PARENT_ENV
+
+STOP_SIGNALS = tuple(getattr(signal, s) for s in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, s))
 
 
 def declare(node, params: dict) -> dict:
-    """Declare ``{name: (default, description)}`` and return ``{name: value}``."""
-    out = {}
+    """Declare ``{name: (default, description)}`` and return ``{name: value}``.
+
+    A float parameter (or list of floats) also takes integers, as people
+    write them (``-p gate_mm:=20``, ``gate_mm: 20`` in a params file): it is
+    stored as a float, so it keeps its type for introspection and the node.
+    Any other type mismatch is a one-line ConfigError naming the parameter.
+    """
+    out, numeric = {}, {}
     for name, (default, text) in params.items():
-        node.declare_parameter(name, default, ParameterDescriptor(description=text))
-        value = node.get_parameter(name).value
-        out[name] = value
+        if _is_float(default):
+            # declared with dynamic typing only to let an integer in; set back to float right away
+            node.declare_parameter(name, default, ParameterDescriptor(description=text, dynamic_typing=True))
+            value = node.get_parameter(name).value
+            number = _as_float(value, default)
+            if number is None:
+                raise ConfigError(f"node '{node.get_name()}': parameter '{name}' must be"
+                                  f" {'a list of numbers' if isinstance(default, list) else 'a number'}"
+                                  f" like {default!r}, not {value!r}")
+            kind = Parameter.Type.from_parameter_value(default)
+            if node.get_parameter(name).type_ != kind:
+                result = node.set_parameters([Parameter(name, kind, number)])[0]
+                if not result.successful:
+                    raise ConfigError(f"node '{node.get_name()}': parameter '{name}': {result.reason}")
+            numeric[name] = default
+        else:
+            try:
+                node.declare_parameter(name, default, ParameterDescriptor(description=text))
+            except InvalidParameterTypeException as exc:
+                given = str(exc).rsplit(f": {name}", 1)[0]        # rclpy appends ": <name>"
+                raise ConfigError(f"node '{node.get_name()}': parameter '{name}' takes a value like {default!r}"
+                                  f" ({given})") from None
+        out[name] = node.get_parameter(name).value
+    if numeric:
+        node.add_on_set_parameters_callback(lambda changed: _numbers_only(changed, numeric))
     return out
 
 
+def _is_float(default) -> bool:
+    return isinstance(default, float) or (isinstance(default, (list, tuple)) and len(default) > 0
+                                          and all(isinstance(v, float) for v in default))
+
+
+def _as_float(value, default):
+    """``value`` as the float (or list of floats) ``default`` is; None when it is not numbers."""
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    if isinstance(default, float):
+        return float(value) if number(value) else None
+    if isinstance(value, (list, tuple, array.array)) and all(number(v) for v in value):
+        return [float(v) for v in value]
+    return None
+
+
+def _numbers_only(changed, numeric: dict) -> SetParametersResult:
+    """Later changes (``ros2 param set``) of a float parameter: numbers only, as at declaration."""
+    for p in changed:
+        if p.name in numeric and _as_float(p.value, numeric[p.name]) is None:
+            return SetParametersResult(successful=False, reason=f"'{p.name}' takes a number like {numeric[p.name]!r}")
+    return SetParametersResult(successful=True)
+
+
+def _parent_gone():
+    """A check "has ``nao-skin record`` gone?" for a node it started, else None.
+
+    Reparenting (our parent died) or the named pid vanishing both mean gone:
+    the fallback where the kernel's parent-death signal is not available.
+    """
+    text = os.environ.get(PARENT_ENV, "")
+    if not text.isdigit():
+        return None
+    parent, ppid = int(text), os.getppid()
+
+    def gone() -> bool:
+        if os.getppid() != ppid:
+            return True
+        try:
+            os.kill(parent, 0)
+        except ProcessLookupError:
+            return True
+        except PermissionError:
+            pass
+        return False
+
+    return gone
+
+
 def run_node(factory, args=None) -> int:
-    """Create the node with ``factory()``, spin it, shut it down cleanly on SIGINT/SIGTERM."""
+    """Create the node with ``factory()``, spin it, shut it down cleanly on a stop signal or when record is gone."""
     rclpy.init(args=sys.argv if args is None else args, signal_handler_options=rclpy.SignalHandlerOptions.NO)
     stop = threading.Event()
 
     def on_signal(signum, frame):      # noqa: ARG001 - signal handler signature
         stop.set()
 
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    for s in STOP_SIGNALS:
+        signal.signal(s, on_signal)
+    parent_gone = _parent_gone()
     node = None
     code = 0
     try:
@@ -54,6 +142,9 @@ def run_node(factory, args=None) -> int:
         try:
             while not stop.is_set() and rclpy.ok():
                 executor.spin_once(timeout_sec=0.1)
+                if parent_gone is not None and parent_gone():
+                    node.get_logger().warning(f"nao-skin record (pid {os.environ[PARENT_ENV]}) is gone; stopping")
+                    break
         except ExternalShutdownException:
             pass
         finally:

@@ -1,0 +1,240 @@
+"""Mistakes get one line and exit 2, checked before any data is read; every command sees the same skin.
+
+Through the real command line (``nao_skin.cli.main`` in-process, or ``python -m
+nao_skin.cli`` where the whole process matters), on real files: the shared real
+recording and its layouts, and simulated touches written in the thesis' format.
+"""
+import argparse
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from nao_skin.calibrate import OPTION_FIELDS, CalibrationOptions
+from nao_skin.cli import build_parser
+from nao_skin.cli import main as cli_main
+from nao_skin.config import load_default_skin
+from nao_skin.errors import ConfigError, DataError
+from nao_skin.legacy import read_legacy, skin_model_for
+from nao_skin.sim_params import load_params
+from nao_skin.simulate import simulate
+from nao_skin.skin import SkinCalibration, load_skin
+
+from real_data import REAL_DIR as REAL  # noqa: E402
+from thesis_format import write_thesis_file  # noqa: E402
+
+RECORDING = REAL / "l_hand_torso.legacy.txt"
+REAL_TAXELS = ["--taxels", f"l_hand={REAL / 'l_hand.taxels.txt'}", "--taxels", f"torso={REAL / 'torso.taxels.txt'}"]
+
+
+def one_line(capsys) -> str:
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1, err
+    return err[0]
+
+
+@pytest.fixture(scope="module")
+def skin():
+    return load_default_skin()
+
+
+@pytest.fixture(scope="module")
+def thesis_touches(skin):
+    """Twelve simulated left hand-torso touches (the simulator stands in for the robot)."""
+    params = load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 12})
+    return simulate(skin, params, seed=2).touches
+
+
+# ------------------------------------------------------------------------------ options
+@pytest.mark.parametrize("args, says", [
+    (["--test-fraction", "2"], "--test-fraction 2.0: expected a number in [0, 1)"),
+    (["--test-fraction", "1"], "leaves no touch to train on"),
+    (["--set", "test_fraction=abc"], "--set test_fraction=abc: expected a number"),
+    (["--seed", "-1"], "--seed -1: expected a whole number >= 0"),
+    (["--gate-mm", "nan"], "--gate-mm nan: expected a number >= 0"),
+    (["--set", "patch_bounds=[0.003]"], "--set patch_bounds=[0.003]: expected 2 numbers > 0"),
+    (["--set", "bounded=1"], "--set bounded=1: expected true or false"),
+    (["--set", "joint_levels=[mount, wrist]"], "expected a list of mount, patch, triangle"),
+    (["--set", "lateral_weight=0.3"], "unknown calibration option 'lateral_weight'"),
+    (["--set", "fabric_bounds=[0.003, 0.001]"], "lower bound is above the upper one"),
+    (["--test-fraction", "x"], "argument --test-fraction: invalid float value: 'x'"),
+])
+def test_a_wrong_option_is_one_line_before_any_data_is_read(tmp_path, capsys, args, says):
+    # the input is broken: had it been read first, the line would be about the input
+    broken = tmp_path / "broken.txt"
+    broken.write_text("{'0': [{0: {'cop': [0, 0,")
+    assert cli_main(["calibrate", str(broken), "--out", str(tmp_path / "out"), *args]) == 2
+    line = one_line(capsys)
+    assert says in line and "broken.txt" not in line, line
+    assert not (tmp_path / "out").exists()
+
+
+def test_every_option_has_a_rule_and_help_and_takes_an_integer_for_a_float():
+    options = CalibrationOptions()
+    options.validate()
+    for name, spec in OPTION_FIELDS.items():
+        assert spec.metadata["help"].strip(), name
+        if isinstance(spec.default, float):
+            whole = next(v for v in (int(spec.default), int(spec.default) + 1, 0)
+                         if not _refused(spec.metadata["rule"], float(v)))
+            options.set(name, whole)
+            assert isinstance(getattr(options, name), float) and getattr(options, name) == whole, name
+
+
+def _refused(rule, value) -> bool:
+    try:
+        rule.check("x", value)
+    except DataError:
+        return True
+    return False
+
+
+def test_the_command_offers_every_value_the_engine_takes():
+    args = build_parser().parse_args(["calibrate", "x.txt", "--out", "o", "--pairs", "cop+taxel5"])
+    from nao_skin.commands.calibrate import build_options
+
+    assert build_options(args).pairs == "cop+taxel5"
+
+
+def test_every_option_of_every_command_has_a_help_text():
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    missing = [f"{name} {a.option_strings or a.dest}" for name, p in sub.choices.items() for a in p._actions
+               if not isinstance(a, argparse._HelpAction) and not (a.help or "").strip()]
+    assert not missing
+
+
+# ------------------------------------------------------------------------------ angles
+def test_a_nan_joint_angle_is_named_as_a_non_finite_angle(tmp_path, skin, thesis_touches):
+    touches = thesis_touches.subset(np.arange(thesis_touches.n_touches))
+    touches.joints[3, touches.joint_names.index("LElbowRoll")] = np.nan     # a driver's NaN, printed as `nan`
+    path = tmp_path / "with_nan.txt"
+    write_thesis_file(path, touches, skin)
+    assert "nan" in path.read_text()
+    loaded, report = read_legacy(path, skin)
+    assert loaded.n_touches == touches.n_touches - 1
+    assert dict(report.skipped) == {"bad joint angle": 1}
+    assert "joint 'LElbowRoll' is not a finite angle" in report.messages[0], report.messages
+
+
+def test_angles_outside_the_joint_limits_are_kept_counted_and_named(tmp_path, capsys, skin, thesis_touches):
+    touches = thesis_touches.subset(np.arange(thesis_touches.n_touches))
+    j = touches.joint_names.index("LElbowRoll")
+    low, high = skin.robot.limits[skin.robot.joint_index["LElbowRoll"]]
+    touches.joints[[1, 4], j] = high + 0.05
+    path = tmp_path / "past_limits.txt"
+    write_thesis_file(path, touches, skin)
+    assert cli_main(["stats", str(path), "--json"]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out.splitlines()[-1])["touches"] == touches.n_touches        # kept
+    note = [line for line in out.err.splitlines() if "outside the robot config's limits" in line]
+    assert len(note) == 1 and "2 of 12 touches" in note[0] and "LElbowRoll" in note[0] and "kept" in note[0]
+
+
+# ------------------------------------------------------------------------------ one skin model
+@pytest.fixture(scope="module")
+def real_calibration(tmp_path_factory):
+    """The real recording calibrated with its own layouts, through the command."""
+    out = tmp_path_factory.mktemp("real") / "cal"
+    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "calibrate", str(RECORDING), *REAL_TAXELS,
+                          "--out", str(out), "--quiet", "--no-plots"], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    return out, run
+
+
+def test_stats_evaluates_a_calibration_with_the_layouts_it_was_made_with(capsys, real_calibration):
+    out, _ = real_calibration
+    report = json.loads((out / "report.json").read_text())
+    assert cli_main(["stats", str(RECORDING), *REAL_TAXELS, "--calibration", str(out / "calibration.yaml"),
+                     "--json"]) == 0
+    stats = json.loads(capsys.readouterr().out.splitlines()[-1])
+    n_train, n_test = report["final"]["train"]["n_touches"], report["final"]["test"]["n_touches"]
+    cop = (report["final"]["train"]["cop_mean_mm"] * n_train + report["final"]["test"]["cop_mean_mm"] * n_test) \
+        / (n_train + n_test)
+    # stats pairs every touch (duplicates too): the same skin gives the split's figures within a few %
+    assert stats["cop_mean_mm"] == pytest.approx(cop, rel=0.05)
+
+
+def test_another_layout_refuses_the_calibration_in_one_line(capsys, real_calibration):
+    out, _ = real_calibration
+    assert cli_main(["stats", str(RECORDING), "--calibration", str(out / "calibration.yaml")]) == 2
+    line = one_line(capsys)
+    assert "calibrated on the layout l_hand.taxels.txt" in line and "--taxels l_hand=" in line, line
+    doc = (out / "calibration.yaml").read_text()
+    assert "file: l_hand.taxels.txt" in doc and "sha256:" in doc
+
+
+def test_calibrate_prints_the_engine_time_and_the_whole_command_time(real_calibration):
+    _, run = real_calibration
+    line = run.stdout.strip().splitlines()[-1]
+    engine = float(line.split("(engine ")[1].split(" s")[0])
+    whole = float(line.split("whole command ")[1].split(" s")[0])
+    assert 0 < engine <= whole + 0.05
+
+
+def test_a_layout_is_the_same_whatever_file_holds_it(tmp_path):
+    skin = load_skin()
+    part = skin.parts["torso"]
+    part.write_taxel_file(tmp_path / "torso_copy.txt")        # the same taxels, another file and format
+    again = load_skin(taxel_files={"torso": tmp_path / "torso_copy.txt"})
+    assert again.parts["torso"].layout_sha256 == part.layout_sha256
+    calib = skin.zero_calibration()
+    calib.save(tmp_path / "c.yaml", skin)
+    SkinCalibration.load(tmp_path / "c.yaml", again)            # same layout: accepted
+    real = load_skin(taxel_files={"torso": REAL / "torso.taxels.txt"})
+    with pytest.raises(ConfigError, match="part 'torso' was calibrated on the layout torso.txt"):
+        SkinCalibration.load(tmp_path / "c.yaml", real)
+
+
+def test_an_unknown_part_in_taxels_is_one_line(capsys, tmp_path):
+    assert cli_main(["stats", str(RECORDING), "--taxels", f"l_arm={REAL / 'l_hand.taxels.txt'}"]) == 2
+    assert "unknown skin part 'l_arm'" in one_line(capsys)
+    assert cli_main(["stats", str(RECORDING), "--taxels", f"l_hand={tmp_path / 'none.txt'}"]) == 2
+    assert "none.txt: no such file" in one_line(capsys)
+
+
+def test_stats_reads_a_simulator_output_directory(tmp_path, capsys):
+    assert cli_main(["simulate", "--preset", "default", "--seed", "1", "--touches-per-pair", "2",
+                     "--out", str(tmp_path / "session")]) == 0
+    capsys.readouterr()
+    assert cli_main(["stats", str(tmp_path / "session"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["touches"] > 0
+
+
+@pytest.mark.parametrize("command", [["calibrate", "--out", "OUT"], ["stats"], ["import", "-o", "OUT"]])
+def test_missing_and_empty_inputs_get_the_same_line_in_every_command(tmp_path, capsys, command):
+    (tmp_path / "empty").mkdir()
+    for given, says in ((tmp_path / "missing.txt", "no such file or directory"),
+                        (tmp_path / "empty", "empty directory")):
+        argv = [command[0], str(given), *[str(tmp_path / "o") if a == "OUT" else a for a in command[1:]]]
+        assert cli_main(argv) == 2
+        assert one_line(capsys) == f"nao-skin {command[0]}: error: {given}: {says}" + (
+            "; expected a rosbag2 recording, a simulator output directory or a legacy .txt data set"
+            if says == "empty directory" else "")
+
+
+def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):
+    """The real recording under the packaged layouts: most touches name slots those layouts lack."""
+    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "calibrate", str(RECORDING), "--quiet",
+                          "--no-plots", "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=300)
+    skipped = [line for line in run.stderr.splitlines() if "skipped: 634 bad taxel slot" in line]
+    assert len(skipped) == 1, run.stderr
+    assert any("--taxels l_hand=FILE" in line for line in run.stderr.splitlines()), run.stderr
+    assert any("--taxels torso=FILE" in line for line in run.stderr.splitlines()), run.stderr
+
+
+def test_unknown_parts_are_refused_by_stats_pairs(capsys):
+    assert cli_main(["stats", str(RECORDING), *REAL_TAXELS, "--parts", "l_hand,knee"]) == 2
+    assert "--parts 'l_hand,knee'" in one_line(capsys)
+
+
+def test_the_recording_model_of_the_tests_is_the_commands_model():
+    robot = load_default_skin().robot
+    alone = skin_model_for({"l_hand": REAL / "l_hand.taxels.txt"}, robot)
+    merged = load_skin(taxel_files={"l_hand": REAL / "l_hand.taxels.txt"})
+    assert alone.parts["l_hand"].layout_sha256 == merged.parts["l_hand"].layout_sha256
+    assert set(merged.parts) == {"r_hand", "l_hand", "torso", "head"}
+    with pytest.raises(DataError):
+        skin_model_for({"knee": REAL / "l_hand.taxels.txt"}, robot)

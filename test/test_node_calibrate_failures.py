@@ -1,0 +1,100 @@
+"""The calibrate node when things go wrong, over real DDS: one line, a `failed` status, never stuck.
+
+* a wrong option value stops the node at start with one line and exit 2;
+* whatever breaks in the worker (here: ``out_dir`` below a regular file, an
+  OSError, not a NaoSkinError) ends in a latched `failed` status naming it, and
+  the node still calibrates the next request;
+* a request while a calibration runs leaves the latched state `running`.
+"""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+pytest.importorskip("rclpy")
+from std_msgs.msg import String  # noqa: E402
+
+from nao_skin.bagio import write_touch_bag  # noqa: E402
+from nao_skin.config import load_default_skin  # noqa: E402
+from nao_skin.nodes.calibrate import LATCHED, REQUEST_TOPIC, STATUS_TOPIC  # noqa: E402
+from nao_skin.simulate import simulate  # noqa: E402
+from ros_harness import Listener, node_process, ros_env, unique_domain_id  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def small_bag(tmp_path_factory):
+    skin = load_default_skin()
+    bag = tmp_path_factory.mktemp("bag") / "touches"
+    write_touch_bag(bag, simulate(skin, {"n_touches": 32}, seed=5).touches, skin, storage="mcap")
+    return bag
+
+
+def test_a_wrong_option_value_stops_the_node_at_start_in_one_line(tmp_path):
+    node = node_process("calibrate", {"test_fraction": 2.0}, ros_env(unique_domain_id()), tmp_path)
+    code = node.popen.wait(timeout=60)
+    node.stop()
+    lines = [line for line in node.stderr().splitlines() if line.strip()]
+    assert code == 2
+    assert len(lines) == 1 and "parameter test_fraction:=2.0: expected a number in [0, 1)" in lines[0], lines
+
+
+def test_any_failure_of_a_calibration_ends_in_a_failed_status(tmp_path, small_bag):
+    blocker = tmp_path / "notes.txt"
+    blocker.write_text("a file where the output's parent should be\n")
+    domain = unique_domain_id()
+    listener = node = None
+    try:
+        listener = Listener(domain)
+        node = node_process("calibrate", {"inputs": [str(small_bag)], "out_dir": str(blocker / "calibration")},
+                            ros_env(domain), tmp_path)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        request = listener.node.create_publisher(String, REQUEST_TOPIC, 10)
+        assert listener.spin_until(lambda: request.get_subscription_count() >= 1 and status, procs=[node])
+        request.publish(String(data=""))
+        ended = lambda: [s for s in status if s["state"] in ("done", "failed")]  # noqa: E731
+        assert listener.spin_until(ended, timeout=120, procs=[node]), status[-1:]
+        failed = ended()[0]
+        assert failed["state"] == "failed" and "notes.txt" in failed["error"] and "\n" not in failed["error"]
+        assert blocker.read_text() == "a file where the output's parent should be\n"
+        # not stuck: with the obstacle gone, the next request calibrates
+        blocker.unlink()
+        n = len(status)
+        request.publish(String(data=""))
+        assert listener.spin_until(lambda: any(s["state"] == "done" for s in status[n:]), timeout=120,
+                                   procs=[node]), status[-1:]
+    finally:
+        if listener is not None:
+            listener.close()
+        code = node.stop() if node is not None else None
+    assert code == 0, node.stderr()[-3000:]
+
+
+def test_a_request_while_busy_leaves_the_running_state_latched(tmp_path, small_bag):
+    domain = unique_domain_id()
+    listener = node = None
+    try:
+        listener = Listener(domain)
+        node = node_process("calibrate", {"inputs": [str(small_bag)], "out_dir": str(tmp_path / "cal"),
+                                          "plots": True},             # plots: a run long enough to ask again
+                            ros_env(domain), tmp_path)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        request = listener.node.create_publisher(String, REQUEST_TOPIC, 10)
+        assert listener.spin_until(lambda: request.get_subscription_count() >= 1 and status, procs=[node])
+        request.publish(String(data=""))
+        assert listener.spin_until(lambda: any(s["state"] == "running" for s in status), procs=[node])
+        request.publish(String(data=""))
+        assert listener.spin_until(lambda: any(s.get("ignored_requests") == 1 or s["state"] in ("done", "failed")
+                                               for s in status), timeout=120, procs=[node]), status
+        during = [s for s in status if s.get("ignored_requests")]
+        assert during, "the first calibration ended before the second request (it takes seconds)"
+        assert during[0]["state"] == "running" and during[0]["inputs"] == [str(small_bag)]
+        assert listener.spin_until(lambda: status[-1]["state"] == "done", timeout=120, procs=[node]), status[-1]
+        late = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        assert listener.spin_until(lambda: late, procs=[node])
+        assert late[-1]["state"] == "done"
+    finally:
+        if listener is not None:
+            listener.close()
+        code = node.stop() if node is not None else None
+    assert code == 0, node.stderr()[-3000:]

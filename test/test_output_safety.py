@@ -1,0 +1,340 @@
+"""Output directories: a mistaken ``--out`` is one line and exit 2, and never costs a recording or a user's file.
+
+Real processes throughout: the ``nao-skin`` CLI runs as a subprocess in a
+scratch working directory, on a small recording the simulator writes once
+(copied into each test). "Intact" means every byte of every file under the
+working directory is what it was before the command.
+"""
+from __future__ import annotations
+
+import glob
+import hashlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from nao_skin.outdir import MARKER
+
+BENCH_CHEAP = ["bench", "--quick", "--only", "hard", "--seeds", "1", "--presets", "ideal"]   # ~1 s of work
+
+
+def nao_skin(*argv, cwd, env=None, timeout=600) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "nao_skin.cli", *map(str, argv)], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def refused(root: Path, argv: list, *words, cwd: Path | None = None) -> str:
+    """Run ``nao-skin ARGV`` in ``cwd`` (default ``root``): nothing under ``root`` may change (checked first:
+    a loss shows as such), and it must end with one error line (exit 2) holding every one of ``words``."""
+    before = tree(root)
+    run = nao_skin(*argv, cwd=cwd or root)
+    assert tree(root) == before, (run.returncode, run.stderr[-2000:])
+    command = argv[0]
+    assert run.returncode == 2, (run.returncode, run.stdout[-2000:], run.stderr[-2000:])
+    err = run.stderr.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert err.startswith(f"nao-skin {command}: error: "), err
+    for word in words:
+        assert word in err, (word, err)
+    return err
+
+
+def ok(run: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
+    assert run.returncode == 0, (run.stdout[-2000:], run.stderr[-3000:])
+    return run
+
+
+def tree(root: Path) -> dict:
+    """Every entry under ``root``: file -> sha256 of its bytes, directory -> 'dir', symlink -> its target."""
+    out = {}
+    for dirpath, dirnames, filenames in os.walk(root):
+        for name in dirnames + filenames:
+            path = Path(dirpath) / name
+            rel = str(path.relative_to(root))
+            if path.is_symlink():
+                out[rel] = "-> " + os.readlink(path)
+            elif path.is_dir():
+                out[rel] = "dir"
+            else:
+                out[rel] = hashlib.sha256(path.read_bytes()).hexdigest()
+    return out
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    """A small simulated recording (touches.bag + truth, 25 touches a pair: calibrates in ~1 s)."""
+    base = tmp_path_factory.mktemp("recording")
+    ok(nao_skin("simulate", "--seed", "0", "--touches-per-pair", "25", "--out", "session", cwd=base))
+    return base / "session"
+
+
+@pytest.fixture
+def work(tmp_path, recording) -> Path:
+    """A working directory holding a recording (``session/``) and a user's notes file."""
+    shutil.copytree(recording, tmp_path / "session", symlinks=True)
+    (tmp_path / "notes.txt").write_text("what I did on the robot today\n")
+    return tmp_path
+
+
+# ------------------------------------------------------------------------------ the working directory
+@pytest.mark.parametrize("argv", [
+    ["calibrate", "session", "--out", "."],
+    ["calibrate", "session", "--out", ".", "--force"],
+    ["simulate", "--touches-per-pair", "3", "--out", ".", "--force"],
+    [*BENCH_CHEAP, "--out", "."],
+    ["demo", "--input", "session", "--out", "."],
+], ids=["calibrate", "calibrate-force", "simulate", "bench", "demo"])
+def test_out_current_directory_is_refused_and_nothing_changes(work, argv):
+    refused(work, argv, "--out .", "current directory")
+
+
+def test_out_containing_the_current_directory_is_refused(work):
+    (work / "sub").mkdir()
+    refused(work, ["calibrate", "../session", "--out", ".."], "--out ..", "contains the current directory",
+            cwd=work / "sub")
+
+
+# ------------------------------------------------------------------------------ inputs
+@pytest.mark.parametrize("inp, out, words", [
+    ("session/touches.bag", "session/touches.bag", ["is the input session/touches.bag"]),
+    ("session/touches.bag", "session", ["contains the input session/touches.bag"]),
+    ("session", "session", ["is the input session"]),
+    ("session", "session/calibration", ["lies inside the input session"]),
+    ("link/touches.bag", "session", ["contains the input link/touches.bag"]),    # through a symlink
+], ids=["bag-is-out", "out-holds-bag", "dir-is-out", "out-inside-input", "symlinked-input"])
+def test_calibrate_never_writes_over_or_into_its_input(work, inp, out, words):
+    (work / "link").symlink_to("session")
+    for force in ([], ["--force"]):
+        refused(work, ["calibrate", inp, "--out", out, *force], f"--out {out}", *words)
+
+
+def test_other_inputs_are_protected_too(work):
+    shutil.copy(work / "session" / "truth_calibration.yaml", work / "prior.yaml")
+    (work / "cfg").mkdir()
+    shutil.copy(work / "session" / "truth_calibration.yaml", work / "cfg" / "truth.yaml")
+    refused(work, ["calibrate", "session", "--prior", "prior.yaml", "--out", "prior.yaml"], "--out prior.yaml")
+    for argv in (["calibrate", "session", "--truth", "cfg/truth.yaml"], ["simulate", "--params", "cfg/truth.yaml"],
+                 [*BENCH_CHEAP, "--readme", "cfg/truth.yaml"]):
+        refused(work, [*argv, "--out", "cfg"], "--out cfg", "contains the input cfg/truth.yaml")
+
+
+def test_out_is_checked_before_any_input_is_read(work):
+    (work / "junk.txt").write_bytes(os.urandom(1 << 20))     # would be a data error of its own
+    refused(work, ["calibrate", "junk.txt", "missing.bag", "--out", "notes.txt"], "--out notes.txt", "existing file")
+    refused(work, ["simulate", "--params", "junk.txt", "--out", "."], "--out .")
+    refused(work, ["bench", "--only", "real", "--real", "junk.txt", "--out", "."], "--out .")
+    refused(work, ["demo", "--input", "junk.txt", "--out", "."], "--out .")
+
+
+# ------------------------------------------------------------------------------ directories we did not write
+def test_existing_file_as_out_is_refused(work):
+    for force in ([], ["--force"]):
+        refused(work, ["calibrate", "session", "--out", "notes.txt", *force], "--out notes.txt", "existing file")
+
+
+@pytest.mark.parametrize("argv", [
+    ["calibrate", "session", "--out", "results"],
+    ["calibrate", "session", "--out", "results", "--force"],
+    ["simulate", "--touches-per-pair", "3", "--out", "results", "--force"],
+    [*BENCH_CHEAP, "--out", "results"],
+    ["demo", "--input", "session", "--out", "results"],
+], ids=["calibrate", "calibrate-force", "simulate", "bench", "demo"])
+def test_non_empty_directory_nao_skin_did_not_write_is_refused(work, argv):
+    (work / "results").mkdir()
+    (work / "results" / "thesis_figures.txt").write_text("mine\n")
+    (work / "results" / "old").mkdir()
+    refused(work, argv, "--out results", "did not write", "thesis_figures.txt")
+
+
+def test_a_missing_or_empty_directory_is_fine(work):
+    (work / "empty").mkdir()
+    ok(nao_skin("calibrate", "session", "--out", "empty", "--no-plots", "--quiet", cwd=work))
+    ok(nao_skin("calibrate", "session", "--out", "new/deeper", "--no-plots", "--quiet", cwd=work))
+    for out in ("empty", "new/deeper"):
+        assert json.loads((work / out / MARKER).read_text())["command"] == "nao-skin calibrate"
+        assert (work / out / "calibration.yaml").is_file()
+
+
+# ------------------------------------------------------------------------------ our own outputs
+def test_own_output_is_replaced_only_with_force(work):
+    ok(nao_skin("calibrate", "session", "--out", "cal", "--no-plots", "--quiet", cwd=work))
+    first = tree(work)
+    refused(work, ["calibrate", "session", "--out", "cal", "--seed", "1", "--no-plots", "--quiet"],
+            "--out cal", "earlier nao-skin calibrate run", "--force")
+    marker = json.loads((work / "cal" / MARKER).read_text())
+    assert marker["command"] == "nao-skin calibrate" and marker["kind"] == "calibration" and marker["written"]
+    assert {"calibration.yaml", "report.json", "taxels"} <= set(marker["entries"])
+    ok(nao_skin("calibrate", "session", "--out", "cal", "--seed", "1", "--no-plots", "--quiet", "--force", cwd=work))
+    second = tree(work)
+    assert second["cal/report.json"] != first["cal/report.json"]      # seed 1: another split, another report
+    assert {k: v for k, v in second.items() if not k.startswith("cal/")} == \
+           {k: v for k, v in first.items() if not k.startswith("cal/")}
+    assert sorted(p.name for p in work.iterdir()) == ["cal", "notes.txt", "session"]   # no temporary left over
+
+
+@pytest.mark.parametrize("foreign", ["notes.md", "taxels/my_layout.txt", "drafts/a.txt"])
+def test_a_file_added_to_our_output_is_never_deleted(work, foreign):
+    ok(nao_skin("calibrate", "session", "--out", "cal", "--no-plots", "--quiet", cwd=work))
+    (work / "cal" / foreign).parent.mkdir(parents=True, exist_ok=True)
+    (work / "cal" / foreign).write_text("a user's file\n")
+    name = foreign.split("/")[0] if foreign.startswith("drafts") else foreign    # a foreign folder is named whole
+    for force in ([], ["--force"]):
+        refused(work, ["calibrate", "session", "--out", "cal", "--no-plots", "--quiet", *force],
+                f"cal/{name}", "not written by nao-skin calibrate", "even with --force")
+
+
+def test_a_recording_is_never_replaced_by_another_kind_of_output(work):
+    shutil.copytree(work / "session", work / "session2", symlinks=True)    # a recording, not an input here
+    ok(nao_skin("calibrate", "session", "--out", "cal", "--no-plots", "--quiet", cwd=work))
+    for argv in (["calibrate", "session", "--out", "session2"],
+                 ["calibrate", "session", "--out", "session2", "--force"],
+                 [*BENCH_CHEAP, "--out", "session2", "--force"],
+                 ["demo", "--input", "session", "--out", "session2", "--force"]):
+        refused(work, argv, "--out session2", "recording", "nao-skin simulate", "even with --force")
+    refused(work, ["simulate", "--touches-per-pair", "3", "--out", "cal", "--force"], "--out cal", "calibration")
+
+
+# ------------------------------------------------------------------------------ simulate
+def test_simulate_replaces_its_own_output_with_force_only(tmp_path):
+    args = ["simulate", "--touches-per-pair", "3", "--out", "sim"]
+    ok(nao_skin(*args, "--seed", "0", cwd=tmp_path))
+    first = tree(tmp_path)
+    refused(tmp_path, [*args, "--seed", "1"], "--out sim", "touches.bag", "--force")
+    assert json.loads((tmp_path / "sim" / MARKER).read_text())["kind"] == "recording"
+    ok(nao_skin(*args, "--seed", "1", "--force", cwd=tmp_path))
+    second = tree(tmp_path)
+    assert second["sim/truth_calibration.yaml"] != first["sim/truth_calibration.yaml"]
+    assert sorted(second) == sorted(first)                        # the same files, nothing left behind
+    (tmp_path / "sim" / "truth_taxels" / "measured.txt").write_text("my own measurement\n")
+    refused(tmp_path, [*args, "--seed", "2", "--force"], "sim/truth_taxels/measured.txt", "even with --force")
+
+
+def test_bundled_recording_can_be_regenerated_in_place():
+    # its committed marker lists exactly its files, so `simulate ... --out bags/sim_default --force` may replace it
+    from nao_skin.config import config_dir
+    from nao_skin.outdir import RECORDING, check_output_dir
+
+    bundle = config_dir().parent / "bags" / "sim_default"
+    assert json.loads((bundle / MARKER).read_text())["command"] == "nao-skin simulate"
+    check_output_dir(bundle, RECORDING, force=True)
+
+
+# ------------------------------------------------------------------------------ bench
+def test_bench_replaces_its_own_output_with_force_only(tmp_path):
+    ok(nao_skin(*BENCH_CHEAP, "--out", "b", cwd=tmp_path))
+    first = tree(tmp_path)
+    refused(tmp_path, [*BENCH_CHEAP, "--out", "b"], "--out b", "--force")
+    assert json.loads((tmp_path / "b" / MARKER).read_text())["kind"] == "benchmark"
+    command = [line for line in (tmp_path / "b" / "bench_results.md").read_text().splitlines()
+               if line.startswith("Command:")]
+    assert len(command) == 1 and "--force" in command[0]          # the quoted command runs again as it stands
+    ok(nao_skin(*BENCH_CHEAP, "--out", "b", "--force", cwd=tmp_path))
+    assert sorted(tree(tmp_path)) == sorted(first)
+    (tmp_path / "b" / "notes.md").write_text("comparison with last week\n")
+    refused(tmp_path, [*BENCH_CHEAP, "--out", "b", "--force"], "b/notes.md", "even with --force")
+
+
+# ------------------------------------------------------------------------------ demo
+def test_demo_twice_in_a_row_replaces_its_own_output(tmp_path):
+    """`make demo` twice: the defaults (bundled recording -> out/demo), the second run replaces the first."""
+    ok(nao_skin("demo", "--quiet", cwd=tmp_path))
+    first = os.stat(tmp_path / "out" / "demo").st_ino
+    ok(nao_skin("demo", "--quiet", cwd=tmp_path))
+    assert os.stat(tmp_path / "out" / "demo").st_ino != first      # a new directory moved in (both existed at once)
+    assert (tmp_path / "out" / "demo" / "nao_skin.urdf").is_file()
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["demo"]
+    (tmp_path / "out" / "demo" / "notes.txt").write_text("mine\n")
+    refused(tmp_path, ["demo", "--quiet"], "out/demo/notes.txt", "not written")
+    assert json.loads((tmp_path / "out" / "demo" / MARKER).read_text())["command"] == "nao-skin demo"
+
+
+def test_demo_replaces_another_command_output_only_with_force(work):
+    ok(nao_skin("calibrate", "session", "--out", "cal", "--no-plots", "--quiet", cwd=work))
+    refused(work, ["demo", "--input", "session", "--out", "cal", "--quiet"], "--out cal", "--force")
+    ok(nao_skin("demo", "--input", "session", "--out", "cal", "--quiet", "--force", cwd=work))
+    assert json.loads((work / "cal" / MARKER).read_text())["command"] == "nao-skin demo"
+
+
+# ------------------------------------------------------------------------------ bench-live's temporary directory
+def _bench_live_env(tmp: Path) -> dict:
+    pytest.importorskip("rclpy")
+    from ros_harness import ros_env, unique_domain_id
+
+    tmp.mkdir(exist_ok=True)
+    return ros_env(unique_domain_id(), TMPDIR=str(tmp))
+
+
+def _domain(env) -> list:
+    return ["--domain", env["ROS_DOMAIN_ID"]]
+
+
+def test_bench_live_removes_its_temporary_directory_unless_kept(tmp_path):
+    env = _bench_live_env(tmp_path / "tmp")
+    ok(nao_skin("bench-live", "--seconds", "0.5", *_domain(env), cwd=tmp_path, env=env, timeout=180))
+    assert list((tmp_path / "tmp").iterdir()) == []
+    run = ok(nao_skin("bench-live", "--seconds", "0.5", "--keep-temp", *_domain(env), cwd=tmp_path, env=env,
+                      timeout=180))
+    kept = list((tmp_path / "tmp").iterdir())
+    assert len(kept) == 1 and kept[0].name.startswith("nao_skin_bench_") and str(kept[0]) in run.stderr
+    assert (kept[0] / "pairing_recorder.err").is_file()
+
+
+def test_bench_live_removes_its_temporary_directory_on_ctrl_c(tmp_path):
+    env = _bench_live_env(tmp_path / "tmp")
+    # SIGINT as a terminal sends it (a shell's background job would start with it ignored)
+    proc = subprocess.Popen([sys.executable, "-m", "nao_skin.cli", "bench-live", "--seconds", "60", *_domain(env)],
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        deadline = time.monotonic() + 60
+        while not glob.glob(str(tmp_path / "tmp" / "nao_skin_bench_*" / "*.err")) and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.1)
+        assert glob.glob(str(tmp_path / "tmp" / "nao_skin_bench_*")), "bench-live made no temporary directory"
+        time.sleep(2.0)                                  # the nodes are up and writing into it
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 130 and err.strip() == "nao-skin bench-live: interrupted", (proc.returncode, err)
+    assert list((tmp_path / "tmp").iterdir()) == []
+
+
+# ------------------------------------------------------------------------------ the calibrate node
+def test_calibrate_node_refuses_an_out_dir_holding_its_input(work):
+    pytest.importorskip("rclpy")
+    from std_msgs.msg import String
+
+    from nao_skin.nodes.calibrate import LATCHED, STATUS_TOPIC
+    from ros_harness import Listener, node_process, ros_env, unique_domain_id
+
+    bag = work / "session" / "touches.bag"
+    (work / "logs").mkdir()
+    before = tree(work / "session")
+    domain = unique_domain_id()
+    listener = node = None
+    try:
+        listener = Listener(domain)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        node = node_process("calibrate", {"inputs": [str(bag)], "calibrate_on_start": True,
+                                          "out_dir": str(work / "session")}, ros_env(domain), work / "logs")
+        assert listener.spin_until(lambda: status and status[-1]["state"] in ("failed", "done"), timeout=120,
+                                   procs=[node]), status
+        error = status[-1].get("error", "")
+        assert status[-1]["state"] == "failed", status[-1]
+        assert f"out_dir {work / 'session'}" in error and "contains the input" in error and "\n" not in error
+    finally:
+        if listener is not None:
+            listener.close()
+        code = node.stop() if node is not None else None
+    assert code == 0, node.stderr()[-3000:]
+    assert tree(work / "session") == before

@@ -1,0 +1,178 @@
+"""Parameters and preconditions of a record session, checked before anything starts; its temporary files.
+
+1. A float parameter given as an integer (``gate_mm: 20`` in a params file
+   as ``ros2 launch`` passes it, ``-p progress_period:=1`` on a command line)
+   is taken by real nodes and stored as a float; a string for it ends the
+   node with one line and exit 2.
+2. ``nao-skin record --param``: an unknown parameter, an unknown node or a
+   value of the wrong type is refused with one line (the node's parameters,
+   the session's nodes) and exit 2, before any node starts.
+3. ``nao-skin record --robot nao`` on a machine without YARP's Python
+   bindings: one line saying what to install, exit 2, nothing started.
+4. The temporary directory of generated parameter files is removed when
+   record ends (printing only, stopped by a signal, a node failing), and
+   kept with ``--keep-temp``.
+"""
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import yaml
+
+from ros_harness import ROOT, Listener, Proc, node_process, ros_env, unique_domain_id
+from test_record_session import record_cmd
+
+pytest.importorskip("rclpy")
+from rcl_interfaces.msg import ParameterType  # noqa: E402
+from rcl_interfaces.srv import GetParameters  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
+
+from nao_skin.nodes import calibrate as calibrate_node  # noqa: E402
+from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC  # noqa: E402
+
+RECORD_YAML = ROOT / "config" / "record.yaml"
+
+
+def get_parameters(listener: Listener, node: str, names: list, procs) -> list:
+    """The node's parameter values through its real parameter service."""
+    client = listener.node.create_client(GetParameters, f"/{node}/get_parameters")
+    assert listener.spin_until(client.service_is_ready, timeout=60, procs=procs), f"{node}: no parameter service"
+    future = client.call_async(GetParameters.Request(names=names))
+    assert listener.spin_until(future.done, procs=procs), f"{node}: get_parameters unanswered"
+    return future.result().values
+
+
+def test_nodes_take_integers_for_float_parameters(tmp_path):
+    env = ros_env(unique_domain_id())
+    listener = calib = recorder = None
+    try:
+        listener = Listener(int(env["ROS_DOMAIN_ID"]))
+        progress = listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))
+        # as ros2 launch passes it: a params file saying `gate_mm: 20`
+        params = tmp_path / "calibrate.yaml"
+        params.write_text(yaml.safe_dump({"calibrate": {"ros__parameters": {"gate_mm": 20}}}))
+        assert "gate_mm: 20\n" in params.read_text()
+        calib = node_process("calibrate", {}, env, tmp_path, params_file=params)
+        # as typed on a command line: -p progress_period:=1
+        recorder = node_process("pairing_recorder", {"bag_path": str(tmp_path / "bag"), "flush_period": 1,
+                                                     "progress_period": 1}, env, tmp_path, params_file=RECORD_YAML)
+        assert "progress_period:=1" in recorder.popen.args
+        (gate,) = get_parameters(listener, "calibrate", ["gate_mm"], [calib])
+        assert (gate.type, gate.double_value) == (ParameterType.PARAMETER_DOUBLE, 20.0)
+        values = get_parameters(listener, "pairing_recorder", ["flush_period", "progress_period"], [recorder])
+        assert [(v.type, v.double_value) for v in values] == [(ParameterType.PARAMETER_DOUBLE, 1.0)] * 2
+        assert listener.spin_until(lambda: len(progress) >= 2, procs=[recorder])   # its progress timer runs
+    finally:
+        if listener is not None:
+            listener.close()
+        codes = [p.stop() for p in (calib, recorder) if p is not None]
+    assert codes == [0, 0], calib.stderr()[-2000:] + recorder.stderr()[-2000:]
+
+
+def test_node_refuses_a_string_for_a_float_parameter(tmp_path):
+    node = node_process("calibrate", {"gate_mm": "abc"}, ros_env(unique_domain_id()), tmp_path,
+                        params_file=RECORD_YAML)
+    try:
+        node.popen.wait(timeout=60)
+    finally:
+        code = node.stop()
+    assert code == 2
+    err = node.stderr()
+    assert "Traceback" not in err
+    assert "error: node 'calibrate': parameter 'gate_mm' must be a number like 15.0, not 'abc'" in err.splitlines()
+
+
+def nao_skin(args, env=None, timeout=120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "nao_skin.cli", *args], env=env or ros_env(unique_domain_id()),
+                          cwd=str(ROOT), capture_output=True, text=True, timeout=timeout)
+
+
+def one_error_line(run: subprocess.CompletedProcess) -> str:
+    assert run.returncode == 2, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("nao-skin record: error: "), run.stderr
+    return lines[0]
+
+
+def test_record_refuses_unknown_or_mistyped_parameters(tmp_path):
+    bag = tmp_path / "touches"
+    line = one_error_line(nao_skin(["record", "--print", "--bag", str(bag), "--param", "calibrate.gate_mmm=3"]))
+    assert "calibrate.gate_mmm" in line and "did you mean 'gate_mm'?" in line
+    assert line.split("its parameters: ")[1].split(", ") == list(calibrate_node.PARAMS)
+
+    line = one_error_line(nao_skin(["record", "--print", "--bag", str(bag), "--param", "calib.gate_mm=3"]))
+    assert "no node 'calib'" in line
+    assert "sim_robot, pairing_recorder, skin_heatmap, calibrate" in line
+
+    line = one_error_line(nao_skin(["record", "--print", "--bag", str(bag), "--param", "calibrate.gate_mm=abc"]))
+    assert "calibrate.gate_mm=abc" in line and "expected a number" in line
+
+    # without --print: refused before any node starts (no bag, no "started")
+    run = nao_skin(["record", "--bag", str(bag), "--param", "calibrate.gate_mmm=3"])
+    one_error_line(run)
+    assert not bag.exists()
+
+    # an integer for a float is what people type: accepted, passed on as a float
+    run = nao_skin(["record", "--print", "--bag", str(bag), "--param", "calibrate.gate_mm=20",
+                    "--param", "pairing_recorder.flush_period=2"])
+    assert run.returncode == 0, run.stderr
+    assert "-p gate_mm:=20.0" in run.stdout and "-p flush_period:=2.0" in run.stdout
+
+
+def test_record_for_the_nao_without_yarp_says_what_to_install(tmp_path):
+    # stands in for a machine without YARP's Python bindings: `import yarp` fails in the record process
+    shim = tmp_path / "no_yarp"
+    shim.mkdir()
+    (shim / "yarp.py").write_text('raise ImportError("no YARP Python bindings on this machine")\n')
+    env = ros_env(unique_domain_id())
+    env["PYTHONPATH"] = str(shim) + ":" + env["PYTHONPATH"]
+    bag = tmp_path / "touches"
+    run = nao_skin(["record", "--robot", "nao", "--nao-ip", "127.0.0.1", "--bag", str(bag)], env=env)
+    line = one_error_line(run)
+    assert "yarp_skin_bridge needs YARP's Python bindings" in line
+    assert "make setup-test" in line and "--with-yarp" in line and "yarp-middleware" in line
+    assert not bag.exists()
+
+
+def record_temp_dirs(tmp) -> list:
+    return sorted(tmp.glob("nao_skin_record_*"))
+
+
+def test_record_removes_its_temporary_directory(tmp_path):
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = ros_env(unique_domain_id(), TMPDIR=tmp)
+    bag = tmp_path / "touches"
+
+    run = nao_skin(["record", "--print", "--bag", str(bag)], env=env)
+    assert run.returncode == 0 and "pairing_recorder:" in run.stdout, run.stderr
+    assert record_temp_dirs(tmp) == []
+
+    run = nao_skin(["record", "--print", "--bag", str(bag), "--keep-temp"], env=env)
+    assert run.returncode == 0, run.stderr
+    (kept,) = record_temp_dirs(tmp)
+    assert f"record: kept the temporary files in {kept}" in run.stderr
+    kept.rmdir()
+
+    # a session stopped by SIGTERM: the directory exists while it runs, and is gone after
+    session = Proc(record_cmd(bag, 3, 1), env, tmp_path, "record")
+    try:
+        deadline = time.monotonic() + 60
+        while "record: started" not in session.stderr() and session.alive() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert "record: started" in session.stderr(), session.stderr()[-2000:]
+        assert len(record_temp_dirs(tmp)) == 1
+    finally:
+        code = session.stop(signal.SIGTERM, timeout=30)
+    assert code == 0, session.stderr()[-3000:]
+    assert record_temp_dirs(tmp) == []
+
+    # a node that fails at start ends the session: removed too
+    run = nao_skin(["record", "--bag", str(tmp_path / "b2"), "--param", "pairing_recorder.storage=bogus"], env=env)
+    assert run.returncode == 1 and "pairing_recorder exited with code 2" in run.stderr, run.stderr
+    assert record_temp_dirs(tmp) == []

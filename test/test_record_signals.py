@@ -1,0 +1,218 @@
+"""``nao-skin record`` ended by signals it cannot or may not ignore: its nodes never outlive it.
+
+1. record killed with SIGKILL mid-session: within 2 s no node of the session
+   runs any more, and the recorder closed its bag (metadata complete, no
+   lock) with at least every touch its progress topic had reported.
+2. record sent SIGHUP (the terminal or SSH session closed): it stops its
+   nodes in order and exits 0; the bag is closed, with every touch the
+   recorder wrote, equal to the simulator's first touches.
+3. The nodes' own fallback: a recorder started with ``NAO_SKIN_PARENT_PID``
+   by a plain parent (no parent-death signal) stops and closes its bag when
+   that parent is killed with SIGKILL.
+4. A recorder node sent SIGHUP itself closes its bag as on SIGINT, exit 0.
+
+Node processes are found by the pids record prints on stderr and checked
+by their command line in /proc, so no other test's process is matched.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from ros_harness import ROOT, Listener, Proc, node_process, ros_env, unique_domain_id
+from test_record_session import assert_same_touches, expected_touches, record_cmd
+
+from nao_skin.bagio import LOCK_FILE, read_touches
+from nao_skin.config import load_default_skin
+
+pytest.importorskip("rclpy")
+from std_msgs.msg import String  # noqa: E402
+
+from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC  # noqa: E402
+
+GONE_WITHIN_S = 2.0          # the issue's bound for the nodes to stop after record died
+STARTED = re.compile(r"record: started (.+) \(pids ([\d ]+)\)")
+
+
+def cmdline(pid: int) -> bytes | None:
+    """The process's command line while it runs (not a zombie), else None."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        return None if state in ("Z", "X") else Path(f"/proc/{pid}/cmdline").read_bytes()
+    except (OSError, IndexError):
+        return None
+
+
+def session_nodes(session: Proc) -> dict:
+    """``{pid: command line}`` of the nodes record says it started; each checked to be one of ours."""
+    m = STARTED.search(session.stderr())
+    assert m, session.stderr()[-2000:]
+    nodes = {int(p): cmdline(int(p)) for p in m.group(2).split()}
+    assert all(c is not None and b"nao_skin.nodes." in c for c in nodes.values()), nodes
+    return nodes
+
+
+def still_running(nodes: dict, within: float) -> list:
+    """The nodes still running after at most ``within`` s (polled)."""
+    deadline = time.monotonic() + within
+    while True:
+        alive = [pid for pid, c in nodes.items() if cmdline(pid) == c]
+        if not alive or time.monotonic() >= deadline:
+            return alive
+        time.sleep(0.05)
+
+
+def kill_left(nodes: dict) -> None:
+    for pid in still_running(nodes, 0.0):
+        os.kill(pid, signal.SIGKILL)
+
+
+def assert_closed(bag: Path) -> dict:
+    """The recorder closed the bag: final metadata (files and topics listed), no lock left."""
+    assert not (bag / LOCK_FILE).exists(), "the recorder did not close its bag"
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["files"] and info["topics_with_message_count"] and info["message_count"] > 0
+    return info
+
+
+def test_record_killed_with_sigkill_takes_its_nodes_along(tmp_path):
+    skin = load_default_skin()
+    seed, per_pair = 13, 3
+    want = expected_touches(skin, per_pair, seed)
+    domain = unique_domain_id()
+    bag = tmp_path / "touches"
+    listener = session = None
+    nodes: dict = {}
+    try:
+        listener = Listener(domain)
+        progress = listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))
+        session = Proc(record_cmd(bag, seed, per_pair), ros_env(domain), tmp_path, "record")
+        assert listener.spin_until(lambda: progress and progress[-1]["touches"] >= 3, timeout=60, procs=[session]), \
+            "recorder reported no touches"
+        reported = progress[-1]["touches"]
+        nodes = session_nodes(session)
+        assert len(nodes) >= 4
+        os.kill(session.popen.pid, signal.SIGKILL)
+        session.popen.wait(timeout=10)
+        left = still_running(nodes, GONE_WITHIN_S)
+        assert not left, f"nodes outlived record: {[nodes[p] for p in left]}"
+    finally:
+        if listener is not None:
+            listener.close()
+        if session is not None:
+            session.stop()
+        kill_left(nodes)
+    assert session.popen.returncode == -signal.SIGKILL
+    assert_closed(bag)
+    got, report = read_touches(bag, skin)
+    assert not report.skipped and not report.notes, report.lines()
+    assert got.n_touches >= reported
+    assert_same_touches(got, want.subset(np.arange(got.n_touches)))
+
+
+def test_record_hangup_closes_the_bag(tmp_path):
+    skin = load_default_skin()
+    seed, per_pair = 17, 3
+    want = expected_touches(skin, per_pair, seed)
+    domain = unique_domain_id()
+    bag = tmp_path / "touches"
+    listener = session = None
+    nodes: dict = {}
+    try:
+        listener = Listener(domain)
+        progress = listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))
+        session = Proc(record_cmd(bag, seed, per_pair), ros_env(domain), tmp_path, "record")
+        assert listener.spin_until(lambda: progress and progress[-1]["touches"] >= 3, timeout=60, procs=[session]), \
+            "recorder reported no touches"
+        reported = progress[-1]["touches"]
+        nodes = session_nodes(session)
+        session.popen.send_signal(signal.SIGHUP)     # record only, as a closing terminal does: nodes have own sessions
+        code = session.popen.wait(timeout=30)
+    finally:
+        if listener is not None:
+            listener.close()
+        if session is not None:
+            session.stop()
+        kill_left(nodes)
+    assert code == 0, session.stderr()[-3000:]
+    assert not still_running(nodes, 0.0)
+    info = assert_closed(bag)
+    wrote = re.search(r"wrote (\d+) touches", session.stderr())
+    assert wrote, session.stderr()[-3000:]
+    got, report = read_touches(bag, skin)
+    assert not report.skipped and not report.notes, report.lines()
+    assert got.n_touches == int(wrote.group(1)) >= reported
+    assert info["message_count"] == report.n_read
+    assert_same_touches(got, want.subset(np.arange(got.n_touches)))
+
+
+SPAWN = ("import os, subprocess, sys\n"
+         "env = dict(os.environ, NAO_SKIN_PARENT_PID=str(os.getpid()))\n"
+         "p = subprocess.Popen(sys.argv[1:], env=env)\n"
+         "print(p.pid, flush=True)\n"
+         "p.wait()\n")
+
+
+def test_node_stops_when_its_parent_is_killed_without_a_death_signal(tmp_path):
+    domain = unique_domain_id()
+    bag = tmp_path / "touches"
+    listener = parent = None
+    nodes: dict = {}
+    argv = [sys.executable, "-c", SPAWN, sys.executable, "-m", "nao_skin.nodes.pairing_recorder", "--ros-args",
+            "--params-file", str(ROOT / "config" / "record.yaml"), "-p", f"bag_path:={bag}"]
+    try:
+        listener = Listener(domain)
+        progress = listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))
+        parent = Proc(argv, ros_env(domain), tmp_path, "parent")
+        assert listener.spin_until(lambda: len(progress) >= 1, timeout=60, procs=[parent]), "recorder did not start"
+        pid = int(parent.stdout().split()[0])
+        nodes = {pid: cmdline(pid)}
+        assert b"nao_skin.nodes.pairing_recorder" in nodes[pid]
+        os.kill(parent.popen.pid, signal.SIGKILL)
+        parent.popen.wait(timeout=10)
+        left = still_running(nodes, GONE_WITHIN_S)
+        assert not left, "the recorder outlived the process that started it"
+    finally:
+        if listener is not None:
+            listener.close()
+        if parent is not None:
+            parent.stop()
+        kill_left(nodes)
+    assert f"nao-skin record (pid {parent.popen.pid}) is gone; stopping" in parent.stderr()
+    assert not (bag / LOCK_FILE).exists()
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["files"], "the recorder did not close its bag"
+
+
+def test_recorder_node_closes_its_bag_on_sighup(tmp_path):
+    domain = unique_domain_id()
+    bag = tmp_path / "touches"
+    listener = recorder = None
+    try:
+        listener = Listener(domain)
+        progress = listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))
+        recorder = node_process("pairing_recorder", {"bag_path": str(bag)}, ros_env(domain), tmp_path,
+                                params_file=ROOT / "config" / "record.yaml")
+        assert listener.spin_until(lambda: len(progress) >= 1, timeout=60, procs=[recorder]), "recorder did not start"
+        assert (bag / LOCK_FILE).exists()
+        recorder.popen.send_signal(signal.SIGHUP)
+        code = recorder.popen.wait(timeout=30)
+    finally:
+        if listener is not None:
+            listener.close()
+        if recorder is not None:
+            recorder.stop()
+    assert code == 0, recorder.stderr()[-2000:]
+    assert "wrote 0 touches" in recorder.stderr()
+    assert not (bag / LOCK_FILE).exists()
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["files"], "the recorder did not close its bag"
