@@ -6,14 +6,15 @@ publishing the calibrated skin frames on /tf_static. Do not run it next to a
 record session: that session's calibrate node already publishes the skin
 frames (calibrate there with ``ros2 topic pub --once /nao_skin/calibrate ...``).
 """
+from launch_ros.actions import Node
+
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
 
 
 def _node(context):
-    from nao_skin.config import config_dir
+    from nao_skin.paths import config_dir
 
     inputs = LaunchConfiguration("inputs").perform(context).split()
     overrides = {"inputs": inputs or [""], "calibrate_on_start": True,

@@ -1,6 +1,6 @@
 """Record self-touch: ``ros2 launch nao_skin record.launch.py [robot:=sim|nao] [nao_ip:=...] [rviz:=true]``.
 
-Starts (the same set as ``nao-skin record``, from nao_skin.nodes.session):
+Starts (the same set as ``nao-skin record``, from nao_skin.live.session):
 
 * robot:=sim (default): sim_robot, the simulated robot on the live topics;
   robot:=nao: naoqi_bridge (unless naoqi:=false, e.g. naoqi_driver2 already
@@ -18,11 +18,12 @@ calibrates on this session's bag). robot_state_publisher gets
 ``skin_frames:=false``, so the two never disagree about a frame.
 Parameters: config/record.yaml and config/bridges.yaml.
 """
+from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
+
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
-from launch_ros.parameter_descriptions import ParameterValue
 
 ARGUMENTS = {
     "robot": ("sim", "sim: simulated robot; nao: the real Nao through NAOqi and YARP"),
@@ -36,7 +37,7 @@ ARGUMENTS = {
 
 
 def _nodes(context):
-    from nao_skin.nodes.session import record_session, robot_description
+    from nao_skin.live.session import record_session, robot_description
 
     arg = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
     specs = record_session(arg["robot"], nao_ip=arg["nao_ip"], naoqi=arg["naoqi"].lower() == "true",

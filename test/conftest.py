@@ -1,11 +1,11 @@
 """Fixtures shared by the test files: the default skin and the shared real recording."""
 import pytest
-
-from nao_skin.config import default_skin_config
-from nao_skin.legacy import read_legacy, skin_model_for
-from nao_skin.robot import RobotModel
-from nao_skin.skin import SkinModel
 from real_data import REAL_DIR
+
+from nao_skin.formats.legacy import read_legacy, skin_model_for
+from nao_skin.model.robot import RobotModel
+from nao_skin.model.skin import SkinModel
+from nao_skin.paths import default_skin_config
 
 ROBOT_YAML = default_skin_config().parent / "nao_h25.yaml"
 

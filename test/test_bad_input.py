@@ -11,19 +11,17 @@ import sys
 
 import numpy as np
 import pytest
-
-from nao_skin.calibrate import OPTION_FIELDS, CalibrationOptions
-from nao_skin.cli import build_parser
-from nao_skin.cli import main as cli_main
-from nao_skin.config import load_default_skin
-from nao_skin.errors import ConfigError, DataError
-from nao_skin.legacy import read_legacy, skin_model_for
-from nao_skin.sim_params import load_params
-from nao_skin.simulate import simulate
-from nao_skin.skin import SkinCalibration, load_skin
-
 from real_data import REAL_DIR as REAL  # noqa: E402
 from thesis_format import write_thesis_file  # noqa: E402
+
+from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
+from nao_skin.cli import build_parser
+from nao_skin.cli import main as cli_main
+from nao_skin.errors import ConfigError, DataError
+from nao_skin.formats.legacy import read_legacy, skin_model_for
+from nao_skin.model.skin import SkinCalibration, load_skin
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate
 
 RECORDING = REAL / "l_hand_torso.legacy.txt"
 REAL_TAXELS = ["--taxels", f"l_hand={REAL / 'l_hand.taxels.txt'}", "--taxels", f"torso={REAL / 'torso.taxels.txt'}"]
@@ -37,7 +35,7 @@ def one_line(capsys) -> str:
 
 @pytest.fixture(scope="module")
 def skin():
-    return load_default_skin()
+    return load_skin()
 
 
 @pytest.fixture(scope="module")
@@ -231,7 +229,7 @@ def test_unknown_parts_are_refused_by_stats_pairs(capsys):
 
 
 def test_the_recording_model_of_the_tests_is_the_commands_model():
-    robot = load_default_skin().robot
+    robot = load_skin().robot
     alone = skin_model_for({"l_hand": REAL / "l_hand.taxels.txt"}, robot)
     merged = load_skin(taxel_files={"l_hand": REAL / "l_hand.taxels.txt"})
     assert alone.parts["l_hand"].layout_sha256 == merged.parts["l_hand"].layout_sha256

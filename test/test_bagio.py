@@ -8,12 +8,9 @@ import numpy as np
 import pytest
 import yaml
 
-from nao_skin.bagio import BagWriter, read_touches, write_touch_bag
+from nao_skin.calibration.pairing import metrics, pair_touches
 from nao_skin.errors import DataError
-from nao_skin.pairing import metrics, pair_touches
-
-
-
+from nao_skin.formats.bag import BagWriter, read_touches, write_touch_bag
 
 
 def canonical_pairs(touches, pairing):

@@ -12,25 +12,24 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from nao_skin.calibrate import CalibrationOptions, calibrate, plan_steps
-from nao_skin.config import load_default_skin
-from nao_skin.datasets import deduplicate
-from nao_skin.errors import DataError
-from nao_skin.report import write_outputs
-from nao_skin.sim_params import load_params
-from nao_skin.simulate import simulate
-from nao_skin.skin import SkinCalibration
-from nao_skin.taxel_file import read_taxel_file
-
 from real_data import REAL_DIR as REAL  # noqa: E402
 from thesis_format import write_thesis_file  # noqa: E402
+
+from nao_skin.calibration.engine import CalibrationOptions, calibrate, plan_steps
+from nao_skin.calibration.report import write_outputs
+from nao_skin.errors import DataError
+from nao_skin.model.skin import SkinCalibration, load_skin
+from nao_skin.model.taxel_file import read_taxel_file
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate
+from nao_skin.touch.datasets import deduplicate
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def skin():
-    return load_default_skin()
+    return load_skin()
 
 
 @pytest.fixture(scope="module")
@@ -119,7 +118,7 @@ def test_outputs_are_written_where_users_apply_them(tmp_path, skin, left_hand_re
     np.testing.assert_allclose(loaded.parts["l_hand"].mount, left_hand_result.calibration.parts["l_hand"].mount, atol=1e-9)
     report = json.loads((out / "report.json").read_text())
     assert report["final"]["truth_taxel_error_mm"]["l_hand"]["median"] > 0
-    from nao_skin.taxel_file import read_taxel_file
+    from nao_skin.model.taxel_file import read_taxel_file
     calibrated = read_taxel_file(out / "taxels" / "l_hand.txt")
     pos, _ = skin.parts["l_hand"].taxel_positions(left_hand_result.calibration.parts["l_hand"])
     present = skin.parts["l_hand"].present
@@ -174,8 +173,8 @@ def test_a_stage_is_judged_at_the_fabric_surfaces(skin):
     """At the simulated truth (1 mm of fabric on each skin, no noise) the paired points meet at the
     fabric surfaces: measured there the fit is tight, measured at the taxel centres it is not. The
     guard that undoes a diverging stage uses the former (a stage that finds the fabric is no divergence)."""
-    from nao_skin.calib_plan import Step
-    from nao_skin.evaluation import closest_cop_cost, fitted_pair_cost
+    from nao_skin.calibration.evaluation import closest_cop_cost, fitted_pair_cost
+    from nao_skin.calibration.plan import Step
 
     params = load_params("ideal", {"pairs": [["l_hand", "torso"]], "n_touches": 60})
     sim = simulate(skin, params, seed=4)
@@ -190,7 +189,7 @@ def test_a_stage_is_judged_at_the_fabric_surfaces(skin):
 def test_a_stage_that_drives_the_touches_apart_is_undone(skin, left_hand_sim, monkeypatch):
     """Never a silent divergence: a stage whose result leaves the paired touches much farther apart
     is reverted and says so; the calibration keeps what the stages before it found."""
-    import nao_skin.calibrate as engine
+    import nao_skin.calibration.engine as engine
 
     touches, truth = left_hand_sim
     real_stage = engine.run_stage

@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from nao_skin.config import default_skin_config
-from nao_skin.contacts import (DEFAULT_MAX_NEIGHBOR_DIST, activation_local, cluster_contacts, cluster_labels,
-                               contact_geometry, cop_weights)
-from nao_skin.skin import SkinModel
-from nao_skin.touches import TouchSet
+from nao_skin.model.skin import SkinModel
+from nao_skin.paths import default_skin_config
+from nao_skin.touch.contacts import (DEFAULT_MAX_NEIGHBOR_DIST, activation_local, cluster_contacts, cluster_labels,
+                                     contact_geometry, cop_weights)
+from nao_skin.touch.touches import TouchSet
 
 
 @pytest.fixture(scope="module")

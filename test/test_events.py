@@ -7,9 +7,9 @@ interpolated angles at a skin stamp are known exactly.
 import numpy as np
 import pytest
 
-from nao_skin.config import default_skin_config
-from nao_skin.events import EventConfig, EventDetector, touchset_from_records
-from nao_skin.skin import SkinModel
+from nao_skin.model.skin import SkinModel
+from nao_skin.paths import default_skin_config
+from nao_skin.touch.events import EventConfig, EventDetector, touchset_from_records
 
 
 @pytest.fixture(scope="module")

@@ -2,11 +2,11 @@
 import numpy as np
 
 from nao_skin import se3
-from nao_skin.config import load_default_skin
-from nao_skin.datasets import deduplicate, split
-from nao_skin.first_guess import rigid_mount_guess
-from nao_skin.sim_params import load_params
-from nao_skin.simulate import simulate
+from nao_skin.calibration.first_guess import rigid_mount_guess
+from nao_skin.model.skin import load_skin
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate
+from nao_skin.touch.datasets import deduplicate, split
 
 
 def _rotation_error_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -43,7 +43,7 @@ def test_rigid_fit_without_directions_is_unchanged_by_zero_weight():
 def test_first_guess_of_a_hand_on_a_band_of_contacts():
     """planar-poses, seed 4: every contact on one band; points alone put the left hand
     mount 53 degrees off, the contact normals bring it within a few degrees."""
-    skin = load_default_skin()
+    skin = load_skin()
     sim = simulate(skin, load_params("planar-poses", {"pairs": [["l_hand", "torso"]]}), 4)
     touches, _ = deduplicate(sim.touches)
     train, _ = split(touches, 0.3, 0)

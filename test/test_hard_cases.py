@@ -16,20 +16,20 @@ import math
 import numpy as np
 import pytest
 
-from nao_skin import bench
-from nao_skin.calibrate import CalibrationOptions
+from nao_skin.bench import runner as bench
+from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.cli import main as cli_main
-from nao_skin.config import load_default_skin
-from nao_skin.datasets import deduplicate
-from nao_skin.sim_params import load_params
-from nao_skin.simulate import simulate
+from nao_skin.model.skin import load_skin
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate
+from nao_skin.touch.datasets import deduplicate
 
 SMALL = bench.HardCaseSetup(pairs=None, n_touches=100)   # four pairs x 100 touches, seed 0
 
 
 @pytest.fixture(scope="module")
 def skin():
-    return load_default_skin()
+    return load_skin()
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +98,7 @@ def test_outlier_recall_counts_keys_of_the_training_split(skin):
     """The recall helper against a hand count on a real calibration result."""
     sim = simulate(skin, load_params("outliers-20", {"pairs": [["l_hand", "torso"]], "n_touches": 60}), 3)
     touches, _ = deduplicate(sim.touches)
-    from nao_skin.calibrate import calibrate
+    from nao_skin.calibration.engine import calibrate
 
     result = calibrate(touches, skin, CalibrationOptions(), truth=sim.truth)
     stats = bench._outlier_recall(result)

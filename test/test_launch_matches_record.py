@@ -13,10 +13,9 @@ import types
 
 import pytest
 import yaml
-
-from nao_skin.nodes.session import command_line, record_session, robot_description
-
 from ros_harness import ROOT  # noqa: E402
+
+from nao_skin.live.session import command_line, record_session, robot_description
 
 
 class _LaunchConfiguration:

@@ -6,13 +6,12 @@ bad-input cases are small files written to tmp_path.
 
 import numpy as np
 import pytest
-
-from nao_skin.datasets import deduplicate, duplicate_mask, split
-from nao_skin.errors import DataError
-from nao_skin.legacy import _ast_entries, _json_entries, read_legacy
-from nao_skin.taxel_file import read_taxel_file
-
 from real_data import REAL_DIR as REAL  # noqa: E402
+
+from nao_skin.errors import DataError
+from nao_skin.formats.legacy import _ast_entries, _json_entries, read_legacy
+from nao_skin.model.taxel_file import read_taxel_file
+from nao_skin.touch.datasets import deduplicate, duplicate_mask, split
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
 """The identity-keyed memo the pairing and solver share (memo.per_objects)."""
-from nao_skin import memo
+from nao_skin.touch import memo
 
 
 def test_keeps_what_is_asked_for_and_forgets_the_oldest(monkeypatch):

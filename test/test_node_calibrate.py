@@ -14,17 +14,17 @@ import numpy as np
 import pytest
 
 pytest.importorskip("rclpy")
+from ros_harness import Listener, node_process, ros_env, unique_domain_id  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
 
 from nao_skin import se3  # noqa: E402
-from nao_skin.bagio import write_touch_bag  # noqa: E402
-from nao_skin.config import load_default_skin  # noqa: E402
+from nao_skin.formats.bag import write_touch_bag  # noqa: E402
+from nao_skin.model.skin import SkinCalibration  # noqa: E402
+from nao_skin.model.skin import load_skin  # noqa: E402
 from nao_skin.nodes.calibrate import LATCHED, REQUEST_TOPIC, STATUS_TOPIC, skin_frame_transforms  # noqa: E402
 from nao_skin.nodes.static_tf import TF_STATIC_QOS, TF_STATIC_TOPIC  # noqa: E402
-from nao_skin.simulate import simulate  # noqa: E402
-from nao_skin.skin import SkinCalibration  # noqa: E402
-from ros_harness import Listener, node_process, ros_env, unique_domain_id  # noqa: E402
+from nao_skin.sim.simulate import simulate  # noqa: E402
 
 
 def as_table(msg: TFMessage) -> dict:
@@ -55,7 +55,7 @@ def late_joiner(listener: Listener) -> list:
 
 
 def test_late_joiners_get_exactly_the_latest_calibration(tmp_path):
-    skin = load_default_skin()
+    skin = load_skin()
     sim = simulate(skin, {"n_touches": 32}, seed=5)     # enough per pair for mounts and patches
     bag = tmp_path / "touches"
     write_touch_bag(bag, sim.touches, skin, storage="mcap")

@@ -13,18 +13,18 @@ import json
 import pytest
 
 pytest.importorskip("rclpy")
+from ros_harness import Listener, node_process, ros_env, unique_domain_id  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
-from nao_skin.bagio import write_touch_bag  # noqa: E402
-from nao_skin.config import load_default_skin  # noqa: E402
+from nao_skin.formats.bag import write_touch_bag  # noqa: E402
+from nao_skin.model.skin import load_skin  # noqa: E402
 from nao_skin.nodes.calibrate import LATCHED, REQUEST_TOPIC, STATUS_TOPIC  # noqa: E402
-from nao_skin.simulate import simulate  # noqa: E402
-from ros_harness import Listener, node_process, ros_env, unique_domain_id  # noqa: E402
+from nao_skin.sim.simulate import simulate  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def small_bag(tmp_path_factory):
-    skin = load_default_skin()
+    skin = load_skin()
     bag = tmp_path_factory.mktemp("bag") / "touches"
     write_touch_bag(bag, simulate(skin, {"n_touches": 32}, seed=5).touches, skin, storage="mcap")
     return bag

@@ -17,10 +17,10 @@ import threading
 import pytest
 
 qi = pytest.importorskip("qi")
+from ros_harness import Listener, node_process, ros_env, unique_domain_id  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
 from nao_skin.nodes.naoqi_bridge import DEFAULT_JOINTS  # noqa: E402
-from ros_harness import Listener, node_process, ros_env, unique_domain_id  # noqa: E402
 
 
 class FakeMotion:

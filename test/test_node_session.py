@@ -1,7 +1,7 @@
 """The record session's description: parameter files match the nodes, one publisher per frame.
 
 ``launch/record.launch.py`` and ``nao-skin record`` both start what
-:func:`nao_skin.nodes.session.record_session` lists; here its parameter files
+:func:`nao_skin.live.session.record_session` lists; here its parameter files
 are checked against the parameters each node declares (no typo goes
 unnoticed, every parameter is commented), and the URDF given to
 robot_state_publisher is checked to share no frame with the calibrate node
@@ -15,11 +15,10 @@ import xml.etree.ElementTree as ET
 
 import pytest
 import yaml
-
 from ros_harness import ROOT
 
-from nao_skin.config import load_default_skin
-from nao_skin.nodes.session import command_line, record_session, robot_description
+from nao_skin.live.session import command_line, record_session, robot_description
+from nao_skin.model.skin import load_skin
 
 pytest.importorskip("rclpy")
 from nao_skin.nodes.calibrate import skin_frame_transforms  # noqa: E402
@@ -48,7 +47,7 @@ def flatten(d: dict, prefix: str = "") -> set:
 
 @pytest.mark.parametrize("config", ["record.yaml", "bridges.yaml"])
 def test_params_files_match_the_nodes(config):
-    parts = list(load_default_skin().parts)
+    parts = list(load_skin().parts)
     path = ROOT / "config" / config
     doc = yaml.safe_load(path.read_text())
     for node, body in doc.items():
@@ -76,7 +75,7 @@ def test_session_nodes_and_shared_bag(tmp_path):
 
 
 def test_urdf_for_the_session_leaves_skin_frames_to_the_calibrate_node():
-    skin = load_default_skin()
+    skin = load_skin()
     links = {link.get("name") for link in ET.fromstring(robot_description()).iter("link")}
     tf = skin_frame_transforms(skin, skin.zero_calibration())
     children = [child for _, child, _ in tf]

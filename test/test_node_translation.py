@@ -4,11 +4,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nao_skin.config import load_default_skin
 from nao_skin.errors import DataError, NaoSkinError
-from nao_skin.heatmap import NEVER_INDEX, PRESSED_INDEX, SCALE_LEVELS, ActivationCounts, colour_index, palette, triangle_slots
-from nao_skin.reconnect import Backoff
-from nao_skin.skinmanager import activated_taxels, format_skin_events, parse_bottle_text, parse_skin_events
+from nao_skin.formats.skinmanager import activated_taxels, format_skin_events, parse_bottle_text, parse_skin_events
+from nao_skin.live.heatmap import (NEVER_INDEX, PRESSED_INDEX, SCALE_LEVELS, ActivationCounts, colour_index, palette,
+                                   triangle_slots)
+from nao_skin.live.reconnect import Backoff
+from nao_skin.model.skin import load_skin
 
 messages = pytest.importorskip("nao_skin.nodes.messages")
 
@@ -95,7 +96,7 @@ def test_activation_counts_count_presses_not_samples():
 
 
 def test_triangle_slots_cover_every_present_taxel_once():
-    skin = load_default_skin()
+    skin = load_skin()
     for part in skin.parts.values():
         groups = triangle_slots(part)
         allslots = np.concatenate([s for _, s in groups])

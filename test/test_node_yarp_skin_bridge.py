@@ -20,13 +20,13 @@ import numpy as np
 import pytest
 
 yarp = pytest.importorskip("yarp")
+from ros_harness import Listener, Proc, node_process, ros_env, unique_domain_id  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
-from nao_skin.config import load_default_skin  # noqa: E402
+from nao_skin.formats.skinmanager import SkinEvents, format_skin_events  # noqa: E402
+from nao_skin.model.skin import load_skin  # noqa: E402
 from nao_skin.nodes.messages import CONTACT_DTYPE, TAXEL_DTYPE, array_from_cloud, stamp_from_msg, xyz  # noqa: E402
-from nao_skin.skinmanager import SkinEvents, format_skin_events  # noqa: E402
-from ros_harness import Listener, Proc, node_process, ros_env, unique_domain_id  # noqa: E402
 
 EVENTS = "/fake/skinManager/skin_events:o"
 COMP = "/fake/skin/l_hand_comp:o"
@@ -85,7 +85,7 @@ def test_skin_bridge(tmp_path, monkeypatch):
     for k, v in yenv.items():
         monkeypatch.setenv(k, str(v))
     domain = unique_domain_id()
-    skin = load_default_skin()
+    skin = load_skin()
     server = bridge = listener = None
     writers = []
     try:

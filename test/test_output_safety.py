@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from nao_skin.outdir import MARKER
+from nao_skin.formats.outdir import MARKER
 
 BENCH_CHEAP = ["bench", "--quick", "--only", "hard", "--seeds", "1", "--presets", "ideal"]   # ~1 s of work
 
@@ -218,10 +218,10 @@ def test_simulate_replaces_its_own_output_with_force_only(tmp_path):
 
 def test_bundled_recording_can_be_regenerated_in_place():
     # its committed marker lists exactly its files, so `simulate ... --out bags/sim_default --force` may replace it
-    from nao_skin.config import config_dir
-    from nao_skin.outdir import RECORDING, check_output_dir
+    from nao_skin.formats.outdir import RECORDING, check_output_dir
+    from nao_skin.paths import package_dir
 
-    bundle = config_dir().parent / "bags" / "sim_default"
+    bundle = package_dir() / "bags" / "sim_default"
     assert json.loads((bundle / MARKER).read_text())["command"] == "nao-skin simulate"
     check_output_dir(bundle, RECORDING, force=True)
 
@@ -312,10 +312,10 @@ def test_bench_live_removes_its_temporary_directory_on_ctrl_c(tmp_path):
 # ------------------------------------------------------------------------------ the calibrate node
 def test_calibrate_node_refuses_an_out_dir_holding_its_input(work):
     pytest.importorskip("rclpy")
+    from ros_harness import Listener, node_process, ros_env, unique_domain_id
     from std_msgs.msg import String
 
     from nao_skin.nodes.calibrate import LATCHED, STATUS_TOPIC
-    from ros_harness import Listener, node_process, ros_env, unique_domain_id
 
     bag = work / "session" / "touches.bag"
     (work / "logs").mkdir()

@@ -8,14 +8,11 @@ recording, under the nominal layout and under a moved calibration.
 import numpy as np
 import pytest
 
-from nao_skin.pairing import (KIND_CONTACT_TAXEL, KIND_COP, KIND_TAXEL, KIND_TAXEL5, activation_positions, metrics,
-                              pair_for_metrics, pair_touches, residuals)
-from nao_skin.sim_params import load_params
-from nao_skin.simulate import simulate
-from nao_skin.touches import TouchSet
-
-
-
+from nao_skin.calibration.pairing import (KIND_CONTACT_TAXEL, KIND_COP, KIND_TAXEL, KIND_TAXEL5, activation_positions,
+                                          metrics, pair_for_metrics, pair_touches, residuals)
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate
+from nao_skin.touch.touches import TouchSet
 
 
 def moved_calibration(skin):
@@ -259,8 +256,8 @@ def test_single_part_touch_gives_no_row_and_metrics_of_nothing(skin):
 def test_normal_rows_ask_the_touching_normals_to_cancel(real_skin, real):
     """The solver's normal rows: one per closest-taxel row (COP rows when there are none),
     both sides' normals added with the weight, so facing surfaces give zero."""
-    from nao_skin.calib_pairs import select_rows, with_normal_rows
-    from nao_skin.pairing import KIND_COP, KIND_NORMAL, KIND_TAXEL
+    from nao_skin.calibration.pairing import KIND_COP, KIND_NORMAL, KIND_TAXEL
+    from nao_skin.calibration.rows import select_rows, with_normal_rows
 
     touches = real.subset(np.arange(40))
     full = pair_touches(touches, real_skin, None, kinds=("cop", "taxel"))
@@ -283,7 +280,7 @@ def test_normal_rows_ask_the_touching_normals_to_cancel(real_skin, real):
 def test_argmin_per_group_matches_its_definition_sorted_or_not():
     """The sort-free path (groups already contiguous) and the sorting path agree with a plain loop,
     ties going to the lowest index."""
-    from nao_skin.pairing import _argmin_per_group
+    from nao_skin.calibration.pairing import _argmin_per_group
 
     rng = np.random.default_rng(0)
     for trial in range(200):

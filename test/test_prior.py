@@ -4,10 +4,10 @@ import types
 import numpy as np
 import pytest
 
-from nao_skin.calibrate import CalibrationOptions, calibrate
-from nao_skin.datasets import deduplicate
-from nao_skin.solver import ParameterLayout
-from nao_skin.stages import _group_columns, _prior_weights, evidence_prior_sigma, initial_prior_sigma
+from nao_skin.calibration.engine import CalibrationOptions, calibrate
+from nao_skin.calibration.solver import ParameterLayout
+from nao_skin.calibration.stages import _group_columns, _prior_weights, evidence_prior_sigma, initial_prior_sigma
+from nao_skin.touch.datasets import deduplicate
 
 PART = ("l_hand",)
 

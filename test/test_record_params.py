@@ -23,7 +23,6 @@ import time
 
 import pytest
 import yaml
-
 from ros_harness import ROOT, Listener, Proc, node_process, ros_env, unique_domain_id
 from test_record_session import record_cmd
 

@@ -17,14 +17,13 @@ from collections import Counter
 
 import numpy as np
 import pytest
-
 from ros_harness import ROOT, Listener, Proc, node_process, ros_env, unique_domain_id
 
-from nao_skin.bagio import read_touches  # noqa: E402
-from nao_skin.config import load_default_skin  # noqa: E402
-from nao_skin.heatmap import ActivationCounts, palette, triangle_slots  # noqa: E402
-from nao_skin.sim_params import load_params  # noqa: E402
-from nao_skin.simulate import simulate  # noqa: E402
+from nao_skin.formats.bag import read_touches  # noqa: E402
+from nao_skin.live.heatmap import ActivationCounts, palette, triangle_slots  # noqa: E402
+from nao_skin.model.skin import load_skin  # noqa: E402
+from nao_skin.sim.params import load_params  # noqa: E402
+from nao_skin.sim.simulate import simulate  # noqa: E402
 
 pytest.importorskip("rclpy")
 from std_msgs.msg import String  # noqa: E402
@@ -73,7 +72,7 @@ def record_cmd(bag, seed, per_pair):
 
 
 def test_record_session_bag_and_heatmap(tmp_path):
-    skin = load_default_skin()
+    skin = load_skin()
     seed, per_pair = 7, 2
     want = expected_touches(skin, per_pair, seed)
     domain = unique_domain_id()
@@ -128,7 +127,7 @@ def test_record_session_bag_and_heatmap(tmp_path):
 
 
 def test_recorder_killed_keeps_flushed_touches(tmp_path):
-    skin = load_default_skin()
+    skin = load_skin()
     seed, per_pair = 11, 3
     want = expected_touches(skin, per_pair, seed)
     domain = unique_domain_id()

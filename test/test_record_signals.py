@@ -27,12 +27,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
 from ros_harness import ROOT, Listener, Proc, node_process, ros_env, unique_domain_id
 from test_record_session import assert_same_touches, expected_touches, record_cmd
 
-from nao_skin.bagio import LOCK_FILE, read_touches
-from nao_skin.config import load_default_skin
+from nao_skin.formats.bag import LOCK_FILE, read_touches
+from nao_skin.model.skin import load_skin
 
 pytest.importorskip("rclpy")
 from std_msgs.msg import String  # noqa: E402
@@ -85,7 +84,7 @@ def assert_closed(bag: Path) -> dict:
 
 
 def test_record_killed_with_sigkill_takes_its_nodes_along(tmp_path):
-    skin = load_default_skin()
+    skin = load_skin()
     seed, per_pair = 13, 3
     want = expected_touches(skin, per_pair, seed)
     domain = unique_domain_id()
@@ -120,7 +119,7 @@ def test_record_killed_with_sigkill_takes_its_nodes_along(tmp_path):
 
 
 def test_record_hangup_closes_the_bag(tmp_path):
-    skin = load_default_skin()
+    skin = load_skin()
     seed, per_pair = 17, 3
     want = expected_touches(skin, per_pair, seed)
     domain = unique_domain_id()

@@ -25,10 +25,10 @@ import numpy as np
 import pytest
 import yaml
 
-from nao_skin.bagio import LOCK_FILE, read_touches
-from nao_skin.config import load_default_skin
-from nao_skin.sim_params import load_params
-from nao_skin.simulate import simulate
+from nao_skin.formats.bag import LOCK_FILE, read_touches
+from nao_skin.model.skin import load_skin
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED, PER_PAIR, FLUSHED = 4, 8, 12
@@ -36,13 +36,13 @@ SEED, PER_PAIR, FLUSHED = 4, 8, 12
 WRITER = r"""
 import sys, time
 import numpy as np
-from nao_skin.bagio import BagWriter
-from nao_skin.config import load_default_skin
-from nao_skin.sim_params import load_params
-from nao_skin.simulate import simulate
+from nao_skin.formats.bag import BagWriter
+from nao_skin.model.skin import load_skin
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate
 
 path, storage, mode, seed, per_pair, flushed = sys.argv[1], sys.argv[2], sys.argv[3], *map(int, sys.argv[4:7])
-skin = load_default_skin()
+skin = load_skin()
 touches = simulate(skin, load_params("default", {"n_touches": per_pair}), seed).touches
 bag = BagWriter(path, storage, kind="touches", live=mode != "no-lock")
 bag.__enter__()
@@ -69,7 +69,7 @@ time.sleep(600)
 
 @pytest.fixture(scope="module")
 def played():
-    skin = load_default_skin()
+    skin = load_skin()
     touches = simulate(skin, load_params("default", {"n_touches": PER_PAIR}), SEED).touches
     order = np.argsort(touches.stamps, kind="stable")
     return skin, touches.subset(order)

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import yaml
 
-from nao_skin.config import config_dir
 from nao_skin.errors import ConfigError, DataError
-from nao_skin.robot import RobotModel, parse_angle
+from nao_skin.model.robot import RobotModel, parse_angle
+from nao_skin.paths import config_dir
 
 ROBOT_YAML = config_dir() / "nao_h25.yaml"
 

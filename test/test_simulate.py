@@ -14,16 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
-from nao_skin.cli import main as cli_main
-from nao_skin.config import load_default_skin
-from nao_skin.errors import ConfigError
-from nao_skin.pairing import activation_positions
-from nao_skin.sim_params import SimParams, default_params_file, load_params, make_params, preset_names
-from nao_skin.simulate import simulate
-from nao_skin.skin import SkinModel
-
 from real_data import REAL_DIR  # noqa: E402
+
+from nao_skin.calibration.pairing import activation_positions
+from nao_skin.cli import main as cli_main
+from nao_skin.errors import ConfigError
+from nao_skin.model.skin import SkinModel, load_skin
+from nao_skin.sim.params import SimParams, default_params_file, load_params, make_params, preset_names
+from nao_skin.sim.simulate import simulate
 
 REAL = REAL_DIR / "l_hand_torso.legacy.txt"
 REAL_HAND_LAYOUT = REAL_DIR / "l_hand.taxels.txt"
@@ -32,7 +30,7 @@ REAL_TORSO_LAYOUT = REAL_DIR / "torso.taxels.txt"
 
 @pytest.fixture(scope="module")
 def skin() -> SkinModel:
-    return load_default_skin()
+    return load_skin()
 
 
 @pytest.fixture(scope="module")
@@ -64,12 +62,12 @@ def test_same_seed_gives_same_bytes(tmp_path, capsys):
 
 
 def test_bag_and_truth_files_read_back(tmp_path, skin):
-    from nao_skin.bagio import read_touches
-    from nao_skin.skin import SkinCalibration
+    from nao_skin.formats.bag import read_touches
+    from nao_skin.model.skin import SkinCalibration
 
     params = load_params("default", {"n_touches": 5, "pairs": [["l_hand", "torso"], ["r_hand", "head"]]})
     result = simulate(skin, params, seed=3)
-    from nao_skin.simulate import write_outputs
+    from nao_skin.sim.simulate import write_outputs
 
     write_outputs(result, skin, tmp_path)
     back, _ = read_touches(tmp_path / "touches.bag", skin)
@@ -324,7 +322,7 @@ def test_bundled_recording_matches_the_simulator(skin, tmp_path):
     assert meta["seed"] == 0 and meta["preset"] == "default"
     assert meta["params"] == load_params("default", {"n_touches": 1000}).to_dict()
     # the truth does not depend on the number of touches: regenerate it cheaply, byte for byte
-    from nao_skin.simulate import write_outputs
+    from nao_skin.sim.simulate import write_outputs
 
     write_outputs(simulate(skin, load_params("default", {"n_touches": 1}), seed=0), skin, tmp_path,
                   preset="default", with_bag=False)

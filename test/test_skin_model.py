@@ -8,14 +8,13 @@ not from the model's frames, so a wrong frame convention makes them fail.
 import numpy as np
 import pytest
 import yaml
+from real_data import REAL_DIR as REAL  # noqa: E402
 
 from nao_skin import se3
-from nao_skin.config import config_dir, default_skin_config
 from nao_skin.errors import ConfigError, DataError
-from nao_skin.skin import SkinCalibration, SkinModel
-from nao_skin.taxel_file import SLOTS_PER_TRIANGLE, read_taxel_file
-
-from real_data import REAL_DIR as REAL  # noqa: E402
+from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.model.taxel_file import SLOTS_PER_TRIANGLE, read_taxel_file
+from nao_skin.paths import config_dir, default_skin_config
 
 
 @pytest.fixture(scope="module")

@@ -5,14 +5,14 @@ import numpy as np
 import pytest
 
 from nao_skin import se3
-from nao_skin.config import load_default_skin
-from nao_skin.pairing import KIND_NORMAL
-from nao_skin.solver import ParameterLayout, ResidualModel, SolveOptions, solve
+from nao_skin.calibration.pairing import KIND_NORMAL
+from nao_skin.calibration.solver import ParameterLayout, ResidualModel, SolveOptions, solve
+from nao_skin.model.skin import load_skin
 
 
 @pytest.fixture(scope="module")
 def skin():
-    return load_default_skin()
+    return load_skin()
 
 
 def _random_rows(skin, n, rng, normal_rows=0):
@@ -108,7 +108,7 @@ def test_solver_recovers_a_mount_correction(skin):
 
 def test_sparse_and_dense_jacobians_agree(skin, monkeypatch):
     """Large stages keep the Jacobian sparse; it must equal the dense one."""
-    import nao_skin.solver as solver
+    import nao_skin.calibration.solver as solver
 
     rng = np.random.default_rng(5)
     n = 10

@@ -6,12 +6,12 @@ layouts in /work/shared/data/real_selftouch/ (plain form), read in place.
 
 import numpy as np
 import pytest
-
-from nao_skin.config import config_dir
-from nao_skin.errors import DataError
-from nao_skin.taxel_file import SLOTS_PER_TRIANGLE, read_taxel_file, write_taxel_file
-
 from real_data import REAL_DIR as REAL  # noqa: E402
+
+from nao_skin.errors import DataError
+from nao_skin.model.taxel_file import SLOTS_PER_TRIANGLE, read_taxel_file, write_taxel_file
+from nao_skin.paths import config_dir
+
 REAL_FILES = [REAL / "l_hand.taxels.txt", REAL / "torso.taxels.txt"]
 LAYOUT_FILES = sorted((config_dir() / "layouts").glob("*.txt"))
 

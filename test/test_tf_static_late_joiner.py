@@ -14,20 +14,14 @@ import time
 
 import numpy as np
 import pytest
-
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from tf2_msgs.msg import TFMessage
 
-from nao_skin.nodes.static_tf import (
-    TF_STATIC_QOS,
-    TF_STATIC_TOPIC,
-    latched_tf_static_publisher,
-    rotation_to_quaternion,
-    to_transform_stamped,
-)
+from nao_skin.nodes.static_tf import (TF_STATIC_QOS, TF_STATIC_TOPIC, latched_tf_static_publisher,
+                                      rotation_to_quaternion, to_transform_stamped)
 
 WAIT_S = 10.0
 

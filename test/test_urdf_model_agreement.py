@@ -15,11 +15,11 @@ import pytest
 import yaml
 
 from nao_skin import cli
-from nao_skin.config import config_dir, default_skin_config
 from nao_skin.errors import ConfigError
-from nao_skin.robot import RobotModel
-from nao_skin.skin import SkinModel
-from nao_skin.urdf import UrdfModel, check_calibration_origins, default_xacro, expand_xacro, rotation_angle
+from nao_skin.model.robot import RobotModel
+from nao_skin.model.skin import SkinModel
+from nao_skin.model.urdf import UrdfModel, check_calibration_origins, default_xacro, expand_xacro, rotation_angle
+from nao_skin.paths import config_dir, default_skin_config
 
 TOL_M = 1e-9
 TOL_RAD = 1e-9

@@ -14,8 +14,8 @@ import pkgutil
 import sys
 import time
 
-from . import commands
-from .errors import NaoSkinError
+from nao_skin import commands
+from nao_skin.errors import NaoSkinError
 
 
 class _Parser(argparse.ArgumentParser):

@@ -34,7 +34,7 @@ def add_skin_arguments(parser) -> None:
 
 def taxel_files(items) -> dict:
     """``PART=FILE`` strings of ``--taxels`` as ``{part: Path}``."""
-    from ..errors import ConfigError
+    from nao_skin.errors import ConfigError
 
     files = {}
     for item in items:
@@ -51,7 +51,7 @@ def taxel_files(items) -> dict:
 
 def skin_from_args(args):
     """The skin model of ``--skin``, ``--taxels`` and ``--robot`` (:func:`nao_skin.skin.load_skin`)."""
-    from ..skin import load_skin
+    from nao_skin.model.skin import load_skin
 
     return load_skin(getattr(args, "skin", None), taxel_files(getattr(args, "taxels", None) or []),
                      getattr(args, "robot", None))

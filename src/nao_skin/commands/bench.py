@@ -62,7 +62,7 @@ def add_arguments(parser) -> None:
 
 
 def _pairs(text: str):
-    from ..errors import DataError
+    from nao_skin.errors import DataError
 
     if text in ("all", ""):
         return None
@@ -78,14 +78,15 @@ def _pairs(text: str):
 def _sim_input(args, quick: bool, say):
     import numpy as np
 
-    from ..bench import BenchInput, restrict_pairs
-    from ..config import config_dir, load_default_skin
-    from ..datasets import deduplicate
-    from ..errors import DataError
-    from ..inputs import load_touches
+    from nao_skin.bench.runner import BenchInput, restrict_pairs
+    from nao_skin.errors import DataError
+    from nao_skin.formats.inputs import load_touches
+    from nao_skin.model.skin import load_skin
+    from nao_skin.paths import package_dir
+    from nao_skin.touch.datasets import deduplicate
 
-    path = Path(args.sim) if args.sim else config_dir().parent / "bags" / "sim_default"
-    skin = load_default_skin()
+    path = Path(args.sim) if args.sim else package_dir() / "bags" / "sim_default"
+    skin = load_skin()
     touches, _, truth = load_touches([path], skin, log=say)
     if truth is None:
         raise DataError(f"{path}: no truth_calibration.yaml next to the recording; the speed matrix needs ground truth")
@@ -105,10 +106,10 @@ def _sim_input(args, quick: bool, say):
 
 
 def _real_inputs(args, say) -> list:
-    from ..bench import BenchInput
-    from ..datasets import deduplicate
-    from ..inputs import load_touches
-    from . import skin_from_args
+    from nao_skin.bench.runner import BenchInput
+    from nao_skin.commands import skin_from_args
+    from nao_skin.formats.inputs import load_touches
+    from nao_skin.touch.datasets import deduplicate
 
     skin = skin_from_args(args)
     out = []
@@ -121,10 +122,11 @@ def _real_inputs(args, say) -> list:
 
 
 def run(args) -> int:
-    from .. import bench
-    from ..config import config_dir, load_default_skin
-    from ..errors import DataError
-    from ..outdir import BENCHMARK, check_output_dir, clear_for_writing
+    from nao_skin.bench import runner as bench
+    from nao_skin.errors import DataError
+    from nao_skin.formats.outdir import BENCHMARK, check_output_dir, clear_for_writing
+    from nao_skin.model.skin import load_skin
+    from nao_skin.paths import package_dir
 
     say = lambda msg: print(msg, flush=True)  # noqa: E731
     sections = set(args.only or SECTIONS)
@@ -138,7 +140,7 @@ def run(args) -> int:
     presets = [p.strip() for p in args.presets.split(",")] if args.presets else list(bench.HARD_PRESETS)
     hard_pairs = QUICK["hard_pairs"] if args.quick and args.hard_pairs == "all" else args.hard_pairs
     if "hard" in sections:       # mistakes in the arguments are told before the output directory is touched
-        from ..sim_params import preset_names
+        from nao_skin.sim.params import preset_names
 
         unknown = sorted(set(presets) - set(preset_names()))
         if unknown:
@@ -146,7 +148,7 @@ def run(args) -> int:
         _pairs(hard_pairs)
     if "speed" in sections:
         _pairs(args.sim_pairs)
-    sim = (args.sim or config_dir().parent / "bags" / "sim_default") if "speed" in sections else None
+    sim = (args.sim or package_dir() / "bags" / "sim_default") if "speed" in sections else None
     check_output_dir(args.out, BENCHMARK, force=args.force,
                      inputs=[sim, *args.real, *(item.partition("=")[2] for item in args.taxels), args.skin,
                              args.readme])
@@ -194,7 +196,7 @@ def run(args) -> int:
                                     n_touches=args.hard_touches or (QUICK["hard_touches"] if args.quick else None))
         scene = (", ".join(f"{a}-{b}" for a, b in setup.pairs) if setup.pairs else "all four thesis pairs")
         say(f"hard cases: {len(presets)} presets x {seeds} seeds on {scene}")
-        rows = bench.hard_case_matrix(load_default_skin(), presets, range(seeds), setup, max(1, args.jobs), say)
+        rows = bench.hard_case_matrix(load_skin(), presets, range(seeds), setup, max(1, args.jobs), say)
         results["hard"] = rows
         md += ["## Hard cases", "",
                f"Simulated in memory ({scene}, touches per pair: "
@@ -234,7 +236,7 @@ def update_readme(readme: Path, out: Path) -> None:
     """Put the benchmark's tables between the README's markers and its plot beside the README."""
     import shutil
 
-    from ..errors import DataError
+    from nao_skin.errors import DataError
 
     text = readme.read_text()
     if README_START not in text or README_END not in text:

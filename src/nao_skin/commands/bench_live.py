@@ -59,7 +59,8 @@ def _measure(args, work: Path) -> int:
     from std_msgs.msg import String
     from visualization_msgs.msg import MarkerArray
 
-    from ..config import config_dir, load_default_skin
+    from nao_skin.model.skin import load_skin
+    from nao_skin.paths import config_dir
 
     domain = args.domain or 10 + os.getpid() % 90
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
@@ -90,7 +91,7 @@ def _measure(args, work: Path) -> int:
         heat_stamps.append(time.monotonic())
         heat_taxels.append(sum(len(x.points) for x in m.markers if x.ns in skin_parts))
 
-    skin_parts = set(load_default_skin().parts)
+    skin_parts = set(load_skin().parts)
     node.create_subscription(MarkerArray, "/nao_skin/heatmap", on_heat, 10)
     interrupted = threading.Event()
     previous_handler = signal.signal(signal.SIGINT, lambda signum, frame: interrupted.set())

@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from . import add_skin_arguments, skin_from_args, wall_seconds
+from nao_skin.commands import add_skin_arguments, skin_from_args, wall_seconds
 
 NAME = "calibrate"
 HELP = "calibrate skin mounts, patches and triangles from self-touch recordings (bags or legacy .txt)"
@@ -17,7 +17,7 @@ NUMBER_FLAGS = {"--gate-mm": ("gate_mm", float), "--test-fraction": ("test_fract
 
 
 def add_arguments(parser) -> None:
-    from ..calibrate import OPTION_FIELDS
+    from nao_skin.calibration.options import OPTION_FIELDS
 
     parser.add_argument("inputs", nargs="+", metavar="INPUT", help="rosbag2 recordings or legacy .txt data sets")
     parser.add_argument("--out", required=True,
@@ -49,8 +49,8 @@ def build_options(args):
     """The options of the flags and ``--set`` items, each checked by its rule before any data is read."""
     import yaml
 
-    from ..calibrate import CalibrationOptions
-    from ..errors import DataError
+    from nao_skin.calibration.options import CalibrationOptions
+    from nao_skin.errors import DataError
 
     options = CalibrationOptions()
     flags = {**CHOICE_FLAGS, **{flag: name for flag, (name, _) in NUMBER_FLAGS.items()}}
@@ -76,12 +76,12 @@ def build_options(args):
 
 
 def run(args) -> int:
-    from ..calibrate import calibrate
-    from ..datasets import deduplicate
-    from ..inputs import load_touches
-    from ..outdir import CALIBRATION, check_output_dir
-    from ..report import write_outputs
-    from ..skin import SkinCalibration
+    from nao_skin.calibration.engine import calibrate
+    from nao_skin.calibration.report import write_outputs
+    from nao_skin.formats.inputs import load_touches
+    from nao_skin.formats.outdir import CALIBRATION, check_output_dir
+    from nao_skin.model.skin import SkinCalibration
+    from nao_skin.touch.datasets import deduplicate
 
     # before anything is read: a mistaken --out must cost nothing and destroy nothing
     check_output_dir(args.out, CALIBRATION, force=args.force,

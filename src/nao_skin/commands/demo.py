@@ -14,9 +14,9 @@ HELP = "calibrate the bundled simulated recording (bags/sim_default) and write o
 
 
 def bundled_recording() -> Path:
-    from ..config import config_dir
+    from nao_skin.paths import package_dir
 
-    return config_dir().parent / "bags" / "sim_default"
+    return package_dir() / "bags" / "sim_default"
 
 
 def add_arguments(parser) -> None:
@@ -29,14 +29,14 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from ..calibrate import CalibrationOptions, calibrate
-    from ..config import load_default_skin
-    from ..datasets import deduplicate
-    from ..errors import DataError
-    from ..inputs import load_touches
-    from ..outdir import CALIBRATION, check_output_dir, read_marker
-    from ..report import write_outputs
-    from ..urdf import expand_xacro
+    from nao_skin.calibration.engine import CalibrationOptions, calibrate
+    from nao_skin.calibration.report import write_outputs
+    from nao_skin.errors import DataError
+    from nao_skin.formats.inputs import load_touches
+    from nao_skin.formats.outdir import CALIBRATION, check_output_dir, read_marker
+    from nao_skin.model.skin import load_skin
+    from nao_skin.model.urdf import expand_xacro
+    from nao_skin.touch.datasets import deduplicate
 
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     source = Path(args.input) if args.input else bundled_recording()
@@ -45,7 +45,7 @@ def run(args) -> int:
     check_output_dir(args.out, CALIBRATION, inputs=[source], force=force)
     if not source.exists():
         raise DataError(f"{source}: bundled recording not found (regenerate it: see bags/README.md)")
-    skin = load_default_skin()
+    skin = load_skin()
     log(f"reading {source}")
     touches, _, truth = load_touches([source], skin, log=log)
     touches, n_dup = deduplicate(touches)

@@ -1,7 +1,7 @@
 """``nao-skin import LEGACY -o BAG --taxels l_hand=FILE --taxels torso=FILE``: a thesis dataset to a touch bag."""
 from __future__ import annotations
 
-from . import add_skin_arguments, skin_from_args
+from nao_skin.commands import add_skin_arguments, skin_from_args
 
 NAME = "import"
 HELP = "convert a legacy self-touch dataset (thesis dict-literal text) plus the parts' taxel files into a touch bag"
@@ -17,11 +17,11 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from ..bagio import write_touch_bag
-    from ..datasets import deduplicate
-    from ..errors import DataError
-    from ..inputs import check_inputs
-    from ..legacy import read_legacy
+    from nao_skin.errors import DataError
+    from nao_skin.formats.bag import write_touch_bag
+    from nao_skin.formats.inputs import check_inputs
+    from nao_skin.formats.legacy import read_legacy
+    from nao_skin.touch.datasets import deduplicate
 
     check_inputs([args.legacy])
     skin = skin_from_args(args)

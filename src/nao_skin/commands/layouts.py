@@ -10,7 +10,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from ..layouts import write_default_layouts
+    from nao_skin.model.layouts import write_default_layouts
 
     for path in write_default_layouts(args.directory):
         print(path)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from . import write_output
+from nao_skin.commands import write_output
 
 NAME = "nominal"
 HELP = "write the nominal (zero-correction) calibration YAML of a skin config"
@@ -24,7 +24,7 @@ def add_arguments(parser) -> None:
 
 def nominal_calibration_text(skin_config: Path) -> str:
     """The YAML text ``SkinCalibration.save`` writes for zero corrections of every part."""
-    from ..skin import SkinModel
+    from nao_skin.model.skin import SkinModel
 
     skin = SkinModel.from_yaml(skin_config)
     # The comment names the config by file name only, so the text does not depend on the checkout's path.
@@ -37,7 +37,7 @@ def nominal_calibration_text(skin_config: Path) -> str:
 
 
 def run(args) -> int:
-    from ..config import default_skin_config
+    from nao_skin.paths import default_skin_config
 
     text = nominal_calibration_text(args.skin_config or default_skin_config())
     write_output(text, args.out)

@@ -1,7 +1,7 @@
 """``nao-skin record``: the record session of ``launch/record.launch.py`` without ``ros2 launch``.
 
 Starts the same nodes with the same parameter files and overrides
-(:func:`nao_skin.nodes.session.record_session`) as child processes, stops
+(:func:`nao_skin.live.session.record_session`) as child processes, stops
 them on SIGINT/SIGTERM/SIGHUP (the recorder then writes and closes its bag),
 when one of them fails, or after ``--duration`` seconds. External
 executables (robot_state_publisher, rviz2) are started when installed and
@@ -9,7 +9,7 @@ skipped with a note otherwise.
 
 The nodes never outlive this process: on Linux each gets SIGTERM from the
 kernel when it dies, however it dies (``kill -9`` included), and each of our
-nodes also watches its parent (:data:`~nao_skin.nodes.session.PARENT_ENV`).
+nodes also watches its parent (:data:`~nao_skin.live.session.PARENT_ENV`).
 Overrides and the Python modules a node needs are checked before anything
 starts. Generated parameter files live in a temporary directory removed at
 the end unless ``--keep-temp``.
@@ -52,7 +52,7 @@ def add_arguments(parser) -> None:
 
 def parse_overrides(items) -> dict:
     """``NODE.NAME=VALUE`` items as ``{node: {name: value text}}``; the node's declared type parses the text."""
-    from ..errors import ConfigError
+    from nao_skin.errors import ConfigError
 
     out: dict = {}
     for item in items:
@@ -68,7 +68,7 @@ def check_needs(specs) -> None:
     """Every Python module a node needs imports here (same interpreter): else one line saying what to install."""
     import importlib
 
-    from ..errors import ConfigError
+    from nao_skin.errors import ConfigError
 
     for spec in specs:
         for module, hint in spec.needs.items():
@@ -79,7 +79,7 @@ def check_needs(specs) -> None:
 
 
 def run(args) -> int:
-    from ..nodes.session import record_session
+    from nao_skin.live.session import record_session
 
     specs = record_session(args.robot, nao_ip=args.nao_ip, naoqi=not args.no_naoqi, events_port=args.events_port,
                            bag_path=args.bag, calibration=args.calibration, rviz=args.rviz,
@@ -106,7 +106,7 @@ def run(args) -> int:
 
 
 def _session(specs, work: Path, args, stop: dict) -> int:
-    from ..nodes.session import PARENT_ENV, command_line
+    from nao_skin.live.session import PARENT_ENV, command_line
 
     commands = []
     for spec in specs:

@@ -35,12 +35,12 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from ..config import default_skin_config
-    from ..errors import ConfigError
-    from ..outdir import RECORDING, check_output_dir
-    from ..sim_params import load_params
-    from ..simulate import simulate, write_outputs
-    from ..skin import SkinModel
+    from nao_skin.errors import ConfigError
+    from nao_skin.formats.outdir import RECORDING, check_output_dir
+    from nao_skin.model.skin import SkinModel
+    from nao_skin.paths import default_skin_config
+    from nao_skin.sim.params import load_params
+    from nao_skin.sim.simulate import simulate, write_outputs
 
     check_output_dir(args.out, RECORDING, inputs=(args.params, args.skin), force=args.force)
     overrides = {}

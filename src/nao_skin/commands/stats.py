@@ -4,11 +4,10 @@ from __future__ import annotations
 import json
 import sys
 from itertools import combinations
-from pathlib import Path
 
 import numpy as np
 
-from . import add_skin_arguments, skin_from_args
+from nao_skin.commands import add_skin_arguments, skin_from_args
 
 NAME = "stats"
 HELP = ("print touches, exact duplicates, per-part-pair counts and closest COP / taxel distances"
@@ -24,10 +23,10 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from ..datasets import deduplicate
-    from ..inputs import check_inputs, load_touches
-    from ..pairing import metrics, pair_for_metrics
-    from ..skin import SkinCalibration
+    from nao_skin.calibration.pairing import metrics, pair_for_metrics
+    from nao_skin.formats.inputs import check_inputs, load_touches
+    from nao_skin.model.skin import SkinCalibration
+    from nao_skin.touch.datasets import deduplicate
 
     check_inputs([args.input])
     skin = skin_from_args(args)
@@ -41,7 +40,7 @@ def run(args) -> int:
                    if np.any(fires[:, i] & fires[:, j])}
     parts = tuple(args.parts.split(",")) if args.parts else None
     if parts is not None and (len(parts) != 2 or any(p not in skin.parts for p in parts)):
-        from ..errors import ConfigError
+        from nao_skin.errors import ConfigError
 
         raise ConfigError(f"--parts {args.parts!r}: expected two skin parts A,B of {', '.join(skin.parts)}")
     m = metrics(pair_for_metrics(touches, skin, calib, parts=parts))

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from . import write_output
+from nao_skin.commands import write_output
 
 NAME = "urdf"
 HELP = "expand urdf/nao_skin.urdf.xacro for a calibration YAML and write the URDF"
@@ -19,9 +19,9 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from ..config import default_skin_config
-    from ..skin import SkinModel
-    from ..urdf import check_calibration_origins, expand_xacro
+    from nao_skin.model.skin import SkinModel
+    from nao_skin.model.urdf import check_calibration_origins, expand_xacro
+    from nao_skin.paths import default_skin_config
 
     skin_config = args.skin_config or default_skin_config()
     skin = SkinModel.from_yaml(skin_config)

@@ -30,13 +30,13 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
-from .. import se3
-from ..calibrate import OPTION_FIELDS, CalibrationOptions
-from ..config import default_skin_config
-from ..errors import NaoSkinError
-from ..skin import SkinCalibration, SkinModel
-from .runtime import declare, run_node
-from .static_tf import latched_tf_static_publisher, to_transform_stamped
+from nao_skin import se3
+from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
+from nao_skin.errors import NaoSkinError
+from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.nodes.runtime import declare, run_node
+from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
+from nao_skin.paths import default_skin_config
 
 REQUEST_TOPIC = "/nao_skin/calibrate"
 STATUS_TOPIC = "/nao_skin/calibration/status"
@@ -141,11 +141,11 @@ class CalibrateNode(Node):
         self._worker.start()
 
     def _run(self, paths: list) -> None:
-        from ..calibrate import calibrate
-        from ..datasets import deduplicate
-        from ..inputs import load_touches
-        from ..outdir import CALIBRATION, check_output_dir
-        from ..report import write_outputs
+        from nao_skin.calibration.engine import calibrate
+        from nao_skin.calibration.report import write_outputs
+        from nao_skin.formats.inputs import load_touches
+        from nao_skin.formats.outdir import CALIBRATION, check_output_dir
+        from nao_skin.touch.datasets import deduplicate
 
         p = self.p
         log = self.get_logger()

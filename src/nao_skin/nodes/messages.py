@@ -22,8 +22,8 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from sensor_msgs.msg import JointState, PointCloud2, PointField
 
-from ..bagio import CONTACT_DTYPE, TAXEL_DTYPE  # the one definition of the point layouts
-from ..errors import DataError
+from nao_skin.errors import DataError
+from nao_skin.formats.bag import CONTACT_DTYPE, TAXEL_DTYPE  # the one definition of the point layouts
 
 SKIN_TOPIC_PREFIX = "/skin"
 JOINT_STATES_TOPIC = "/joint_states"

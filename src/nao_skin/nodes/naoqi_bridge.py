@@ -17,9 +17,9 @@ import time
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from ..reconnect import Backoff
-from .messages import JOINT_STATES_TOPIC, joint_state_msg
-from .runtime import declare, run_node
+from nao_skin.live.reconnect import Backoff
+from nao_skin.nodes.messages import JOINT_STATES_TOPIC, joint_state_msg
+from nao_skin.nodes.runtime import declare, run_node
 
 DEFAULT_JOINTS = ["HeadYaw", "HeadPitch",
                   "LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll", "LWristYaw",

@@ -27,14 +27,14 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 
-from ..bagio import BagWriter
-from ..config import default_skin_config
-from ..errors import DataError
-from ..events import EventConfig, EventDetector
-from ..skin import SkinModel
-from .messages import (CONTACT_DTYPE, JOINT_STATES_TOPIC, TAXEL_DTYPE, array_from_cloud, contacts_topic,
-                       joint_state_arrays, stamp_from_msg, taxels_topic, xyz)
-from .runtime import declare, run_node
+from nao_skin.errors import DataError
+from nao_skin.formats.bag import BagWriter
+from nao_skin.model.skin import SkinModel
+from nao_skin.nodes.messages import (CONTACT_DTYPE, JOINT_STATES_TOPIC, TAXEL_DTYPE, array_from_cloud, contacts_topic,
+                                     joint_state_arrays, stamp_from_msg, taxels_topic, xyz)
+from nao_skin.nodes.runtime import declare, run_node
+from nao_skin.paths import default_skin_config
+from nao_skin.touch.events import EventConfig, EventDetector
 
 PROGRESS_TOPIC = "/nao_skin/recorder/progress"
 MAX_LOGGED_ERRORS = 5

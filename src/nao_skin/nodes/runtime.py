@@ -5,7 +5,7 @@ initialises rclpy (``--ros-args`` from the command line, so ``ros2 run``,
 ``ros2 launch`` and ``nao-skin record`` pass parameters the same way), spins
 until SIGINT, SIGTERM or SIGHUP (terminal closed), then calls the node's
 ``close()`` so that buffered data is written before the process ends. A node
-started by ``nao-skin record`` (:data:`~nao_skin.nodes.session.PARENT_ENV`
+started by ``nao-skin record`` (:data:`~nao_skin.live.session.PARENT_ENV`
 set) stops the same way when record is gone, however record ended.
 """
 from __future__ import annotations
@@ -22,8 +22,8 @@ from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
-from ..errors import ConfigError, NaoSkinError
-from .session import PARENT_ENV
+from nao_skin.errors import ConfigError, NaoSkinError
+from nao_skin.live.session import PARENT_ENV
 
 STOP_SIGNALS = tuple(getattr(signal, s) for s in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, s))
 

@@ -22,14 +22,14 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 
-from ..config import default_skin_config
-from ..playback import Playback
-from ..sim_params import load_params
-from ..simulate import simulate
-from ..skin import SkinModel
-from .messages import (JOINT_STATES_TOPIC, cloud_from_array, contacts_array, contacts_topic, joint_state_msg,
-                       taxels_array, taxels_topic)
-from .runtime import declare, run_node
+from nao_skin.live.playback import Playback
+from nao_skin.model.skin import SkinModel
+from nao_skin.nodes.messages import (JOINT_STATES_TOPIC, cloud_from_array, contacts_array, contacts_topic,
+                                     joint_state_msg, taxels_array, taxels_topic)
+from nao_skin.nodes.runtime import declare, run_node
+from nao_skin.paths import default_skin_config
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate
 
 STATUS_TOPIC = "/sim_robot/status"
 

@@ -19,12 +19,12 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ..config import default_skin_config
-from ..errors import DataError
-from ..heatmap import SCALE_LEVELS, ActivationCounts, palette, triangle_slots
-from ..skin import SkinModel
-from .messages import TAXEL_DTYPE, array_from_cloud, taxels_topic
-from .runtime import declare, run_node
+from nao_skin.errors import DataError
+from nao_skin.live.heatmap import SCALE_LEVELS, ActivationCounts, palette, triangle_slots
+from nao_skin.model.skin import SkinModel
+from nao_skin.nodes.messages import TAXEL_DTYPE, array_from_cloud, taxels_topic
+from nao_skin.nodes.runtime import declare, run_node
+from nao_skin.paths import default_skin_config
 
 TOPIC = "/nao_skin/heatmap"
 LEGEND_NS = "legend"

@@ -29,14 +29,14 @@ from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
-from ..config import default_skin_config
-from ..errors import DataError
-from ..reconnect import Backoff
-from ..skin import SkinModel
-from ..skinmanager import activated_taxels, parse_skin_events, part_id_map
-from .messages import (cloud_from_array, contacts_array, contacts_topic, stamp_to_msg, taxels_array,
-                       taxels_topic)
-from .runtime import declare, run_node
+from nao_skin.errors import DataError
+from nao_skin.formats.skinmanager import activated_taxels, parse_skin_events, part_id_map
+from nao_skin.live.reconnect import Backoff
+from nao_skin.model.skin import SkinModel
+from nao_skin.nodes.messages import (cloud_from_array, contacts_array, contacts_topic, stamp_to_msg, taxels_array,
+                                     taxels_topic)
+from nao_skin.nodes.runtime import declare, run_node
+from nao_skin.paths import default_skin_config
 
 # iCub skinDynLib SkinPart ids; the Nao build put the head on the unused right forearm id (thesis §3.1.1).
 DEFAULT_PART_IDS = {"l_hand": 1, "r_hand": 4, "torso": 7, "head": 5}

@@ -1,0 +1,1 @@
+"""The benchmark: strategies against error, hard cases."""

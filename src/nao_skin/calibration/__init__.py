@@ -1,0 +1,1 @@
+"""The engine: options, plan, pairing, first guess, stages, solver, evaluation, report."""

@@ -1,0 +1,102 @@
+"""How good a calibration is: closest-pair distances, true taxel error, which touches a self-contact explains."""
+from __future__ import annotations
+
+import numpy as np
+
+from nao_skin.calibration.pairing import METRIC_KINDS, METRIC_TAXEL_RULE, metrics, robot_joints
+from nao_skin.calibration.plan import part_rank
+from nao_skin.calibration.rows import concat_pairings, pair_parts, pair_step
+from nao_skin.calibration.solver import ParameterLayout, ResidualModel
+from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.touch.touches import TouchSet
+
+
+def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: list) -> dict:
+    """Closest-COP / closest-taxel / 5-taxel distances (and the fitted pair of the selected contacts,
+    ``contact_taxel``) over every touching pair of the plan (:func:`pairing.pair_for_metrics`)."""
+    if touches.n_touches == 0:
+        return {"n_touches": 0}
+    pairs = plan_pairs(steps)
+    pairings = [pair_parts(touches, skin, calib, p[0], p[1], METRIC_KINDS, METRIC_TAXEL_RULE) for p in pairs
+                if p[0] in touches.part_names and p[1] in touches.part_names]
+    pairings = [p for p in pairings if len(p.row_touch)]
+    if not pairings:
+        return {"n_touches": 0}
+    return metrics(concat_pairings(pairings))
+
+def plan_pairs(steps: list) -> list:
+    """The part pairs that touch within the steps (each pair once, hands first): what :func:`evaluate` measures."""
+    return sorted({tuple(sorted((a, b), key=part_rank))
+                   for s in steps for a in s.targets + s.references for b in s.targets + s.references if a != b})
+
+
+def truth_error(skin: SkinModel, calib: SkinCalibration, truth: SkinCalibration, parts=None) -> dict:
+    """Distance of every calibrated taxel from its true position (chain-end frame), in mm."""
+    out = {}
+    errs_all = []
+    for name in parts or skin.parts:
+        if name not in truth.parts:
+            continue
+        p = skin.parts[name]
+        est, _ = p.taxel_positions(calib.parts[name])
+        true, _ = p.taxel_positions(truth.parts[name])
+        e = np.linalg.norm(est[p.present] - true[p.present], axis=1) * 1000.0
+        errs_all.append(e)
+        out[name] = {"median": float(np.median(e)), "p95": float(np.percentile(e, 95)), "max": float(e.max())}
+    if errs_all:
+        e = np.concatenate(errs_all)
+        out["all"] = {"median": float(np.median(e)), "p95": float(np.percentile(e, 95)), "max": float(e.max())}
+    return out
+
+
+def closest_cop_cost(touches, skin, calib, step, inliers) -> float:
+    """Mean closest-COP distance (m) of the inlier touches, each capped at 50 mm (a far-off
+    minority must not decide)."""
+    pairing = pair_step(touches, skin, calib, step, ("cop",))
+    if pairing is None or len(pairing.row_touch) == 0:
+        return np.inf
+    rows = (pairing.row_kind == 0) & inliers[pairing.row_touch]
+    return float(np.mean(np.minimum(pairing.distance[rows], 0.05))) if np.any(rows) else np.inf
+
+
+def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float) -> float:
+    """What a stage fits, measured as it fits it: the touches paired under ``calib`` for ``kinds``,
+    distances between the paired points lifted to the fabric surfaces (``fabric`` m over the
+    taxels), each kind's capped mean (50 mm), averaged over the kinds.
+
+    Taxel-centre distances alone grow when the fabric estimate grows, however good the fit.
+    """
+    pairing = pair_step(touches, skin, calib, step, kinds)
+    if pairing is None or len(pairing.row_touch) == 0:
+        return np.inf
+    parts = tuple(p for p in step.targets + step.references if p in touches.part_names)
+    model = ResidualModel(skin, robot_joints(touches, skin), pairing, touches.part_names, ParameterLayout(skin, parts),
+                          calib, fabric=fabric)
+    dist = np.linalg.norm(model.residuals(calib), axis=1)
+    means = [float(np.mean(np.minimum(dist[rows], 0.05)))
+             for rows in ((pairing.row_kind == k) & inliers[pairing.row_touch] for k in np.unique(pairing.row_kind))
+             if np.any(rows)]
+    return float(np.mean(means)) if means else np.inf
+
+
+def explained(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: list, gate_mm: float) -> np.ndarray:
+    """Touches whose closest COP pair (over the plan's part pairs) is within ``gate_mm``."""
+    ok = np.ones(touches.n_touches, bool)
+    if gate_mm <= 0 or touches.n_touches == 0:
+        return ok
+    best = np.full(touches.n_touches, np.inf)
+    for step in steps:
+        p = pair_step(touches, skin, calib, step, ("cop",))
+        if p is not None and len(p.row_touch):
+            np.minimum.at(best, p.row_touch, p.distance * 1000.0)
+    return ok & ((best <= gate_mm) | ~np.isfinite(best))
+
+def gate_touches(touches, skin, calib, step, gate_mm, inliers) -> list:
+    """``(touch, mm)`` of the inlier touches whose closest COP pair (any part pair of the step) is
+    farther than ``gate_mm``, the farthest pair's distance each, by touch."""
+    pairing = pair_step(touches, skin, calib, step, ("cop",))
+    rows = pairing.row_kind == 0
+    worst = np.full(touches.n_touches, -np.inf)
+    np.maximum.at(worst, pairing.row_touch[rows], pairing.distance[rows] * 1000.0)
+    far = np.flatnonzero(inliers & (worst > gate_mm))
+    return [(int(t), float(worst[t])) for t in far]

@@ -1,0 +1,205 @@
+"""Calibration options as data: every field with its default, the values it takes (a :class:`Rule`) and its help.
+
+The command line (``--set`` and the flags), the calibrate node's parameters
+and the checks before any data is read all come from this one table
+(:data:`OPTION_FIELDS`). The defaults follow the thesis.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from nao_skin.calibration.pairing import KIND_COP, KIND_TAXEL, KIND_TAXEL5
+from nao_skin.calibration.solver import LEVELS, SolveOptions
+from nao_skin.errors import DataError
+
+# what each value of the ``pairs`` and ``mount_pairs`` options puts into the residuals: rows of these kinds
+KIND_ROWS = {"cop": (KIND_COP,), "taxel": (KIND_TAXEL,), "both": (KIND_COP, KIND_TAXEL), "taxel5": (KIND_TAXEL5,),
+             "cop+taxel5": (KIND_COP, KIND_TAXEL5)}
+
+
+@dataclass(frozen=True)
+class Rule:
+    """What values an option takes; :meth:`check` returns the value typed, or raises one line naming it."""
+
+    kind: type                      # bool, int, float, str or tuple
+    choices: tuple = ()             # allowed values (str) or allowed items (tuple)
+    low: float | None = None
+    high: float | None = None
+    high_open: bool = False
+    low_open: bool = False
+    length: int | None = None       # tuple of this many numbers
+    optional: bool = False          # None allowed
+    why: str = ""                   # said after a value out of range
+
+    def describe(self) -> str:
+        if self.kind is bool:
+            return "true or false"
+        if self.kind is str:
+            return "one of " + ", ".join(self.choices)
+        if self.kind is tuple and self.choices:
+            return "a list of " + ", ".join(self.choices)
+        what = "a whole number" if self.kind is int else "a number"
+        if self.kind is tuple:
+            what = f"{self.length} numbers"
+        if self.low is not None and self.high is not None:
+            what += f" in {'(' if self.low_open else '['}{self.low:g}, {self.high:g}{')' if self.high_open else ']'}"
+        elif self.low is not None:
+            what += f" {'>' if self.low_open else '>='} {self.low:g}"
+        return what + (" or null" if self.optional else "")
+
+    def _number(self, value, kind):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError
+        if kind is int:
+            if float(value) != int(value):
+                raise ValueError
+            return int(value)
+        value = float(value)
+        if not np.isfinite(value):
+            raise ValueError
+        return value
+
+    def _in_range(self, v) -> bool:
+        return not ((self.low is not None and (v < self.low or (self.low_open and v == self.low)))
+                    or (self.high is not None and (v > self.high or (self.high_open and v == self.high))))
+
+    def check(self, where: str, value):
+        bad = DataError(f"{where}: expected {self.describe()}" + (f" ({self.why})" if self.why else ""))
+        if value is None and self.optional:
+            return None
+        if self.kind is bool:
+            if not isinstance(value, bool):
+                raise bad
+            return value
+        if self.kind is str:
+            if value not in self.choices:
+                raise bad
+            return value
+        if self.kind is tuple:
+            if isinstance(value, str) or not isinstance(value, (list, tuple)):
+                raise bad
+            if self.choices:
+                if any(v not in self.choices for v in value):
+                    raise bad
+                return tuple(value)
+            try:
+                out = tuple(self._number(v, float) for v in value)
+            except ValueError:
+                raise bad from None
+            if len(out) != self.length or not all(self._in_range(v) for v in out):
+                raise bad
+            return out
+        try:
+            out = self._number(value, self.kind)
+        except (ValueError, OverflowError):
+            raise bad from None
+        if not self._in_range(out):
+            raise bad
+        return out
+
+
+def option(default, rule: Rule, help: str):
+    """A field of :class:`CalibrationOptions`: its default, what it accepts, and what it does."""
+    return field(default=default, metadata={"rule": rule, "help": help})
+
+
+_LEVELS_RULE = Rule(tuple, choices=LEVELS)
+_PAIRS = tuple(KIND_ROWS)
+
+
+@dataclass
+class CalibrationOptions:
+    """Everything that changes how calibration runs; the defaults follow the thesis.
+
+    Each field carries its :class:`Rule` and help text (``dataclasses.fields(...)[i].metadata``):
+    the command line's ``--set`` and the calibrate node check values with them.
+    """
+
+    strategy: str = option("sequential", Rule(str, ("sequential", "all-at-once")),
+                           "sequential (mount, then patches, then triangles) or all-at-once")
+    reference: str = option("fixed", Rule(str, ("fixed", "simultaneous")),
+                            "fixed (one part is the reference while the other is fitted) or simultaneous")
+    bounded: bool = option(True, Rule(bool), "bound patch and triangle corrections (thesis)")
+    patch_bounds: tuple = option((0.003, np.pi / 30), Rule(tuple, low=0.0, low_open=True, length=2),
+                                 "|translation| m, |rotation| rad per component of a patch correction")
+    triangle_bounds: tuple = option((0.0005, np.pi / 40), Rule(tuple, low=0.0, low_open=True, length=2),
+                                    "|translation| m, |rotation| rad per component of a triangle correction")
+    pairs: str = option("both", Rule(str, _PAIRS), "paired points in the residuals of patch and triangle stages")
+    mount_pairs: str = option("cop", Rule(str, _PAIRS), "paired points of the mount stages (robust while far off)")
+    loss: str = option("huber", Rule(str, ("huber", "linear")), "robust (huber) or plain (linear) least squares")
+    # at the residual noise (residual_sigma); farther rows are mostly wrong closest pairs (simulator,
+    # every preset: true error lower than at 4 mm)
+    f_scale: float = option(0.002, Rule(float, low=0.0, low_open=True),
+                            "m: where the Huber loss starts to discount a row")
+    # touching surfaces face each other: each closest taxel pair (COP pair in mount stages) also asks
+    # its two normals to cancel
+    normal_weight: float = option(0.005, Rule(float, low=0.0), "m per rad of the normal rows (0: off)")
+    # the mounts' rotation about a band of contacts is left free by points; at patch and triangle level
+    # the layout's own normals (plane fits) are no better than the few degrees being estimated
+    normal_levels: tuple = option(("mount",), _LEVELS_RULE, "stages whose unknowns include these use normal rows")
+    jacobian: str = option("analytic", Rule(str, ("analytic", "2-point")), "analytic or finite-difference Jacobian")
+    initial_guess: str = option("rigid-fit", Rule(str, ("rigid-fit", "none")),
+                                "closed-form rigid fit of the mounts first (finds a 160 deg mount error), or none")
+    min_triangle_activations: int = option(10, Rule(int, low=1),
+                                           "a triangle with fewer paired activations is held (thesis: 10)")
+    min_mount_touches: int = option(10, Rule(int, low=1),
+                                    "fewer training touches with a reference: the mount is not determined")
+    min_patch_touches: int = option(20, Rule(int, low=1), "patches need about twice the mount's data (thesis)")
+    condition_limit: float = option(1e7, Rule(float, low=1.0, low_open=True),
+                                    "of the Jacobi-scaled normal equations: weaker directions are held")
+    max_repairings: int = option(8, Rule(int, low=1), "re-pairings of the touches per stage at most")
+    repair_tolerance: float = option(0.01, Rule(float, low=0.0, high=1.0),
+                                     "stop re-pairing when fewer touches than this share change pairs")
+    max_iterations: int = option(50, Rule(int, low=1), "solver iterations per solve at most")
+    gate_mm: float = option(15.0, Rule(float, low=0.0),
+                            "mm: touches farther apart than this after the mount fit are set aside (0: off)")
+    test_fraction: float = option(0.3, Rule(float, low=0.0, high=1.0, high_open=True,
+                                            why="the share of touches held out for testing; 1 leaves no touch"
+                                                " to train on"),
+                                  "share of the touches held out for the test figures")
+    seed: int = option(0, Rule(int, low=0), "seed of the train/test split")
+    max_touches: int | None = option(None, Rule(int, low=1, optional=True),
+                                     "use only this many training touches (speed/error sweeps); null: all")
+    # touching skins meet at their fabric surfaces, 2 x this apart at the taxel centres
+    fabric_thickness: float = option(0.001, Rule(float, low=0.0), "m of fabric over the taxels of each part")
+    estimate_fabric: bool = option(True, Rule(bool),
+                                   "estimate the (pressed) fabric thickness from the touches, within fabric_bounds")
+    fabric_bounds: tuple = option((0.0, 0.003), Rule(tuple, low=0.0, length=2), "m: lowest and highest fabric")
+    prior_strength: float = option(3.0, Rule(float, low=0.0),
+                                   "patch/triangle prior std starts at bound / this (0: no prior)")
+    prior_scale: str = option("empirical", Rule(str, ("empirical", "fixed")),
+                              "prior width: empirical (widened to what the touches determine, evidence"
+                              " approximation) or fixed (bound / prior_strength)")
+    residual_sigma: float = option(0.002, Rule(float, low=0.0, low_open=True),
+                                   "m: noise per coordinate of a paired-point difference")
+    joint_levels: tuple = option(LEVELS, _LEVELS_RULE, "what the joint refinement frees")
+    rounds: int = option(1, Rule(int, low=1), "passes over the plan of fixed-reference steps")
+    # a part fitted to a fixed reference inherits that reference's error, which a joint solve of all
+    # parts removes (measured on simulated truth)
+    joint_refinement: bool = option(True, Rule(bool), "finish with every part free at once")
+
+    def solve_options(self) -> SolveOptions:
+        return SolveOptions(loss=self.loss, f_scale=self.f_scale, max_iterations=self.max_iterations,
+                            jacobian=self.jacobian)
+
+    def set(self, name: str, value, where: str | None = None) -> None:
+        """Set option ``name`` to ``value`` (an int where a float is asked is fine), checked by its rule."""
+        spec = OPTION_FIELDS.get(name)
+        if spec is None:
+            raise DataError(f"{where or name}: unknown calibration option '{name}'"
+                            f" (options: {', '.join(OPTION_FIELDS)})")
+        setattr(self, name, spec.metadata["rule"].check(where or f"calibration option {name}={value!r}", value))
+
+    def validate(self) -> None:
+        for name, spec in OPTION_FIELDS.items():
+            value = getattr(self, name)
+            setattr(self, name, spec.metadata["rule"].check(f"calibration option {name}={value!r}", value))
+        low, high = self.fabric_bounds
+        if low > high:
+            raise DataError(f"calibration option fabric_bounds={list(self.fabric_bounds)}: the lower bound is"
+                            f" above the upper one")
+
+
+OPTION_FIELDS = {f.name: f for f in fields(CalibrationOptions)}

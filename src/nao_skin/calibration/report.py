@@ -1,0 +1,197 @@
+"""Write a calibration where users apply it: YAML for the URDF, taxel files, report, plots.
+
+Everything is written into a temporary sibling directory first and moved
+into place at the end, so an interrupted or failed run leaves no half-done
+output directory.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from nao_skin.calibration.engine import CalibrationResult
+from nao_skin.calibration.pairing import pair_for_metrics
+from nao_skin.calibration.rows import concat_pairings
+from nao_skin.formats.outdir import CALIBRATION, replace_dir, write_marker
+from nao_skin.model.skin import PART_NAMES, SkinCalibration, SkinModel
+
+
+def _order(name: str) -> int:
+    return PART_NAMES.index(name) if name in PART_NAMES else 99
+
+
+def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Path,
+                  prior: SkinCalibration | None = None, plots: bool = True, command: str = "calibrate",
+                  extra=None) -> Path:
+    """Write the calibration into ``out_dir``, marked as written by ``nao-skin COMMAND``.
+
+    ``extra(directory)`` may add files beside ours before the directory is
+    marked and moved into place (they are then ours too). An earlier output
+    in ``out_dir`` is replaced only when :mod:`nao_skin.outdir` allows it;
+    callers check the directory with ``check_output_dir`` before any work.
+    """
+    given, out_dir = Path(out_dir), Path(os.path.realpath(out_dir))
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    try:
+        calibrated = list(result.report["parts"])
+        result.calibration.save(tmp / "calibration.yaml", skin,
+                                comment=f"parts calibrated from touches: {', '.join(calibrated)}")
+        (tmp / "taxels").mkdir()
+        for name in calibrated:
+            skin.parts[name].write_taxel_file(tmp / "taxels" / f"{name}.txt", result.calibration.parts[name])
+        (tmp / "report.json").write_text(json.dumps(_jsonable(result.report), indent=2) + "\n")
+        (tmp / "report.md").write_text(markdown_report(result.report))
+        if plots:
+            _plots(result, skin, prior or skin.zero_calibration(), tmp, calibrated)
+        if extra is not None:
+            extra(tmp)
+        write_marker(tmp, command, CALIBRATION)
+        replace_dir(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return given
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
+
+
+def _fmt(v) -> str:
+    return "–" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.2f}"
+
+
+def markdown_report(report: dict) -> str:
+    keys = ("cop_mean_mm", "taxel_mean_mm", "contact_taxel_mean_mm", "taxel5_mean_mm")
+    lines = ["# Skin calibration report", "",
+             f"Plan: {' → '.join(report['plan'])}", "",
+             f"Total time: {report['total_seconds']:.2f} s. Touches set aside: {report['n_set_aside']}.", "",
+             "Closest taxel: the closest pair among every activated taxel of the two touching parts; selected"
+             " contacts': the closest pair of the two contacts whose COPs are closest (what the solver fits).", "",
+             "| stage | set | touches | closest COP mean (mm) | closest taxel mean (mm)"
+             " | selected contacts' closest taxel mean (mm) | 5 taxel pairs mean (mm) | seconds |",
+             "|---|---|---|---|---|---|---|---|"]
+    rows = [("before", report["before"], None)]
+    rows += [(s["name"], s, s["seconds"]) for s in report["stages"]]
+    rows += [("final", report["final"], None)]
+    accepted = {"train": report["final"].get("train_accepted", {}), "test": report["final"].get("test_accepted", {})}
+    rows += [("final, touches a self-contact explains", accepted, None)]
+    for name, entry, secs in rows:
+        for split in ("train", "test"):
+            m = entry.get(split, {})
+            lines.append(f"| {name} | {split} | {m.get('n_touches', 0)} | "
+                         + " | ".join(_fmt(m.get(k)) for k in keys) + f" | {_fmt(secs) if split == 'train' else ''} |")
+    truth = report["final"].get("truth_taxel_error_mm")
+    if truth:
+        lines += ["", "## True taxel error (simulation ground truth)", "",
+                  "| part | before median (mm) | final median (mm) | final p95 (mm) | final max (mm) |", "|---|---|---|---|---|"]
+        before = report["before"].get("truth_taxel_error_mm", {})
+        for part, v in truth.items():
+            lines.append(f"| {part} | {_fmt(before.get(part, {}).get('median'))} | {_fmt(v['median'])} | "
+                         f"{_fmt(v['p95'])} | {_fmt(v['max'])} |")
+    lines += ["", "## What the touches say about the skin", "",
+              f"- fabric over the taxels (each skin): {_fmt(report.get('fabric_thickness_mm'))} mm"]
+    sigma = report.get("prior_sigma") or {}
+    for group, value in sigma.items():   # prior std per component of every patch / triangle
+        unit, scale = ("mm", 1000.0) if group.endswith("translation") else ("deg", np.degrees(1.0))
+        lines.append(f"- prior std of {group.replace('_', ' ')}: {_fmt(scale * value)} {unit}")
+    if report.get("held"):
+        lines += ["", "## Held at their prior (not determined by the touches)", ""]
+        lines += [f"- {h}" for h in report["held"]]
+    if report.get("set_aside"):
+        lines += ["", "## Touches set aside", ""]
+        lines += [f"- touch {s['touch']} ({s['step']}): {s['reason']}" for s in report["set_aside"]]
+    lines.append("")
+    return "\n".join(lines)
+
+
+def _pair_distances(touches, skin, calib, pairs):
+    """Closest-taxel distances per touch and the triangle each used on every part."""
+    pairings = [pair_for_metrics(touches, skin, calib, parts=p) for p in pairs]
+    pairings = [p for p in pairings if len(p.row_touch)]
+    if not pairings:
+        return None
+    return concat_pairings(pairings)
+
+
+def _plots(result: CalibrationResult, skin: SkinModel, prior: SkinCalibration, out: Path, calibrated: list):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pairs = [tuple(p) for p in result.report["pairs"]]
+
+    # 1. error distributions before/after
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for ax, (split, touches) in zip(axes, (("train", result.train), ("test", result.test))):
+        for label, calib, color in (("before", prior, "tab:gray"), ("after", result.calibration, "tab:blue")):
+            p = _pair_distances(touches, skin, calib, pairs)
+            if p is None:
+                continue
+            for kind, style in ((0, "-"), (1, "--")):
+                d = p.distance[p.row_kind == kind] * 1000.0
+                if len(d):
+                    ax.hist(np.clip(d, 0, 100), bins=50, range=(0, 100), histtype="step", linestyle=style,
+                            color=color, label=f"{label}: {'closest COP' if kind == 0 else 'closest taxel'}")
+        ax.set_xlabel("distance between paired points (mm, clipped at 100)")
+        ax.set_ylabel("touches")
+        ax.set_title(f"{split} set")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "errors_before_after.png", dpi=110)
+    plt.close(fig)
+
+    # 2. per-triangle closest-taxel error after calibration
+    p = _pair_distances(result.train, skin, result.calibration, pairs)
+    if p is not None:
+        fig, axes = plt.subplots(len(calibrated), 1, figsize=(11, 2.6 * len(calibrated)), squeeze=False)
+        rows = np.flatnonzero(p.row_kind == 1)
+        for ax, name in zip(axes[:, 0], calibrated):
+            pidx = result.train.part_index(name)
+            part = skin.parts[name]
+            sel = np.isin(p.term_row, rows) & (p.term_part == pidx)
+            tri = part.slot_triangle[p.term_slot[sel]]
+            dist = p.distance[p.term_row[sel]] * 1000.0
+            counts = np.bincount(tri, minlength=len(part.triangle_ids))
+            sums = np.bincount(tri, weights=dist, minlength=len(part.triangle_ids))
+            mean = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+            ax.bar(np.arange(len(part.triangle_ids)), mean, color="tab:blue")
+            ax.set_xticks(np.arange(len(part.triangle_ids)))
+            ax.set_xticklabels([str(t) for t in part.triangle_ids], fontsize=7)
+            ax.set_ylabel("mean mm")
+            ax.set_title(f"{name}: closest-taxel distance per triangle after calibration (train)", fontsize=9)
+        axes[-1, 0].set_xlabel("triangle")
+        fig.tight_layout()
+        fig.savefig(out / "triangle_errors.png", dpi=110)
+        plt.close(fig)
+
+    # 3. the skin before and after, in each part's own frame
+    fig = plt.figure(figsize=(5 * len(calibrated), 4.5))
+    for i, name in enumerate(calibrated):
+        ax = fig.add_subplot(1, len(calibrated), i + 1, projection="3d")
+        part = skin.parts[name]
+        before, _ = part.taxel_positions(prior.parts.get(name))
+        after, _ = part.taxel_positions(result.calibration.parts[name])
+        b, a = before[part.present] * 1000, after[part.present] * 1000
+        ax.scatter(*b.T, s=4, c="tab:gray", label="before")
+        ax.scatter(*a.T, s=4, c="tab:red", label="after")
+        ax.set_title(f"{name} ({part.parent_frame}, mm)", fontsize=9)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "skin_before_after.png", dpi=110)
+    plt.close(fig)

@@ -1,0 +1,106 @@
+"""Pairing for the solver: each part pair paired on its own touches, rows selected, re-pairing tracked."""
+from __future__ import annotations
+
+import numpy as np
+
+from nao_skin.calibration.pairing import KIND_COP, KIND_NORMAL, KIND_TAXEL, Pairing, pair_touches
+from nao_skin.calibration.plan import Step, part_rank
+from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.touch.memo import per_objects
+from nao_skin.touch.touches import TouchSet
+
+
+def select_rows(pairing: Pairing, kinds: tuple, inliers: np.ndarray | None = None) -> Pairing:
+    """Rows of the given kinds (and of inlier touches only, if given)."""
+    keep = np.isin(pairing.row_kind, kinds)
+    if inliers is not None:
+        keep &= inliers[pairing.row_touch]
+    new_index = np.cumsum(keep) - 1
+    tkeep = keep[pairing.term_row]
+    return Pairing(row_touch=pairing.row_touch[keep], row_kind=pairing.row_kind[keep],
+                   row_parts=pairing.row_parts[keep], term_row=new_index[pairing.term_row[tkeep]],
+                   term_part=pairing.term_part[tkeep], term_slot=pairing.term_slot[tkeep],
+                   term_weight=pairing.term_weight[tkeep], distance=pairing.distance[keep])
+
+def with_normal_rows(selected: Pairing, pairing: Pairing, weight: float, inliers: np.ndarray | None = None) -> Pairing:
+    """``selected`` plus one normal row per closest-taxel row of ``pairing`` (closest-COP
+    rows where it has no taxel rows, e.g. in a mount stage).
+
+    Touching surfaces face each other, so the normals at the contact cancel:
+    the row is ``weight * (n_A + n_B)`` (``weight`` in metres per radian of
+    disagreement), ``n`` the closest taxels' normals or the contacts' mean
+    normals. Points alone leave the rotation about a band of contacts nearly
+    free; the normals pin it (simulated planar poses: a hand mount 45 degrees
+    off fits the points better than the truth, while its normals disagree by
+    30 degrees against 0.5 at the truth). A taxel row has two terms against a
+    COP row's dozen: the same information for a fraction of the Jacobian.
+    """
+    if weight <= 0:
+        return selected
+    source = KIND_TAXEL if np.any(pairing.row_kind == KIND_TAXEL) else KIND_COP
+    src = select_rows(pairing, (source,), inliers)
+    if len(src.row_touch) == 0:
+        return selected
+    normal = Pairing(row_touch=src.row_touch, row_kind=np.full(len(src.row_touch), KIND_NORMAL, np.int8),
+                     row_parts=src.row_parts, term_row=src.term_row, term_part=src.term_part,
+                     term_slot=src.term_slot, term_weight=weight * np.abs(src.term_weight),
+                     distance=np.full(len(src.row_touch), np.nan))
+    return concat_pairings([selected, normal])
+
+
+def _pair_subset(touches: TouchSet, pa: str, pb: str):
+    """The touches where both parts fire, and their rows in ``touches`` (kept: pairing runs
+    many times on the same set, and most touches of a multi-pair recording involve other pairs)."""
+    def subset():
+        fired = touches.parts_of_touch()
+        rows = np.flatnonzero(fired[:, touches.part_index(pa)] & fired[:, touches.part_index(pb)])
+        return touches.subset(rows), rows
+    return per_objects((touches,), ("pair subset", pa, pb), subset)
+
+def pair_parts(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, pa: str, pb: str,
+               kinds=("cop", "taxel", "taxel5"), taxel_rule: str = "contacts") -> Pairing:
+    """``pair_touches`` for one pair of parts, computed on the touches where both fire only."""
+    sub, rows = _pair_subset(touches, pa, pb)
+    p = pair_touches(sub, skin, calib, kinds=kinds, parts=(pa, pb), taxel_rule=taxel_rule)
+    remap = np.array([touches.part_index(n) for n in sub.part_names], dtype=int)
+    return Pairing(row_touch=rows[p.row_touch], row_kind=p.row_kind, row_parts=remap[p.row_parts],
+                   term_row=p.term_row, term_part=remap[p.term_part], term_slot=p.term_slot,
+                   term_weight=p.term_weight, distance=p.distance)
+
+def pair_step(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, step: Step,
+               kinds=("cop", "taxel", "taxel5")) -> Pairing:
+    """Pair the touches of every (target, reference) combination of a step."""
+    names = step.targets + step.references
+    parts = []
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            if a not in step.targets and b not in step.targets:
+                continue
+            pa, pb = sorted((a, b), key=part_rank)
+            if pa in touches.part_names and pb in touches.part_names:
+                p = pair_parts(touches, skin, calib, pa, pb, kinds)
+                if len(p.row_touch):
+                    parts.append(p)
+    if not parts:
+        return None
+    return concat_pairings(parts)
+
+def concat_pairings(pairings: list) -> Pairing:
+    if len(pairings) == 1:
+        return pairings[0]
+    offs = np.cumsum([0] + [len(p.row_touch) for p in pairings[:-1]])
+    return Pairing(
+        row_touch=np.concatenate([p.row_touch for p in pairings]),
+        row_kind=np.concatenate([p.row_kind for p in pairings]),
+        row_parts=np.concatenate([p.row_parts for p in pairings]),
+        term_row=np.concatenate([p.term_row + o for p, o in zip(pairings, offs)]),
+        term_part=np.concatenate([p.term_part for p in pairings]),
+        term_slot=np.concatenate([p.term_slot for p in pairings]),
+        term_weight=np.concatenate([p.term_weight for p in pairings]),
+        distance=np.concatenate([p.distance for p in pairings]))
+
+def touch_hashes(pairing: Pairing, n_touches: int) -> np.ndarray:
+    """A number per touch that changes when the pairing of that touch changes."""
+    code = (pairing.term_part.astype(float) * 4099.0 + pairing.term_slot + 1.0) * (1.0 + pairing.row_kind[pairing.term_row])
+    touch = pairing.row_touch[pairing.term_row]
+    return np.bincount(touch, weights=np.sin(code * 0.7071067811865476) * np.sign(pairing.term_weight), minlength=n_touches)

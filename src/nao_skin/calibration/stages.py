@@ -1,0 +1,281 @@
+"""One calibration stage: pair, hold what the data cannot determine, solve, re-pair until settled."""
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from nao_skin.calibration.options import KIND_ROWS
+from nao_skin.calibration.pairing import KIND_NAMES, Pairing, robot_joints
+from nao_skin.calibration.rows import pair_step, select_rows, touch_hashes, with_normal_rows
+from nao_skin.calibration.solver import COMPONENTS, ParameterLayout, ResidualModel, condition_number, gram, solve
+from nao_skin.errors import DataError
+from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.touch.touches import TouchSet
+
+if TYPE_CHECKING:   # only for annotations: calibrate imports this module
+    from nao_skin.calibration.options import CalibrationOptions
+
+
+def fitted_kinds(options: "CalibrationOptions", levels: set) -> tuple:
+    """Names of the pair kinds ('cop', 'taxel', 'taxel5') a stage of these levels fits."""
+    names = {v: k for k, v in KIND_NAMES.items()}
+    return tuple(names[k] for k in KIND_ROWS[options.mount_pairs if levels == {"mount"} else options.pairs])
+
+
+def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, say, fabric,
+              prior_sigma: dict | None = None) -> dict:
+    """One stage: pair, solve, re-pair under the new calibration, until the pairing settles.
+
+    ``prior_sigma``: prior std per group (:data:`PRIOR_GROUPS`); with
+    ``options.prior_scale == 'empirical'`` a stage that frees every part it
+    pairs (the joint refinement) re-estimates it from the touches after each
+    solve. The stage returns the last estimate.
+    """
+    t0 = time.perf_counter()
+    name = f"{step.name}: {'+'.join(sorted(levels, key=['mount', 'patch', 'triangle'].index))}"
+    parts_in = tuple(p for p in step.targets + step.references if p in touches.part_names)
+    layout = ParameterLayout(skin, parts_in)
+    kind_names = fitted_kinds(options, levels)
+    kinds = tuple(KIND_NAMES[k] for k in kind_names)
+    # normal rows are built from the closest taxel (or COP) pairs: pair COPs too if neither is fitted
+    normal_weight = options.normal_weight if set(levels) & set(options.normal_levels) else 0.0
+    pair_kinds = (kind_names if normal_weight <= 0 or {"cop", "taxel"} & set(kind_names)
+                  else kind_names + ("cop",))
+    free_levels = {p: set(levels) for p in free_parts}
+    prior_x = layout.to_vector(calib, fabric)
+    x = prior_x.copy()
+    hashes = None
+    iterations = repairings = 0
+    free = None
+    held_names: list = []
+    model = None
+    last_cost = np.inf
+    prior_sigma = dict(initial_prior_sigma(options) if prior_sigma is None else prior_sigma)
+    for repairings in range(1, options.max_repairings + 1):
+        current = layout.to_calibration(x, calib)
+        pairing_all = pair_step(touches, skin, current, step, pair_kinds)
+        if pairing_all is None:
+            raise DataError(f"{name}: no touch pairs the parts {', '.join(parts_in)}")
+        pairing = select_rows(pairing_all, kinds, inliers)
+        if len(pairing.row_touch) == 0:
+            raise DataError(f"{name}: no paired activations left to fit")
+        pairing = with_normal_rows(pairing, pairing_all, normal_weight, inliers)
+        new_hashes = touch_hashes(pairing, touches.n_touches)
+        if hashes is not None and np.mean(np.abs(new_hashes - hashes) > 1e-9) < options.repair_tolerance:
+            break
+        hashes = new_hashes
+        model = ResidualModel(skin, robot_joints(touches, skin), pairing, touches.part_names, layout, calib,
+                              variable_parts=free_parts, fabric=x[layout.fabric_col])
+        if free is None:   # what the data determines is decided once, on the first pairing
+            free, lower, upper = _bounds(layout, free_parts, levels, x, options)
+            # the fabric is a property of the whole skin: estimated once the mounts are in place
+            free[layout.fabric_col] = options.estimate_fabric and levels != {"mount"}
+            lower[layout.fabric_col], upper[layout.fabric_col] = options.fabric_bounds
+            if "patch" in levels:   # patches need about twice the mount's data (thesis 2.5)
+                for p in free_parts:
+                    pidx = touches.part_index(p)
+                    n_with = len(np.unique(pairing.row_touch[pairing.term_row[pairing.term_part == pidx]]))
+                    if n_with < options.min_patch_touches:
+                        _, pp, t, _ = layout.offsets[p]
+                        free[pp:t] = False
+                        say(f"{name}: {p} has {n_with} paired touches (< {options.min_patch_touches}): patches held")
+            if "triangle" in levels:
+                for p in free_parts:
+                    counts = _activation_counts(pairing, touches, skin, p)
+                    _, _, t, _ = layout.offsets[p]
+                    for tr in np.flatnonzero(counts < options.min_triangle_activations):
+                        free[t + 6 * tr: t + 6 * tr + 6] = False
+        # directions the touches do not excite are held; checked again after each re-pairing
+        # because a new pairing can lose what the last one excited (holds only accumulate).
+        # Held means at the prior: what an earlier solve of this stage moved there goes back.
+        newly_held = _hold_unobservable(model, current, free, free_levels, options.condition_limit)
+        free[newly_held] = False
+        x[newly_held] = prior_x[newly_held]
+        held_names = [layout.describe(c) for c in np.flatnonzero(free_mask(layout, free_parts, levels) & ~free)]
+        if not np.any(free):
+            break
+        weights = _prior_weights(layout, free_parts, options, prior_sigma)
+        result = solve(model, x, free, lower, upper, free_levels, options.solve_options(), prior=prior_x,
+                       prior_weights=weights)
+        iterations += result.iterations
+        x = result.x
+        # the prior's width from the evidence once every part is free: fitted to a fixed reference,
+        # a part's spread would include that reference's error (re-estimating in the sequential
+        # stages too ended at the same calibration on the real recording, with 10 % more iterations)
+        if options.prior_scale == "empirical" and not step.references:
+            prior_sigma = evidence_prior_sigma(result, x, free, weights, layout, free_parts, levels,
+                                               prior_sigma, options)
+        if last_cost - result.cost < 1e-4 * result.cost:
+            break
+        last_cost = result.cost
+    calib_out = layout.to_calibration(x, calib)
+    cond = condition_number(model, calib_out, free_levels, np.flatnonzero(free)) if model is not None else None
+    held = [h for h in held_names if h != "fabric_thickness"]
+    estimated = ({layout.describe(c) for c in np.flatnonzero(free_mask(layout, free_parts, levels) & free)}
+                 if free is not None else set())
+    return {"name": name, "calibration": calib_out, "iterations": iterations, "repairings": repairings,
+            "condition": cond, "held": compress_held(held),
+            # unknowns ('part/frame/comp') this stage set free or held: the report's final list of
+            # held frames is what no stage estimated (popped by calibrate, not reported per stage)
+            "_estimated": estimated, "_held": set(held),
+            "fabric_thickness_mm": 1000.0 * float(x[layout.fabric_col]), "prior_sigma": prior_sigma,
+            "seconds": time.perf_counter() - t0}
+
+def _bounds(layout: ParameterLayout, targets: tuple, levels: set, x: np.ndarray, options: "CalibrationOptions"):
+    lower = np.full(layout.size, -np.inf)
+    upper = np.full(layout.size, np.inf)
+    free = free_mask(layout, targets, levels)
+    for name in targets:
+        m, p, t, end = layout.offsets[name]
+        if options.bounded:
+            for (a, b), (bt, br) in (((p, t), options.patch_bounds), ((t, end), options.triangle_bounds)):
+                lim = np.tile([bt, bt, bt, br, br, br], (b - a) // 6)
+                lower[a:b] = -lim
+                upper[a:b] = lim
+    # values already beyond a bound (e.g. from a previous free run) stay feasible
+    lower = np.minimum(lower, x)
+    upper = np.maximum(upper, x)
+    return free, lower, upper
+
+def _activation_counts(pairing: Pairing, touches: TouchSet, skin: SkinModel, part: str) -> np.ndarray:
+    """Paired activations per triangle row of ``part``: touches whose residual terms use that triangle."""
+    pidx = touches.part_index(part)
+    sp = skin.parts[part]
+    sel = pairing.term_part == pidx
+    tri = sp.slot_triangle[pairing.term_slot[sel]]
+    touch = pairing.row_touch[pairing.term_row[sel]]
+    key = np.unique(touch * 1000 + tri)
+    return np.bincount(key % 1000, minlength=len(sp.triangle_ids))
+
+def _hold_unobservable(model: ResidualModel, calib: SkinCalibration, free: np.ndarray, free_levels: dict,
+                       limit: float) -> list:
+    """Columns to hold at the prior: no information, or the weakest directions until cond <= limit.
+
+    Conditioning is judged on the Jacobi-scaled normal equations so that
+    metres and radians compare; each direction weaker than ``1/limit`` of the
+    strongest holds the column that dominates it.
+    """
+    cols = np.flatnonzero(free)
+    if len(cols) == 0:
+        return []
+    h = gram(model.jacobian(calib, free_levels, cols))
+    d = np.diag(h)
+    informed = d > 1e-12 * max(d.max(), 1e-300)
+    held = set(cols[~informed].tolist())
+    idx = np.flatnonzero(informed)
+    for _ in range(3):   # one decomposition usually settles it; a second pass checks
+        if len(idx) == 0:
+            break
+        sub = h[np.ix_(idx, idx)]
+        s = np.sqrt(np.diag(sub))
+        scaled = sub / np.outer(s, s)
+        ev = np.linalg.eigvalsh(scaled)   # eigenvalues alone (3x cheaper): usually nothing is weak
+        if ev[0] >= ev[-1] / limit:
+            break
+        ev, vec = np.linalg.eigh(scaled)
+        weak = np.flatnonzero(ev < ev[-1] / limit)
+        # each weak direction holds the unknown that dominates it (distinct ones first)
+        drop = set()
+        for k in weak:
+            for i in np.argsort(-np.abs(vec[:, k])):
+                if int(idx[i]) not in drop:
+                    drop.add(int(idx[i]))
+                    break
+        held |= {int(cols[i]) for i in drop}
+        idx = np.array([i for i in idx if i not in drop], dtype=int)
+    return sorted(held)
+
+PRIOR_GROUPS = ("patch_translation", "patch_rotation", "triangle_translation", "triangle_rotation")
+
+
+def initial_prior_sigma(options: "CalibrationOptions") -> dict:
+    """Prior std of each patch / triangle component (m, rad) before the touches say more: bound / prior_strength."""
+    if options.prior_strength <= 0:
+        return {}
+    (pt, pr), (tt, tr) = options.patch_bounds, options.triangle_bounds
+    return dict(zip(PRIOR_GROUPS, (pt / options.prior_strength, pr / options.prior_strength,
+                                   tt / options.prior_strength, tr / options.prior_strength)))
+
+
+def _group_columns(layout, parts, group: str) -> np.ndarray:
+    """Columns of ``parts`` in one prior group, e.g. 'triangle_rotation'."""
+    level, comp = group.split("_")
+    out = []
+    for p in parts:
+        _, pp, t, end = layout.offsets[p]
+        a, b = (pp, t) if level == "patch" else (t, end)
+        cols = np.arange(a, b).reshape(-1, 6)
+        out.append(cols[:, :3] if comp == "translation" else cols[:, 3:])
+    return np.concatenate([c.ravel() for c in out]).astype(int) if out else np.zeros(0, int)
+
+
+def _prior_weights(layout, parts, options, prior_sigma: dict):
+    """Per-unknown prior weights (sigma_residual / sigma_prior)^2 for patches and triangles."""
+    w = np.zeros(layout.size)
+    for group, sigma in prior_sigma.items():
+        w[_group_columns(layout, parts, group)] = (options.residual_sigma / sigma) ** 2
+    return w
+
+
+def evidence_prior_sigma(result, x: np.ndarray, free: np.ndarray, weights: np.ndarray, layout, parts,
+                         levels, prior_sigma: dict, options: "CalibrationOptions") -> dict:
+    """Widen the prior std of the groups a solve fitted when the touches say the skin is farther off.
+
+    How far patches and triangles sit from the layout is a property of the
+    robot's skin (how carefully it was glued), not of the thesis' bounds: a
+    prior made from the bounds (bound / prior_strength) over-shrinks a skin
+    glued on less carefully. MacKay's evidence update per group,
+    ``sigma^2 = sum(x^2) / gamma`` over the group's corrections ``x`` (from the
+    layout), with ``gamma = sum(1 - Sigma_jj / sigma^2)`` the number of
+    components the touches determine (``Sigma``, the posterior covariance, from
+    the solve's normal matrix). It only ever widens the prior, up to 3 x the
+    bound: for groups the touches barely determine the update collapses towards
+    zero (simulator, triangles: 0.05 mm where the truth is 0.17 mm per
+    component, true error up 10 %), so the assumed width is the floor.
+    """
+    if result.normal_matrix is None or not prior_sigma or not set(levels) & {"patch", "triangle"}:
+        return prior_sigma
+    cols = np.flatnonzero(free)
+    try:
+        inv_diag = np.diag(np.linalg.inv(result.normal_matrix))
+    except np.linalg.LinAlgError:
+        return prior_sigma
+    if not np.all(np.isfinite(inv_diag)):
+        return prior_sigma
+    bounds = {"patch": options.patch_bounds, "triangle": options.triangle_bounds}
+    floor = initial_prior_sigma(options)
+    out = dict(prior_sigma)
+    for group in prior_sigma:
+        level, comp = group.split("_")
+        if level not in levels:
+            continue
+        idx = np.flatnonzero(np.isin(cols, _group_columns(layout, parts, group)))   # positions among free
+        determined = float(np.sum(np.clip(1.0 - weights[cols[idx]] * inv_diag[idx], 0.0, 1.0)))
+        if determined < 1.0:
+            continue   # the touches say next to nothing about this group: keep what was assumed
+        bound = bounds[level][0 if comp == "translation" else 1]
+        sigma = np.sqrt(float(np.sum(x[cols[idx]] ** 2)) / determined)
+        out[group] = float(np.clip(sigma, floor[group], 3.0 * bound))
+    return out
+
+def free_mask(layout, parts, levels):
+    mask = np.zeros(layout.size, bool)
+    for p in parts:
+        m, pp, t, end = layout.offsets[p]
+        if "mount" in levels:
+            mask[m:pp] = True
+        if "patch" in levels:
+            mask[pp:t] = True
+        if "triangle" in levels:
+            mask[t:end] = True
+    return mask
+
+def compress_held(names: list) -> list:
+    """'part/frame/comp' entries -> 'part/frame' when all six components are held."""
+    by_frame: dict = {}
+    for n in names:
+        frame, comp = n.rsplit("/", 1)
+        by_frame.setdefault(frame, []).append(comp)
+    return [f if len(c) == 6 else f"{f} ({','.join(sorted(c, key=COMPONENTS.index))})" for f, c in by_frame.items()]

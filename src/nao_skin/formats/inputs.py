@@ -1,0 +1,133 @@
+"""Load touches from what users have: rosbag2 recordings, simulator output directories, the thesis' text files."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from nao_skin.errors import DataError
+from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.touch.datasets import LoadReport
+from nao_skin.touch.touches import TouchSet
+
+TRUTH_FILE = "truth_calibration.yaml"      # written by `nao-skin simulate` next to its bag
+WHAT = "a rosbag2 recording, a simulator output directory or a legacy .txt data set"
+
+
+def is_bag(path: Path) -> bool:
+    return (path.is_dir() and (path / "metadata.yaml").exists()) or path.suffix in (".mcap", ".db3")
+
+
+def find_bag(path: Path) -> Path:
+    """A bag directory, a bag file, or a simulator output directory holding one bag."""
+    if is_bag(path):
+        return path
+    if path.is_dir():
+        bags = sorted(p for p in path.iterdir() if is_bag(p))
+        if len(bags) == 1:
+            return bags[0]
+        if len(bags) > 1:
+            raise DataError(f"{path}: holds {len(bags)} bags ({', '.join(b.name for b in bags)}); name one")
+    raise DataError(f"{path}: neither {WHAT}")
+
+
+def check_inputs(paths) -> None:
+    """Fail fast, with the same line in every command, on an input that cannot be read at all."""
+    if not paths:
+        raise DataError(f"no input given ({WHAT})")
+    for raw in paths:
+        path = Path(raw)
+        if not path.exists():
+            raise DataError(f"{path}: no such file or directory")
+        if path.is_dir() and not any(path.iterdir()):
+            raise DataError(f"{path}: empty directory; expected {WHAT}")
+        if path.is_file() and path.suffix != ".txt" and not is_bag(path):
+            raise DataError(f"{path}: neither {WHAT}")
+        if path.is_dir():
+            find_bag(path)
+
+
+def load_touches(paths, skin: SkinModel, log=print, summary=None) -> tuple:
+    """Touches of every input, concatenated; the load report; ground truth if a simulator wrote one.
+
+    ``log`` gets each input's summary and first skip reasons; ``summary`` (default
+    ``log``) gets the one-line summary of every input that skipped something and
+    the hints, so a quiet caller still says what was left out. Nothing already
+    read is lost because of a bad touch elsewhere.
+    """
+    from nao_skin.formats.bag import read_touches
+    from nao_skin.formats.legacy import read_legacy
+
+    check_inputs(paths)
+    summary = summary or log
+    sets, truth = [], None
+    report = LoadReport(source=", ".join(str(p) for p in paths))
+    for raw in paths:
+        path = Path(raw)
+        if path.is_file() and path.suffix == ".txt":
+            touches, rep = read_legacy(path, skin)
+        else:
+            bag = find_bag(path)
+            touches, rep = read_touches(bag, skin)
+            for candidate in (path / TRUTH_FILE, bag.parent / TRUTH_FILE):
+                if candidate.exists() and truth is None:
+                    truth = SkinCalibration.load(candidate, skin)
+        note = joint_limit_note(touches, skin.robot, str(path))
+        if note:
+            rep.notes.append(note)
+        lines = rep.lines(limit=5)
+        log(lines[0])
+        if summary is not log:
+            for line in ([lines[0]] if rep.n_skipped else []) + rep.notes:
+                summary(line)
+        for line in lines[1:]:
+            log(line)
+        for hint in layout_hints(touches, rep, skin):
+            summary(hint)
+        report.n_read += rep.n_read
+        report.n_loaded += rep.n_loaded
+        report.merge(rep)
+        if touches.n_touches:
+            sets.append(touches)
+    if not sets:
+        raise DataError(f"{report.source}: no usable touch in the input ({report.summary()})")
+    return (sets[0] if len(sets) == 1 else TouchSet.concatenate(sets)), report, truth
+
+
+def layout_hints(touches: TouchSet, report: LoadReport, skin: SkinModel) -> list:
+    """A line per part whose data mostly names slots its layout does not have: the wrong layout file."""
+    out = []
+    for part, n_bad in sorted(report.unknown_slots.items()):
+        kept = int(np.sum(touches.parts_of_touch()[:, touches.part_index(part)])) if part in touches.part_names else 0
+        if n_bad > kept:
+            source = skin.parts[part].layout_file if part in skin.parts else "?"
+            out.append(f"{report.source}: {n_bad} {report.unit} of part '{part}' name taxels that its layout"
+                       f" ({source}) does not have, {kept} touches of it were kept: pass the recording's own"
+                       f" layout with --taxels {part}=FILE")
+    return out
+
+
+def joint_limit_note(touches: TouchSet, robot, source: str) -> str | None:
+    """One line on touches whose angles lie outside the robot config's joint limits, or None.
+
+    They are kept: the angles are what the robot measured, and a limit in the
+    config can be tighter than the joint's travel; many of them point at a
+    wrong robot config or joint name mapping instead.
+    """
+    cols = [i for i, n in enumerate(touches.joint_names) if n in robot.joint_index]
+    if not cols or touches.n_touches == 0:
+        return None
+    q = touches.joints[:, cols]
+    limits = robot.limits[[robot.joint_index[touches.joint_names[i]] for i in cols]]
+    with np.errstate(invalid="ignore"):
+        past = np.fmax(limits[:, 0] - q, q - limits[:, 1])        # > 0 outside; NaN (unused joint) ignored
+    outside = np.nan_to_num(past, nan=0.0) > 0.0
+    n = int(outside.any(axis=1).sum())
+    if n == 0:
+        return None
+    t, j = np.unravel_index(np.argmax(np.where(outside, past, -np.inf)), past.shape)
+    name = touches.joint_names[cols[j]]
+    return (f"{source}: {n} of {touches.n_touches} touches have joint angles outside the robot config's limits,"
+            f" kept (measured angles; the config's limits may be tighter than the joint); the farthest:"
+            f" {name} = {q[t, j]:.4f} rad in touch {touches.keys[t]!r}, {past[t, j]:.4f} rad past"
+            f" [{limits[j, 0]:.4f}, {limits[j, 1]:.4f}]; check the robot config if many are")

@@ -1,0 +1,324 @@
+"""The thesis' own dataset text format (§3.5.1): one Python dict literal ``{key: [skinContacts, joints]}``.
+
+``key`` is a touch index ("0", "1", ...) or a timestamp; ``skinContacts`` maps a
+skinManager contactId to a dict with ``cop``, ``geoCenter``, ``normal``,
+``skinPart``, ``taxelInfo`` ({"slot": [x, y, z, nx, ny, nz]}) and ``force``,
+``moment``, ``averagePressure`` (possibly None); ``joints`` maps NAOqi joint
+names to radians. The file is parsed with :mod:`ast` (never ``eval``), and
+each touch is evaluated on its own, so one bad touch is skipped with a
+one-line reason while the rest of the file still loads.
+"""
+from __future__ import annotations
+
+import ast
+import json
+import math
+import re
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from nao_skin.errors import DataError
+from nao_skin.model.robot import RobotModel
+from nao_skin.model.skin import DEFAULT_CHAINS, SkinModel, part_from_layout
+from nao_skin.touch.datasets import LoadReport
+from nao_skin.touch.touches import TouchSet
+
+
+def skin_model_for(taxel_files: Mapping[str, str | Path], robot: RobotModel,
+                   chains: Mapping[str, str | None] | None = None) -> SkinModel:
+    """A skin model of just these parts, from a recording's own taxel files."""
+    chains = dict(DEFAULT_CHAINS, **(chains or {}))
+    parts = {}
+    for name, path in taxel_files.items():
+        if name not in chains:
+            raise DataError(f"{path}: skin part '{name}' has no known chain (give one for it)")
+        parts[name] = part_from_layout(name, chains[name], robot, path)
+    return SkinModel(robot, parts, source=", ".join(str(p) for p in taxel_files.values()))
+
+
+class _SkipTouch(DataError):
+    """A touch that cannot be used; ``reason`` is the short key it is counted under."""
+
+    def __init__(self, reason: str, message: str, part: str | None = None):
+        super().__init__(message)
+        self.reason = reason
+        self.part = part        # set when the part's layout lacks a named slot
+
+
+def _vector3(value, where: str) -> np.ndarray:
+    """A recorded [x, y, z] or None (-> NaN)."""
+    if value is None:
+        return np.full(3, np.nan)
+    try:
+        out = np.array([float(v) for v in value], dtype=float)
+    except (TypeError, ValueError):
+        raise _SkipTouch("malformed field", f"{where}: expected 3 numbers or None, got {value!r}") from None
+    if out.shape != (3,):
+        raise _SkipTouch("malformed field", f"{where}: expected 3 numbers or None, got {len(out)}")
+    return out
+
+
+def _stamp_of(key, row: int) -> float:
+    try:
+        return float(key)
+    except (TypeError, ValueError):
+        return float(row)      # neither an index nor a timestamp: file order
+
+
+class _Touch:
+    """One parsed touch, before it joins the flat arrays."""
+
+    __slots__ = ("key", "stamp", "joints", "contacts")
+
+    def __init__(self, key, stamp, joints, contacts):
+        self.key, self.stamp, self.joints, self.contacts = key, stamp, joints, contacts
+
+
+def _is_int(text) -> bool:
+    try:
+        int(text)
+    except (TypeError, ValueError):
+        return False
+    return True
+
+
+def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapping[str, int],
+                 part_index: Mapping[str, int]):
+    """Validate one ``[skinContacts, joints]`` entry; raise DataError naming the field."""
+    if not isinstance(value, (list, tuple)) or len(value) != 2 or not isinstance(value[0], dict) \
+            or not isinstance(value[1], dict):
+        raise _SkipTouch("malformed touch", f"{where}: expected [skinContacts dict, joints dict]")
+    contacts_in, joints_in = value
+    contacts = []
+    for cid, contact in contacts_in.items():
+        cwhere = f"{where}: contact {cid}"
+        if not isinstance(contact, dict):
+            raise _SkipTouch("malformed touch", f"{cwhere}: expected a dict")
+        part = contact.get("skinPart")
+        if not isinstance(part, str) or part not in skin.parts:
+            raise _SkipTouch("unknown skin part", f"{cwhere}: field 'skinPart': unknown skin part {part!r}"
+                            f" (configured: {', '.join(skin.parts)})")
+        info = contact.get("taxelInfo")
+        if not isinstance(info, dict) or not info:
+            raise _SkipTouch("empty contact", f"{cwhere}: field 'taxelInfo': no activated taxel listed")
+        sp = skin.parts[part]
+        try:
+            slots = np.fromiter((int(s) for s in info), dtype=int, count=len(info))
+        except (TypeError, ValueError):
+            bad = next(s for s in info if not _is_int(s))
+            raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {bad!r} is not an integer") from None
+        outside = (slots < 0) | (slots >= len(sp.present))
+        if outside.any():
+            raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {slots[outside][0]} out of range"
+                            f" 0..{len(sp.present) - 1} of part '{part}'", part)
+        absent = ~sp.present[slots]
+        if absent.any():
+            raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {slots[absent][0]} is not a taxel"
+                            f" of the '{part}' layout ({sp.layout_file})", part)
+        pressure = contact.get("averagePressure")
+        try:
+            pressure = np.nan if pressure is None else float(pressure)
+        except (TypeError, ValueError):
+            raise _SkipTouch("malformed field", f"{cwhere}: field 'averagePressure': not a number ({pressure!r})") from None
+        cop = _vector3(contact.get("cop"), f"{cwhere}: field 'cop'")
+        try:
+            contact_id = int(cid)
+        except (TypeError, ValueError):
+            contact_id = -1
+        contacts.append((part_index[part], contact_id, cop, slots, pressure))
+    if not contacts:
+        raise _SkipTouch("empty contact", f"{where}: no skin contact")
+    joints = np.full(len(joint_index), np.nan)
+    for name, angle in joints_in.items():
+        idx = joint_index.get(name)
+        if idx is None:
+            continue                     # a joint the model does not use (e.g. legs)
+        try:
+            joints[idx] = np.nan if angle is None else float(angle)
+        except (TypeError, ValueError):
+            raise _SkipTouch("bad joint angle", f"{where}: joint '{name}': not a number ({angle!r})") from None
+    robot = skin.robot
+    for p in sorted({c[0] for c in contacts}):
+        part = skin.parts[list(part_index)[p]]
+        for name in robot.chain_joint_names(part.chain) if part.chain else ():
+            if name not in joints_in:
+                raise _SkipTouch("missing joint", f"{where}: joint '{name}' is missing (needed by part '{part.name}')")
+            if not math.isfinite(joints[joint_index[name]]):
+                raise _SkipTouch("bad joint angle", f"{where}: joint '{name}' is not a finite angle ({joints_in[name]!r})")
+    return joints, contacts
+
+
+_NOT_A_LITERAL = object()
+_NON_FINITE = {"nan": math.nan, "NaN": math.nan, "inf": math.inf, "Infinity": math.inf}
+# Python names the recorder writes, as JSON spells them (outside strings only)
+_JSON_NAMES = (("None", "null"), ("True", "true"), ("False", "false"), ("nan", "NaN"), ("inf", "Infinity"))
+# a number right before ':' is a dict key (a skinManager contactId); JSON wants it quoted. Matched on the
+# reversed text, where the pattern starts at the rare ':' instead of at every digit of every number.
+_REVERSED_NUMBER_KEY = re.compile(r":(\s*)([0-9.]+-?)(?=\s*[{,])")
+_SPACE = re.compile(r"\s*")
+
+
+class _NonFiniteNames(ast.NodeTransformer):
+    """``nan`` and ``inf`` as Python prints them (a driver's NaN angle) become float constants."""
+
+    def visit_Name(self, node):
+        if node.id in _NON_FINITE:
+            return ast.copy_location(ast.Constant(_NON_FINITE[node.id]), node)
+        return node
+
+
+def _literal_with_non_finite(node):
+    """The literal of ``node`` if its only non-literal names are nan/inf (then checked as angles), else a marker."""
+    try:
+        return ast.literal_eval(_NonFiniteNames().visit(node))
+    except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
+        return _NOT_A_LITERAL
+
+
+def _literal_entries(path: Path) -> list:
+    """``(line, key, value)`` per top-level entry; a value that is no literal is ``_NOT_A_LITERAL``.
+
+    Files as the thesis' recorder writes them (Python's repr of a dict: no
+    escapes, no tuples) take the fast path, read as JSON; anything else a
+    Python literal allows, or a broken file, takes the exact path through
+    :mod:`ast`, which names the line of each problem. Both give the same entries.
+    """
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read legacy dataset ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{path}: not a text file ({exc.reason} at byte {exc.start})") from None
+    entries = _json_entries(text)
+    return entries if entries is not None else _ast_entries(text, path)
+
+
+def _json_entries(text: str) -> list | None:
+    """The entries of a plain recorder file, through the C JSON decoder; None when it is not one."""
+    if '"' in text or "\\" in text or "\x00" in text:
+        return None                       # strings with escapes: the exact path
+    parts = text.split("'")               # odd items: the strings' contents, even items: everything else
+    if len(parts) % 2 == 0:
+        return None
+    code = "\x00".join(parts[0::2])
+    for name, spelled in _JSON_NAMES:
+        if name in code:
+            code = code.replace(name, spelled)
+    code = _REVERSED_NUMBER_KEY.sub(r':\1"\2"', code[::-1])[::-1]
+    parts[0::2] = code.split("\x00")
+    text = '"'.join(parts)                # same lines as the file: nothing added or removed a newline
+    decoder = json.JSONDecoder()
+    entries, line, counted = [], 1, 0
+    try:
+        i = _SPACE.match(text).end()
+        if text[i] != "{":
+            return None
+        i = _SPACE.match(text, i + 1).end()
+        while text[i] != "}":
+            key, i = decoder.raw_decode(text, i)
+            i = _SPACE.match(text, i).end()
+            if text[i] != ":":
+                return None
+            i = _SPACE.match(text, i + 1).end()
+            line += text.count("\n", counted, i)
+            counted = i
+            value, i = decoder.raw_decode(text, i)
+            entries.append((line, key, value))
+            i = _SPACE.match(text, i).end()
+            if text[i] == ",":
+                i = _SPACE.match(text, i + 1).end()
+            elif text[i] != "}":
+                return None
+        if text[i + 1:].strip():
+            return None
+    except (ValueError, IndexError, RecursionError):
+        return None
+    return entries
+
+
+def _ast_entries(text: str, path: Path) -> list:
+    """The entries of any file Python's literal syntax accepts; one bad entry does not lose the others."""
+    try:
+        tree = ast.parse(text, filename=str(path), mode="eval")
+    except SyntaxError as exc:
+        raise DataError(f"{path}:{exc.lineno}: Python syntax error ({exc.msg});"
+                        f" a legacy dataset is one dict literal") from None
+    except (ValueError, MemoryError, RecursionError) as exc:
+        raise DataError(f"{path}: cannot parse as a Python literal ({exc})") from None
+    if not isinstance(tree.body, ast.Dict):
+        raise DataError(f"{path}:{tree.body.lineno}: expected one dict literal {{key: [skinContacts, joints]}},"
+                        f" found {type(tree.body).__name__}")
+    entries = []
+    for key_node, value_node in zip(tree.body.keys, tree.body.values):
+        try:
+            key = ast.literal_eval(key_node) if key_node is not None else None
+        except ValueError:
+            key = None
+        try:
+            value = ast.literal_eval(value_node)
+        except ValueError:
+            value = _literal_with_non_finite(value_node)
+        except (TypeError, SyntaxError, MemoryError, RecursionError):
+            value = _NOT_A_LITERAL
+        entries.append((getattr(value_node, "lineno", "?"), key, value))
+    return entries
+
+
+def read_legacy(path: str | Path, skin: SkinModel) -> tuple:
+    """Read a legacy dataset: ``(TouchSet, LoadReport)``.
+
+    Touch order is the file's. Stamps are ``float(key)`` (an index key is its
+    own number of seconds); ``keys`` keep the original strings. Activation
+    pressures are the contact's ``averagePressure`` (NaN when None), the
+    recorded ``cop`` becomes ``contact_cop``. A syntax error in the file is a
+    :class:`DataError` naming file and line; a bad touch is skipped and counted.
+    """
+    path = Path(path)
+    entries = _literal_entries(path)
+    report = LoadReport(str(path))
+    robot = skin.robot
+    part_names = tuple(skin.parts)
+    part_index = {n: i for i, n in enumerate(part_names)}
+    joint_index = robot.joint_index
+    parsed = []
+    for row, (line, key, value) in enumerate(entries):
+        report.n_read += 1
+        where = f"{path}:{line}: touch {key!r}"
+        if not isinstance(key, (str, int, float)):
+            report.skip("malformed touch", f"{path}:{line}: touch #{row}: key is not a string or number")
+            continue
+        if value is _NOT_A_LITERAL:
+            report.skip("not a literal", f"{where}: not a Python literal (only dicts, lists, numbers,"
+                                         f" strings, None are allowed)")
+            continue
+        try:
+            joints, contacts = _parse_touch(value, str(key), where, skin, joint_index, part_index)
+        except _SkipTouch as exc:
+            report.skip(exc.reason, str(exc), part=exc.part)
+            continue
+        parsed.append(_Touch(str(key), _stamp_of(key, row), joints, contacts))
+    report.n_loaded = len(parsed)
+    return _to_touchset(parsed, part_names, tuple(robot.joint_names)), report
+
+
+def _to_touchset(parsed, part_names, joint_names) -> TouchSet:
+    if not parsed:
+        return TouchSet.empty(part_names, joint_names)
+    contacts = [(t, *c) for t, touch in enumerate(parsed) for c in touch.contacts]
+    n_act = np.array([len(c[4]) for c in contacts], dtype=int)
+    act_contact = np.repeat(np.arange(len(contacts)), n_act)
+    return TouchSet(
+        part_names=part_names, joint_names=joint_names,
+        stamps=np.array([t.stamp for t in parsed], dtype=float),
+        keys=[t.key for t in parsed],
+        joints=np.stack([t.joints for t in parsed]),
+        contact_touch=np.array([c[0] for c in contacts], dtype=int),
+        contact_part=np.array([c[1] for c in contacts], dtype=int),
+        contact_id=np.array([c[2] for c in contacts], dtype=int),
+        contact_cop=np.stack([c[3] for c in contacts]),
+        act_contact=act_contact,
+        act_slot=np.concatenate([c[4] for c in contacts]).astype(int),
+        act_pressure=np.repeat(np.array([c[5] for c in contacts], dtype=float), n_act),
+    )

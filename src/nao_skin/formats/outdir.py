@@ -1,0 +1,215 @@
+"""Output directories: which ones a command may write, and replacing one safely.
+
+Every output directory nao-skin produces holds a marker file, ``.nao_skin_output``
+(JSON: the command that wrote it, when, what kind of output it is and every
+entry it wrote). A directory is only ever replaced when it carries the marker
+AND holds nothing the marker does not list, so a file a user later put into an
+output directory is never deleted, AND by an output of the same kind, so no
+``--force`` turns a (simulated) recording into a calibration or a benchmark.
+:func:`check_output_dir` is called before any data is loaded, so a
+mistaken ``--out`` costs nothing; :func:`replace_dir` checks again at the end,
+because a calibration can run for minutes while the user works in the directory.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+from nao_skin.errors import DataError
+
+MARKER = ".nao_skin_output"
+FORMAT = "nao_skin/output/1"
+# kinds of output
+RECORDING = "recording"          # nao-skin simulate
+CALIBRATION = "calibration"      # nao-skin calibrate, demo, the calibrate node
+BENCHMARK = "benchmark"          # nao-skin bench
+
+
+def write_marker(directory: str | Path, command: str, kind: str, entries=None, stamp: bool = True) -> Path:
+    """Mark ``directory`` as a ``kind`` of output written by ``nao-skin COMMAND``.
+
+    ``entries``: the relative paths this command writes there; default: every
+    entry the directory holds now (call it on a directory only we have written,
+    e.g. the temporary one before it is moved into place). ``stamp=False``
+    leaves the time out, for outputs promised to be the same bytes each run.
+    """
+    directory = Path(directory)
+    if entries is None:
+        entries = [rel for rel, _ in _walk(directory)]
+    info = {"format": FORMAT, "command": f"nao-skin {command}", "kind": kind}
+    if stamp:
+        info["written"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    info["entries"] = sorted(set(entries) - {MARKER})
+    path = directory / MARKER
+    path.write_text(json.dumps(info, indent=1) + "\n")
+    return path
+
+
+def read_marker(directory: str | Path) -> dict | None:
+    """The marker of ``directory``, or None when it has none (or one we cannot read: not ours)."""
+    path = Path(directory) / MARKER
+    try:
+        info = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if (not isinstance(info, dict) or info.get("format") != FORMAT or not isinstance(info.get("entries"), list)
+            or not isinstance(info.get("kind"), str)):
+        return None
+    return info
+
+
+def check_output_dir(out: str | Path, kind: str, inputs=(), force: bool = False, label: str = "--out") -> Path:
+    """Refuse (DataError, one line) an output directory that writing a ``kind`` would damage; returns it resolved.
+
+    Refused: an existing file, or a path below one; the current directory or
+    one containing it; an input (file or directory) or a directory containing
+    one or inside one; a non-empty directory without our marker; a marked one
+    holding anything the marker does not list or another kind of output (both
+    even with ``force``); a marked one without ``force``. A missing or empty
+    directory is fine.
+    """
+    given = Path(out)
+    name = f"{label} {given}"
+    if given.exists() and not given.is_dir():
+        raise DataError(f"{name}: is an existing file, not a directory; choose a directory")
+    for parent in Path(os.path.abspath(given)).parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise DataError(f"{name}: {parent} is a file, not a directory; choose another place")
+            break
+    forms = _forms(given)
+    for cwd in _forms(Path.cwd()):
+        for o in forms:
+            if o == cwd:
+                raise DataError(f"{name}: is the current directory; writing there would replace everything in it,"
+                                f" choose a new directory")
+            if _inside(cwd, o):
+                raise DataError(f"{name}: contains the current directory; choose a new directory")
+    for item in inputs:
+        if item is None or str(item) == "":
+            continue
+        what = f"the input {item}"
+        for i in _forms(Path(item)):
+            for o in forms:
+                if o == i:
+                    raise DataError(f"{name}: is {what}; writing there would replace it, choose another directory")
+                if _inside(i, o):
+                    raise DataError(f"{name}: contains {what}; writing there would replace it,"
+                                    f" choose another directory")
+                if _inside(o, i):
+                    raise DataError(f"{name}: lies inside {what}; choose a directory outside the input")
+    problem = _replace_problem(given, kind, force)
+    if problem:
+        raise DataError(f"{name}: {problem}")
+    return Path(os.path.realpath(given))
+
+
+def replace_dir(new: str | Path, out: str | Path, label: str = "output directory") -> Path:
+    """Move the finished, marked directory ``new`` to ``out`` (same file system, e.g. a temporary sibling).
+
+    An earlier output at ``out`` is renamed aside first, the new one moved in,
+    then the old one removed, so at no moment is there neither. It is checked
+    once more here: one holding a file we did not write, or another kind of
+    output, is not replaced.
+    """
+    new, out = Path(new), Path(os.path.realpath(out))
+    marker = read_marker(new)
+    if marker is None:
+        raise RuntimeError(f"{new}: has no output marker; write_marker first")   # a bug of the caller, not bad input
+    problem = _replace_problem(out, marker["kind"], force=True)
+    if problem:
+        raise DataError(f"{label} {out}: {problem}")
+    if not out.exists():
+        os.replace(new, out)
+        return out
+    aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
+    os.replace(out, aside / out.name)
+    try:
+        os.replace(new, out)
+    except BaseException:
+        os.replace(aside / out.name, out)
+        aside.rmdir()
+        raise
+    shutil.rmtree(aside, ignore_errors=True)
+    return out
+
+
+def clear_for_writing(out: str | Path, command: str, kind: str, entries, label: str = "output directory") -> Path:
+    """Make ``out`` an empty marked directory for a command that writes into it piece by piece.
+
+    An earlier output there must pass :func:`check_output_dir` first (with its
+    ``force``); here it is moved aside and removed, after the same last check
+    as :func:`replace_dir`.
+    """
+    out = Path(os.path.realpath(out))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fresh = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        write_marker(fresh, command, kind, entries=entries)
+        replace_dir(fresh, out, label)
+    except BaseException:
+        shutil.rmtree(fresh, ignore_errors=True)
+        raise
+    return out
+
+
+def _replace_problem(out: Path, kind: str, force: bool) -> str | None:
+    """Why ``out`` may not be replaced by a ``kind`` of output (with or without ``force``), or None when it may."""
+    if not out.exists():
+        return None
+    if not out.is_dir():
+        return "is an existing file, not a directory; choose a directory"
+    top = sorted(p.name for p in out.iterdir())
+    if not top:
+        return None
+    marker = read_marker(out)
+    if marker is None:
+        return (f"is a non-empty directory nao-skin did not write (it holds {_some(top)});"
+                f" choose a new or empty directory")
+    if marker["kind"] != kind:
+        return (f"holds a {marker['kind']} written by {marker['command']}, not a {kind}; it is not replaced, even with"
+                f" --force: choose another directory")
+    ours = set(marker["entries"])
+    foreign = [rel for rel, _ in _walk(out, prune=ours) if rel not in ours and rel != MARKER]
+    if foreign:
+        more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
+        return (f"{out / foreign[0]}{more} was not written by {marker['command']}; it is not replaced, even with"
+                f" --force: move it out of the directory first or choose another one")
+    if not force:
+        held = _some([t for t in top if t != MARKER]) or f"nothing but its {MARKER}"
+        return f"holds the outputs of an earlier {marker['command']} run ({held}); pass --force to replace them"
+    return None
+
+
+def _walk(root: Path, prune=None):
+    """``(relative path, is_dir)`` of every entry under ``root``, not following symlinks.
+
+    With ``prune`` (a set of relative paths), directories not in it are not
+    descended into: the directory itself is already the entry to name.
+    """
+    for dirpath, dirnames, filenames in os.walk(root, followlinks=False):
+        base = Path(dirpath).relative_to(root)
+        for d in sorted(dirnames):
+            yield (base / d).as_posix(), True
+        for f in sorted(filenames):
+            yield (base / f).as_posix(), False
+        if prune is not None:
+            dirnames[:] = [d for d in dirnames if (base / d).as_posix() in prune]
+        dirnames.sort()
+
+
+def _forms(path: Path) -> set:
+    """The path as written (absolute) and with every symlink resolved: either may be what a user means."""
+    return {Path(os.path.abspath(path)), Path(os.path.realpath(path))}
+
+
+def _inside(child: Path, parent: Path) -> bool:
+    return child != parent and parent in child.parents
+
+
+def _some(names: list, n: int = 4) -> str:
+    return ", ".join(names[:n]) + (f", ... ({len(names)} entries)" if len(names) > n else "")

@@ -1,0 +1,235 @@
+"""Which nodes a record session runs, with which parameters: one description for both starters.
+
+``launch/record.launch.py`` turns it into launch_ros ``Node`` actions and
+``nao-skin record`` (machines without ``ros2 launch``) into processes, so both
+start the same nodes with the same parameter files and overrides. No rclpy
+import here: the launch file loads this module too.
+
+Skin frames come from exactly one publisher: the ``calibrate`` node (current
+calibration on /tf_static, replaced by each new calibration), while
+robot_state_publisher gets the URDF with ``skin_frames:=false``.
+
+Parameter overrides are checked against what each of our nodes declares
+(its module's ``PARAMS``) before anything starts: an unknown node or
+parameter, or a value of the wrong type, is one ConfigError line.
+"""
+from __future__ import annotations
+
+import shutil
+import sys
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+
+from nao_skin.errors import ConfigError
+from nao_skin.paths import config_dir, urdf_dir
+
+ROBOTS = ("sim", "nao")
+PARENT_ENV = "NAO_SKIN_PARENT_PID"     # set by `nao-skin record` for its nodes: they stop when it is gone
+YARP_HINT = ("yarp_skin_bridge needs YARP's Python bindings: `make setup-test` or `docker/setup_venv.sh --with-yarp`"
+             " (pip package yarp-middleware)")
+# parameters a node declares per configured skin part, ``<family>.<part>``: family -> a default of the right type
+PER_PART_PARAMS = {"yarp_skin_bridge": {"part_ids": -1, "compensated_ports": ""}}
+
+
+@dataclass
+class NodeSpec:
+    name: str                      # node name = key in the params files
+    executable: str                # `ros2 run <package> <executable>`; ours: module nao_skin.nodes.<executable>
+    params_files: list = field(default_factory=list)
+    overrides: dict = field(default_factory=dict)
+    package: str = "nao_skin"
+    arguments: list = field(default_factory=list)
+    optional: bool = False         # skipped by `nao-skin record` when the executable is not installed
+    needs: dict = field(default_factory=dict)   # Python module the node imports -> what to install
+
+    @property
+    def ours(self) -> bool:
+        return self.package == "nao_skin"
+
+
+def robot_description(calibration: str = "", skin_frames: bool = False) -> str:
+    """The URDF (xacro expanded in-process); body only unless ``skin_frames``."""
+    import xacro
+
+    args = {"skin_frames": "true" if skin_frames else "false"}
+    if calibration:
+        args["calibration"] = str(Path(calibration).resolve())
+    doc = xacro.process_file(str(urdf_dir() / "nao_skin.urdf.xacro"), mappings=args)
+    return doc.toprettyxml(indent="  ")
+
+
+def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, events_port: str = "",
+                   bag_path: str = "", calibration: str = "", rviz: bool = False,
+                   overrides: dict | None = None, with_robot_state_publisher: bool = True) -> list:
+    """The nodes of ``record.launch.py`` for these launch arguments.
+
+    ``overrides``: ``{node name: {parameter: value}}`` applied last (tests, CLI ``--param``).
+    """
+    if robot not in ROBOTS:
+        raise ConfigError(f"robot:={robot!r}: expected one of {', '.join(ROBOTS)}")
+    cfg = config_dir()
+    # one name for the recorder and the calibrate node (which calibrates on that bag on request)
+    bag_path = str(Path(bag_path or f"nao_skin_touches_{datetime.now():%Y%m%d_%H%M%S}").expanduser().resolve())
+    record_yaml, bridges_yaml = cfg / "record.yaml", cfg / "bridges.yaml"
+    specs = []
+    if robot == "sim":
+        specs.append(NodeSpec("sim_robot", "sim_robot", [record_yaml]))
+    else:
+        if naoqi:
+            specs.append(NodeSpec("naoqi_bridge", "naoqi_bridge", [bridges_yaml],
+                                  {"nao_ip": nao_ip} if nao_ip else {}))
+        specs.append(NodeSpec("yarp_skin_bridge", "yarp_skin_bridge", [bridges_yaml],
+                              {"events_port": events_port} if events_port else {}, needs={"yarp": YARP_HINT}))
+    specs.append(NodeSpec("pairing_recorder", "pairing_recorder", [record_yaml], {"bag_path": bag_path}))
+    specs.append(NodeSpec("skin_heatmap", "skin_heatmap", [record_yaml]))
+    cal = {"recording": bag_path}
+    if calibration:
+        cal["calibration"] = calibration
+    specs.append(NodeSpec("calibrate", "calibrate", [record_yaml], cal))
+    if with_robot_state_publisher:
+        specs.append(NodeSpec("robot_state_publisher", "robot_state_publisher",
+                              overrides={"robot_description": ("__urdf__", calibration)},
+                              package="robot_state_publisher", optional=True))
+    if rviz:
+        specs.append(NodeSpec("rviz2", "rviz2", package="rviz2", optional=True,
+                              arguments=["-d", str(cfg / "nao_skin.rviz")]))
+    by_name = {spec.name: spec for spec in specs}
+    for node, values in (overrides or {}).items():
+        if node not in by_name:
+            raise ConfigError(f"--param {node}.{next(iter(values), '')}: no node '{node}' in this session"
+                              f" (robot {robot}: {', '.join(by_name)})")
+        spec = by_name[node]
+        spec.overrides.update(typed_overrides(spec, values) if spec.ours else _as_yaml(values))
+    return specs
+
+
+def node_parameters(spec: NodeSpec) -> dict:
+    """``{name: default}`` of every parameter one of our nodes declares (its module's ``PARAMS``)."""
+    import importlib
+
+    from nao_skin.paths import read_yaml
+
+    params = {name: default for name, (default, _) in importlib.import_module(f"nao_skin.nodes.{spec.executable}")
+              .PARAMS.items()}
+    families = PER_PART_PARAMS.get(spec.executable, {})
+    if families:
+        skin_config = spec.overrides.get("skin_config") or str(config_dir() / "nao_skin.yaml")
+        doc = read_yaml(skin_config, "skin config")
+        parts = doc.get("parts") if isinstance(doc, dict) else None
+        if not isinstance(parts, dict):
+            raise ConfigError(f"{skin_config}: a skin config needs a 'parts' mapping")
+        params.update({f"{family}.{part}": default for family, default in families.items() for part in parts})
+    return params
+
+
+def typed_overrides(spec: NodeSpec, values: dict) -> dict:
+    """``values`` (text as typed after ``--param``, or Python values) as the types the node declares.
+
+    An integer is taken for a float parameter (``gate_mm=20``); anything else
+    of the wrong type, or a name the node does not declare, is a ConfigError.
+    """
+    import difflib
+
+    known = node_parameters(NodeSpec(spec.name, spec.executable, overrides={**spec.overrides, **values}))
+    out = {}
+    for name, value in values.items():
+        where = f"--param {spec.name}.{name}"
+        if name not in known:
+            close = difflib.get_close_matches(name, known, n=1)
+            raise ConfigError(f"{where}: node '{spec.name}' has no parameter '{name}'"
+                              + (f" (did you mean '{close[0]}'?)" if close else "")
+                              + f"; its parameters: {', '.join(known)}")
+        out[name] = _typed(value, known[name], where)
+    return out
+
+
+def _typed(value, default, where: str):
+    """``value`` as the type of ``default``; a str is parsed as YAML unless the parameter is a string."""
+    import yaml
+
+    if isinstance(value, str) and not isinstance(default, str):
+        try:
+            value = yaml.safe_load(value) if value else ([""] if isinstance(default, list) else None)
+        except yaml.YAMLError:
+            raise ConfigError(f"{where}={value}: not a valid value (YAML flow syntax, e.g. [a, b])") from None
+    if isinstance(default, list):
+        items = value if isinstance(value, list) else [value]
+        kind = type(default[0]) if default else str
+        typed = [_scalar(v, kind) for v in items]
+        if any(v is None for v in typed):
+            raise ConfigError(f"{where}={_text(value)}: expected a list like {param_text(default)}")
+        return typed
+    typed = _scalar(value, type(default))
+    if typed is None:
+        raise ConfigError(f"{where}={_text(value)}: expected {_KIND[type(default)]} like {param_text(default)}")
+    return typed
+
+
+_KIND = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
+
+
+def _scalar(value, kind):
+    """``value`` as ``kind`` (bool, int, float, str), an int also as float; None when it is not one."""
+    if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    return value if type(value) is kind else None
+
+
+def _as_yaml(values: dict) -> dict:
+    """Overrides of a node we know no parameters of: text as YAML, as ``ros2 run -p`` would take it."""
+    import yaml
+
+    out = {}
+    for name, value in values.items():
+        try:
+            out[name] = yaml.safe_load(value) if isinstance(value, str) and value else value
+        except yaml.YAMLError:
+            out[name] = value
+    return out
+
+
+def _text(value) -> str:
+    return value if isinstance(value, str) else param_text(value)
+
+
+def param_text(value) -> str:
+    """A value as ``-p name:=value`` text (YAML flow syntax)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple)):
+        return "[" + ",".join(param_text(v) for v in value) + "]"
+    if isinstance(value, str):
+        return "'" + value.replace("'", "''") + "'"
+    return repr(value)
+
+
+def command_line(spec: NodeSpec, work_dir: Path) -> list | None:
+    """argv of one node for ``nao-skin record``; None when an optional external executable is missing."""
+    if spec.ours:
+        argv = [sys.executable, "-m", f"nao_skin.nodes.{spec.executable}"]
+    else:
+        exe = shutil.which(spec.executable)
+        if exe is None:
+            prefix = shutil.which("ros2")
+            if prefix is None:
+                return None
+            argv = ["ros2", "run", spec.package, spec.executable]
+        else:
+            argv = [exe]
+    argv += list(spec.arguments) + ["--ros-args", "-r", f"__node:={spec.name}"]
+    for f in spec.params_files:
+        argv += ["--params-file", str(f)]
+    extra = {}
+    for k, v in spec.overrides.items():
+        if isinstance(v, tuple) and v and v[0] == "__urdf__":
+            extra[k] = robot_description(v[1], skin_frames=False)
+        else:
+            argv += ["-p", f"{k}:={param_text(v)}"]
+    if extra:        # a URDF is too long for the command line: a params file
+        import yaml
+
+        path = Path(work_dir) / f"{spec.name}.params.yaml"
+        path.write_text(yaml.safe_dump({spec.name: {"ros__parameters": extra}}))
+        argv += ["--params-file", str(path)]
+    return argv

@@ -1,0 +1,1 @@
+"""Robot and skin as data: kinematics, skin parts and calibrations, taxel files, layouts, URDF."""

@@ -1,0 +1,195 @@
+"""Robot kinematics as data: DH chains from YAML, forward kinematics batched over N poses."""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from nao_skin.errors import ConfigError, DataError
+from nao_skin.paths import read_yaml
+
+_ANGLE_RE = re.compile(r"^\s*([+-]?)\s*(\d*\.?\d*)\s*\*?\s*pi\s*(?:/\s*(\d+(?:\.\d*)?))?\s*$")
+
+
+def parse_angle(value, where: str) -> float:
+    """A number, or a string like ``"pi"``, ``"-pi/2"``, ``"2*pi/3"`` (no eval)."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(value, str):
+        m = _ANGLE_RE.match(value)
+        if m:
+            sign = -1.0 if m.group(1) == "-" else 1.0
+            factor = float(m.group(2)) if m.group(2) else 1.0
+            divisor = float(m.group(3)) if m.group(3) else 1.0
+            return sign * factor * math.pi / divisor
+        try:
+            return float(value)
+        except ValueError:
+            pass
+    raise ConfigError(f"{where}: cannot read {value!r} as an angle (a number or e.g. 'pi/2')")
+
+
+@dataclass(frozen=True)
+class Chain:
+    """A serial chain of standard DH rows hanging off the base frame."""
+
+    name: str
+    dh: np.ndarray                  # (R, 4): a, d, alpha, offset
+    joints: tuple                   # (R,) NAOqi joint name or None for a fixed row
+    frames: tuple                   # (R,) frame name after each row
+
+    @property
+    def end_frame(self) -> str:
+        return self.frames[-1]
+
+
+class RobotModel:
+    """Kinematic model of the robot's upper body.
+
+    ``joint_names`` fixes the column order of joint arrays ``q`` of shape
+    ``(N, J)``; every FK call is vectorised over the N rows.
+    """
+
+    def __init__(self, name: str, base_frame: str, joint_limits: Mapping[str, Sequence[float]],
+                 chains: Mapping[str, Chain], source: str = "<memory>"):
+        self.name = name
+        self.base_frame = base_frame
+        self.joint_names = list(joint_limits)
+        self.joint_index = {n: i for i, n in enumerate(self.joint_names)}
+        self.limits = np.array([joint_limits[n] for n in self.joint_names], dtype=float).reshape(-1, 2)
+        self.chains = dict(chains)
+        self.source = source
+        for chain in self.chains.values():
+            for j in chain.joints:
+                if j is not None and j not in self.joint_index:
+                    raise ConfigError(f"{source}: chain '{chain.name}' names unknown joint '{j}'"
+                                      f" (known: {', '.join(self.joint_names)})")
+
+    # ------------------------------------------------------------------ loading
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> "RobotModel":
+        path = Path(path)
+        doc = read_yaml(path, "robot config")
+        if not isinstance(doc, dict) or "chains" not in doc or "joints" not in doc:
+            raise ConfigError(f"{path}: a robot config needs 'joints' and 'chains' mappings")
+        limits = {}
+        for jname, lim in (doc["joints"] or {}).items():
+            if not (isinstance(lim, (list, tuple)) and len(lim) == 2):
+                raise ConfigError(f"{path}: joint '{jname}' limits must be [lower, upper]")
+            lo, hi = (parse_angle(v, f"{path}: joint '{jname}'") for v in lim)
+            if not lo < hi:
+                raise ConfigError(f"{path}: joint '{jname}' lower limit {lo} is not below upper {hi}")
+            limits[str(jname)] = (lo, hi)
+        chains = {}
+        for cname, rows in (doc["chains"] or {}).items():
+            if not isinstance(rows, list) or not rows:
+                raise ConfigError(f"{path}: chain '{cname}' must be a non-empty list of DH rows")
+            dh, joints, frames = [], [], []
+            for i, row in enumerate(rows):
+                where = f"{path}: chain '{cname}' row {i}"
+                if not isinstance(row, dict):
+                    raise ConfigError(f"{where}: must be a mapping with a, d, alpha, offset, joint")
+                missing = [k for k in ("a", "d", "alpha", "offset") if k not in row]
+                if missing:
+                    raise ConfigError(f"{where}: missing {', '.join(missing)}")
+                dh.append([parse_angle(row["a"], where), parse_angle(row["d"], where),
+                           parse_angle(row["alpha"], where), parse_angle(row["offset"], where)])
+                joint = row.get("joint")
+                if joint is not None and joint not in limits:
+                    raise ConfigError(f"{where}: unknown joint '{joint}'"
+                                      f" (not listed under 'joints')")
+                joints.append(joint)
+                frames.append(str(row.get("frame", f"{cname}_dh{i + 1}")))
+            chains[str(cname)] = Chain(str(cname), np.array(dh), tuple(joints), tuple(frames))
+        return cls(str(doc.get("name", path.stem)), str(doc.get("base_frame", "torso")),
+                   limits, chains, source=str(path))
+
+    # ------------------------------------------------------------------ joints
+    def joints_from_mappings(self, poses: Sequence[Mapping[str, float]], needed: Sequence[str] | None = None,
+                             where: str = "input") -> np.ndarray:
+        """List of ``{joint name: angle}`` dicts to an ``(N, J)`` array.
+
+        Joints in ``needed`` (default: all) must be present and finite; others
+        absent from a mapping are NaN. Raises :class:`DataError` naming the pose.
+        """
+        needed = self.joint_names if needed is None else list(needed)
+        out = np.full((len(poses), len(self.joint_names)), np.nan)
+        for n, pose in enumerate(poses):
+            for jname, value in pose.items():
+                idx = self.joint_index.get(jname)
+                if idx is not None:
+                    out[n, idx] = float(value) if value is not None else np.nan
+            for jname in needed:
+                v = out[n, self.joint_index[jname]]
+                if jname not in pose:
+                    raise DataError(f"{where}: pose {n}: joint '{jname}' is missing")
+                if not np.isfinite(v):
+                    raise DataError(f"{where}: pose {n}: joint '{jname}' is not a finite angle ({pose[jname]!r})")
+        return out
+
+    def chain_joint_names(self, chain: str) -> list:
+        return [j for j in self.chains[chain].joints if j is not None]
+
+    # ------------------------------------------------------------------ kinematics
+    def _row_transforms(self, chain: Chain, q: np.ndarray) -> np.ndarray:
+        """(N, R, 4, 4) DH transforms of every row."""
+        n = q.shape[0]
+        rows = len(chain.joints)
+        theta = np.broadcast_to(chain.dh[:, 3], (n, rows)).copy()
+        for r, jname in enumerate(chain.joints):
+            if jname is not None:
+                theta[:, r] += q[:, self.joint_index[jname]]
+        a, d, alpha = chain.dh[:, 0], chain.dh[:, 1], chain.dh[:, 2]
+        ct, st = np.cos(theta), np.sin(theta)
+        ca, sa = np.cos(alpha), np.sin(alpha)
+        out = np.zeros((n, rows, 4, 4))
+        out[..., 0, 0] = ct
+        out[..., 0, 1] = -st * ca
+        out[..., 0, 2] = st * sa
+        out[..., 0, 3] = a * ct
+        out[..., 1, 0] = st
+        out[..., 1, 1] = ct * ca
+        out[..., 1, 2] = -ct * sa
+        out[..., 1, 3] = a * st
+        out[..., 2, 1] = sa
+        out[..., 2, 2] = ca
+        out[..., 2, 3] = d
+        out[..., 3, 3] = 1.0
+        return out
+
+    def fk_frames(self, chain: str, q: np.ndarray) -> np.ndarray:
+        """Poses in the base frame of every frame of ``chain``: ``(N, R, 4, 4)``."""
+        ch = self._chain(chain)
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        rows = self._row_transforms(ch, q)
+        out = np.empty_like(rows)
+        acc = rows[:, 0]
+        out[:, 0] = acc
+        for r in range(1, rows.shape[1]):  # loop over <= 6 rows, vectorised over N
+            acc = acc @ rows[:, r]
+            out[:, r] = acc
+        return out
+
+    def fk(self, chain: str | None, q: np.ndarray) -> np.ndarray:
+        """Pose of the chain's end frame in the base frame, ``(N, 4, 4)``.
+
+        ``chain=None`` is the base itself (identity), e.g. for the torso skin.
+        """
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        if chain is None:
+            return np.broadcast_to(np.eye(4), (q.shape[0], 4, 4)).copy()
+        return self.fk_frames(chain, q)[:, -1]
+
+    def end_frame(self, chain: str | None) -> str:
+        return self.base_frame if chain is None else self._chain(chain).end_frame
+
+    def _chain(self, chain: str) -> Chain:
+        try:
+            return self.chains[chain]
+        except KeyError:
+            raise ConfigError(f"{self.source}: unknown chain '{chain}'"
+                              f" (known: {', '.join(self.chains)})") from None

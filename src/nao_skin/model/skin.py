@@ -1,0 +1,441 @@
+"""Skin model: parts -> patches -> triangles -> taxel slots, their frames and corrections.
+
+Frame tree of one skin part (all poses rigid)::
+
+    chain end (e.g. l_wrist_link, or torso)
+      -> <part>_skin_mount          nominal M_n, corrected by exp(dM)
+         -> <part>_skin_patch_<p>   nominal P_n[p] (relative to the mount), * exp(dP[p])
+            -> <part>_skin_triangle_<t>  nominal T_n[t] (relative to its patch), * exp(dT[t])
+               -> taxels: fixed coordinates in their triangle frame
+
+Nominal frames come from the layout: the mount sits at the centroid of the
+part's taxels with the chain end's axes; a patch or triangle frame sits at the
+centroid of its taxels with z along the mean taxel normal. Putting origins at
+centroids keeps rotation and translation corrections nearly decoupled, which
+is what makes the per-component bounds of the thesis meaningful and the
+least-squares problem well conditioned.
+
+A taxel at slot s of triangle t in patch p reaches the chain end frame as
+``M_n exp(dM) P_n[p] exp(dP[p]) T_n[t] exp(dT[t]) q_s`` and the base (torso)
+frame through the chain's forward kinematics.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+import yaml
+
+from nao_skin import se3
+from nao_skin.errors import ConfigError, DataError
+from nao_skin.model.robot import RobotModel
+from nao_skin.model.taxel_file import SLOTS_PER_TRIANGLE, TaxelFile, read_taxel_file, write_taxel_file
+from nao_skin.paths import read_yaml
+
+PART_NAMES = ("r_hand", "l_hand", "torso", "head")   # skinManager part names on the Nao
+DEFAULT_CHAINS = {"r_hand": "r_arm", "l_hand": "l_arm", "torso": None, "head": "head"}
+
+
+def _frame_from(origin: np.ndarray, z_axis: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
+    """Right-handed frame at ``origin`` with z along ``z_axis`` and x towards ``x_hint``."""
+    z = z_axis / np.linalg.norm(z_axis)
+    x = x_hint - (x_hint @ z) * z
+    if np.linalg.norm(x) < 1e-9:
+        x = np.cross(z, [1.0, 0.0, 0.0])
+        if np.linalg.norm(x) < 1e-9:
+            x = np.cross(z, [0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    out = np.eye(4)
+    out[:3, 0] = x
+    out[:3, 1] = np.cross(z, x)
+    out[:3, 2] = z
+    out[:3, 3] = origin
+    return out
+
+
+def _mean_normal(points: np.ndarray, normals: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    n = normals.sum(axis=0)
+    if np.linalg.norm(n) > 1e-9:
+        return n / np.linalg.norm(n)
+    if len(points) >= 3:  # no normals in the file: plane fit, oriented like the fallback
+        _, _, vt = np.linalg.svd(points - points.mean(axis=0))
+        n = vt[2]
+        return n if n @ fallback >= 0 else -n
+    return fallback
+
+
+@dataclass
+class PartCorrection:
+    """SE(3) corrections (6-vectors t, rotvec) of one part's mount, patches and triangles."""
+
+    mount: np.ndarray          # (6,)
+    patches: np.ndarray        # (P, 6) in the order of SkinPart.patch_ids
+    triangles: np.ndarray      # (T, 6) in the order of SkinPart.triangle_ids
+
+    def copy(self) -> "PartCorrection":
+        return PartCorrection(self.mount.copy(), self.patches.copy(), self.triangles.copy())
+
+
+@dataclass
+class SkinPart:
+    name: str
+    chain: str | None
+    parent_frame: str
+    source: str
+    positions: np.ndarray            # (S, 3) nominal, chain-end frame
+    normals: np.ndarray              # (S, 3)
+    present: np.ndarray              # (S,) bool
+    triangle_ids: np.ndarray         # (T,) triangle numbers (slot // 12)
+    patch_ids: np.ndarray            # (P,) patch numbers
+    triangle_patch: np.ndarray       # (T,) row into patch_ids
+    slot_triangle: np.ndarray        # (S,) row into triangle_ids, -1 if no taxel
+    mount_nominal: np.ndarray        # (4, 4) in the chain-end frame
+    patch_nominal: np.ndarray        # (P, 4, 4) relative to the mount
+    triangle_nominal: np.ndarray     # (T, 4, 4) relative to its patch
+    taxel_local: np.ndarray          # (S, 3) in the nominal triangle frame
+    normal_local: np.ndarray         # (S, 3) in the nominal triangle frame
+    layout_file: str = ""            # the taxel file the layout came from
+
+    @property
+    def layout_sha256(self) -> str:
+        """Hash of the layout itself (slots, positions, normals): same taxels, same hash, whatever the file.
+
+        A calibration is only meaningful on the layout it was made with; this is
+        what ``calibration.yaml`` records and checks.
+        """
+        import hashlib
+
+        h = hashlib.sha256(np.packbits(self.present).tobytes())
+        for a in (self.positions, self.normals):
+            h.update(np.ascontiguousarray(np.round(np.where(self.present[:, None], a, 0.0), 9) + 0.0).tobytes())
+        return h.hexdigest()
+
+    # ------------------------------------------------------------------ sizes and names
+    @property
+    def n_slots(self) -> int:
+        return len(self.present)
+
+    @property
+    def slots(self) -> np.ndarray:
+        """Slot numbers of the present taxels."""
+        return np.flatnonzero(self.present)
+
+    @property
+    def mount_frame(self) -> str:
+        return f"{self.name}_skin_mount"
+
+    def patch_frame(self, patch_id: int) -> str:
+        return f"{self.name}_skin_patch_{int(patch_id)}"
+
+    def triangle_frame(self, triangle_id: int) -> str:
+        return f"{self.name}_skin_triangle_{int(triangle_id)}"
+
+    def zero_correction(self) -> PartCorrection:
+        return PartCorrection(np.zeros(6), np.zeros((len(self.patch_ids), 6)),
+                              np.zeros((len(self.triangle_ids), 6)))
+
+    # ------------------------------------------------------------------ frames
+    def frame_poses(self, corr: PartCorrection | None = None):
+        """Calibrated poses in the chain-end frame: mount (4,4), patches (P,4,4), triangles (T,4,4)."""
+        corr = corr or self.zero_correction()
+        # one batched Rodrigues for every frame: this runs at every residual and re-pairing
+        n_p = len(corr.patches)
+        deltas = se3.pose_matrix(np.concatenate([np.reshape(corr.mount, (1, 6)), corr.patches, corr.triangles]))
+        mount = self.mount_nominal @ deltas[0]
+        patches = mount @ self.patch_nominal @ deltas[1:1 + n_p]
+        triangles = patches[self.triangle_patch] @ self.triangle_nominal @ deltas[1 + n_p:]
+        return mount, patches, triangles
+
+    def taxel_positions(self, corr: PartCorrection | None = None):
+        """Calibrated ``(positions, normals)`` of every slot in the chain-end frame (NaN where no taxel)."""
+        _, _, tri = self.frame_poses(corr)
+        pos = np.full((self.n_slots, 3), np.nan)
+        nor = np.full((self.n_slots, 3), np.nan)
+        idx = self.slots
+        frames = tri[self.slot_triangle[idx]]
+        pos[idx] = se3.transform_points(frames, self.taxel_local[idx])
+        nor[idx] = se3.rotate_vectors(frames, self.normal_local[idx])
+        return pos, nor
+
+    def write_taxel_file(self, path: str | Path, corr: PartCorrection | None = None) -> None:
+        pos, nor = self.taxel_positions(corr)
+        write_taxel_file(path, np.nan_to_num(pos), np.nan_to_num(nor), self.present, self.name)
+
+
+def build_part(name: str, chain: str | None, parent_frame: str, taxels: TaxelFile,
+               patches: Mapping[int, list] | None, source: str,
+               mount_pose: np.ndarray | None = None, layout_file: str = "") -> SkinPart:
+    """Derive the nominal frame tree of a part from its layout and patch table."""
+    n_slots = len(taxels.positions)
+    present = taxels.present
+    n_tri_slots = n_slots // SLOTS_PER_TRIANGLE
+    tri_of_slot = np.arange(n_slots) // SLOTS_PER_TRIANGLE
+    if patches is None:  # Nao convention: 16 triangles per patch
+        used = np.unique(tri_of_slot[present])
+        patches = {}
+        for t in used:
+            patches.setdefault(int(t) // 16, []).append(int(t))
+    owner: dict = {}
+    for pid, tris in patches.items():
+        if not isinstance(tris, (list, tuple)):
+            raise ConfigError(f"{source}: part '{name}' patch {pid}: expected a list of triangle numbers")
+        for t in tris:
+            if not isinstance(t, int) or not 0 <= t < n_tri_slots:
+                raise ConfigError(f"{source}: part '{name}' patch {pid}: triangle {t!r} is not in 0..{n_tri_slots - 1}")
+            if t in owner:
+                raise ConfigError(f"{source}: part '{name}': triangle {t} is listed in patch {owner[t]} and in patch {pid}")
+            owner[t] = int(pid)
+    orphan = sorted({int(t) for t in tri_of_slot[present]} - set(owner))
+    if orphan:
+        raise ConfigError(f"{source}: part '{name}': triangles {orphan} have taxels in the layout but are in no patch")
+    triangle_ids = np.array(sorted(t for t in owner if np.any(present[tri_of_slot == t])), dtype=int)
+    empty = sorted(set(owner) - set(triangle_ids.tolist()))
+    if len(triangle_ids) == 0:
+        raise ConfigError(f"{source}: part '{name}': the layout has no taxel in any listed triangle")
+    patch_ids = np.array(sorted({owner[t] for t in triangle_ids}), dtype=int)
+    patch_row = {p: i for i, p in enumerate(patch_ids)}
+    tri_row = {t: i for i, t in enumerate(triangle_ids)}
+    triangle_patch = np.array([patch_row[owner[t]] for t in triangle_ids], dtype=int)
+    slot_triangle = np.array([tri_row.get(int(t), -1) if present[s] else -1
+                              for s, t in enumerate(tri_of_slot)], dtype=int)
+    del empty  # triangles listed without any known taxel simply get no frame
+
+    pos, nor = taxels.positions, taxels.normals
+    all_pts = pos[present]
+    mount_abs = np.eye(4)
+    mount_abs[:3, 3] = all_pts.mean(axis=0)
+    if mount_pose is not None:
+        mount_abs = np.asarray(mount_pose, dtype=float)
+    mean_n = _mean_normal(all_pts, nor[present], np.array([0.0, 0.0, 1.0]))
+    patch_abs = np.empty((len(patch_ids), 4, 4))
+    for i, p in enumerate(patch_ids):
+        sel = present & np.isin(tri_of_slot, triangle_ids[triangle_patch == i])
+        pts = pos[sel]
+        centre = pts.mean(axis=0)
+        # x along the patch's principal direction, for a frame that reads like the patch
+        _, _, vt = np.linalg.svd(pts - centre) if len(pts) > 1 else (None, None, np.eye(3))
+        patch_abs[i] = _frame_from(centre, _mean_normal(pts, nor[sel], mean_n), vt[0])
+    tri_abs = np.empty((len(triangle_ids), 4, 4))
+    for i, t in enumerate(triangle_ids):
+        sel = present & (tri_of_slot == t)
+        pts = pos[sel]
+        centre = pts.mean(axis=0)
+        fallback = patch_abs[triangle_patch[i]][:3, 2]
+        tri_abs[i] = _frame_from(centre, _mean_normal(pts, nor[sel], fallback), pts[0] - centre)
+    patch_rel = se3.invert(mount_abs) @ patch_abs
+    tri_rel = se3.invert(patch_abs[triangle_patch]) @ tri_abs
+    taxel_local = np.zeros((n_slots, 3))
+    normal_local = np.zeros((n_slots, 3))
+    idx = np.flatnonzero(present)
+    inv = se3.invert(tri_abs[slot_triangle[idx]])
+    taxel_local[idx] = se3.transform_points(inv, pos[idx])
+    normal_local[idx] = se3.rotate_vectors(inv, nor[idx])
+    return SkinPart(name, chain, parent_frame, source, pos.copy(), nor.copy(), present.copy(),
+                    triangle_ids, patch_ids, triangle_patch, slot_triangle, mount_abs, patch_rel,
+                    tri_rel, taxel_local, normal_local, layout_file or source)
+
+
+class SkinModel:
+    """The robot plus its skin parts: taxel positions in the base frame for batches of poses."""
+
+    def __init__(self, robot: RobotModel, parts: Mapping[str, SkinPart], source: str = "<memory>"):
+        self.robot = robot
+        self.parts = dict(parts)
+        self.source = source
+
+    @classmethod
+    def from_yaml(cls, path: str | Path, robot: RobotModel | None = None) -> "SkinModel":
+        """Load ``config/nao_skin.yaml``-style files (paths inside are relative to the file)."""
+        path = Path(path)
+        doc = read_yaml(path, "skin config")
+        if not isinstance(doc, dict) or not isinstance(doc.get("parts"), dict):
+            raise ConfigError(f"{path}: a skin config needs a 'parts' mapping")
+        if robot is None:
+            if "robot" not in doc:
+                raise ConfigError(f"{path}: names no 'robot' config file")
+            robot = RobotModel.from_yaml(path.parent / doc["robot"])
+        parts = {}
+        for name, spec in doc["parts"].items():
+            where = f"{path}: part '{name}'"
+            if not isinstance(spec, dict) or "taxel_file" not in spec:
+                raise ConfigError(f"{where}: needs 'taxel_file' (and 'chain', null for the base)")
+            chain = spec.get("chain")
+            if chain is not None and chain not in robot.chains:
+                raise ConfigError(f"{where}: unknown chain '{chain}' (robot has {', '.join(robot.chains)})")
+            taxel_path = path.parent / spec["taxel_file"]
+            taxels = read_taxel_file(taxel_path, int(spec.get("slots", 384)))
+            patches = spec.get("patches")
+            if patches is not None:
+                patches = {int(k): v for k, v in patches.items()}
+            mount = None
+            if "mount" in spec:
+                m = spec["mount"]
+                mount = se3.pose_matrix(np.r_[m.get("xyz", [0, 0, 0]), m.get("rotvec", [0, 0, 0])])
+            parts[str(name)] = build_part(str(name), chain, robot.end_frame(chain), taxels, patches,
+                                          str(path), mount, str(taxel_path))
+        return cls(robot, parts, str(path))
+
+    def part(self, name: str) -> SkinPart:
+        try:
+            return self.parts[name]
+        except KeyError:
+            raise DataError(f"unknown skin part '{name}' (configured: {', '.join(self.parts)})") from None
+
+    def zero_calibration(self) -> "SkinCalibration":
+        return SkinCalibration({n: p.zero_correction() for n, p in self.parts.items()})
+
+    def chain_poses(self, part: str, q: np.ndarray) -> np.ndarray:
+        """Pose of the part's chain end in the base frame for N poses: (N, 4, 4)."""
+        return self.robot.fk(self.part(part).chain, q)
+
+    def taxels_in_base(self, part: str, q: np.ndarray, calib: "SkinCalibration | None" = None,
+                       slots: np.ndarray | None = None) -> np.ndarray:
+        """Calibrated taxel positions in the base frame.
+
+        ``slots=None``: every slot, ``(N, S, 3)``; ``slots`` of shape ``(N, K)``:
+        the given slot per pose, ``(N, K, 3)`` (one vectorised call, no loop over N).
+        """
+        p = self.part(part)
+        corr = calib.parts[part] if calib is not None and part in calib.parts else None
+        local, _ = p.taxel_positions(corr)
+        chain = self.chain_poses(part, q)
+        if slots is None:
+            return se3.transform_points(chain[:, None], local[None])
+        slots = np.asarray(slots)
+        return se3.transform_points(chain[:, None], local[slots])
+
+
+@dataclass
+class SkinCalibration:
+    """Corrections of every part; what calibration finds and the URDF consumes."""
+
+    parts: dict = field(default_factory=dict)    # part name -> PartCorrection
+
+    def copy(self) -> "SkinCalibration":
+        return SkinCalibration({k: v.copy() for k, v in self.parts.items()})
+
+    # ------------------------------------------------------------------ YAML
+    def to_dict(self, skin: SkinModel) -> dict:
+        def entry(frame, parent, corr, origin):
+            return {
+                "frame": frame, "parent": parent,
+                "correction": {"translation": [round(float(v), 10) for v in corr[:3]],
+                               "rotation_vector": [round(float(v), 10) for v in corr[3:]]},
+                # calibrated pose relative to the parent frame, in URDF terms (for xacro)
+                "origin": {"xyz": [round(float(v), 10) for v in origin[:3, 3]],
+                           "rpy": [round(float(v), 10) for v in se3.rpy_from_matrix(origin[:3, :3])]},
+            }
+
+        out = {"format": "nao_skin/calibration/1", "robot": skin.robot.name,
+               "base_frame": skin.robot.base_frame, "parts": {}}
+        for name, part in skin.parts.items():
+            corr = self.parts.get(name, part.zero_correction())
+            mount = part.mount_nominal @ se3.pose_matrix(corr.mount)
+            patches = part.patch_nominal @ se3.pose_matrix(corr.patches)
+            tris = part.triangle_nominal @ se3.pose_matrix(corr.triangles)
+            out["parts"][name] = {
+                "chain": part.chain,
+                # the layout the corrections belong to: load() refuses another one
+                "layout": {"file": Path(part.layout_file).name, "sha256": part.layout_sha256},
+                "mount": entry(part.mount_frame, part.parent_frame, corr.mount, mount),
+                "patches": {int(pid): entry(part.patch_frame(pid), part.mount_frame, corr.patches[i], patches[i])
+                            for i, pid in enumerate(part.patch_ids)},
+                "triangles": {int(tid): entry(part.triangle_frame(tid),
+                                              part.patch_frame(part.patch_ids[part.triangle_patch[i]]),
+                                              corr.triangles[i], tris[i])
+                              for i, tid in enumerate(part.triangle_ids)},
+            }
+        return out
+
+    def save(self, path: str | Path, skin: SkinModel, comment: str = "") -> None:
+        header = ("# nao_skin calibration: pose corrections of skin mount, patch and triangle frames.\n"
+                  "# correction: translation (m) and rotation vector (rad) in the frame's own axes,\n"
+                  "#   applied after the nominal pose from the layout; origin: resulting pose relative\n"
+                  "#   to the parent frame (URDF xyz/rpy), read by urdf/nao_skin.urdf.xacro.\n")
+        if comment:
+            header += "".join(f"# {line}\n" for line in comment.splitlines())
+        Path(path).write_text(header + yaml.safe_dump(self.to_dict(skin), sort_keys=False, width=120))
+
+    @classmethod
+    def load(cls, path: str | Path, skin: SkinModel) -> "SkinCalibration":
+        path = Path(path)
+        doc = read_yaml(path, "calibration")
+        if not isinstance(doc, dict) or not isinstance(doc.get("parts"), dict):
+            raise ConfigError(f"{path}: a calibration needs a 'parts' mapping")
+        calib = skin.zero_calibration()
+
+        def vec(entry, where):
+            try:
+                c = entry["correction"]
+                v = np.array(list(c["translation"]) + list(c["rotation_vector"]), dtype=float)
+            except (KeyError, TypeError, ValueError):
+                raise ConfigError(f"{path}: {where}: needs correction.translation and correction.rotation_vector") from None
+            if v.shape != (6,) or not np.all(np.isfinite(v)):
+                raise ConfigError(f"{path}: {where}: correction must be 3 + 3 finite numbers")
+            return v
+
+        for name, spec in doc["parts"].items():
+            if name not in skin.parts:
+                raise ConfigError(f"{path}: unknown skin part '{name}' (configured: {', '.join(skin.parts)})")
+            part = skin.parts[name]
+            _check_layout(path, name, spec.get("layout"), part)
+            corr = calib.parts[name]
+            if "mount" in spec:
+                corr.mount = vec(spec["mount"], f"part '{name}' mount")
+            rows = {int(p): i for i, p in enumerate(part.patch_ids)}
+            for pid, entry in (spec.get("patches") or {}).items():
+                if int(pid) not in rows:
+                    raise ConfigError(f"{path}: part '{name}' has no patch {pid}")
+                corr.patches[rows[int(pid)]] = vec(entry, f"part '{name}' patch {pid}")
+            rows = {int(t): i for i, t in enumerate(part.triangle_ids)}
+            for tid, entry in (spec.get("triangles") or {}).items():
+                if int(tid) not in rows:
+                    raise ConfigError(f"{path}: part '{name}' has no triangle {tid}")
+                corr.triangles[rows[int(tid)]] = vec(entry, f"part '{name}' triangle {tid}")
+        return calib
+
+
+def _check_layout(path: Path, name: str, recorded, part: SkinPart) -> None:
+    """A calibration applies only to the layout it was made with (older files, without a record, pass)."""
+    if not isinstance(recorded, dict) or "sha256" not in recorded:
+        return
+    if str(recorded["sha256"]) != part.layout_sha256:
+        raise ConfigError(f"{path}: part '{name}' was calibrated on the layout {recorded.get('file', '?')}"
+                          f" (sha256 {str(recorded['sha256'])[:12]}), not on {Path(part.layout_file).name}"
+                          f" (sha256 {part.layout_sha256[:12]}) used here; give the same layout"
+                          f" (--taxels {name}=FILE)")
+
+
+def part_from_layout(name: str, chain: str | None, robot: RobotModel, taxel_file: str | Path) -> SkinPart:
+    """A part built from a taxel file alone (patches: 16 triangles each, the Nao convention)."""
+    return build_part(name, chain, robot.end_frame(chain), read_taxel_file(taxel_file), None, str(taxel_file),
+                      layout_file=str(taxel_file))
+
+
+def load_skin(skin_config: str | Path | None = None, taxel_files: Mapping[str, str | Path] | None = None,
+              robot_config: str | Path | None = None) -> SkinModel:
+    """The skin every command uses: the skin config, with the named parts' layouts from their own files.
+
+    A part named in ``taxel_files`` keeps its chain from the config (or the
+    skinManager part's usual chain) and takes its layout from the file, e.g. a
+    recording's own; every other part stays as configured.
+    """
+    from nao_skin.paths import default_skin_config
+
+    robot = RobotModel.from_yaml(robot_config) if robot_config else None
+    skin = SkinModel.from_yaml(skin_config or default_skin_config(), robot)
+    parts = dict(skin.parts)
+    for name, path in (taxel_files or {}).items():
+        if name in parts:
+            chain = parts[name].chain
+        elif name in DEFAULT_CHAINS:
+            chain = DEFAULT_CHAINS[name]
+        else:
+            raise ConfigError(f"--taxels {name}={path}: unknown skin part '{name}'"
+                              f" (skinManager parts: {', '.join(sorted(set(parts) | set(DEFAULT_CHAINS)))})")
+        parts[name] = part_from_layout(name, chain, skin.robot, path)
+    if not taxel_files:
+        return skin
+    return SkinModel(skin.robot, parts, f"{skin.source} + " + ", ".join(str(p) for p in taxel_files.values()))

@@ -1,0 +1,108 @@
+"""skinManager taxel position files: read and write.
+
+Two forms are in use:
+
+* plain: one row ``x y z nx ny nz`` per taxel slot (metres, local frame of the
+  skin part), all-zero rows for thermal pads, missing triangles and unknown taxels;
+* with a header, as iCub's ``skinGui``/``skinManager`` position files::
+
+      name            left_hand
+      spatial_sampling taxel
+      taxel2Repr      ( 0 1 2 ... -2 ... -1 )
+      [calibration]
+      x y z nx ny nz
+      ...
+
+  ``taxel2Repr`` maps each slot to its representative taxel; the convention of
+  the Nao skin files is -1 for a slot of an unused triangle and -2 for a thermal pad.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from nao_skin.errors import DataError
+
+SLOTS_PER_TRIANGLE = 12
+THERMAL_SLOTS = (6, 10)
+DEFAULT_SLOTS = 384
+
+
+@dataclass
+class TaxelFile:
+    positions: np.ndarray            # (S, 3) metres
+    normals: np.ndarray              # (S, 3) unit or zero
+    name: str = ""
+    header: dict = field(default_factory=dict)
+
+    @property
+    def present(self) -> np.ndarray:
+        """Slots that hold a taxel: a non-zero row that is not a thermal pad."""
+        nonzero = np.any(self.positions != 0.0, axis=1) | np.any(self.normals != 0.0, axis=1)
+        k = np.arange(len(self.positions)) % SLOTS_PER_TRIANGLE
+        return nonzero & ~np.isin(k, THERMAL_SLOTS)
+
+
+def read_taxel_file(path: str | Path, n_slots: int = DEFAULT_SLOTS) -> TaxelFile:
+    """Read either form; rows beyond the file are zero (no taxel)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read taxel file ({exc.strerror})") from None
+    lines = text.splitlines()
+    header: dict = {}
+    start = 0
+    if any(line.strip().lower() == "[calibration]" for line in lines):
+        for i, line in enumerate(lines):
+            stripped = line.strip()
+            if stripped.lower() == "[calibration]":
+                start = i + 1
+                break
+            if stripped and not stripped.startswith(("#", "//")):
+                key, _, value = stripped.partition(" ")
+                header[key] = value.strip()
+    rows = []
+    for lineno, line in enumerate(lines[start:], start=start + 1):
+        stripped = line.split("#", 1)[0].split("//", 1)[0].strip()
+        if not stripped:
+            continue
+        if stripped.startswith("["):
+            break  # next section of a skinManager file
+        parts = stripped.split()
+        if len(parts) != 6:
+            raise DataError(f"{path}:{lineno}: expected 6 numbers 'x y z nx ny nz', got {len(parts)}")
+        try:
+            values = [float(v) for v in parts]
+        except ValueError:
+            raise DataError(f"{path}:{lineno}: not a number in {stripped!r}") from None
+        if not np.all(np.isfinite(values)):
+            raise DataError(f"{path}:{lineno}: non-finite value in {stripped!r}")
+        rows.append(values)
+    if not rows:
+        raise DataError(f"{path}: no taxel rows found")
+    if len(rows) > n_slots:
+        raise DataError(f"{path}: {len(rows)} taxel rows, more than the {n_slots} slots of a skin part")
+    data = np.zeros((n_slots, 6))
+    data[: len(rows)] = rows
+    return TaxelFile(data[:, :3].copy(), data[:, 3:].copy(), name=header.get("name", path.stem), header=header)
+
+
+def write_taxel_file(path: str | Path, positions: np.ndarray, normals: np.ndarray, present: np.ndarray,
+                     name: str, with_header: bool = True) -> None:
+    """Write positions/normals of present slots (others as zero rows), 8 decimals."""
+    positions = np.where(present[:, None], positions, 0.0)
+    normals = np.where(present[:, None], normals, 0.0)
+    out = []
+    if with_header:
+        k = np.arange(len(present)) % SLOTS_PER_TRIANGLE
+        repr_ids = np.where(present, np.arange(len(present)), np.where(np.isin(k, THERMAL_SLOTS), -2, -1))
+        out.append(f"name {name}")
+        out.append("spatial_sampling taxel")
+        out.append("taxel2Repr ( " + " ".join(str(int(v)) for v in repr_ids) + " )")
+        out.append("[calibration]")
+    for p, n in zip(positions, normals):
+        out.append(" ".join(f"{v:.8f}" for v in (*p, *n)))
+    Path(path).write_text("\n".join(out) + "\n")

@@ -1,0 +1,1 @@
+"""The self-touch simulator with ground truth."""

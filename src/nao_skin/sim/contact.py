@@ -1,0 +1,160 @@
+"""Skin activation of a simulated self-touch, from the geometry of the true skin.
+
+At a solved pose the two skins face each other across the fabric gap. The
+hand does not press evenly (knuckles, fabric folds): pressure comes through a
+few *spots* scattered over a footprint around the contact point. A taxel of
+either part fires when it lies under a spot and the other part's surface is
+within ``gap + reach`` of it (a compliant fabric spreads the load a little);
+its pressure falls off with that distance and away from the spot centre.
+
+Each spot is one skin *event*: spots come and go while the hand is pressed,
+skinManager reports each as its own contact, and the recorder collects the
+contacts of the whole press into one touch. That is why a real touch has
+several contacts per part, often with neighbouring taxels in different
+contacts (measured on the real recording: ~3 contacts per part and touch,
+the closest taxels of two contacts typically one lattice step apart).
+Within an event, taxels are grouped by neighbour distance as skinManager does
+(:func:`nao_skin.contacts.cluster_labels`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from nao_skin import se3
+from nao_skin.model.skin import SkinCalibration, SkinModel
+
+NEAREST = 96             # taxels per part and touch considered (nearest to the contact, laterally)
+NEIGHBOUR_REACH = 0.008  # lateral distance (m) up to which the other part's nearest taxel stands for its surface
+CHUNK = 256              # touches per vectorised block (bounds memory at ~N * 96 * 96 floats)
+PRESSURE_MAX = 255.0     # skinManager compensated scale
+SPOT_SEPARATION = 0.6    # spot centres at least this times the sum of their radii apart
+
+
+def tangent_basis(normal: np.ndarray):
+    """Two unit vectors spanning the plane orthogonal to each ``(N, 3)`` normal."""
+    helper = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    e1 = np.cross(normal, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    return e1, np.cross(normal, e1)
+
+
+def taxels_in_base(skin: SkinModel, part: str, q: np.ndarray, truth: SkinCalibration):
+    """True positions and normals ``(N, S, 3)`` of the present taxels, and their slots ``(S,)``."""
+    sp = skin.parts[part]
+    pos, nor = sp.taxel_positions(truth.parts.get(part))
+    slots = sp.slots
+    end = skin.robot.fk(sp.chain, q)[:, None]
+    return se3.transform_points(end, pos[slots][None]), se3.rotate_vectors(end, nor[slots][None]), slots
+
+
+def draw_spots(n: int, p, rng: np.random.Generator):
+    """Per touch: spot centres ``(N, K, 2)`` in the contact plane, radii ``(N, K)`` (0 = no spot)."""
+    k_max = int(p.pressure_spots[1])
+    count = rng.integers(int(p.pressure_spots[0]), k_max + 1, size=n)
+    footprint = rng.uniform(*p.footprint_radius, size=(n, 1))
+    r = footprint * np.sqrt(rng.uniform(size=(n, k_max)))
+    phi = rng.uniform(0, 2 * np.pi, size=(n, k_max))
+    centres = np.stack([r * np.cos(phi), r * np.sin(phi)], axis=2)
+    centres[:, 0] = 0.0                      # the solved contact point always presses
+    radius = rng.uniform(*p.spot_size, size=(n, k_max))
+    radius[np.arange(k_max)[None, :] >= count[:, None]] = 0.0
+    # spots do not overlap much: one that would is dropped (a loop over <= K spots, vectorised over N)
+    for k in range(1, k_max):
+        d = np.linalg.norm(centres[:, :k] - centres[:, k:k + 1], axis=2)
+        crowded = np.any((radius[:, :k] > 0) & (d < SPOT_SEPARATION * (radius[:, :k] + radius[:, k:k + 1])), axis=1)
+        radius[crowded, k] = 0.0
+    return centres, radius
+
+
+def _local_frame(points, contact, e1, e2, normal):
+    rel = points - contact[:, None]
+    lat = np.stack([np.einsum("nsk,nk->ns", rel, e1), np.einsum("nsk,nk->ns", rel, e2)], axis=2)
+    return lat, np.einsum("nsk,nk->ns", rel, normal)
+
+
+def _nearest(lat, height, count):
+    """Keep the ``count`` taxels laterally nearest to the contact (per touch), with their columns."""
+    dist = np.linalg.norm(lat, axis=2)
+    count = min(count, dist.shape[1])
+    cols = np.argpartition(dist, count - 1, axis=1)[:, :count]
+    cols.sort(axis=1)
+    take = lambda a: np.take_along_axis(a, cols if a.ndim == 2 else cols[..., None], axis=1)  # noqa: E731
+    return take(lat), take(height), cols
+
+
+def fire(skin: SkinModel, truth: SkinCalibration, hand: str, target: str, q: np.ndarray,
+         contact: np.ndarray, normal: np.ndarray, gap: np.ndarray, p, rng: np.random.Generator):
+    """Activations of both parts for N touches (true joints ``q``, true skin).
+
+    ``contact`` is the midpoint between the two touching skin surfaces and
+    ``normal`` the target's outward normal there (base frame). Returns flat
+    arrays ``(touch, side, slot, pressure, event)`` with side 0 = hand,
+    1 = target, and ``event`` the spot that pressed the taxel.
+    """
+    n = len(q)
+    if n == 0:   # no pose of this pair was found (e.g. a narrow planar band): nothing fires
+        empty = np.zeros(0, dtype=int)
+        return empty, empty, empty, np.zeros(0), empty
+    centres, radius = draw_spots(n, p, rng)
+    reach = rng.uniform(*p.press_reach, size=n)
+    e1, e2 = tangent_basis(normal)
+    out = []
+    sides = []
+    for side, part in enumerate((hand, target)):
+        pos, nor, slots = taxels_in_base(skin, part, q, truth)
+        lat, height = _local_frame(pos, contact, e1, e2, normal)
+        # only the surface facing the other part can stand for it (not the far side of the hand)
+        facing = np.einsum("nsk,nk->ns", nor, normal) * (1.0 if side == 1 else -1.0) > 0.0
+        lat_near, height_near, cols = _nearest(lat, height, NEAREST)
+        sides.append((lat_near, height_near, cols, slots, np.take_along_axis(facing, cols, axis=1)))
+    for side in (0, 1):
+        lat, height, cols, slots, _ = sides[side]
+        o_lat, o_height, _, _, o_facing = sides[1 - side]
+        for start in range(0, n, CHUNK):
+            sl = slice(start, min(start + CHUNK, n))
+            # the other part's surface height under each taxel: its laterally nearest taxel
+            d = np.linalg.norm(lat[sl][:, :, None] - o_lat[sl][:, None], axis=3)
+            d = np.where(o_facing[sl][:, None], d, np.inf)
+            nn = np.argmin(d, axis=2)
+            near = np.take_along_axis(d, nn[..., None], axis=2)[..., 0] <= NEIGHBOUR_REACH
+            other = np.take_along_axis(o_height[sl], nn, axis=1)
+            own = height[sl]
+            sep = np.where(side == 0, own - other, other - own)
+            sep = np.where(near, sep, 2.0 * np.abs(own))   # no taxel of the other part there: mirror image
+            # under which spot, and how central
+            sd = np.linalg.norm(lat[sl][:, :, None] - centres[sl][:, None], axis=3)
+            rad = radius[sl][:, None]
+            closeness = np.where(rad > 0, 1.0 - (sd / np.where(rad > 0, rad, 1.0)) ** 2, -1.0)
+            spot = np.argmax(closeness, axis=2)
+            central = np.take_along_axis(closeness, spot[..., None], axis=2)[..., 0]
+            slack = sep - gap[sl, None]
+            depth = 1.0 - slack / reach[sl, None]
+            firing = (central > 0) & (depth > 0)
+            t, s = np.nonzero(firing)
+            pressure = np.clip(PRESSURE_MAX * np.minimum(depth[t, s], 1.0) * (0.3 + 0.7 * central[t, s]),
+                               1.0, PRESSURE_MAX)
+            out.append((t + start, np.full(len(t), side), slots[cols[sl][t, s]], np.round(pressure), spot[t, s]))
+    touch, side, slot, pressure, event = (np.concatenate(a) for a in zip(*out))
+    order = np.lexsort((slot, side, touch))
+    return touch[order], side[order], slot[order], pressure[order], event[order]
+
+
+def patch_activation(skin: SkinModel, truth: SkinCalibration, part: str, q: np.ndarray,
+                     eligible, rng: np.random.Generator):
+    """A blob of activation on ``part`` where something else presses it (e.g. the experimenter's hand).
+
+    Per touch a centre taxel is drawn among those for which
+    ``eligible(positions, normals)`` (``(N, S, 3)`` base frame -> ``(N, S)``
+    bool) holds; taxels within 8..14 mm of it fire. Returns ``(touch, slot, pressure)``.
+    """
+    pos, nor, slots = taxels_in_base(skin, part, q, truth)
+    n = len(q)
+    weight = eligible(pos, nor).astype(float) + 1e-9
+    cum = np.cumsum(weight, axis=1)
+    pick = np.argmax(cum >= rng.uniform(size=(n, 1)) * cum[:, -1:], axis=1)
+    centre = pos[np.arange(n), pick]
+    dist = np.linalg.norm(pos - centre[:, None], axis=2)
+    radius = rng.uniform(0.008, 0.014, size=(n, 1))
+    t, s = np.nonzero(dist <= radius)
+    pressure = np.round(np.clip(PRESSURE_MAX * (1.0 - (dist[t, s] / radius[t, 0]) ** 2), 1.0, PRESSURE_MAX))
+    return t, slots[s], pressure

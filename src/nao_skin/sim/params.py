@@ -1,0 +1,191 @@
+"""Parameters of the self-touch simulator, as data: defaults, presets, validation.
+
+``config/simulation.yaml`` holds a ``defaults:`` mapping (every field of
+:class:`SimParams`) and ``presets:`` that override a few fields each. Lengths
+are metres, angles radians unless the field name says ``_deg``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping
+
+from nao_skin.errors import ConfigError
+
+HANDS = ("r_hand", "l_hand")
+TARGETS = ("torso", "head")   # what a hand can press in this simulator (thesis' four pairs)
+
+
+@dataclass
+class SimParams:
+    # ------------------------------------------------------------ scene
+    pairs: list = field(default_factory=lambda: [["r_hand", "torso"], ["l_hand", "torso"],
+                                                  ["r_hand", "head"], ["l_hand", "head"]])
+    n_touches: int = 200                      # accepted touches per pair
+    start_stamp: float = 1_700_000_000.0      # first touch stamp (s); fixed so outputs are reproducible
+    touch_interval: list = field(default_factory=lambda: [1.5, 4.0])   # s between touches, uniform
+    # ------------------------------------------------------------ true skin placement (ground truth)
+    hand_mount_rotation_deg: float = 160.0    # about the forearm axis (real hands: ~160 deg off the CAD)
+    hand_mount_axis_tilt_deg: float = 5.0     # tilt of that rotation axis away from the forearm axis
+    hand_mount_shift: float = 0.015           # along the forearm axis (m), random sign
+    hand_mount_radial: float = 0.002          # across the forearm axis (m), random direction
+    hand_mount_offset: list = field(default_factory=lambda: [0.0, 0.0, 0.0])  # fixed extra shift, mount axes (m)
+    body_mount_translation: float = 0.003     # torso / head mount (m)
+    body_mount_rotation: float = 0.035        # torso / head mount (rad, ~2 deg)
+    patch_translation: float = 0.003          # per patch (m)
+    patch_rotation: float = 0.05              # per patch (rad, ~3 deg)
+    triangle_translation: float = 0.0004      # per triangle (m)
+    triangle_rotation: float = 0.05           # per triangle (rad)
+    # ------------------------------------------------------------ pose search
+    pose_restarts: int = 8                    # random starts per target spot
+    pose_iterations: int = 60                 # Levenberg-Marquardt iterations
+    pose_tolerance: float = 0.0005            # accepted spot-to-spot position error (m)
+    normal_tolerance_deg: float = 8.0         # accepted deviation from opposed normals
+    penetration_tolerance: float = 0.003      # how far another hand taxel may sit behind the target surface (m)
+    spot_radius: float = 0.007                # chosen contact spot: random point this close to a triangle centre (m)
+    planar_band: float = 0.0                  # > 0: contact spots only in a band this wide (m) -> poses in a plane
+    # ------------------------------------------------------------ contact and activation
+    fabric_thickness: float = 0.001           # fabric over the taxels, each side (m): taxels never coincide
+    footprint_radius: list = field(default_factory=lambda: [0.015, 0.035])   # pressure spots spread (m)
+    pressure_spots: list = field(default_factory=lambda: [2, 7])             # spots per touch (inclusive)
+    spot_size: list = field(default_factory=lambda: [0.007, 0.013])          # radius of one spot (m)
+    press_reach: list = field(default_factory=lambda: [0.002, 0.005])       # fires up to this beyond the gap (m)
+    cluster_distance: float = 0.012           # taxels closer than this form one contact (skinManager maxNeighborDist)
+    # ------------------------------------------------------------ noise and defects (scaled by noise_scale)
+    noise_scale: float = 1.0                  # multiplies every noise and defect rate below
+    joint_noise: float = 0.003                # encoder + backlash while the arm is held (rad, std)
+    fabric_jitter: float = 0.0002             # fabric thickness variation (m, std)
+    missed_taxel: float = 0.005               # probability a firing taxel is not reported
+    spurious_taxel: float = 0.02              # probability per touch of one stray taxel activation
+    duplicate: float = 0.03                   # probability a touch is recorded twice
+    experimenter_hand: float = 0.10           # hand touches where the experimenter also presses the robot's hand
+    non_self_contact: float = 0.02            # touches whose activations no self-contact explains
+
+    # ------------------------------------------------------------------ derived
+    def scaled(self, name: str) -> float:
+        """A noise/defect field times ``noise_scale`` (probabilities capped at 1)."""
+        value = getattr(self, name) * self.noise_scale
+        return min(value, 1.0) if name in PROBABILITIES else value
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+NOISES = ("joint_noise", "fabric_jitter", "missed_taxel", "spurious_taxel", "duplicate",
+          "experimenter_hand", "non_self_contact")
+PROBABILITIES = ("missed_taxel", "spurious_taxel", "duplicate", "experimenter_hand", "non_self_contact")
+_NON_NEGATIVE = NOISES + ("noise_scale", "hand_mount_rotation_deg", "hand_mount_axis_tilt_deg",
+                          "hand_mount_shift", "hand_mount_radial", "body_mount_translation",
+                          "body_mount_rotation", "patch_translation", "patch_rotation",
+                          "triangle_translation", "triangle_rotation", "fabric_thickness", "planar_band")
+_POSITIVE = ("pose_tolerance", "normal_tolerance_deg", "penetration_tolerance", "spot_radius",
+             "cluster_distance")
+_RANGES = ("touch_interval", "footprint_radius", "pressure_spots", "spot_size", "press_reach")
+
+
+def default_params_file() -> Path:
+    from nao_skin.paths import config_dir
+
+    return config_dir() / "simulation.yaml"
+
+
+def _read_doc(path: Path) -> dict:
+    from nao_skin.paths import read_yaml
+
+    doc = read_yaml(path, "simulation parameters")
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{path}: expected 'defaults:' and 'presets:' mappings")
+    return doc
+
+
+def preset_names(path: str | Path | None = None) -> list:
+    doc = _read_doc(Path(path) if path else default_params_file())
+    return ["default"] + [n for n in (doc.get("presets") or {}) if n != "default"]
+
+
+def load_params(preset: str = "default", overrides: Mapping | None = None,
+                path: str | Path | None = None) -> SimParams:
+    """Defaults of the file, then the preset's fields, then ``overrides``; validated."""
+    path = Path(path) if path else default_params_file()
+    doc = _read_doc(path)
+    presets = doc.get("presets") or {}
+    values = dict(doc.get("defaults") or {})
+    if preset != "default":
+        if preset not in presets:
+            raise ConfigError(f"{path}: unknown preset '{preset}' (known: {', '.join(['default', *presets])})")
+        values.update(presets[preset] or {})
+    values.update(overrides or {})
+    return make_params(values, where=f"{path}: preset '{preset}'")
+
+
+def make_params(values: Mapping | SimParams, where: str = "simulation parameters") -> SimParams:
+    """A validated :class:`SimParams` from a mapping of field overrides (or a SimParams)."""
+    if isinstance(values, SimParams):
+        values = values.to_dict()
+    known = {f.name for f in dataclasses.fields(SimParams)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ConfigError(f"{where}: unknown field(s) {', '.join(unknown)}")
+    params = SimParams(**{k: v for k, v in values.items()})
+    validate(params, where)
+    return params
+
+
+def validate(p: SimParams, where: str = "simulation parameters") -> None:
+    def number(name):
+        v = getattr(p, name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ConfigError(f"{where}: '{name}' must be a finite number, got {v!r}")
+        return float(v)
+
+    for name in _NON_NEGATIVE:
+        if number(name) < 0:
+            raise ConfigError(f"{where}: '{name}' must not be negative, got {getattr(p, name)}")
+    for name in _POSITIVE:
+        if number(name) <= 0:
+            raise ConfigError(f"{where}: '{name}' must be positive, got {getattr(p, name)}")
+    for name in PROBABILITIES:
+        if number(name) > 1:
+            raise ConfigError(f"{where}: '{name}' is a probability, got {getattr(p, name)} > 1")
+    for name in _RANGES:
+        v = getattr(p, name)
+        if (not isinstance(v, (list, tuple)) or len(v) != 2
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
+                or not 0 <= v[0] <= v[1]):
+            raise ConfigError(f"{where}: '{name}' must be [low, high] with 0 <= low <= high, got {v!r}")
+    if p.pressure_spots[0] < 1:
+        raise ConfigError(f"{where}: 'pressure_spots' must start at 1 or more, got {p.pressure_spots!r}")
+    for name in ("n_touches", "pose_restarts", "pose_iterations"):
+        v = getattr(p, name)
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise ConfigError(f"{where}: '{name}' must be a whole number >= 1, got {v!r}")
+    off = p.hand_mount_offset
+    if not isinstance(off, (list, tuple)) or len(off) != 3 or not all(isinstance(x, (int, float)) for x in off):
+        raise ConfigError(f"{where}: 'hand_mount_offset' must be [x, y, z] metres, got {off!r}")
+    if not isinstance(p.pairs, (list, tuple)) or not p.pairs:
+        raise ConfigError(f"{where}: 'pairs' must be a non-empty list of [hand, part] pairs")
+    seen = set()
+    for pair in p.pairs:
+        if isinstance(pair, str):
+            pair = pair.replace("-", " ").split()
+        if not isinstance(pair, (list, tuple)) or len(pair) != 2 or not all(isinstance(x, str) for x in pair):
+            raise ConfigError(f"{where}: pair {pair!r} must be two skin part names, e.g. [l_hand, torso]")
+        hand, target = pair
+        if hand not in HANDS or target not in TARGETS:
+            raise ConfigError(f"{where}: pair {hand}-{target} cannot touch in this simulator"
+                              f" (it models a hand, {' or '.join(HANDS)}, pressed on {' or '.join(TARGETS)})")
+        if (hand, target) in seen:
+            raise ConfigError(f"{where}: pair {hand}-{target} is listed twice")
+        seen.add((hand, target))
+
+
+def pair_list(p: SimParams) -> list:
+    """Pairs as ``(hand, target)`` tuples; accepts ``"l_hand-torso"`` strings too."""
+    out = []
+    for pair in p.pairs:
+        if isinstance(pair, str):
+            pair = pair.replace("-", " ").split()
+        out.append((str(pair[0]), str(pair[1])))
+    return out

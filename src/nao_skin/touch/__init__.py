@@ -1,0 +1,1 @@
+"""Touches as flat arrays, contacts, the self-touch event detector, data sets."""

@@ -1,0 +1,100 @@
+"""Touch data sets as a whole: what loading skipped, exact duplicates, train/test split."""
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nao_skin.touch.touches import TouchSet
+
+MAX_LISTED_MESSAGES = 20     # a report prints this many skip reasons in full, then counts
+
+
+@dataclass
+class LoadReport:
+    """What a reader did with its input: touches read, kept, and every skip with its one-line reason.
+
+    ``skipped`` counts by short reason key (e.g. ``"missing joint"``); ``messages``
+    holds the one-line explanations naming file, touch and field.
+    """
+
+    source: str
+    n_read: int = 0
+    n_loaded: int = 0
+    skipped: Counter = field(default_factory=Counter)
+    messages: list = field(default_factory=list)
+    unit: str = "touches"          # what n_read counts: touches (text formats) or messages (bags)
+    unknown_slots: Counter = field(default_factory=Counter)   # per part: skipped for slots not in its layout
+    notes: list = field(default_factory=list)      # what was kept but is worth a look (one line each)
+
+    @property
+    def n_skipped(self) -> int:
+        return int(sum(self.skipped.values()))
+
+    def skip(self, reason: str, message: str, count: int = 1, part: str | None = None) -> None:
+        """Count a skip; ``part``: the skin part whose layout lacks the named slot (reason 'bad taxel slot')."""
+        self.skipped[reason] += count
+        self.messages.append(" ".join(str(message).split()))
+        if part is not None:
+            self.unknown_slots[part] += count
+
+    def merge(self, other: "LoadReport") -> None:
+        self.skipped.update(other.skipped)
+        self.unknown_slots.update(other.unknown_slots)
+        self.notes.extend(other.notes)
+        self.messages.extend(other.messages)
+
+    def summary(self) -> str:
+        """One line: read / loaded / skipped by reason."""
+        why = ", ".join(f"{n} {reason}" for reason, n in sorted(self.skipped.items()))
+        return (f"{self.source}: {self.n_loaded} touches loaded of {self.n_read} {self.unit} read"
+                + (f"; skipped: {why}" if why else ""))
+
+    def lines(self, limit: int = MAX_LISTED_MESSAGES) -> list:
+        """Summary then the first ``limit`` skip messages (and how many more there are)."""
+        out = [self.summary()] + self.notes + self.messages[:limit]
+        if len(self.messages) > limit:
+            out.append(f"... and {len(self.messages) - limit} more")
+        return out
+
+
+def _touch_signatures(touches: TouchSet) -> np.ndarray:
+    """(N, L) int64 rows that are equal exactly when two touches have the same angles and part/slot sets."""
+    n = touches.n_touches
+    joints = np.where(np.isnan(touches.joints), np.inf, touches.joints + 0.0)  # -0.0 == 0.0, NaN == NaN
+    joint_bits = np.ascontiguousarray(joints, dtype=np.float64).view(np.int64)
+    # one code per activated taxel; a taxel listed twice (two contacts) counts once
+    code = touches.act_part.astype(np.int64) * (1 << 32) + touches.act_slot.astype(np.int64)
+    pairs = np.unique(np.stack([touches.act_touch.astype(np.int64), code], axis=1), axis=0)
+    counts = np.bincount(pairs[:, 0], minlength=n)
+    width = int(counts.max()) if n and len(pairs) else 0
+    padded = np.full((n, width), -1, dtype=np.int64)
+    start = np.cumsum(counts) - counts
+    padded[pairs[:, 0], np.arange(len(pairs)) - start[pairs[:, 0]]] = pairs[:, 1]
+    return np.concatenate([joint_bits, counts[:, None], padded], axis=1)
+
+
+def duplicate_mask(touches: TouchSet) -> np.ndarray:
+    """(N,) bool: True for a touch that exactly repeats an earlier one (same angles, same part/slot sets)."""
+    if touches.n_touches == 0:
+        return np.zeros(0, dtype=bool)
+    _, first = np.unique(_touch_signatures(touches), axis=0, return_index=True)
+    mask = np.ones(touches.n_touches, dtype=bool)
+    mask[first] = False
+    return mask
+
+
+def deduplicate(touches: TouchSet) -> tuple:
+    """``(touches without exact repeats, n_removed)``; the first occurrence is kept, order preserved."""
+    dup = duplicate_mask(touches)
+    return touches.subset(~dup), int(dup.sum())
+
+
+def split(touches: TouchSet, test_fraction: float = 0.3, seed: int = 0) -> tuple:
+    """``(train, test)``: a random permutation with ``seed`` (same seed, same split); rows keep their order."""
+    if not 0.0 <= test_fraction <= 1.0:
+        raise ValueError(f"test_fraction must be within 0..1, got {test_fraction}")
+    perm = np.random.default_rng(seed).permutation(touches.n_touches)
+    n_test = int(round(test_fraction * touches.n_touches))
+    return touches.subset(np.sort(perm[n_test:])), touches.subset(np.sort(perm[:n_test]))

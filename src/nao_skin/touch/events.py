@@ -1,0 +1,313 @@
+"""Self-touch events from separate joint and skin streams, the same code live and offline.
+
+Joint states and skin samples arrive separately, at their own rates. A
+*touch* is a moment when two or more skin parts are active together (their
+latest non-empty samples within ``skin_tolerance`` of each other); its stamp
+is the skin stamp that completed it and its joint angles are linearly
+interpolated to that stamp from the two joint states that bracket it.
+
+Rules (each drop is counted in ``counts`` under its reason, never guessed):
+
+* an event waits ``skin_tolerance`` for the other parts' samples of the same
+  moment, then waits for a joint state at or after its stamp;
+* both bracketing joint states must lie within ``joint_tolerance`` of the
+  stamp ("stale joints" otherwise); a joint needed by a touching part's chain
+  that is missing or NaN drops the event ("missing joint");
+* a continuous press is one touch per *distinct activation pattern*: while
+  every part of a combination stays pressed (no empty sample, no silence
+  longer than ``release_gap``), a new touch is emitted only when the set of
+  activated taxels changed, and at most once per ``min_interval``. A release
+  and a new press always give a new touch.
+
+Touch bags (one sample per part and one joint state per touch, all at the
+touch stamp) are read with :data:`TOUCH_BAG_CONFIG`: zero tolerances and
+every stamp a new press, so each stored touch comes back exactly once.
+
+Per message the work is a few dict/list operations and one bisect
+(no numpy on the skin path except building the emitted record).
+"""
+from __future__ import annotations
+
+import bisect
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from nao_skin.touch.touches import TouchSet
+
+MAX_NOTES = 50            # one-line drop explanations kept (counts are always complete)
+MAX_PENDING = 1000        # events waiting for joints before the oldest is dropped
+
+
+@dataclass(frozen=True)
+class EventConfig:
+    # s: samples of different parts this close belong to one moment. At least half the skin
+    # frame period (parts are sampled with their own phase), below a full period (20 ms at 50 Hz)
+    # so that consecutive frames stay separate moments.
+    skin_tolerance: float = 0.015
+    joint_tolerance: float = 0.1    # s: max distance of each bracketing joint state from the skin stamp
+    min_interval: float = 0.2       # s: during one continuous press, at most one touch per this interval
+    release_gap: float = 0.1        # s: a part silent this long counts as released
+    joint_history: float = 5.0      # s of joint states kept for interpolation
+
+
+LIVE_CONFIG = EventConfig()
+TOUCH_BAG_CONFIG = EventConfig(skin_tolerance=0.0, joint_tolerance=0.0, min_interval=0.0, release_gap=0.0)
+
+
+@dataclass
+class ContactRecord:
+    part: int                       # index into the detector's part names
+    contact_id: int                 # skinManager contactId, -1 if none
+    cop: np.ndarray                 # (3,) recorded COP, part local frame (NaN unknown)
+    slots: np.ndarray               # (n,) int
+    pressures: np.ndarray           # (n,) float (NaN unknown)
+
+
+@dataclass
+class TouchRecord:
+    stamp: float
+    joints: np.ndarray              # (J,) radians, detector joint order
+    contacts: list = field(default_factory=list)
+
+
+@dataclass
+class _Sample:
+    stamp: float
+    slots: tuple
+    pressures: tuple
+    contact_ids: tuple
+    summary: Mapping | None
+    press_start: float
+
+
+@dataclass
+class _Candidate:
+    stamp: float
+    samples: dict                   # part index -> _Sample
+
+
+class EventDetector:
+    """Incremental touch detection. Feed messages in (roughly) time order; collect emitted touches."""
+
+    def __init__(self, part_names: Sequence[str], joint_names: Sequence[str],
+                 needed_joints: Mapping[str, Sequence[str]] | None = None, config: EventConfig = LIVE_CONFIG):
+        self.part_names = tuple(part_names)
+        self.joint_names = tuple(joint_names)
+        self.config = config
+        self._part_index = {n: i for i, n in enumerate(self.part_names)}
+        self._joint_index = {n: i for i, n in enumerate(self.joint_names)}
+        needed_joints = needed_joints or {}
+        self._needed = [tuple(self._joint_index[j] for j in needed_joints.get(p, ()) if j in self._joint_index)
+                        for p in self.part_names]
+        self._needed_names = [tuple(needed_joints.get(p, ())) for p in self.part_names]
+        self._columns_cache: dict = {}
+        self._joint_stamps: list = []
+        self._joint_values: list = []
+        self._latest: dict = {}               # part index -> _Sample (latest non-empty) or None (released)
+        self._open: _Candidate | None = None
+        self._pending: deque = deque()        # finalised candidates waiting for a later joint state
+        self._last_emit: dict = {}            # part combination -> (stamp, pattern, press)
+        self._summaries: dict = {}            # (part, stamp) -> contacts summary arriving before its taxels
+        self.counts: Counter = Counter()
+        self.notes: list = []
+
+    @classmethod
+    def for_skin(cls, skin, config: EventConfig = LIVE_CONFIG) -> "EventDetector":
+        """A detector for the parts and joints of a :class:`~nao_skin.skin.SkinModel`."""
+        robot = skin.robot
+        needed = {n: robot.chain_joint_names(p.chain) if p.chain else [] for n, p in skin.parts.items()}
+        return cls(tuple(skin.parts), tuple(robot.joint_names), needed, config)
+
+    # ------------------------------------------------------------------ bookkeeping
+    def _drop(self, reason: str, note: str) -> None:
+        self.counts[reason] += 1
+        if len(self.notes) < MAX_NOTES:
+            self.notes.append(note)
+
+    # ------------------------------------------------------------------ input
+    def add_joint_state(self, stamp: float, names: Sequence[str], positions: Sequence[float]) -> list:
+        """A JointState (NAOqi names, radians). Returns the touches this completes."""
+        key = tuple(names)
+        cols = self._columns_cache.get(key)
+        if cols is None:
+            pairs = [(i, self._joint_index[n]) for i, n in enumerate(names) if n in self._joint_index]
+            cols = (np.array([p[0] for p in pairs], dtype=int), np.array([p[1] for p in pairs], dtype=int))
+            self._columns_cache[key] = cols
+        values = np.full(len(self.joint_names), np.nan)
+        positions = np.asarray(positions, dtype=float)
+        if len(positions) != len(names):
+            self._drop("malformed joint state", f"joint state at {stamp:.6f}: {len(names)} names but"
+                                                f" {len(positions)} positions")
+            return []
+        values[cols[1]] = positions[cols[0]]
+        stamp = float(stamp)
+        if not self._joint_stamps or stamp >= self._joint_stamps[-1]:
+            self._joint_stamps.append(stamp)
+            self._joint_values.append(values)
+        else:                                  # late message: keep the buffer sorted
+            i = bisect.bisect_right(self._joint_stamps, stamp)
+            self._joint_stamps.insert(i, stamp)
+            self._joint_values.insert(i, values)
+        horizon = self._joint_stamps[-1] - self.config.joint_history
+        if self._joint_stamps[0] < horizon:
+            cut = bisect.bisect_left(self._joint_stamps, horizon)
+            cut = min(cut, len(self._joint_stamps) - 2) if len(self._joint_stamps) > 2 else 0
+            if cut > 0:
+                del self._joint_stamps[:cut], self._joint_values[:cut]
+        return self._resolve_pending(final=False)
+
+    def add_contacts(self, stamp: float, part: str, contact_ids: Sequence[int], cops: np.ndarray) -> list:
+        """skinManager contacts of one skin sample (the ``/skin/<part>/contacts`` message).
+
+        Attached to the taxel sample of the same part and stamp, whichever arrives first.
+        """
+        p = self._part_index.get(part)
+        if p is None:
+            self._drop("unknown skin part", f"contacts at {stamp:.6f}: skin part '{part}' is not configured"
+                                            f" ({', '.join(self.part_names)})")
+            return []
+        summary = {int(c): np.asarray(cop, dtype=float) for c, cop in zip(contact_ids, cops)}
+        stamp = float(stamp)
+        for sample in (self._latest.get(p), self._open.samples.get(p) if self._open else None):
+            if sample is not None and sample.stamp == stamp:
+                sample.summary = summary
+                return []
+        self._summaries[(p, stamp)] = summary
+        if len(self._summaries) > 64:        # unmatched summaries never pile up
+            self._summaries.pop(next(iter(self._summaries)))
+        return []
+
+    def add_skin(self, stamp: float, part: str, slots: Sequence[int], pressures: Sequence[float] | None = None,
+                 contact_ids: Sequence[int] | None = None, contacts_summary: Mapping | None = None) -> list:
+        """One skin sample of one part: its activated taxel slots (empty = released). Returns completed touches."""
+        p = self._part_index.get(part)
+        if p is None:
+            self._drop("unknown skin part", f"skin sample at {stamp:.6f}: skin part '{part}' is not configured"
+                                            f" ({', '.join(self.part_names)})")
+            return []
+        stamp = float(stamp)
+        out = self._close_open(stamp)
+        cfg = self.config
+        prev = self._latest.get(p)
+        if len(slots) == 0:
+            self._latest[p] = None
+            return out + self._resolve_pending(final=False)
+        n = len(slots)
+        pressures = tuple(pressures) if pressures is not None else (float("nan"),) * n
+        contact_ids = tuple(int(c) for c in contact_ids) if contact_ids is not None else (-1,) * n
+        summary = contacts_summary if contacts_summary is not None else self._summaries.pop((p, stamp), None)
+        new_press = prev is None or stamp - prev.stamp > cfg.release_gap or stamp < prev.stamp
+        sample = _Sample(stamp, tuple(int(s) for s in slots), pressures, contact_ids, summary,
+                         stamp if new_press else prev.press_start)
+        self._latest[p] = sample
+        cand = self._open
+        if cand is not None and abs(stamp - cand.stamp) <= cfg.skin_tolerance:
+            cand.samples.setdefault(p, sample)           # the first sample of a part in a moment counts
+        else:
+            together = {q: s for q, s in self._latest.items()
+                        if s is not None and q != p and abs(stamp - s.stamp) <= cfg.skin_tolerance}
+            if together:
+                together[p] = sample
+                self._open = _Candidate(stamp, together)
+        return out + self._resolve_pending(final=False)
+
+    def flush(self) -> list:
+        """End of input: finalise the open moment and resolve or drop what waits for joints."""
+        out = self._close_open(None)
+        return out + self._resolve_pending(final=True)
+
+    # ------------------------------------------------------------------ moments -> touches
+    def _close_open(self, now: float | None) -> list:
+        cand = self._open
+        if cand is None or (now is not None and now <= cand.stamp + self.config.skin_tolerance):
+            return []
+        self._open = None
+        combo = tuple(sorted(cand.samples))
+        pattern = tuple((q, tuple(sorted(set(cand.samples[q].slots)))) for q in combo)
+        press = tuple(cand.samples[q].press_start for q in combo)
+        last = self._last_emit.get(combo)
+        if last is not None and last[2] == press and (
+                last[1] == pattern or cand.stamp - last[0] < self.config.min_interval):
+            self.counts["continued press"] += 1     # the same touch still held: not a new one
+            return []
+        self._last_emit[combo] = (cand.stamp, pattern, press)
+        self._pending.append(cand)
+        if len(self._pending) > MAX_PENDING:
+            old = self._pending.popleft()
+            self._drop("no joint state", f"touch at {old.stamp:.6f}: no joint state arrived for it")
+        return self._resolve_pending(final=False)
+
+    def _resolve_pending(self, final: bool) -> list:
+        out = []
+        stamps = self._joint_stamps
+        while self._pending:
+            cand = self._pending[0]
+            t = cand.stamp
+            after = bisect.bisect_left(stamps, t)
+            if after == len(stamps):
+                if not final:
+                    break                          # wait for a joint state at or after t
+                self._pending.popleft()
+                self._drop("no joint state after", f"touch at {t:.6f}: no joint state at or after it")
+                continue
+            self._pending.popleft()
+            before = after if stamps[after] == t else after - 1
+            tol = self.config.joint_tolerance
+            if before < 0:
+                self._drop("no joint state before", f"touch at {t:.6f}: no joint state at or before it")
+                continue
+            if t - stamps[before] > tol or stamps[after] - t > tol:
+                self._drop("stale joints", f"touch at {t:.6f}: bracketing joint states at {stamps[before]:.6f}"
+                                           f" and {stamps[after]:.6f} are more than {tol} s away")
+                continue
+            q0, q1 = self._joint_values[before], self._joint_values[after]
+            span = stamps[after] - stamps[before]
+            q = q0 if span <= 0 else q0 + (q1 - q0) * ((t - stamps[before]) / span)
+            record = self._record(cand, q)
+            if record is not None:
+                out.append(record)
+        return out
+
+    def _record(self, cand: _Candidate, q: np.ndarray) -> TouchRecord | None:
+        for p in sorted(cand.samples):
+            for col, name in zip(self._needed[p], self._needed_names[p]):
+                if not np.isfinite(q[col]):
+                    self._drop("missing joint", f"touch at {cand.stamp:.6f}: joint '{name}' needed by part"
+                                                f" '{self.part_names[p]}' is missing or NaN")
+                    return None
+        contacts = []
+        for p in sorted(cand.samples):
+            s = cand.samples[p]
+            slots = np.array(s.slots, dtype=int)
+            pressures = np.array(s.pressures, dtype=float)
+            ids = np.array(s.contact_ids, dtype=int)
+            for cid in dict.fromkeys(s.contact_ids):     # contact ids in order of appearance
+                sel = ids == cid
+                cop = s.summary.get(cid) if s.summary is not None and cid >= 0 else None
+                cop = np.full(3, np.nan) if cop is None else np.asarray(cop, dtype=float)
+                contacts.append(ContactRecord(p, cid, cop, slots[sel], pressures[sel]))
+        self.counts["touches"] += 1
+        return TouchRecord(cand.stamp, q.copy(), contacts)
+
+
+def touchset_from_records(records: Sequence[TouchRecord], part_names: Sequence[str],
+                          joint_names: Sequence[str], keys: Sequence | None = None) -> TouchSet:
+    """Flat arrays from emitted touches (keys default to the stamps printed with ns resolution)."""
+    if not records:
+        return TouchSet.empty(part_names, joint_names)
+    contacts = [(t, c) for t, r in enumerate(records) for c in r.contacts]
+    n_act = np.array([len(c.slots) for _, c in contacts], dtype=int)
+    return TouchSet(
+        tuple(part_names), tuple(joint_names),
+        np.array([r.stamp for r in records], dtype=float),
+        list(keys) if keys is not None else [f"{r.stamp:.9f}" for r in records],
+        np.stack([r.joints for r in records]),
+        np.array([t for t, _ in contacts], dtype=int), np.array([c.part for _, c in contacts], dtype=int),
+        np.array([c.contact_id for _, c in contacts], dtype=int),
+        np.stack([c.cop for _, c in contacts]).reshape(-1, 3),
+        np.repeat(np.arange(len(contacts)), n_act),
+        np.concatenate([c.slots for _, c in contacts]).astype(int),
+        np.concatenate([c.pressures for _, c in contacts]).astype(float))
