@@ -58,7 +58,7 @@ def test_analytic_jacobian_equals_central_differences(skin):
         c.patches = rng.normal(0, 0.05, c.patches.shape)
         c.triangles = rng.normal(0, 0.05, c.triangles.shape)
     layout = ParameterLayout(skin, ("l_hand", "torso"))
-    model = ResidualModel(skin, q, pairing, ("l_hand", "torso"), layout, calib)
+    model = ResidualModel(skin, lambda part: skin.chain_poses(part, q), pairing, ("l_hand", "torso"), layout, calib)
     x0 = layout.to_vector(calib, fabric=0.001)
     model.residuals(calib, 0.001)
     all_levels = {"mount", "patch", "triangle"}
@@ -92,7 +92,7 @@ def test_solver_recovers_a_mount_correction(skin):
                                     term_part=np.zeros(n, int),
                                     term_slot=slots, term_weight=np.ones(n))
     layout = ParameterLayout(skin, ("l_hand",))
-    model = ResidualModel(skin, q, pairing, ("l_hand",), layout, skin.zero_calibration())
+    model = ResidualModel(skin, lambda part: skin.chain_poses(part, q), pairing, ("l_hand",), layout, skin.zero_calibration())
     original = model.residuals
 
     def shifted(calib, fabric=None):
@@ -117,7 +117,7 @@ def test_sparse_and_dense_jacobians_agree(skin, monkeypatch):
     calib = skin.zero_calibration()
     calib.parts["l_hand"].mount = rng.normal(0, 1.0, 6)
     layout = ParameterLayout(skin, ("l_hand", "torso"))
-    model = ResidualModel(skin, q, pairing, ("l_hand", "torso"), layout, calib)
+    model = ResidualModel(skin, lambda part: skin.chain_poses(part, q), pairing, ("l_hand", "torso"), layout, calib)
     levels = {"l_hand": {"mount", "patch", "triangle"}, "torso": {"patch"}}
     cols = np.arange(3, layout.size - 7)
     dense = model.jacobian(calib, levels, cols)

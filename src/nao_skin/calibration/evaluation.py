@@ -1,9 +1,11 @@
 """How good a calibration is: closest-pair distances, true taxel error, which touches a self-contact explains."""
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 
-from nao_skin.calibration.pairing import METRIC_KINDS, METRIC_TAXEL_RULE, metrics, robot_joints
+from nao_skin.calibration.pairing import METRIC_KINDS, METRIC_TAXEL_RULE, chain_end_poses, metrics
 from nao_skin.calibration.plan import part_rank
 from nao_skin.calibration.rows import concat_pairings, pair_parts, pair_step
 from nao_skin.calibration.solver import ParameterLayout, ResidualModel
@@ -70,8 +72,8 @@ def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float) 
     if pairing is None or len(pairing.row_touch) == 0:
         return np.inf
     parts = tuple(p for p in step.targets + step.references if p in touches.part_names)
-    model = ResidualModel(skin, robot_joints(touches, skin), pairing, touches.part_names, ParameterLayout(skin, parts),
-                          calib, fabric=fabric)
+    model = ResidualModel(skin, partial(chain_end_poses, touches, skin), pairing, touches.part_names,
+                          ParameterLayout(skin, parts), calib, fabric=fabric)
     dist = np.linalg.norm(model.residuals(calib), axis=1)
     means = [float(np.mean(np.minimum(dist[rows], 0.05)))
              for rows in ((pairing.row_kind == k) & inliers[pairing.row_touch] for k in np.unique(pairing.row_kind))

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from nao_skin import se3
-from nao_skin.calibration.pairing import Pairing, chain_end_poses, robot_joints
+from nao_skin.calibration.pairing import Pairing, chain_end_poses
 from nao_skin.calibration.plan import HANDS, REFERENCE_BODY, Step
 from nao_skin.calibration.rows import pair_step, select_rows
 from nao_skin.errors import DataError
@@ -45,7 +45,7 @@ def _touch_centroids(touches: TouchSet, skin: SkinModel, calib: SkinCalibration,
     local, normals = skin.parts[part].taxel_positions(calib.parts[part])
     pts, nor = local[touches.act_slot[sel]], normals[touches.act_slot[sel]]
     if frame == "base":
-        fk = chain_end_poses(skin, part, robot_joints(touches, skin))[touch]
+        fk = chain_end_poses(touches, skin, part)[touch]
         pts, nor = se3.transform_points(fk, pts), se3.rotate_vectors(fk, nor)
     counts = np.bincount(touch, minlength=touches.n_touches)
     return (segment_mean(pts, touch, touches.n_touches), _unit(segment_mean(nor, touch, touches.n_touches)),
@@ -72,7 +72,7 @@ def rigid_mount_guess(touches: TouchSet, skin: SkinModel, calib: SkinCalibration
     both = np.flatnonzero(ref_ok & own_ok)
     if len(both) < 3:
         raise DataError(f"part '{target}': {len(both)} touches with a reference part, at least 3 needed for a mount fit")
-    chain = chain_end_poses(skin, target, robot_joints(touches, skin))[both]
+    chain = chain_end_poses(touches, skin, target)[both]
     ref_local = se3.transform_points(se3.invert(chain), ref_sum[both])      # reference points in the chain-end frame
     # touching surfaces face each other: the target's normal maps onto minus the reference's
     ref_dirs = -se3.rotate_vectors(se3.invert(chain), ref_nor[both])
@@ -113,7 +113,6 @@ def _cop_points(rows: Pairing, touches: TouchSet, skin: SkinModel, calib: SkinCa
     part = skin.parts[target]
     local, local_n = part.taxel_positions(calib.parts[target])
     m = len(rows.row_touch)
-    joints = robot_joints(touches, skin)
     is_target = rows.term_part == tidx
     row, slot, w = rows.term_row[is_target], rows.term_slot[is_target], np.abs(rows.term_weight[is_target])
     own, own_n = segment_mean(local[slot], row, m, w), segment_mean(local_n[slot], row, m, w)
@@ -123,9 +122,9 @@ def _cop_points(rows: Pairing, touches: TouchSet, skin: SkinModel, calib: SkinCa
         name = touches.part_names[pidx]
         loc, loc_n = skin.parts[name].taxel_positions(calib.parts[name])
         row, slot, w = rows.term_row[sel], rows.term_slot[sel], np.abs(rows.term_weight[sel])
-        fk = chain_end_poses(skin, name, joints)[rows.row_touch[row]]
+        fk = chain_end_poses(touches, skin, name)[rows.row_touch[row]]
         other += segment_mean(se3.transform_points(fk, loc[slot]), row, m, w)
         other_n += segment_mean(se3.rotate_vectors(fk, loc_n[slot]), row, m, w)
-    to_chain = se3.invert(chain_end_poses(skin, target, joints)[rows.row_touch])
+    to_chain = se3.invert(chain_end_poses(touches, skin, target)[rows.row_touch])
     return (own, se3.transform_points(to_chain, other), _unit(own_n),
             _unit(se3.rotate_vectors(to_chain, other_n)))

@@ -33,7 +33,6 @@ from nao_skin import se3
 from nao_skin.errors import DataError
 from nao_skin.model.skin import PART_NAMES, SkinCalibration, SkinModel
 from nao_skin.touch.contacts import activation_local, activations_by_part, cop_weights, segment_mean
-from nao_skin.touch.memo import per_objects
 from nao_skin.touch.touches import TouchSet
 
 KIND_COP, KIND_TAXEL, KIND_TAXEL5 = 0, 1, 2
@@ -141,8 +140,7 @@ def _part_order(touches: TouchSet, parts) -> list:
 
 # ---------------------------------------------------------------------- positions
 def robot_joints(touches: TouchSet, skin: SkinModel) -> np.ndarray:
-    """The touches' joint angles in the robot model's column order (NaN where a joint is not recorded);
-    the same array for the same touches, so that :func:`chain_end_poses` is computed once."""
+    """The touches' joint angles in the robot model's column order (NaN where a joint is not recorded)."""
     robot = skin.robot
     if tuple(touches.joint_names) == tuple(robot.joint_names):
         return touches.joints
@@ -153,26 +151,26 @@ def robot_joints(touches: TouchSet, skin: SkinModel) -> np.ndarray:
             if name in robot.joint_index:
                 q[:, robot.joint_index[name]] = touches.joints[:, col]
         return q
-    return per_objects((touches, robot), ("robot joints",), reorder)
+    return touches.derived(("robot joints",), reorder, (robot,))
 
 
-def chain_end_poses(skin: SkinModel, part: str, joints: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) pose of the part's chain end for every row of ``joints`` (robot column order).
+def chain_end_poses(touches: TouchSet, skin: SkinModel, part: str) -> np.ndarray:
+    """(N, 4, 4) pose of the part's chain end in every touch.
 
-    One batched FK per joint array: pairing and solving re-use it under every
-    new calibration (joint angles never change while calibrating, only the
-    skin's corrections do).
+    One batched FK per touch set and chain: pairing and solving re-use it
+    under every new calibration (joint angles never change while calibrating,
+    only the skin's corrections do).
     """
     chain = skin.parts[part].chain
-    return per_objects((skin.robot, joints), ("fk", chain), lambda: skin.robot.fk(chain, joints))
+    return touches.derived(("fk", chain), lambda: skin.robot.fk(chain, robot_joints(touches, skin)), (skin.robot,))
 
 
 def _activation_chains(touches: TouchSet, skin: SkinModel, p: int, name: str, sel: np.ndarray) -> tuple:
     """``(R, t)`` of the chain end of every activation ``sel`` of part ``p``, contiguous for einsum."""
     def gather():
-        chain = chain_end_poses(skin, name, robot_joints(touches, skin))[touches.act_touch[sel]]
+        chain = chain_end_poses(touches, skin, name)[touches.act_touch[sel]]
         return np.ascontiguousarray(chain[:, :3, :3]), np.ascontiguousarray(chain[:, :3, 3])
-    return per_objects((touches, skin), ("activation chains", p), gather)
+    return touches.derived(("activation chains", p), gather, (skin,))
 
 
 def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,

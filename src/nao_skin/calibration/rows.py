@@ -6,7 +6,6 @@ import numpy as np
 from nao_skin.calibration.pairing import KIND_COP, KIND_NORMAL, KIND_TAXEL, Pairing, pair_touches
 from nao_skin.calibration.plan import Step, part_rank
 from nao_skin.model.skin import SkinCalibration, SkinModel
-from nao_skin.touch.memo import per_objects
 from nao_skin.touch.touches import TouchSet
 
 
@@ -55,7 +54,7 @@ def _pair_subset(touches: TouchSet, pa: str, pb: str):
         fired = touches.parts_of_touch()
         rows = np.flatnonzero(fired[:, touches.part_index(pa)] & fired[:, touches.part_index(pb)])
         return touches.subset(rows), rows
-    return per_objects((touches,), ("pair subset", pa, pb), subset)
+    return touches.derived(("pair subset", pa, pb), subset)
 
 def pair_parts(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, pa: str, pb: str,
                kinds=("cop", "taxel", "taxel5"), taxel_rule: str = "contacts") -> Pairing:

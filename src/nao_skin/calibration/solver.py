@@ -30,7 +30,7 @@ import scipy.linalg
 import scipy.sparse
 
 from nao_skin import se3
-from nao_skin.calibration.pairing import KIND_NORMAL, chain_end_poses
+from nao_skin.calibration.pairing import KIND_NORMAL
 from nao_skin.model.skin import SkinCalibration, SkinModel
 
 LEVELS = ("mount", "patch", "triangle")
@@ -121,11 +121,12 @@ class ParameterLayout:
 class ResidualModel:
     """Residuals ``r(x)`` and Jacobians for one pairing, vectorised over its terms.
 
-    Forward kinematics of every term's touch is computed once here: joint
-    angles do not change while corrections are estimated.
+    ``chain_poses(part)``: the (N, 4, 4) chain-end pose of that part in every
+    touch (e.g. :func:`~nao_skin.calibration.pairing.chain_end_poses`): joint
+    angles do not change while corrections are estimated, so it is taken once.
     """
 
-    def __init__(self, skin: SkinModel, joints: np.ndarray, pairing, part_names: tuple,
+    def __init__(self, skin: SkinModel, chain_poses, pairing, part_names: tuple,
                  layout: ParameterLayout, base: SkinCalibration, variable_parts=None,
                  fabric: float = 0.0):
         self.skin = skin
@@ -153,7 +154,7 @@ class ResidualModel:
             if np.any(tri < 0):
                 bad = slots[tri < 0][0]
                 raise ValueError(f"part '{name}': slot {bad} has no taxel in the layout")
-            fk = chain_end_poses(skin, name, joints)[term_touch[sel]]
+            fk = chain_poses(name)[term_touch[sel]]
             self.groups.append((sel, name, part, fk, slots, tri, part.triangle_patch[tri]))
         # terms of normal rows carry a direction (rotated, never translated, no fabric)
         self.term_is_dir = pairing.row_kind[pairing.term_row] == KIND_NORMAL

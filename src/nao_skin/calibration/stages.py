@@ -2,12 +2,13 @@
 from __future__ import annotations
 
 import time
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from nao_skin.calibration.options import KIND_ROWS
-from nao_skin.calibration.pairing import KIND_NAMES, Pairing, robot_joints
+from nao_skin.calibration.pairing import KIND_NAMES, Pairing, chain_end_poses
 from nao_skin.calibration.rows import pair_step, select_rows, touch_hashes, with_normal_rows
 from nao_skin.calibration.solver import COMPONENTS, ParameterLayout, ResidualModel, condition_number, gram, solve
 from nao_skin.errors import DataError
@@ -66,8 +67,8 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
         if hashes is not None and np.mean(np.abs(new_hashes - hashes) > 1e-9) < options.repair_tolerance:
             break
         hashes = new_hashes
-        model = ResidualModel(skin, robot_joints(touches, skin), pairing, touches.part_names, layout, calib,
-                              variable_parts=free_parts, fabric=x[layout.fabric_col])
+        model = ResidualModel(skin, partial(chain_end_poses, touches, skin), pairing, touches.part_names, layout,
+                              calib, variable_parts=free_parts, fabric=x[layout.fabric_col])
         if free is None:   # what the data determines is decided once, on the first pairing
             free, lower, upper = _bounds(layout, free_parts, levels, x, options)
             # the fabric is a property of the whole skin: estimated once the mounts are in place

@@ -22,7 +22,6 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from nao_skin.model.skin import SkinCalibration, SkinModel
-from nao_skin.touch.memo import per_objects
 from nao_skin.touch.touches import TouchSet
 
 DEFAULT_MAX_NEIGHBOR_DIST = 0.012   # metres, skinManager's default maxNeighborDist
@@ -59,12 +58,12 @@ def activation_local(touches: TouchSet, skin: SkinModel, calib: SkinCalibration 
 
 def activations_by_part(touches: TouchSet) -> list:
     """Rows of the activations of each part (in ``part_names`` order); computed once per touch set."""
-    return per_objects((touches,), ("activations by part",),
-                       lambda: [_read_only(np.flatnonzero(touches.act_part == p)) for p in range(len(touches.part_names))])
+    return touches.derived(("activations by part",),
+                           lambda: [_read_only(np.flatnonzero(touches.act_part == p)) for p in range(len(touches.part_names))])
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:
-    a.setflags(write=False)      # shared by every caller through the memo
+    a.setflags(write=False)      # shared by every caller (TouchSet.derived)
     return a
 
 
@@ -75,7 +74,7 @@ def cop_weights(touches: TouchSet) -> np.ndarray:
     pressure sum, else 1/n (a binarised or pressure-less recording). Computed
     once per touch set (pairing asks at every re-pairing).
     """
-    return per_objects((touches,), ("cop weights",), lambda: _read_only(_cop_weights(touches)))
+    return touches.derived(("cop weights",), lambda: _read_only(_cop_weights(touches)))
 
 
 def _cop_weights(touches: TouchSet) -> np.ndarray:

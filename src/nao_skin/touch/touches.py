@@ -30,6 +30,9 @@ class TouchSet:
     act_slot: np.ndarray              # (A,) int: taxel slot on its part
     act_pressure: np.ndarray          # (A,) float: pressure (NaN when the source has none)
     labels: dict = field(default_factory=dict)   # optional per-touch arrays, e.g. simulator truth
+    # what calibration derives from these touches again and again (FK, pair subsets, COP weights):
+    # kept with the touch set, so it lives as long as the touches and is never another set's
+    _derived: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     # ------------------------------------------------------------------ derived
     @property
@@ -46,6 +49,20 @@ class TouchSet:
     @property
     def act_part(self) -> np.ndarray:
         return self.contact_part[self.act_contact]
+
+    def derived(self, key: tuple, compute, owners: tuple = ()):
+        """``compute()`` once per ``key`` (and identity of every object in ``owners``, e.g. the skin).
+
+        A touch set is never modified once built, so what is derived from it
+        stays right; results are read-only arrays or tuples of them, shared by
+        every caller.
+        """
+        hit = self._derived.get(key)
+        if hit is not None and len(hit[0]) == len(owners) and all(a is b for a, b in zip(hit[0], owners)):
+            return hit[1]
+        value = compute()
+        self._derived[key] = (owners, value)
+        return value
 
     def part_index(self, name: str) -> int:
         try:
