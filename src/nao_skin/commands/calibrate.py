@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 from nao_skin.commands import add_skin_arguments, skin_from_args, wall_seconds
 
@@ -76,43 +75,19 @@ def build_options(args):
 
 
 def run(args) -> int:
-    from nao_skin.calibration.engine import calibrate
-    from nao_skin.calibration.report import write_outputs
-    from nao_skin.formats.inputs import load_touches
-    from nao_skin.formats.outdir import CALIBRATION, check_output_dir
+    from nao_skin.calibration.pipeline import calibrate_recordings, summary_line
     from nao_skin.model.skin import SkinCalibration
-    from nao_skin.touch.datasets import deduplicate
 
-    # before anything is read: a mistaken --out must cost nothing and destroy nothing
-    check_output_dir(args.out, CALIBRATION, force=args.force,
-                     inputs=[*args.inputs, args.skin, args.robot, args.prior, args.truth,
-                             *(item.partition("=")[2] for item in args.taxels)])
     options = build_options(args)
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     skin = skin_from_args(args)
-    touches, load_report, truth = load_touches(args.inputs, skin, log=log,
-                                               summary=lambda msg: print(msg, file=sys.stderr, flush=True))
-    touches, n_dup = deduplicate(touches)
-    log(f"{touches.n_touches} touches after removing {n_dup} exact duplicates")
     prior = SkinCalibration.load(args.prior, skin) if args.prior else None
-    if args.truth:
-        truth = SkinCalibration.load(args.truth, skin)
-    result = calibrate(touches, skin, options, prior=prior, truth=truth, progress=log)
-    result.report["input"] = {"files": [str(p) for p in args.inputs], "touches_read": load_report.n_read,
-                              "touches_loaded": load_report.n_loaded, "skipped": dict(load_report.skipped),
-                              "duplicates_removed": n_dup}
-    out = write_outputs(result, skin, args.out, prior=prior, plots=not args.no_plots)
-    final = result.report["final"]
-
-    def train_test(key):
-        return " / ".join(f"{final[split].get(key, float('nan')):.2f}" for split in ("train", "test"))
-
-    line = (f"calibrated {', '.join(result.report['plan'])}: "
-            f"closest COP {train_test('cop_mean_mm')} mm, closest taxel {train_test('taxel_mean_mm')} mm"
-            f" (selected contacts' {train_test('contact_taxel_mean_mm')} mm) (train / test)")
-    if "truth_taxel_error_mm" in final:
-        t = final["truth_taxel_error_mm"]["all"]
-        line += f"; true taxel error median {t['median']:.2f} mm, p95 {t['p95']:.2f} mm"
-    line += f" -> {Path(out)} (engine {result.report['total_seconds']:.2f} s, whole command {wall_seconds(args):.1f} s)"
-    print(line, file=sys.stdout)
+    truth = SkinCalibration.load(args.truth, skin) if args.truth else None
+    run = calibrate_recordings(args.inputs, skin, options, args.out, prior=prior, truth=truth, force=args.force,
+                               plots=not args.no_plots, log=log,
+                               protected=[args.skin, args.robot, args.prior, args.truth,
+                                          *(item.partition("=")[2] for item in args.taxels)],
+                               summary=lambda msg: print(msg, file=sys.stderr, flush=True))
+    print(f"{summary_line(run.result)} -> {run.out_dir} (engine {run.result.report['total_seconds']:.2f} s,"
+          f" whole command {wall_seconds(args):.1f} s)")
     return 0

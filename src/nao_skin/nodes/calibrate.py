@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import json
 import threading
-from pathlib import Path
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -141,31 +140,25 @@ class CalibrateNode(Node):
         self._worker.start()
 
     def _run(self, paths: list) -> None:
-        from nao_skin.calibration.engine import calibrate
-        from nao_skin.calibration.report import write_outputs
-        from nao_skin.formats.inputs import load_touches
-        from nao_skin.formats.outdir import CALIBRATION, check_output_dir
-        from nao_skin.touch.datasets import deduplicate
+        from nao_skin.calibration.pipeline import calibrate_recordings
 
         p = self.p
         log = self.get_logger()
         try:
-            # checked per request, before loading: the node replaces its own out_dir on every success
-            # (force), but never one that holds an input or files nao-skin did not write
-            check_output_dir(p["out_dir"], CALIBRATION, inputs=[*paths, p["skin_config"], p["calibration"]],
-                             force=True, label="out_dir")
-            touches, _, truth = load_touches(paths, self.skin, log=log.info)
-            touches, _ = deduplicate(touches)
-            result = calibrate(touches, self.skin, self.options, prior=self.prior, truth=truth, progress=log.info)
-            out = write_outputs(result, self.skin, p["out_dir"], prior=self.prior, plots=bool(p["plots"]),
-                                command="calibrate (node)")
-            self.prior = result.calibration
-            self.publish_calibration(result.calibration, str(Path(out) / "calibration.yaml"))
-            final = result.report.get("final", {})
-            self._status({"state": "done", "generation": self.generation, "out_dir": str(out),
-                          "calibration": str(Path(out) / "calibration.yaml"), "touches": int(touches.n_touches),
+            # the node replaces its own out_dir on every success (force), but never one that holds an
+            # input or files nao-skin did not write; checked per request, before loading
+            run = calibrate_recordings(paths, self.skin, self.options, p["out_dir"], prior=self.prior,
+                                       force=True, plots=bool(p["plots"]), label="out_dir",
+                                       protected=[p["skin_config"], p["calibration"]],
+                                       command="calibrate (node)", log=log.info, summary=log.warning)
+            self.prior = run.result.calibration
+            calibration = str(run.out_dir / "calibration.yaml")
+            self.publish_calibration(run.result.calibration, calibration)
+            final = run.result.report.get("final", {})
+            self._status({"state": "done", "generation": self.generation, "out_dir": str(run.out_dir),
+                          "calibration": calibration, "touches": run.n_touches,
                           "final": {k: final.get(k) for k in ("train", "test") if k in final}})
-            log.info(f"calibrated from {len(paths)} input(s): {touches.n_touches} touches -> {out}")
+            log.info(f"calibrated from {len(paths)} input(s): {run.n_touches} touches -> {run.out_dir}")
         except NaoSkinError as exc:
             log.error(str(exc))
             self._status({"state": "failed", "error": str(exc)})

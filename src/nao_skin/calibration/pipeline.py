@@ -1,0 +1,78 @@
+"""One pipeline from recordings to a calibration on disk, for `nao-skin calibrate`, the demo and the calibrate node.
+
+check the output directory -> load every input -> drop exact duplicates ->
+calibrate -> write (atomically, marked as ours). The output is checked before
+anything is read, so a mistaken output costs nothing and destroys nothing.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+from nao_skin.calibration.engine import CalibrationResult, calibrate
+from nao_skin.calibration.options import CalibrationOptions
+from nao_skin.calibration.report import write_outputs
+from nao_skin.formats.inputs import load_touches
+from nao_skin.formats.outdir import CALIBRATION, check_output_dir
+from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.touch.datasets import LoadReport, deduplicate
+
+
+@dataclass
+class PipelineRun:
+    """What one run of the pipeline did."""
+
+    result: CalibrationResult
+    out_dir: Path
+    load_report: LoadReport
+    n_touches: int               # after removing duplicates
+    n_duplicates: int
+
+
+def check_output(out_dir, inputs: Sequence, force: bool = False, label: str = "--out") -> Path:
+    """The pipeline's first step, on its own: callers may check before they build anything else."""
+    return check_output_dir(out_dir, CALIBRATION, inputs=[p for p in inputs if p], force=force, label=label)
+
+
+def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: CalibrationOptions, out_dir,
+                         prior: SkinCalibration | None = None, truth: SkinCalibration | None = None,
+                         force: bool = False, plots: bool = True, protected: Sequence = (),
+                         command: str = "calibrate", label: str = "--out", extra=None,
+                         log: Callable[[str], None] | None = None,
+                         summary: Callable[[str], None] | None = None) -> PipelineRun:
+    """Calibrate the skin from recordings and write the result where users apply it.
+
+    ``protected``: other files the run reads (skin config, layouts, prior) that
+    the output must not touch. ``truth`` overrides a simulator's ground truth
+    found beside a recording. ``log`` gets progress; ``summary`` what loading
+    skipped, even when ``log`` is silent. ``extra(directory)`` adds files to
+    the output before it is moved into place (see :func:`write_outputs`).
+    """
+    log = log or (lambda msg: None)
+    check_output(out_dir, [*inputs, *protected], force=force, label=label)
+    touches, load_report, found_truth = load_touches(inputs, skin, log=log, summary=summary)
+    touches, n_dup = deduplicate(touches)
+    log(f"{touches.n_touches} touches after removing {n_dup} exact duplicates")
+    result = calibrate(touches, skin, options, prior=prior, truth=truth or found_truth, progress=log)
+    result.report["input"] = {"files": [str(p) for p in inputs], "touches_read": load_report.n_read,
+                              "touches_loaded": load_report.n_loaded, "skipped": dict(load_report.skipped),
+                              "notes": list(load_report.notes), "duplicates_removed": n_dup}
+    out = write_outputs(result, skin, out_dir, prior=prior, plots=plots, command=command, extra=extra)
+    return PipelineRun(result, Path(out), load_report, touches.n_touches, n_dup)
+
+
+def summary_line(result: CalibrationResult) -> str:
+    """The figures of a calibration in one line: what was calibrated and how close the touches came."""
+    final = result.report["final"]
+
+    def train_test(key):
+        return " / ".join(f"{final[split].get(key, float('nan')):.2f}" for split in ("train", "test"))
+
+    line = (f"calibrated {', '.join(result.report['plan'])}: "
+            f"closest COP {train_test('cop_mean_mm')} mm, closest taxel {train_test('taxel_mean_mm')} mm"
+            f" (selected contacts' {train_test('contact_taxel_mean_mm')} mm) (train / test)")
+    if "truth_taxel_error_mm" in final:
+        t = final["truth_taxel_error_mm"]["all"]
+        line += f"; true taxel error median {t['median']:.2f} mm, p95 {t['p95']:.2f} mm"
+    return line
