@@ -142,6 +142,7 @@ def test_unknown_option_value_is_one_line(skin, left_hand_sim):
         calibrate(touches, skin, CalibrationOptions(strategy="random"))
 
 
+@pytest.mark.slow   # the real recording calibrated by the command
 def test_real_recording_through_the_command(tmp_path):
     """The real left hand-torso recording: the command runs end to end and gets within centimetres to millimetres."""
     out = tmp_path / "real"
@@ -197,7 +198,7 @@ def test_a_stage_that_drives_the_touches_apart_is_undone(skin, left_hand_sim, mo
     def patch_stage_diverges(train, skin_, calib, step, parts, levels, *args):
         out = real_stage(train, skin_, calib, step, parts, levels, *args)
         if levels == {"patch"}:
-            out["calibration"].parts[parts[0]].patches[:, 0] += 0.02      # every patch 2 cm off
+            out.calibration.parts[parts[0]].patches[:, 0] += 0.02         # every patch 2 cm off
         return out
 
     monkeypatch.setattr(engine, "run_stage", patch_stage_diverges)
@@ -225,6 +226,7 @@ def test_joint_columns_in_any_order_give_the_same_calibration(skin, left_hand_si
 
 
 
+@pytest.mark.slow   # a calibration by the command, in a process
 def test_a_right_hand_head_recording_in_the_thesis_format(tmp_path, skin):
     """The real recording is left hand-torso; the other thesis pairs arrive the same way. A simulated
     right hand-head session (the simulator stands in for the robot), written in the thesis' format

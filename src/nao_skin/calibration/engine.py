@@ -38,6 +38,7 @@ from nao_skin.calibration.plan import Step, part_rank, plan_steps, touching_pair
 from nao_skin.calibration.stages import compress_held, fitted_kinds, initial_prior_sigma, run_stage
 from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.touch.datasets import split as split_touches
 from nao_skin.touch.touches import TouchSet
 
 
@@ -60,137 +61,203 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
 
     ``split``: ``(train, test)`` touch sets; by default a seeded random 70/30
     split of ``touches`` (duplicates are expected to be removed before).
+    ``truth``: a simulator's ground truth, for the true taxel error in the report.
     """
-    from nao_skin.touch.datasets import split as split_touches
-
     options = options or CalibrationOptions()
     options.validate()
     say = progress or (lambda msg: None)
     t_start = time.perf_counter()
+    _check_parts(touches, skin)
+    train, test = _train_test(touches, options, split)
+    steps = plan_steps(train, options)
+    _check_enough(train, steps, options)
+    fit = _Fit(_start_calibration(prior, skin), options.fabric_thickness, initial_prior_sigma(options),
+               np.ones(train.n_touches, bool))
+    schedule = _schedule(steps, options)
+    report = {"options": _options_dict(options),
+              "plan": [("joint refinement: " if not step.references and options.reference == "fixed" else "")
+                       + step.name for round_no, step, _ in schedule if round_no == 0 or not step.references],
+              "stages": [], "before": _figures(train, test, skin, fit.calibration, steps, truth),
+              "parts": sorted({p for s in steps for p in s.targets}, key=part_rank),
+              "pairs": sorted(sorted(p, key=part_rank) for p in touching_pairs(train))}
+    for round_no, step, prefix in schedule:
+        if options.initial_guess == "rigid-fit" and round_no == 0 \
+                and (step.references or options.reference == "simultaneous"):
+            _first_guess(train, skin, step, options, fit, say, prefix)
+        for levels in _stage_levels(step, options):
+            report["stages"].append(_fit_stage(train, test, skin, step, levels, round_no, prefix, options, fit,
+                                               truth, say))
+    report["final"] = _final_figures(train, test, skin, steps, options, fit, truth)
+    report["fabric_thickness_mm"] = 1000.0 * fit.fabric
+    report["prior_sigma"] = fit.prior_sigma
+    report["set_aside"] = fit.set_aside
+    report["n_set_aside"] = len(fit.set_aside)
+    # held: what no stage estimated (a triangle held while fitted to one reference and freed by the
+    # joint refinement, where both references reach ten activations, was estimated: not listed)
+    report["held"] = sorted(compress_held(sorted(fit.held - fit.estimated)))
+    report["total_seconds"] = time.perf_counter() - t_start
+    return CalibrationResult(fit.calibration, report, train, test, fit.set_aside)
+
+
+@dataclass
+class _Fit:
+    """What the stages so far have settled, handed from one stage to the next."""
+
+    calibration: SkinCalibration
+    fabric: float                           # m, the fabric estimate so far
+    prior_sigma: dict                       # prior std per group (stages.PRIOR_GROUPS)
+    inliers: np.ndarray                     # (train touches,) not set aside by the gate
+    set_aside: list = field(default_factory=list)
+    held: set = field(default_factory=set)              # 'part/frame/comp' some stage held
+    estimated: set = field(default_factory=set)         # 'part/frame/comp' some accepted stage estimated
+    # the fitted cost the last stage ended at: the next stage of the same step starts from it
+    last_cost: tuple = (None, (), -1, np.inf)           # (step, kinds, n inliers, cost)
+    # the last stage's figures and what they measured: the final figures when nothing changed since
+    last_measured: tuple = (None, None, None, None)     # (calibration, part pairs, train, test)
+
+
+def _check_parts(touches: TouchSet, skin: SkinModel) -> None:
     for name in touches.part_names:
         if name not in skin.parts:
             raise DataError(f"touches name skin part '{name}' that the skin config does not have"
                             f" (configured: {', '.join(skin.parts)})")
+
+
+def _train_test(touches: TouchSet, options: CalibrationOptions, split: tuple | None) -> tuple:
     train, test = split if split is not None else split_touches(touches, options.test_fraction, options.seed)
     if options.max_touches is not None and train.n_touches > options.max_touches:
         rng = np.random.default_rng(options.seed)
         train = train.subset(np.sort(rng.choice(train.n_touches, options.max_touches, replace=False)))
-    steps = plan_steps(train, options)
-    _check_enough(train, steps, options)
+    return train, test
+
+
+def _start_calibration(prior: SkinCalibration | None, skin: SkinModel) -> SkinCalibration:
     calib = (prior or skin.zero_calibration()).copy()
     for name in skin.parts:
         calib.parts.setdefault(name, skin.parts[name].zero_correction())
-    report = {"options": _options_dict(options), "plan": [s.name for s in steps], "stages": [],
-              "before": {"train": evaluate(train, skin, calib, steps), "test": evaluate(test, skin, calib, steps)}}
-    if truth is not None:
-        report["before"]["truth_taxel_error_mm"] = truth_error(skin, calib, truth)
-    inliers = np.ones(train.n_touches, bool)
-    fabric = options.fabric_thickness
-    prior_sigma = initial_prior_sigma(options)
-    last_step, last_cost, last_inliers, last_kinds = None, np.inf, -1, ()
-    set_aside = []
-    last_measured = (None, None, None, None)    # (calibration, part pairs, train, test) of the last stage
-    held_components, estimated_components = set(), set()   # 'part/frame/comp' over all stages
-    levels_seq = ([{"mount"}, {"patch"}, {"triangle"}] if options.strategy == "sequential"
-                  else [{"mount", "patch", "triangle"}])
+    return calib
+
+
+def _schedule(steps: list, options: CalibrationOptions) -> list:
+    """``(round, step, name prefix)`` in order: the plan's steps each round, then the joint refinement."""
     schedule = [(r, step) for r in range(max(1, options.rounds)) for step in steps]
     if options.joint_refinement and options.reference == "fixed" and len(steps) > 1:
-        joint = Step(tuple(sorted({p for s in steps for p in s.targets + s.references},
-                                  key=part_rank)), ())
-        schedule.append((options.rounds, joint))
-    report["plan"] = [("joint refinement: " if not st.references and options.reference == "fixed" else "") + st.name
-                      for r, st in schedule if r == 0 or not st.references]
-    report["parts"] = sorted({p for s in steps for p in s.targets}, key=part_rank)
-    report["pairs"] = sorted(sorted(p, key=part_rank)
-                             for p in touching_pairs(train))
+        schedule.append((options.rounds, Step(tuple(sorted({p for s in steps for p in s.targets + s.references},
+                                                           key=part_rank)), ())))
+    out = []
     for round_no, step in schedule:
         prefix = f"round {round_no + 1}: " if options.rounds > 1 and step.references else ""
         if not step.references and options.reference == "fixed":
             prefix = "joint refinement: "
-        # closed-form first guess of each mount that has a reference to be fitted to
-        if options.initial_guess == "rigid-fit" and round_no == 0 and (step.references or options.reference == "simultaneous"):
-            t0 = time.perf_counter()
-            for target, refs in guess_targets(step):
-                guess_step = Step((target,), refs)
-                before = closest_cop_cost(train, skin, calib, guess_step, inliers)
-                if before * 1000.0 < options.gate_mm / 2:
-                    continue   # already in the basin (e.g. the torso): the local solver takes it from here
-                guess = calib.copy()
-                guess.parts[target].mount = rigid_mount_guess(train, skin, calib, target, refs)
-                if closest_cop_cost(train, skin, guess, guess_step, inliers) < before:
-                    calib = guess
-            say(f"{prefix}{step.name}: rigid-fit first guess ({time.perf_counter() - t0:.2f} s)")
-        joint_step = not step.references and options.reference == "fixed"
-        for levels in levels_seq:
-            if joint_step and not levels & set(options.joint_levels):
+        out.append((round_no, step, prefix))
+    return out
+
+
+def _stage_levels(step: Step, options: CalibrationOptions):
+    """The levels freed stage by stage: mount, patches, triangles in turn (or all at once)."""
+    levels_seq = ([{"mount"}, {"patch"}, {"triangle"}] if options.strategy == "sequential"
+                  else [{"mount", "patch", "triangle"}])
+    joint_step = not step.references and options.reference == "fixed"
+    for levels in levels_seq:
+        if joint_step:
+            levels = levels & set(options.joint_levels)
+            if not levels:
                 continue
-            if joint_step:
-                levels = levels & set(options.joint_levels)
-            # a stage is judged on what it fits, as it fits it (closest COP and taxel pairs, at the
-            # fabric surfaces): taxel-centre distances grow with the fabric estimate however good
-            # the fit (simulator, outliers-20 seed 12: a head patch stage took the true error from
-            # 2.21 to 0.97 mm while the closest COP grew 30 % and was undone)
-            kinds = fitted_kinds(options, levels)
-            cost_before = (last_cost if last_step is step and last_inliers == int(inliers.sum())
-                           and last_kinds == kinds else fitted_pair_cost(train, skin, calib, step, inliers, kinds, fabric))
-            stage = run_stage(train, skin, calib, step, step.targets, levels, options, inliers, say, fabric,
-                              prior_sigma)
-            stage["name"] = prefix + stage["name"]
-            stage_estimated, stage_held = stage.pop("_estimated"), stage.pop("_held")
-            held_components |= stage_held
-            cost_after = fitted_pair_cost(train, skin, stage["calibration"], step, inliers, kinds,
-                                          stage["fabric_thickness_mm"] / 1000.0)
-            if cost_after > 1.25 * cost_before and not (round_no == 0 and "mount" in levels):
-                # never silently diverge: a stage that leaves the touches much farther apart is undone
-                stage.pop("calibration")
-                stage["reverted"] = (f"undone: mean closest {'/'.join(kinds)} pair (at the fabric surfaces)"
-                                     f" {1000 * cost_after:.2f} mm after vs {1000 * cost_before:.2f} mm before")
-                say(f"{stage['name']}: {stage['reverted']}")
-            else:
-                fabric = stage["fabric_thickness_mm"] / 1000.0
-                prior_sigma = stage["prior_sigma"]
-                calib = stage.pop("calibration")
-                estimated_components |= stage_estimated
-                cost_before = cost_after
-            last_step, last_cost, last_inliers, last_kinds = step, cost_before, int(inliers.sum()), kinds
-            if "mount" in levels and options.gate_mm > 0:
-                gate = gate_touches(train, skin, calib, step, options.gate_mm, inliers)
-                for row, dist in gate:
-                    inliers[row] = False
-                    set_aside.append({"touch": str(train.keys[row]), "step": prefix + step.name,
-                                      "reason": f"closest COP pair {dist:.1f} mm after the mount fit > gate {options.gate_mm:.0f} mm"})
-                stage["set_aside"] = len(gate)
-            stage["train"] = evaluate(train, skin, calib, [step])
-            stage["test"] = evaluate(test, skin, calib, [step])
-            last_measured = (calib, plan_pairs([step]), stage["train"], stage["test"])
-            if truth is not None:
-                stage["truth_taxel_error_mm"] = truth_error(skin, calib, truth, step.targets)
-            report["stages"].append(stage)
-            say(f"{stage['name']}: train closest COP {stage['train'].get('cop_mean_mm', float('nan')):.2f} mm,"
-                f" taxel {stage['train'].get('taxel_mean_mm', float('nan')):.2f} mm"
-                f" ({stage['iterations']} iterations, {stage['repairings']} pairings, {stage['seconds']:.2f} s)")
-    if last_measured[0] is calib and last_measured[1] == plan_pairs(steps):
-        # the last stage measured this very calibration over the same part pairs
-        report["final"] = {"train": dict(last_measured[2]), "test": dict(last_measured[3])}
+        yield levels
+
+
+def _first_guess(train: TouchSet, skin: SkinModel, step: Step, options: CalibrationOptions, fit: _Fit, say,
+                 prefix: str) -> None:
+    """Closed-form first guess of each mount that has a reference to be fitted to, kept if it pairs closer."""
+    t0 = time.perf_counter()
+    for target, refs in guess_targets(step):
+        guess_step = Step((target,), refs)
+        before = closest_cop_cost(train, skin, fit.calibration, guess_step, fit.inliers)
+        if before * 1000.0 < options.gate_mm / 2:
+            continue   # already in the basin (e.g. the torso): the local solver takes it from here
+        guess = fit.calibration.copy()
+        guess.parts[target].mount = rigid_mount_guess(train, skin, fit.calibration, target, refs)
+        if closest_cop_cost(train, skin, guess, guess_step, fit.inliers) < before:
+            fit.calibration = guess
+    say(f"{prefix}{step.name}: rigid-fit first guess ({time.perf_counter() - t0:.2f} s)")
+
+
+def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, levels: set, round_no: int,
+               prefix: str, options: CalibrationOptions, fit: _Fit, truth, say) -> dict:
+    """One stage: solve, keep it unless it drove the touches apart, gate after a mount fit; its report entry."""
+    # a stage is judged on what it fits, as it fits it (closest COP and taxel pairs, at the fabric
+    # surfaces): taxel-centre distances grow with the fabric estimate however good the fit
+    # (test_calibrate: a stage that drives the touches apart is undone)
+    kinds = fitted_kinds(options, levels)
+    last_step, last_kinds, last_inliers, last_cost = fit.last_cost
+    cost_before = (last_cost if last_step is step and last_inliers == int(fit.inliers.sum()) and last_kinds == kinds
+                   else fitted_pair_cost(train, skin, fit.calibration, step, fit.inliers, kinds, fit.fabric))
+    stage = run_stage(train, skin, fit.calibration, step, step.targets, levels, options, fit.inliers, say,
+                      fit.fabric, fit.prior_sigma)
+    entry = stage.report(prefix + stage.name)
+    fit.held |= stage.held_components
+    cost_after = fitted_pair_cost(train, skin, stage.calibration, step, fit.inliers, kinds,
+                                  stage.fabric_thickness_mm / 1000.0)
+    if cost_after > 1.25 * cost_before and not (round_no == 0 and "mount" in levels):
+        # never silently diverge: a stage that leaves the touches much farther apart is undone
+        entry["reverted"] = (f"undone: mean closest {'/'.join(kinds)} pair (at the fabric surfaces)"
+                             f" {1000 * cost_after:.2f} mm after vs {1000 * cost_before:.2f} mm before")
+        say(f"{entry['name']}: {entry['reverted']}")
     else:
-        report["final"] = {"train": evaluate(train, skin, calib, steps), "test": evaluate(test, skin, calib, steps)}
+        fit.fabric = stage.fabric_thickness_mm / 1000.0
+        fit.prior_sigma = stage.prior_sigma
+        fit.calibration = stage.calibration
+        fit.estimated |= stage.estimated_components
+        cost_before = cost_after
+    fit.last_cost = (step, kinds, int(fit.inliers.sum()), cost_before)
+    if "mount" in levels and options.gate_mm > 0:
+        entry["set_aside"] = _gate(train, skin, step, prefix, options, fit)
+    entry["train"] = evaluate(train, skin, fit.calibration, [step])
+    entry["test"] = evaluate(test, skin, fit.calibration, [step])
+    fit.last_measured = (fit.calibration, plan_pairs([step]), entry["train"], entry["test"])
+    if truth is not None:
+        entry["truth_taxel_error_mm"] = truth_error(skin, fit.calibration, truth, step.targets)
+    say(f"{entry['name']}: train closest COP {entry['train'].get('cop_mean_mm', float('nan')):.2f} mm,"
+        f" taxel {entry['train'].get('taxel_mean_mm', float('nan')):.2f} mm"
+        f" ({entry['iterations']} iterations, {entry['repairings']} pairings, {entry['seconds']:.2f} s)")
+    return entry
+
+
+def _gate(train: TouchSet, skin: SkinModel, step: Step, prefix: str, options: CalibrationOptions, fit: _Fit) -> int:
+    """Set aside the touches no self-contact explains after a mount fit; how many."""
+    gate = gate_touches(train, skin, fit.calibration, step, options.gate_mm, fit.inliers)
+    for row, dist in gate:
+        fit.inliers[row] = False
+        fit.set_aside.append({"touch": str(train.keys[row]), "step": prefix + step.name,
+                              "reason": f"closest COP pair {dist:.1f} mm after the mount fit > gate"
+                                        f" {options.gate_mm:.0f} mm"})
+    return len(gate)
+
+
+def _figures(train: TouchSet, test: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: list, truth) -> dict:
+    out = {"train": evaluate(train, skin, calib, steps), "test": evaluate(test, skin, calib, steps)}
+    if truth is not None:
+        out["truth_taxel_error_mm"] = truth_error(skin, calib, truth)
+    return out
+
+
+def _final_figures(train: TouchSet, test: TouchSet, skin: SkinModel, steps: list, options: CalibrationOptions,
+                   fit: _Fit, truth) -> dict:
+    calib, (measured, pairs, m_train, m_test) = fit.calibration, fit.last_measured
+    if measured is calib and pairs == plan_pairs(steps):
+        final = {"train": dict(m_train), "test": dict(m_test)}     # the last stage measured this very calibration
+    else:
+        final = {"train": evaluate(train, skin, calib, steps), "test": evaluate(test, skin, calib, steps)}
     # the same gate on both splits: touches whose closest COP pair stays farther than gate_mm
     # are not explained by a self-contact (experimenter's hand, stray activations)
     for split_name, ts in (("train", train), ("test", test)):
         ok = explained(ts, skin, calib, steps, options.gate_mm)
-        report["final"][f"{split_name}_accepted"] = evaluate(ts.subset(ok), skin, calib, steps)
-        report["final"][f"{split_name}_accepted"]["n_not_explained"] = int((~ok).sum())
+        final[f"{split_name}_accepted"] = evaluate(ts.subset(ok), skin, calib, steps)
+        final[f"{split_name}_accepted"]["n_not_explained"] = int((~ok).sum())
     if truth is not None:
-        report["final"]["truth_taxel_error_mm"] = truth_error(skin, calib, truth)
-    report["fabric_thickness_mm"] = 1000.0 * fabric
-    report["prior_sigma"] = prior_sigma
-    report["set_aside"] = set_aside
-    report["n_set_aside"] = len(set_aside)
-    # held: what no stage estimated (a triangle held while fitted to one reference and freed by the
-    # joint refinement, where both references reach ten activations, was estimated: not listed)
-    report["held"] = sorted(compress_held(sorted(held_components - estimated_components)))
-    report["total_seconds"] = time.perf_counter() - t_start
-    return CalibrationResult(calib, report, train, test, set_aside)
+        final["truth_taxel_error_mm"] = truth_error(skin, calib, truth)
+    return final
+
 
 def _check_enough(train: TouchSet, steps: list, options: CalibrationOptions) -> None:
     """Stop before solving when the touches cannot determine what is asked (one line)."""

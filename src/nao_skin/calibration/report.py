@@ -18,11 +18,7 @@ from nao_skin.calibration.engine import CalibrationResult
 from nao_skin.calibration.pairing import pair_for_metrics
 from nao_skin.calibration.rows import concat_pairings
 from nao_skin.formats.outdir import CALIBRATION, replace_dir, write_marker
-from nao_skin.model.skin import PART_NAMES, SkinCalibration, SkinModel
-
-
-def _order(name: str) -> int:
-    return PART_NAMES.index(name) if name in PART_NAMES else 99
+from nao_skin.model.skin import SkinCalibration, SkinModel
 
 
 def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Path,

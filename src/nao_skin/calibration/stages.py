@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from functools import partial
 from typing import TYPE_CHECKING
 
@@ -25,8 +26,31 @@ def fitted_kinds(options: "CalibrationOptions", levels: set) -> tuple:
     return tuple(names[k] for k in KIND_ROWS[options.mount_pairs if levels == {"mount"} else options.pairs])
 
 
+@dataclass
+class StageResult:
+    """What one stage reached and how (cf. scipy's ``OptimizeResult``)."""
+
+    name: str
+    calibration: SkinCalibration
+    iterations: int
+    repairings: int
+    condition: float | None          # Jacobi-scaled normal equations at the end
+    held: list                       # what it held, compressed for the report
+    held_components: set             # 'part/frame/comp' it held
+    estimated_components: set        # 'part/frame/comp' it set free
+    fabric_thickness_mm: float
+    prior_sigma: dict
+    seconds: float
+
+    def report(self, name: str | None = None) -> dict:
+        """The stage's entry in the calibration report (``name``: with the plan's prefix)."""
+        return {"name": name or self.name, "iterations": self.iterations, "repairings": self.repairings,
+                "condition": self.condition, "held": self.held, "fabric_thickness_mm": self.fabric_thickness_mm,
+                "prior_sigma": self.prior_sigma, "seconds": self.seconds}
+
+
 def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, say, fabric,
-              prior_sigma: dict | None = None) -> dict:
+              prior_sigma: dict | None = None) -> StageResult:
     """One stage: pair, solve, re-pair under the new calibration, until the pairing settles.
 
     ``prior_sigma``: prior std per group (:data:`PRIOR_GROUPS`); with
@@ -116,13 +140,8 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     held = [h for h in held_names if h != "fabric_thickness"]
     estimated = ({layout.describe(c) for c in np.flatnonzero(free_mask(layout, free_parts, levels) & free)}
                  if free is not None else set())
-    return {"name": name, "calibration": calib_out, "iterations": iterations, "repairings": repairings,
-            "condition": cond, "held": compress_held(held),
-            # unknowns ('part/frame/comp') this stage set free or held: the report's final list of
-            # held frames is what no stage estimated (popped by calibrate, not reported per stage)
-            "_estimated": estimated, "_held": set(held),
-            "fabric_thickness_mm": 1000.0 * float(x[layout.fabric_col]), "prior_sigma": prior_sigma,
-            "seconds": time.perf_counter() - t0}
+    return StageResult(name, calib_out, iterations, repairings, cond, compress_held(held), set(held), estimated,
+                       1000.0 * float(x[layout.fabric_col]), prior_sigma, time.perf_counter() - t0)
 
 def _bounds(layout: ParameterLayout, targets: tuple, levels: set, x: np.ndarray, options: "CalibrationOptions"):
     lower = np.full(layout.size, -np.inf)

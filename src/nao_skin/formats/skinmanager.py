@@ -25,11 +25,6 @@ import numpy as np
 
 from nao_skin.errors import ConfigError, DataError
 
-#: iCub skinDynLib ``enum SkinPart`` (iCub/skinDynLib/common.h), for reference and defaults.
-ICUB_SKIN_PARTS = {0: "SKIN_PART_UNKNOWN", 1: "SKIN_LEFT_HAND", 2: "SKIN_LEFT_FOREARM",
-                   3: "SKIN_LEFT_UPPER_ARM", 4: "SKIN_RIGHT_HAND", 5: "SKIN_RIGHT_FOREARM",
-                   6: "SKIN_RIGHT_UPPER_ARM", 7: "SKIN_FRONT_TORSO"}
-
 _TOKEN = re.compile(r'\s*(?:(\()|(\))|("(?:[^"\\]|\\.)*")|([^\s()"]+))')
 _CONTACT_FIELDS = ("ids", "cop", "force", "moment", "geoCenter", "normal", "taxels", "pressure")
 

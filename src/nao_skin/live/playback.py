@@ -100,8 +100,3 @@ class Playback:
         t0, t1 = self.end[prev] + self.hold, self.start[k] - self.hold
         w = (t - t0) / (t1 - t0)
         return self.joints[prev] + (self.joints[k] - self.joints[prev]) * w
-
-    def skin_at(self, t: float) -> dict:
-        """``{part: PartSample}`` of the parts pressed at ``t`` (others are released)."""
-        k = self.touch_at(t)
-        return self.samples[k] if k >= 0 else {}
