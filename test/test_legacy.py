@@ -198,6 +198,7 @@ def _same_entries(fast, exact) -> bool:
         lf == le and str(kf) == str(ke) and _same(vf, ve) for (lf, kf, vf), (le, ke, ve) in zip(fast, exact))
 
 
+@pytest.mark.slow   # reads the real recording twice, once with the slow exact reader
 def test_the_fast_reader_reads_the_real_file_exactly_as_python_does():
     text = (REAL / "l_hand_torso.legacy.txt").read_text()
     fast = _json_entries(text)
@@ -231,3 +232,11 @@ def test_a_broken_file_still_names_its_line_through_the_exact_reader(tmp_path, s
     assert _json_entries(path.read_text()) is None
     with pytest.raises(DataError, match=f"{path}:4: Python syntax error"):
         read_legacy(path, skin)
+
+
+def test_the_bench_compares_both_readers_on_the_same_file(tmp_path, skin):
+    from nao_skin.bench.runner import legacy_read_times
+
+    path = write(tmp_path, {"0": touch(), "1": touch(hand_slots=(0, 384)), "2": touch()})
+    t = legacy_read_times(path, skin, repeat=1)
+    assert t["same_touches"] and t["touches"] == 2 and t["exact_s"] > 0 and t["fast_s"] > 0

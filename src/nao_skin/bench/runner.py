@@ -695,3 +695,25 @@ def plot_speed_vs_error(rows: list, path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def legacy_read_times(path, skin: SkinModel, repeat: int = 3) -> dict:
+    """Seconds to read a thesis text file (parse and check every touch) through the exact reader (Python's
+    ``ast``) and the fast one (the C JSON decoder), median of ``repeat`` interleaved runs, and whether both
+    load the same touches with the same skip reasons."""
+    from nao_skin.formats.legacy import read_legacy
+
+    exact_s, fast_s = [], []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        exact, exact_report = read_legacy(path, skin, exact=True)
+        t1 = time.perf_counter()
+        fast, fast_report = read_legacy(path, skin)
+        fast_s.append(time.perf_counter() - t1)
+        exact_s.append(t1 - t0)
+    same = (exact.keys == fast.keys and exact_report.skipped == fast_report.skipped
+            and all(np.array_equal(getattr(exact, f), getattr(fast, f), equal_nan=True)
+                    for f in ("stamps", "joints", "contact_touch", "contact_part", "contact_id", "contact_cop",
+                              "act_contact", "act_slot", "act_pressure")))
+    return {"exact_s": float(np.median(exact_s)), "fast_s": float(np.median(fast_s)), "same_touches": bool(same),
+            "touches": exact.n_touches}

@@ -188,6 +188,19 @@ def run(args) -> int:
             md += ["", f"### {inp.name}", "", bench.speed_table(rows, inp.name)]
         bench.plot_speed_vs_error(rows, out / "speed_vs_error.png")
         md += ["", "![speed against error](speed_vs_error.png)", ""]
+        legacy = [p for p in args.real if str(p).endswith(".txt")] if "real" in sections else []
+        if legacy:
+            md += ["### Reading the thesis' text format", "",
+                   f"Whole read, every touch parsed and checked (median of {repeat} interleaved runs): the exact"
+                   f" reader (Python's ast, any file Python's literal syntax takes) against the fast one (the C JSON"
+                   f" decoder, for the recorder's plain output; any other file falls back to the exact reader).", ""]
+            for path in legacy:
+                t = bench.legacy_read_times(path, inputs[-1].skin, repeat)
+                results.setdefault("legacy_read", {})[str(path)] = t
+                md.append(f"- {Path(path).name} ({t['touches']} touches loaded): exact {t['exact_s']:.2f} s, fast"
+                          f" {t['fast_s']:.3f} s (x{t['exact_s'] / t['fast_s']:.0f}); same touches and skip reasons:"
+                          f" {'yes' if t['same_touches'] else 'NO'}")
+            md.append("")
         _write(out, md, results, listing)      # kept even if a later section fails
         failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in t for t in bench.target_lines(rows))
 

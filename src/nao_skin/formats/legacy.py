@@ -177,7 +177,7 @@ def _literal_with_non_finite(node):
         return _NOT_A_LITERAL
 
 
-def _literal_entries(path: Path) -> list:
+def _literal_entries(path: Path, exact: bool = False) -> list:
     """``(line, key, value)`` per top-level entry; a value that is no literal is ``_NOT_A_LITERAL``.
 
     Files as the thesis' recorder writes them (Python's repr of a dict: no
@@ -191,7 +191,7 @@ def _literal_entries(path: Path) -> list:
         raise DataError(f"{path}: cannot read legacy dataset ({exc.strerror})") from None
     except UnicodeDecodeError as exc:
         raise DataError(f"{path}: not a text file ({exc.reason} at byte {exc.start})") from None
-    entries = _json_entries(text)
+    entries = None if exact else _json_entries(text)
     return entries if entries is not None else _ast_entries(text, path)
 
 
@@ -266,7 +266,7 @@ def _ast_entries(text: str, path: Path) -> list:
     return entries
 
 
-def read_legacy(path: str | Path, skin: SkinModel) -> tuple:
+def read_legacy(path: str | Path, skin: SkinModel, exact: bool = False) -> tuple:
     """Read a legacy dataset: ``(TouchSet, LoadReport)``.
 
     Touch order is the file's. Stamps are ``float(key)`` (an index key is its
@@ -276,7 +276,7 @@ def read_legacy(path: str | Path, skin: SkinModel) -> tuple:
     :class:`DataError` naming file and line; a bad touch is skipped and counted.
     """
     path = Path(path)
-    entries = _literal_entries(path)
+    entries = _literal_entries(path, exact)
     report = LoadReport(str(path))
     robot = skin.robot
     part_names = tuple(skin.parts)
