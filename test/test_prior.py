@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nao_skin.calibration.engine import CalibrationOptions, calibrate
-from nao_skin.calibration.solver import ParameterLayout
+from nao_skin.calibration.layout import ParameterLayout
 from nao_skin.calibration.stages import _group_columns, _prior_weights, evidence_prior_sigma, initial_prior_sigma
 from nao_skin.touch.datasets import deduplicate
 
@@ -76,6 +76,7 @@ def test_the_prior_only_widens_and_stays_finite(layout):
     assert evidence_prior_sigma(result, huge, free, weights, layout, PART, {"triangle"}, initial, options) == initial
 
 
+@pytest.mark.slow   # a calibration on the real recording
 def test_on_the_real_skin_the_touches_widen_the_triangle_prior(real_skin, real):
     """The real recording's triangles sit farther from the layout than bound / 3 says: the evidence
     widens their prior, the report says so, and the held-out touches come closer than with the fixed prior."""

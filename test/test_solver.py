@@ -5,8 +5,10 @@ import numpy as np
 import pytest
 
 from nao_skin import se3
+from nao_skin.calibration.layout import ParameterLayout
 from nao_skin.calibration.pairing import KIND_NORMAL
-from nao_skin.calibration.solver import ParameterLayout, ResidualModel, SolveOptions, solve
+from nao_skin.calibration.residuals import ResidualModel
+from nao_skin.calibration.solver import SolveOptions, solve
 from nao_skin.model.skin import load_skin
 
 
@@ -108,7 +110,7 @@ def test_solver_recovers_a_mount_correction(skin):
 
 def test_sparse_and_dense_jacobians_agree(skin, monkeypatch):
     """Large stages keep the Jacobian sparse; it must equal the dense one."""
-    import nao_skin.calibration.solver as solver
+    import nao_skin.calibration.residuals as residuals
 
     rng = np.random.default_rng(5)
     n = 10
@@ -121,8 +123,8 @@ def test_sparse_and_dense_jacobians_agree(skin, monkeypatch):
     levels = {"l_hand": {"mount", "patch", "triangle"}, "torso": {"patch"}}
     cols = np.arange(3, layout.size - 7)
     dense = model.jacobian(calib, levels, cols)
-    monkeypatch.setattr(solver, "DENSE_LIMIT", 0)
+    monkeypatch.setattr(residuals, "DENSE_LIMIT", 0)
     sparse = model.jacobian(calib, levels, cols)
-    assert solver.scipy.sparse.issparse(sparse)
+    assert residuals.scipy.sparse.issparse(sparse)
     np.testing.assert_allclose(sparse.toarray(), dense, atol=1e-15)
-    np.testing.assert_allclose(solver.gram(sparse), solver.gram(dense), atol=1e-12)
+    np.testing.assert_allclose(residuals.gram(sparse), residuals.gram(dense), atol=1e-12)

@@ -33,7 +33,7 @@ from typing import Callable
 import numpy as np
 
 from nao_skin.calibration.engine import CalibrationOptions, calibrate, truth_error
-from nao_skin.calibration.solver import COMPONENTS
+from nao_skin.calibration.layout import COMPONENTS
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.touches import TouchSet
 

@@ -17,10 +17,13 @@ fewer than ``min_triangle_activations`` paired activations, or a direction
 the touches do not excite (Jacobi-scaled normal equations ill-conditioned),
 is held at its prior and listed.
 
-Modules: :mod:`calib_plan` (which part against which), :mod:`calib_pairs`
-(pairing for the solver), :mod:`first_guess` (closed-form mount fit),
-:mod:`stages` (one stage with re-pairing), :mod:`evaluation` (metrics),
-:mod:`solver` (residuals, Jacobians, Levenberg-Marquardt).
+Modules of this package: :mod:`.options` (the options table), :mod:`.plan`
+(which part against which), :mod:`.pairing` and :mod:`.rows` (pairing for the
+solver), :mod:`.first_guess` (closed-form mount fit), :mod:`.stages` (one
+stage with re-pairing), :mod:`.layout` (the unknowns as a vector),
+:mod:`.residuals` (residuals and Jacobians), :mod:`.solver` (the
+Levenberg-Marquardt loop), :mod:`.evaluation` (metrics), :mod:`.report`
+(outputs) and :mod:`.pipeline` (recordings in, outputs written).
 """
 from __future__ import annotations
 

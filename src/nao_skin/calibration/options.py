@@ -10,8 +10,9 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from nao_skin.calibration.layout import LEVELS
 from nao_skin.calibration.pairing import KIND_COP, KIND_TAXEL, KIND_TAXEL5
-from nao_skin.calibration.solver import LEVELS, SolveOptions
+from nao_skin.calibration.solver import SolveOptions
 from nao_skin.errors import DataError
 
 # what each value of the ``pairs`` and ``mount_pairs`` options puts into the residuals: rows of these kinds

@@ -36,7 +36,7 @@ from nao_skin.touch.contacts import activation_local, activations_by_part, cop_w
 from nao_skin.touch.touches import TouchSet
 
 KIND_COP, KIND_TAXEL, KIND_TAXEL5 = 0, 1, 2
-KIND_NORMAL = 3   # solver-only rows (calib_pairs.with_normal_rows): the two contacts' mean normals must cancel
+KIND_NORMAL = 3   # solver-only rows (rows.with_normal_rows): the two contacts' mean normals must cancel
 KIND_CONTACT_TAXEL = 4   # reported only: the closest taxel pair of the two selected contacts (kind 1 of "contacts")
 KIND_NAMES = {"cop": KIND_COP, "taxel": KIND_TAXEL, "taxel5": KIND_TAXEL5, "contact_taxel": KIND_CONTACT_TAXEL}
 TAXEL_RULES = ("contacts", "thesis", "touch")

@@ -8,10 +8,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from nao_skin.calibration.layout import COMPONENTS, ParameterLayout
 from nao_skin.calibration.options import KIND_ROWS
 from nao_skin.calibration.pairing import KIND_NAMES, Pairing, chain_end_poses
+from nao_skin.calibration.residuals import ResidualModel, condition_number, gram
 from nao_skin.calibration.rows import pair_step, select_rows, touch_hashes, with_normal_rows
-from nao_skin.calibration.solver import COMPONENTS, ParameterLayout, ResidualModel, condition_number, gram, solve
+from nao_skin.calibration.solver import solve
 from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.touches import TouchSet

@@ -50,7 +50,7 @@ def taxel_files(items) -> dict:
 
 
 def skin_from_args(args):
-    """The skin model of ``--skin``, ``--taxels`` and ``--robot`` (:func:`nao_skin.skin.load_skin`)."""
+    """The skin model of ``--skin``, ``--taxels`` and ``--robot`` (:func:`nao_skin.model.skin.load_skin`)."""
     from nao_skin.model.skin import load_skin
 
     return load_skin(getattr(args, "skin", None), taxel_files(getattr(args, "taxels", None) or []),

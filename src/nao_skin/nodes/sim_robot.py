@@ -1,8 +1,8 @@
 """sim_robot: the simulated robot live, on the same topics as the real bridges.
 
-Runs the self-touch simulator (:func:`nao_skin.simulate.simulate`, seeded, so
+Runs the self-touch simulator (:func:`nao_skin.sim.simulate.simulate`, seeded, so
 a test can recompute exactly what was played) and plays its touches with
-:class:`nao_skin.playback.Playback`: ``/joint_states`` at ``joint_rate`` Hz,
+:class:`nao_skin.live.playback.Playback`: ``/joint_states`` at ``joint_rate`` Hz,
 ``/skin/<part>/taxels`` and ``/skin/<part>/contacts`` for every part at
 ``skin_rate`` Hz (empty clouds = released, as the YARP bridge sends), one
 press per touch. Publishes ``/sim_robot/status`` (std_msgs/String, JSON:

@@ -14,7 +14,7 @@ several contacts per part, often with neighbouring taxels in different
 contacts (measured on the real recording: ~3 contacts per part and touch,
 the closest taxels of two contacts typically one lattice step apart).
 Within an event, taxels are grouped by neighbour distance as skinManager does
-(:func:`nao_skin.contacts.cluster_labels`).
+(:func:`nao_skin.touch.contacts.cluster_labels`).
 """
 from __future__ import annotations
 

@@ -2,10 +2,10 @@
 
 ``simulate(skin, params, seed)`` draws the true skin placement (hand mounts
 ~160 deg off, as on the real robot), finds self-touch poses for each pair
-(:mod:`nao_skin.sim_poses`), fires the taxels the true geometry presses
-(:mod:`nao_skin.sim_contact`), adds the defects of a real recording (encoder
+(:mod:`nao_skin.sim.poses`), fires the taxels the true geometry presses
+(:mod:`nao_skin.sim.contact`), adds the defects of a real recording (encoder
 noise, missed / stray taxels, duplicates, the experimenter's hand) and returns
-the touches as a :class:`~nao_skin.touches.TouchSet` with per-touch truth in
+the touches as a :class:`~nao_skin.touch.touches.TouchSet` with per-touch truth in
 ``labels``. No ROS, no physics engine. The same seed gives the same result
 (and the same bytes when written with :func:`write_outputs`).
 """
@@ -241,7 +241,7 @@ def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, prese
                   storage: str = "sqlite3", with_bag: bool = True) -> list:
     """Write the recording and its ground truth; returns the paths written.
 
-    ``touches.bag`` (rosbag2, via :mod:`nao_skin.bagio`), ``truth_calibration.yaml``
+    ``touches.bag`` (rosbag2, via :mod:`nao_skin.formats.bag`), ``truth_calibration.yaml``
     (the calibration format), ``truth_taxels/<part>.txt`` (true taxel positions,
     skinManager format) and ``simulation.yaml`` (parameters, seed, counts).
     Written into a temporary sibling and moved into place at the end (an

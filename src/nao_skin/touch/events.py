@@ -116,7 +116,7 @@ class EventDetector:
 
     @classmethod
     def for_skin(cls, skin, config: EventConfig = LIVE_CONFIG) -> "EventDetector":
-        """A detector for the parts and joints of a :class:`~nao_skin.skin.SkinModel`."""
+        """A detector for the parts and joints of a :class:`~nao_skin.model.skin.SkinModel`."""
         robot = skin.robot
         needed = {n: robot.chain_joint_names(p.chain) if p.chain else [] for n, p in skin.parts.items()}
         return cls(tuple(skin.parts), tuple(robot.joint_names), needed, config)

@@ -1,0 +1,80 @@
+"""The unknowns of a solve as one vector: a 6-vector correction ``[t, rotvec]`` per mount, patch and triangle
+of every part being calibrated, and the fabric thickness."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nao_skin.model.skin import SkinCalibration, SkinModel
+
+LEVELS = ("mount", "patch", "triangle")
+
+COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")   # of a 6-vector correction, as reports name them
+
+
+@dataclass
+class ParameterLayout:
+    """Column layout of the correction vector over the parts being calibrated.
+
+    Per part: mount (6), then its patches (6 each), then its triangles (6 each),
+    in the order of ``SkinPart.patch_ids`` / ``triangle_ids``.
+    """
+
+    skin: SkinModel
+    part_names: tuple
+    offsets: dict = field(default_factory=dict)   # part -> (mount col, patch col, triangle col, end)
+
+    def __post_init__(self):
+        col = 0
+        for name in self.part_names:
+            part = self.skin.parts[name]
+            m = col
+            p = m + 6
+            t = p + 6 * len(part.patch_ids)
+            end = t + 6 * len(part.triangle_ids)
+            self.offsets[name] = (m, p, t, end)
+            col = end
+        # last column: the fabric thickness over the taxels (m), shared by every part
+        self.fabric_col = col
+        self.size = col + 1
+
+    def block_columns(self, part: str, level: str, rows: np.ndarray) -> np.ndarray:
+        """First column of each block (``rows`` index patches/triangles; ignored for mounts)."""
+        m, p, t, _ = self.offsets[part]
+        if level == "mount":
+            return np.full(np.shape(rows), m)
+        return (p if level == "patch" else t) + 6 * np.asarray(rows)
+
+    def describe(self, col: int) -> str:
+        if col == self.fabric_col:
+            return "fabric_thickness"
+        for name, (m, p, t, end) in self.offsets.items():
+            if m <= col < end:
+                part = self.skin.parts[name]
+                comp = COMPONENTS[(col - m) % 6]
+                if col < p:
+                    return f"{name}/mount/{comp}"
+                if col < t:
+                    return f"{name}/patch_{int(part.patch_ids[(col - p) // 6])}/{comp}"
+                return f"{name}/triangle_{int(part.triangle_ids[(col - t) // 6])}/{comp}"
+        raise IndexError(col)
+
+    def to_vector(self, calib: SkinCalibration, fabric: float = 0.0) -> np.ndarray:
+        x = np.zeros(self.size)
+        x[self.fabric_col] = fabric
+        for name, (m, p, t, end) in self.offsets.items():
+            corr = calib.parts[name]
+            x[m:p] = corr.mount
+            x[p:t] = corr.patches.ravel()
+            x[t:end] = corr.triangles.ravel()
+        return x
+
+    def to_calibration(self, x: np.ndarray, base: SkinCalibration) -> SkinCalibration:
+        out = base.copy()
+        for name, (m, p, t, end) in self.offsets.items():
+            corr = out.parts[name]
+            corr.mount = x[m:p].copy()
+            corr.patches = x[p:t].reshape(-1, 6).copy()
+            corr.triangles = x[t:end].reshape(-1, 6).copy()
+        return out

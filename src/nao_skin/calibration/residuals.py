@@ -1,0 +1,296 @@
+"""Residuals and analytic sparse Jacobians of paired skin points, vectorised over touches.
+
+The unknowns are the 6-vector corrections ``[t, rotvec]`` of skin frames
+(mounts, patches, triangles). A residual row is ``sum_k w_k x_k`` over its
+terms, ``x_k`` the calibrated base-frame position of one taxel, so a COP pair
+and a taxel pair are the same thing to the solver (see
+:class:`nao_skin.calibration.pairing.Pairing`). In a normal row (``KIND_NORMAL``) ``x_k``
+is the taxel's base-frame normal instead: rotated like a point, never moved.
+Each term depends on exactly one chain of frames (its part's mount, its
+patch, its triangle), so the Jacobian is sparse with at most 18 non-zeros per
+term and coordinate; it is assembled from
+closed-form 3x6 blocks, vectorised over all terms.
+
+For a correction ``exp(d) = (R(phi), t)`` between a frame ``G`` (everything
+above it, including the robot's forward kinematics) and a point ``y``
+(everything below it) the position is ``x = G (R(phi) y + t)`` and
+
+    dx/dt   = R_G
+    dx/dphi = -R_G R(phi) [y]x J_r(phi)
+
+with ``J_r`` the right Jacobian of SO(3) (:func:`se3.right_jacobian`); exact also for the large mount
+rotations (about 160 degrees) real hands start from.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse
+
+from nao_skin import se3
+from nao_skin.calibration.layout import ParameterLayout
+from nao_skin.calibration.pairing import KIND_NORMAL
+from nao_skin.model.skin import SkinCalibration, SkinModel
+
+DENSE_LIMIT = 2_000_000     # Jacobian entries above which it is kept sparse
+
+
+def gram(j, w=None) -> np.ndarray:
+    """Dense ``J^T diag(w) J`` for a dense or sparse Jacobian."""
+    jw = j if w is None else (j.multiply(w[:, None]).tocsr() if scipy.sparse.issparse(j) else j * w[:, None])
+    h = j.T @ jw
+    return h.toarray() if scipy.sparse.issparse(h) else h
+
+
+def jt_dot(j, v: np.ndarray) -> np.ndarray:
+    return np.asarray(j.T @ v).ravel()
+
+
+class ResidualModel:
+    """Residuals ``r(x)`` and Jacobians for one pairing, vectorised over its terms.
+
+    ``chain_poses(part)``: the (N, 4, 4) chain-end pose of that part in every
+    touch (e.g. :func:`~nao_skin.calibration.pairing.chain_end_poses`): joint
+    angles do not change while corrections are estimated, so it is taken once.
+    """
+
+    def __init__(self, skin: SkinModel, chain_poses, pairing, part_names: tuple,
+                 layout: ParameterLayout, base: SkinCalibration, variable_parts=None,
+                 fabric: float = 0.0):
+        self.skin = skin
+        # touching skins meet at their fabric surfaces, not at the taxel centres: each taxel
+        # is lifted along its normal (fixed in its triangle frame) by the fabric thickness,
+        # which is read from x[fabric_col] (an unknown like the corrections)
+        self.fabric = float(fabric)
+        self.layout = layout
+        self.base = base
+        self.n_rows = len(pairing.row_touch)
+        self.term_row = pairing.term_row
+        self.term_weight = pairing.term_weight
+        self.groups = []   # one per part: (term indices, part, FK per term, slot arrays)
+        # parts whose corrections are constant while this model lives: positions computed once
+        self.variable_parts = None if variable_parts is None else set(variable_parts)
+        self._constant = np.zeros((self.n_rows, 3))
+        self._constant_done = False
+        term_touch = pairing.row_touch[pairing.term_row]
+        for pidx in np.unique(pairing.term_part):
+            name = part_names[pidx]
+            part = skin.parts[name]
+            sel = np.flatnonzero(pairing.term_part == pidx)
+            slots = pairing.term_slot[sel]
+            tri = part.slot_triangle[slots]
+            if np.any(tri < 0):
+                bad = slots[tri < 0][0]
+                raise ValueError(f"part '{name}': slot {bad} has no taxel in the layout")
+            fk = chain_poses(name)[term_touch[sel]]
+            self.groups.append((sel, name, part, fk, slots, tri, part.triangle_patch[tri]))
+        # terms of normal rows carry a direction (rotated, never translated, no fabric)
+        self.term_is_dir = pairing.row_kind[pairing.term_row] == KIND_NORMAL
+        self.has_dirs = bool(np.any(self.term_is_dir))
+        # the pairing is fixed while the model lives, so are which terms share a (row, block) and
+        # the chain-end rotation of each (row, block): computed once per level
+        self._per_pairing: dict = {}
+        self._last_jacobian = None   # (key, J): the hold check and the first solve step share it
+
+    def _row_blocks(self, key: tuple, term_row: np.ndarray, block_rows: np.ndarray):
+        """``(first, inverse, n)`` of the unique (row, block) combinations of one group's terms."""
+        hit = self._per_pairing.get(key)
+        if hit is None:
+            code = term_row * (int(block_rows.max()) + 1 if len(block_rows) else 1) + block_rows
+            uniq, first, inverse = np.unique(code, return_index=True, return_inverse=True)
+            hit = self._per_pairing[key] = (first, inverse, len(uniq))
+        return hit
+
+    def _is_variable(self, name: str) -> bool:
+        return self.variable_parts is None or name in self.variable_parts
+
+    # ------------------------------------------------------------------ evaluation
+    def _group_positions(self, group, calib: SkinCalibration) -> np.ndarray:
+        """Base-frame position of each term's taxel (its normal, for terms of normal rows)."""
+        sel, name, part, fk, slots, tri, _ = group
+        _, _, tri_pose = part.frame_poses(calib.parts[name])
+        # chain-end position of every slot of the part once (<= 384), then gathered per term
+        frames = tri_pose[part.slot_triangle]
+        local = se3.transform_points(frames, part.taxel_local + self.fabric * part.normal_local)[slots]
+        if not self.has_dirs:
+            return se3.transform_points(fk, local)
+        is_dir = self.term_is_dir[sel]
+        local = np.where(is_dir[:, None], se3.rotate_vectors(frames, part.normal_local)[slots], local)
+        return se3.rotate_vectors(fk, local) + np.where(is_dir[:, None], 0.0, fk[:, :3, 3])
+
+    def positions(self, calib: SkinCalibration) -> np.ndarray:
+        """(K, 3) base-frame positions of every term's taxel."""
+        out = np.empty((len(self.term_row), 3))
+        for group in self.groups:
+            out[group[0]] = self._group_positions(group, calib)
+        return out
+
+    def residuals(self, calib: SkinCalibration, fabric: float | None = None) -> np.ndarray:
+        """(M, 3) residual vectors, one per pairing row."""
+        if fabric is not None and fabric != self.fabric:
+            self.fabric = float(fabric)
+            self._constant = np.zeros((self.n_rows, 3))
+            self._constant_done = False
+        if not self._constant_done:
+            for group in self.groups:
+                if not self._is_variable(group[1]):
+                    sel = group[0]
+                    x = self._group_positions(group, calib) * self.term_weight[sel][:, None]
+                    for d in range(3):
+                        self._constant[:, d] += np.bincount(self.term_row[sel], weights=x[:, d], minlength=self.n_rows)
+            self._constant_done = True
+        out = self._constant.copy()
+        for group in self.groups:
+            if self._is_variable(group[1]):
+                sel = group[0]
+                x = self._group_positions(group, calib) * self.term_weight[sel][:, None]
+                for d in range(3):
+                    out[:, d] += np.bincount(self.term_row[sel], weights=x[:, d], minlength=self.n_rows)
+        return out
+
+    def jacobian(self, calib: SkinCalibration, free_levels: dict, cols: np.ndarray | None = None) -> np.ndarray:
+        """Dense (3M, len(cols)) Jacobian of the stacked residuals w.r.t. the layout columns ``cols``.
+
+        ``free_levels`` maps part name -> set of levels whose blocks get columns
+        (other blocks are constant and produce no entries). Built from the
+        per-(row, block) 3x6 blocks written into a dense array: the unknowns of
+        one stage are few (at most a few hundred), so dense normal equations
+        are fastest. The last Jacobian is kept: the check for unexcited
+        directions and the first solver step ask for the same one.
+        """
+        cols = np.arange(self.layout.size) if cols is None else np.asarray(cols)
+        key = (self.layout.to_vector(calib, self.fabric).tobytes(), cols.tobytes(),
+               tuple(sorted((k, tuple(sorted(v))) for k, v in free_levels.items())),
+               3 * self.n_rows * len(cols) > DENSE_LIMIT)
+        if self._last_jacobian is not None and self._last_jacobian[0] == key:
+            return self._last_jacobian[1]
+        jac = self._jacobian(calib, free_levels, cols)
+        self._last_jacobian = (key, jac)
+        return jac
+
+    def _jacobian(self, calib: SkinCalibration, free_levels: dict, cols: np.ndarray):
+        col_of = np.full(self.layout.size, -1)
+        col_of[cols] = np.arange(len(cols))
+        n_cols = len(cols)
+        rows_all, cols_all, vals_all = [], [], []
+        fabric_j = col_of[self.layout.fabric_col] if self.layout.fabric_col < len(col_of) else -1
+        # the fabric column sums over both sides of a row: accumulated apart from the blocks
+        fabric_column = np.zeros(3 * self.n_rows) if fabric_j >= 0 else None
+        for g, (sel, name, part, fk, slots, tri, patch) in enumerate(self.groups):
+            levels = free_levels.get(name, ())
+            if not levels and fabric_j < 0:
+                continue
+            corr = calib.parts[name]
+            r_m = se3.rotvec_to_matrix(corr.mount[3:])
+            r_p = se3.rotvec_to_matrix(corr.patches[:, 3:])
+            r_t = se3.rotvec_to_matrix(corr.triangles[:, 3:])
+            term_row = self.term_row[sel]
+            wv = self.term_weight[sel]
+            is_dir = self.term_is_dir[sel] if self.has_dirs else np.zeros(len(sel), bool)
+            wv_t = np.where(is_dir, 0.0, wv)   # directions neither translate nor depend on the fabric
+            # rotation of each patch / triangle frame relative to the corrected mount frame
+            r_patch = r_m @ part.patch_nominal[:, :3, :3]                                   # C of a patch
+            r_tri = (r_patch @ r_p)[part.triangle_patch] @ part.triangle_nominal[:, :3, :3]  # C of a triangle
+            if fabric_j >= 0:   # d r / d fabric: the weighted sum of the rows' taxel normals
+                # terms of one row on one triangle share its rotation: sum their local normals first
+                first, inverse, n_uniq = self._row_blocks((g, "triangle"), term_row, tri)
+                wn = np.stack([np.bincount(inverse, weights=wv_t * part.normal_local[slots, d], minlength=n_uniq)
+                               for d in range(3)], 1)
+                a = self._chain_rotation(g, "triangle", fk, first, part)
+                nrm = np.einsum("gij,gj->gi", a, np.einsum("gij,gj->gi", (r_tri @ r_t)[tri[first]], wn))
+                fabric_column += np.bincount((3 * term_row[first][:, None] + np.arange(3)[None, :]).ravel(),
+                                             weights=nrm.ravel(), minlength=3 * self.n_rows)
+            if not levels:
+                continue
+            # every slot's point below each correction, computed once per slot (a part has <= 384)
+            # and gathered per term: y_T = q ; y_P = T_n exp(dT) q ; y_M = P_n exp(dP) y_P
+            q_pt = part.taxel_local + self.fabric * part.normal_local
+            q_dir = part.normal_local
+            below = {"triangle": (q_pt, q_dir)}
+            if "mount" in levels or "patch" in levels:
+                st = part.slot_triangle
+                t_rot = part.triangle_nominal[st, :3, :3] @ r_t[st]
+                t_off = (np.einsum("sij,sj->si", part.triangle_nominal[st, :3, :3], corr.triangles[st, :3])
+                         + part.triangle_nominal[st, :3, 3])
+                below["patch"] = (np.einsum("sij,sj->si", t_rot, q_pt) + t_off, np.einsum("sij,sj->si", t_rot, q_dir))
+                if "mount" in levels:
+                    sp = part.triangle_patch[st]
+                    p_rot = part.patch_nominal[sp, :3, :3] @ r_p[sp]
+                    p_off = (np.einsum("sij,sj->si", part.patch_nominal[sp, :3, :3], corr.patches[sp, :3])
+                             + part.patch_nominal[sp, :3, 3])
+                    y_pt, y_dir = below["patch"]
+                    below["mount"] = (np.einsum("sij,sj->si", p_rot, y_pt) + p_off, np.einsum("sij,sj->si", p_rot, y_dir))
+            for level in ("mount", "patch", "triangle"):
+                if level not in levels:
+                    continue
+                y_pt, y_dir = below[level]
+                y = np.where(is_dir[:, None], y_dir[slots], y_pt[slots])
+                block_rows = {"mount": np.zeros(len(sel), int), "patch": patch, "triangle": tri}[level]
+                # Terms of one residual row under the same block share everything but y, and
+                # the position is affine in y: sum them first (sum w y, sum w), one block each.
+                first, inverse, n_uniq = self._row_blocks((g, level), term_row, block_rows)
+                wy = np.stack([np.bincount(inverse, weights=wv * y[:, d], minlength=n_uniq) for d in range(3)], 1)
+                wsum = np.bincount(inverse, weights=wv_t, minlength=n_uniq)
+                # R_G = A C_b: A (the touch's chain end and nominal mount) is fixed while the model
+                # lives, C_b (above the block, below the mount) is per block. With R_c the
+                # correction, J_r its right Jacobian and D_b = C_b R_c:
+                #   A C_b R_c [wy]x J_r = [A D_b wy]x A D_b J_r
+                a = self._chain_rotation(g, level, fk, first, part)
+                if level == "mount":
+                    c_b, r_c, phi = np.eye(3)[None], r_m[None], corr.mount[None, 3:]
+                    blk = np.zeros(n_uniq, int)
+                elif level == "patch":
+                    c_b, r_c, phi, blk = r_patch, r_p, corr.patches[:, 3:], patch[first]
+                else:
+                    c_b, r_c, phi, blk = r_tri, r_t, corr.triangles[:, 3:], tri[first]
+                d_b = c_b @ r_c
+                n_b = d_b @ se3.right_jacobian(phi)
+                a_v = np.einsum("gij,gj->gi", a, np.einsum("gij,gj->gi", d_b[blk], wy))
+                d_phi = -(se3.skew(a_v) @ (a @ n_b[blk]))
+                d_t = (a @ c_b[blk]) * wsum[:, None, None]
+                block = np.concatenate([d_t, d_phi], axis=2)          # (G, 3, 6)
+                col0 = self.layout.block_columns(name, level, block_rows[first])
+                cc = col_of[col0[:, None] + np.arange(6)[None, :]]   # (G, 6)
+                keep = cc >= 0
+                if not np.any(keep):
+                    continue
+                row3g = 3 * term_row[first]
+                rr = np.broadcast_to(row3g[:, None, None] + np.arange(3)[None, :, None], block.shape)
+                mask = np.broadcast_to(keep[:, None, :], block.shape)
+                rows_all.append(rr[mask])
+                cols_all.append(np.broadcast_to(cc[:, None, :], block.shape)[mask])
+                vals_all.append(block[mask])
+        shape = (3 * self.n_rows, n_cols)
+        if fabric_column is not None:
+            nz = np.flatnonzero(fabric_column)
+            rows_all.append(nz)
+            cols_all.append(np.full(len(nz), fabric_j))
+            vals_all.append(fabric_column[nz])
+        if not rows_all:
+            return np.zeros(shape)
+        rows, cols_, vals = np.concatenate(rows_all), np.concatenate(cols_all), np.concatenate(vals_all)
+        if shape[0] * shape[1] > DENSE_LIMIT:
+            # many unknowns at once (a joint stage): keep the block sparsity
+            return scipy.sparse.csr_matrix((vals, (rows, cols_)), shape=shape)
+        # each (row, column) entry is written once: a row's terms were summed per block above,
+        # blocks of different levels or parts own different columns, the fabric column was summed
+        out = np.zeros(shape)
+        out.ravel()[rows * n_cols + cols_] = vals
+        return out
+
+    def _chain_rotation(self, g: int, level: str, fk: np.ndarray, first: np.ndarray, part) -> np.ndarray:
+        """Rotation of the touch's chain end times the nominal mount, one per (row, block) of a level."""
+        key = (g, level, "A")
+        hit = self._per_pairing.get(key)
+        if hit is None:
+            hit = self._per_pairing[key] = fk[first, :3, :3] @ part.mount_nominal[:3, :3]
+        return hit
+
+
+def condition_number(model: ResidualModel, calib: SkinCalibration, free_levels: dict, cols: np.ndarray) -> float:
+    """Condition number of the Jacobi-scaled normal equations (how well the data pins the unknowns)."""
+    if len(cols) == 0:
+        return float("nan")
+    h = gram(model.jacobian(calib, free_levels, cols))
+    s = np.sqrt(np.maximum(np.diag(h), 1e-300))
+    ev = np.linalg.eigvalsh(h / np.outer(s, s))
+    return float(ev[-1] / max(ev[0], 1e-300))
