@@ -78,7 +78,12 @@ def matrix_to_rotvec(rot: np.ndarray) -> np.ndarray:
 
 
 def matrix_to_quaternion(rot: np.ndarray) -> np.ndarray:
-    """Rotation matrices to unit quaternions ``(x, y, z, w)`` with ``w >= 0``."""
+    """Rotation matrices to unit quaternions ``(x, y, z, w)`` (the order of ROS and scipy) with ``w >= 0``.
+
+    Not scipy's ``Rotation.from_matrix``: :func:`matrix_to_rotvec`, and through
+    it the calibration's first guess, depend on the rounding of this formula.
+    The other way round, use ``scipy.spatial.transform.Rotation.from_quat``.
+    """
     rot = np.asarray(rot, dtype=float)
     m = rot.reshape(-1, 3, 3)
     tr = np.trace(m, axis1=1, axis2=2)
@@ -110,24 +115,6 @@ def matrix_to_quaternion(rot: np.ndarray) -> np.ndarray:
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     q[q[:, 3] < 0] *= -1.0
     return q.reshape(rot.shape[:-2] + (4,))
-
-
-def quaternion_to_matrix(quat: np.ndarray) -> np.ndarray:
-    """Unit quaternions ``(x, y, z, w)`` to rotation matrices."""
-    q = np.asarray(quat, dtype=float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = np.moveaxis(q, -1, 0)
-    out = np.empty(q.shape[:-1] + (3, 3))
-    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    out[..., 0, 1] = 2 * (x * y - z * w)
-    out[..., 0, 2] = 2 * (x * z + y * w)
-    out[..., 1, 0] = 2 * (x * y + z * w)
-    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    out[..., 1, 2] = 2 * (y * z - x * w)
-    out[..., 2, 0] = 2 * (x * z - y * w)
-    out[..., 2, 1] = 2 * (y * z + x * w)
-    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return out
 
 
 def pose_matrix(delta: np.ndarray) -> np.ndarray:

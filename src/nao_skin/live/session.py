@@ -22,7 +22,8 @@ from datetime import datetime
 from pathlib import Path
 
 from nao_skin.errors import ConfigError
-from nao_skin.paths import config_dir, urdf_dir
+from nao_skin.model.urdf import expand_xacro
+from nao_skin.paths import config_dir
 
 ROBOTS = ("sim", "nao")
 PARENT_ENV = "NAO_SKIN_PARENT_PID"     # set by `nao-skin record` for its nodes: they stop when it is gone
@@ -49,14 +50,8 @@ class NodeSpec:
 
 
 def robot_description(calibration: str = "", skin_frames: bool = False) -> str:
-    """The URDF (xacro expanded in-process); body only unless ``skin_frames``."""
-    import xacro
-
-    args = {"skin_frames": "true" if skin_frames else "false"}
-    if calibration:
-        args["calibration"] = str(Path(calibration).resolve())
-    doc = xacro.process_file(str(urdf_dir() / "nao_skin.urdf.xacro"), mappings=args)
-    return doc.toprettyxml(indent="  ")
+    """The URDF for robot_state_publisher (:func:`~nao_skin.model.urdf.expand_xacro`): body only unless told."""
+    return expand_xacro(calibration or None, skin_frames=skin_frames)
 
 
 def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, events_port: str = "",

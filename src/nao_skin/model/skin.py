@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
+from typing import Mapping, NamedTuple
 
 import numpy as np
 import yaml
@@ -76,6 +76,17 @@ class PartCorrection:
 
     def copy(self) -> "PartCorrection":
         return PartCorrection(self.mount.copy(), self.patches.copy(), self.triangles.copy())
+
+
+class SkinFrame(NamedTuple):
+    """One calibrated skin frame relative to its parent: what the URDF, /tf_static and calibration.yaml hold."""
+
+    kind: str                  # "mount", "patch" or "triangle"
+    number: int | None         # patch or triangle number; None for the mount
+    parent: str
+    frame: str
+    correction: np.ndarray     # (6,) t, rotvec: applied after the nominal pose, in the frame's own axes
+    pose: np.ndarray           # (4, 4) nominal pose * exp(correction), relative to ``parent``
 
 
 @dataclass
@@ -147,6 +158,19 @@ class SkinPart:
         patches = mount @ self.patch_nominal @ deltas[1:1 + n_p]
         triangles = patches[self.triangle_patch] @ self.triangle_nominal @ deltas[1 + n_p:]
         return mount, patches, triangles
+
+    def frames(self, corr: PartCorrection | None = None) -> list:
+        """The part's frames relative to their parents (:class:`SkinFrame`): the mount, the patches, the triangles."""
+        corr = corr or self.zero_correction()
+        mount = self.mount_nominal @ se3.pose_matrix(corr.mount)
+        patches = self.patch_nominal @ se3.pose_matrix(corr.patches)
+        tris = self.triangle_nominal @ se3.pose_matrix(corr.triangles)
+        return ([SkinFrame("mount", None, self.parent_frame, self.mount_frame, corr.mount, mount)]
+                + [SkinFrame("patch", int(pid), self.mount_frame, self.patch_frame(pid), corr.patches[i], patches[i])
+                   for i, pid in enumerate(self.patch_ids)]
+                + [SkinFrame("triangle", int(tid), self.patch_frame(self.patch_ids[self.triangle_patch[i]]),
+                             self.triangle_frame(tid), corr.triangles[i], tris[i])
+                   for i, tid in enumerate(self.triangle_ids)])
 
     def taxel_positions(self, corr: PartCorrection | None = None):
         """Calibrated ``(positions, normals)`` of every slot in the chain-end frame (NaN where no taxel)."""
@@ -318,34 +342,27 @@ class SkinCalibration:
 
     # ------------------------------------------------------------------ YAML
     def to_dict(self, skin: SkinModel) -> dict:
-        def entry(frame, parent, corr, origin):
+        def entry(f: SkinFrame) -> dict:
             return {
-                "frame": frame, "parent": parent,
-                "correction": {"translation": [round(float(v), 10) for v in corr[:3]],
-                               "rotation_vector": [round(float(v), 10) for v in corr[3:]]},
+                "frame": f.frame, "parent": f.parent,
+                "correction": {"translation": [round(float(v), 10) for v in f.correction[:3]],
+                               "rotation_vector": [round(float(v), 10) for v in f.correction[3:]]},
                 # calibrated pose relative to the parent frame, in URDF terms (for xacro)
-                "origin": {"xyz": [round(float(v), 10) for v in origin[:3, 3]],
-                           "rpy": [round(float(v), 10) for v in se3.rpy_from_matrix(origin[:3, :3])]},
+                "origin": {"xyz": [round(float(v), 10) for v in f.pose[:3, 3]],
+                           "rpy": [round(float(v), 10) for v in se3.rpy_from_matrix(f.pose[:3, :3])]},
             }
 
         out = {"format": "nao_skin/calibration/1", "robot": skin.robot.name,
                "base_frame": skin.robot.base_frame, "parts": {}}
         for name, part in skin.parts.items():
-            corr = self.parts.get(name, part.zero_correction())
-            mount = part.mount_nominal @ se3.pose_matrix(corr.mount)
-            patches = part.patch_nominal @ se3.pose_matrix(corr.patches)
-            tris = part.triangle_nominal @ se3.pose_matrix(corr.triangles)
+            mount, *others = part.frames(self.parts.get(name))
             out["parts"][name] = {
                 "chain": part.chain,
                 # the layout the corrections belong to: load() refuses another one
                 "layout": {"file": Path(part.layout_file).name, "sha256": part.layout_sha256},
-                "mount": entry(part.mount_frame, part.parent_frame, corr.mount, mount),
-                "patches": {int(pid): entry(part.patch_frame(pid), part.mount_frame, corr.patches[i], patches[i])
-                            for i, pid in enumerate(part.patch_ids)},
-                "triangles": {int(tid): entry(part.triangle_frame(tid),
-                                              part.patch_frame(part.patch_ids[part.triangle_patch[i]]),
-                                              corr.triangles[i], tris[i])
-                              for i, tid in enumerate(part.triangle_ids)},
+                "mount": entry(mount),
+                "patches": {f.number: entry(f) for f in others if f.kind == "patch"},
+                "triangles": {f.number: entry(f) for f in others if f.kind == "triangle"},
             }
         return out
 
@@ -395,6 +412,12 @@ class SkinCalibration:
                     raise ConfigError(f"{path}: part '{name}' has no triangle {tid}")
                 corr.triangles[rows[int(tid)]] = vec(entry, f"part '{name}' triangle {tid}")
         return calib
+
+
+def skin_frame_transforms(skin: SkinModel, calib: SkinCalibration) -> list:
+    """``[(parent, child, 4x4)]`` of every skin frame of every part: the poses calibration.yaml and the URDF hold."""
+    return [(f.parent, f.frame, f.pose)
+            for name, part in skin.parts.items() for f in part.frames(calib.parts.get(name))]
 
 
 def _check_layout(path: Path, name: str, recorded, part: SkinPart) -> None:

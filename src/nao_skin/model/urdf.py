@@ -27,17 +27,19 @@ def default_xacro() -> Path:
 
 
 def expand_xacro(calibration: str | Path | None = None, robot_config: str | Path | None = None,
-                 xacro_file: str | Path | None = None) -> str:
+                 xacro_file: str | Path | None = None, skin_frames: bool = True) -> str:
     """URDF text of the xacro for a calibration YAML (default: the nominal one next to the xacro).
 
-    Paths are made absolute here because xacro resolves relative ones against
-    the xacro file's directory. Raises :class:`ConfigError` (one line) when
-    the file is missing or xacro fails.
+    ``skin_frames=False``: the robot's body only, for a robot_state_publisher
+    while the calibrate node publishes the skin frames. Paths are made
+    absolute here because xacro resolves relative ones against the xacro
+    file's directory. Raises :class:`ConfigError` (one line) when the file is
+    missing or xacro fails.
     """
     import xacro  # imported late: only this function needs it
 
     xacro_file = Path(xacro_file) if xacro_file is not None else default_xacro()
-    mappings = {}
+    mappings = {"skin_frames": "true" if skin_frames else "false"}
     for arg, path in (("calibration", calibration), ("robot_config", robot_config)):
         if path is not None:
             path = Path(path).resolve()

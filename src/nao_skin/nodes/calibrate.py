@@ -5,7 +5,7 @@ start; in a record session (``record.launch.py``) it waits for a request on
 ``/nao_skin/calibrate`` (std_msgs/String: paths separated by spaces/newlines;
 empty = ``inputs``, else the recorder's bag ``recording``). Results go to
 ``out_dir`` (calibration.yaml, taxel files, report) through
-:func:`nao_skin.report.write_outputs`, exactly as ``nao-skin calibrate``.
+:func:`nao_skin.calibration.pipeline.calibrate_recordings`, exactly as ``nao-skin calibrate``.
 
 Skin frames: this node is the ONE publisher of every skin frame (mount,
 patches, triangles of every part, parents and poses as in
@@ -29,10 +29,9 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
-from nao_skin import se3
 from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
 from nao_skin.errors import NaoSkinError
-from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.model.skin import SkinCalibration, SkinModel, skin_frame_transforms
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
 from nao_skin.paths import default_skin_config
@@ -57,21 +56,6 @@ PARAMS = {
     # engine options (their defaults and help come from CalibrationOptions' table, OPTION_FIELDS)
     **{name: (OPTION_FIELDS[name].default, OPTION_FIELDS[name].metadata["help"]) for name in NODE_OPTIONS},
 }
-
-
-def skin_frame_transforms(skin: SkinModel, calib: SkinCalibration) -> list:
-    """``[(parent, child, 4x4)]`` of every skin frame: the poses of ``SkinCalibration.to_dict``."""
-    out = []
-    for name, part in skin.parts.items():
-        corr = calib.parts.get(name, part.zero_correction())
-        out.append((part.parent_frame, part.mount_frame, part.mount_nominal @ se3.pose_matrix(corr.mount)))
-        patches = part.patch_nominal @ se3.pose_matrix(corr.patches)
-        for i, pid in enumerate(part.patch_ids):
-            out.append((part.mount_frame, part.patch_frame(pid), patches[i]))
-        tris = part.triangle_nominal @ se3.pose_matrix(corr.triangles)
-        for i, tid in enumerate(part.triangle_ids):
-            out.append((part.patch_frame(part.patch_ids[part.triangle_patch[i]]), part.triangle_frame(tid), tris[i]))
-    return out
 
 
 def options_from_params(params: dict) -> CalibrationOptions:

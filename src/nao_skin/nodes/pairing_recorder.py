@@ -2,17 +2,18 @@
 
 Subscribes to ``/joint_states`` and every part's ``/skin/<part>/taxels`` and
 ``/skin/<part>/contacts``, feeds them to the same
-:class:`~nao_skin.events.EventDetector` that reads bags offline, and writes
-each detected touch to a *touch bag* (:class:`~nao_skin.bagio.BagWriter`,
-mcap): one JointState at the touch stamp and the touching parts' skin
-messages. Every ``flush_period`` s what was written is made durable, so a
-``kill -9`` loses at most the last period; SIGINT writes everything and closes
-the bag properly.
+:class:`~nao_skin.touch.events.EventDetector` that reads bags offline, and
+writes each detected touch to a *touch bag* as ``write_touch_bag`` does
+(:meth:`~nao_skin.formats.bag.BagWriter.write_touch`, mcap): one JointState
+at the touch stamp and the touching parts' skin messages. Every
+``flush_period`` s what was written is made durable, so a ``kill -9`` loses
+at most the last period; SIGINT writes everything and closes the bag
+properly.
 
 Progress on ``/nao_skin/recorder/progress`` (std_msgs/String, JSON) every
 ``progress_period`` s: touches per pair (e.g. ``l_hand+torso``), the share of
-each part's taxels touched at least once, dropped events by reason, and the
-processing time per skin message (p50/p99, ms).
+each part's taxels in at least one recorded touch, dropped events by reason,
+and the processing time per skin message (p50/p99, ms).
 """
 from __future__ import annotations
 
@@ -28,10 +29,11 @@ from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 
 from nao_skin.errors import DataError
-from nao_skin.formats.bag import BagWriter
+from nao_skin.formats.bag import BagWriter, record_parts
+from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_topic, read_contacts, read_taxels, taxels_topic
+from nao_skin.live.heatmap import ActivationCounts
 from nao_skin.model.skin import SkinModel
-from nao_skin.nodes.messages import (CONTACT_DTYPE, JOINT_STATES_TOPIC, TAXEL_DTYPE, array_from_cloud, contacts_topic,
-                                     joint_state_arrays, stamp_from_msg, taxels_topic, xyz)
+from nao_skin.nodes.messages import joint_state_arrays, stamp_from_msg
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.paths import default_skin_config
 from nao_skin.touch.events import EventConfig, EventDetector
@@ -70,7 +72,7 @@ class PairingRecorder(Node):
         self.get_logger().info(f"recording touches to {self.bag_path}")
         self.n_touches = 0
         self.pairs: Counter = Counter()
-        self.touched = {n: np.zeros(self.skin.parts[n].n_slots, bool) for n in self.parts}
+        self.touched = ActivationCounts({n: self.skin.parts[n].n_slots for n in self.parts})     # in recorded touches
         self.errors: Counter = Counter()
         self._logged = 0
         self.skin_ms: deque = deque(maxlen=20000)     # processing time of recent skin messages
@@ -95,28 +97,20 @@ class PairingRecorder(Node):
     def _on_taxels(self, part: str, msg) -> None:
         t0 = time.perf_counter()
         try:
-            points = array_from_cloud(msg, TAXEL_DTYPE, taxels_topic(part))
-            slots = points["slot"].astype(np.int64)
-            sp = self.skin.parts[part]
-            bad = (slots >= sp.n_slots) | ~sp.present[np.minimum(slots, sp.n_slots - 1)]
-            if bad.any():
-                raise DataError(f"{taxels_topic(part)}: slot {int(slots[bad][0])} is not a taxel of '{part}'")
+            slots, pressures, contacts = read_taxels(msg, self.skin.parts[part], taxels_topic(part))
         except DataError as exc:
             return self._bad(exc)
-        records = self.detector.add_skin(stamp_from_msg(msg.header.stamp), part, slots.tolist(),
-                                         points["pressure"].astype(float).tolist(),
-                                         points["contact"].astype(int).tolist())
-        self._write(records)
+        self._write(self.detector.add_skin(stamp_from_msg(msg.header.stamp), part, slots.tolist(), pressures.tolist(),
+                                           contacts.tolist()))
         self.skin_ms.append((time.perf_counter() - t0) * 1e3)
 
     def _on_contacts(self, part: str, msg) -> None:
         t0 = time.perf_counter()
         try:
-            points = array_from_cloud(msg, CONTACT_DTYPE, contacts_topic(part))
+            contact_ids, cops = read_contacts(msg, contacts_topic(part))
         except DataError as exc:
             return self._bad(exc)
-        self.detector.add_contacts(stamp_from_msg(msg.header.stamp), part, points["contact"].astype(int).tolist(),
-                                   xyz(points))
+        self.detector.add_contacts(stamp_from_msg(msg.header.stamp), part, contact_ids, cops)
         self.skin_ms.append((time.perf_counter() - t0) * 1e3)
 
     def _bad(self, exc: Exception) -> None:
@@ -128,25 +122,11 @@ class PairingRecorder(Node):
     # ------------------------------------------------------------------ output
     def _write(self, records) -> None:
         for rec in records:
-            stamp_ns = int(round(rec.stamp * 1e9))
-            self.bag.write_joint_state(stamp_ns, self.joint_names, rec.joints)
-            by_part: dict = {}
-            for c in rec.contacts:
-                by_part.setdefault(c.part, []).append(c)
-            names = []
-            for pi, contacts in by_part.items():
-                name = self.detector.part_names[pi]
-                names.append(name)
-                sp = self.skin.parts[name]
-                slots = np.concatenate([c.slots for c in contacts]).astype(int)
-                pressures = np.concatenate([c.pressures for c in contacts])
-                ids = np.concatenate([np.full(len(c.slots), c.contact_id) for c in contacts])
-                self.bag.write_taxels(stamp_ns, name, sp.parent_frame, sp.positions[slots], slots, pressures, ids)
-                known = [c for c in contacts if c.contact_id >= 0]
-                self.bag.write_contacts(stamp_ns, name, sp.parent_frame, np.array([c.contact_id for c in known], int),
-                                        np.array([c.cop for c in known], float).reshape(-1, 3))
-                self.touched[name][slots] = True
-            self.pairs["+".join(sorted(names, key=self.parts.index))] += 1
+            parts = record_parts(rec, self.skin, self.detector.part_names)
+            self.bag.write_touch(int(round(rec.stamp * 1e9)), self.joint_names, rec.joints, parts)
+            for part, taxels, _ in parts:
+                self.touched.update(part.name, taxels["slot"])
+            self.pairs["+".join(sorted((part.name for part, _, _ in parts), key=self.parts.index))] += 1
             self.n_touches += 1
             self._dirty = True
 
@@ -160,7 +140,7 @@ class PairingRecorder(Node):
         drops = {k: v for k, v in self.detector.counts.items() if k not in ("touches", "continued press")}
         return {
             "bag": str(self.bag_path), "touches": self.n_touches, "pairs": dict(self.pairs),
-            "coverage": {n: round(float(self.touched[n][self.skin.parts[n].present].mean()), 4) for n in self.parts},
+            "coverage": {n: round(self.touched.coverage(n, self.skin.parts[n].present), 4) for n in self.parts},
             "dropped": drops | dict(self.errors),
             "skin_message_ms": {"n": len(self.skin_ms), "p50": round(float(np.percentile(ms, 50)), 4),
                                 "p99": round(float(np.percentile(ms, 99)), 4), "max": round(float(ms.max()), 4)},

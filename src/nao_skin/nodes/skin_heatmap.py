@@ -1,7 +1,7 @@
 """skin_heatmap: live coverage heat-map of the skin for RViz (visualization_msgs/MarkerArray).
 
 Every taxel of every part is a sphere, coloured by how often it has been
-activated in this session (:mod:`nao_skin.heatmap`: grey = never, then a
+activated in this session (:mod:`nao_skin.live.heatmap`: grey = never, then a
 viridis-like log scale), currently pressed taxels red. One SPHERE_LIST marker
 per triangle, in the triangle's own frame (``<part>_skin_triangle_<t>``,
 namespace = part, id = triangle number, points in slot order), so the
@@ -20,9 +20,9 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from nao_skin.errors import DataError
+from nao_skin.formats.pointcloud import read_taxels, taxels_topic
 from nao_skin.live.heatmap import SCALE_LEVELS, ActivationCounts, palette, triangle_slots
 from nao_skin.model.skin import SkinModel
-from nao_skin.nodes.messages import TAXEL_DTYPE, array_from_cloud, taxels_topic
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.paths import default_skin_config
 
@@ -69,13 +69,13 @@ class SkinHeatmap(Node):
 
     def _on_taxels(self, part: str, msg) -> None:
         try:
-            points = array_from_cloud(msg, TAXEL_DTYPE, taxels_topic(part))
+            slots, _, _ = read_taxels(msg, self.skin.parts[part], taxels_topic(part))
         except DataError as exc:
             self.errors += 1
             if self.errors <= 5:
                 self.get_logger().warning(f"skipped: {exc}")
             return
-        self.counts.update(part, points["slot"])
+        self.counts.update(part, slots)
 
     def _legend(self, origin: np.ndarray, d: float) -> list:
         base = self.skin.robot.base_frame

@@ -15,12 +15,14 @@ Note: like tf2_ros' broadcaster, a latched publisher keeps only its LAST
 message (depth 1), so publish all static transforms of a node in one
 TFMessage.
 """
-import math
-
 import numpy as np
+from builtin_interfaces.msg import Time
 from geometry_msgs.msg import TransformStamped
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from tf2_msgs.msg import TFMessage
+
+from nao_skin import se3
+from nao_skin.nodes.messages import stamp_to_msg
 
 TF_STATIC_TOPIC = '/tf_static'
 
@@ -40,12 +42,11 @@ def latched_tf_static_publisher(node, topic=TF_STATIC_TOPIC):
 
 
 def rotation_to_quaternion(rot):
-    """3x3 rotation matrix -> unit quaternion ``(x, y, z, w)`` with ``w >= 0``.
+    """3x3 rotation matrix -> unit quaternion ``(x, y, z, w)`` (ROS order) with ``w >= 0``.
 
     The input is first projected onto the nearest proper rotation (SVD), so
-    matrices with small numerical drift are accepted. The conversion uses
-    Shepperd's method (pivot on the largest of trace / diagonal terms), which
-    stays accurate near 180 degree rotations.
+    matrices with small numerical drift are accepted; singular matrices and
+    reflections raise ValueError. The conversion is :func:`nao_skin.se3.matrix_to_quaternion`.
     """
     r = np.asarray(rot, dtype=float)
     if r.shape != (3, 3) or not np.all(np.isfinite(r)):
@@ -53,43 +54,18 @@ def rotation_to_quaternion(rot):
     u, s, vt = np.linalg.svd(r)
     if s[-1] <= 1e-9 * max(s[0], 1e-300):
         raise ValueError(f'rotation matrix is singular: {r!r}')
-    d = np.sign(np.linalg.det(u @ vt))
-    if d < 0:
+    if np.linalg.det(u @ vt) < 0:
         raise ValueError(f'matrix is a reflection, not a rotation: {r!r}')
-    r = u @ vt
-
-    m00, m01, m02 = r[0]
-    m10, m11, m12 = r[1]
-    m20, m21, m22 = r[2]
-    trace = m00 + m11 + m22
-    if trace > max(m00, m11, m22):
-        s = 2.0 * math.sqrt(max(1.0 + trace, 0.0))
-        q = np.array([(m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s, 0.25 * s])
-    elif m00 >= m11 and m00 >= m22:
-        s = 2.0 * math.sqrt(max(1.0 + m00 - m11 - m22, 0.0))
-        q = np.array([0.25 * s, (m01 + m10) / s, (m02 + m20) / s, (m21 - m12) / s])
-    elif m11 >= m22:
-        s = 2.0 * math.sqrt(max(1.0 + m11 - m00 - m22, 0.0))
-        q = np.array([(m01 + m10) / s, 0.25 * s, (m12 + m21) / s, (m02 - m20) / s])
-    else:
-        s = 2.0 * math.sqrt(max(1.0 + m22 - m00 - m11, 0.0))
-        q = np.array([(m02 + m20) / s, (m12 + m21) / s, 0.25 * s, (m10 - m01) / s])
-    q /= np.linalg.norm(q)
-    if q[3] < 0.0:
-        q = -q
-    return q
+    return se3.matrix_to_quaternion(u @ vt)
 
 
 def _to_time_msg(stamp):
     if stamp is None:
-        from builtin_interfaces.msg import Time
         return Time()
     if hasattr(stamp, 'to_msg'):  # rclpy.time.Time
         return stamp.to_msg()
     if isinstance(stamp, (int, float)):
-        from builtin_interfaces.msg import Time
-        total_ns = int(round(float(stamp) * 1e9))
-        return Time(sec=total_ns // 1_000_000_000, nanosec=total_ns % 1_000_000_000)
+        return stamp_to_msg(stamp)
     return stamp  # builtin_interfaces/Time
 
 
