@@ -10,7 +10,7 @@ VENV := $(ROOT)/.venv
 ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_AUTOMATIC_DISCOVERY_RANGE
 
-.PHONY: setup setup-test demo test
+.PHONY: setup setup-test demo test test-core
 
 ## setup: create/refresh .venv (ROS 2 wheels, tf2_msgs, deps, nao_skin editable)
 setup:
@@ -27,3 +27,7 @@ demo: setup
 ## test: run the test suite
 test: setup-test
 	cd $(ROOT) && $(VENV)/bin/python -m pytest -q test
+
+## test-core: the fast core tests only (no ROS 2 nodes/DDS, libqi, yarpserver; no slow runs)
+test-core: setup
+	cd $(ROOT) && $(VENV)/bin/python -m pytest -q -m "not middleware and not slow" test

@@ -33,6 +33,7 @@ ARGUMENTS = {
     "bag": ("", "touch bag directory to write (default: ./nao_skin_touches_<date>_<time>)"),
     "calibration": ("", "calibration to start from (default: the nominal skin)"),
     "rviz": ("false", "start rviz2 with config/nao_skin.rviz"),
+    "taxels": ("", "the robot's own taxel files, PART=FILE separated by spaces (default: config/nao_skin.yaml's)"),
 }
 
 
@@ -42,7 +43,7 @@ def _nodes(context):
     arg = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
     specs = record_session(arg["robot"], nao_ip=arg["nao_ip"], naoqi=arg["naoqi"].lower() == "true",
                            events_port=arg["events_port"], bag_path=arg["bag"], calibration=arg["calibration"],
-                           rviz=arg["rviz"].lower() == "true")
+                           rviz=arg["rviz"].lower() == "true", taxels=arg["taxels"].split())
     actions = []
     for spec in specs:
         overrides = {}

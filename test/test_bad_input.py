@@ -142,6 +142,7 @@ def real_calibration(tmp_path_factory):
     return out, run
 
 
+@pytest.mark.slow   # real_calibration: the real recording calibrated by the command
 def test_stats_evaluates_a_calibration_with_the_layouts_it_was_made_with(capsys, real_calibration):
     out, _ = real_calibration
     report = json.loads((out / "report.json").read_text())
@@ -155,6 +156,7 @@ def test_stats_evaluates_a_calibration_with_the_layouts_it_was_made_with(capsys,
     assert stats["cop_mean_mm"] == pytest.approx(cop, rel=0.05)
 
 
+@pytest.mark.slow   # real_calibration: the real recording calibrated by the command
 def test_another_layout_refuses_the_calibration_in_one_line(capsys, real_calibration):
     out, _ = real_calibration
     assert cli_main(["stats", str(RECORDING), "--calibration", str(out / "calibration.yaml")]) == 2
@@ -164,6 +166,7 @@ def test_another_layout_refuses_the_calibration_in_one_line(capsys, real_calibra
     assert "file: l_hand.taxels.txt" in doc and "sha256:" in doc
 
 
+@pytest.mark.slow   # real_calibration: the real recording calibrated by the command
 def test_calibrate_prints_the_engine_time_and_the_whole_command_time(real_calibration):
     _, run = real_calibration
     line = run.stdout.strip().splitlines()[-1]
@@ -236,3 +239,13 @@ def test_the_recording_model_of_the_tests_is_the_commands_model():
     assert set(merged.parts) == {"r_hand", "l_hand", "torso", "head"}
     with pytest.raises(DataError):
         skin_model_for({"knee": REAL / "l_hand.taxels.txt"}, robot)
+
+
+def test_nodes_build_the_skin_as_the_commands_do():
+    from nao_skin.nodes.runtime import skin_from_params
+
+    skin = skin_from_params({"skin_config": "", "taxels": ["", f"l_hand={REAL / 'l_hand.taxels.txt'}"]})
+    same = load_skin(taxel_files={"l_hand": REAL / "l_hand.taxels.txt"})
+    assert {n: p.layout_sha256 for n, p in skin.parts.items()} == {n: p.layout_sha256 for n, p in same.parts.items()}
+    with pytest.raises(ConfigError, match="parameter taxels 'l_hand': expected PART=FILE"):
+        skin_from_params({"skin_config": "", "taxels": ["l_hand"]})

@@ -24,6 +24,8 @@ from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 from nao_skin.touch.datasets import deduplicate
 
+pytestmark = pytest.mark.slow   # the module's fixture calibrates every hard case (~15 s together)
+
 SMALL = bench.HardCaseSetup(pairs=None, n_touches=100)   # four pairs x 100 touches, seed 0
 
 

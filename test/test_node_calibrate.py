@@ -15,16 +15,19 @@ import pytest
 
 pytest.importorskip("rclpy")
 from ros_harness import Listener, node_process, ros_env, unique_domain_id  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
 
-from nao_skin import se3  # noqa: E402
 from nao_skin.formats.bag import write_touch_bag  # noqa: E402
 from nao_skin.model.skin import SkinCalibration  # noqa: E402
 from nao_skin.model.skin import load_skin  # noqa: E402
-from nao_skin.nodes.calibrate import LATCHED, REQUEST_TOPIC, STATUS_TOPIC, skin_frame_transforms  # noqa: E402
+from nao_skin.model.skin import skin_frame_transforms  # noqa: E402
+from nao_skin.nodes.calibrate import LATCHED, REQUEST_TOPIC, STATUS_TOPIC  # noqa: E402
 from nao_skin.nodes.static_tf import TF_STATIC_QOS, TF_STATIC_TOPIC  # noqa: E402
 from nao_skin.sim.simulate import simulate  # noqa: E402
+
+pytestmark = pytest.mark.middleware   # runs the calibrate node over DDS
 
 
 def as_table(msg: TFMessage) -> dict:
@@ -34,7 +37,7 @@ def as_table(msg: TFMessage) -> dict:
         assert ts.child_frame_id not in out, f"frame {ts.child_frame_id} published twice"
         t, q = ts.transform.translation, ts.transform.rotation
         m = np.eye(4)
-        m[:3, :3] = se3.quaternion_to_matrix(np.array([q.x, q.y, q.z, q.w]))
+        m[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()     # ROS order x, y, z, w
         m[:3, 3] = [t.x, t.y, t.z]
         out[ts.child_frame_id] = (ts.header.frame_id, m)
     return out

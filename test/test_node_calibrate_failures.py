@@ -21,6 +21,8 @@ from nao_skin.model.skin import load_skin  # noqa: E402
 from nao_skin.nodes.calibrate import LATCHED, REQUEST_TOPIC, STATUS_TOPIC  # noqa: E402
 from nao_skin.sim.simulate import simulate  # noqa: E402
 
+pytestmark = pytest.mark.middleware   # runs the calibrate node over DDS
+
 
 @pytest.fixture(scope="module")
 def small_bag(tmp_path_factory):

@@ -22,6 +22,8 @@ from sensor_msgs.msg import JointState  # noqa: E402
 
 from nao_skin.nodes.naoqi_bridge import DEFAULT_JOINTS  # noqa: E402
 
+pytestmark = pytest.mark.middleware   # a libqi session served to the naoqi_bridge node, over DDS
+
 
 class FakeMotion:
     """MOCK of the robot's body: ALMotion.getAngles with unique values per call, recorded."""

@@ -18,10 +18,9 @@ import yaml
 from ros_harness import ROOT
 
 from nao_skin.live.session import command_line, record_session, robot_description
-from nao_skin.model.skin import load_skin
+from nao_skin.model.skin import load_skin, skin_frame_transforms
 
 pytest.importorskip("rclpy")
-from nao_skin.nodes.calibrate import skin_frame_transforms  # noqa: E402
 
 NODE_MODULES = {"sim_robot": "sim_robot", "pairing_recorder": "pairing_recorder", "skin_heatmap": "skin_heatmap",
                 "calibrate": "calibrate", "naoqi_bridge": "naoqi_bridge", "yarp_skin_bridge": "yarp_skin_bridge"}

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from nao_skin.errors import DataError, NaoSkinError
+from nao_skin.formats.pointcloud import BadSlot, decode_cloud, read_taxels, taxels_array, xyz
 from nao_skin.formats.skinmanager import activated_taxels, format_skin_events, parse_bottle_text, parse_skin_events
 from nao_skin.live.heatmap import (NEVER_INDEX, PRESSED_INDEX, SCALE_LEVELS, ActivationCounts, colour_index, palette,
                                    triangle_slots)
@@ -15,31 +16,55 @@ messages = pytest.importorskip("nao_skin.nodes.messages")
 
 
 def test_taxel_cloud_roundtrip_keeps_every_field():
-    pts = messages.taxels_array([5, 17, 383], [[0.1, 0.2, 0.3], [-1, 0, 1], [0, 0, 0]], [1.0, np.nan, 255.0], [2, 2, -1])
+    pts = taxels_array([5, 17, 383], [[0.1, 0.2, 0.3], [-1, 0, 1], [0, 0, 0]], [1.0, np.nan, 255.0], [2, 2, -1])
     stamp = messages.stamp_to_msg(1234.000000123)
     msg = messages.cloud_from_array(pts, "l_wrist", stamp)
     assert (msg.width, msg.height, msg.point_step) == (3, 1, 24)
-    back = messages.array_from_cloud(msg, messages.TAXEL_DTYPE, "/skin/l_hand/taxels")
+    back = decode_cloud(msg, "/skin/l_hand/taxels")
     np.testing.assert_array_equal(back["slot"], [5, 17, 383])
     np.testing.assert_array_equal(back["contact"], [2, 2, -1])
-    np.testing.assert_allclose(messages.xyz(back), [[0.1, 0.2, 0.3], [-1, 0, 1], [0, 0, 0]], atol=1e-7)
+    np.testing.assert_allclose(xyz(back), [[0.1, 0.2, 0.3], [-1, 0, 1], [0, 0, 0]], atol=1e-7)
     assert np.isnan(back["pressure"][1]) and back["pressure"][2] == 255.0
     assert messages.stamp_ns(msg.header.stamp) == 1234000000123
 
 
 def test_cloud_with_other_field_order_and_missing_field():
-    pts = messages.taxels_array([1, 2], np.zeros((2, 3)))
+    pts = taxels_array([1, 2], np.zeros((2, 3)))
     reordered = pts[["contact", "slot", "x", "y", "z", "pressure"]]     # same fields, other offsets
     packed = np.zeros(2, np.dtype([("contact", "<i4"), ("slot", "<u4"), ("x", "<f4"), ("y", "<f4"),
                                    ("z", "<f4"), ("pressure", "<f4")]))
     for n in packed.dtype.names:
         packed[n] = reordered[n]
     msg = messages.cloud_from_array(packed, "torso", messages.stamp_to_msg(0))
-    back = messages.array_from_cloud(msg, messages.TAXEL_DTYPE, "t")
+    back = decode_cloud(msg, "t")
     np.testing.assert_array_equal(back["slot"], [1, 2])
     msg.fields = [f for f in msg.fields if f.name != "slot"]
     with pytest.raises(DataError, match="t: PointCloud2 has no field 'slot'"):
-        messages.array_from_cloud(msg, messages.TAXEL_DTYPE, "t")
+        read_taxels(msg, load_skin().parts["torso"], "t")
+
+
+def test_big_endian_padded_rows_and_bad_slots_read_like_a_bag():
+    torso = load_skin().parts["torso"]
+    slots = torso.slots[[3, 4, 7, 9]]
+    pts = taxels_array(slots, torso.positions[slots], [1.0, 2.0, 3.0, 4.0], [5, 5, -1, 6])
+    msg = messages.cloud_from_array(pts, "torso", None)
+    # two rows of two points, each row padded by 8 bytes, big-endian
+    big = pts.astype(pts.dtype.newbyteorder(">")).tobytes()
+    msg.data = big[:48] + bytes(8) + big[48:] + bytes(8)
+    msg.is_bigendian, msg.width, msg.height, msg.row_step = True, 2, 2, 56
+    got_slots, pressures, contacts = read_taxels(msg, torso, "t")
+    np.testing.assert_array_equal(got_slots, slots)
+    np.testing.assert_array_equal(pressures, [1.0, 2.0, 3.0, 4.0])
+    np.testing.assert_array_equal(contacts, [5, 5, -1, 6])
+    msg.data = msg.data[:-20]
+    with pytest.raises(DataError, match="t: malformed point cloud"):
+        read_taxels(msg, torso, "t")
+    absent = np.flatnonzero(~torso.present)[0]
+    for slot, says in ((torso.n_slots, "out of range"), (absent, "is not a taxel of the 'torso' layout")):
+        bad = messages.cloud_from_array(taxels_array([slots[0], slot], np.zeros((2, 3))), "torso", None)
+        with pytest.raises(BadSlot, match=f"t: field 'slot': slot {slot} {says}") as err:
+            read_taxels(bad, torso, "t")
+        assert err.value.part == "torso" and "\n" not in str(err.value)
 
 
 def test_skin_event_text_roundtrip_and_errors():

@@ -24,9 +24,12 @@ from ros_harness import Listener, Proc, node_process, ros_env, unique_domain_id 
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
+from nao_skin.formats.pointcloud import decode_cloud, xyz  # noqa: E402
 from nao_skin.formats.skinmanager import SkinEvents, format_skin_events  # noqa: E402
 from nao_skin.model.skin import load_skin  # noqa: E402
-from nao_skin.nodes.messages import CONTACT_DTYPE, TAXEL_DTYPE, array_from_cloud, stamp_from_msg, xyz  # noqa: E402
+from nao_skin.nodes.messages import stamp_from_msg  # noqa: E402
+
+pytestmark = pytest.mark.middleware   # a real yarpserver and the yarp_skin_bridge node, over DDS
 
 EVENTS = "/fake/skinManager/skin_events:o"
 COMP = "/fake/skin/l_hand_comp:o"
@@ -121,17 +124,17 @@ def test_skin_bridge(tmp_path, monkeypatch):
         stamped = lambda lst, t: [m for m in lst if abs(stamp_from_msg(m.header.stamp) - t) < 1e-6]  # noqa: E731
         assert listener.spin_until(lambda: all(stamped(taxels[p], 1000.25) for p in ("torso", "r_hand", "head"))
                                    and all(stamped(contacts[p], 1000.25) for p in IDS), procs=[bridge])
-        tor = array_from_cloud(stamped(taxels["torso"], 1000.25)[0], TAXEL_DTYPE, "torso")
+        tor = decode_cloud(stamped(taxels["torso"], 1000.25)[0], "torso")
         np.testing.assert_array_equal(tor["slot"], np.r_[t_slots_a, t_slots_b])
         np.testing.assert_array_equal(tor["contact"], [3] * 4 + [4] * 3)
         np.testing.assert_allclose(tor["pressure"], [12.5] * 4 + [7.0] * 3)
         np.testing.assert_allclose(xyz(tor), torso.positions[tor["slot"]], atol=1e-6)
         assert stamped(taxels["torso"], 1000.25)[0].header.frame_id == torso.parent_frame
-        rh = array_from_cloud(stamped(taxels["r_hand"], 1000.25)[0], TAXEL_DTYPE, "r_hand")
+        rh = decode_cloud(stamped(taxels["r_hand"], 1000.25)[0], "r_hand")
         np.testing.assert_array_equal(rh["slot"], h_slots)
         assert stamped(taxels["r_hand"], 1000.25)[0].header.frame_id == hand.parent_frame
-        assert len(array_from_cloud(stamped(taxels["head"], 1000.25)[0], TAXEL_DTYPE, "head")) == 0  # released
-        tc = array_from_cloud(stamped(contacts["torso"], 1000.25)[0], CONTACT_DTYPE, "torso")
+        assert len(decode_cloud(stamped(taxels["head"], 1000.25)[0], "head")) == 0  # released
+        tc = decode_cloud(stamped(contacts["torso"], 1000.25)[0], "torso")
         np.testing.assert_array_equal(tc["contact"], [3, 4])
         np.testing.assert_allclose(xyz(tc), ev.cop[[0, 2]], atol=1e-6)
         np.testing.assert_allclose(xyz(tc, "g"), ev.geo_center[[0, 2]], atol=1e-6)
@@ -140,7 +143,7 @@ def test_skin_bridge(tmp_path, monkeypatch):
         np.testing.assert_allclose(tc["pressure"], [12.5, 7.0])
         # l_hand takes its taxels from the compensated port: none from the contact list
         assert not stamped(taxels["l_hand"], 1000.25)
-        assert len(array_from_cloud(stamped(contacts["l_hand"], 1000.25)[0], CONTACT_DTYPE, "l")) == 0
+        assert len(decode_cloud(stamped(contacts["l_hand"], 1000.25)[0], "l")) == 0
 
         # 2. a malformed bottle (a contact with only two items), then a good one: skipped, counted, alive
         send(events_port, "((1 2 3 7) (0.1 0.2 0.3))", 2, 1000.5)
@@ -149,7 +152,7 @@ def test_skin_bridge(tmp_path, monkeypatch):
         assert listener.spin_until(lambda: stamped(taxels["head"], 1000.75), procs=[bridge])
         assert listener.spin_until(lambda: status[-1]["counts"].get("malformed") == 1, procs=[bridge])
         assert not stamped(taxels["torso"], 1000.5), "a malformed bottle produced messages"
-        hd = array_from_cloud(stamped(taxels["head"], 1000.75)[0], TAXEL_DTYPE, "head")
+        hd = decode_cloud(stamped(taxels["head"], 1000.75)[0], "head")
         np.testing.assert_array_equal(hd["slot"], skin.parts["head"].slots[:3])
 
         # 3. compensated taxels of the left hand: values above the threshold, contact -1
@@ -159,7 +162,7 @@ def test_skin_bridge(tmp_path, monkeypatch):
         values[active] = [3.0, 100.0, 255.0]
         send(comp_port, " ".join(f"{v:g}" for v in values), 1, 2000.5)
         assert listener.spin_until(lambda: stamped(taxels["l_hand"], 2000.5), procs=[bridge])
-        lt = array_from_cloud(stamped(taxels["l_hand"], 2000.5)[0], TAXEL_DTYPE, "l_hand")
+        lt = decode_cloud(stamped(taxels["l_hand"], 2000.5)[0], "l_hand")
         np.testing.assert_array_equal(lt["slot"], active)
         np.testing.assert_allclose(lt["pressure"], [3.0, 100.0, 255.0])
         np.testing.assert_array_equal(lt["contact"], [-1, -1, -1])

@@ -22,6 +22,8 @@ import pytest
 
 from nao_skin.formats.outdir import MARKER
 
+pytestmark = pytest.mark.slow   # every test runs the nao-skin CLI as processes (~1-15 s each)
+
 BENCH_CHEAP = ["bench", "--quick", "--only", "hard", "--seeds", "1", "--presets", "ideal"]   # ~1 s of work
 
 
@@ -275,6 +277,7 @@ def _domain(env) -> list:
     return ["--domain", env["ROS_DOMAIN_ID"]]
 
 
+@pytest.mark.middleware   # starts ROS 2 nodes
 def test_bench_live_removes_its_temporary_directory_unless_kept(tmp_path):
     env = _bench_live_env(tmp_path / "tmp")
     ok(nao_skin("bench-live", "--seconds", "0.5", *_domain(env), cwd=tmp_path, env=env, timeout=180))
@@ -286,6 +289,7 @@ def test_bench_live_removes_its_temporary_directory_unless_kept(tmp_path):
     assert (kept[0] / "pairing_recorder.err").is_file()
 
 
+@pytest.mark.middleware   # starts ROS 2 nodes
 def test_bench_live_removes_its_temporary_directory_on_ctrl_c(tmp_path):
     env = _bench_live_env(tmp_path / "tmp")
     # SIGINT as a terminal sends it (a shell's background job would start with it ignored)
@@ -310,6 +314,7 @@ def test_bench_live_removes_its_temporary_directory_on_ctrl_c(tmp_path):
 
 
 # ------------------------------------------------------------------------------ the calibrate node
+@pytest.mark.middleware   # starts ROS 2 nodes
 def test_calibrate_node_refuses_an_out_dir_holding_its_input(work):
     pytest.importorskip("rclpy")
     from ros_harness import Listener, node_process, ros_env, unique_domain_id

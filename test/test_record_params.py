@@ -34,6 +34,8 @@ from std_msgs.msg import String  # noqa: E402
 from nao_skin.nodes import calibrate as calibrate_node  # noqa: E402
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC  # noqa: E402
 
+pytestmark = pytest.mark.middleware   # runs nao-skin record and its nodes over DDS
+
 RECORD_YAML = ROOT / "config" / "record.yaml"
 
 

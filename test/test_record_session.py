@@ -31,6 +31,8 @@ from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 from nao_skin.nodes.sim_robot import sim_overrides  # noqa: E402
 
+pytestmark = pytest.mark.middleware   # runs nao-skin record and its nodes over DDS
+
 FAST_PLAY = {"touch_period": 0.5, "press_duration": 0.2, "hold": 0.05}
 
 

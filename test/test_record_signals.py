@@ -30,13 +30,16 @@ import yaml
 from ros_harness import ROOT, Listener, Proc, node_process, ros_env, unique_domain_id
 from test_record_session import assert_same_touches, expected_touches, record_cmd
 
-from nao_skin.formats.bag import LOCK_FILE, read_touches
+from nao_skin.formats.bag import read_touches
+from nao_skin.formats.salvage import LOCK_FILE
 from nao_skin.model.skin import load_skin
 
 pytest.importorskip("rclpy")
 from std_msgs.msg import String  # noqa: E402
 
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC  # noqa: E402
+
+pytestmark = pytest.mark.middleware   # runs nao-skin record and its nodes over DDS
 
 GONE_WITHIN_S = 2.0          # the bound for the nodes to stop after record died
 STARTED = re.compile(r"record: started (.+) \(pids ([\d ]+)\)")

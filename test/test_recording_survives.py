@@ -25,10 +25,13 @@ import numpy as np
 import pytest
 import yaml
 
-from nao_skin.formats.bag import LOCK_FILE, read_touches
+from nao_skin.formats.bag import read_touches
+from nao_skin.formats.salvage import LOCK_FILE
 from nao_skin.model.skin import load_skin
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
+
+pytestmark = pytest.mark.slow   # every test starts a bag writer process and kills it (~5 s together)
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED, PER_PAIR, FLUSHED = 4, 8, 12

@@ -112,6 +112,7 @@ def _sim_stats(result, skin) -> dict:
             "share of triangles touched": touched / total}
 
 
+@pytest.mark.slow   # simulates a full recording and loads the real one
 def test_statistics_resemble_the_real_recording(skin):
     # the same pair as the real file, with as many touches as a tenth of it would take to cover the skin
     result = simulate(skin, load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 120}), seed=0)

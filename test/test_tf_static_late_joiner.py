@@ -157,6 +157,7 @@ def test_rotation_to_quaternion_roundtrip():
         to_transform_stamped('a', 'b', np.zeros((3, 3)), None)
 
 
+@pytest.mark.middleware   # DDS participants in this process
 def test_tf_static_late_joiner_gets_latched_message(ros):
     pub_node, _ = ros.node('nao_skin_tf_static_pub')
     pub = latched_tf_static_publisher(pub_node)

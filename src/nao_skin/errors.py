@@ -15,3 +15,8 @@ class ConfigError(NaoSkinError):
 
 class DataError(NaoSkinError):
     """A recording, taxel file or message is wrong."""
+
+
+def one_line(exc: BaseException, limit: int = 300) -> str:
+    """Any exception as one line for a report or a log: its type and message, whitespace collapsed."""
+    return " ".join(f"{type(exc).__name__}: {exc}".split())[:limit]

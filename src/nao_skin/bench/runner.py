@@ -34,6 +34,7 @@ import numpy as np
 
 from nao_skin.calibration.engine import CalibrationOptions, calibrate, truth_error
 from nao_skin.calibration.layout import COMPONENTS
+from nao_skin.errors import one_line
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.touches import TouchSet
 
@@ -105,11 +106,6 @@ def restrict_pairs(touches: TouchSet, pairs) -> TouchSet:
 def _finite_calibration(calib: SkinCalibration) -> bool:
     return all(np.all(np.isfinite(c.mount)) and np.all(np.isfinite(c.patches)) and np.all(np.isfinite(c.triangles))
                for c in calib.parts.values())
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split()) or type(exc).__name__
-    return f"{type(exc).__name__}: {text}"[:200]
 
 
 def _stage_totals(report: dict) -> dict:
@@ -185,7 +181,7 @@ def speed_matrix(inputs: list, variants: list, repeat: int = 3, say: Callable[[s
                         row["status"] = "FAILED: " + why
                     row["seconds_all"].append(seconds)
                 except Exception as exc:  # noqa: BLE001 - a failing strategy is a row of the table
-                    row["status"] = "FAILED: " + _one_line(exc)
+                    row["status"] = "FAILED: " + one_line(exc, 200)
                     row["trace"] = traceback.format_exc(limit=3)
                 say(f"[speed {rep + 1}/{repeat}] {inp.name} | {v.name}: {_speed_summary(row)}")
     out = []
@@ -444,7 +440,7 @@ def run_hard_case(skin: SkinModel, preset: str, seed: int, setup: HardCaseSetup 
         if nans:
             row["status"] = f"FAILED: NaN in {', '.join(nans)}"
     except Exception as exc:  # noqa: BLE001 - a failing case is a row of the table
-        row["status"] = "FAILED: " + _one_line(exc)
+        row["status"] = "FAILED: " + one_line(exc, 200)
         row["trace"] = traceback.format_exc(limit=3)
     row["seconds"] = time.perf_counter() - t0
     return row

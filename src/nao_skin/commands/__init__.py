@@ -32,26 +32,9 @@ def add_skin_arguments(parser) -> None:
                         help="robot config YAML (default: the one the skin config names, config/nao_h25.yaml)")
 
 
-def taxel_files(items) -> dict:
-    """``PART=FILE`` strings of ``--taxels`` as ``{part: Path}``."""
-    from nao_skin.errors import ConfigError
-
-    files = {}
-    for item in items:
-        part, sep, path = item.partition("=")
-        if not sep or not part or not path:
-            raise ConfigError(f"--taxels {item!r}: expected PART=FILE, e.g. l_hand=l_hand.taxels.txt")
-        if part in files:
-            raise ConfigError(f"--taxels {item!r}: part '{part}' is given twice")
-        if not Path(path).is_file():
-            raise ConfigError(f"--taxels {item!r}: {path}: no such file")
-        files[part] = Path(path)
-    return files
-
-
 def skin_from_args(args):
     """The skin model of ``--skin``, ``--taxels`` and ``--robot`` (:func:`nao_skin.model.skin.load_skin`)."""
-    from nao_skin.model.skin import load_skin
+    from nao_skin.model.skin import load_skin, parse_taxel_files
 
-    return load_skin(getattr(args, "skin", None), taxel_files(getattr(args, "taxels", None) or []),
+    return load_skin(getattr(args, "skin", None), parse_taxel_files(getattr(args, "taxels", None) or []),
                      getattr(args, "robot", None))

@@ -39,6 +39,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--events-port", default="", help="skinManager's skin events port (robot nao)")
     parser.add_argument("--bag", default="", help="touch bag to write (default: ./nao_skin_touches_<date>_<time>)")
     parser.add_argument("--calibration", default="", help="calibration to start from (default: nominal)")
+    parser.add_argument("--taxels", action="append", default=[], metavar="PART=FILE",
+                        help="the robot's own skinManager taxel file of a part, for every node that reads the skin;"
+                             " repeatable")
     parser.add_argument("--rviz", action="store_true", help="also start rviz2 with config/nao_skin.rviz")
     parser.add_argument("--param", action="append", default=[], metavar="NODE.NAME=VALUE",
                         help="override a node parameter, e.g. sim_robot.touches_per_pair=5 (repeatable); checked"
@@ -82,7 +85,7 @@ def run(args) -> int:
     from nao_skin.live.session import record_session
 
     specs = record_session(args.robot, nao_ip=args.nao_ip, naoqi=not args.no_naoqi, events_port=args.events_port,
-                           bag_path=args.bag, calibration=args.calibration, rviz=args.rviz,
+                           bag_path=args.bag, calibration=args.calibration, rviz=args.rviz, taxels=args.taxels,
                            overrides=parse_overrides(args.param))
     if not args.print:
         check_needs(specs)

@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from nao_skin.errors import DataError
+from nao_skin.errors import DataError, one_line
 from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, encode_cloud,
                                          read_contacts, read_taxels, skin_topic, taxels_array, taxels_topic)
-from nao_skin.formats.salvage import LOCK_FILE, UnclosedBag, cut_mcap, one_line, unclosed_sqlite, write_lock
+from nao_skin.formats.salvage import LOCK_FILE, UnclosedBag, cut_mcap, unclosed_sqlite, write_lock
 from nao_skin.model.skin import SkinModel
 from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST, cluster_contacts, contact_geometry
 from nao_skin.touch.datasets import LoadReport

@@ -16,14 +16,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from nao_skin.errors import DataError
+from nao_skin.errors import DataError, one_line
 
 LOCK_FILE = "recording.lock"          # in a live bag's directory while its writer has it open
-
-
-def one_line(exc: Exception) -> str:
-    """An exception as one report line: its type and message, whitespace collapsed, at most 300 characters."""
-    return " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
 
 
 # ---------------------------------------------------------------------- the lock of a live recording

@@ -22,10 +22,12 @@ from datetime import datetime
 from pathlib import Path
 
 from nao_skin.errors import ConfigError
+from nao_skin.model.skin import parse_taxel_files
 from nao_skin.model.urdf import expand_xacro
 from nao_skin.paths import config_dir
 
 ROBOTS = ("sim", "nao")
+SKIN_NODES = ("sim_robot", "yarp_skin_bridge", "pairing_recorder", "skin_heatmap", "calibrate")   # read the skin
 PARENT_ENV = "NAO_SKIN_PARENT_PID"     # set by `nao-skin record` for its nodes: they stop when it is gone
 YARP_HINT = ("yarp_skin_bridge needs YARP's Python bindings: `make setup-test` or `docker/setup_venv.sh --with-yarp`"
              " (pip package yarp-middleware)")
@@ -55,10 +57,11 @@ def robot_description(calibration: str = "", skin_frames: bool = False) -> str:
 
 
 def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, events_port: str = "",
-                   bag_path: str = "", calibration: str = "", rviz: bool = False,
+                   bag_path: str = "", calibration: str = "", rviz: bool = False, taxels=(),
                    overrides: dict | None = None, with_robot_state_publisher: bool = True) -> list:
     """The nodes of ``record.launch.py`` for these launch arguments.
 
+    ``taxels``: ``PART=FILE`` items, the robot's own layouts, given to every node that reads the skin.
     ``overrides``: ``{node name: {parameter: value}}`` applied last (tests, CLI ``--param``).
     """
     if robot not in ROBOTS:
@@ -89,6 +92,11 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     if rviz:
         specs.append(NodeSpec("rviz2", "rviz2", package="rviz2", optional=True,
                               arguments=["-d", str(cfg / "nao_skin.rviz")]))
+    if taxels:       # checked here: a mistake is one line before anything starts; absolute for every node
+        resolved = [f"{part}={path.resolve()}" for part, path in parse_taxel_files(taxels, "taxels").items()]
+        for spec in specs:
+            if spec.name in SKIN_NODES:
+                spec.overrides["taxels"] = resolved
     by_name = {spec.name: spec for spec in specs}
     for node, values in (overrides or {}).items():
         if node not in by_name:

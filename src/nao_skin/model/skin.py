@@ -437,6 +437,23 @@ def part_from_layout(name: str, chain: str | None, robot: RobotModel, taxel_file
                       layout_file=str(taxel_file))
 
 
+def parse_taxel_files(items, where: str = "--taxels") -> dict:
+    """``PART=FILE`` strings (``--taxels``, a node's ``taxels`` parameter) as ``{part: Path}``; empty items skipped."""
+    files = {}
+    for item in items:
+        if not item:
+            continue
+        part, sep, path = item.partition("=")
+        if not sep or not part or not path:
+            raise ConfigError(f"{where} {item!r}: expected PART=FILE, e.g. l_hand=l_hand.taxels.txt")
+        if part in files:
+            raise ConfigError(f"{where} {item!r}: part '{part}' is given twice")
+        if not Path(path).is_file():
+            raise ConfigError(f"{where} {item!r}: {path}: no such file")
+        files[part] = Path(path)
+    return files
+
+
 def load_skin(skin_config: str | Path | None = None, taxel_files: Mapping[str, str | Path] | None = None,
               robot_config: str | Path | None = None) -> SkinModel:
     """The skin every command uses: the skin config, with the named parts' layouts from their own files.

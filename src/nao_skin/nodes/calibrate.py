@@ -30,11 +30,10 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
 from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
-from nao_skin.errors import NaoSkinError
-from nao_skin.model.skin import SkinCalibration, SkinModel, skin_frame_transforms
-from nao_skin.nodes.runtime import declare, run_node
+from nao_skin.errors import NaoSkinError, one_line
+from nao_skin.model.skin import SkinCalibration, skin_frame_transforms
+from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
-from nao_skin.paths import default_skin_config
 
 REQUEST_TOPIC = "/nao_skin/calibrate"
 STATUS_TOPIC = "/nao_skin/calibration/status"
@@ -46,7 +45,7 @@ NODE_OPTIONS = ("strategy", "reference", "pairs", "bounded", "loss", "jacobian",
                 "prior_scale", "estimate_fabric", "fabric_thickness", "test_fraction", "seed")
 
 PARAMS = {
-    "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
+    **SKIN_PARAMS,
     "calibration": ("", "calibration published at start and used as prior (empty: nominal skin)"),
     "inputs": ([""], "bags (or legacy .txt) to calibrate from; empty entries are ignored"),
     "recording": ("", "the recorder's bag: calibrated on an empty request when 'inputs' is empty"),
@@ -76,7 +75,7 @@ class CalibrateNode(Node):
         super().__init__("calibrate", **kwargs)
         self.p = declare(self, PARAMS)
         self.options = options_from_params(self.p)      # a wrong value stops the node at start, in one line
-        self.skin = SkinModel.from_yaml(self.p["skin_config"] or default_skin_config())
+        self.skin = skin_from_params(self.p)
         self.prior = (SkinCalibration.load(self.p["calibration"], self.skin) if self.p["calibration"]
                       else self.skin.zero_calibration())
         self.tf_pub = latched_tf_static_publisher(self)
@@ -147,7 +146,7 @@ class CalibrateNode(Node):
             log.error(str(exc))
             self._status({"state": "failed", "error": str(exc)})
         except Exception as exc:  # noqa: BLE001 - whatever breaks, the latched status must not stay "running"
-            line = " ".join(f"{type(exc).__name__}: {exc}".split())
+            line = one_line(exc)
             log.error(f"calibration failed: {line}")
             self._status({"state": "failed", "error": f"internal error: {line}"})
         finally:

@@ -11,12 +11,7 @@ from builtin_interfaces.msg import Time
 from sensor_msgs.msg import JointState, PointCloud2, PointField
 
 from nao_skin.errors import DataError
-# sim_robot, yarp_skin_bridge and naoqi_bridge take these from here, with the message helpers
-from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, encode_cloud, taxels_array,
-                                         taxels_topic)
-
-__all__ = ["JOINT_STATES_TOPIC", "cloud_from_array", "contacts_array", "contacts_topic", "joint_state_arrays",
-           "joint_state_msg", "stamp_from_msg", "stamp_ns", "stamp_to_msg", "taxels_array", "taxels_topic"]
+from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, encode_cloud
 
 
 # ---------------------------------------------------------------------- time

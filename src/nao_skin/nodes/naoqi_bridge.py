@@ -17,8 +17,10 @@ import time
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
+from nao_skin.errors import one_line
+from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC
 from nao_skin.live.reconnect import Backoff
-from nao_skin.nodes.messages import JOINT_STATES_TOPIC, joint_state_msg
+from nao_skin.nodes.messages import joint_state_msg
 from nao_skin.nodes.runtime import declare, run_node
 
 DEFAULT_JOINTS = ["HeadYaw", "HeadPitch",
@@ -103,7 +105,7 @@ class NaoqiBridge(Node):
             self.link.connect()
         except Exception as exc:  # noqa: BLE001 - libqi raises RuntimeError and others; all mean "not now"
             self.link.close()
-            line = self.backoff.failed(now, f"cannot connect ({_one_line(exc)})")
+            line = self.backoff.failed(now, f"cannot connect ({one_line(exc)})")
             if line:
                 self.get_logger().warning(line)
             return
@@ -117,7 +119,7 @@ class NaoqiBridge(Node):
         except Exception as exc:  # noqa: BLE001 - any failure of the call means the link is gone
             self.link.close()
             self.stats["outages"] += 1
-            line = self.backoff.failed(time.monotonic(), f"lost ({_one_line(exc)})")
+            line = self.backoff.failed(time.monotonic(), f"lost ({one_line(exc)})")
             if line:
                 self.get_logger().warning(line)
             return
@@ -136,10 +138,6 @@ class NaoqiBridge(Node):
         self._stop.set()
         self._thread.join(timeout=2.0)
         self.link.close()
-
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def main(args=None) -> int:

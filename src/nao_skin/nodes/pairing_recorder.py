@@ -32,10 +32,8 @@ from nao_skin.errors import DataError
 from nao_skin.formats.bag import BagWriter, record_parts
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_topic, read_contacts, read_taxels, taxels_topic
 from nao_skin.live.heatmap import ActivationCounts
-from nao_skin.model.skin import SkinModel
 from nao_skin.nodes.messages import joint_state_arrays, stamp_from_msg
-from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.paths import default_skin_config
+from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
 from nao_skin.touch.events import EventConfig, EventDetector
 
 PROGRESS_TOPIC = "/nao_skin/recorder/progress"
@@ -43,7 +41,7 @@ MAX_LOGGED_ERRORS = 5
 _D = EventConfig()
 
 PARAMS = {
-    "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
+    **SKIN_PARAMS,
     "bag_path": ("", "touch bag to create (a new directory; empty: ./nao_skin_touches_<date>_<time>)"),
     "storage": ("mcap", "bag storage: mcap (survives kill -9 up to the last flush) or sqlite3"),
     "flush_period": (1.0, "seconds between flushes of the bag to disk"),
@@ -59,7 +57,7 @@ class PairingRecorder(Node):
     def __init__(self, **kwargs):
         super().__init__("pairing_recorder", **kwargs)
         p = declare(self, PARAMS)
-        self.skin = SkinModel.from_yaml(p["skin_config"] or default_skin_config())
+        self.skin = skin_from_params(p)
         config = EventConfig(skin_tolerance=p["skin_tolerance"], joint_tolerance=p["joint_tolerance"],
                              min_interval=p["min_interval"], release_gap=p["release_gap"])
         self.detector = EventDetector.for_skin(self.skin, config)

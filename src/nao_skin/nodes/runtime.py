@@ -25,6 +25,12 @@ from rclpy.parameter import Parameter
 from nao_skin.errors import ConfigError, NaoSkinError
 from nao_skin.live.session import PARENT_ENV
 
+# every node that reads the skin builds it the way the commands do (model.skin.load_skin)
+SKIN_PARAMS = {
+    "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
+    "taxels": ([""], "skinManager taxel files replacing a part's layout, PART=FILE each (e.g. the robot's own);"
+                     " empty entries are ignored"),
+}
 STOP_SIGNALS = tuple(getattr(signal, s) for s in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, s))
 
 
@@ -64,6 +70,13 @@ def declare(node, params: dict) -> dict:
     if numeric:
         node.add_on_set_parameters_callback(lambda changed: _numbers_only(changed, numeric))
     return out
+
+
+def skin_from_params(params: dict):
+    """The skin model of a node's ``skin_config`` and ``taxels`` parameters (:data:`SKIN_PARAMS`)."""
+    from nao_skin.model.skin import load_skin, parse_taxel_files
+
+    return load_skin(params["skin_config"] or None, parse_taxel_files(params["taxels"], "parameter taxels"))
 
 
 def _is_float(default) -> bool:

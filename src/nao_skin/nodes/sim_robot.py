@@ -22,19 +22,17 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 
+from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_array, contacts_topic, taxels_array, taxels_topic
 from nao_skin.live.playback import Playback
-from nao_skin.model.skin import SkinModel
-from nao_skin.nodes.messages import (JOINT_STATES_TOPIC, cloud_from_array, contacts_array, contacts_topic,
-                                     joint_state_msg, taxels_array, taxels_topic)
-from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.paths import default_skin_config
+from nao_skin.nodes.messages import cloud_from_array, joint_state_msg
+from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 
 STATUS_TOPIC = "/sim_robot/status"
 
 PARAMS = {
-    "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
+    **SKIN_PARAMS,
     "preset": ("default", "simulation preset of config/simulation.yaml"),
     "seed": (1, "simulator seed: the same seed plays the same touches"),
     "touches_per_pair": (20, "accepted touches per self-touch pair"),
@@ -63,7 +61,7 @@ class SimRobot(Node):
     def __init__(self, **kwargs):
         super().__init__("sim_robot", **kwargs)
         p = declare(self, PARAMS)
-        self.skin = SkinModel.from_yaml(p["skin_config"] or default_skin_config())
+        self.skin = skin_from_params(p)
         params = load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"]))
         result = simulate(self.skin, params, int(p["seed"]))
         self.playback = Playback(result.touches, self.skin, p["touch_period"], p["press_duration"], p["hold"])

@@ -22,16 +22,14 @@ from visualization_msgs.msg import Marker, MarkerArray
 from nao_skin.errors import DataError
 from nao_skin.formats.pointcloud import read_taxels, taxels_topic
 from nao_skin.live.heatmap import SCALE_LEVELS, ActivationCounts, palette, triangle_slots
-from nao_skin.model.skin import SkinModel
-from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.paths import default_skin_config
+from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
 
 TOPIC = "/nao_skin/heatmap"
 LEGEND_NS = "legend"
 LEGEND_HEIGHT = 0.12      # m: height of the colour bar
 
 PARAMS = {
-    "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
+    **SKIN_PARAMS,
     "rate": (10.0, "marker updates per second (Hz)"),
     "taxel_diameter": (0.005, "sphere diameter of a taxel (m)"),
     "legend_origin": ([0.0, -0.25, 0.15], "where the colour bar starts, in the base frame (m)"),
@@ -42,7 +40,7 @@ class SkinHeatmap(Node):
     def __init__(self, **kwargs):
         super().__init__("skin_heatmap", **kwargs)
         p = declare(self, PARAMS)
-        self.skin = SkinModel.from_yaml(p["skin_config"] or default_skin_config())
+        self.skin = skin_from_params(p)
         self.counts = ActivationCounts({n: part.n_slots for n, part in self.skin.parts.items()})
         self.palette = [ColorRGBA(r=float(c[0]), g=float(c[1]), b=float(c[2]), a=float(c[3])) for c in palette()]
         d = float(p["taxel_diameter"])

@@ -30,13 +30,11 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
 from nao_skin.errors import DataError
+from nao_skin.formats.pointcloud import contacts_array, contacts_topic, taxels_array, taxels_topic
 from nao_skin.formats.skinmanager import activated_taxels, parse_skin_events, part_id_map
 from nao_skin.live.reconnect import Backoff
-from nao_skin.model.skin import SkinModel
-from nao_skin.nodes.messages import (cloud_from_array, contacts_array, contacts_topic, stamp_to_msg, taxels_array,
-                                     taxels_topic)
-from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.paths import default_skin_config
+from nao_skin.nodes.messages import cloud_from_array, stamp_to_msg
+from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
 
 # iCub skinDynLib SkinPart ids; the Nao build put the head on the unused right forearm id (thesis §3.1.1).
 DEFAULT_PART_IDS = {"l_hand": 1, "r_hand": 4, "torso": 7, "head": 5}
@@ -44,7 +42,7 @@ MAX_LOGGED_ERRORS = 5
 STATUS_TOPIC = "/skin/bridge_status"
 
 PARAMS = {
-    "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
+    **SKIN_PARAMS,
     "events_port": ("/skinManager/skin_events:o", "skinManager's skin events (skinContactList) output port"),
     "local_prefix": ("/nao_skin/skin_bridge", "prefix of the YARP ports this bridge opens"),
     "compensated_threshold": (0.0, "a compensated taxel value above this counts as activated (0-255 scale)"),
@@ -57,7 +55,7 @@ class YarpSkinBridge(Node):
     def __init__(self, **kwargs):
         super().__init__("yarp_skin_bridge", **kwargs)
         p = declare(self, PARAMS)
-        self.skin = SkinModel.from_yaml(p["skin_config"] or default_skin_config())
+        self.skin = skin_from_params(p)
         parts = list(self.skin.parts)
         ids = declare(self, {f"part_ids.{n}": (DEFAULT_PART_IDS.get(n, -1),
                                                f"skinManager skinPart id of '{n}' (-1: not bridged)")
