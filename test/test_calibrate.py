@@ -61,14 +61,14 @@ def test_finds_a_160_degree_hand_mount_without_a_manual_guess(skin, left_hand_re
     _, truth = left_hand_sim
     rot = np.linalg.norm(truth.parts["l_hand"].mount[3:])
     assert rot > np.deg2rad(140)                       # the case really is the hard one
-    before = left_hand_result.report["before"]["truth_taxel_error_mm"]["l_hand"]["median"]
-    after = left_hand_result.report["final"]["truth_taxel_error_mm"]["l_hand"]["median"]
+    before = left_hand_result.report.before["truth_taxel_error_mm"]["l_hand"]["median"]
+    after = left_hand_result.report.final["truth_taxel_error_mm"]["l_hand"]["median"]
     assert before > 40.0
-    assert after < 2.5, left_hand_result.report["final"]["truth_taxel_error_mm"]
+    assert after < 2.5, left_hand_result.report.final["truth_taxel_error_mm"]
 
 
 def test_every_stage_reports_what_the_issue_asks(left_hand_result):
-    report = left_hand_result.report
+    report = left_hand_result.report.to_dict()
     keys = {"n_touches", "cop_mean_mm", "taxel_mean_mm", "taxel5_mean_mm", "cop_median_mm", "taxel_p90_mm",
             "contact_taxel_mean_mm"}
     for entry in [report["before"], report["final"], *report["stages"]]:
@@ -98,7 +98,7 @@ def test_triangles_with_few_activations_are_held_and_listed(skin):
     result = simulate(skin, params, seed=2)
     touches, _ = deduplicate(result.touches)
     out = calibrate(touches, skin, CalibrationOptions(), truth=result.truth)
-    held = out.report["held"]
+    held = out.report.held
     assert any(h.startswith("l_hand/triangle_") for h in held)
     part = skin.parts["l_hand"]
     # a fully held triangle keeps exactly its prior correction (zero)
@@ -203,7 +203,7 @@ def test_a_stage_that_drives_the_touches_apart_is_undone(skin, left_hand_sim, mo
 
     monkeypatch.setattr(engine, "run_stage", patch_stage_diverges)
     result = calibrate(touches, skin, CalibrationOptions(), truth=truth)
-    patch_stages = [s for s in result.report["stages"] if s["name"].endswith(": patch")]
+    patch_stages = [s for s in result.report.stages if s["name"].endswith(": patch")]
     assert patch_stages and all("reverted" in s and s["reverted"].startswith("undone") for s in patch_stages)
     assert np.all(np.abs(result.calibration.parts["l_hand"].patches[:, 0]) < 0.01)
 
@@ -221,7 +221,7 @@ def test_joint_columns_in_any_order_give_the_same_calibration(skin, left_hand_si
     for name, corr in left_hand_result.calibration.parts.items():
         np.testing.assert_allclose(result.calibration.parts[name].mount, corr.mount, atol=1e-9)
         np.testing.assert_allclose(result.calibration.parts[name].triangles, corr.triangles, atol=1e-9)
-    assert result.report["final"]["train"] == left_hand_result.report["final"]["train"]
+    assert result.report.final["train"] == left_hand_result.report.final["train"]
 
 
 

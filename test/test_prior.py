@@ -84,8 +84,8 @@ def test_on_the_real_skin_the_touches_widen_the_triangle_prior(real_skin, real):
     empirical = calibrate(touches, real_skin, CalibrationOptions())
     fixed = calibrate(touches, real_skin, CalibrationOptions(prior_scale="fixed"))
     initial = initial_prior_sigma(CalibrationOptions())
-    assert fixed.report["prior_sigma"] == initial
-    assert empirical.report["prior_sigma"]["triangle_translation"] > 1.5 * initial["triangle_translation"]
-    assert empirical.report["prior_sigma"]["triangle_rotation"] > 1.5 * initial["triangle_rotation"]
-    assert (empirical.report["final"]["test"]["taxel_mean_mm"]
-            < fixed.report["final"]["test"]["taxel_mean_mm"])
+    assert fixed.report.prior_sigma == initial
+    assert empirical.report.prior_sigma["triangle_translation"] > 1.5 * initial["triangle_translation"]
+    assert empirical.report.prior_sigma["triangle_rotation"] > 1.5 * initial["triangle_rotation"]
+    assert (empirical.report.final["test"]["taxel_mean_mm"]
+            < fixed.report.final["test"]["taxel_mean_mm"])

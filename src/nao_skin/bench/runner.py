@@ -32,7 +32,7 @@ from typing import Callable
 
 import numpy as np
 
-from nao_skin.calibration.engine import CalibrationOptions, calibrate, truth_error
+from nao_skin.calibration.engine import CalibrationOptions, CalibrationReport, calibrate, truth_error
 from nao_skin.calibration.layout import COMPONENTS
 from nao_skin.errors import one_line
 from nao_skin.model.skin import SkinCalibration, SkinModel
@@ -108,8 +108,8 @@ def _finite_calibration(calib: SkinCalibration) -> bool:
                for c in calib.parts.values())
 
 
-def _stage_totals(report: dict) -> dict:
-    stages = report.get("stages", [])
+def _stage_totals(report: CalibrationReport) -> dict:
+    stages = report.stages
     last = stages[-1] if stages else {}
     cond = last.get("condition")
     return {"iterations": int(sum(s.get("iterations", 0) for s in stages)),
@@ -122,12 +122,12 @@ def _errors(result, inp: BenchInput) -> dict:
     rep = result.report
     out = {}
     if inp.truth is not None:
-        err = truth_error(inp.skin, result.calibration, inp.truth, rep["parts"])
-        before = truth_error(inp.skin, inp.skin.zero_calibration(), inp.truth, rep["parts"])
+        err = truth_error(inp.skin, result.calibration, inp.truth, rep.parts)
+        before = truth_error(inp.skin, inp.skin.zero_calibration(), inp.truth, rep.parts)
         out.update(true_median_mm=err["all"]["median"], true_p95_mm=err["all"]["p95"],
                    true_max_mm=err["all"]["max"], before_true_median_mm=before["all"]["median"],
-                   part_true_mm={p: {"median": err[p]["median"], "p95": err[p]["p95"]} for p in rep["parts"]})
-    final = rep["final"]
+                   part_true_mm={p: {"median": err[p]["median"], "p95": err[p]["p95"]} for p in rep.parts})
+    final = rep.final
     for split in ("train", "test"):
         out[f"{split}_cop_mm"] = final[split].get("cop_mean_mm", float("nan"))
         out[f"{split}_taxel_mm"] = final[split].get("taxel_mean_mm", float("nan"))
@@ -135,7 +135,7 @@ def _errors(result, inp: BenchInput) -> dict:
         acc = final.get(f"{split}_accepted", {})
         out[f"{split}_cop_explained_mm"] = acc.get("cop_mean_mm", float("nan"))
         out[f"{split}_taxel_explained_mm"] = acc.get("taxel_mean_mm", float("nan"))
-    out["before_train_cop_mm"] = rep["before"]["train"].get("cop_mean_mm", float("nan"))
+    out["before_train_cop_mm"] = rep.before["train"].get("cop_mean_mm", float("nan"))
     return out
 
 
@@ -420,19 +420,19 @@ def run_hard_case(skin: SkinModel, preset: str, seed: int, setup: HardCaseSetup 
         rep = result.report
         if not _finite_calibration(result.calibration):
             raise FloatingPointError("non-finite correction in the calibration")
-        err = truth_error(skin, result.calibration, sim.truth, rep["parts"])
-        row.update(parts=list(rep["parts"]), true_median_mm=err["all"]["median"], true_p95_mm=err["all"]["p95"],
+        err = truth_error(skin, result.calibration, sim.truth, rep.parts)
+        row.update(parts=list(rep.parts), true_median_mm=err["all"]["median"], true_p95_mm=err["all"]["p95"],
                    true_max_mm=err["all"]["max"],
-                   part_median_mm={p: err[p]["median"] for p in rep["parts"]})
+                   part_median_mm={p: err[p]["median"] for p in rep.parts})
         row.update(_stage_totals(rep))
-        row["held"] = list(rep["held"])
-        row["held_frames"] = len(held_frames(rep["held"]))
-        row["held_violations"] = held_frame_check(skin, result.calibration, sim.truth, rep["held"])
-        row["held_drift"] = held_frame_drift(skin, result.calibration, sim.truth, rep["held"])
+        row["held"] = list(rep.held)
+        row["held_frames"] = len(held_frames(rep.held))
+        row["held_violations"] = held_frame_check(skin, result.calibration, sim.truth, rep.held)
+        row["held_drift"] = held_frame_drift(skin, result.calibration, sim.truth, rep.held)
         row["held_corrections"] = {f"{p}/{f}": _frame_correction(result.calibration.parts[p], skin.parts[p], f).tolist()
-                                   for p, f in held_frames(rep["held"])}
-        fully_held = {h for h in rep["held"] if " " not in h}
-        row["untouched_not_held"] = [f for f in untouched_triangles(result.train, skin, rep["parts"])
+                                   for p, f in held_frames(rep.held)}
+        fully_held = {h for h in rep.held if " " not in h}
+        row["untouched_not_held"] = [f for f in untouched_triangles(result.train, skin, rep.parts)
                                      if f not in fully_held]
         row.update(_outlier_recall(result))
         row["converged"] = bool(row["true_median_mm"] <= CONVERGED_MM)

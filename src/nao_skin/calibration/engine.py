@@ -46,9 +46,42 @@ from nao_skin.touch.touches import TouchSet
 
 
 @dataclass
+class CalibrationReport:
+    """What a calibration did and how close it brought the touches (``report.json``, ``report.md``).
+
+    ``before``, ``final`` and each stage hold the figures per split (``train``,
+    ``test``: mean / median / p90 of the closest COP, taxel, selected contacts'
+    taxel and 5-taxel pairs, mm) and, with ground truth, ``truth_taxel_error_mm``.
+    """
+
+    options: dict
+    plan: list                      # the steps, in order, as named in stages
+    parts: list                     # the parts calibrated
+    pairs: list                     # the part pairs the touches connect
+    before: dict
+    stages: list = field(default_factory=list)
+    final: dict = field(default_factory=dict)
+    fabric_thickness_mm: float = float("nan")
+    prior_sigma: dict = field(default_factory=dict)     # std per component group, as the touches left it
+    set_aside: list = field(default_factory=list)       # touches no self-contact explains, with the reason
+    held: list = field(default_factory=list)            # what no stage estimated
+    total_seconds: float = 0.0                          # the engine's, from touches to calibration
+    input: dict = field(default_factory=dict)           # what was read (set by the pipeline)
+
+    @property
+    def n_set_aside(self) -> int:
+        return len(self.set_aside)
+
+    def to_dict(self) -> dict:
+        out = asdict(self)
+        out["n_set_aside"] = self.n_set_aside
+        return out
+
+
+@dataclass
 class CalibrationResult:
     calibration: SkinCalibration
-    report: dict
+    report: CalibrationReport
     train: TouchSet
     test: TouchSet
     set_aside: list = field(default_factory=list)
@@ -77,28 +110,28 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
     fit = _Fit(_start_calibration(prior, skin), options.fabric_thickness, initial_prior_sigma(options),
                np.ones(train.n_touches, bool))
     schedule = _schedule(steps, options)
-    report = {"options": _options_dict(options),
-              "plan": [("joint refinement: " if not step.references and options.reference == "fixed" else "")
-                       + step.name for round_no, step, _ in schedule if round_no == 0 or not step.references],
-              "stages": [], "before": _figures(train, test, skin, fit.calibration, steps, truth),
-              "parts": sorted({p for s in steps for p in s.targets}, key=part_rank),
-              "pairs": sorted(sorted(p, key=part_rank) for p in touching_pairs(train))}
+    report = CalibrationReport(
+        options=_options_dict(options),
+        plan=[("joint refinement: " if not step.references and options.reference == "fixed" else "") + step.name
+              for round_no, step, _ in schedule if round_no == 0 or not step.references],
+        parts=sorted({p for s in steps for p in s.targets}, key=part_rank),
+        pairs=sorted(sorted(p, key=part_rank) for p in touching_pairs(train)),
+        before=_figures(train, test, skin, fit.calibration, steps, truth))
     for round_no, step, prefix in schedule:
         if options.initial_guess == "rigid-fit" and round_no == 0 \
                 and (step.references or options.reference == "simultaneous"):
             _first_guess(train, skin, step, options, fit, say, prefix)
         for levels in _stage_levels(step, options):
-            report["stages"].append(_fit_stage(train, test, skin, step, levels, round_no, prefix, options, fit,
+            report.stages.append(_fit_stage(train, test, skin, step, levels, round_no, prefix, options, fit,
                                                truth, say))
-    report["final"] = _final_figures(train, test, skin, steps, options, fit, truth)
-    report["fabric_thickness_mm"] = 1000.0 * fit.fabric
-    report["prior_sigma"] = fit.prior_sigma
-    report["set_aside"] = fit.set_aside
-    report["n_set_aside"] = len(fit.set_aside)
+    report.final = _final_figures(train, test, skin, steps, options, fit, truth)
+    report.fabric_thickness_mm = 1000.0 * fit.fabric
+    report.prior_sigma = fit.prior_sigma
+    report.set_aside = fit.set_aside
     # held: what no stage estimated (a triangle held while fitted to one reference and freed by the
     # joint refinement, where both references reach ten activations, was estimated: not listed)
-    report["held"] = sorted(compress_held(sorted(fit.held - fit.estimated)))
-    report["total_seconds"] = time.perf_counter() - t_start
+    report.held = sorted(compress_held(sorted(fit.held - fit.estimated)))
+    report.total_seconds = time.perf_counter() - t_start
     return CalibrationResult(fit.calibration, report, train, test, fit.set_aside)
 
 

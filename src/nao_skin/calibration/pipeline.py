@@ -55,7 +55,7 @@ def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: Calibration
     touches, n_dup = deduplicate(touches)
     log(f"{touches.n_touches} touches after removing {n_dup} exact duplicates")
     result = calibrate(touches, skin, options, prior=prior, truth=truth or found_truth, progress=log)
-    result.report["input"] = {"files": [str(p) for p in inputs], "touches_read": load_report.n_read,
+    result.report.input = {"files": [str(p) for p in inputs], "touches_read": load_report.n_read,
                               "touches_loaded": load_report.n_loaded, "skipped": dict(load_report.skipped),
                               "notes": list(load_report.notes), "duplicates_removed": n_dup}
     out = write_outputs(result, skin, out_dir, prior=prior, plots=plots, command=command, extra=extra)
@@ -64,12 +64,12 @@ def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: Calibration
 
 def summary_line(result: CalibrationResult) -> str:
     """The figures of a calibration in one line: what was calibrated and how close the touches came."""
-    final = result.report["final"]
+    final = result.report.final
 
     def train_test(key):
         return " / ".join(f"{final[split].get(key, float('nan')):.2f}" for split in ("train", "test"))
 
-    line = (f"calibrated {', '.join(result.report['plan'])}: "
+    line = (f"calibrated {', '.join(result.report.plan)}: "
             f"closest COP {train_test('cop_mean_mm')} mm, closest taxel {train_test('taxel_mean_mm')} mm"
             f" (selected contacts' {train_test('contact_taxel_mean_mm')} mm) (train / test)")
     if "truth_taxel_error_mm" in final:

@@ -35,14 +35,14 @@ def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Pat
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
-        calibrated = list(result.report["parts"])
+        calibrated = list(result.report.parts)
         result.calibration.save(tmp / "calibration.yaml", skin,
                                 comment=f"parts calibrated from touches: {', '.join(calibrated)}")
         (tmp / "taxels").mkdir()
         for name in calibrated:
             skin.parts[name].write_taxel_file(tmp / "taxels" / f"{name}.txt", result.calibration.parts[name])
-        (tmp / "report.json").write_text(json.dumps(_jsonable(result.report), indent=2) + "\n")
-        (tmp / "report.md").write_text(markdown_report(result.report))
+        (tmp / "report.json").write_text(json.dumps(_jsonable(result.report.to_dict()), indent=2) + "\n")
+        (tmp / "report.md").write_text(markdown_report(result.report.to_dict()))
         if plots:
             _plots(result, skin, prior or skin.zero_calibration(), tmp, calibrated)
         if extra is not None:
@@ -130,7 +130,7 @@ def _plots(result: CalibrationResult, skin: SkinModel, prior: SkinCalibration, o
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    pairs = [tuple(p) for p in result.report["pairs"]]
+    pairs = [tuple(p) for p in result.report.pairs]
 
     # 1. error distributions before/after
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))

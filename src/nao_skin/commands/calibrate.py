@@ -88,6 +88,6 @@ def run(args) -> int:
                                protected=[args.skin, args.robot, args.prior, args.truth,
                                           *(item.partition("=")[2] for item in args.taxels)],
                                summary=lambda msg: print(msg, file=sys.stderr, flush=True))
-    print(f"{summary_line(run.result)} -> {run.out_dir} (engine {run.result.report['total_seconds']:.2f} s,"
+    print(f"{summary_line(run.result)} -> {run.out_dir} (engine {run.result.report.total_seconds:.2f} s,"
           f" whole command {wall_seconds(args):.1f} s)")
     return 0

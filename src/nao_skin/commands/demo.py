@@ -49,8 +49,8 @@ def run(args) -> int:
     run = calibrate_recordings([source], load_skin(), CalibrationOptions(), args.out, force=force, command=NAME,
                                extra=lambda d: (d / "nao_skin.urdf").write_text(expand_xacro(d / "calibration.yaml")),
                                log=log)
-    result, out, truth = run.result, run.out_dir, "truth_taxel_error_mm" in run.result.report["final"]
-    final, before = result.report["final"], result.report["before"]
+    result, out, truth = run.result, run.out_dir, "truth_taxel_error_mm" in run.result.report.final
+    final, before = result.report.final, result.report.before
     print(f"closest COP pair:   {before['test']['cop_mean_mm']:.1f} mm before -> {final['test']['cop_mean_mm']:.2f} mm after (test set mean)")
     print(f"closest taxel pair: {before['test']['taxel_mean_mm']:.1f} mm before -> {final['test']['taxel_mean_mm']:.2f} mm after (test set mean)")
     if truth:
@@ -58,5 +58,5 @@ def run(args) -> int:
         for part in [p for p in tf if p != "all"] + ["all"]:
             print(f"true taxel error {part:>7}: median {tb[part]['median']:6.2f} -> {tf[part]['median']:.2f} mm,"
                   f" p95 {tb[part]['p95']:6.2f} -> {tf[part]['p95']:.2f} mm")
-    print(f"engine {result.report['total_seconds']:.1f} s, whole command {wall_seconds(args):.1f} s; results in {out}/ (calibration.yaml, taxels/, report.md, report.json, *.png, nao_skin.urdf)")
+    print(f"engine {result.report.total_seconds:.1f} s, whole command {wall_seconds(args):.1f} s; results in {out}/ (calibration.yaml, taxels/, report.md, report.json, *.png, nao_skin.urdf)")
     return 0

@@ -137,7 +137,7 @@ class CalibrateNode(Node):
             self.prior = run.result.calibration
             calibration = str(run.out_dir / "calibration.yaml")
             self.publish_calibration(run.result.calibration, calibration)
-            final = run.result.report.get("final", {})
+            final = run.result.report.final
             self._status({"state": "done", "generation": self.generation, "out_dir": str(run.out_dir),
                           "calibration": calibration, "touches": run.n_touches,
                           "final": {k: final.get(k) for k in ("train", "test") if k in final}})
