@@ -58,6 +58,7 @@ def thesis_touches(skin):
     (["--set", "lateral_weight=0.3"], "unknown calibration option 'lateral_weight'"),
     (["--set", "fabric_bounds=[0.003, 0.001]"], "lower bound is above the upper one"),
     (["--test-fraction", "x"], "argument --test-fraction: invalid float value: 'x'"),
+    (["--splits", "0"], "--splits 0: expected a whole number >= 1"),
 ])
 def test_a_wrong_option_is_one_line_before_any_data_is_read(tmp_path, capsys, args, says):
     # the input is broken: had it been read first, the line would be about the input

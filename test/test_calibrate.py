@@ -255,3 +255,31 @@ def test_a_right_hand_head_recording_in_the_thesis_format(tmp_path, skin):
         before = np.linalg.norm(nominal_pos[rows] - true_pos[rows], axis=1)
         # the hand mount starts 160 degrees off (centimetres), the head a few millimetres
         assert np.median(error) < min(0.0015, 0.5 * np.median(before)), (part, np.median(error), np.median(before))
+
+
+@pytest.mark.slow   # four calibrations
+def test_figures_over_seeded_splits_through_the_pipeline(tmp_path, skin, left_hand_sim):
+    """--splits K: the same calibration on K seeded splits; the first is the one written, and the report
+    gives each figure's mean and spread over the K (README and bench report real figures this way)."""
+    from nao_skin.bench.runner import BenchInput, real_split_lines
+    from nao_skin.calibration.pipeline import calibrate_recordings, summary_line
+    from nao_skin.formats.bag import write_touch_bag
+
+    touches, _ = left_hand_sim
+    write_touch_bag(tmp_path / "touches", touches, skin)
+    run = calibrate_recordings([tmp_path / "touches"], skin, CalibrationOptions(), tmp_path / "out", plots=False,
+                               splits=3)
+    spread = run.result.report.splits
+    assert spread["k"] == 3 and spread["seeds"] == [0, 1, 2]
+    final = run.result.report.final
+    assert spread["per_seed"][0]["test"]["taxel_mean_mm"] == final["test"]["taxel_mean_mm"]
+    test_taxel = [s["test"]["taxel_mean_mm"] for s in spread["per_seed"]]
+    assert len(set(test_taxel)) == 3                      # other splits, other figures
+    assert spread["test"]["taxel_mean_mm"]["mean"] == pytest.approx(np.mean(test_taxel))
+    assert spread["test"]["taxel_mean_mm"]["std"] == pytest.approx(np.std(test_taxel, ddof=1))
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["splits"]["k"] == 3
+    assert "## Over 3 repeated seeded splits" in (tmp_path / "out" / "report.md").read_text()
+    assert "over 3 splits (mean ± std)" in summary_line(run.result)
+    spread5, lines = real_split_lines(BenchInput("sim", touches, skin), k=2)
+    assert spread5["seeds"] == [0, 1] and lines[-1].startswith("Targets on the mean over the 2 splits")

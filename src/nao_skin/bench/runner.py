@@ -231,6 +231,7 @@ def headline(rows: list, input_name: str) -> str:
 # the accuracy and speed the project promises (issue 5), checked on the default rows
 REAL_TARGET_MM = {"cop": 5.5, "taxel": 2.2}       # mean closest COP / closest taxel, train and test
 REAL_TARGET_SECONDS = 2.0                          # whole sequential calibration of the real recording
+REAL_SPLITS = 5                                    # seeded splits the real figures are averaged over
 SIM_TARGET_MM = {"median": 0.5, "p95": 1.5}       # true taxel error of every calibrated part
 
 
@@ -713,3 +714,19 @@ def legacy_read_times(path, skin: SkinModel, repeat: int = 3) -> dict:
                               "act_contact", "act_slot", "act_pressure")))
     return {"exact_s": float(np.median(exact_s)), "fast_s": float(np.median(fast_s)), "same_touches": bool(same),
             "touches": exact.n_touches}
+
+
+def real_split_lines(inp: BenchInput, k: int = REAL_SPLITS) -> tuple:
+    """The default calibration of a real input over ``k`` seeded splits: ``(spread, markdown lines)``, the
+    targets judged on the mean."""
+    from nao_skin.calibration.splits import split_spread, spread_table
+
+    spread = split_spread(inp.touches, inp.skin, CalibrationOptions(), k)
+    lines = spread_table(spread)
+    misses = [f"{sp} closest {kind.upper() if kind == 'cop' else kind} mean {spread[sp][kind + '_mean_mm']['mean']:.2f}"
+              f" > {limit} mm" for kind, limit in REAL_TARGET_MM.items() for sp in ("train", "test")
+              if not spread[sp][kind + "_mean_mm"]["mean"] <= limit]
+    lines += ["", f"Targets on the mean over the {k} splits (closest COP <= {REAL_TARGET_MM['cop']} mm, closest taxel"
+                  f" <= {REAL_TARGET_MM['taxel']} mm, train and test): "
+                  + ("met" if not misses else "NOT met: " + "; ".join(misses))]
+    return spread, lines

@@ -67,6 +67,7 @@ class CalibrationReport:
     held: list = field(default_factory=list)            # what no stage estimated
     total_seconds: float = 0.0                          # the engine's, from touches to calibration
     input: dict = field(default_factory=dict)           # what was read (set by the pipeline)
+    splits: dict = field(default_factory=dict)          # figures over repeated splits (pipeline, splits > 1)
 
     @property
     def n_set_aside(self) -> int:

@@ -13,6 +13,7 @@ from typing import Callable, Sequence
 from nao_skin.calibration.engine import CalibrationResult, calibrate
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.report import write_outputs
+from nao_skin.calibration.splits import split_spread, spread_text
 from nao_skin.formats.inputs import load_touches
 from nao_skin.formats.outdir import CALIBRATION, check_output_dir
 from nao_skin.model.skin import SkinCalibration, SkinModel
@@ -37,7 +38,7 @@ def check_output(out_dir, inputs: Sequence, force: bool = False, label: str = "-
 
 def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: CalibrationOptions, out_dir,
                          prior: SkinCalibration | None = None, truth: SkinCalibration | None = None,
-                         force: bool = False, plots: bool = True, protected: Sequence = (),
+                         force: bool = False, plots: bool = True, protected: Sequence = (), splits: int = 1,
                          command: str = "calibrate", label: str = "--out", extra=None,
                          log: Callable[[str], None] | None = None,
                          summary: Callable[[str], None] | None = None) -> PipelineRun:
@@ -48,6 +49,9 @@ def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: Calibration
     found beside a recording. ``log`` gets progress; ``summary`` what loading
     skipped, even when ``log`` is silent. ``extra(directory)`` adds files to
     the output before it is moved into place (see :func:`write_outputs`).
+    ``splits`` > 1: the report also gives each figure's mean and spread over that
+    many seeded splits (:func:`~nao_skin.calibration.splits.split_spread`); the
+    calibration written is the first split's.
     """
     log = log or (lambda msg: None)
     check_output(out_dir, [*inputs, *protected], force=force, label=label)
@@ -55,6 +59,9 @@ def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: Calibration
     touches, n_dup = deduplicate(touches)
     log(f"{touches.n_touches} touches after removing {n_dup} exact duplicates")
     result = calibrate(touches, skin, options, prior=prior, truth=truth or found_truth, progress=log)
+    if splits > 1:
+        log(f"the same calibration on {splits - 1} more splits (seeds {options.seed + 1}..{options.seed + splits - 1})")
+        result.report.splits = split_spread(touches, skin, options, splits, prior=prior, first=result)
     result.report.input = {"files": [str(p) for p in inputs], "touches_read": load_report.n_read,
                               "touches_loaded": load_report.n_loaded, "skipped": dict(load_report.skipped),
                               "notes": list(load_report.notes), "duplicates_removed": n_dup}
@@ -75,4 +82,8 @@ def summary_line(result: CalibrationResult) -> str:
     if "truth_taxel_error_mm" in final:
         t = final["truth_taxel_error_mm"]["all"]
         line += f"; true taxel error median {t['median']:.2f} mm, p95 {t['p95']:.2f} mm"
+    spread = result.report.splits
+    if spread:
+        line += (f"; over {spread['k']} splits (mean ± std): closest COP {spread_text(spread, 'cop_mean_mm')} mm,"
+                 f" closest taxel {spread_text(spread, 'taxel_mean_mm')} mm")
     return line

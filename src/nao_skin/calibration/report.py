@@ -17,6 +17,7 @@ import numpy as np
 from nao_skin.calibration.engine import CalibrationResult
 from nao_skin.calibration.pairing import pair_for_metrics
 from nao_skin.calibration.rows import concat_pairings
+from nao_skin.calibration.splits import spread_table
 from nao_skin.formats.outdir import CALIBRATION, replace_dir, write_marker
 from nao_skin.model.skin import SkinCalibration, SkinModel
 
@@ -99,6 +100,10 @@ def markdown_report(report: dict) -> str:
         for part, v in truth.items():
             lines.append(f"| {part} | {_fmt(before.get(part, {}).get('median'))} | {_fmt(v['median'])} | "
                          f"{_fmt(v['p95'])} | {_fmt(v['max'])} |")
+    spread = report.get("splits")
+    if spread:
+        lines += ["", f"## Over {spread['k']} {spread['kind']} (seeds {spread['seeds'][0]}..{spread['seeds'][-1]},"
+                      f" {int(100 * spread['test_fraction'])} % test)", "", *spread_table(spread)]
     lines += ["", "## What the touches say about the skin", "",
               f"- fabric over the taxels (each skin): {_fmt(report.get('fabric_thickness_mm'))} mm"]
     sigma = report.get("prior_sigma") or {}

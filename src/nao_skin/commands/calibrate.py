@@ -39,6 +39,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
                         help="any calibration option (YAML value), e.g. --set normal_weight=0.01; repeatable."
                              " Options: " + ", ".join(OPTION_FIELDS))
+    parser.add_argument("--splits", type=int, default=1, metavar="K",
+                        help="also calibrate on K-1 more seeded train/test splits and report each figure's mean and"
+                             " spread over the K (the calibration written is the first split's; default 1)")
     parser.add_argument("--no-plots", action="store_true", help="do not draw the report's plots (faster)")
     parser.add_argument("--quiet", action="store_true",
                         help="print only the final line (and what loading skipped, if anything)")
@@ -79,12 +82,16 @@ def run(args) -> int:
     from nao_skin.model.skin import SkinCalibration
 
     options = build_options(args)
+    if args.splits < 1:
+        from nao_skin.errors import DataError
+
+        raise DataError(f"--splits {args.splits}: expected a whole number >= 1")
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     skin = skin_from_args(args)
     prior = SkinCalibration.load(args.prior, skin) if args.prior else None
     truth = SkinCalibration.load(args.truth, skin) if args.truth else None
     run = calibrate_recordings(args.inputs, skin, options, args.out, prior=prior, truth=truth, force=args.force,
-                               plots=not args.no_plots, log=log,
+                               plots=not args.no_plots, log=log, splits=args.splits,
                                protected=[args.skin, args.robot, args.prior, args.truth,
                                           *(item.partition("=")[2] for item in args.taxels)],
                                summary=lambda msg: print(msg, file=sys.stderr, flush=True))

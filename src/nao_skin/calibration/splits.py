@@ -1,0 +1,60 @@
+"""Figures that hold across splits: the same calibration over several seeded train/test splits, mean and spread.
+
+One 70/30 split decides a single run's figures, and on a recording of a few
+hundred touches the test figure moves by tenths of a millimetre with the seed
+(or with one touch more or less). The spread over repeated seeded splits says
+how much of a difference is the split's.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from nao_skin.calibration.engine import CalibrationResult, calibrate
+from nao_skin.calibration.options import CalibrationOptions
+from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.touch.touches import TouchSet
+
+FIGURES = ("cop_mean_mm", "taxel_mean_mm", "contact_taxel_mean_mm")    # of the report's final train/test
+
+
+def split_spread(touches: TouchSet, skin: SkinModel, options: CalibrationOptions, k: int,
+                 prior: SkinCalibration | None = None, first: CalibrationResult | None = None) -> dict:
+    """Calibrate on ``k`` splits (seeds ``options.seed`` .. ``+ k - 1``); each final figure's mean, sample
+    standard deviation, min and max over them, and the figures of every split.
+
+    ``first``: the calibration already made with ``options.seed``, re-used.
+    """
+    seeds = [options.seed + i for i in range(k)]
+    per_seed = []
+    for seed in seeds:
+        result = first if first is not None and seed == options.seed else \
+            calibrate(touches, skin, replace(options, seed=seed), prior=prior)
+        per_seed.append({split: {f: result.report.final[split].get(f, float("nan")) for f in FIGURES}
+                         for split in ("train", "test")})
+    out = {"k": k, "seeds": seeds, "kind": "repeated seeded splits", "test_fraction": options.test_fraction}
+    for split in ("train", "test"):
+        out[split] = {}
+        for f in FIGURES:
+            v = np.array([s[split][f] for s in per_seed], dtype=float)
+            out[split][f] = {"mean": float(np.mean(v)), "std": float(np.std(v, ddof=1)) if k > 1 else 0.0,
+                             "min": float(np.min(v)), "max": float(np.max(v))}
+    out["per_seed"] = per_seed
+    return out
+
+
+def spread_text(spread: dict, figure: str) -> str:
+    """``mean ± std`` train / test of one figure, e.g. ``4.54 ± 0.05 / 4.50 ± 0.20``."""
+    return " / ".join(f"{spread[s][figure]['mean']:.2f} ± {spread[s][figure]['std']:.2f}" for s in ("train", "test"))
+
+
+def spread_table(spread: dict) -> list:
+    """Markdown rows: each figure's train and test mean ± std (min–max) over the splits."""
+    lines = ["| figure | train mean ± std (min–max) mm | test mean ± std (min–max) mm |", "|---|---|---|"]
+    for figure, label in (("cop_mean_mm", "closest COP"), ("taxel_mean_mm", "closest taxel"),
+                          ("contact_taxel_mean_mm", "selected contacts' closest taxel")):
+        cells = [f"{spread[s][figure]['mean']:.2f} ± {spread[s][figure]['std']:.2f}"
+                 f" ({spread[s][figure]['min']:.2f}–{spread[s][figure]['max']:.2f})" for s in ("train", "test")]
+        lines.append(f"| {label} | {cells[0]} | {cells[1]} |")
+    return lines
