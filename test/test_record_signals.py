@@ -86,75 +86,77 @@ def assert_closed(bag: Path) -> dict:
     return info
 
 
+class RecordingSession:
+    """``nao-skin record`` with the simulated robot, running until the recorder reported some touches.
+
+    ``with RecordingSession(tmp_path, seed) as run:``; inside, ``run.session`` (the record process),
+    ``run.nodes`` (pid -> cmdline of its nodes) and ``run.reported`` (touches the progress topic
+    reported); on leaving, everything of the session is stopped whatever happened.
+    """
+
+    def __init__(self, tmp_path: Path, seed: int, per_pair: int = 3):
+        self.tmp_path, self.seed, self.per_pair = tmp_path, seed, per_pair
+        self.bag = tmp_path / "touches"
+        self.want = expected_touches(load_skin(), per_pair, seed)
+        self.listener = self.session = None
+        self.nodes: dict = {}
+
+    def __enter__(self) -> "RecordingSession":
+        domain = unique_domain_id()
+        try:
+            self.listener = Listener(domain)
+            progress = self.listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))
+            self.session = Proc(record_cmd(self.bag, self.seed, self.per_pair), ros_env(domain), self.tmp_path,
+                                "record")
+            assert self.listener.spin_until(lambda: progress and progress[-1]["touches"] >= 3, timeout=60,
+                                            procs=[self.session]), "recorder reported no touches"
+            self.reported = progress[-1]["touches"]
+            self.nodes = session_nodes(self.session)
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.listener is not None:
+            self.listener.close()
+        if self.session is not None:
+            self.session.stop()
+        kill_left(self.nodes)
+
+    def recorded(self):
+        """The bag's touches (closed properly, nothing skipped), checked against what the simulator played."""
+        got, report = read_touches(self.bag, load_skin())
+        assert not report.skipped and not report.notes, report.lines()
+        assert_same_touches(got, self.want.subset(np.arange(got.n_touches)))
+        return got, report
+
+
 def test_record_killed_with_sigkill_takes_its_nodes_along(tmp_path):
-    skin = load_skin()
-    seed, per_pair = 13, 3
-    want = expected_touches(skin, per_pair, seed)
-    domain = unique_domain_id()
-    bag = tmp_path / "touches"
-    listener = session = None
-    nodes: dict = {}
-    try:
-        listener = Listener(domain)
-        progress = listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))
-        session = Proc(record_cmd(bag, seed, per_pair), ros_env(domain), tmp_path, "record")
-        assert listener.spin_until(lambda: progress and progress[-1]["touches"] >= 3, timeout=60, procs=[session]), \
-            "recorder reported no touches"
-        reported = progress[-1]["touches"]
-        nodes = session_nodes(session)
-        assert len(nodes) >= 4
-        os.kill(session.popen.pid, signal.SIGKILL)
-        session.popen.wait(timeout=10)
-        left = still_running(nodes, GONE_WITHIN_S)
-        assert not left, f"nodes outlived record: {[nodes[p] for p in left]}"
-    finally:
-        if listener is not None:
-            listener.close()
-        if session is not None:
-            session.stop()
-        kill_left(nodes)
-    assert session.popen.returncode == -signal.SIGKILL
-    assert_closed(bag)
-    got, report = read_touches(bag, skin)
-    assert not report.skipped and not report.notes, report.lines()
-    assert got.n_touches >= reported
-    assert_same_touches(got, want.subset(np.arange(got.n_touches)))
+    with RecordingSession(tmp_path, seed=13) as run:
+        assert len(run.nodes) >= 4
+        os.kill(run.session.popen.pid, signal.SIGKILL)
+        run.session.popen.wait(timeout=10)
+        left = still_running(run.nodes, GONE_WITHIN_S)
+        assert not left, f"nodes outlived record: {[run.nodes[p] for p in left]}"
+    assert run.session.popen.returncode == -signal.SIGKILL
+    assert_closed(run.bag)
+    got, _ = run.recorded()
+    assert got.n_touches >= run.reported
 
 
 def test_record_hangup_closes_the_bag(tmp_path):
-    skin = load_skin()
-    seed, per_pair = 17, 3
-    want = expected_touches(skin, per_pair, seed)
-    domain = unique_domain_id()
-    bag = tmp_path / "touches"
-    listener = session = None
-    nodes: dict = {}
-    try:
-        listener = Listener(domain)
-        progress = listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))
-        session = Proc(record_cmd(bag, seed, per_pair), ros_env(domain), tmp_path, "record")
-        assert listener.spin_until(lambda: progress and progress[-1]["touches"] >= 3, timeout=60, procs=[session]), \
-            "recorder reported no touches"
-        reported = progress[-1]["touches"]
-        nodes = session_nodes(session)
-        session.popen.send_signal(signal.SIGHUP)     # record only, as a closing terminal does: nodes have own sessions
-        code = session.popen.wait(timeout=30)
-    finally:
-        if listener is not None:
-            listener.close()
-        if session is not None:
-            session.stop()
-        kill_left(nodes)
-    assert code == 0, session.stderr()[-3000:]
-    assert not still_running(nodes, 0.0)
-    info = assert_closed(bag)
-    wrote = re.search(r"wrote (\d+) touches", session.stderr())
-    assert wrote, session.stderr()[-3000:]
-    got, report = read_touches(bag, skin)
-    assert not report.skipped and not report.notes, report.lines()
-    assert got.n_touches == int(wrote.group(1)) >= reported
+    with RecordingSession(tmp_path, seed=17) as run:
+        run.session.popen.send_signal(signal.SIGHUP)     # record only, as a closing terminal does
+        code = run.session.popen.wait(timeout=30)
+    assert code == 0, run.session.stderr()[-3000:]
+    assert not still_running(run.nodes, 0.0)
+    info = assert_closed(run.bag)
+    wrote = re.search(r"wrote (\d+) touches", run.session.stderr())
+    assert wrote, run.session.stderr()[-3000:]
+    got, report = run.recorded()
+    assert got.n_touches == int(wrote.group(1)) >= run.reported
     assert info["message_count"] == report.n_read
-    assert_same_touches(got, want.subset(np.arange(got.n_touches)))
 
 
 SPAWN = ("import os, subprocess, sys\n"
