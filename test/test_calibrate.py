@@ -283,3 +283,22 @@ def test_figures_over_seeded_splits_through_the_pipeline(tmp_path, skin, left_ha
     assert "over 3 splits (mean ± std)" in summary_line(run.result)
     spread5, lines = real_split_lines(BenchInput("sim", touches, skin), k=2)
     assert spread5["seeds"] == [0, 1] and lines[-1].startswith("Targets on the mean over the 2 splits")
+
+
+def test_a_pair_with_too_few_touches_is_left_out_not_fatal(skin):
+    """Partial is fine: a pair the touches do not yet support is left out and said so; its part stays at its
+    prior, and the pairs that have touches enough are calibrated."""
+    from nao_skin.calibration.pipeline import summary_line
+    from nao_skin.touch.touches import TouchSet
+
+    right = simulate(skin, load_params("default", {"pairs": [["r_hand", "torso"]], "n_touches": 60}), seed=6).touches
+    left = simulate(skin, load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 6}), seed=6).touches
+    touches, _ = deduplicate(TouchSet.concatenate([right, left]))
+    result = calibrate(touches, skin, CalibrationOptions())
+    report = result.report
+    assert report.parts == ["r_hand", "torso"]
+    assert [e["pair"] for e in report.left_out] == ["l_hand+torso"]
+    assert report.left_out[0]["touches"] < CalibrationOptions().min_mount_touches
+    assert not np.any(result.calibration.parts["l_hand"].mount)          # held at its prior
+    assert np.any(result.calibration.parts["r_hand"].mount)
+    assert "left out (too few touches): l_hand+torso" in summary_line(result)

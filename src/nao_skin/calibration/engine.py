@@ -37,7 +37,7 @@ from nao_skin.calibration.evaluation import (closest_cop_cost, evaluate, explain
                                              plan_pairs, truth_error)
 from nao_skin.calibration.first_guess import guess_targets, rigid_mount_guess
 from nao_skin.calibration.options import CalibrationOptions
-from nao_skin.calibration.plan import Step, part_rank, plan_steps, touching_pairs
+from nao_skin.calibration.plan import Step, left_out_pairs, part_rank, plan_steps, touching_pairs
 from nao_skin.calibration.stages import compress_held, fitted_kinds, initial_prior_sigma, run_stage
 from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, SkinModel
@@ -65,6 +65,7 @@ class CalibrationReport:
     prior_sigma: dict = field(default_factory=dict)     # std per component group, as the touches left it
     set_aside: list = field(default_factory=list)       # touches no self-contact explains, with the reason
     held: list = field(default_factory=list)            # what no stage estimated
+    left_out: list = field(default_factory=list)        # pairs too few touches connect, held at the prior
     total_seconds: float = 0.0                          # the engine's, from touches to calibration
     input: dict = field(default_factory=dict)           # what was read (set by the pipeline)
     splits: dict = field(default_factory=dict)          # figures over repeated splits (pipeline, splits > 1)
@@ -117,7 +118,12 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
               for round_no, step, _ in schedule if round_no == 0 or not step.references],
         parts=sorted({p for s in steps for p in s.targets}, key=part_rank),
         pairs=sorted(sorted(p, key=part_rank) for p in touching_pairs(train)),
-        before=_figures(train, test, skin, fit.calibration, steps, truth))
+        before=_figures(train, test, skin, fit.calibration, steps, truth),
+        left_out=[{"pair": pair, "touches": n,
+                   "reason": f"{n} training touches; a mount needs at least {options.min_mount_touches}"}
+                  for pair, n in left_out_pairs(train, options)])
+    for entry in report.left_out:
+        say(f"{entry['pair']}: left out ({entry['reason']})")
     for round_no, step, prefix in schedule:
         if options.initial_guess == "rigid-fit" and round_no == 0 \
                 and (step.references or options.reference == "simultaneous"):

@@ -82,6 +82,9 @@ def summary_line(result: CalibrationResult) -> str:
     if "truth_taxel_error_mm" in final:
         t = final["truth_taxel_error_mm"]["all"]
         line += f"; true taxel error median {t['median']:.2f} mm, p95 {t['p95']:.2f} mm"
+    if result.report.left_out:
+        line += "; left out (too few touches): " + ", ".join(f"{e['pair']} ({e['touches']})"
+                                                             for e in result.report.left_out)
     spread = result.report.splits
     if spread:
         line += (f"; over {spread['k']} splits (mean ± std): closest COP {spread_text(spread, 'cop_mean_mm')} mm,"

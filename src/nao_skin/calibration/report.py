@@ -110,6 +110,9 @@ def markdown_report(report: dict) -> str:
     for group, value in sigma.items():   # prior std per component of every patch / triangle
         unit, scale = ("mm", 1000.0) if group.endswith("translation") else ("deg", np.degrees(1.0))
         lines.append(f"- prior std of {group.replace('_', ' ')}: {_fmt(scale * value)} {unit}")
+    if report.get("left_out"):
+        lines += ["", "## Left out: too few touches (held at the prior)", ""]
+        lines += [f"- {e['pair']}: {e['reason']}" for e in report["left_out"]]
     if report.get("held"):
         lines += ["", "## Held at their prior (not determined by the touches)", ""]
         lines += [f"- {h}" for h in report["held"]]
