@@ -55,18 +55,27 @@ def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: Calibration
     """
     log = log or (lambda msg: None)
     check_output(out_dir, [*inputs, *protected], force=force, label=label)
+    result, touches, load_report, n_dup = calibrate_inputs(inputs, skin, options, prior, truth, log, summary)
+    if splits > 1:
+        log(f"the same calibration on {splits - 1} more splits (seeds {options.seed + 1}..{options.seed + splits - 1})")
+        result.report.splits = split_spread(touches, skin, options, splits, prior=prior, first=result)
+    out = write_outputs(result, skin, out_dir, prior=prior, plots=plots, command=command, extra=extra)
+    return PipelineRun(result, Path(out), load_report, touches.n_touches, n_dup)
+
+
+def calibrate_inputs(inputs: Sequence, skin: SkinModel, options: CalibrationOptions,
+                     prior: SkinCalibration | None = None, truth: SkinCalibration | None = None,
+                     log: Callable[[str], None] | None = None, summary: Callable[[str], None] | None = None) -> tuple:
+    """Load, deduplicate and calibrate, nothing written: ``(result, touches, load report, duplicates removed)``."""
+    log = log or (lambda msg: None)
     touches, load_report, found_truth = load_touches(inputs, skin, log=log, summary=summary)
     touches, n_dup = deduplicate(touches)
     log(f"{touches.n_touches} touches after removing {n_dup} exact duplicates")
     result = calibrate(touches, skin, options, prior=prior, truth=truth or found_truth, progress=log)
-    if splits > 1:
-        log(f"the same calibration on {splits - 1} more splits (seeds {options.seed + 1}..{options.seed + splits - 1})")
-        result.report.splits = split_spread(touches, skin, options, splits, prior=prior, first=result)
     result.report.input = {"files": [str(p) for p in inputs], "touches_read": load_report.n_read,
-                              "touches_loaded": load_report.n_loaded, "skipped": dict(load_report.skipped),
-                              "notes": list(load_report.notes), "duplicates_removed": n_dup}
-    out = write_outputs(result, skin, out_dir, prior=prior, plots=plots, command=command, extra=extra)
-    return PipelineRun(result, Path(out), load_report, touches.n_touches, n_dup)
+                           "touches_loaded": load_report.n_loaded, "skipped": dict(load_report.skipped),
+                           "notes": list(load_report.notes), "duplicates_removed": n_dup}
+    return result, touches, load_report, n_dup
 
 
 def summary_line(result: CalibrationResult) -> str:

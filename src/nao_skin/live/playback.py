@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nao_skin.errors import ConfigError
 from nao_skin.model.skin import SkinModel
 from nao_skin.touch.contacts import contact_geometry
 from nao_skin.touch.touches import TouchSet
@@ -37,8 +38,9 @@ class PartSample:
 class Playback:
     def __init__(self, touches: TouchSet, skin: SkinModel, period: float = 1.0, press: float = 0.3,
                  hold: float = 0.1, lead_in: float = 0.5):
-        if not (0 < press and press + 2 * hold < period):
-            raise ValueError("playback needs press + 2 * hold < period")
+        if not (0 < press and 0 <= hold and press + 2 * hold < period):
+            raise ConfigError(f"playback: press_duration {press:g} s + 2 x hold {hold:g} s must be shorter than"
+                              f" touch_period {period:g} s (and press_duration > 0)")
         self.touches = touches
         self.skin = skin
         self.joint_names = list(touches.joint_names)

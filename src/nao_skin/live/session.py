@@ -81,7 +81,8 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                               {"events_port": events_port} if events_port else {}, needs={"yarp": YARP_HINT}))
     specs.append(NodeSpec("pairing_recorder", "pairing_recorder", [record_yaml], {"bag_path": bag_path}))
     specs.append(NodeSpec("skin_heatmap", "skin_heatmap", [record_yaml]))
-    cal = {"recording": bag_path}
+    # the calibration of the session is written beside its recording
+    cal = {"recording": bag_path, "out_dir": f"{bag_path}_calibration"}
     if calibration:
         cal["calibration"] = calibration
     specs.append(NodeSpec("calibrate", "calibrate", [record_yaml], cal))

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -31,7 +32,9 @@ from tf2_msgs.msg import TFMessage
 
 from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
 from nao_skin.errors import NaoSkinError, one_line
+from nao_skin.live.updates import Settling, UpdateSchedule, taxel_displacement_mm
 from nao_skin.model.skin import SkinCalibration, skin_frame_transforms
+from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
 
@@ -52,6 +55,11 @@ PARAMS = {
     "calibrate_on_start": (False, "run on 'inputs' right after start (ros2 run ... calibrate)"),
     "out_dir": ("nao_skin_calibration", "output directory (replaced when a run succeeds)"),
     "plots": (False, "write the report's plots too (slower)"),
+    "live": (False, "recalibrate in the background while the recorder stores touches (on in a record session)"),
+    "live_every_touches": (25, "live: an update after this many new touches ..."),
+    "live_period": (10.0, "live: ... or this many seconds after the last one, if any touch came since"),
+    "live_settle_mm": (0.1, "live: a part is done when its taxels moved less than this (mm) ..."),
+    "live_settle_updates": (3, "live: ... in each of this many updates in a row"),
     # engine options (their defaults and help come from CalibrationOptions' table, OPTION_FIELDS)
     **{name: (OPTION_FIELDS[name].default, OPTION_FIELDS[name].metadata["help"]) for name in NODE_OPTIONS},
 }
@@ -86,17 +94,76 @@ class CalibrateNode(Node):
         self._running: dict = {}          # the latched status of the calibration under way
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
+        self._last_live = None            # the last accepted live update's result: written when the session ends
+        if self.p["live"]:
+            self.schedule = UpdateSchedule(int(self.p["live_every_touches"]), float(self.p["live_period"]))
+            self.settling = Settling(float(self.p["live_settle_mm"]), int(self.p["live_settle_updates"]))
+            self._recorded = 0            # touches the recorder reported so far
+            self.create_subscription(String, PROGRESS_TOPIC, self._on_progress, 10)
+            self.create_timer(0.5, self._maybe_update)
         inputs = [i for i in self.p["inputs"] if i]
         if self.p["calibrate_on_start"]:
             self._start(inputs)
 
-    def publish_calibration(self, calib: SkinCalibration, source: str) -> None:
+    def publish_calibration(self, calib: SkinCalibration, source: str, quiet: bool = False) -> None:
         """All skin frames in ONE latched TFMessage: late joiners get exactly this set."""
         stamp = self.get_clock().now().to_msg()
         self.tf_pub.publish(TFMessage(transforms=[to_transform_stamped(parent, child, t, stamp)
                                                   for parent, child, t in skin_frame_transforms(self.skin, calib)]))
         self.generation += 1
-        self._status({"state": "published", "source": source, "generation": self.generation})
+        if not quiet:                     # a live update says more in its own status
+            self._status({"state": "published", "source": source, "generation": self.generation})
+
+    # ------------------------------------------------------------------ live updates
+    def _on_progress(self, msg: String) -> None:
+        try:
+            self._recorded = int(json.loads(msg.data).get("touches", 0))
+        except (ValueError, TypeError, AttributeError):
+            pass                          # a malformed progress message: the next one will do
+
+    def _maybe_update(self) -> None:
+        now = time.monotonic()
+        if not self.p["recording"] or not self.schedule.due(self._recorded, now) or self._busy.locked():
+            return
+        if not self._busy.acquire(blocking=False):
+            return
+        self.schedule.started(self._recorded, now)
+        self._worker = threading.Thread(target=self._live_update, daemon=True, name="live calibration")
+        self._worker.start()
+
+    def _live_update(self) -> None:
+        """Recalibrate on every touch recorded so far, warm-started from the last accepted calibration;
+        publish it only when it succeeds: a failed update leaves the last good frames on /tf_static."""
+        from nao_skin.calibration.pipeline import calibrate_inputs
+        from nao_skin.calibration.plan import pair_counts, part_rank
+
+        log = self.get_logger()
+        t0 = time.perf_counter()
+        try:
+            result, touches, _, _ = calibrate_inputs([self.p["recording"]], self.skin, self.options,
+                                                     prior=self.prior, log=log.debug, summary=log.debug)
+            report = result.report
+            moved = taxel_displacement_mm(self.skin, self.prior, result.calibration, report.parts)
+            self.settling.add(moved)
+            self.prior, self._last_live = result.calibration, result
+            self.publish_calibration(result.calibration, "live update", quiet=True)
+            self._status({"state": "updated", "live": True, "generation": self.generation,
+                          "touches": touches.n_touches,
+                          "pairs": {"+".join(sorted(p, key=part_rank)): n for p, n in pair_counts(touches).items()},
+                          "final": {k: report.final.get(k) for k in ("train", "test")},
+                          "displacement_mm": moved, "held": report.held, "left_out": report.left_out,
+                          "parts": self.settling.states(self.skin.parts), "seconds": time.perf_counter() - t0})
+            log.info(f"live update {self.generation}: {touches.n_touches} touches, taxels moved up to"
+                     f" {max(moved.values(), default=0.0):.2f} mm")
+        except NaoSkinError as exc:       # e.g. no pair has touches enough yet: wait for more
+            self._status({"state": "waiting", "live": True, "error": str(exc), "generation": self.generation,
+                          "parts": self.settling.states(self.skin.parts)})
+        except Exception as exc:  # noqa: BLE001 - a failed update keeps the last good calibration published
+            log.error(f"live update failed: {one_line(exc)}")
+            self._status({"state": "failed", "live": True, "error": one_line(exc), "generation": self.generation,
+                          "parts": self.settling.states(self.skin.parts)})
+        finally:
+            self._busy.release()
 
     def _status(self, info: dict) -> None:
         self.status_pub.publish(String(data=json.dumps(info, sort_keys=True, default=_plain)))
@@ -154,8 +221,21 @@ class CalibrateNode(Node):
             self._busy.release()
 
     def close(self) -> None:
+        """End of the session: the last accepted live calibration is written where users apply it."""
         if self._worker is not None:
-            self._worker.join(timeout=1.0)
+            self._worker.join(timeout=10.0)
+        if self._last_live is not None:
+            from nao_skin.calibration.report import write_outputs
+            from nao_skin.formats.outdir import CALIBRATION, check_output_dir
+
+            try:
+                check_output_dir(self.p["out_dir"], CALIBRATION, inputs=[self.p["recording"]], force=True,
+                                 label="out_dir")
+                out = write_outputs(self._last_live, self.skin, self.p["out_dir"], plots=False,
+                                    command="calibrate (node, live)")
+                self.get_logger().info(f"the last live calibration -> {out}")
+            except NaoSkinError as exc:
+                self.get_logger().error(str(exc))
 
 
 def main(args=None) -> int:
