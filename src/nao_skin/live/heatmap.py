@@ -49,7 +49,6 @@ class ActivationCounts:
     def __init__(self, slots_per_part: dict):
         self.counts = {p: np.zeros(n, dtype=np.int64) for p, n in slots_per_part.items()}
         self.pressed = {p: np.zeros(n, dtype=bool) for p, n in slots_per_part.items()}
-        self.version = 0              # bumps on every change: adapters skip unchanged redraws
 
     def update(self, part: str, slots) -> None:
         """One skin sample of ``part``: ``slots`` are active now (empty = released)."""
@@ -61,7 +60,6 @@ class ActivationCounts:
         if started.any() or (now != self.pressed[part]).any():
             self.counts[part] += started
             self.pressed[part] = now
-            self.version += 1
 
     def max_count(self) -> int:
         return max((int(c.max()) for c in self.counts.values() if len(c)), default=0)

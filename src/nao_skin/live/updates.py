@@ -15,9 +15,6 @@ import numpy as np
 
 from nao_skin.model.skin import SkinCalibration, SkinModel
 
-PART_STATES = ("collecting", "converging", "done")
-
-
 @dataclass
 class UpdateSchedule:
     every_touches: int = 25

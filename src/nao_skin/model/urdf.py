@@ -178,15 +178,6 @@ class UrdfModel:
     def moving_joint_names(self) -> list:
         return [j.name for j in self.order if j.type in _MOVING]
 
-    def parent_chain(self, link: str) -> list:
-        """Joint names from the root down to ``link``."""
-        out = []
-        while link in self.joint_of_child:
-            j = self.joint_of_child[link]
-            out.append(j.name)
-            link = j.parent
-        return out[::-1]
-
     # ------------------------------------------------------------------ kinematics
     def link_poses(self, positions: Mapping[str, np.ndarray], links: Sequence[str] | None = None,
                    where: str = "joint positions") -> dict:
