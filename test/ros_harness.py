@@ -21,6 +21,8 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from nao_skin.live.session import param_text
+
 ROOT = Path(__file__).resolve().parents[1]
 WAIT_S = 20.0                      # generous upper bound for a 2-core CI machine; polls end much earlier
 _counter = itertools.count()
@@ -98,18 +100,8 @@ def node_process(module: str, params: dict, env, log_dir, name: str | None = Non
     if params_file:
         argv += ["--params-file", str(params_file)]
     for k, v in params.items():
-        argv += ["-p", f"{k}:={_param_text(v)}"]
+        argv += ["-p", f"{k}:={param_text(v)}"]   # as nao-skin record writes them
     return Proc(argv, env, log_dir, name or module)
-
-
-def _param_text(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (list, tuple)):
-        return "[" + ",".join(_param_text(x) for x in v) + "]"
-    if isinstance(v, str):
-        return f"'{v}'" if v == "" or ":" in v or "," in v else v
-    return repr(v)
 
 
 class Listener:

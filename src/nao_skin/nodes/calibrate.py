@@ -123,9 +123,8 @@ class CalibrateNode(Node):
 
     def _maybe_update(self) -> None:
         now = time.monotonic()
-        if not self.p["recording"] or not self.schedule.due(self._recorded, now) or self._busy.locked():
-            return
-        if not self._busy.acquire(blocking=False):
+        if not self.p["recording"] or not self.schedule.due(self._recorded, now) \
+                or not self._busy.acquire(blocking=False):     # a calibration is running: the next tick
             return
         self.schedule.started(self._recorded, now)
         self._worker = threading.Thread(target=self._live_update, daemon=True, name="live calibration")
