@@ -17,6 +17,10 @@ class DataError(NaoSkinError):
     """A recording, taxel file or message is wrong."""
 
 
+class TooFewTouches(DataError):
+    """The touches cannot determine what is asked yet: more touches will (a live update waits for them)."""
+
+
 def one_line(exc: BaseException, limit: int = 300) -> str:
     """Any exception as one line for a report or a log: its type and message, whitespace collapsed."""
     return " ".join(f"{type(exc).__name__}: {exc}".split())[:limit]

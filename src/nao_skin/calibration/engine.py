@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict, dataclass, field
-from typing import Callable
+from typing import Callable, Iterable
 
 import numpy as np
 
@@ -39,7 +39,7 @@ from nao_skin.calibration.first_guess import guess_targets, rigid_mount_guess
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.plan import Step, left_out_pairs, part_rank, plan_steps, touching_pairs
 from nao_skin.calibration.stages import compress_held, fitted_kinds, initial_prior_sigma, run_stage
-from nao_skin.errors import DataError
+from nao_skin.errors import DataError, TooFewTouches
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.datasets import split as split_touches
 from nao_skin.touch.touches import TouchSet
@@ -94,12 +94,19 @@ class CalibrationResult:
 def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | None = None,
               prior: SkinCalibration | None = None, truth: SkinCalibration | None = None,
               progress: Callable[[str], None] | None = None,
-              split: tuple | None = None) -> CalibrationResult:
+              split: tuple | None = None, warm: Iterable[str] = ()) -> CalibrationResult:
     """Calibrate the skin parts that the touches connect.
 
     ``split``: ``(train, test)`` touch sets; by default a seeded random 70/30
     split of ``touches`` (duplicates are expected to be removed before).
     ``truth``: a simulator's ground truth, for the true taxel error in the report.
+    ``warm``: parts that ``prior`` already calibrated from (most of) these
+    touches, as a live update's previous one did: their mounts are in the
+    basin, so their first guess and fixed-reference steps are skipped and the
+    joint refinement alone moves them (a step without a joint refinement after
+    it still runs, without its first guess). Parts not in ``warm`` get the
+    whole plan. A warm calibration measures the final figures only (a live
+    update's status shows no more): ``before`` and the stages have none.
     """
     options = options or CalibrationOptions()
     options.validate()
@@ -111,26 +118,27 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
     _check_enough(train, steps, options)
     fit = _Fit(_start_calibration(prior, skin), options.fabric_thickness, initial_prior_sigma(options),
                np.ones(train.n_touches, bool))
-    schedule = _schedule(steps, options)
+    warm = frozenset(warm)
+    schedule = _schedule(steps, options, warm)
     report = CalibrationReport(
         options=_options_dict(options),
         plan=[("joint refinement: " if not step.references and options.reference == "fixed" else "") + step.name
               for round_no, step, _ in schedule if round_no == 0 or not step.references],
         parts=sorted({p for s in steps for p in s.targets}, key=part_rank),
         pairs=sorted(sorted(p, key=part_rank) for p in touching_pairs(train)),
-        before=_figures(train, test, skin, fit.calibration, steps, truth),
+        before={} if warm else _figures(train, test, skin, fit.calibration, steps, truth),
         left_out=[{"pair": pair, "touches": n,
                    "reason": f"{n} training touches; a mount needs at least {options.min_mount_touches}"}
                   for pair, n in left_out_pairs(train, options)])
     for entry in report.left_out:
         say(f"{entry['pair']}: left out ({entry['reason']})")
     for round_no, step, prefix in schedule:
-        if options.initial_guess == "rigid-fit" and round_no == 0 \
+        if options.initial_guess == "rigid-fit" and round_no == 0 and not warm.issuperset(step.targets) \
                 and (step.references or options.reference == "simultaneous"):
             _first_guess(train, skin, step, options, fit, say, prefix)
         for levels in _stage_levels(step, options):
             report.stages.append(_fit_stage(train, test, skin, step, levels, round_no, prefix, options, fit,
-                                               truth, say))
+                                            truth, say, measure=not warm))
     report.final = _final_figures(train, test, skin, steps, options, fit, truth)
     report.fabric_thickness_mm = 1000.0 * fit.fabric
     report.prior_sigma = fit.prior_sigma
@@ -181,10 +189,16 @@ def _start_calibration(prior: SkinCalibration | None, skin: SkinModel) -> SkinCa
     return calib
 
 
-def _schedule(steps: list, options: CalibrationOptions) -> list:
-    """``(round, step, name prefix)`` in order: the plan's steps each round, then the joint refinement."""
-    schedule = [(r, step) for r in range(max(1, options.rounds)) for step in steps]
-    if options.joint_refinement and options.reference == "fixed" and len(steps) > 1:
+def _schedule(steps: list, options: CalibrationOptions, warm: frozenset = frozenset()) -> list:
+    """``(round, step, name prefix)`` in order: the plan's steps each round, then the joint refinement.
+
+    With a joint refinement to follow, a step whose targets are all ``warm``
+    is left out: the joint refinement frees those parts anyway.
+    """
+    refine = options.joint_refinement and options.reference == "fixed" and len(steps) > 1
+    schedule = [(r, step) for r in range(max(1, options.rounds)) for step in steps
+                if not (refine and step.references and warm.issuperset(step.targets))]
+    if refine:
         schedule.append((options.rounds, Step(tuple(sorted({p for s in steps for p in s.targets + s.references},
                                                            key=part_rank)), ())))
     out = []
@@ -226,7 +240,7 @@ def _first_guess(train: TouchSet, skin: SkinModel, step: Step, options: Calibrat
 
 
 def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, levels: set, round_no: int,
-               prefix: str, options: CalibrationOptions, fit: _Fit, truth, say) -> dict:
+               prefix: str, options: CalibrationOptions, fit: _Fit, truth, say, measure: bool = True) -> dict:
     """One stage: solve, keep it unless it drove the touches apart, gate after a mount fit; its report entry."""
     # a stage is judged on what it fits, as it fits it (closest COP and taxel pairs, at the fabric
     # surfaces): taxel-centre distances grow with the fabric estimate however good the fit
@@ -255,6 +269,10 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
     fit.last_cost = (step, kinds, int(fit.inliers.sum()), cost_before)
     if "mount" in levels and options.gate_mm > 0:
         entry["set_aside"] = _gate(train, skin, step, prefix, options, fit)
+    if not measure:
+        say(f"{entry['name']}: {entry['iterations']} iterations, {entry['repairings']} pairings,"
+            f" {entry['seconds']:.2f} s")
+        return entry
     entry["train"] = evaluate(train, skin, fit.calibration, [step])
     entry["test"] = evaluate(test, skin, fit.calibration, [step])
     fit.last_measured = (fit.calibration, plan_pairs([step]), entry["train"], entry["test"])
@@ -313,9 +331,10 @@ def _check_enough(train: TouchSet, steps: list, options: CalibrationOptions) -> 
             n = int(with_ref.sum())
             need = options.min_mount_touches
             if n < need:
-                raise DataError(f"part '{target}': {n} training touches with {'/'.join(others)}; calibrating its mount"
-                                f" needs at least {need} (about {int(np.ceil(need / (1 - options.test_fraction)))}"
-                                f" touches before the {int(options.test_fraction * 100)} % test split)")
+                raise TooFewTouches(f"part '{target}': {n} training touches with {'/'.join(others)}; calibrating its"
+                                    f" mount needs at least {need} (about"
+                                    f" {int(np.ceil(need / (1 - options.test_fraction)))} touches before the"
+                                    f" {int(options.test_fraction * 100)} % test split)")
 
 def _options_dict(options: CalibrationOptions) -> dict:
     out = asdict(options)

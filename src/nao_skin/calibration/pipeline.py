@@ -65,13 +65,17 @@ def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: Calibration
 
 def calibrate_inputs(inputs: Sequence, skin: SkinModel, options: CalibrationOptions,
                      prior: SkinCalibration | None = None, truth: SkinCalibration | None = None,
-                     log: Callable[[str], None] | None = None, summary: Callable[[str], None] | None = None) -> tuple:
-    """Load, deduplicate and calibrate, nothing written: ``(result, touches, load report, duplicates removed)``."""
+                     log: Callable[[str], None] | None = None, summary: Callable[[str], None] | None = None,
+                     warm: Sequence[str] = ()) -> tuple:
+    """Load, deduplicate and calibrate, nothing written: ``(result, touches, load report, duplicates removed)``.
+
+    ``warm``: the parts ``prior`` already calibrated (a live update's previous one; see :func:`calibrate`).
+    """
     log = log or (lambda msg: None)
     touches, load_report, found_truth = load_touches(inputs, skin, log=log, summary=summary)
     touches, n_dup = deduplicate(touches)
     log(f"{touches.n_touches} touches after removing {n_dup} exact duplicates")
-    result = calibrate(touches, skin, options, prior=prior, truth=truth or found_truth, progress=log)
+    result = calibrate(touches, skin, options, prior=prior, truth=truth or found_truth, progress=log, warm=warm)
     result.report.input = {"files": [str(p) for p in inputs], "touches_read": load_report.n_read,
                            "touches_loaded": load_report.n_loaded, "skipped": dict(load_report.skipped),
                            "notes": list(load_report.notes), "duplicates_removed": n_dup}

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nao_skin.errors import DataError
+from nao_skin.errors import TooFewTouches
 from nao_skin.model.skin import PART_NAMES
 from nao_skin.touch.touches import TouchSet
 
@@ -66,12 +66,12 @@ def plan_steps(touches: TouchSet, options: "CalibrationOptions") -> list:
     """
     counts = pair_counts(touches)
     if not counts:
-        raise DataError("no touch has two skin parts active together: nothing to calibrate from")
+        raise TooFewTouches("no touch has two skin parts active together: nothing to calibrate from")
     pairs = {p for p, n in counts.items() if n >= options.min_mount_touches}
     if not pairs:
         pair, n = max(counts.items(), key=lambda kv: kv[1])
         need = options.min_mount_touches
-        raise DataError(f"parts {' and '.join(sorted(pair, key=part_rank))}: {n} training touches together;"
+        raise TooFewTouches(f"parts {' and '.join(sorted(pair, key=part_rank))}: {n} training touches together;"
                         f" calibrating a mount needs at least {need} (about"
                         f" {int(np.ceil(need / (1 - options.test_fraction)))} touches before the"
                         f" {int(options.test_fraction * 100)} % test split)")

@@ -2,10 +2,12 @@
 
 The calibrate node recalibrates in the background while touches arrive; these
 decide when (every ``every_touches`` new touches, or ``period`` seconds after
-the last update if any touch came since) and say, per part, whether more
-touches still move it: ``collecting`` (not calibrated yet), ``converging``, or
-``done`` (its taxels moved less than ``settle_mm`` in each of the last
-``updates`` updates).
+the last update if any touch came since), whether an update is sane enough to
+publish, and say, per part, whether more touches still move it:
+``collecting`` (not calibrated yet), ``converging``, or ``done`` (its taxels
+moved less than ``settle_mm`` in each of the last ``updates`` updates, and
+the held-out figure stayed flat over them: within ``flat_percent`` of its
+mean, so a part is not called done while the fit still improves elsewhere).
 """
 from __future__ import annotations
 
@@ -42,25 +44,54 @@ def taxel_displacement_mm(skin: SkinModel, before: SkinCalibration, after: SkinC
     return out
 
 
+def rejection(skin: SkinModel, calib: SkinCalibration, displacement_mm: dict, calibrated_before,
+              max_move_mm: float) -> str | None:
+    """Why an update must not be published (it diverged), or None.
+
+    Non-finite frames, or a part the last accepted update had calibrated
+    moving more than ``max_move_mm``: a few more touches refine a part, they
+    do not relocate it (its first calibration may: a hand mount ~160 deg off).
+    """
+    for name, corr in calib.parts.items():
+        if name in skin.parts and not all(np.all(np.isfinite(x)) for x in (corr.mount, corr.patches, corr.triangles)):
+            return f"part '{name}': the update has non-finite frames"
+    jumps = {p: mm for p, mm in displacement_mm.items() if p in calibrated_before and mm > max_move_mm}
+    if jumps:
+        part, mm = max(jumps.items(), key=lambda kv: kv[1])
+        return (f"part '{part}': its taxels would move {mm:.1f} mm since the last accepted update"
+                f" (more than {max_move_mm:g} mm: diverged)")
+    return None
+
+
 @dataclass
 class Settling:
     """Per part: the displacement of each update it was calibrated in; its state from the last few."""
 
     settle_mm: float = 0.1
     updates: int = 3
+    flat_percent: float = 5.0
     history: dict = field(default_factory=dict)     # part -> [mm per update]
+    figures: list = field(default_factory=list)     # held-out closest taxel mean (mm) per update
 
-    def add(self, displacement_mm: dict) -> None:
+    def add(self, displacement_mm: dict, test_figure_mm: float = float("nan")) -> None:
         for part, mm in displacement_mm.items():
             self.history.setdefault(part, []).append(float(mm))
+        self.figures.append(float(test_figure_mm))
+
+    def figure_flat(self) -> bool:
+        last = np.array(self.figures[-self.updates:])
+        if len(last) < self.updates or not np.all(np.isfinite(last)):
+            return False
+        return bool(np.max(np.abs(last - last.mean())) <= self.flat_percent / 100.0 * last.mean())
 
     def states(self, parts) -> dict:
         out = {}
+        flat = self.figure_flat()
         for part in parts:
             moved = self.history.get(part, [])
             if not moved:
                 out[part] = "collecting"
-            elif len(moved) >= self.updates and max(moved[-self.updates:]) < self.settle_mm:
+            elif flat and len(moved) >= self.updates and max(moved[-self.updates:]) < self.settle_mm:
                 out[part] = "done"
             else:
                 out[part] = "converging"

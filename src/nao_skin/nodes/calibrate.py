@@ -31,8 +31,8 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
 from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
-from nao_skin.errors import NaoSkinError, one_line
-from nao_skin.live.updates import Settling, UpdateSchedule, taxel_displacement_mm
+from nao_skin.errors import DataError, NaoSkinError, TooFewTouches, one_line
+from nao_skin.live.updates import Settling, UpdateSchedule, rejection, taxel_displacement_mm
 from nao_skin.model.skin import SkinCalibration, skin_frame_transforms
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
@@ -59,7 +59,10 @@ PARAMS = {
     "live_every_touches": (25, "live: an update after this many new touches ..."),
     "live_period": (10.0, "live: ... or this many seconds after the last one, if any touch came since"),
     "live_settle_mm": (0.1, "live: a part is done when its taxels moved less than this (mm) ..."),
-    "live_settle_updates": (3, "live: ... in each of this many updates in a row"),
+    "live_settle_updates": (3, "live: ... in each of this many updates in a row, ..."),
+    "live_flat_percent": (5.0, "live: ... and the held-out closest taxel figure stayed within this % of its mean"),
+    "live_max_move_mm": (20.0, "live: an update moving a calibrated part's taxels farther than this (mm) diverged:"
+                               " not published"),
     # engine options (their defaults and help come from CalibrationOptions' table, OPTION_FIELDS)
     **{name: (OPTION_FIELDS[name].default, OPTION_FIELDS[name].metadata["help"]) for name in NODE_OPTIONS},
 }
@@ -95,9 +98,11 @@ class CalibrateNode(Node):
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
         self._last_live = None            # the last accepted live update's result: written when the session ends
+        self._live_parts: tuple = ()      # the parts it calibrated: the next update is warm-started on them
         if self.p["live"]:
             self.schedule = UpdateSchedule(int(self.p["live_every_touches"]), float(self.p["live_period"]))
-            self.settling = Settling(float(self.p["live_settle_mm"]), int(self.p["live_settle_updates"]))
+            self.settling = Settling(float(self.p["live_settle_mm"]), int(self.p["live_settle_updates"]),
+                                     float(self.p["live_flat_percent"]))
             self._recorded = 0            # touches the recorder reported so far
             self.create_subscription(String, PROGRESS_TOPIC, self._on_progress, 10)
             self.create_timer(0.5, self._maybe_update)
@@ -140,11 +145,15 @@ class CalibrateNode(Node):
         t0 = time.perf_counter()
         try:
             result, touches, _, _ = calibrate_inputs([self.p["recording"]], self.skin, self.options,
-                                                     prior=self.prior, log=log.debug, summary=log.debug)
+                                                     prior=self.prior, log=log.debug, summary=log.debug,
+                                                     warm=self._live_parts)
             report = result.report
             moved = taxel_displacement_mm(self.skin, self.prior, result.calibration, report.parts)
-            self.settling.add(moved)
-            self.prior, self._last_live = result.calibration, result
+            why = rejection(self.skin, result.calibration, moved, self._live_parts, float(self.p["live_max_move_mm"]))
+            if why is not None:
+                raise DataError(f"update over {touches.n_touches} touches not published: {why}")
+            self.settling.add(moved, report.final.get("test", {}).get("taxel_mean_mm", float("nan")))
+            self.prior, self._last_live, self._live_parts = result.calibration, result, tuple(report.parts)
             self.publish_calibration(result.calibration, "live update", quiet=True)
             self._status({"state": "updated", "live": True, "generation": self.generation,
                           "touches": touches.n_touches,
@@ -154,8 +163,12 @@ class CalibrateNode(Node):
                           "parts": self.settling.states(self.skin.parts), "seconds": time.perf_counter() - t0})
             log.info(f"live update {self.generation}: {touches.n_touches} touches, taxels moved up to"
                      f" {max(moved.values(), default=0.0):.2f} mm")
-        except NaoSkinError as exc:       # e.g. no pair has touches enough yet: wait for more
+        except TooFewTouches as exc:      # no pair has touches enough yet: wait for more
             self._status({"state": "waiting", "live": True, "error": str(exc), "generation": self.generation,
+                          "parts": self.settling.states(self.skin.parts)})
+        except NaoSkinError as exc:       # unreadable recording, diverged update: the last good frames stay
+            log.error(f"live update failed: {exc}")
+            self._status({"state": "failed", "live": True, "error": str(exc), "generation": self.generation,
                           "parts": self.settling.states(self.skin.parts)})
         except Exception as exc:  # noqa: BLE001 - a failed update keeps the last good calibration published
             log.error(f"live update failed: {one_line(exc)}")

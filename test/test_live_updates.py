@@ -1,0 +1,82 @@
+"""Live calibration's core, without ROS: a warm-started update, and what decides that it is published
+and that a part is done (the node over real DDS: test_live_calibration.py)."""
+import numpy as np
+import pytest
+
+from nao_skin.calibration.engine import CalibrationOptions, calibrate
+from nao_skin.errors import TooFewTouches
+from nao_skin.live.updates import Settling, rejection, taxel_displacement_mm
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate
+from nao_skin.touch.datasets import deduplicate
+
+
+@pytest.fixture(scope="module")
+def session(skin):
+    """Two pairs of simulated touches (the robot's body stands in), their truth, and a first calibration
+    on all but the last 20 touches: the state of a live session before its next update."""
+    params = load_params("default", {"pairs": [["r_hand", "torso"], ["l_hand", "torso"]], "n_touches": 80})
+    sim = simulate(skin, params, seed=4)
+    touches, _ = deduplicate(sim.touches)
+    earlier = touches.subset(np.arange(touches.n_touches - 20))
+    first = calibrate(earlier, skin, CalibrationOptions(), truth=sim.truth)
+    return touches, sim.truth, first
+
+
+def test_a_warm_update_skips_what_the_prior_settled_and_lands_as_close(skin, session):
+    touches, truth, first = session
+    cold = calibrate(touches, skin, CalibrationOptions(), truth=truth)
+    warm = calibrate(touches, skin, CalibrationOptions(), prior=first.calibration, warm=first.report.parts,
+                     truth=truth)
+    # the fixed-reference steps of the settled parts are gone: only the joint refinement runs
+    assert [s["name"] for s in cold.report.stages][:1] == ["r_hand from torso: mount"]
+    assert all(s["name"].startswith("joint refinement") for s in warm.report.stages)
+    assert len(warm.report.stages) == 3 < len(cold.report.stages)
+    # final figures only: nothing measured before or per stage
+    assert warm.report.before == {} and "train" not in warm.report.stages[0]
+    assert {"train", "test"} <= set(warm.report.final)
+    cold_err = cold.report.final["truth_taxel_error_mm"]["all"]["median"]
+    warm_err = warm.report.final["truth_taxel_error_mm"]["all"]["median"]
+    assert warm_err <= 1.1 * cold_err + 0.05, (warm_err, cold_err)
+
+
+def test_a_part_new_to_the_prior_gets_the_whole_plan(skin, session):
+    touches, truth, first = session
+    warm = calibrate(touches, skin, CalibrationOptions(), prior=first.calibration, warm=("r_hand", "torso"),
+                     truth=truth)
+    names = [s["name"] for s in warm.report.stages]
+    assert "l_hand from torso: mount" in names and "r_hand from torso: mount" not in names
+
+
+def test_too_few_touches_is_its_own_error(skin, session):
+    touches, _, _ = session
+    with pytest.raises(TooFewTouches):
+        calibrate(touches.subset(np.arange(8)), skin, CalibrationOptions())
+
+
+def test_a_diverged_update_is_rejected_and_a_first_calibration_is_not(skin, session):
+    touches, _, first = session
+    nominal = skin.zero_calibration()
+    moved = taxel_displacement_mm(skin, nominal, first.calibration, first.report.parts)
+    # the first calibration of a hand moves it a long way (mount ~160 deg off): fine, it was not calibrated
+    assert max(moved.values()) > 20.0
+    assert rejection(skin, first.calibration, moved, (), 20.0) is None
+    # the same move of a part the last update had calibrated is a divergence
+    why = rejection(skin, first.calibration, moved, first.report.parts, 20.0)
+    assert why is not None and "diverged" in why
+    broken = first.calibration.copy()
+    broken.parts["torso"].patches[0, 0] = np.nan
+    assert "non-finite" in rejection(skin, broken, {}, (), 20.0)
+
+
+def test_done_needs_settled_taxels_and_a_flat_held_out_figure():
+    settling = Settling(settle_mm=0.1, updates=3, flat_percent=5.0)
+    assert settling.states(["r_hand", "l_hand"]) == {"r_hand": "collecting", "l_hand": "collecting"}
+    for figure in (3.0, 2.5, 2.2):               # taxels settled, but the figure still improves
+        settling.add({"r_hand": 0.05}, figure)
+    assert settling.states(["r_hand", "l_hand"]) == {"r_hand": "converging", "l_hand": "collecting"}
+    for figure in (2.20, 2.21, 2.19):
+        settling.add({"r_hand": 0.05}, figure)
+    assert settling.states(["r_hand"]) == {"r_hand": "done"}
+    settling.add({"r_hand": 0.5}, 2.2)             # moved again
+    assert settling.states(["r_hand"]) == {"r_hand": "converging"}
