@@ -10,11 +10,12 @@ stands in for the robot's body), the real recorder and the calibrate node recali
 from __future__ import annotations
 
 import json
+import shutil
 import signal
 import time
 
 import pytest
-from ros_harness import Listener, Proc, ros_env, unique_domain_id
+from ros_harness import Listener, Proc, node_process, ros_env, unique_domain_id
 
 pytest.importorskip("rclpy")
 from std_msgs.msg import String  # noqa: E402
@@ -22,11 +23,13 @@ from test_node_calibrate import assert_frames  # noqa: E402
 from test_record_session import record_cmd  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
 
+from nao_skin.formats.bag import write_touch_bag  # noqa: E402
 from nao_skin.model.skin import SkinCalibration, load_skin  # noqa: E402
 from nao_skin.nodes.calibrate import LATCHED, STATUS_TOPIC  # noqa: E402
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC  # noqa: E402
 from nao_skin.nodes.sim_robot import STATUS_TOPIC as SIM_STATUS_TOPIC  # noqa: E402
 from nao_skin.nodes.static_tf import TF_STATIC_QOS, TF_STATIC_TOPIC  # noqa: E402
+from nao_skin.sim.simulate import simulate  # noqa: E402
 
 pytestmark = [pytest.mark.middleware, pytest.mark.slow]
 
@@ -81,3 +84,54 @@ def test_updates_arrive_while_touches_are_recorded(tmp_path):
     report = json.loads((out / "report.json").read_text())
     assert report["parts"] == ["r_hand", "l_hand", "torso"]
     assert_frames(joiner[0], load_skin(), written)      # what the late joiner got is what was written
+
+
+def test_a_failing_update_keeps_the_last_good_frames(tmp_path):
+    """The calibrate node alone, live, on a recording the test writes (it stands in for the recorder: it
+    writes the bag and publishes the progress). A good update is published; then the recording turns
+    unreadable (a bad touch set): the update fails with a one-line `failed` status, /tf_static still holds
+    the good update's frames; once the recording is good again, the next update goes through."""
+    skin = load_skin()
+    touches = simulate(skin, {"pairs": [["r_hand", "torso"]], "n_touches": 40}, seed=6).touches
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, touches, skin)
+    domain = unique_domain_id()
+    listener = node = None
+    try:
+        listener = Listener(domain)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        frames = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=TF_STATIC_QOS)
+        progress = listener.node.create_publisher(String, PROGRESS_TOPIC, 10)
+        node = node_process("calibrate", {"live": True, "recording": str(bag), "live_every_touches": 1,
+                                          "live_period": 0.5, "out_dir": str(tmp_path / "live_calibration")},
+                            ros_env(domain), tmp_path)
+        assert listener.spin_until(lambda: progress.get_subscription_count() >= 1 and status, procs=[node])
+
+        def report(n: int, state: str):
+            seen = len(status)
+            progress.publish(String(data=json.dumps({"touches": n})))
+            assert listener.spin_until(lambda: any(s["state"] == state for s in status[seen:]), timeout=90,
+                                       procs=[node]), status[seen:]
+            return next(s for s in status[seen:] if s["state"] == state)
+
+        good = report(touches.n_touches, "updated")
+        published = frames[-1]
+        # the recording turns bad: a storage file that is no database
+        (bag / "touches.db3").write_bytes(b"\0 not a sqlite database \0" * 64)
+        failed = report(touches.n_touches + 5, "failed")
+        assert "\n" not in failed["error"] and str(bag) in failed["error"], failed
+        assert failed["generation"] == good["generation"]
+        joiner = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=TF_STATIC_QOS)
+        assert listener.spin_until(lambda: joiner, procs=[node])
+        assert frames[-1] is published                                  # nothing published since
+        assert joiner[0].transforms == published.transforms          # the last good frames, untouched
+        # the recording is good again: the next update is published
+        shutil.rmtree(bag)
+        write_touch_bag(bag, touches, skin)
+        again = report(touches.n_touches + 6, "updated")
+        assert again["generation"] == good["generation"] + 1
+    finally:
+        if listener is not None:
+            listener.close()
+        code = node.stop() if node is not None else None
+    assert code == 0, node.stderr()[-3000:]
