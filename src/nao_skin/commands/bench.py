@@ -15,11 +15,11 @@ from pathlib import Path
 NAME = "bench"
 HELP = "benchmark calibration strategies (seconds against error) and the simulator's hard cases"
 
-SECTIONS = ("speed", "real", "hard")
+SECTIONS = ("speed", "real", "hard", "live")
 LISTING = "<outlier listing>"      # long: written to the file, not printed
 OUTPUTS = ("bench_results.md", "bench_results.json", "speed_vs_error.png")
 QUICK = {"repeat": 1, "seeds": 2, "sweep": (50, 200), "sim_touches": 400, "hard_pairs": "l_hand-torso",
-         "hard_touches": 150}
+         "hard_touches": 150, "live_sizes": (400,), "live_repeat": 1}
 
 
 def add_arguments(parser) -> None:
@@ -36,7 +36,8 @@ def add_arguments(parser) -> None:
                              f" hard cases on {QUICK['hard_pairs']} with {QUICK['hard_touches']} touches")
     parser.add_argument("--only", action="append", choices=SECTIONS, default=[],
                         help="run only this section (repeatable): speed = bundled simulated recording, "
-                             "real = the --real recordings, hard = simulator hard cases")
+                             "real = the --real recordings, hard = simulator hard cases, live = one live update"
+                             " (warm-started) at 1000 and 4000 touches of the simulated recording")
     parser.add_argument("--repeat", type=int, help="timed repetitions per strategy, median quoted (default 3)")
     parser.add_argument("--seeds", type=int, help="seeds per hard-case preset (default 20)")
     parser.add_argument("--sim", help="simulated recording with truth_calibration.yaml (default: bags/sim_default)")
@@ -75,7 +76,7 @@ def _pairs(text: str):
     return out
 
 
-def _sim_input(args, quick: bool, say):
+def _sim_input(args, quick: bool, say, keep: int | None = None):
     import numpy as np
 
     from nao_skin.bench.runner import BenchInput, restrict_pairs
@@ -98,10 +99,10 @@ def _sim_input(args, quick: bool, say):
         label = ", ".join(f"{a}-{b}" for a, b in pairs)
         if touches.n_touches == 0:
             raise DataError(f"{path}: no touch of the pairs {label}")
-    keep = QUICK["sim_touches"] if quick else args.sim_touches
+    keep = keep if keep is not None else QUICK["sim_touches"] if quick else args.sim_touches
     if keep and touches.n_touches > keep:
         touches = touches.subset(np.sort(np.random.default_rng(0).choice(touches.n_touches, keep, replace=False)))
-    name = f"simulated {path.name} ({label}, {touches.n_touches} random touches, 70/30 split)"
+    name = f"simulated {path.name} ({label}, {touches.n_touches}{' random' if keep else ''} touches, 70/30 split)"
     return BenchInput(name, touches, skin, truth)
 
 
@@ -148,7 +149,7 @@ def run(args) -> int:
         _pairs(hard_pairs)
     if "speed" in sections:
         _pairs(args.sim_pairs)
-    sim = (args.sim or package_dir() / "bags" / "sim_default") if "speed" in sections else None
+    sim = (args.sim or package_dir() / "bags" / "sim_default") if sections & {"speed", "live"} else None
     check_output_dir(args.out, BENCHMARK, force=args.force,
                      inputs=[sim, *args.real, *(item.partition("=")[2] for item in args.taxels), args.skin,
                              args.readme])
@@ -238,6 +239,22 @@ def run(args) -> int:
         summary = bench.hard_case_summary(rows)
         results["hard_summary"] = summary
         failures += sum(r["status"] != "ok" for r in rows) + sum(s["met"] != "yes" for s in summary)
+
+    if "live" in sections:
+        from nao_skin.bench import live
+
+        sizes = QUICK["live_sizes"] if args.quick else live.LIVE_SIZES
+        live_repeat = QUICK["live_repeat"] if args.quick else max(repeat, 5)
+        inp = _sim_input(args, quick=False, say=say, keep=0)
+        say(f"live update: {', '.join(map(str, sizes))} touches x {live_repeat} random subsets")
+        timings = live.update_timings(inp.touches, inp.skin, inp.truth, sizes, repeat=live_repeat, say=say)
+        results["live"] = [vars(t) for t in timings]
+        target = live.update_target_line(timings)
+        md += ["## One live update", "", live.__doc__.split("\n\n", 1)[1].replace("\n", " ").strip(), "",
+               f"Input: {inp.name}; {live.LIVE_STEP} new touches per update, {live_repeat} subsets per size.", "",
+               *live.update_table(timings), "", f"- {target}", ""]
+        _write(out, md, results, listing)
+        failures += "NOT met" in target
 
     results["seconds"] = time.perf_counter() - t_start
     md.append(f"Benchmark wall time: {results['seconds']:.0f} s.")

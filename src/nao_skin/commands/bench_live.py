@@ -1,13 +1,19 @@
 """``nao-skin bench-live``: throughput of the live suite over real DDS (a benchmark, not a test).
 
 Starts sim_robot (looping, joint states at 100 Hz, 4 skin parts at 50 Hz
-with taxels and contacts), pairing_recorder and skin_heatmap as processes on
-a private ROS domain, listens for ``--seconds`` and prints:
+with taxels and contacts), pairing_recorder, skin_heatmap and the calibrate
+node recalibrating live on the recorder's bag (as in a record session, with
+an update every ``--update-every`` touches) as processes on a private ROS
+domain, listens for ``--seconds`` and prints:
 
 * the load actually delivered (joint states and skin messages per second);
 * the recorder's processing time per skin message (p50 / p99 / max, measured
-  in its callbacks; target p99 <= 5 ms);
+  in its callbacks; target p99 <= 5 ms) while the live updates run;
+* the live updates made in the window and their seconds;
 * the heat-map's publish rate with all taxels of all parts (target 10 Hz).
+
+``--no-calibrate`` leaves the calibrate node out (the recorder's figures
+without live updates, to compare).
 
 The nodes' logs and the recorder's bag go to a temporary directory, removed
 when the command ends (also on error or Ctrl-C) unless ``--keep-temp``.
@@ -23,6 +29,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections import Counter
 from pathlib import Path
 
 NAME = "bench-live"
@@ -30,9 +37,17 @@ HELP = "benchmark the live suite: recorder time per skin message, heat-map rate 
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--seconds", type=float, default=15.0, help="measurement window (s)")
+    parser.add_argument("--seconds", type=float, default=30.0, help="measurement window (s)")
     parser.add_argument("--domain", type=int, default=0, help="ROS domain id (default: from the pid)")
     parser.add_argument("--touch-period", type=float, default=0.6, help="s between simulated presses")
+    parser.add_argument("--update-every", type=int, default=5,
+                        help="live calibration: an update every this many new touches (default 5: updates run"
+                             " back to back for most of the window)")
+    parser.add_argument("--update-input", metavar="BAG",
+                        help="live calibration: recalibrate this recording at each update instead of the recorder's"
+                             " young bag, e.g. bags/sim_default (4000 touches: the updates of a long session)")
+    parser.add_argument("--no-calibrate", action="store_true",
+                        help="without the calibrate node (no live updates), to compare the recorder's figures")
     parser.add_argument("--keep-temp", action="store_true",
                         help="keep the temporary directory with the nodes' logs and the recorded bag"
                              " (default: removed when the command ends)")
@@ -55,6 +70,7 @@ def _measure(args, work: Path) -> int:
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import JointState, PointCloud2
     from std_msgs.msg import String
     from visualization_msgs.msg import MarkerArray
@@ -67,11 +83,15 @@ def _measure(args, work: Path) -> int:
                PYTHONUNBUFFERED="1")
     params = str(config_dir() / "record.yaml")
     nodes = {
-        "sim_robot": {"loop": True, "touches_per_pair": 10, "touch_period": args.touch_period,
+        "sim_robot": {"loop": True, "touches_per_pair": 60, "touch_period": args.touch_period,
                       "press_duration": min(0.3, args.touch_period / 2), "hold": 0.05, "wait_for_subscribers": 2},
         "pairing_recorder": {"bag_path": str(work / "touches")},
         "skin_heatmap": {},
+        "calibrate": {"live": True, "recording": str(Path(args.update_input or work / "touches").resolve()), "live_every_touches": args.update_every,
+                      "live_period": 1.0, "out_dir": str(work / "touches_calibration")},
     }
+    if args.no_calibrate:
+        del nodes["calibrate"]
     procs = []
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     ctx = Context()
@@ -86,6 +106,11 @@ def _measure(args, work: Path) -> int:
     node.create_subscription(JointState, "/joint_states", lambda m: counts.__setitem__("joints", counts["joints"] + 1), 200)
     node.create_subscription(PointCloud2, "/skin/torso/taxels", lambda m: counts.__setitem__("skin", counts["skin"] + 1), 200)
     node.create_subscription(String, "/nao_skin/recorder/progress", lambda m: progress.append(json.loads(m.data)), 10)
+    updates = []        # (when, status) of each live update
+    latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    node.create_subscription(String, "/nao_skin/calibration/status",
+                             lambda m: updates.append((time.monotonic(), json.loads(m.data))), latched)
 
     def on_heat(m):
         heat_stamps.append(time.monotonic())
@@ -146,6 +171,15 @@ def _measure(args, work: Path) -> int:
     print(f"recorder: {ms['n'] - start_progress_n} skin messages in the window ({ms['n']} recent kept),"
           f" time per skin message p50 {ms['p50']:.3f} ms, p99 {ms['p99']:.3f} ms, max {ms['max']:.3f} ms"
           f" (target p99 <= 5 ms); {last['touches']} touches recorded")
+    if not args.no_calibrate:
+        live = [u for when, u in updates if t0 <= when <= t0 + window and u.get("state") == "updated"]
+        secs = np.array([u["seconds"] for u in live])
+        busy = secs.sum() / window if len(secs) else 0.0
+        print(f"live calibration: {len(live)} updates in the window (every {args.update_every} touches),"
+              + (f" {np.median(secs):.2f} s median, {secs.max():.2f} s max each, up to"
+                 f" {max(u['touches'] for u in live)} touches; the calibrate node was busy {100 * busy:.0f} % of the"
+                 f" window" if len(live) else " none finished")
+              + "; " + ", ".join(f"{k}: {v}" for k, v in Counter(u.get("state") for _, u in updates).items()))
     print(f"heat-map: {heat_hz:.2f} Hz with {heat_taxels[-1] if heat_taxels else 0} taxels per message"
           f" (target 10 Hz)")
     return 0
