@@ -5,6 +5,7 @@ Starts (the same set as ``nao-skin record``, from nao_skin.live.session):
 * robot:=sim (default): sim_robot, the simulated robot on the live topics;
   robot:=nao: naoqi_bridge (unless naoqi:=false, e.g. naoqi_driver2 already
   publishes /joint_states) and yarp_skin_bridge (events_port:=...);
+  guided:=true: the simulated robot follows the guidance;
 * pairing_recorder writing the touch bag ``bag:=DIR`` (default
   ./nao_skin_touches_<date>_<time>), skin_heatmap, and the calibrate node;
 * robot_state_publisher with the xacro URDF *without* skin frames, and
@@ -34,6 +35,7 @@ ARGUMENTS = {
     "calibration": ("", "calibration to start from (default: the nominal skin)"),
     "rviz": ("false", "start rviz2 with config/nao_skin.rviz"),
     "taxels": ("", "the robot's own taxel files, PART=FILE separated by spaces (default: config/nao_skin.yaml's)"),
+    "guided": ("false", "robot:=sim: the simulated robot's next touches follow /nao_skin/guidance"),
 }
 
 
@@ -43,7 +45,8 @@ def _nodes(context):
     arg = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
     specs = record_session(arg["robot"], nao_ip=arg["nao_ip"], naoqi=arg["naoqi"].lower() == "true",
                            events_port=arg["events_port"], bag_path=arg["bag"], calibration=arg["calibration"],
-                           rviz=arg["rviz"].lower() == "true", taxels=arg["taxels"].split())
+                           rviz=arg["rviz"].lower() == "true", taxels=arg["taxels"].split(),
+                           guided=arg["guided"].lower() == "true")
     actions = []
     for spec in specs:
         overrides = {}

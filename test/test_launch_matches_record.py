@@ -124,6 +124,7 @@ def _ros_args(spec, tmp_path):
 
 @pytest.mark.parametrize("arguments", [
     {},
+    {"guided": "true"},
     {"robot": "nao", "nao_ip": "127.0.0.1", "events_port": "/skinManager/skin_events:o", "rviz": "true"},
     {"robot": "nao", "naoqi": "false", "calibration": str(ROOT / "config" / "calibration_nominal.yaml"),
      "taxels": f"l_hand={ROOT / 'config' / 'layouts' / 'l_hand.txt'} torso={ROOT / 'config' / 'layouts' / 'torso.txt'}"},
@@ -134,7 +135,8 @@ def test_the_launch_file_starts_what_nao_skin_record_starts(tmp_path, launch_fil
     session = dict(robot=arguments.get("robot", "sim"), nao_ip=arguments.get("nao_ip", ""),
                    naoqi=arguments.get("naoqi", "true") == "true", events_port=arguments.get("events_port", ""),
                    bag_path=bag, calibration=arguments.get("calibration", ""),
-                   rviz=arguments.get("rviz", "false") == "true", taxels=arguments.get("taxels", "").split())
+                   rviz=arguments.get("rviz", "false") == "true", taxels=arguments.get("taxels", "").split(),
+                   guided=arguments.get("guided", "false") == "true")
     via_record = recorded(tmp_path, **session)
     assert set(via_launch) == set(via_record)
     for name in via_launch:
@@ -143,6 +145,8 @@ def test_the_launch_file_starts_what_nao_skin_record_starts(tmp_path, launch_fil
     if arguments.get("taxels"):      # the robot's own layouts reach every node that reads the skin
         assert {n for n, v in via_launch.items() if "taxels" in v[3]} == \
             {"yarp_skin_bridge", "pairing_recorder", "skin_heatmap", "calibrate"}
+    if arguments.get("guided"):
+        assert via_launch["sim_robot"][3]["guided"] is True
     urdf = via_launch["robot_state_publisher"][3]["robot_description"]
     assert urdf == robot_description(session["calibration"], skin_frames=False) and "skin_mount" not in urdf
 

@@ -5,7 +5,7 @@ import pytest
 
 from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.errors import TooFewTouches
-from nao_skin.live.updates import Settling, rejection, taxel_displacement_mm
+from nao_skin.live.updates import Settling, WarmStart, rejection, taxel_displacement_mm
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 from nao_skin.touch.datasets import deduplicate
@@ -80,3 +80,21 @@ def test_done_needs_settled_taxels_and_a_flat_held_out_figure():
     assert settling.states(["r_hand"]) == {"r_hand": "done"}
     settling.add({"r_hand": 0.5}, 2.2)             # moved again
     assert settling.states(["r_hand"]) == {"r_hand": "converging"}
+
+
+def test_an_update_from_scratch_whenever_the_touches_doubled(skin, session):
+    """Warm updates between updates from scratch, which start where the session started; a warm update's
+    prior is centred there too (not on the last update, which the same touches made)."""
+    touches, _, first = session
+    start = skin.zero_calibration()
+    updates = WarmStart(start, refresh=2.0)
+    assert updates.arguments(30) == {"prior": start, "warm": (), "anchor": None}
+    updates.accepted(first.calibration, first.report.parts, 30, updates.arguments(30))
+    warm = updates.arguments(45)
+    assert warm["prior"] is first.calibration and warm["anchor"] is start
+    assert set(warm["warm"]) == set(first.report.parts)
+    updates.accepted(first.calibration, first.report.parts, 45, warm)
+    assert updates.arguments(59)["warm"] and not updates.arguments(60)["warm"]
+    # what the engine makes of them: a warm update is the joint refinement alone
+    result = calibrate(touches, skin, CalibrationOptions(), **warm)
+    assert all(s["name"].startswith("joint refinement") for s in result.report.stages)

@@ -94,7 +94,8 @@ class CalibrationResult:
 def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | None = None,
               prior: SkinCalibration | None = None, truth: SkinCalibration | None = None,
               progress: Callable[[str], None] | None = None,
-              split: tuple | None = None, warm: Iterable[str] = ()) -> CalibrationResult:
+              split: tuple | None = None, warm: Iterable[str] = (),
+              anchor: SkinCalibration | None = None) -> CalibrationResult:
     """Calibrate the skin parts that the touches connect.
 
     ``split``: ``(train, test)`` touch sets; by default a seeded random 70/30
@@ -107,6 +108,9 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
     it still runs, without its first guess). Parts not in ``warm`` get the
     whole plan. A warm calibration measures the final figures only (a live
     update's status shows no more): ``before`` and the stages have none.
+    ``anchor``: with ``warm``, the calibration the live session started from
+    (nominal by default): the prior of the patches and triangles stays centred
+    there instead of on the last update, which the same touches made.
     """
     options = options or CalibrationOptions()
     options.validate()
@@ -119,6 +123,7 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
     fit = _Fit(_start_calibration(prior, skin), options.fabric_thickness, initial_prior_sigma(options),
                np.ones(train.n_touches, bool))
     warm = frozenset(warm)
+    anchor = (anchor or skin.zero_calibration()) if warm else None
     schedule = _schedule(steps, options, warm)
     report = CalibrationReport(
         options=_options_dict(options),
@@ -138,7 +143,7 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
             _first_guess(train, skin, step, options, fit, say, prefix)
         for levels in _stage_levels(step, options):
             report.stages.append(_fit_stage(train, test, skin, step, levels, round_no, prefix, options, fit,
-                                            truth, say, measure=not warm))
+                                            truth, say, measure=not warm, anchor=anchor))
     report.final = _final_figures(train, test, skin, steps, options, fit, truth)
     report.fabric_thickness_mm = 1000.0 * fit.fabric
     report.prior_sigma = fit.prior_sigma
@@ -240,7 +245,8 @@ def _first_guess(train: TouchSet, skin: SkinModel, step: Step, options: Calibrat
 
 
 def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, levels: set, round_no: int,
-               prefix: str, options: CalibrationOptions, fit: _Fit, truth, say, measure: bool = True) -> dict:
+               prefix: str, options: CalibrationOptions, fit: _Fit, truth, say, measure: bool = True,
+               anchor: SkinCalibration | None = None) -> dict:
     """One stage: solve, keep it unless it drove the touches apart, gate after a mount fit; its report entry."""
     # a stage is judged on what it fits, as it fits it (closest COP and taxel pairs, at the fabric
     # surfaces): taxel-centre distances grow with the fabric estimate however good the fit
@@ -250,7 +256,7 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
     cost_before = (last_cost if last_step is step and last_inliers == int(fit.inliers.sum()) and last_kinds == kinds
                    else fitted_pair_cost(train, skin, fit.calibration, step, fit.inliers, kinds, fit.fabric))
     stage = run_stage(train, skin, fit.calibration, step, step.targets, levels, options, fit.inliers, say,
-                      fit.fabric, fit.prior_sigma)
+                      fit.fabric, fit.prior_sigma, anchor)
     entry = stage.report(prefix + stage.name)
     fit.held |= stage.held_components
     cost_after = fitted_pair_cost(train, skin, stage.calibration, step, fit.inliers, kinds,

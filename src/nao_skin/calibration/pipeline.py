@@ -18,6 +18,7 @@ from nao_skin.formats.inputs import load_touches
 from nao_skin.formats.outdir import CALIBRATION, check_output_dir
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.datasets import LoadReport, deduplicate
+from nao_skin.touch.touches import TouchSet
 
 
 @dataclass
@@ -63,23 +64,52 @@ def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: Calibration
     return PipelineRun(result, Path(out), load_report, touches.n_touches, n_dup)
 
 
-def calibrate_inputs(inputs: Sequence, skin: SkinModel, options: CalibrationOptions,
-                     prior: SkinCalibration | None = None, truth: SkinCalibration | None = None,
-                     log: Callable[[str], None] | None = None, summary: Callable[[str], None] | None = None,
-                     warm: Sequence[str] = ()) -> tuple:
-    """Load, deduplicate and calibrate, nothing written: ``(result, touches, load report, duplicates removed)``.
+@dataclass
+class LoadedInputs:
+    """Every input read and its exact duplicates removed: what a calibration starts from."""
 
-    ``warm``: the parts ``prior`` already calibrated (a live update's previous one; see :func:`calibrate`).
-    """
+    touches: TouchSet
+    load_report: LoadReport
+    n_duplicates: int
+    truth: SkinCalibration | None       # a simulator's ground truth found beside a recording
+    files: list
+
+
+def load_inputs(inputs: Sequence, skin: SkinModel, log: Callable[[str], None] | None = None,
+                summary: Callable[[str], None] | None = None) -> LoadedInputs:
+    """The pipeline's load step: read every input, drop exact duplicates."""
     log = log or (lambda msg: None)
     touches, load_report, found_truth = load_touches(inputs, skin, log=log, summary=summary)
     touches, n_dup = deduplicate(touches)
     log(f"{touches.n_touches} touches after removing {n_dup} exact duplicates")
-    result = calibrate(touches, skin, options, prior=prior, truth=truth or found_truth, progress=log, warm=warm)
-    result.report.input = {"files": [str(p) for p in inputs], "touches_read": load_report.n_read,
-                           "touches_loaded": load_report.n_loaded, "skipped": dict(load_report.skipped),
-                           "notes": list(load_report.notes), "duplicates_removed": n_dup}
-    return result, touches, load_report, n_dup
+    return LoadedInputs(touches, load_report, n_dup, found_truth, [str(p) for p in inputs])
+
+
+def calibrate_loaded(loaded: LoadedInputs, skin: SkinModel, options: CalibrationOptions,
+                     prior: SkinCalibration | None = None, truth: SkinCalibration | None = None,
+                     log: Callable[[str], None] | None = None, warm: Sequence[str] = (),
+                     anchor: SkinCalibration | None = None) -> CalibrationResult:
+    """The pipeline's calibrate step; the report says what was read.
+
+    ``warm``, ``anchor``: a live update's (see :func:`calibrate`).
+    """
+    result = calibrate(loaded.touches, skin, options, prior=prior, truth=truth or loaded.truth, progress=log,
+                       warm=warm, anchor=anchor)
+    report = loaded.load_report
+    result.report.input = {"files": loaded.files, "touches_read": report.n_read, "touches_loaded": report.n_loaded,
+                           "skipped": dict(report.skipped), "notes": list(report.notes),
+                           "duplicates_removed": loaded.n_duplicates}
+    return result
+
+
+def calibrate_inputs(inputs: Sequence, skin: SkinModel, options: CalibrationOptions,
+                     prior: SkinCalibration | None = None, truth: SkinCalibration | None = None,
+                     log: Callable[[str], None] | None = None,
+                     summary: Callable[[str], None] | None = None) -> tuple:
+    """Load, deduplicate and calibrate, nothing written: ``(result, touches, load report, duplicates removed)``."""
+    loaded = load_inputs(inputs, skin, log, summary)
+    result = calibrate_loaded(loaded, skin, options, prior, truth, log)
+    return result, loaded.touches, loaded.load_report, loaded.n_duplicates
 
 
 def summary_line(result: CalibrationResult) -> str:

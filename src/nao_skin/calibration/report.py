@@ -15,11 +15,14 @@ from pathlib import Path
 import numpy as np
 
 from nao_skin.calibration.engine import CalibrationResult
-from nao_skin.calibration.pairing import pair_for_metrics
-from nao_skin.calibration.rows import concat_pairings
+from nao_skin.calibration.options import KIND_ROWS, CalibrationOptions
+from nao_skin.calibration.pairing import KIND_NAMES, pair_for_metrics
+from nao_skin.calibration.plan import part_rank, touching_pairs
+from nao_skin.calibration.rows import concat_pairings, pair_parts
 from nao_skin.calibration.splits import spread_table
 from nao_skin.formats.outdir import CALIBRATION, replace_dir, write_marker
 from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.touch.touches import TouchSet
 
 
 def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Path,
@@ -43,9 +46,11 @@ def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Pat
         for name in calibrated:
             skin.parts[name].write_taxel_file(tmp / "taxels" / f"{name}.txt", result.calibration.parts[name])
         (tmp / "report.json").write_text(json.dumps(_jsonable(result.report.to_dict()), indent=2) + "\n")
-        (tmp / "report.md").write_text(markdown_report(result.report.to_dict()))
+        coverage = report_coverage(result, skin)
+        (tmp / "report.md").write_text(markdown_report(result.report.to_dict(), coverage))
         if plots:
             _plots(result, skin, prior or skin.zero_calibration(), tmp, calibrated)
+            plot_coverage(coverage, skin, result.calibration, tmp / "coverage.png")
         if extra is not None:
             extra(tmp)
         write_marker(tmp, command, CALIBRATION)
@@ -72,7 +77,8 @@ def _fmt(v) -> str:
     return "–" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.2f}"
 
 
-def markdown_report(report: dict) -> str:
+def markdown_report(report: dict, coverage: dict | None = None) -> str:
+    """report.md from the report's dict; ``coverage`` (:func:`report_coverage`) adds the coverage table."""
     keys = ("cop_mean_mm", "taxel_mean_mm", "contact_taxel_mean_mm", "taxel5_mean_mm")
     lines = ["# Skin calibration report", "",
              f"Plan: {' → '.join(report['plan'])}", "",
@@ -113,6 +119,8 @@ def markdown_report(report: dict) -> str:
     if report.get("left_out"):
         lines += ["", "## Left out: too few touches (held at the prior)", ""]
         lines += [f"- {e['pair']}: {e['reason']}" for e in report["left_out"]]
+    if coverage:
+        lines += ["", *coverage_lines(coverage)]
     if report.get("held"):
         lines += ["", "## Held at their prior (not determined by the touches)", ""]
         lines += [f"- {h}" for h in report["held"]]
@@ -198,4 +206,133 @@ def _plots(result: CalibrationResult, skin: SkinModel, prior: SkinCalibration, o
         ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "skin_before_after.png", dpi=110)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------------------- coverage
+def paired_activation_counts(touches: TouchSet, skin: SkinModel, calib: SkinCalibration,
+                             options: CalibrationOptions | None = None, pairs=None) -> dict:
+    """``{part: (T,) paired activations per triangle row}`` over the part pairs ``pairs`` of the touches.
+
+    As ``stages._activation_counts`` counts them for a triangle stage: per
+    touch and triangle once, over the pair kinds of ``options.pairs`` (closest
+    COP and taxel pairs by default), paired under ``calib``. ``pairs``: part
+    name pairs (default: every pair of parts that fires together).
+    """
+    options = options or CalibrationOptions()
+    names = {v: k for k, v in KIND_NAMES.items()}
+    kinds = tuple(names[k] for k in KIND_ROWS[options.pairs])
+    kind_codes = np.array(KIND_ROWS[options.pairs])
+    out = {name: np.zeros(len(part.triangle_ids), int) for name, part in skin.parts.items()}
+    if pairs is None:
+        pairs = [tuple(sorted(p, key=part_rank)) for p in touching_pairs(touches)] if touches.n_touches else []
+    keys: dict = {}
+    for a, b in pairs:
+        if a not in touches.part_names or b not in touches.part_names:
+            continue
+        p = pair_parts(touches, skin, calib, *sorted((a, b), key=part_rank), kinds)
+        if not len(p.row_touch):
+            continue
+        term_ok = np.isin(p.row_kind, kind_codes)[p.term_row]
+        for name in (a, b):
+            sel = term_ok & (p.term_part == touches.part_index(name))
+            tri = skin.parts[name].slot_triangle[p.term_slot[sel]]
+            keys.setdefault(name, []).append(p.row_touch[p.term_row[sel]] * 10000 + tri)
+    for name, k in keys.items():
+        key = np.unique(np.concatenate(k))
+        out[name] += np.bincount(key % 10000, minlength=len(out[name]))
+    return out
+
+
+def report_coverage(result: CalibrationResult, skin: SkinModel) -> dict:
+    """Per calibrated part: paired activations per triangle on the training touches, under the final
+    calibration, against ``min_triangle_activations``; held triangles and patches from the report."""
+    options = CalibrationOptions()
+    for k, v in result.report.options.items():
+        if hasattr(options, k):
+            setattr(options, k, tuple(v) if isinstance(v, list) else v)
+    pairs = [tuple(p) for p in result.report.pairs]
+    counts = paired_activation_counts(result.train, skin, result.calibration, options, pairs)
+    held: dict = {}
+    for entry in result.report.held:
+        name, _, comps = str(entry).partition(" ")
+        part, _, frame = name.partition("/")
+        held.setdefault(part, []).append((frame, comps.strip("()")))
+    out = {}
+    for name in result.report.parts:
+        sp = skin.parts[name]
+        c = counts[name]
+        tri_held = [(int(f.split("_")[1]), comps) for f, comps in held.get(name, []) if f.startswith("triangle_")]
+        out[name] = {"triangle_ids": [int(t) for t in sp.triangle_ids], "activations": [int(v) for v in c],
+                     "needed": int(options.min_triangle_activations),
+                     "enough": int(np.sum(c >= options.min_triangle_activations)), "total": len(c),
+                     "held_triangles": sorted(t for t, comps in tri_held if not comps),
+                     "partly_held_triangles": sorted(f"{t} ({comps})" for t, comps in tri_held if comps),
+                     "held_patches": sorted(f.split("_")[1] + (f" ({comps})" if comps else "")
+                                            for f, comps in held.get(name, []) if f.startswith("patch_"))}
+    return out
+
+
+def coverage_lines(coverage: dict) -> list:
+    """The coverage table of report.md: triangles with enough paired activations, held triangles."""
+    lines = ["## Coverage: paired activations per triangle (training touches)", "",
+             "| part | triangles with enough (>= needed) / total | fewest / median activations | held triangles"
+             " | partly held triangles | held patches |", "|---|---|---|---|---|---|"]
+    for name, c in coverage.items():
+        acts = np.array(c["activations"])
+        lines.append(f"| {name} | {c['enough']} / {c['total']} (>= {c['needed']}) |"
+                     f" {int(acts.min()) if len(acts) else 0} / {float(np.median(acts)) if len(acts) else 0:g} |"
+                     f" {', '.join(map(str, c['held_triangles'])) or '–'} |"
+                     f" {', '.join(c['partly_held_triangles']) or '–'} | {', '.join(c['held_patches']) or '–'} |")
+    lines.append("")
+    lines.append("The picture: coverage.png (taxels coloured by their triangle's paired activations, held triangles"
+                 " crossed).")
+    return lines
+
+
+def plot_coverage(coverage: dict, skin: SkinModel, calib: SkinCalibration, path: Path) -> None:
+    """Per calibrated part, its taxels on the layout (projected on their best-fit plane) coloured by the
+    paired activations of their triangle (grey: none), held triangles crossed in red."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(coverage)
+    if not names:
+        return
+    fig, axes = plt.subplots(1, len(names), figsize=(4.6 * len(names), 4.4), squeeze=False)
+    vmax = max(max(c["activations"], default=1) for c in coverage.values()) or 1
+    for ax, name in zip(axes[0], names):
+        sp = skin.parts[name]
+        c = coverage[name]
+        pos, _ = sp.taxel_positions(calib.parts.get(name))
+        slots = sp.slots
+        pts = pos[slots]
+        centre = pts.mean(axis=0)
+        _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
+        xy = (pts - centre) @ vt[:2].T * 1000.0
+        acts = np.array(c["activations"])[sp.slot_triangle[slots]]
+        ax.scatter(*xy[acts == 0].T, s=6, c="0.7", label="no paired activation")
+        sc = ax.scatter(*xy[acts > 0].T, s=6, c=acts[acts > 0], cmap="viridis",
+                        norm=matplotlib.colors.LogNorm(vmin=1, vmax=max(vmax, 2)))
+        held = set(c["held_triangles"]) | {int(t.split()[0]) for t in c["partly_held_triangles"]}
+        rows = sp.slot_triangle[slots]
+        for tid in held:
+            r = np.flatnonzero(sp.triangle_ids == tid)
+            if len(r):
+                m = xy[rows == r[0]].mean(axis=0)
+                full = tid in c["held_triangles"]
+                ax.plot(*m, marker="x", ms=9 if full else 6, mew=2 if full else 1, color="tab:red")
+                ax.annotate(str(tid), m, fontsize=6, color="tab:red", xytext=(3, 3), textcoords="offset points")
+        ax.set_aspect("equal")
+        ax.set_title(f"{name}: {c['enough']}/{c['total']} triangles >= {c['needed']} paired activations",
+                     fontsize=8)
+        ax.set_xlabel("mm (best-fit plane of the taxels)", fontsize=7)
+        ax.tick_params(labelsize=6)
+        fig.colorbar(sc, ax=ax, shrink=0.7).set_label("paired activations of the triangle", fontsize=7)
+    axes[0, 0].plot([], [], "x", color="tab:red", label="held triangle")
+    axes[0, 0].legend(fontsize=6, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -52,13 +52,16 @@ class StageResult:
 
 
 def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, say, fabric,
-              prior_sigma: dict | None = None) -> StageResult:
+              prior_sigma: dict | None = None, anchor: SkinCalibration | None = None) -> StageResult:
     """One stage: pair, solve, re-pair under the new calibration, until the pairing settles.
 
     ``prior_sigma``: prior std per group (:data:`PRIOR_GROUPS`); with
     ``options.prior_scale == 'empirical'`` a stage that frees every part it
     pairs (the joint refinement) re-estimates it from the touches after each
-    solve. The stage returns the last estimate.
+    solve. The stage returns the last estimate. ``anchor``: where the prior of
+    the patches and triangles is centred (default: ``calib``, where the stage
+    starts); a warm-started update centres it where its session started, or
+    each update would count the touches of the one before again.
     """
     t0 = time.perf_counter()
     name = f"{step.name}: {'+'.join(sorted(levels, key=['mount', 'patch', 'triangle'].index))}"
@@ -73,6 +76,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     free_levels = {p: set(levels) for p in free_parts}
     prior_x = layout.to_vector(calib, fabric)
     x = prior_x.copy()
+    centre = prior_x if anchor is None else _anchored(layout, prior_x, anchor)
     hashes = None
     iterations = repairings = 0
     free = None
@@ -124,7 +128,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
         if not np.any(free):
             break
         weights = _prior_weights(layout, free_parts, options, prior_sigma)
-        result = solve(model, x, free, lower, upper, free_levels, options.solve_options(), prior=prior_x,
+        result = solve(model, x, free, lower, upper, free_levels, options.solve_options(), prior=centre,
                        prior_weights=weights)
         iterations += result.iterations
         x = result.x
@@ -144,6 +148,16 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
                  if free is not None else set())
     return StageResult(name, calib_out, iterations, repairings, cond, compress_held(held), set(held), estimated,
                        1000.0 * float(x[layout.fabric_col]), prior_sigma, time.perf_counter() - t0)
+
+def _anchored(layout: ParameterLayout, prior_x: np.ndarray, anchor: SkinCalibration) -> np.ndarray:
+    """``prior_x`` with the patch and triangle components of ``anchor`` (mounts and fabric have no prior
+    to speak of: the solver's floor keeps them where the stage starts)."""
+    centre = prior_x.copy()
+    anchored = layout.to_vector(anchor)
+    for m, p, t, end in layout.offsets.values():
+        centre[p:end] = anchored[p:end]
+    return centre
+
 
 def _bounds(layout: ParameterLayout, targets: tuple, levels: set, x: np.ndarray, options: "CalibrationOptions"):
     lower = np.full(layout.size, -np.inf)

@@ -43,6 +43,8 @@ def add_arguments(parser) -> None:
                         help="the robot's own skinManager taxel file of a part, for every node that reads the skin;"
                              " repeatable")
     parser.add_argument("--rviz", action="store_true", help="also start rviz2 with config/nao_skin.rviz")
+    parser.add_argument("--guided", action="store_true",
+                        help="robot sim: the simulated robot's next touches follow the guidance (/nao_skin/guidance)")
     parser.add_argument("--param", action="append", default=[], metavar="NODE.NAME=VALUE",
                         help="override a node parameter, e.g. sim_robot.touches_per_pair=5 (repeatable); checked"
                              " against the parameters the node declares before anything starts")
@@ -86,7 +88,7 @@ def run(args) -> int:
 
     specs = record_session(args.robot, nao_ip=args.nao_ip, naoqi=not args.no_naoqi, events_port=args.events_port,
                            bag_path=args.bag, calibration=args.calibration, rviz=args.rviz, taxels=args.taxels,
-                           overrides=parse_overrides(args.param))
+                           overrides=parse_overrides(args.param), guided=args.guided)
     if not args.print:
         check_needs(specs)
     stop = {"signal": None}

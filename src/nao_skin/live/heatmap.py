@@ -78,3 +78,20 @@ def triangle_slots(part) -> list:
     slots = part.slots
     rows = part.slot_triangle[slots]
     return [(int(tid), slots[rows == r]) for r, tid in enumerate(part.triangle_ids)]
+
+
+GUIDANCE_COLOUR = (1.0, 0.0, 1.0, 1.0)          # magenta: on neither the scale, the grey nor the red
+
+
+def triangle_outline(part, triangle_id: int, lift: float = 0.002) -> np.ndarray:
+    """(K + 1, 3) closed outline around one triangle's taxels in the triangle's own frame, ``lift`` m above them
+    (its x-y hull: taxel centres lie in the frame's x-y plane), so a marker drawn with it follows the frame."""
+    from scipy.spatial import ConvexHull
+
+    slots = dict(triangle_slots(part))[int(triangle_id)]
+    xy = part.taxel_local[slots][:, :2]
+    centre = xy.mean(axis=0)
+    ring = xy[ConvexHull(xy).vertices]              # counter-clockwise
+    ring = centre + 1.25 * (ring - centre)          # a little outside the taxel centres
+    ring = np.vstack([ring, ring[:1]])
+    return np.column_stack([ring, np.full(len(ring), lift)])

@@ -58,10 +58,12 @@ def robot_description(calibration: str = "", skin_frames: bool = False) -> str:
 
 def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, events_port: str = "",
                    bag_path: str = "", calibration: str = "", rviz: bool = False, taxels=(),
-                   overrides: dict | None = None, with_robot_state_publisher: bool = True) -> list:
+                   overrides: dict | None = None, with_robot_state_publisher: bool = True,
+                   guided: bool = False) -> list:
     """The nodes of ``record.launch.py`` for these launch arguments.
 
     ``taxels``: ``PART=FILE`` items, the robot's own layouts, given to every node that reads the skin.
+    ``guided``: the simulated robot follows the guidance (robot sim only).
     ``overrides``: ``{node name: {parameter: value}}`` applied last (tests, CLI ``--param``).
     """
     if robot not in ROBOTS:
@@ -71,8 +73,11 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     bag_path = str(Path(bag_path or f"nao_skin_touches_{datetime.now():%Y%m%d_%H%M%S}").expanduser().resolve())
     record_yaml, bridges_yaml = cfg / "record.yaml", cfg / "bridges.yaml"
     specs = []
+    if guided and robot != "sim":
+        raise ConfigError("guided:=true: only the simulated robot (robot:=sim) follows the guidance; on the real"
+                          " robot the operator does, from RViz or /nao_skin/guidance")
     if robot == "sim":
-        specs.append(NodeSpec("sim_robot", "sim_robot", [record_yaml]))
+        specs.append(NodeSpec("sim_robot", "sim_robot", [record_yaml], {"guided": True} if guided else {}))
     else:
         if naoqi:
             specs.append(NodeSpec("naoqi_bridge", "naoqi_bridge", [bridges_yaml],

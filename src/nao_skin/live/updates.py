@@ -17,6 +17,7 @@ import numpy as np
 
 from nao_skin.model.skin import SkinCalibration, SkinModel
 
+
 @dataclass
 class UpdateSchedule:
     every_touches: int = 25
@@ -30,6 +31,38 @@ class UpdateSchedule:
 
     def started(self, touches: int, now: float) -> None:
         self.last_touches, self.last_time = touches, now
+
+
+@dataclass
+class WarmStart:
+    """What the next live update starts from: mostly the last accepted calibration, now and then the whole plan.
+
+    A warm update (``calibrate(..., prior=last, warm=parts, anchor=start)``)
+    runs only the joint refinement from the last accepted calibration, its
+    patch and triangle prior centred where the session started. Warm updates
+    cannot undo everything an early estimate from a few touches got wrong, so
+    whenever the touches have grown ``refresh`` times since the last update
+    from scratch, the next one is from scratch again (the whole plan from the
+    session's start): with 2, at about 30, 60, 120, ... 1000, 2000 touches,
+    a handful in a session, and the warm ones in between.
+    """
+
+    start: SkinCalibration                  # where the session started (nominal, or the calibration given)
+    refresh: float = 2.0
+    last: SkinCalibration | None = None     # the last accepted update's
+    parts: tuple = ()                       # the parts it calibrated
+    scratch_touches: int = 0                # touches of the last update from scratch
+
+    def arguments(self, n_touches: int) -> dict:
+        """``prior``, ``warm`` and ``anchor`` of :func:`~nao_skin.calibration.engine.calibrate` for the next update."""
+        if self.last is None or not self.parts or n_touches >= self.refresh * self.scratch_touches:
+            return {"prior": self.start, "warm": (), "anchor": None}
+        return {"prior": self.last, "warm": self.parts, "anchor": self.start}
+
+    def accepted(self, calibration: SkinCalibration, parts, n_touches: int, arguments: dict) -> None:
+        if not arguments["warm"]:
+            self.scratch_touches = n_touches
+        self.last, self.parts = calibration, tuple(parts)
 
 
 def taxel_displacement_mm(skin: SkinModel, before: SkinCalibration, after: SkinCalibration, parts) -> dict:

@@ -31,8 +31,8 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
 from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
-from nao_skin.errors import DataError, NaoSkinError, TooFewTouches, one_line
-from nao_skin.live.updates import Settling, UpdateSchedule, rejection, taxel_displacement_mm
+from nao_skin.errors import ConfigError, DataError, NaoSkinError, TooFewTouches, one_line
+from nao_skin.live.updates import Settling, UpdateSchedule, WarmStart, rejection, taxel_displacement_mm
 from nao_skin.model.skin import SkinCalibration, skin_frame_transforms
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
@@ -40,6 +40,7 @@ from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_s
 
 REQUEST_TOPIC = "/nao_skin/calibrate"
 STATUS_TOPIC = "/nao_skin/calibration/status"
+GUIDANCE_TOPIC = "/nao_skin/guidance"
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -61,6 +62,12 @@ PARAMS = {
     "live_settle_mm": (0.1, "live: a part is done when its taxels moved less than this (mm) ..."),
     "live_settle_updates": (3, "live: ... in each of this many updates in a row, ..."),
     "live_flat_percent": (5.0, "live: ... and the held-out closest taxel figure stayed within this % of its mean"),
+    "guidance": (True, "live: after each update, publish where touches would help most on /nao_skin/guidance"),
+    "guidance_targets": (5, "live: how many targets the guidance names"),
+    "guidance_pairs": ([""], "live: the pairs the guidance may ask for, as 'hand-part' (e.g. l_hand-torso);"
+                             " empty: the four thesis pairs"),
+    "live_refresh": (2.0, "live: an update from scratch (the whole plan) whenever the touches grew this many times"
+                          " since the last one; warm-started updates in between"),
     "live_max_move_mm": (20.0, "live: an update moving a calibrated part's taxels farther than this (mm) diverged:"
                                " not published"),
     # engine options (their defaults and help come from CalibrationOptions' table, OPTION_FIELDS)
@@ -77,6 +84,23 @@ def options_from_params(params: dict) -> CalibrationOptions:
     return options
 
 
+def _pairs(items, skin, name: str) -> tuple:
+    """'hand-part' strings to (hand, part) pairs of the skin's parts; none given: the four thesis pairs."""
+    from nao_skin.guidance.capture import DEFAULT_PAIRS
+
+    items = [i for i in items if i]
+    if not items:
+        return DEFAULT_PAIRS
+    out = []
+    for item in items:
+        hand, sep, part = item.partition("-")
+        if not sep or hand not in skin.parts or part not in skin.parts:
+            raise ConfigError(f"parameter {name}: {item!r} is not 'hand-part' of two skin parts"
+                              f" ({', '.join(skin.parts)})")
+        out.append((hand, part))
+    return tuple(out)
+
+
 def _plain(obj):
     return obj.tolist() if hasattr(obj, "tolist") else str(obj)
 
@@ -91,6 +115,7 @@ class CalibrateNode(Node):
                       else self.skin.zero_calibration())
         self.tf_pub = latched_tf_static_publisher(self)
         self.status_pub = self.create_publisher(String, STATUS_TOPIC, LATCHED)
+        self.guidance_pub = self.create_publisher(String, GUIDANCE_TOPIC, LATCHED)
         self.generation = 0
         self._busy = threading.Lock()
         self._worker = None
@@ -98,7 +123,8 @@ class CalibrateNode(Node):
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
         self._last_live = None            # the last accepted live update's result: written when the session ends
-        self._live_parts: tuple = ()      # the parts it calibrated: the next update is warm-started on them
+        self.warm_start = WarmStart(self.prior, float(self.p["live_refresh"]))
+        self.guidance_pairs = _pairs(self.p["guidance_pairs"], self.skin, "guidance_pairs")
         if self.p["live"]:
             self.schedule = UpdateSchedule(int(self.p["live_every_touches"]), float(self.p["live_period"]))
             self.settling = Settling(float(self.p["live_settle_mm"]), int(self.p["live_settle_updates"]),
@@ -137,30 +163,37 @@ class CalibrateNode(Node):
 
     def _live_update(self) -> None:
         """Recalibrate on every touch recorded so far, warm-started from the last accepted calibration;
-        publish it only when it succeeds: a failed update leaves the last good frames on /tf_static."""
-        from nao_skin.calibration.pipeline import calibrate_inputs
+        publish it only when it succeeds: a failed update leaves the last good frames on /tf_static.
+        Then the guidance: where touches would help most now (also while waiting for a first calibration)."""
+        from nao_skin.calibration.pipeline import calibrate_loaded, load_inputs
         from nao_skin.calibration.plan import pair_counts, part_rank
 
         log = self.get_logger()
         t0 = time.perf_counter()
+        loaded = None
         try:
-            result, touches, _, _ = calibrate_inputs([self.p["recording"]], self.skin, self.options,
-                                                     prior=self.prior, log=log.debug, summary=log.debug,
-                                                     warm=self._live_parts)
+            loaded = load_inputs([self.p["recording"]], self.skin, log=log.debug, summary=log.debug)
+            touches = loaded.touches
+            start = self.warm_start.arguments(touches.n_touches)
+            result = calibrate_loaded(loaded, self.skin, self.options, log=log.debug, **start)
             report = result.report
-            moved = taxel_displacement_mm(self.skin, self.prior, result.calibration, report.parts)
-            why = rejection(self.skin, result.calibration, moved, self._live_parts, float(self.p["live_max_move_mm"]))
+            before = self.warm_start.last or self.warm_start.start
+            moved = taxel_displacement_mm(self.skin, before, result.calibration, report.parts)
+            why = rejection(self.skin, result.calibration, moved, self.warm_start.parts,
+                            float(self.p["live_max_move_mm"]))
             if why is not None:
                 raise DataError(f"update over {touches.n_touches} touches not published: {why}")
             self.settling.add(moved, report.final.get("test", {}).get("taxel_mean_mm", float("nan")))
-            self.prior, self._last_live, self._live_parts = result.calibration, result, tuple(report.parts)
+            self.warm_start.accepted(result.calibration, report.parts, touches.n_touches, start)
+            self._last_live = result
             self.publish_calibration(result.calibration, "live update", quiet=True)
             self._status({"state": "updated", "live": True, "generation": self.generation,
                           "touches": touches.n_touches,
                           "pairs": {"+".join(sorted(p, key=part_rank)): n for p, n in pair_counts(touches).items()},
                           "final": {k: report.final.get(k) for k in ("train", "test")},
                           "displacement_mm": moved, "held": report.held, "left_out": report.left_out,
-                          "parts": self.settling.states(self.skin.parts), "seconds": time.perf_counter() - t0})
+                          "parts": self.settling.states(self.skin.parts), "seconds": time.perf_counter() - t0,
+                          "from_scratch": not start["warm"]})
             log.info(f"live update {self.generation}: {touches.n_touches} touches, taxels moved up to"
                      f" {max(moved.values(), default=0.0):.2f} mm")
         except TooFewTouches as exc:      # no pair has touches enough yet: wait for more
@@ -174,8 +207,22 @@ class CalibrateNode(Node):
             log.error(f"live update failed: {one_line(exc)}")
             self._status({"state": "failed", "live": True, "error": one_line(exc), "generation": self.generation,
                           "parts": self.settling.states(self.skin.parts)})
+        try:
+            if loaded is not None and self.p["guidance"]:
+                self._publish_guidance(loaded.touches)
+        except Exception as exc:  # noqa: BLE001 - guidance is advice: its failure never stops the session
+            log.warning(f"guidance not updated: {one_line(exc)}")
         finally:
             self._busy.release()
+
+    def _publish_guidance(self, touches) -> None:
+        """Where to touch next under the last accepted calibration (nominal before the first), latched JSON."""
+        from nao_skin.guidance.capture import guidance
+
+        advice = guidance(touches, self.skin, self._last_live, self.options, pairs=self.guidance_pairs,
+                          max_targets=int(self.p["guidance_targets"]), seed=self.generation)
+        self.guidance_pub.publish(String(data=json.dumps({"generation": self.generation, **advice.to_dict()},
+                                                         sort_keys=True, default=_plain)))
 
     def _status(self, info: dict) -> None:
         self.status_pub.publish(String(data=json.dumps(info, sort_keys=True, default=_plain)))

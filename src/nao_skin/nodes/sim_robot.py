@@ -11,6 +11,13 @@ touches played / total, done) once per second.
 With ``wait_for_subscribers: N`` the play starts only when every skin taxels
 topic has N subscribers and the other topics at least one (bounded by
 ``wait_timeout``), so nothing played is lost to DDS discovery.
+
+``guided: true`` follows the guidance instead of playing a set made in
+advance (:class:`nao_skin.sim.capture.CaptureSim`, the same truth for the
+seed): ``guided_start`` random touches, then batches of ``guided_batch``
+touches aimed at the top targets of the latest ``/nao_skin/guidance``
+(random when there is none yet), through the simulator's pose solver, until
+``touches_per_pair`` x pairs touches are played.
 """
 from __future__ import annotations
 
@@ -22,10 +29,13 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 
+from nao_skin.errors import ConfigError
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_array, contacts_topic, taxels_array, taxels_topic
 from nao_skin.live.playback import Playback
+from nao_skin.nodes.calibrate import GUIDANCE_TOPIC, LATCHED
 from nao_skin.nodes.messages import cloud_from_array, joint_state_msg
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
+from nao_skin.sim.capture import Aim, CaptureSim
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 
@@ -45,6 +55,9 @@ PARAMS = {
     "loop": (False, "start again after the last touch"),
     "wait_for_subscribers": (0, "start only when each skin taxels topic has this many subscribers (0: at once)"),
     "wait_timeout": (20.0, "longest wait for subscribers (s), then play anyway"),
+    "guided": (False, "follow /nao_skin/guidance: the next touches aim at its top targets"),
+    "guided_start": (20, "guided: random touches before the first batch aimed at the guidance"),
+    "guided_batch": (5, "guided: touches per batch aimed at the guidance's top targets"),
 }
 
 
@@ -63,10 +76,25 @@ class SimRobot(Node):
         p = declare(self, PARAMS)
         self.skin = skin_from_params(p)
         params = load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"]))
-        result = simulate(self.skin, params, int(p["seed"]))
-        self.playback = Playback(result.touches, self.skin, p["touch_period"], p["press_duration"], p["hold"])
-        self.get_logger().info(f"simulated {len(self.playback)} touches (seed {p['seed']}); playing them,"
-                               f" one every {p['touch_period']:g} s")
+        self.timing = (p["touch_period"], p["press_duration"], p["hold"])
+        self.guided = bool(p["guided"])
+        self.targets: list = []           # the latest guidance's targets, best first
+        if self.guided:
+            self.capture = CaptureSim(self.skin, params, int(p["seed"]))
+            self.total = int(p["touches_per_pair"]) * len(self.capture.pairs)
+            self.batch = (int(p["guided_start"]), int(p["guided_batch"]))
+            if self.batch[0] < 1 or self.batch[1] < 1:
+                raise ConfigError(f"guided_start {self.batch[0]} / guided_batch {self.batch[1]}: both must be >= 1")
+            self.playback = Playback(self.capture.random(self.batch[0]), self.skin, *self.timing)
+            self.create_subscription(String, GUIDANCE_TOPIC, self._on_guidance, LATCHED)
+            self.get_logger().info(f"guided: {self.batch[0]} random touches, then batches of {self.batch[1]} aimed"
+                                   f" at the guidance, {self.total} in all (seed {p['seed']})")
+        else:
+            result = simulate(self.skin, params, int(p["seed"]))
+            self.playback = Playback(result.touches, self.skin, *self.timing)
+            self.total = len(self.playback)
+            self.get_logger().info(f"simulated {len(self.playback)} touches (seed {p['seed']}); playing them,"
+                                   f" one every {p['touch_period']:g} s")
         self.joint_period = 1.0 / float(p["joint_rate"])
         self.skin_every = max(1, round(float(p["joint_rate"]) / float(p["skin_rate"])))
         self.loop = bool(p["loop"])
@@ -102,6 +130,9 @@ class SimRobot(Node):
             self.get_logger().warning(f"playing although not every topic has {self.wait_for} subscribers")
         while not self._stop.is_set():
             self._play_once()
+            if self.guided and self.played < self.total:
+                self.playback = Playback(self._next_batch(), self.skin, *self.timing)
+                continue
             if not self.loop:
                 break
         self.done = True
@@ -129,6 +160,25 @@ class SimRobot(Node):
                 self.played += 1
             tick += 1
 
+    def _on_guidance(self, msg: String) -> None:
+        try:
+            self.targets = list(json.loads(msg.data).get("targets", []))
+        except (ValueError, TypeError, AttributeError):
+            self.get_logger().warning("skipped a guidance message that is not the guidance's JSON")
+
+    def _next_batch(self):
+        """The next touches: aimed at the guidance's top targets (random while there is none)."""
+        n = min(self.batch[1], self.total - self.played)
+        pairs = set(self.capture.pairs)
+        aims = [Aim(t["hand"], t["touched"], t.get("hand_triangle_id"), t.get("touched_triangle_id"))
+                for t in self.targets if t.get("pose") is not None and (t.get("hand"), t.get("touched")) in pairs][:n]
+        touches = self.capture.aimed(aims) if aims else None
+        if touches is None or touches.n_touches == 0:
+            touches = self.capture.random(n)
+        self.get_logger().info(f"next {touches.n_touches} touches: "
+                               + (f"aimed at {len(aims)} guidance targets" if aims else "random (no guidance yet)"))
+        return touches
+
     def _publish(self, t: float, tick: int) -> int:
         stamp = self.get_clock().now().to_msg()
         self.joint_pub.publish(joint_state_msg(self.playback.joint_names, self.playback.joints_at(t), stamp))
@@ -153,7 +203,7 @@ class SimRobot(Node):
         return k
 
     def _publish_status(self) -> None:
-        self.status_pub.publish(String(data=json.dumps({"played": self.played, "total": len(self.playback),
+        self.status_pub.publish(String(data=json.dumps({"played": self.played, "total": self.total,
                                                         "done": self.done})))
 
     def close(self) -> None:

@@ -8,23 +8,37 @@ namespace = part, id = triangle number, points in slot order), so the
 positions follow the current calibration through TF without this node
 knowing it. A colour-bar legend (namespace ``legend``) sits next to the torso.
 Published at ``rate`` Hz (default 10).
+
+Guided capture on ``/nao_skin/guidance/markers`` (MarkerArray, latched,
+republished when the guidance or a part's state changes): each target
+triangle of ``/nao_skin/guidance`` outlined in magenta in its own frame
+(namespace ``guidance``, id = rank) with a label (rank, part, triangle, the
+pair to press with, why); and per part its live calibration state from
+``/nao_skin/calibration/status`` (collecting / converging / done) as a text
+over its mount (namespace ``state``).
 """
 from __future__ import annotations
+
+import json
 
 import numpy as np
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Point
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
-from std_msgs.msg import ColorRGBA
+from std_msgs.msg import ColorRGBA, String
 from visualization_msgs.msg import Marker, MarkerArray
 
 from nao_skin.errors import DataError
 from nao_skin.formats.pointcloud import read_taxels, taxels_topic
-from nao_skin.live.heatmap import SCALE_LEVELS, ActivationCounts, palette, triangle_slots
+from nao_skin.live.heatmap import (GUIDANCE_COLOUR, SCALE_LEVELS, ActivationCounts, palette, triangle_outline,
+                                   triangle_slots)
+from nao_skin.nodes.calibrate import GUIDANCE_TOPIC, LATCHED, STATUS_TOPIC
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
 
 TOPIC = "/nao_skin/heatmap"
+GUIDANCE_MARKERS_TOPIC = "/nao_skin/guidance/markers"
+STATE_COLOURS = {"collecting": (0.6, 0.6, 0.6, 1.0), "converging": (1.0, 0.8, 0.2, 1.0), "done": (0.2, 1.0, 0.4, 1.0)}
 LEGEND_NS = "legend"
 LEGEND_HEIGHT = 0.12      # m: height of the colour bar
 
@@ -64,6 +78,11 @@ class SkinHeatmap(Node):
         self.errors = 0
         self.published = 0
         self.create_timer(1.0 / float(p["rate"]), self._publish)
+        self.guidance_pub = self.create_publisher(MarkerArray, GUIDANCE_MARKERS_TOPIC, LATCHED)
+        self.targets: list = []             # the guidance's targets, best first
+        self.states: dict = {}              # part -> live calibration state
+        self.create_subscription(String, GUIDANCE_TOPIC, self._on_guidance, LATCHED)
+        self.create_subscription(String, STATUS_TOPIC, self._on_status, LATCHED)
 
     def _on_taxels(self, part: str, msg) -> None:
         try:
@@ -74,6 +93,67 @@ class SkinHeatmap(Node):
                 self.get_logger().warning(f"skipped: {exc}")
             return
         self.counts.update(part, slots)
+
+    def _on_guidance(self, msg: String) -> None:
+        try:
+            targets = json.loads(msg.data).get("targets", [])
+            self.targets = [t for t in targets if t.get("part") in self.skin.parts
+                            and int(t.get("triangle_id", -1)) in self.skin.parts[t["part"]].triangle_ids]
+        except (ValueError, TypeError, AttributeError, KeyError):
+            self.get_logger().warning("skipped a guidance message that is not the guidance's JSON")
+            return
+        self._publish_guidance()
+
+    def _on_status(self, msg: String) -> None:
+        try:
+            states = json.loads(msg.data).get("parts")
+        except (ValueError, TypeError, AttributeError):
+            return
+        if isinstance(states, dict) and states != self.states:
+            self.states = {k: v for k, v in states.items() if k in self.skin.parts}
+            self._publish_guidance()
+
+    def _publish_guidance(self) -> None:
+        """Targets outlined with their labels, and each part's state: one latched MarkerArray, replacing the last."""
+        stamp = self.get_clock().now().to_msg()
+        clear = Marker()
+        clear.action = Marker.DELETEALL
+        markers = [clear]
+        colour = ColorRGBA(r=GUIDANCE_COLOUR[0], g=GUIDANCE_COLOUR[1], b=GUIDANCE_COLOUR[2], a=GUIDANCE_COLOUR[3])
+        for rank, t in enumerate(self.targets, start=1):
+            part = self.skin.parts[t["part"]]
+            frame = part.triangle_frame(int(t["triangle_id"]))
+            outline = triangle_outline(part, int(t["triangle_id"]))
+            line = self._marker(frame, "guidance", rank, Marker.LINE_STRIP, stamp, colour)
+            line.scale.x = 0.0015
+            line.points = [Point(x=float(v[0]), y=float(v[1]), z=float(v[2])) for v in outline]
+            label = self._marker(frame, "guidance_label", rank, Marker.TEXT_VIEW_FACING, stamp, colour)
+            label.pose.position.z = 0.012
+            label.scale.z = 0.008
+            other = t["touched"] if t["part"] == t["hand"] else t["hand"]
+            label.text = f"{rank}: {t['part']} triangle {t['triangle_id']} with {other} ({t.get('reason', '')})"
+            markers += [line, label]
+        for i, (name, state) in enumerate(sorted(self.states.items())):
+            part = self.skin.parts[name]
+            c = STATE_COLOURS.get(state, (1.0, 1.0, 1.0, 1.0))
+            text = self._marker(part.mount_frame, "state", i, Marker.TEXT_VIEW_FACING, stamp,
+                                ColorRGBA(r=c[0], g=c[1], b=c[2], a=c[3]))
+            text.pose.position.z = 0.03
+            text.scale.z = 0.012
+            text.text = f"{name}: {state}"
+            markers.append(text)
+        self.guidance_pub.publish(MarkerArray(markers=markers))
+
+    @staticmethod
+    def _marker(frame: str, ns: str, mid: int, kind: int, stamp, colour: ColorRGBA) -> Marker:
+        m = Marker()
+        m.header.frame_id, m.header.stamp = frame, stamp
+        m.ns, m.id, m.type, m.action = ns, mid, kind, Marker.ADD
+        m.pose.orientation.w = 1.0
+        m.scale.x = m.scale.y = m.scale.z = 0.01
+        m.color = colour
+        m.frame_locked = True
+        return m
 
     def _legend(self, origin: np.ndarray, d: float) -> list:
         base = self.skin.robot.base_frame

@@ -1,0 +1,285 @@
+"""Benchmark of guided capture: touches needed until every part is calibrated well, random against guided.
+
+Per seed one simulated robot (:class:`~nao_skin.sim.capture.CaptureSim`: its
+true skin drawn once) is captured twice from scratch, with the same loop:
+
+1. a small random start (``start`` touches spread evenly over the pairs);
+2. calibrate (deduplicated touches, default options) as the live calibrate
+   node updates (:class:`~nao_skin.live.updates.WarmStart`: warm-started from
+   the last calibration, from scratch whenever the touches doubled);
+3. stop when EVERY part's true taxel error (``truth_error``: every present
+   taxel's distance from its true position, chain-end frame) has median <=
+   ``median_mm`` and p95 <= ``p95_mm``, or the touches reach ``cap``;
+4. else record the next batch of ``batch`` touches and go to 2:
+
+   * **random** -- :meth:`CaptureSim.random`: uniform over the pairs and over
+     each part's reachable triangles, no guidance;
+   * **guided** -- :func:`nao_skin.guidance.capture.guidance` on the touches and
+     the last calibration; one aimed touch per target, cycling over the top
+     ``max_targets`` reachable targets until the batch is full
+     (:meth:`CaptureSim.aimed`); aims the true robot cannot reach are topped up
+     with random touches, so every batch has the same size.
+
+Touches counted: presses recorded (duplicates of the recording removed), the
+x axis of the plot and the "touches needed". Both strategies share the
+calibration options, the stop rule, the start size, the batch size and the
+truth; the random start of a seed is the same for both.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from nao_skin.calibration.engine import CalibrationOptions, calibrate
+from nao_skin.calibration.evaluation import truth_error
+from nao_skin.errors import NaoSkinError, one_line
+from nao_skin.guidance.capture import guidance
+from nao_skin.live.updates import WarmStart
+from nao_skin.model.skin import SkinModel
+from nao_skin.sim.capture import Aim, CaptureSim
+from nao_skin.touch.datasets import deduplicate
+from nao_skin.touch.touches import TouchSet
+
+STRATEGIES = ("random", "guided")
+
+
+@dataclass
+class CaptureSetup:
+    start: int = 60                 # random touches before the first calibration (15 per pair)
+    batch: int = 20                 # touches per batch
+    cap: int = 1500                 # give up at this many touches
+    median_mm: float = 0.5          # every part's true taxel error median at most
+    p95_mm: float = 1.5             # and p95 at most
+    max_targets: int = 8            # guided: aims cycle over this many top targets
+    warm_start: bool = True         # update as the live calibrate node does (live.updates.WarmStart); False: from
+                                    # nominal each time
+    sim: dict = field(default_factory=dict)     # simulator parameter overrides (e.g. pairs)
+    options: dict = field(default_factory=dict)  # calibration option overrides
+
+    def calibration_options(self) -> CalibrationOptions:
+        o = CalibrationOptions()
+        for k, v in self.options.items():
+            o.set(k, v)
+        return o
+
+
+QUICK_SETUP = CaptureSetup(start=60, batch=20, cap=400, median_mm=1.0, p95_mm=2.0)
+
+
+def _met(err: dict, parts, setup: CaptureSetup) -> bool:
+    return all(p in err and err[p]["median"] <= setup.median_mm and err[p]["p95"] <= setup.p95_mm for p in parts)
+
+
+def run_capture(skin: SkinModel, seed: int, strategy: str, setup: CaptureSetup | None = None,
+                say: Callable[[str], None] = lambda msg: None) -> dict:
+    """One capture from scratch; returns ``{seed, strategy, needed (touches or None), trace, ...}``."""
+    setup = setup or CaptureSetup()
+    if strategy not in STRATEGIES:
+        raise ValueError(f"strategy {strategy!r}: expected one of {', '.join(STRATEGIES)}")
+    cap = CaptureSim(skin, setup.sim, seed)
+    parts = sorted({p for pair in cap.pairs for p in pair})
+    options = setup.calibration_options()
+    t0 = time.perf_counter()
+    batches = [cap.random(setup.start)]
+    calib, result = None, None
+    updates = WarmStart(skin.zero_calibration())
+    trace, needed, failures, guide_s = [], None, 0, []
+    while True:
+        touches, _ = deduplicate(TouchSet.concatenate(batches))
+        try:
+            start = updates.arguments(touches.n_touches) if setup.warm_start else {}
+            result = calibrate(touches, skin, options, truth=cap.truth, **start)
+            calib = result.calibration
+            if setup.warm_start:
+                updates.accepted(calib, result.report.parts, touches.n_touches, start)
+        except NaoSkinError as exc:      # too few touches of a pair yet: the next batch brings more
+            failures += 1
+            say(f"seed {seed} {strategy} at {touches.n_touches}: {one_line(exc)}")
+        err = truth_error(skin, calib, cap.truth, parts) if calib is not None else {}
+        worst_med = max((err[p]["median"] for p in parts if p in err), default=float("nan"))
+        worst_p95 = max((err[p]["p95"] for p in parts if p in err), default=float("nan"))
+        trace.append({"touches": touches.n_touches, "worst_median_mm": worst_med, "worst_p95_mm": worst_p95,
+                      "per_part": {p: err[p] for p in parts if p in err},
+                      "held": len(result.report.held) if result is not None else None})
+        if calib is not None and _met(err, parts, setup):
+            needed = touches.n_touches
+            break
+        if touches.n_touches >= setup.cap:
+            break
+        n = min(setup.batch, setup.cap - touches.n_touches)
+        if strategy == "random" or result is None:
+            batches.append(cap.random(n))
+            continue
+        tg = time.perf_counter()
+        g = guidance(touches, skin, result, options, max_targets=setup.max_targets, seed=seed * 1000 + len(batches),
+                     pairs=cap.pairs)
+        guide_s.append(time.perf_counter() - tg)
+        aims_from = [t for t in g.targets if t.pose is not None] or g.targets
+        aims_from = [t for t in aims_from if t.hand_triangle_id is not None and (t.hand, t.touched) in cap.pairs]
+        aims = [Aim(t.hand, t.touched, t.hand_triangle_id, t.touched_triangle_id)
+                for t in (aims_from[i % len(aims_from)] for i in range(n))] if aims_from else []
+        got = cap.aimed(aims) if aims else None
+        short = n
+        if got is not None and got.n_touches:
+            batches.append(got)
+            short -= deduplicate(got)[0].n_touches
+        if short > 0:
+            batches.append(cap.random(short))
+    final = trace[-1]
+    return {"seed": seed, "strategy": strategy, "needed": needed, "touches": final["touches"],
+            "worst_median_mm": final["worst_median_mm"], "worst_p95_mm": final["worst_p95_mm"],
+            "missed_aims": cap.missed, "calibration_failures": failures, "seconds": time.perf_counter() - t0,
+            "guidance_ms_median": 1000 * float(np.median(guide_s)) if guide_s else None, "trace": trace}
+
+
+def _one(args):
+    skin, seed, strategy, setup = args
+    try:
+        return run_capture(skin, seed, strategy, setup)
+    except Exception as exc:   # a failing run is a row, the benchmark goes on
+        return {"seed": seed, "strategy": strategy, "needed": None, "error": one_line(exc), "trace": []}
+
+
+def capture_matrix(skin: SkinModel, seeds, setup: CaptureSetup | None = None, jobs: int = 1,
+                   say: Callable[[str], None] = print) -> list:
+    """Every seed x strategy (in ``jobs`` worker processes); rows in seed, strategy order."""
+    setup = setup or CaptureSetup()
+    work = [(skin, s, st, setup) for s in seeds for st in STRATEGIES]
+    rows = []
+    if jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            for row in pool.map(_one, work):
+                say(_row_line(row))
+                rows.append(row)
+    else:
+        for w in work:
+            row = _one(w)
+            say(_row_line(row))
+            rows.append(row)
+    return rows
+
+
+def _row_line(row: dict) -> str:
+    if row.get("error"):
+        return f"seed {row['seed']} {row['strategy']}: FAILED {row['error']}"
+    got = f"{row['needed']} touches" if row["needed"] is not None else f"not reached in {row['touches']} touches"
+    return (f"seed {row['seed']} {row['strategy']}: {got} (worst part median {row['worst_median_mm']:.2f} mm,"
+            f" p95 {row['worst_p95_mm']:.2f} mm, {row['seconds']:.0f} s)")
+
+
+def _needed(rows: list, strategy: str, setup: CaptureSetup) -> list:
+    """Touches needed per seed; a run that did not get there counts as the cap (a lower bound)."""
+    return [r["needed"] if r.get("needed") is not None else setup.cap for r in rows if r["strategy"] == strategy]
+
+
+def summary(rows: list, setup: CaptureSetup) -> dict:
+    out = {}
+    for st in STRATEGIES:
+        n = np.array(_needed(rows, st, setup), float)
+        reached = sum(1 for r in rows if r["strategy"] == st and r.get("needed") is not None)
+        out[st] = {"median": float(np.median(n)) if len(n) else None,
+                   "p25": float(np.percentile(n, 25)) if len(n) else None,
+                   "p75": float(np.percentile(n, 75)) if len(n) else None,
+                   "min": float(n.min()) if len(n) else None, "max": float(n.max()) if len(n) else None,
+                   "reached": reached, "runs": int(len(n))}
+    seeds = sorted({r["seed"] for r in rows})
+    ratios = []
+    for s in seeds:
+        by = {r["strategy"]: r for r in rows if r["seed"] == s}
+        if all(st in by for st in STRATEGIES):
+            rn = by["random"]["needed"] if by["random"].get("needed") is not None else setup.cap
+            gn = by["guided"]["needed"] if by["guided"].get("needed") is not None else setup.cap
+            ratios.append(rn / gn)
+    out["ratio_random_over_guided"] = {"median": float(np.median(ratios)) if ratios else None,
+                                       "min": float(np.min(ratios)) if ratios else None}
+    g = out["guided"]
+    out["goal"] = {"guided_max_le_250": bool(g["max"] is not None and g["max"] <= 250 and g["reached"] == g["runs"]),
+                   "at_least_2x_fewer": bool(ratios and np.median(ratios) >= 2.0)}
+    return out
+
+
+def table(rows: list, setup: CaptureSetup) -> str:
+    def cell(r):
+        if r is None:
+            return "–"
+        if r.get("error"):
+            return f"FAILED ({r['error']})"
+        if r["needed"] is None:
+            return f"> {r['touches']} (worst {r['worst_median_mm']:.2f} / {r['worst_p95_mm']:.2f} mm)"
+        return f"{r['needed']}"
+
+    lines = ["| seed | random: touches | guided: touches | random / guided | guided misses | guidance ms |",
+             "|---|---|---|---|---|---|"]
+    for s in sorted({r["seed"] for r in rows}):
+        by = {r["strategy"]: r for r in rows if r["seed"] == s}
+        rn, gn = by.get("random"), by.get("guided")
+        ratio = "–"
+        if rn and gn and not rn.get("error") and not gn.get("error"):
+            a = rn["needed"] if rn["needed"] is not None else setup.cap
+            b = gn["needed"] if gn["needed"] is not None else setup.cap
+            ratio = f"{a / b:.2f}" + (" (at least)" if rn["needed"] is None and gn["needed"] is not None else "")
+        gms = gn.get("guidance_ms_median") if gn else None
+        lines.append(f"| {s} | {cell(rn)} | {cell(gn)} | {ratio} | {gn.get('missed_aims', '–') if gn else '–'} |"
+                     f" {f'{gms:.0f}' if gms is not None else '–'} |")
+    sm = summary(rows, setup)
+    lines += ["", "| strategy | median | p25–p75 | min–max | reached |", "|---|---|---|---|---|"]
+    for st in STRATEGIES:
+        v = sm[st]
+        if v["median"] is None:
+            continue
+        lines.append(f"| {st} | {v['median']:.0f} | {v['p25']:.0f}–{v['p75']:.0f} | {v['min']:.0f}–{v['max']:.0f} |"
+                     f" {v['reached']}/{v['runs']} |")
+    r = sm["ratio_random_over_guided"]
+    if r["median"] is not None:
+        lines += ["", f"Random / guided touches needed per seed: median {r['median']:.2f}, lowest {r['min']:.2f}"
+                      f" (a run that did not reach the target counts as the cap, {setup.cap}: a lower bound)."]
+    goal = sm["goal"]
+    lines.append(f"Goal (issue): guided <= 250 touches in all: {'met' if goal['guided_max_le_250'] else 'NOT met'};"
+                 f" at least 2x fewer than random: {'met' if goal['at_least_2x_fewer'] else 'NOT met'}.")
+    return "\n".join(lines)
+
+
+def plot(rows: list, setup: CaptureSetup, path) -> None:
+    """Worst part's true taxel error (median and p95) against touches, both strategies: seeds thin, median thick."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    colours = {"random": "tab:gray", "guided": "tab:blue"}
+    for ax, key, goal in ((axes[0], "worst_median_mm", setup.median_mm), (axes[1], "worst_p95_mm", setup.p95_mm)):
+        for st in STRATEGIES:
+            runs = [r for r in rows if r["strategy"] == st and r.get("trace")]
+            grid = np.arange(setup.start, setup.cap + setup.batch, setup.batch)
+            curves = []
+            for r in runs:
+                x = np.array([t["touches"] for t in r["trace"]], float)
+                y = np.array([t[key] for t in r["trace"]], float)
+                ax.plot(x, y, color=colours[st], lw=0.6, alpha=0.45)
+                # after the stop the error is taken as staying where it was
+                curves.append(np.interp(grid, x, y, right=y[-1]) if len(x) else np.full(len(grid), np.nan))
+            if curves:
+                last = max(max(t["touches"] for t in r["trace"]) for r in runs)
+                keep = grid <= last
+                ax.plot(grid[keep], np.nanmedian(np.array(curves), axis=0)[keep], color=colours[st], lw=2.5,
+                        label=f"{st} (median of {len(runs)} seeds)")
+        ax.axhline(goal, color="tab:red", ls="--", lw=1, label=f"target {goal:g} mm")
+        ax.set_yscale("log")
+        ax.set_xlabel("touches recorded")
+        ax.set_ylabel(f"worst part: true taxel error {'median' if 'median' in key else 'p95'} (mm)")
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+    fig.suptitle("Capture: random against guided (every part must meet both targets)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def setup_dict(setup: CaptureSetup) -> dict:
+    return asdict(setup)

@@ -1,0 +1,106 @@
+"""``nao-skin bench-capture``: touches needed until every part is calibrated well, random against guided capture.
+
+See :mod:`nao_skin.bench.capture` for the loop. Writes ``capture_results.md``
+(the tables), ``capture_results.json`` (every run with its trace) and
+``capture.png`` into ``--out`` and prints the tables. ``--out`` must be new,
+empty, or an earlier bench-capture output (then with ``--force``); see
+:mod:`nao_skin.formats.outdir`.
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+NAME = "bench-capture"
+HELP = "benchmark guided capture: touches until every part's true taxel error meets the target, random vs guided"
+OUTPUTS = ("capture_results.md", "capture_results.json", "capture.png")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--out", default="out/bench_capture",
+                        help="output directory (default: out/bench_capture): new, empty, or an earlier bench-capture"
+                             " output (with --force)")
+    parser.add_argument("--force", action="store_true",
+                        help="replace the outputs of an earlier bench-capture in --out (never a file nao-skin did"
+                             " not write)")
+    parser.add_argument("--seeds", type=int, default=None, help="seeds (default 10; --quick: 2)")
+    parser.add_argument("--first-seed", type=int, default=0, help="first seed (default 0)")
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke run: 2 seeds, cap 400 touches, target median 1.0 mm / p95 2.0 mm")
+    parser.add_argument("--start", type=int, help="random touches before the first calibration (default 60)")
+    parser.add_argument("--batch", type=int, help="touches per batch (default 20)")
+    parser.add_argument("--cap", type=int, help="give up at this many touches (default 1500)")
+    parser.add_argument("--median-mm", type=float, help="every part's true taxel error median at most (default 0.5)")
+    parser.add_argument("--p95-mm", type=float, help="every part's true taxel error p95 at most (default 1.5)")
+    parser.add_argument("--cold", action="store_true",
+                        help="calibrate from nominal after every batch (default: warm-started from the last one)")
+    parser.add_argument("--jobs", type=int, default=1, help="worker processes (runs are independent)")
+
+
+def run(args) -> int:
+    from dataclasses import replace
+
+    from nao_skin.bench import capture as bench
+    from nao_skin.errors import DataError
+    from nao_skin.formats.outdir import BENCHMARK, check_output_dir, clear_for_writing
+    from nao_skin.model.skin import load_skin
+
+    setup = bench.QUICK_SETUP if args.quick else bench.CaptureSetup()
+    for name in ("start", "batch", "cap", "median_mm", "p95_mm"):
+        value = getattr(args, name)
+        if value is not None:
+            if value <= 0:
+                raise DataError(f"--{name.replace('_', '-')} {value}: must be positive")
+            setup = replace(setup, **{name: value})
+    if args.cold:
+        setup = replace(setup, warm_start=False)
+    seeds = args.seeds if args.seeds is not None else (2 if args.quick else 10)
+    if seeds < 1:
+        raise DataError(f"--seeds {seeds}: must be at least 1")
+    check_output_dir(args.out, BENCHMARK, force=args.force)
+    out = Path(args.out)
+    clear_for_writing(out, NAME, BENCHMARK, OUTPUTS)
+    say = lambda msg: print(msg, flush=True)  # noqa: E731
+    t0 = time.perf_counter()
+    seed_list = list(range(args.first_seed, args.first_seed + seeds))
+    say(f"bench-capture: {len(seed_list)} seeds x random/guided, start {setup.start}, batch {setup.batch},"
+        f" cap {setup.cap}, target median <= {setup.median_mm:g} mm and p95 <= {setup.p95_mm:g} mm in every part")
+    rows = bench.capture_matrix(load_skin(), seed_list, setup, max(1, args.jobs), say)
+    bench.plot(rows, setup, out / "capture.png")
+    argv = sys.argv[2:] + ([] if "--force" in sys.argv[2:] else ["--force"])
+    seconds = time.perf_counter() - t0
+    md = [f"# nao-skin bench-capture{' (quick)' if args.quick else ''}", "",
+          f"Command: `nao-skin bench-capture {' '.join(argv)}`", "",
+          f"Touches (presses recorded, duplicates removed) until EVERY part's true taxel error has median <="
+          f" {setup.median_mm:g} mm and p95 <= {setup.p95_mm:g} mm; random start of {setup.start} touches, then"
+          f" batches of {setup.batch}, recalibrated after each"
+          f" ({'warm-started from the previous calibration' if setup.warm_start else 'from nominal'}), cap"
+          f" {setup.cap}. Random: uniform over the pairs and each part's reachable triangles. Guided: aimed at the"
+          f" guidance's top {setup.max_targets} targets (misses topped up with random touches).", "",
+          bench.table(rows, setup), "", "![capture](capture.png)", "", f"Wall time: {seconds:.0f} s.", ""]
+    text = "\n".join(md)
+    (out / "capture_results.md").write_text(text)
+    results = {"setup": bench.setup_dict(setup), "seeds": seed_list, "summary": bench.summary(rows, setup),
+               "rows": rows, "seconds": seconds}
+    (out / "capture_results.json").write_text(json.dumps(_jsonable(results), indent=1) + "\n")
+    print(text)
+    print(f"-> {out / 'capture_results.md'}, {out / 'capture.png'}")
+    return 0
+
+
+def _jsonable(obj):
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        return None if not np.isfinite(obj) else float(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj

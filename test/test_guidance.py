@@ -1,0 +1,158 @@
+"""Guided capture: the guidance's ranking, its poses, the simulator on demand, the report's coverage table."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from nao_skin import se3
+from nao_skin.bench.capture import CaptureSetup, run_capture
+from nao_skin.calibration.engine import calibrate
+from nao_skin.calibration.report import coverage_lines, markdown_report, report_coverage
+from nao_skin.guidance.capture import guidance
+from nao_skin.model.skin import load_skin
+from nao_skin.sim.capture import Aim, CaptureSim
+from nao_skin.touch.datasets import deduplicate
+from nao_skin.touch.touches import TouchSet
+
+PAIRS = [["l_hand", "torso"], ["r_hand", "torso"]]
+
+
+@pytest.fixture(scope="module")
+def skin():
+    return load_skin()
+
+
+@pytest.fixture(scope="module")
+def captured(skin):
+    """A capture of two pairs, calibrated: the state guidance starts from."""
+    cap = CaptureSim(skin, {"pairs": PAIRS}, 5)
+    touches, _ = deduplicate(cap.random(120))
+    result = calibrate(touches, skin, truth=cap.truth)
+    return cap, touches, result
+
+
+def _row(part, tid):
+    return int(np.flatnonzero(part.triangle_ids == tid)[0])
+
+
+def test_held_triangle_ranks_above_well_covered(skin, captured):
+    _, touches, result = captured
+    g = guidance(touches, skin, result, max_targets=200, poses=False, pairs=[tuple(p) for p in PAIRS])
+    cov = g.coverage["torso"]
+    acts = np.array(cov.activations)
+    assert cov.total == len(skin.parts["torso"].triangle_ids) and cov.enough == int(np.sum(acts >= cov.needed))
+    held = [t for t in g.targets if t.part == "torso" and t.activations < t.needed]
+    assert held, "a 120-touch capture leaves some torso triangle held"
+    rank = {(t.part, t.triangle_id): i for i, t in enumerate(g.targets)}
+    for well in np.flatnonzero(acts >= 2 * cov.needed):     # well covered: no target at all
+        assert ("torso", cov.triangle_ids[well]) not in rank
+    weak = [t for t in g.targets if t.reason == "weak"]
+    if weak:
+        assert max(rank[(t.part, t.triangle_id)] for t in held) < min(rank[(t.part, t.triangle_id)] for t in weak)
+    scores = [t.score for t in g.targets]
+    assert scores == sorted(scores, reverse=True)
+    json.dumps(g.to_dict())     # JSON-ready
+
+
+def test_guidance_changes_after_its_targets_are_touched(skin, captured):
+    cap, touches, result = captured
+    pairs = [tuple(p) for p in PAIRS]
+    g = guidance(touches, skin, result, max_targets=4, seed=1, pairs=pairs)
+    top = [(t.part, t.triangle_id) for t in g.targets if t.pose is not None]
+    assert top
+    before = {(t.part, t.triangle_id): t.activations for t in g.targets}
+    cap2 = CaptureSim(skin, {"pairs": PAIRS}, 5)    # same truth; this test must not change the fixture's sim
+    cap2.next_stamp = cap.next_stamp
+    aims = [Aim(t.hand, t.touched, t.hand_triangle_id, t.touched_triangle_id) for t in g.targets
+            if t.pose is not None for _ in range(6)]
+    more = cap2.aimed(aims)
+    assert more.n_touches > 0 and np.all(more.labels["aimed"])
+    joined = TouchSet.concatenate([touches, more])
+    assert len(set(joined.keys)) == joined.n_touches
+    joined, _ = deduplicate(joined)
+    result2 = calibrate(joined, skin, prior=result.calibration, truth=cap.truth)
+    g2 = guidance(joined, skin, result2, max_targets=200, poses=False, pairs=pairs)
+    rank2 = {(t.part, t.triangle_id): i for i, t in enumerate(g2.targets)}
+    for i, key in enumerate(top):
+        cov = g2.coverage[key[0]]
+        assert cov.activations[cov.triangle_ids.index(key[1])] > before[key]     # the touches landed there
+        assert key not in rank2 or rank2[key] > i      # dropped out, or fell in rank
+    assert [k for k in rank2][:len(top)] != top
+
+
+def test_suggested_poses_within_limits_and_reach_the_target_under_truth(skin, captured):
+    cap, touches, result = captured
+    g = guidance(touches, skin, result, max_targets=8, seed=2, pairs=[tuple(p) for p in PAIRS])
+    robot = skin.robot
+    reached = [t for t in g.targets if t.pose is not None]
+    assert len(reached) >= 4
+    for t in reached:
+        q = np.zeros((1, len(robot.joint_names)))
+        for name, value in t.pose.items():
+            j = robot.joint_names.index(name)
+            assert robot.limits[j, 0] <= value <= robot.limits[j, 1], name
+            q[0, j] = value
+        # the chosen spots, carried from the calibrated triangle frames to the true ones, meet at the pose
+        spots = []
+        for part_name, tid, pt in ((t.hand, t.hand_triangle_id, t.hand_point), (t.touched, t.touched_triangle_id,
+                                                                             t.touched_point)):
+            part = skin.parts[part_name]
+            r = _row(part, tid)
+            _, _, cal = part.frame_poses(result.calibration.parts[part_name])
+            _, _, true = part.frame_poses(cap.truth.parts[part_name])
+            local = se3.transform_points(np.linalg.inv(cal[r]), np.asarray(pt))
+            end = robot.fk(part.chain, q)[0]
+            spots.append(se3.transform_points(end, se3.transform_points(true[r], local)))
+        assert np.linalg.norm(spots[0] - spots[1]) < 0.006, t      # a few mm: the calibration's error + fabric
+        assert t.point == (t.hand_point if t.part == t.hand else t.touched_point)
+
+
+def test_capture_batches_concatenate_and_simulate_unchanged(skin):
+    from nao_skin.sim.simulate import simulate
+
+    cap = CaptureSim(skin, {"pairs": PAIRS}, 3)
+    ref = simulate(skin, {"pairs": PAIRS, "n_touches": 3}, 3)
+    for name in skin.parts:
+        assert np.allclose(cap.truth.parts[name].mount, ref.truth.parts[name].mount)
+        assert np.allclose(cap.truth.parts[name].triangles, ref.truth.parts[name].triangles)
+    a = cap.random(10)
+    r = int(a.labels["target_triangle_row"][a.labels["pair"] == "l_hand-torso"][0])    # a torso triangle reached
+    b = cap.aimed([Aim("l_hand", "torso", None, int(skin.parts["torso"].triangle_ids[r]))] * 3)
+    assert b.n_touches >= 3
+    both = TouchSet.concatenate([a, b])
+    assert both.n_touches == a.n_touches + b.n_touches and len(set(both.keys)) == both.n_touches
+    assert np.all(np.diff(both.stamps) > 0)
+    assert np.all(b.labels["target_triangle_row"] == r)
+    # the simulator itself gives the same touches as before the capture module existed
+    again = simulate(skin, {"pairs": PAIRS, "n_touches": 3}, 3)
+    assert again.touches.keys == ref.touches.keys and np.array_equal(again.touches.act_slot, ref.touches.act_slot)
+
+
+def test_report_coverage_table_lists_held_triangles(skin, captured):
+    _, _, result = captured
+    cov = report_coverage(result, skin)
+    assert set(cov) == set(result.report.parts)
+    held = [h for h in result.report.held if "/triangle_" in h and " " not in h]
+    assert held
+    text = markdown_report(result.report.to_dict(), cov)
+    assert "## Coverage" in text
+    for entry in held:
+        part, frame = entry.split("/")
+        tid = int(frame.split("_")[1])
+        assert tid in cov[part]["held_triangles"]
+        row = next(line for line in coverage_lines(cov) if line.startswith(f"| {part} |"))
+        assert str(tid) in row.split("|")[4]
+    assert markdown_report(result.report.to_dict()) == markdown_report(result.report.to_dict(), None)
+
+
+def test_guided_capture_leaves_fewer_triangles_held_than_random(skin):
+    """What the guidance is for: after the same touches, fewer frames held for lack of activations. (Reaching
+    an accuracy target sooner it does not, measured: ``nao-skin bench-capture``; the random capture's spread
+    of poses serves the mounts and patches better.)"""
+    setup = CaptureSetup(start=40, batch=20, cap=160, median_mm=0.0, p95_mm=0.0, sim={"pairs": PAIRS})
+    random = run_capture(skin, 0, "random", setup)
+    guided = run_capture(skin, 0, "guided", setup)
+    assert random["touches"] == guided["touches"] == 160
+    assert guided["trace"][-1]["held"] < random["trace"][-1]["held"], (guided["trace"], random["trace"])
