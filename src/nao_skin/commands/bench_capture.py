@@ -39,6 +39,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--jobs", type=int, default=1, help="worker processes (runs are independent)")
 
 
+_HOW = {True: "as the live calibrate node updates: warm-started, from scratch whenever the touches doubled",
+        False: "from nominal each time"}
+
+
 def run(args) -> int:
     from dataclasses import replace
 
@@ -76,7 +80,7 @@ def run(args) -> int:
           f"Touches (presses recorded, duplicates removed) until EVERY part's true taxel error has median <="
           f" {setup.median_mm:g} mm and p95 <= {setup.p95_mm:g} mm; random start of {setup.start} touches, then"
           f" batches of {setup.batch}, recalibrated after each"
-          f" ({'warm-started from the previous calibration' if setup.warm_start else 'from nominal'}), cap"
+          f" ({_HOW[setup.warm_start]}), cap"
           f" {setup.cap}. Random: uniform over the pairs and each part's reachable triangles. Guided: aimed at the"
           f" guidance's top {setup.max_targets} targets (misses topped up with random touches).", "",
           bench.table(rows, setup), "", "![capture](capture.png)", "", f"Wall time: {seconds:.0f} s.", ""]
