@@ -6,9 +6,16 @@ fit, and where their estimates go (report, calibration.yaml, URDF).
 """
 import numpy as np
 import pytest
+import yaml
 
+from nao_skin.calibration.engine import CalibrationOptions, calibrate
+from nao_skin.errors import ConfigError
 from nao_skin.model.robot import RobotModel
+from nao_skin.model.skin import SkinCalibration
 from nao_skin.paths import config_dir
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate, write_outputs
+from nao_skin.touch.datasets import deduplicate
 
 THESIS = config_dir() / "nao_h25.yaml"
 MANUFACTURER = config_dir() / "nao_h25_manufacturer.yaml"
@@ -38,3 +45,137 @@ def test_manufacturer_config_moves_the_elbow_out_by_15_mm(chain, side):
     np.testing.assert_allclose(np.linalg.norm(b[:, -1, :3, 3] - a[:, -1, :3, 3], axis=1), 0.015, atol=1e-12)
     # the head chain is the same in both
     np.testing.assert_allclose(thesis.fk("head", q), maker.fk("head", q), atol=1e-15)
+
+
+def test_corrected_robot_adds_joint_offsets_and_link_lengths():
+    robot = RobotModel.from_yaml(THESIS)
+    q = random_q(robot, 20, 5)
+    moved = robot.corrected({"LElbowRoll": 0.03, "LElbowOffsetY": 0.015})
+    shifted = q.copy()
+    shifted[:, robot.joint_index["LElbowRoll"]] += 0.03
+    maker = RobotModel.from_yaml(MANUFACTURER)
+    np.testing.assert_allclose(moved.fk("l_arm", q), maker.fk("l_arm", shifted), atol=1e-12)
+    np.testing.assert_allclose(moved.fk("r_arm", q), robot.fk("r_arm", q), atol=1e-15)
+    assert robot.kinematic_names(["l_arm"]) == ["LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll",
+                                                "LWristYaw", "LElbowOffsetY", "LUpperArmLength"]
+    with pytest.raises(ConfigError, match="neither a joint nor a named link"):
+        robot.corrected({"LKnee": 0.1})
+
+
+# ------------------------------------------------------------------------------ simulator
+def small_params(preset, **overrides):
+    return load_params(preset, {"n_touches": 3, "pairs": [["l_hand", "torso"]], **overrides})
+
+
+def test_kinematic_error_preset_truth_differs_and_is_reproducible(skin, tmp_path):
+    a = simulate(skin, small_params("kinematic-error"), seed=4)
+    b = simulate(skin, small_params("kinematic-error"), seed=4)
+    nominal = simulate(skin, small_params("default"), seed=4)
+    kin = a.truth.kinematics
+    assert kin == b.truth.kinematics
+    assert np.array_equal(a.touches.joints, b.touches.joints)
+    joints = [j for j in kin if j in skin.robot.joint_index]
+    assert len(joints) == 12                                     # every arm and head joint
+    assert all(0 < abs(v) <= np.radians(2.0) for v in (kin[j] for j in joints))
+    assert kin["LElbowOffsetY"] == 0.015 and kin["RElbowOffsetY"] == -0.015
+    assert nominal.truth.kinematics == {}
+    # the skin's truth is drawn first from the same stream: the same as the config's robot's
+    for name in skin.parts:
+        np.testing.assert_array_equal(a.truth.parts[name].mount, nominal.truth.parts[name].mount)
+    # another seed, other offsets
+    assert simulate(skin, small_params("kinematic-error"), seed=5).truth.kinematics != kin
+    # the truth goes into the recording's files; the config's robot leaves them as they were
+    write_outputs(a, skin, tmp_path / "ke", preset="kinematic-error", with_bag=False)
+    meta = yaml.safe_load((tmp_path / "ke" / "simulation.yaml").read_text())
+    assert meta["params"]["joint_offset_deg"] == 2.0
+    loaded = SkinCalibration.load(tmp_path / "ke" / "truth_calibration.yaml", skin)
+    assert loaded.kinematics == pytest.approx(kin, abs=1e-10)
+    write_outputs(nominal, skin, tmp_path / "nominal", preset="default", with_bag=False)
+    assert "joint_offset_deg" not in (tmp_path / "nominal" / "simulation.yaml").read_text()
+    assert "kinematics" not in (tmp_path / "nominal" / "truth_calibration.yaml").read_text()
+
+
+def test_true_body_poses_and_fires(skin):
+    """The recorded joints put the true skin in contact on the true robot, not on the config's."""
+    sim = simulate(skin, small_params("kinematic-error", noise_scale=0.0), seed=2)
+    q = sim.touches.labels["joints_true"]
+    contact = sim.touches.labels["contact_point"]
+    hand = skin.parts["l_hand"].present
+    true = skin.with_kinematics(sim.truth).taxels_in_base("l_hand", q, sim.truth)[:, hand]
+    assert np.all(np.min(np.linalg.norm(true - contact[:, None], axis=2), axis=1) < 0.01)
+    # on the config's robot the same joints put the same skin elsewhere (15 mm elbow, ~2 deg per joint)
+    config = skin.taxels_in_base("l_hand", q, sim.truth)[:, hand]
+    assert np.all(np.median(np.linalg.norm(config - true, axis=2), axis=1) > 0.005)
+
+
+# ------------------------------------------------------------------------------ calibration
+def test_calibration_yaml_round_trips_the_kinematic_section(skin, tmp_path):
+    calib = skin.zero_calibration()
+    calib.save(tmp_path / "plain.yaml", skin)
+    assert "kinematics" not in (tmp_path / "plain.yaml").read_text()       # absent when off: old files unchanged
+    calib.kinematics = {"LShoulderPitch": 0.0123, "LElbowOffsetY": 0.0151}
+    calib.kinematics_std = {"LShoulderPitch": 0.0004, "LElbowOffsetY": 0.0002}
+    calib.save(tmp_path / "kin.yaml", skin)
+    doc = yaml.safe_load((tmp_path / "kin.yaml").read_text())
+    assert doc["kinematics"]["LElbowOffsetY"] == {"correction": 0.0151, "unit": "m", "std": 0.0002}
+    assert doc["kinematics"]["LShoulderPitch"]["unit"] == "rad"
+    back = SkinCalibration.load(tmp_path / "kin.yaml", skin)
+    assert back.kinematics == calib.kinematics and back.kinematics_std == calib.kinematics_std
+    (tmp_path / "bad.yaml").write_text((tmp_path / "kin.yaml").read_text().replace("LShoulderPitch", "LKnee"))
+    with pytest.raises(ConfigError, match="LKnee"):
+        SkinCalibration.load(tmp_path / "bad.yaml", skin)
+
+
+def test_kinematics_off_changes_nothing(real, real_skin):
+    """The default (off) and an explicit off: no kinematic stage, no section, the same corrections."""
+    default = calibrate(real, real_skin, CalibrationOptions(max_iterations=5, max_repairings=2))
+    off = CalibrationOptions(max_iterations=5, max_repairings=2)
+    off.set("kinematics", False)                                  # YAML 1.1 reads `off` as false
+    assert off.kinematics == "off"
+    explicit = calibrate(real, real_skin, off)
+    assert default.report.kinematics == {} and default.calibration.kinematics == {}
+    assert not any("kinematics" in s["name"] for s in default.report.stages)
+    assert default.calibration.to_dict(real_skin) == explicit.calibration.to_dict(real_skin)
+
+
+@pytest.fixture(scope="module")
+def kinematic_run(skin):
+    """The left hand on the torso and the head, every joint up to 2 deg off, no noise: calibrated with
+    the kinematic unknowns."""
+    sim = simulate(skin, load_params("kinematic-error", {"noise_scale": 0.0, "link_errors": {}, "n_touches": 150,
+                                                         "pairs": [["l_hand", "torso"], ["l_hand", "head"]]}), 1)
+    touches, _ = deduplicate(sim.touches)
+    options = CalibrationOptions()
+    options.set("kinematics", True)                               # YAML 1.1 reads `on` as true
+    return sim, calibrate(touches, skin, options, truth=sim.truth)
+
+
+@pytest.mark.slow
+def test_kinematics_on_recovers_the_simulated_joint_offsets(kinematic_run):
+    sim, result = kinematic_run
+    kin = result.report.kinematics
+    assert kin["accepted"] and kin["mode"] == "on"
+    est = kin["corrections"]
+    # the joints the touches pin well (std < 0.1 deg) within 0.15 deg, every estimated one within 0.5 deg
+    for name, entry in est.items():
+        if entry["unit"] == "rad":
+            err = np.degrees(abs(entry["value"] - sim.truth.kinematics.get(name, 0.0)))
+            assert err < (0.15 if np.degrees(entry["std"]) < 0.1 else 0.5), (name, err, entry)
+    assert {"LShoulderPitch", "LElbowYaw", "HeadYaw"} <= set(est)
+    assert result.calibration.kinematics == {n: e["value"] for n, e in est.items()}
+    # and the skin sits closer to the truth than a skin-only calibration of the same touches can
+    assert result.report.final["truth_taxel_error_mm"]["l_hand"]["median"] < \
+        result.report.before["truth_taxel_error_mm"]["l_hand"]["median"]
+
+
+@pytest.mark.slow
+def test_an_unobservable_offset_is_held_and_listed(kinematic_run):
+    """A WristYaw offset and the hand mount turned about that axis are one direction: the offset is held
+    (not the mount), at nominal, and the report says so; so is HeadPitch against the head mount."""
+    _, result = kinematic_run
+    kin = result.report.kinematics
+    held = {h["name"]: h["reason"] for h in kin["held"]}
+    assert {"LWristYaw", "HeadPitch"} <= set(held)
+    assert "not determined" in held["LWristYaw"]
+    assert "LWristYaw" not in kin["corrections"] and "LWristYaw" not in result.calibration.kinematics
+    assert not any("mount" in h for h in result.report.held)

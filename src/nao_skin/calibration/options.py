@@ -75,6 +75,8 @@ class Rule:
                 raise bad
             return value
         if self.kind is str:
+            if isinstance(value, bool) and {"on", "off"} <= set(self.choices):
+                value = "on" if value else "off"   # YAML 1.1 (--set, parameter files) reads on/off as booleans
             if value not in self.choices:
                 raise bad
             return value
@@ -180,6 +182,11 @@ class CalibrationOptions:
     # a part fitted to a fixed reference inherits that reference's error, which a joint solve of all
     # parts removes (measured on simulated truth)
     joint_refinement: bool = option(True, Rule(bool), "finish with every part free at once")
+    # a constant mount correction cannot absorb a joint-angle offset or a link length upstream of it
+    kinematics: str = option("off", Rule(str, ("off", "on", "auto")),
+                             "also estimate the arm and head joint-angle offsets and link lengths the touches"
+                             " determine, with every mount free: on, auto (kept only when the test split's"
+                             " closest taxel distance improves) or off")
 
     def solve_options(self) -> SolveOptions:
         return SolveOptions(loss=self.loss, f_scale=self.f_scale, max_iterations=self.max_iterations,
