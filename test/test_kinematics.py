@@ -57,7 +57,7 @@ def test_corrected_robot_adds_joint_offsets_and_link_lengths():
     np.testing.assert_allclose(moved.fk("l_arm", q), maker.fk("l_arm", shifted), atol=1e-12)
     np.testing.assert_allclose(moved.fk("r_arm", q), robot.fk("r_arm", q), atol=1e-15)
     assert robot.kinematic_names(["l_arm"]) == ["LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll",
-                                                "LWristYaw", "LElbowOffsetY", "LUpperArmLength"]
+                                                "LWristYaw", "LElbowOffsetY"]
     with pytest.raises(ConfigError, match="neither a joint nor a named link"):
         robot.corrected({"LKnee": 0.1})
 
@@ -179,3 +179,53 @@ def test_an_unobservable_offset_is_held_and_listed(kinematic_run):
     assert "not determined" in held["LWristYaw"]
     assert "LWristYaw" not in kin["corrections"] and "LWristYaw" not in result.calibration.kinematics
     assert not any("mount" in h for h in result.report.held)
+
+
+def test_urdf_takes_the_kinematic_corrections(skin, tmp_path):
+    """Joint offsets turn the joint origin about the joint axis, link corrections move it: the URDF's
+    frames are the corrected robot's, the joint positions those the joints report."""
+    from nao_skin.model.urdf import UrdfModel, expand_xacro
+
+    calib = skin.zero_calibration()
+    calib.kinematics = {"LShoulderRoll": 0.02, "LElbowRoll": -0.03, "HeadYaw": 0.01, "RElbowOffsetY": -0.015,
+                        "LElbowOffsetY": 0.002}
+    calib.save(tmp_path / "kin.yaml", skin)
+    urdf = UrdfModel.from_string(expand_xacro(tmp_path / "kin.yaml"), "corrected URDF")
+    nominal = UrdfModel.from_string(expand_xacro(), "nominal URDF")
+    robot = skin.with_kinematics(calib).robot
+    q = random_q(robot, 10, 8)
+    positions = {name: q[:, i] for i, name in enumerate(robot.joint_names)}
+    got, before = urdf.link_poses(positions), nominal.link_poses(positions)
+    for chain in robot.chains.values():
+        frames = robot.fk_frames(chain.name, q)
+        for k, frame in enumerate(chain.frames):
+            np.testing.assert_allclose(got[frame], frames[:, k], atol=1e-9)
+    assert np.abs(got["l_elbow_roll_link"] - before["l_elbow_roll_link"]).max() > 1e-3
+    # the LElbowRoll joint's origin is turned about its axis by the offset
+    joint = urdf.joints["LElbowRoll"]
+    turned = nominal.joints["LElbowRoll"].origin @ _axis_rotation(joint.axis, -0.03)
+    np.testing.assert_allclose(joint.origin, turned, atol=1e-9)
+
+
+def _axis_rotation(axis, angle):
+    from nao_skin import se3
+
+    out = np.eye(4)
+    out[:3, :3] = se3.rotvec_to_matrix(np.asarray(axis) * angle)
+    return out
+
+
+def test_auto_keeps_the_skin_only_calibration_when_the_test_split_gains_too_little(real, real_skin):
+    """kinematics=auto: the kinematic stage is undone unless the held-out figure improves by
+    kinematics_min_gain; then the calibration is the skin-only one and every unknown is listed as held."""
+    fast = dict(max_iterations=5, max_repairings=2)
+    off = calibrate(real, real_skin, CalibrationOptions(**fast))
+    auto = calibrate(real, real_skin, CalibrationOptions(**fast, kinematics="auto", kinematics_min_gain=0.99))
+    kin = auto.report.kinematics
+    assert kin["mode"] == "auto" and not kin["accepted"] and kin["corrections"] == {}
+    assert [h["name"] for h in kin["held"]] == real_skin.robot.kinematic_names(["l_arm"])
+    assert all("kinematics=auto" in h["reason"] for h in kin["held"])
+    assert auto.calibration.kinematics == {}
+    assert auto.calibration.to_dict(real_skin) == off.calibration.to_dict(real_skin)
+    assert auto.report.final == off.report.final
+    assert any("reverted" in s for s in auto.report.stages if s["name"].startswith("kinematics"))
