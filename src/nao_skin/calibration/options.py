@@ -191,6 +191,9 @@ class CalibrationOptions:
     # same on both splits: extra unknowns always buy a little on the test split too (simulator, the
     # config's robot: -6 % on bags/sim_default while the true error rose 0.40 -> 0.59 mm; real recording
     # -7 %), where a kinematic error the config lacks buys much more (preset kinematic-error: -30 %)
+    kinematics_passes: int = option(3, Rule(int, low=0),
+                                    "after the kinematic stage: passes of the skin plan on the corrected robot,"
+                                    " each followed by the kinematic stage again, until they settle")
     kinematics_min_gain: float = option(0.1, Rule(float, low=0.0, high=1.0, high_open=True),
                                         "kinematics=auto keeps the kinematic stage when it lowers the test split's"
                                         " closest taxel mean by at least this share")
