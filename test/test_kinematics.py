@@ -229,3 +229,26 @@ def test_auto_keeps_the_skin_only_calibration_when_the_test_split_gains_too_litt
     assert auto.calibration.to_dict(real_skin) == off.calibration.to_dict(real_skin)
     assert auto.report.final == off.report.final
     assert any("reverted" in s for s in auto.report.stages if s["name"].startswith("kinematics"))
+
+
+def test_bench_kinematics_rows_say_which_goals_are_met():
+    """The bench's summary and goal lines from rows (no calibration run here)."""
+    from nao_skin.bench.runner import kinematics_goal_lines, kinematics_summary, kinematics_tables
+
+    def row(preset, seed, mode, hand, torso, offset_err=float("nan")):
+        parts = {"l_hand": {"median": hand, "p95": 2 * hand}, "torso": {"median": torso, "p95": 2 * torso}}
+        return {"preset": preset, "seed": seed, "mode": mode, "status": "ok", "parts": ["l_hand", "torso"],
+                "seconds": 1.0, "true_median_mm": (hand + torso) / 2, "true_p95_mm": 2 * max(hand, torso),
+                "part_true_mm": parts, "accepted": mode != "off", "held": [], "recovered": {},
+                "max_offset_error_deg": offset_err}
+    rows = [row("kinematic-error", 0, "off", 12.0, 4.0), row("kinematic-error", 0, "on", 0.4, 0.3, 0.1),
+            row("default", 0, "off", 0.4, 0.5), row("default", 0, "on", 0.45, 0.5, 0.3),
+            row("default", 0, "auto", 0.4, 0.5)]
+    lines = kinematics_goal_lines(rows)
+    assert any(line.startswith("kinematic-error, off") and line.endswith("- met") for line in lines)
+    assert any("in 1/1 seeds" in line and line.endswith("- met") for line in lines)
+    assert any(line.startswith("default, on") and "0.025 mm" in line and line.endswith("NOT met") for line in lines)
+    assert any(line.startswith("default, auto") and line.endswith("- met") for line in lines)
+    summary = {(s["preset"], s["mode"]): s for s in kinematics_summary(rows)}
+    assert summary[("default", "on")]["parts"]["l_hand"]["median"] == 0.45
+    assert "| kinematic-error | on |" in kinematics_tables(rows)
