@@ -321,7 +321,7 @@ BUNDLE = Path(__file__).resolve().parents[1] / "bags" / "sim_default"
 def test_bundled_recording_matches_the_simulator(skin, tmp_path):
     meta = yaml.safe_load((BUNDLE / "simulation.yaml").read_text())
     assert meta["seed"] == 0 and meta["preset"] == "default"
-    assert meta["params"] == load_params("default", {"n_touches": 1000}).to_dict()
+    assert meta["params"] == load_params("default", {"n_touches": 1000}).record()
     # the truth does not depend on the number of touches: regenerate it cheaply, byte for byte
     from nao_skin.sim.simulate import write_outputs
 

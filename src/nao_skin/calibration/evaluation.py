@@ -33,17 +33,37 @@ def plan_pairs(steps: list) -> list:
                    for s in steps for a in s.targets + s.references for b in s.targets + s.references if a != b})
 
 
-def truth_error(skin: SkinModel, calib: SkinCalibration, truth: SkinCalibration, parts=None) -> dict:
-    """Distance of every calibrated taxel from its true position (chain-end frame), in mm."""
+TRUTH_POSES = 200   # poses the true taxel error is measured at when the kinematics differ (evenly spaced)
+
+
+def truth_error(skin: SkinModel, calib: SkinCalibration, truth: SkinCalibration, parts=None,
+                poses: np.ndarray | None = None) -> dict:
+    """Distance of every calibrated taxel from its true position, in mm.
+
+    In the chain-end frame while both robots are the config's. When the calibration or the
+    truth corrects the kinematics, a taxel's place depends on the pose: it is measured in the
+    base frame at ``poses`` (the touches' joint angles, up to :data:`TRUTH_POSES` of them), the
+    calibrated skin on the calibrated robot against the true skin on the true robot (a WristYaw
+    offset and a hand mount turned about that axis are then the same, as they are to the touches).
+    """
     out = {}
     errs_all = []
+    posed = poses is not None and len(poses) > 0 and bool(calib.kinematics or truth.kinematics)
+    if posed:
+        q = np.asarray(poses)[np.unique(np.linspace(0, len(poses) - 1, min(TRUTH_POSES, len(poses))).astype(int))]
+        est_skin, true_skin = skin.with_kinematics(calib), skin.with_kinematics(truth)
     for name in parts or skin.parts:
         if name not in truth.parts:
             continue
         p = skin.parts[name]
-        est, _ = p.taxel_positions(calib.parts[name])
-        true, _ = p.taxel_positions(truth.parts[name])
-        e = np.linalg.norm(est[p.present] - true[p.present], axis=1) * 1000.0
+        if posed:
+            est = est_skin.taxels_in_base(name, q, calib)[:, p.present]
+            true = true_skin.taxels_in_base(name, q, truth)[:, p.present]
+            e = np.linalg.norm(est - true, axis=2).ravel() * 1000.0
+        else:
+            est, _ = p.taxel_positions(calib.parts[name])
+            true, _ = p.taxel_positions(truth.parts[name])
+            e = np.linalg.norm(est[p.present] - true[p.present], axis=1) * 1000.0
         errs_all.append(e)
         out[name] = {"median": float(np.median(e)), "p95": float(np.percentile(e, 95)), "max": float(e.max())}
     if errs_all:
@@ -73,6 +93,7 @@ def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float) 
     if pairing is None or len(pairing.row_touch) == 0:
         return np.inf
     parts = tuple(p for p in step.targets + step.references if p in touches.part_names)
+    skin = skin.with_kinematics(calib)
     model = ResidualModel(skin, partial(chain_end_poses, touches, skin), pairing, touches.part_names,
                           ParameterLayout(skin, parts), calib, fabric=fabric)
     dist = np.linalg.norm(model.residuals(calib), axis=1)

@@ -59,6 +59,7 @@ def rigid_mount_guess(touches: TouchSet, skin: SkinModel, calib: SkinCalibration
     the mount is far off), then a few ICP rounds on the closest COP pairs
     with the worst ``trim`` share of touches left out (experimenter's hand).
     """
+    skin = skin.with_kinematics(calib)   # a prior's kinematic corrections hold while the mount is guessed
     part = skin.parts[target]
     ref_sum = np.zeros((touches.n_touches, 3))
     ref_nor = np.zeros((touches.n_touches, 3))

@@ -1,5 +1,6 @@
 """The unknowns of a solve as one vector: a 6-vector correction ``[t, rotvec]`` per mount, patch and triangle
-of every part being calibrated, and the fabric thickness."""
+of every part being calibrated, the fabric thickness, and the kinematic corrections a stage estimates
+(joint-angle offsets and link lengths of the robot config, :meth:`RobotModel.corrected`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -9,6 +10,7 @@ import numpy as np
 from nao_skin.model.skin import SkinCalibration, SkinModel
 
 LEVELS = ("mount", "patch", "triangle")
+KINEMATICS = "kinematics"   # the level of a stage that frees kinematic corrections
 
 COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")   # of a 6-vector correction, as reports name them
 
@@ -23,6 +25,7 @@ class ParameterLayout:
 
     skin: SkinModel
     part_names: tuple
+    kinematic_names: tuple = ()                   # joint / link names of the robot config, after the fabric
     offsets: dict = field(default_factory=dict)   # part -> (mount col, patch col, triangle col, end)
 
     def __post_init__(self):
@@ -37,7 +40,8 @@ class ParameterLayout:
             col = end
         # last column: the fabric thickness over the taxels (m), shared by every part
         self.fabric_col = col
-        self.size = col + 1
+        self.kinematic_cols = {name: col + 1 + i for i, name in enumerate(self.kinematic_names)}
+        self.size = col + 1 + len(self.kinematic_names)
 
     def block_columns(self, part: str, level: str, rows: np.ndarray) -> np.ndarray:
         """First column of each block (``rows`` index patches/triangles; ignored for mounts)."""
@@ -49,6 +53,8 @@ class ParameterLayout:
     def describe(self, col: int) -> str:
         if col == self.fabric_col:
             return "fabric_thickness"
+        if col > self.fabric_col:
+            return f"kinematics/{self.kinematic_names[col - self.fabric_col - 1]}"
         for name, (m, p, t, end) in self.offsets.items():
             if m <= col < end:
                 part = self.skin.parts[name]
@@ -63,6 +69,8 @@ class ParameterLayout:
     def to_vector(self, calib: SkinCalibration, fabric: float = 0.0) -> np.ndarray:
         x = np.zeros(self.size)
         x[self.fabric_col] = fabric
+        for name, col in self.kinematic_cols.items():
+            x[col] = calib.kinematics.get(name, 0.0)
         for name, (m, p, t, end) in self.offsets.items():
             corr = calib.parts[name]
             x[m:p] = corr.mount
@@ -77,4 +85,6 @@ class ParameterLayout:
             corr.mount = x[m:p].copy()
             corr.patches = x[p:t].reshape(-1, 6).copy()
             corr.triangles = x[t:end].reshape(-1, 6).copy()
+        for name, col in self.kinematic_cols.items():
+            out.kinematics[name] = float(x[col])
         return out

@@ -178,6 +178,7 @@ def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibrat
     """(A, 3) calibrated position of every activated taxel in the base frame (one FK per part)."""
     if local is None:
         local, _ = activation_local(touches, skin, calib, normals=False)
+    skin = skin.with_kinematics(calib)   # the robot the calibration's kinematic corrections describe
     out = np.full_like(local, np.nan)
     for p, (name, sel) in enumerate(zip(touches.part_names, activations_by_part(touches))):   # <= 4 parts
         if len(sel) == 0:
@@ -382,6 +383,7 @@ def _assemble(rows, terms) -> Pairing:
 def residuals(pairing: Pairing, touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None) -> np.ndarray:
     """(M, 3) residual of every row under ``calib`` (rows fixed, positions re-evaluated)."""
     q = robot_joints(touches, skin)
+    skin = skin.with_kinematics(calib)
     out = np.zeros((pairing.n_rows, 3))
     t_touch = pairing.row_touch[pairing.term_row]
     for p, name in enumerate(touches.part_names):

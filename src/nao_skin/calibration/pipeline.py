@@ -125,6 +125,10 @@ def summary_line(result: CalibrationResult) -> str:
     if "truth_taxel_error_mm" in final:
         t = final["truth_taxel_error_mm"]["all"]
         line += f"; true taxel error median {t['median']:.2f} mm, p95 {t['p95']:.2f} mm"
+    kin = result.report.kinematics
+    if kin:
+        line += (f"; kinematics {kin['mode']}: " + (f"{len(kin['corrections'])} corrected, {len(kin['held'])} held"
+                                                   if kin.get("accepted") else "not kept"))
     if result.report.left_out:
         line += "; left out (too few touches): " + ", ".join(f"{e['pair']} ({e['touches']})"
                                                              for e in result.report.left_out)

@@ -77,6 +77,26 @@ def _fmt(v) -> str:
     return "–" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.2f}"
 
 
+def kinematics_section(kin: dict) -> list:
+    """report.md lines of the kinematic corrections: value and std per joint offset (deg) and link (mm),
+    what was held and why; none when the calibration left the kinematics alone (kinematics=off)."""
+    if not kin:
+        return []
+    test = kin.get("test_taxel_mean_mm", {})
+    lines = ["", f"## Kinematics (kinematics={kin['mode']}: {'kept' if kin.get('accepted') else 'not kept'})", "",
+             f"Test split's closest taxel mean: {_fmt(test.get('before'))} mm with the skin alone,"
+             f" {_fmt(test.get('after'))} mm with the kinematic stage.", ""]
+    if kin.get("corrections"):
+        lines += ["| joint / link | correction | std | unit |", "|---|---|---|---|"]
+        for name, c in kin["corrections"].items():
+            scale, unit = (1000.0, "mm") if c["unit"] == "m" else (np.degrees(1.0), "deg")
+            lines.append(f"| {name} | {_fmt(scale * c['value'])} | {_fmt(scale * c['std'])} | {unit} |")
+    if kin.get("held"):
+        lines += ["", "Held at the robot config:", ""]
+        lines += [f"- {h['name']}: {h['reason']}" for h in kin["held"]]
+    return lines
+
+
 def markdown_report(report: dict, coverage: dict | None = None) -> str:
     """report.md from the report's dict; ``coverage`` (:func:`report_coverage`) adds the coverage table."""
     keys = ("cop_mean_mm", "taxel_mean_mm", "contact_taxel_mean_mm", "taxel5_mean_mm")
@@ -116,6 +136,7 @@ def markdown_report(report: dict, coverage: dict | None = None) -> str:
     for group, value in sigma.items():   # prior std per component of every patch / triangle
         unit, scale = ("mm", 1000.0) if group.endswith("translation") else ("deg", np.degrees(1.0))
         lines.append(f"- prior std of {group.replace('_', ' ')}: {_fmt(scale * value)} {unit}")
+    lines += kinematics_section(report.get("kinematics") or {})
     if report.get("left_out"):
         lines += ["", "## Left out: too few touches (held at the prior)", ""]
         lines += [f"- {e['pair']}: {e['reason']}" for e in report["left_out"]]

@@ -20,6 +20,10 @@ above it, including the robot's forward kinematics) and a point ``y``
 
 with ``J_r`` the right Jacobian of SO(3) (:func:`se3.right_jacobian`); exact also for the large mount
 rotations (about 160 degrees) real hands start from.
+
+Kinematic corrections (joint-angle offsets, link lengths: the layout's ``kinematic_names``) move the
+chain ends themselves: their few columns are forward differences of the residuals, each one batched
+forward kinematics over the touches.
 """
 from __future__ import annotations
 
@@ -32,6 +36,7 @@ from nao_skin.calibration.pairing import KIND_NORMAL
 from nao_skin.model.skin import SkinCalibration, SkinModel
 
 DENSE_LIMIT = 2_000_000     # Jacobian entries above which it is kept sparse
+KINEMATIC_STEP = 1e-6       # rad or m: forward-difference step of a kinematic column (~1e-7 m at the hand)
 
 
 def gram(j, w=None) -> np.ndarray:
@@ -55,7 +60,7 @@ class ResidualModel:
 
     def __init__(self, skin: SkinModel, chain_poses, pairing, part_names: tuple,
                  layout: ParameterLayout, base: SkinCalibration, variable_parts=None,
-                 fabric: float = 0.0):
+                 fabric: float = 0.0, kinematic_poses=None):
         self.skin = skin
         # touching skins meet at their fabric surfaces, not at the taxel centres: each taxel
         # is lifted along its normal (fixed in its triangle frame) by the fabric thickness,
@@ -67,6 +72,10 @@ class ResidualModel:
         self.term_row = pairing.term_row
         self.term_weight = pairing.term_weight
         self.groups = []   # one per part: (term indices, part, FK per term, slot arrays)
+        # with kinematic unknowns: ``kinematic_poses(calib)`` is the ``chain_poses`` of the robot that
+        # calib's kinematic corrections describe; the chain ends are taken again when they change
+        self._kinematic_poses = kinematic_poses
+        self._kinematic_key = None
         # parts whose corrections are constant while this model lives: positions computed once
         self.variable_parts = None if variable_parts is None else set(variable_parts)
         self._constant = np.zeros((self.n_rows, 3))
@@ -83,6 +92,7 @@ class ResidualModel:
                 raise ValueError(f"part '{name}': slot {bad} has no taxel in the layout")
             fk = chain_poses(name)[term_touch[sel]]
             self.groups.append((sel, name, part, fk, slots, tri, part.triangle_patch[tri]))
+        self._term_touch = term_touch
         # terms of normal rows carry a direction (rotated, never translated, no fabric)
         self.term_is_dir = pairing.row_kind[pairing.term_row] == KIND_NORMAL
         self.has_dirs = bool(np.any(self.term_is_dir))
@@ -99,6 +109,21 @@ class ResidualModel:
             uniq, first, inverse = np.unique(code, return_index=True, return_inverse=True)
             hit = self._per_pairing[key] = (first, inverse, len(uniq))
         return hit
+
+    def _use_kinematics(self, calib: SkinCalibration) -> None:
+        """Chain ends of the robot ``calib``'s kinematic corrections describe (when they are unknowns)."""
+        if self._kinematic_poses is None:
+            return
+        key = tuple(sorted(calib.kinematics.items()))
+        if key == self._kinematic_key:
+            return
+        chain_poses = self._kinematic_poses(calib)
+        self.groups = [(sel, name, part, chain_poses(name)[self._term_touch[sel]], *rest)
+                       for sel, name, part, _, *rest in self.groups]
+        self._kinematic_key = key
+        self._constant = np.zeros((self.n_rows, 3))
+        self._constant_done = False
+        self._per_pairing = {k: v for k, v in self._per_pairing.items() if k[-1] != "A"}
 
     def _is_variable(self, name: str) -> bool:
         return self.variable_parts is None or name in self.variable_parts
@@ -119,6 +144,7 @@ class ResidualModel:
 
     def positions(self, calib: SkinCalibration) -> np.ndarray:
         """(K, 3) base-frame positions of every term's taxel."""
+        self._use_kinematics(calib)
         out = np.empty((len(self.term_row), 3))
         for group in self.groups:
             out[group[0]] = self._group_positions(group, calib)
@@ -126,6 +152,7 @@ class ResidualModel:
 
     def residuals(self, calib: SkinCalibration, fabric: float | None = None) -> np.ndarray:
         """(M, 3) residual vectors, one per pairing row."""
+        self._use_kinematics(calib)
         if fabric is not None and fabric != self.fabric:
             self.fabric = float(fabric)
             self._constant = np.zeros((self.n_rows, 3))
@@ -164,10 +191,33 @@ class ResidualModel:
         if self._last_jacobian is not None and self._last_jacobian[0] == key:
             return self._last_jacobian[1]
         jac = self._jacobian(calib, free_levels, cols)
+        kinematic = np.flatnonzero(cols > self.layout.fabric_col)
+        if len(kinematic):
+            jac = self._with_kinematic_columns(jac, calib, cols, kinematic)
         self._last_jacobian = (key, jac)
         return jac
 
+    def _with_kinematic_columns(self, jac, calib: SkinCalibration, cols: np.ndarray, kinematic: np.ndarray):
+        """``jac`` with its kinematic columns (positions ``kinematic`` in ``cols``) by forward differences."""
+        base = self.residuals(calib).ravel()
+        names = self.layout.kinematic_names
+        block = np.empty((len(base), len(kinematic)))
+        for k, j in enumerate(kinematic):     # a handful of unknowns, each one batched FK and residual
+            moved = SkinCalibration(calib.parts, dict(calib.kinematics))
+            name = names[cols[j] - self.layout.fabric_col - 1]
+            moved.kinematics[name] = moved.kinematics.get(name, 0.0) + KINEMATIC_STEP
+            block[:, k] = (self.residuals(moved).ravel() - base) / KINEMATIC_STEP
+        self._use_kinematics(calib)
+        if scipy.sparse.issparse(jac):
+            rows, which = np.nonzero(block)
+            extra = scipy.sparse.csr_matrix((block[rows, which], (rows, kinematic[which])), shape=jac.shape)
+            return (jac + extra).tocsr()
+        jac = jac.copy()
+        jac[:, kinematic] = block
+        return jac
+
     def _jacobian(self, calib: SkinCalibration, free_levels: dict, cols: np.ndarray):
+        self._use_kinematics(calib)
         col_of = np.full(self.layout.size, -1)
         col_of[cols] = np.arange(len(cols))
         n_cols = len(cols)

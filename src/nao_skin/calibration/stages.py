@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nao_skin.calibration.layout import COMPONENTS, ParameterLayout
+from nao_skin.calibration.layout import COMPONENTS, KINEMATICS, ParameterLayout
 from nao_skin.calibration.options import KIND_ROWS
 from nao_skin.calibration.pairing import KIND_NAMES, Pairing, chain_end_poses
 from nao_skin.calibration.residuals import ResidualModel, condition_number, gram
@@ -43,6 +43,8 @@ class StageResult:
     fabric_thickness_mm: float
     prior_sigma: dict
     seconds: float
+    kinematics_held: list = ()       # kinematic unknowns it held (directions the touches do not excite)
+    kinematics_std: dict | None = None   # std of the kinematic unknowns it estimated (rad, m)
 
     def report(self, name: str | None = None) -> dict:
         """The stage's entry in the calibration report (``name``: with the plan's prefix)."""
@@ -64,9 +66,12 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     each update would count the touches of the one before again.
     """
     t0 = time.perf_counter()
-    name = f"{step.name}: {'+'.join(sorted(levels, key=['mount', 'patch', 'triangle'].index))}"
+    name = f"{step.name}: {'+'.join(sorted(levels, key=['mount', 'patch', 'triangle', KINEMATICS].index))}"
     parts_in = tuple(p for p in step.targets + step.references if p in touches.part_names)
-    layout = ParameterLayout(skin, parts_in)
+    # kinematic unknowns: the joint offsets and named links of the chains the stage's parts hang off
+    kinematic = (tuple(skin.robot.kinematic_names(sorted({skin.parts[p].chain for p in parts_in} - {None})))
+                 if KINEMATICS in levels else ())
+    layout = ParameterLayout(skin, parts_in, kinematic)
     kind_names = fitted_kinds(options, levels)
     kinds = tuple(KIND_NAMES[k] for k in kind_names)
     # normal rows are built from the closest taxel (or COP) pairs: pair COPs too if neither is fitted
@@ -97,13 +102,19 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
         if hashes is not None and np.mean(np.abs(new_hashes - hashes) > 1e-9) < options.repair_tolerance:
             break
         hashes = new_hashes
-        model = ResidualModel(skin, partial(chain_end_poses, touches, skin), pairing, touches.part_names, layout,
-                              calib, variable_parts=free_parts, fabric=x[layout.fabric_col])
+        on_robot = skin.with_kinematics(current)   # the robot the corrections so far describe
+        model = ResidualModel(skin, partial(chain_end_poses, touches, on_robot), pairing, touches.part_names, layout,
+                              calib, variable_parts=free_parts, fabric=x[layout.fabric_col],
+                              kinematic_poses=(lambda c: partial(chain_end_poses, touches, skin.with_kinematics(c)))
+                              if kinematic else None)
         if free is None:   # what the data determines is decided once, on the first pairing
             free, lower, upper = _bounds(layout, free_parts, levels, x, options)
             # the fabric is a property of the whole skin: estimated once the mounts are in place
             free[layout.fabric_col] = options.estimate_fabric and levels != {"mount"}
             lower[layout.fabric_col], upper[layout.fabric_col] = options.fabric_bounds
+            for kname, col in layout.kinematic_cols.items():
+                bound = KINEMATIC_BOUNDS[kname in skin.robot.links]
+                lower[col], upper[col] = min(-bound, x[col]), max(bound, x[col])
             if "patch" in levels:   # patches need about twice the mount's data (thesis 2.5)
                 for p in free_parts:
                     pidx = touches.part_index(p)
@@ -121,7 +132,8 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
         # directions the touches do not excite are held; checked again after each re-pairing
         # because a new pairing can lose what the last one excited (holds only accumulate).
         # Held means at the prior: what an earlier solve of this stage moved there goes back.
-        newly_held = _hold_unobservable(model, current, free, free_levels, options.condition_limit)
+        newly_held = _hold_unobservable(model, current, free, free_levels, options.condition_limit,
+                                        prefer=set(layout.kinematic_cols.values()))
         free[newly_held] = False
         x[newly_held] = prior_x[newly_held]
         held_names = [layout.describe(c) for c in np.flatnonzero(free_mask(layout, free_parts, levels) & ~free)]
@@ -143,11 +155,47 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
         last_cost = result.cost
     calib_out = layout.to_calibration(x, calib)
     cond = condition_number(model, calib_out, free_levels, np.flatnonzero(free)) if model is not None else None
-    held = [h for h in held_names if h != "fabric_thickness"]
-    estimated = ({layout.describe(c) for c in np.flatnonzero(free_mask(layout, free_parts, levels) & free)}
-                 if free is not None else set())
+    kinematics_held = [h.split("/", 1)[1] for h in held_names if h.startswith(f"{KINEMATICS}/")]
+    for kname in kinematics_held:   # held at nominal: not a correction of the calibration
+        calib_out.kinematics.pop(kname, None)
+    held = [h for h in held_names if h != "fabric_thickness" and not h.startswith(f"{KINEMATICS}/")]
+    estimated = ({layout.describe(c) for c in np.flatnonzero(free_mask(layout, free_parts, levels) & free)
+                  if c <= layout.fabric_col} if free is not None else set())
+    std = (_kinematic_std(model, calib_out, free, layout, result, options) if kinematic and free is not None
+           and np.any(free[list(layout.kinematic_cols.values())]) and result.normal_matrix is not None else None)
+    if std:
+        calib_out.kinematics_std = {**{k: v for k, v in calib.kinematics_std.items() if k in calib_out.kinematics},
+                                    **std}
     return StageResult(name, calib_out, iterations, repairings, cond, compress_held(held), set(held), estimated,
-                       1000.0 * float(x[layout.fabric_col]), prior_sigma, time.perf_counter() - t0)
+                       1000.0 * float(x[layout.fabric_col]), prior_sigma, time.perf_counter() - t0,
+                       kinematics_held, std)
+
+
+# how far a kinematic correction may go: (m of a link length, rad of a joint offset); a real error is
+# a few mm and degrees, anything near these is the solver trading the kinematics for a wrong pairing
+KINEMATIC_BOUNDS = {True: 0.03, False: 0.2}
+
+
+def _kinematic_std(model: ResidualModel, calib: SkinCalibration, free: np.ndarray, layout: ParameterLayout,
+                   result, options) -> dict:
+    """Standard deviation of each estimated kinematic unknown: the inverse of the last solve's normal
+    matrix (robust row weights) times the residual variance per coordinate. Rows of one touch are
+    not independent (its taxel pairs share the pose), so read it as a lower bound."""
+    cols = np.flatnonzero(free)
+    dist = np.linalg.norm(model.residuals(calib), axis=1)
+    w = np.where(dist <= options.f_scale, 1.0, options.f_scale / np.maximum(dist, 1e-15))
+    dof = max(3 * len(dist) - len(cols), 1)
+    s2 = float(np.sum(w * dist ** 2)) / dof
+    try:
+        cov = np.linalg.inv(result.normal_matrix) * s2
+    except np.linalg.LinAlgError:
+        return {}
+    out = {}
+    for name, col in layout.kinematic_cols.items():
+        pos = np.flatnonzero(cols == col)
+        if len(pos):
+            out[name] = float(np.sqrt(max(cov[pos[0], pos[0]], 0.0)))
+    return out
 
 def _anchored(layout: ParameterLayout, prior_x: np.ndarray, anchor: SkinCalibration) -> np.ndarray:
     """``prior_x`` with the patch and triangle components of ``anchor`` (mounts and fabric have no prior
@@ -186,12 +234,14 @@ def _activation_counts(pairing: Pairing, touches: TouchSet, skin: SkinModel, par
     return np.bincount(key % 1000, minlength=len(sp.triangle_ids))
 
 def _hold_unobservable(model: ResidualModel, calib: SkinCalibration, free: np.ndarray, free_levels: dict,
-                       limit: float) -> list:
+                       limit: float, prefer: set = frozenset()) -> list:
     """Columns to hold at the prior: no information, or the weakest directions until cond <= limit.
 
     Conditioning is judged on the Jacobi-scaled normal equations so that
     metres and radians compare; each direction weaker than ``1/limit`` of the
-    strongest holds the column that dominates it.
+    strongest holds the column that dominates it, or a column of ``prefer`` that takes a large part
+    in it: a kinematic unknown the skin's frames can stand for (a WristYaw offset and the hand
+    mount turned about that axis are one direction) is held at nominal rather than the frame.
     """
     cols = np.flatnonzero(free)
     if len(cols) == 0:
@@ -215,7 +265,10 @@ def _hold_unobservable(model: ResidualModel, calib: SkinCalibration, free: np.nd
         # each weak direction holds the unknown that dominates it (distinct ones first)
         drop = set()
         for k in weak:
-            for i in np.argsort(-np.abs(vec[:, k])):
+            share = np.abs(vec[:, k])
+            order = np.argsort(-share)
+            preferred = [i for i in order if int(cols[idx[i]]) in prefer and share[i] >= 0.3 * share[order[0]]]
+            for i in preferred + list(order):
                 if int(idx[i]) not in drop:
                     drop.add(int(idx[i]))
                     break
@@ -306,6 +359,8 @@ def free_mask(layout, parts, levels):
             mask[pp:t] = True
         if "triangle" in levels:
             mask[t:end] = True
+    if KINEMATICS in levels:
+        mask[list(layout.kinematic_cols.values())] = True
     return mask
 
 def compress_held(names: list) -> list:

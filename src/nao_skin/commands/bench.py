@@ -15,7 +15,9 @@ from pathlib import Path
 NAME = "bench"
 HELP = "benchmark calibration strategies (seconds against error) and the simulator's hard cases"
 
-SECTIONS = ("speed", "real", "hard", "live")
+SECTIONS = ("speed", "real", "hard", "live", "kinematics")
+# what runs without --only: the kinematics section (presets x seeds x three calibrations) is asked for by name
+DEFAULT_SECTIONS = ("speed", "real", "hard", "live")
 LISTING = "<outlier listing>"      # long: written to the file, not printed
 OUTPUTS = ("bench_results.md", "bench_results.json", "speed_vs_error.png")
 QUICK = {"repeat": 1, "seeds": 2, "sweep": (50, 200), "sim_touches": 400, "hard_pairs": "l_hand-torso",
@@ -37,7 +39,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--only", action="append", choices=SECTIONS, default=[],
                         help="run only this section (repeatable): speed = bundled simulated recording, "
                              "real = the --real recordings, hard = simulator hard cases, live = one live update"
-                             " (warm-started) at 1000 and 4000 touches of the simulated recording")
+                             " (warm-started) at 1000 and 4000 touches of the simulated recording, kinematics ="
+                             " presets calibrated with kinematics off / on / auto (only when asked for)")
     parser.add_argument("--repeat", type=int, help="timed repetitions per strategy, median quoted (default 3)")
     parser.add_argument("--seeds", type=int, help="seeds per hard-case preset (default 20)")
     parser.add_argument("--sim", help="simulated recording with truth_calibration.yaml (default: bags/sim_default)")
@@ -53,7 +56,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--taxels", action="append", default=[], metavar="PART=FILE",
                         help="taxel file of a part of the --real recordings; repeatable")
     parser.add_argument("--skin", help="skin config YAML for the --real recordings (default: the package's)")
-    parser.add_argument("--presets", help="hard-case presets, comma separated (default: all)")
+    parser.add_argument("--presets", help="hard-case and kinematics presets, comma separated (default: all; the"
+                                          " kinematics section adds kinematic-error)")
     parser.add_argument("--hard-pairs", default="all",
                         help="pairs simulated for the hard cases, comma separated (default: all four thesis pairs)")
     parser.add_argument("--hard-touches", type=int, help="touches per pair of the hard cases (default: the preset's)")
@@ -130,7 +134,7 @@ def run(args) -> int:
     from nao_skin.paths import package_dir
 
     say = lambda msg: print(msg, flush=True)  # noqa: E731
-    sections = set(args.only or SECTIONS)
+    sections = set(args.only or DEFAULT_SECTIONS)
     if "real" in sections and not args.real and args.only and "real" in args.only:
         raise DataError("--only real needs at least one --real PATH")
     repeat = args.repeat if args.repeat is not None else (QUICK["repeat"] if args.quick else 3)
@@ -139,11 +143,12 @@ def run(args) -> int:
     if repeat < 1 or seeds < 1:
         raise DataError(f"--repeat {repeat} / --seeds {seeds}: both must be at least 1")
     presets = [p.strip() for p in args.presets.split(",")] if args.presets else list(bench.HARD_PRESETS)
+    kin_presets = [p.strip() for p in args.presets.split(",")] if args.presets else list(bench.KINEMATIC_PRESETS)
     hard_pairs = QUICK["hard_pairs"] if args.quick and args.hard_pairs == "all" else args.hard_pairs
-    if "hard" in sections:       # mistakes in the arguments are told before the output directory is touched
+    if sections & {"hard", "kinematics"}:   # mistakes in the arguments are told before the output dir is touched
         from nao_skin.sim.params import preset_names
 
-        unknown = sorted(set(presets) - set(preset_names()))
+        unknown = sorted((set(presets) | set(kin_presets)) - set(preset_names()))
         if unknown:
             raise DataError(f"--presets: unknown preset(s) {', '.join(unknown)} (known: {', '.join(preset_names())})")
         _pairs(hard_pairs)
@@ -255,6 +260,26 @@ def run(args) -> int:
                *live.update_table(timings), "", f"- {target}", ""]
         _write(out, md, results, listing)
         failures += "NOT met" in target
+
+    if "kinematics" in sections:
+        setup = bench.HardCaseSetup(pairs=_pairs(hard_pairs),
+                                    n_touches=args.hard_touches or (QUICK["hard_touches"] if args.quick else None))
+        scene = (", ".join(f"{a}-{b}" for a, b in setup.pairs) if setup.pairs else "all four thesis pairs")
+        say(f"kinematics: {len(kin_presets)} presets x {seeds} seeds x {len(bench.KINEMATIC_MODES)} modes on {scene}")
+        rows = bench.kinematics_matrix(load_skin(), kin_presets, range(seeds), setup, max(1, args.jobs), say)
+        results["kinematics"] = rows
+        results["kinematics_summary"] = bench.kinematics_summary(rows)
+        goals = bench.kinematics_goal_lines(rows)
+        md += ["## Kinematics", "",
+               f"Each preset and seed simulated once ({scene}, touches per pair: "
+               f"{setup.n_touches or 'the preset default'}), calibrated with kinematics off, on and auto"
+               f" (calibration option `kinematics`). True taxel error: every taxel of the calibrated parts; where"
+               f" the calibration or the truth corrects the kinematics, in the torso frame at the training"
+               f" touches' poses (calibrated skin on the calibrated robot against the true skin on the true"
+               f" robot), else in the chain-end frame. Seconds: the engine's.", "",
+               "Goals:", "", *("- " + line for line in goals), "", bench.kinematics_tables(rows), ""]
+        failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in line for line in goals)
+        _write(out, md, results, listing)
 
     results["seconds"] = time.perf_counter() - t_start
     md.append(f"Benchmark wall time: {results['seconds']:.0f} s.")

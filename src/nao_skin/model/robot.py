@@ -33,6 +33,18 @@ def parse_angle(value, where: str) -> float:
     raise ConfigError(f"{where}: cannot read {value!r} as an angle (a number or e.g. 'pi/2')")
 
 
+DH_PARAMS = ("a", "d")   # the DH columns a named link length may be (translations along x and z of a row)
+
+
+@dataclass(frozen=True)
+class Link:
+    """A named link length of the robot config (NAOqi name, e.g. LElbowOffsetY): one DH translation of one row."""
+
+    chain: str
+    row: int
+    param: str                      # "a" or "d"
+
+
 @dataclass(frozen=True)
 class Chain:
     """A serial chain of standard DH rows hanging off the base frame."""
@@ -55,7 +67,7 @@ class RobotModel:
     """
 
     def __init__(self, name: str, base_frame: str, joint_limits: Mapping[str, Sequence[float]],
-                 chains: Mapping[str, Chain], source: str = "<memory>"):
+                 chains: Mapping[str, Chain], source: str = "<memory>", links: Mapping[str, Link] | None = None):
         self.name = name
         self.base_frame = base_frame
         self.joint_names = list(joint_limits)
@@ -63,6 +75,12 @@ class RobotModel:
         self.limits = np.array([joint_limits[n] for n in self.joint_names], dtype=float).reshape(-1, 2)
         self.chains = dict(chains)
         self.source = source
+        self.links = dict(links or {})
+        for lname, link in self.links.items():
+            if link.chain not in self.chains or not 0 <= link.row < len(self.chains[link.chain].joints) \
+                    or link.param not in DH_PARAMS or lname in self.joint_index:
+                raise ConfigError(f"{source}: link '{lname}' must name a chain, a row of it and a DH parameter"
+                                  f" ({' or '.join(DH_PARAMS)}), and not be a joint name")
         for chain in self.chains.values():
             for j in chain.joints:
                 if j is not None and j not in self.joint_index:
@@ -105,8 +123,41 @@ class RobotModel:
                 joints.append(joint)
                 frames.append(str(row.get("frame", f"{cname}_dh{i + 1}")))
             chains[str(cname)] = Chain(str(cname), np.array(dh), tuple(joints), tuple(frames))
+        links = {}
+        for lname, spec in (doc.get("links") or {}).items():
+            if not isinstance(spec, dict) or not {"chain", "row", "param"} <= set(spec):
+                raise ConfigError(f"{path}: link '{lname}' needs chain, row and param (a or d)")
+            links[str(lname)] = Link(str(spec["chain"]), int(spec["row"]), str(spec["param"]))
         return cls(str(doc.get("name", path.stem)), str(doc.get("base_frame", "torso")),
-                   limits, chains, source=str(path))
+                   limits, chains, source=str(path), links=links)
+
+    # ------------------------------------------------------------------ corrections
+    def kinematic_names(self, chains) -> list:
+        """What a kinematic calibration may correct on ``chains``: their joints' angle offsets (NAOqi
+        joint names), then their named link lengths, in the config's order."""
+        chains = [c for c in chains if c is not None]
+        joints = [j for c in chains for j in self.chain_joint_names(c)]
+        return list(dict.fromkeys(joints)) + [n for n, link in self.links.items() if link.chain in chains]
+
+    def corrected(self, kinematics: Mapping[str, float]) -> "RobotModel":
+        """This robot with kinematic corrections: a joint name's value (rad) is added to the angle the
+        joint reports (the DH row's offset), a link name's value (m) to its DH parameter."""
+        dh = {name: chain.dh.copy() for name, chain in self.chains.items()}
+        for key, value in kinematics.items():
+            if key in self.links:
+                link = self.links[key]
+                dh[link.chain][link.row, DH_PARAMS.index(link.param)] += float(value)
+            elif key in self.joint_index:
+                for name, chain in self.chains.items():
+                    for r, j in enumerate(chain.joints):
+                        if j == key:
+                            dh[name][r, 3] += float(value)
+            else:
+                raise ConfigError(f"{self.source}: kinematic correction '{key}' is neither a joint nor a named link"
+                                  f" (links: {', '.join(self.links) or 'none'})")
+        chains = {name: Chain(name, dh[name], chain.joints, chain.frames) for name, chain in self.chains.items()}
+        limits = {n: tuple(self.limits[i]) for i, n in enumerate(self.joint_names)}
+        return RobotModel(self.name, self.base_frame, limits, chains, self.source, self.links)
 
     # ------------------------------------------------------------------ joints
     def joints_from_mappings(self, poses: Sequence[Mapping[str, float]], needed: Sequence[str] | None = None,

@@ -268,6 +268,9 @@ class SkinModel:
         self.robot = robot
         self.parts = dict(parts)
         self.source = source
+        # the last skin on a corrected robot (with_kinematics): the same corrections give the same
+        # object, so what touch sets derive from it (forward kinematics) is computed once
+        self._corrected: tuple = ((), self)
 
     @classmethod
     def from_yaml(cls, path: str | Path, robot: RobotModel | None = None) -> "SkinModel":
@@ -307,6 +310,16 @@ class SkinModel:
         except KeyError:
             raise DataError(f"unknown skin part '{name}' (configured: {', '.join(self.parts)})") from None
 
+    def with_kinematics(self, calib: "SkinCalibration | Mapping[str, float] | None") -> "SkinModel":
+        """This skin on the robot a calibration's kinematic corrections describe (itself when there are none)."""
+        kin = calib.kinematics if isinstance(calib, SkinCalibration) else (calib or {})
+        key = tuple(sorted((k, float(v)) for k, v in kin.items() if v != 0.0))
+        if not key:
+            return self
+        if self._corrected[0] != key:
+            self._corrected = (key, SkinModel(self.robot.corrected(dict(key)), self.parts, self.source))
+        return self._corrected[1]
+
     def zero_calibration(self) -> "SkinCalibration":
         return SkinCalibration({n: p.zero_correction() for n, p in self.parts.items()})
 
@@ -336,9 +349,14 @@ class SkinCalibration:
     """Corrections of every part; what calibration finds and the URDF consumes."""
 
     parts: dict = field(default_factory=dict)    # part name -> PartCorrection
+    # corrections of the robot config (RobotModel.corrected): NAOqi joint name -> rad added to the
+    # angle the joint reports, named link (e.g. LElbowOffsetY) -> m added to its DH parameter
+    kinematics: dict = field(default_factory=dict)
+    kinematics_std: dict = field(default_factory=dict)   # their standard deviations, from the normal equations
 
     def copy(self) -> "SkinCalibration":
-        return SkinCalibration({k: v.copy() for k, v in self.parts.items()})
+        return SkinCalibration({k: v.copy() for k, v in self.parts.items()}, dict(self.kinematics),
+                               dict(self.kinematics_std))
 
     # ------------------------------------------------------------------ YAML
     def to_dict(self, skin: SkinModel) -> dict:
@@ -364,6 +382,11 @@ class SkinCalibration:
                 "patches": {f.number: entry(f) for f in others if f.kind == "patch"},
                 "triangles": {f.number: entry(f) for f in others if f.kind == "triangle"},
             }
+        if self.kinematics:   # absent without kinematic corrections: such files read as before
+            out["kinematics"] = {
+                name: {"correction": round(float(v), 10), "unit": "m" if name in skin.robot.links else "rad",
+                       **({"std": round(float(self.kinematics_std[name]), 10)} if name in self.kinematics_std else {})}
+                for name, v in self.kinematics.items()}
         return out
 
     def save(self, path: str | Path, skin: SkinModel, comment: str = "") -> None:
@@ -371,6 +394,9 @@ class SkinCalibration:
                   "# correction: translation (m) and rotation vector (rad) in the frame's own axes,\n"
                   "#   applied after the nominal pose from the layout; origin: resulting pose relative\n"
                   "#   to the parent frame (URDF xyz/rpy), read by urdf/nao_skin.urdf.xacro.\n")
+        if self.kinematics:
+            header += ("# kinematics: corrections of the robot config, a joint's (rad) added to the angle it\n"
+                       "#   reports, a link's (m) to its DH parameter; std from the normal equations.\n")
         if comment:
             header += "".join(f"# {line}\n" for line in comment.splitlines())
         Path(path).write_text(header + yaml.safe_dump(self.to_dict(skin), sort_keys=False, width=120))
@@ -411,6 +437,16 @@ class SkinCalibration:
                 if int(tid) not in rows:
                     raise ConfigError(f"{path}: part '{name}' has no triangle {tid}")
                 corr.triangles[rows[int(tid)]] = vec(entry, f"part '{name}' triangle {tid}")
+        for name, entry in (doc.get("kinematics") or {}).items():
+            if name not in skin.robot.links and name not in skin.robot.joint_index:
+                raise ConfigError(f"{path}: kinematics: '{name}' is neither a joint nor a named link of"
+                                  f" {skin.robot.name}")
+            try:
+                calib.kinematics[str(name)] = float(entry["correction"])
+                if "std" in entry:
+                    calib.kinematics_std[str(name)] = float(entry["std"])
+            except (KeyError, TypeError, ValueError):
+                raise ConfigError(f"{path}: kinematics: '{name}' needs a numeric correction") from None
         return calib
 
 

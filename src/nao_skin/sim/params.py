@@ -38,6 +38,10 @@ class SimParams:
     patch_rotation: float = 0.05              # per patch (rad, ~3 deg)
     triangle_translation: float = 0.0004      # per triangle (m)
     triangle_rotation: float = 0.05           # per triangle (rad)
+    # ------------------------------------------------------------ true robot (ground truth): how its kinematics
+    # differ from the robot config the recording is read with; it poses and fires, the joints record as before
+    joint_offset_deg: float = 0.0             # each arm and head joint truly sits off by up to this, uniform, random sign
+    link_errors: dict = field(default_factory=dict)   # named link (robot config `links`) -> m added to its length
     # ------------------------------------------------------------ pose search
     pose_restarts: int = 8                    # random starts per target spot
     pose_iterations: int = 60                 # Levenberg-Marquardt iterations
@@ -72,14 +76,25 @@ class SimParams:
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
+    def record(self) -> dict:
+        """The fields a recording's simulation.yaml lists: the true robot's only when it is not the config's,
+        so recordings of a true robot that is the config read as they did before those fields existed."""
+        out = self.to_dict()
+        for name in TRUE_ROBOT:
+            if not out[name]:
+                del out[name]
+        return out
+
 
 NOISES = ("joint_noise", "fabric_jitter", "missed_taxel", "spurious_taxel", "duplicate",
           "experimenter_hand", "non_self_contact")
+TRUE_ROBOT = ("joint_offset_deg", "link_errors")
 PROBABILITIES = ("missed_taxel", "spurious_taxel", "duplicate", "experimenter_hand", "non_self_contact")
 _NON_NEGATIVE = NOISES + ("noise_scale", "hand_mount_rotation_deg", "hand_mount_axis_tilt_deg",
                           "hand_mount_shift", "hand_mount_radial", "body_mount_translation",
                           "body_mount_rotation", "patch_translation", "patch_rotation",
-                          "triangle_translation", "triangle_rotation", "fabric_thickness", "planar_band")
+                          "triangle_translation", "triangle_rotation", "fabric_thickness", "planar_band",
+                          "joint_offset_deg")
 _POSITIVE = ("pose_tolerance", "normal_tolerance_deg", "penetration_tolerance", "spot_radius",
              "cluster_distance")
 _RANGES = ("touch_interval", "footprint_radius", "pressure_spots", "spot_size", "press_reach")
@@ -164,6 +179,9 @@ def validate(p: SimParams, where: str = "simulation parameters") -> None:
     off = p.hand_mount_offset
     if not isinstance(off, (list, tuple)) or len(off) != 3 or not all(isinstance(x, (int, float)) for x in off):
         raise ConfigError(f"{where}: 'hand_mount_offset' must be [x, y, z] metres, got {off!r}")
+    if not isinstance(p.link_errors, dict) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in p.link_errors.values()):
+        raise ConfigError(f"{where}: 'link_errors' must map link names to metres, got {p.link_errors!r}")
     if not isinstance(p.pairs, (list, tuple)) or not p.pairs:
         raise ConfigError(f"{where}: 'pairs' must be a non-empty list of [hand, part] pairs")
     seen = set()

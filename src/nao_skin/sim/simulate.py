@@ -23,7 +23,7 @@ from nao_skin.model.skin import PART_NAMES, SkinCalibration, SkinModel
 from nao_skin.sim import contact as sim_contact
 from nao_skin.sim.params import SimParams, make_params, pair_list
 from nao_skin.sim.poses import find_poses
-from nao_skin.sim.truth import draw_truth
+from nao_skin.sim.truth import draw_kinematics, draw_truth
 from nao_skin.touch.contacts import cluster_labels
 from nao_skin.touch.touches import TouchSet
 
@@ -35,7 +35,8 @@ OTHER_EVENT, STRAY_EVENT = 1000, 1001   # event numbers of the experimenter's ha
 @dataclass
 class SimResult:
     touches: TouchSet                 # what the robot would have recorded (noisy joints, defects)
-    truth: SkinCalibration            # true corrections of every part (what calibration should find)
+    truth: SkinCalibration            # true corrections of every part (what calibration should find), and
+                                      # in .kinematics how the true robot differs from the config
     true_taxels: dict                 # part -> (positions (S, 3), normals (S, 3)) true, chain-end frame
     params: SimParams
     seed: int
@@ -55,15 +56,19 @@ def simulate(skin: SkinModel, params: SimParams | dict | None, seed: int) -> Sim
     streams = np.random.SeedSequence(int(seed)).spawn(2 + 2 * len(pairs))
     rng_truth, rng_record = (np.random.default_rng(s) for s in streams[:2])
     truth = draw_truth(skin, list(skin.parts), p, rng_truth)
+    # drawn after the skin's truth from the same stream: presets with the config's robot stay bit-identical
+    truth.kinematics = draw_kinematics(skin, p, rng_truth)
+    # the true body poses and fires; the joints record as they read (the config's kinematics)
+    body = skin.with_kinematics(truth)
 
     per_pair, report = [], {}
     for i, (hand, target) in enumerate(pairs):
         rng_pose = np.random.default_rng(streams[2 + 2 * i])
         rng_skin = np.random.default_rng(streams[3 + 2 * i])
         # a few spare poses: a press that fires only one part is not a recorded touch
-        poses = find_poses(skin, truth, hand, target, p.n_touches + p.n_touches // 10 + 2, p, rng_pose)
-        poses, silent = _keep_firing(skin, truth, hand, target, poses, p.n_touches, p, rng_skin)
-        acts = _pair_activations(skin, truth, hand, target, poses, p, rng_skin)
+        poses = find_poses(body, truth, hand, target, p.n_touches + p.n_touches // 10 + 2, p, rng_pose)
+        poses, silent = _keep_firing(body, truth, hand, target, poses, p.n_touches, p, rng_skin)
+        acts = _pair_activations(body, truth, hand, target, poses, p, rng_skin)
         per_pair.append((hand, target, poses, acts))
         report[f"{hand}-{target}"] = {"touches": int(len(poses.q)), "attempted": poses.attempted,
                                       "unreachable": poses.unreachable, "silent": silent}
@@ -271,7 +276,7 @@ def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, prese
             part.write_taxel_file(path, result.truth.parts[name])
             written.append(path)
         meta = {"format": "nao_skin/simulation/1", "seed": result.seed, "preset": preset or "custom",
-                "skin": Path(skin.source).name, "pairs": result.pairs, "params": result.params.to_dict()}
+                "skin": Path(skin.source).name, "pairs": result.pairs, "params": result.params.record()}
         meta_path = tmp / "simulation.yaml"
         command = (f"nao-skin simulate --preset {preset or 'default'} --seed {result.seed}"
                    f" --touches-per-pair {result.params.n_touches} --out <this directory>")

@@ -63,3 +63,23 @@ def draw_truth(skin: SkinModel, parts, p: SimParams, rng: np.random.Generator) -
                                random_vectors(rng, n_t, p.triangle_rotation)])
         calib.parts[name] = PartCorrection(mount, patches, triangles)
     return calib
+
+
+def draw_kinematics(skin: SkinModel, p: SimParams, rng: np.random.Generator) -> dict:
+    """The true robot's kinematic corrections of the config (:meth:`RobotModel.corrected`): an angle offset
+    per joint of the chains the skin hangs off (uniform within ``joint_offset_deg``), then ``link_errors``."""
+    from nao_skin.errors import ConfigError
+
+    out = {}
+    if p.joint_offset_deg > 0:
+        joints = skin.robot.kinematic_names(sorted({part.chain for part in skin.parts.values()
+                                                     if part.chain is not None}))
+        joints = [j for j in joints if j in skin.robot.joint_index]
+        values = rng.uniform(-1.0, 1.0, size=len(joints)) * np.radians(p.joint_offset_deg)
+        out.update(zip(joints, values.tolist()))
+    for name, value in p.link_errors.items():
+        if name not in skin.robot.links:
+            raise ConfigError(f"simulation link_errors: '{name}' is not a named link of {skin.robot.source}"
+                              f" (links: {', '.join(skin.robot.links) or 'none'})")
+        out[str(name)] = float(value)
+    return {k: v for k, v in out.items() if v != 0.0}
