@@ -115,10 +115,13 @@ def test_a_failing_update_keeps_the_last_good_frames(tmp_path):
             return next(s for s in status[seen:] if s["state"] == state)
 
         good = report(touches.n_touches, "updated")
+        # the frames go out just before the status, on another topic: let both arrive
+        listener.spin_for(1.0)
         published = frames[-1]
         # the recording turns bad: a storage file that is no database
         (bag / "touches.db3").write_bytes(b"\0 not a sqlite database \0" * 64)
         failed = report(touches.n_touches + 5, "failed")
+        listener.spin_for(0.5)
         assert "\n" not in failed["error"] and str(bag) in failed["error"], failed
         assert failed["generation"] == good["generation"]
         joiner = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=TF_STATIC_QOS)
