@@ -404,24 +404,30 @@ def held_frame_drift(skin: SkinModel, calib: SkinCalibration, truth: SkinCalibra
             "nominal_mean_mm": float(np.mean(nom)) if nom else float("nan")}
 
 
-def run_hard_case(skin: SkinModel, preset: str, seed: int, setup: HardCaseSetup | None = None) -> dict:
-    """Simulate one preset and seed in memory, calibrate it, check it. Never raises: a failure is a row."""
+def simulate_case(skin: SkinModel, preset: str, seed: int, setup: HardCaseSetup) -> tuple:
+    """One preset and seed simulated in memory with the setup's pairs and touches (few-touches keeps its
+    own count), deduplicated: ``(SimResult, touches, duplicates removed)``."""
     from nao_skin.sim.params import load_params
     from nao_skin.sim.simulate import simulate
     from nao_skin.touch.datasets import deduplicate
 
+    overrides = {}
+    if setup.pairs is not None:
+        overrides["pairs"] = [list(p) for p in setup.pairs]
+    if setup.n_touches is not None and preset != "few-touches":
+        overrides["n_touches"] = int(setup.n_touches)
+    sim = simulate(skin, load_params(preset, overrides), seed)
+    touches, n_dup = deduplicate(sim.touches)
+    return sim, touches, n_dup
+
+
+def run_hard_case(skin: SkinModel, preset: str, seed: int, setup: HardCaseSetup | None = None) -> dict:
+    """Simulate one preset and seed in memory, calibrate it, check it. Never raises: a failure is a row."""
     setup = setup or HardCaseSetup()
     row = {"preset": preset, "seed": int(seed), "status": "ok", "converged": False}
     t0 = time.perf_counter()
     try:
-        overrides = {}
-        if setup.pairs is not None:
-            overrides["pairs"] = [list(p) for p in setup.pairs]
-        if setup.n_touches is not None and preset != "few-touches":
-            overrides["n_touches"] = int(setup.n_touches)
-        params = load_params(preset, overrides)
-        sim = simulate(skin, params, seed)
-        touches, n_dup = deduplicate(sim.touches)
+        sim, touches, n_dup = simulate_case(skin, preset, seed, setup)
         row["touches"] = touches.n_touches
         result = calibrate(touches, skin, replace(setup.options), truth=sim.truth)
         rep = result.report
@@ -752,20 +758,10 @@ def run_kinematic_case(skin: SkinModel, preset: str, seed: int, setup: HardCaseS
                        modes=KINEMATIC_MODES) -> list:
     """One preset and seed simulated once, calibrated with each ``kinematics`` mode: one row per mode.
     Never raises: a failure is a row."""
-    from nao_skin.sim.params import load_params
-    from nao_skin.sim.simulate import simulate
-    from nao_skin.touch.datasets import deduplicate
-
     setup = setup or HardCaseSetup()
     rows = []
     try:
-        overrides = {}
-        if setup.pairs is not None:
-            overrides["pairs"] = [list(p) for p in setup.pairs]
-        if setup.n_touches is not None and preset != "few-touches":
-            overrides["n_touches"] = int(setup.n_touches)
-        sim = simulate(skin, load_params(preset, overrides), seed)
-        touches, _ = deduplicate(sim.touches)
+        sim, touches, _ = simulate_case(skin, preset, seed, setup)
     except Exception as exc:  # noqa: BLE001 - a failing case is a row of the table
         return [{"preset": preset, "seed": int(seed), "mode": m, "status": "FAILED: " + one_line(exc, 200)}
                 for m in modes]

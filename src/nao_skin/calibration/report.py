@@ -22,6 +22,7 @@ from nao_skin.calibration.rows import concat_pairings, pair_parts
 from nao_skin.calibration.splits import spread_table
 from nao_skin.formats.outdir import CALIBRATION, replace_dir, write_marker
 from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.plain import jsonable
 from nao_skin.touch.touches import TouchSet
 
 
@@ -45,7 +46,7 @@ def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Pat
         (tmp / "taxels").mkdir()
         for name in calibrated:
             skin.parts[name].write_taxel_file(tmp / "taxels" / f"{name}.txt", result.calibration.parts[name])
-        (tmp / "report.json").write_text(json.dumps(_jsonable(result.report.to_dict()), indent=2) + "\n")
+        (tmp / "report.json").write_text(json.dumps(jsonable(result.report.to_dict()), indent=2) + "\n")
         coverage = report_coverage(result, skin)
         (tmp / "report.md").write_text(markdown_report(result.report.to_dict(), coverage))
         if plots:
@@ -59,18 +60,6 @@ def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Pat
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return given
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
 
 
 def _fmt(v) -> str:

@@ -327,23 +327,10 @@ def update_readme(readme: Path, out: Path) -> None:
 
 
 def _write(out: Path, md: list, results: dict, listing: str) -> str:
+    from nao_skin.plain import jsonable
+
     text = "\n".join(md) + "\n"
     (out / "bench_results.md").write_text(text.replace(LISTING, listing))
-    (out / "bench_results.json").write_text(json.dumps(_jsonable(results), indent=1) + "\n")
+    (out / "bench_results.json").write_text(json.dumps(jsonable(results, skip_keys=("trace",)), indent=1) + "\n")
     return text
 
-
-def _jsonable(obj):
-    import numpy as np
-
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items() if k != "trace"}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, (np.floating, float)):
-        return None if not np.isfinite(obj) else float(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj

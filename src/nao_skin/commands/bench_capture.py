@@ -50,6 +50,7 @@ def run(args) -> int:
     from nao_skin.errors import DataError
     from nao_skin.formats.outdir import BENCHMARK, check_output_dir, clear_for_writing
     from nao_skin.model.skin import load_skin
+    from nao_skin.plain import jsonable
 
     setup = bench.QUICK_SETUP if args.quick else bench.CaptureSetup()
     for name in ("start", "batch", "cap", "median_mm", "p95_mm"):
@@ -88,23 +89,8 @@ def run(args) -> int:
     (out / "capture_results.md").write_text(text)
     results = {"setup": bench.setup_dict(setup), "seeds": seed_list, "summary": bench.summary(rows, setup),
                "rows": rows, "seconds": seconds}
-    (out / "capture_results.json").write_text(json.dumps(_jsonable(results), indent=1) + "\n")
+    (out / "capture_results.json").write_text(json.dumps(jsonable(results), indent=1) + "\n")
     print(text)
     print(f"-> {out / 'capture_results.md'}, {out / 'capture.png'}")
     return 0
 
-
-def _jsonable(obj):
-    import numpy as np
-
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, (np.floating, float)):
-        return None if not np.isfinite(obj) else float(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj

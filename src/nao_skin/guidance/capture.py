@@ -61,6 +61,7 @@ from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.plan import HANDS, REFERENCE_BODY, part_rank
 from nao_skin.calibration.report import paired_activation_counts
 from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.plain import jsonable
 from nao_skin.sim.params import SimParams
 from nao_skin.sim.poses import Spots, choose_spots, idle_joints, solve_poses
 from nao_skin.touch.touches import TouchSet
@@ -94,7 +95,7 @@ class Target:
     pose_error_mm: float | None = None      # the solver's spot-to-spot residual (current calibration)
 
     def to_dict(self) -> dict:
-        return _jsonable(dataclasses.asdict(self))
+        return jsonable(dataclasses.asdict(self))
 
 
 @dataclass
@@ -112,7 +113,7 @@ class PartCoverage:
     held_patches: list            # patch ids the report holds
 
     def to_dict(self) -> dict:
-        return _jsonable(dataclasses.asdict(self))
+        return jsonable(dataclasses.asdict(self))
 
 
 @dataclass
@@ -128,20 +129,6 @@ class Guidance:
         return {"n_touches": self.n_touches, "seconds": self.seconds, "pair_touches": dict(self.pair_touches),
                 "targets": [t.to_dict() for t in self.targets],
                 "coverage": {k: v.to_dict() for k, v in self.coverage.items()}, "notes": list(self.notes)}
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
 
 
 # ---------------------------------------------------------------------------- counting

@@ -37,6 +37,7 @@ from nao_skin.model.skin import SkinCalibration, skin_frame_transforms
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
+from nao_skin.plain import jsonable
 
 REQUEST_TOPIC = "/nao_skin/calibrate"
 STATUS_TOPIC = "/nao_skin/calibration/status"
@@ -99,10 +100,6 @@ def _pairs(items, skin, name: str) -> tuple:
                               f" ({', '.join(skin.parts)})")
         out.append((hand, part))
     return tuple(out)
-
-
-def _plain(obj):
-    return obj.tolist() if hasattr(obj, "tolist") else str(obj)
 
 
 class CalibrateNode(Node):
@@ -222,10 +219,11 @@ class CalibrateNode(Node):
         advice = guidance(touches, self.skin, self._last_live, self.options, pairs=self.guidance_pairs,
                           max_targets=int(self.p["guidance_targets"]), seed=self.generation)
         self.guidance_pub.publish(String(data=json.dumps({"generation": self.generation, **advice.to_dict()},
-                                                         sort_keys=True, default=_plain)))
+                                                         sort_keys=True)))
 
     def _status(self, info: dict) -> None:
-        self.status_pub.publish(String(data=json.dumps(info, sort_keys=True, default=_plain)))
+        # plain JSON (NaN as null, numpy as Python); anything else, e.g. a path, as its text
+        self.status_pub.publish(String(data=json.dumps(jsonable(info), sort_keys=True, default=str)))
 
     def _on_request(self, msg: String) -> None:
         paths = msg.data.split()
