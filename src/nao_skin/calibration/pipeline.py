@@ -76,10 +76,13 @@ class LoadedInputs:
 
 
 def load_inputs(inputs: Sequence, skin: SkinModel, log: Callable[[str], None] | None = None,
-                summary: Callable[[str], None] | None = None) -> LoadedInputs:
-    """The pipeline's load step: read every input, drop exact duplicates."""
+                summary: Callable[[str], None] | None = None, followed=None) -> LoadedInputs:
+    """The pipeline's load step: read every input, drop exact duplicates.
+
+    ``followed``: recordings read again and again while they grow (see :func:`load_touches`).
+    """
     log = log or (lambda msg: None)
-    touches, load_report, found_truth = load_touches(inputs, skin, log=log, summary=summary)
+    touches, load_report, found_truth = load_touches(inputs, skin, log=log, summary=summary, followed=followed)
     touches, n_dup = deduplicate(touches)
     log(f"{touches.n_touches} touches after removing {n_dup} exact duplicates")
     return LoadedInputs(touches, load_report, n_dup, found_truth, [str(p) for p in inputs])

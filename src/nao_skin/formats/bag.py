@@ -18,6 +18,7 @@ reads) with the Jazzy type store.
 """
 from __future__ import annotations
 
+import copy
 from collections import Counter
 from pathlib import Path
 
@@ -26,7 +27,7 @@ import numpy as np
 from nao_skin.errors import DataError, one_line
 from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, encode_cloud,
                                          read_contacts, read_taxels, skin_topic, taxels_array, taxels_topic)
-from nao_skin.formats.salvage import LOCK_FILE, UnclosedBag, cut_mcap, unclosed_sqlite, write_lock
+from nao_skin.formats.salvage import LOCK_FILE, cut_mcap, unclosed_sqlite, write_lock
 from nao_skin.model.skin import SkinModel
 from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST, cluster_contacts, contact_geometry
 from nao_skin.touch.datasets import LoadReport
@@ -195,7 +196,13 @@ def write_touch_bag(path: str | Path, touches: TouchSet, skin: SkinModel, storag
     their recorded COP, the layout's geometric centre and normal, and the mean
     activation pressure; force and moment are not kept in a TouchSet (NaN).
     """
-    path = Path(path)
+    with BagWriter(path, storage, kind="touches") as bag:
+        for touch in touch_messages(touches, skin, path):
+            bag.write_touch(*touch)
+
+
+def touch_messages(touches: TouchSet, skin: SkinModel, where: str | Path = "touches"):
+    """The arguments of :meth:`BagWriter.write_touch` for every touch, in stamp order (see :func:`write_touch_bag`)."""
     geom = contact_geometry(touches, skin, None)
     act_touch, act_part = touches.act_touch, touches.act_part
     act_cid = touches.contact_id[touches.act_contact]
@@ -210,21 +217,20 @@ def write_touch_bag(path: str | Path, touches: TouchSet, skin: SkinModel, storag
     a_bounds = np.searchsorted(act_touch[a_order], np.arange(touches.n_touches + 1))
     c_order = np.lexsort((touches.contact_part, touches.contact_touch))
     c_bounds = np.searchsorted(touches.contact_touch[c_order], np.arange(touches.n_touches + 1))
-    with BagWriter(path, storage, kind="touches") as bag:
-        for t in order:                               # one message group per touch: I/O, not maths
-            stamp_ns = _stamp_ns(touches.stamps[t], f"{path}: touch {touches.keys[t]!r}")
-            acts = a_order[a_bounds[t]:a_bounds[t + 1]]
-            cons = c_order[c_bounds[t]:c_bounds[t + 1]]
-            parts = []
-            for p in np.unique(act_part[acts]):
-                part = skin.part(touches.part_names[p])
-                a = acts[act_part[acts] == p]
-                slots = touches.act_slot[a]
-                c = cons[(touches.contact_part[cons] == p) & (touches.contact_id[cons] >= 0)]
-                parts.append((part, taxels_array(slots, part.positions[slots], touches.act_pressure[a], act_cid[a]),
-                              contacts_array(touches.contact_id[c], touches.contact_cop[c], geom.normal[c],
-                                             geom.geo_center[c], pressure=c_pressure[c])))
-            bag.write_touch(stamp_ns, touches.joint_names, touches.joints[t], parts)
+    for t in order:                                   # one message group per touch: I/O, not maths
+        stamp_ns = _stamp_ns(touches.stamps[t], f"{where}: touch {touches.keys[t]!r}")
+        acts = a_order[a_bounds[t]:a_bounds[t + 1]]
+        cons = c_order[c_bounds[t]:c_bounds[t + 1]]
+        parts = []
+        for p in np.unique(act_part[acts]):
+            part = skin.part(touches.part_names[p])
+            a = acts[act_part[acts] == p]
+            slots = touches.act_slot[a]
+            c = cons[(touches.contact_part[cons] == p) & (touches.contact_id[cons] >= 0)]
+            parts.append((part, taxels_array(slots, part.positions[slots], touches.act_pressure[a], act_cid[a]),
+                          contacts_array(touches.contact_id[c], touches.contact_cop[c], geom.normal[c],
+                                         geom.geo_center[c], pressure=c_pressure[c])))
+        yield stamp_ns, touches.joint_names, touches.joints[t], parts
 
 
 # ---------------------------------------------------------------------- reading
@@ -282,109 +288,151 @@ def read_touches(path: str | Path, skin: SkinModel, config: EventConfig | None =
     from its storage file as far as it was written, and the report says which
     of the two it is.
     """
-    from rosbags.rosbag2 import Reader
-
-    path = Path(path)
-    report = LoadReport(str(path))
-    # metadata.yaml lists the messages only once the bag is closed: read an unclosed sqlite3 file itself
-    unclosed = unclosed_sqlite(path)
-    if unclosed is not None:
-        return _read_unclosed(unclosed, skin, config, max_neighbor_dist, cluster, report)
-    try:
-        reader = Reader(path)
-        reader.open()
-    except Exception as exc:  # noqa: BLE001 - rosbags, sqlite and yaml all raise their own types
-        cut = cut_mcap(path, exc)
-        if cut is None:
-            raise DataError(f"{path}: cannot open as a rosbag2 ({one_line(exc)})") from None
-        return _read_unclosed(cut, skin, config, max_neighbor_dist, cluster, report)
-    try:
-        detector = EventDetector.for_skin(skin, config or _event_config(_bag_kind(reader)))
-        store = _typestore()
-        wanted, unknown = [], {}
-        for conn in reader.connections:
-            if not _is_read(conn.topic, conn.msgtype):
-                continue
-            if _of_unknown_part(conn.topic, skin):
-                unknown[conn.topic] = conn.msgcount
-            else:
-                wanted.append(conn)
-        _skip_unknown_parts(report, path, unknown, skin)
-        records, n_msgs = [], 0
-        try:
-            for conn, _, raw in reader.messages(connections=wanted):
-                n_msgs += 1
-                try:
-                    records += _feed(detector, store, conn.topic, conn.msgtype, raw, skin, path)
-                except DataError as exc:
-                    _skip_bad(report, exc)
-        except Exception as exc:  # noqa: BLE001 - a broken file raises whatever its storage library raises
-            report.skip("truncated bag", f"{path}: unreadable after {n_msgs} messages ({one_line(exc)});"
-                                         f" the rest of the bag is lost")
-        records += detector.flush()
-    finally:
-        try:
-            reader.close()
-        except Exception:  # noqa: BLE001 - closing a broken bag must not hide what was read
-            pass
-    return _finish(detector, records, n_msgs, skin, max_neighbor_dist, cluster, report)
+    return GrowingBag(path, skin, config, max_neighbor_dist, cluster).read()
 
 
-def _read_unclosed(bag: UnclosedBag, skin, config, max_neighbor_dist, cluster, report) -> tuple:
-    """A bag rosbags cannot open: the messages its storage file holds; the report says what was lost for
-    good, or that the recording is (maybe) still being written."""
-    detector, records, n_msgs, ends = _read_messages(bag.path, bag.messages(), skin, config, report)
-    lost = bag.lost(n_msgs, ends)
-    if lost is not None:
-        report.skip(*lost)
-    touches, report = _finish(detector, records, n_msgs, skin, max_neighbor_dist, cluster, report)
-    note = bag.still_open(n_msgs, touches.n_touches)
-    if note is not None:
-        report.notes.append(note)
-    return touches, report
+class GrowingBag:
+    """A bag read again and again while it is being recorded (the live calibrate node's input).
 
-
-def _read_messages(path, messages, skin, config, report) -> tuple:
-    """Feed ``(topic, msgtype, data)`` of a bag read without rosbags to a detector.
-
-    ``(None, why, None)`` ends the messages where the file breaks off. Returns
-    ``(detector, records, messages fed, how the messages end)``.
+    Each :meth:`read` returns what :func:`read_touches` returns for the bag as
+    it is at that moment, but decodes only the messages written since the
+    previous read: what was committed before is kept as touches, and the
+    event detector's state after it is kept too (the touch that the last
+    messages may still continue is finished on a copy). A closed bag, and a
+    storage file replaced or rewritten meanwhile, are read whole.
     """
-    detector = EventDetector.for_skin(skin, config or _event_config(_provisional_kind(path)))
-    store = _typestore()
-    records, n_msgs, ends = [], 0, "ends cleanly"
-    unknown = Counter()
-    for topic, msgtype, data in messages:
-        if topic is None:
-            ends = msgtype
-            break
-        if not _is_read(topic, msgtype):
-            continue
-        if _of_unknown_part(topic, skin):
-            unknown[topic] += 1
-            continue
-        n_msgs += 1
+
+    def __init__(self, path: str | Path, skin: SkinModel, config: EventConfig | None = None,
+                 max_neighbor_dist: float = DEFAULT_MAX_NEIGHBOR_DIST, cluster: bool = True):
+        self.path = Path(path)
+        self.skin, self.config = skin, config
+        self.max_neighbor_dist, self.cluster = max_neighbor_dist, cluster
+        self._cursor = None
+        self._feed: _Feed | None = None
+        self._touches: TouchSet | None = None    # of the feed's records so far, clustered
+
+    def read(self) -> tuple:
+        """``(TouchSet, LoadReport)`` of everything the bag holds now."""
+        from rosbags.rosbag2 import Reader
+
+        # metadata.yaml lists the messages only once the bag is closed: read an unclosed sqlite3 file itself
+        bag = unclosed_sqlite(self.path)
+        if bag is None:
+            try:
+                reader = Reader(self.path)
+                reader.open()
+            except Exception as exc:  # noqa: BLE001 - rosbags, sqlite and yaml all raise their own types
+                bag = cut_mcap(self.path, exc)
+                if bag is None:
+                    raise DataError(f"{self.path}: cannot open as a rosbag2 ({one_line(exc)})") from None
+            else:
+                self._cursor = self._feed = self._touches = None
+                return self._read_closed(reader)
+        tail = bag.since(self._cursor)
+        if self._feed is None or tail.restarted:
+            config = self.config or _event_config(_provisional_kind(self.path))
+            self._feed = _Feed(self.path, self.skin, config, LoadReport(str(self.path)))
+            self._touches = None
+        self._cursor = tail.cursor
+        self._feed.add(tail.committed)
+        done = self._touches.n_touches if self._touches is not None else 0
+        self._touches = self._finish(self._feed, self._feed.records[done:], self._touches)
+        now = self._feed.fork()
+        ends = now.add(tail.provisional)
+        extra = now.records[len(self._feed.records):] + now.detector.flush()
+        report = now.report
+        _skip_unknown_parts(report, self.path, now.unknown, self.skin)
+        lost = bag.lost(now.n_msgs, ends)
+        if lost is not None:
+            report.skip(*lost)
+        touches = self._finish(now, extra, self._touches)
+        now.account(touches)
+        note = bag.still_open(now.n_msgs, touches.n_touches)
+        if note is not None:
+            report.notes.append(note)
+        return touches, report
+
+    def _finish(self, feed: "_Feed", records: list, before: TouchSet | None) -> TouchSet:
+        """``before`` and the touches of ``feed``'s ``records`` after it, clustered."""
+        touches = touchset_from_records(records, feed.detector.part_names, feed.detector.joint_names)
+        if self.cluster:
+            touches = cluster_contacts(touches, self.skin, None, self.max_neighbor_dist)
+        return touches if before is None else TouchSet.concatenate([before, touches])
+
+    def _read_closed(self, reader) -> tuple:
+        report = LoadReport(str(self.path))
         try:
-            records += _feed(detector, store, topic, msgtype, data, skin, path)
-        except DataError as exc:
-            _skip_bad(report, exc)
-    _skip_unknown_parts(report, path, unknown, skin)
-    records += detector.flush()
-    return detector, records, n_msgs, ends
+            feed = _Feed(self.path, self.skin, self.config or _event_config(_bag_kind(reader)), report)
+            wanted, unknown = [], {}
+            for conn in reader.connections:
+                if not _is_read(conn.topic, conn.msgtype):
+                    continue
+                if _of_unknown_part(conn.topic, self.skin):
+                    unknown[conn.topic] = conn.msgcount
+                else:
+                    wanted.append(conn)
+            _skip_unknown_parts(report, self.path, unknown, self.skin)
+            try:
+                for conn, _, raw in reader.messages(connections=wanted):
+                    feed.add([(conn.topic, conn.msgtype, raw)])
+            except Exception as exc:  # noqa: BLE001 - a broken file raises whatever its storage library raises
+                report.skip("truncated bag", f"{self.path}: unreadable after {feed.n_msgs} messages"
+                                             f" ({one_line(exc)}); the rest of the bag is lost")
+            feed.records += feed.detector.flush()
+        finally:
+            try:
+                reader.close()
+            except Exception:  # noqa: BLE001 - closing a broken bag must not hide what was read
+                pass
+        touches = self._finish(feed, feed.records, None)
+        feed.account(touches)
+        return touches, report
 
 
-def _finish(detector, records, n_msgs, skin, max_neighbor_dist, cluster, report) -> tuple:
-    for reason, count in detector.counts.items():
-        if reason not in ("touches", "continued press"):
-            report.skipped[reason] += count
-    report.messages.extend(f"{report.source}: {note}" for note in detector.notes)
-    touches = touchset_from_records(records, detector.part_names, detector.joint_names)
-    if cluster:
-        touches = cluster_contacts(touches, skin, None, max_neighbor_dist)
-    report.n_read = n_msgs
-    report.n_loaded = touches.n_touches
-    report.unit = "messages"
-    return touches, report
+class _Feed:
+    """Messages of one bag fed in order to an event detector, with what its load report needs."""
+
+    def __init__(self, path: Path, skin: SkinModel, config: EventConfig, report: LoadReport):
+        self.path, self.skin, self.report = path, skin, report
+        self.detector = EventDetector.for_skin(skin, config)
+        self.store = _typestore()
+        self.records: list = []
+        self.n_msgs = 0
+        self.unknown = Counter()        # messages of topics whose part the skin does not have
+
+    def add(self, messages) -> str:
+        """Feed ``(topic, msgtype, data)`` up to a ``(None, why, None)``; returns how they end."""
+        for topic, msgtype, data in messages:
+            if topic is None:
+                return msgtype
+            if not _is_read(topic, msgtype):
+                continue
+            if _of_unknown_part(topic, self.skin):
+                self.unknown[topic] += 1
+                continue
+            self.n_msgs += 1
+            try:
+                self.records += _feed(self.detector, self.store, topic, msgtype, data, self.skin, self.path)
+            except DataError as exc:
+                _skip_bad(self.report, exc)
+        return "ends cleanly"
+
+    def fork(self) -> "_Feed":
+        """A copy to feed and finish while this one goes on (the type store is shared: it never changes)."""
+        other = copy.copy(self)
+        other.detector, other.report = copy.deepcopy(self.detector), copy.deepcopy(self.report)
+        other.records, other.unknown = list(self.records), Counter(self.unknown)
+        return other
+
+    def account(self, touches: TouchSet) -> None:
+        """The load report of these messages, ``touches`` being what they gave."""
+        for reason, count in self.detector.counts.items():
+            if reason not in ("touches", "continued press"):
+                self.report.skipped[reason] += count
+        self.report.messages.extend(f"{self.report.source}: {note}" for note in self.detector.notes)
+        self.report.n_read = self.n_msgs
+        self.report.n_loaded = touches.n_touches
+        self.report.unit = "messages"
 
 
 def _feed(detector: EventDetector, store, topic: str, msgtype: str, raw, skin: SkinModel, path: Path) -> list:

@@ -47,13 +47,15 @@ def check_inputs(paths) -> None:
             find_bag(path)
 
 
-def load_touches(paths, skin: SkinModel, log=print, summary=None) -> tuple:
+def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None) -> tuple:
     """Touches of every input, concatenated; the load report; ground truth if a simulator wrote one.
 
     ``log`` gets each input's summary and first skip reasons; ``summary`` (default
     ``log``) gets the one-line summary of every input that skipped something and
     the hints, so a quiet caller still says what was left out. Nothing already
-    read is lost because of a bad touch elsewhere.
+    read is lost because of a bad touch elsewhere. ``followed``: bags read again
+    and again while they are recorded, by input path, each a
+    :class:`~nao_skin.formats.bag.GrowingBag` that decodes only what is new.
     """
     from nao_skin.formats.bag import read_touches
     from nao_skin.formats.legacy import read_legacy
@@ -68,7 +70,8 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None) -> tuple:
             touches, rep = read_legacy(path, skin)
         else:
             bag = find_bag(path)
-            touches, rep = read_touches(bag, skin)
+            follower = (followed or {}).get(raw)
+            touches, rep = follower.read() if follower is not None else read_touches(bag, skin)
             for candidate in (path / TRUTH_FILE, bag.parent / TRUTH_FILE):
                 if candidate.exists() and truth is None:
                     truth = SkinCalibration.load(candidate, skin)

@@ -14,6 +14,7 @@ the lines the load report needs; the bag reader feeds the messages.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 from nao_skin.errors import DataError, one_line
@@ -82,6 +83,23 @@ def recording_lock(path: Path) -> RecordingLock | None:
 
 
 # ---------------------------------------------------------------------- a bag read from its storage file
+@dataclass
+class Tail:
+    """What a storage file holds after a cursor, for a reader that follows a recording as it grows.
+
+    ``committed``: complete messages, in the order a whole read gives them, that later writes cannot change;
+    ``provisional``: what the file holds beyond them now (the complete messages of an mcap chunk still being
+    written, and ``(None, how the file ends, None)`` where it breaks off), read again next time;
+    ``cursor``: where the next read resumes, or None when this read could not resume from the cursor given
+    (the file was replaced or rewritten): ``committed`` then starts from the beginning.
+    """
+
+    committed: list
+    provisional: list
+    cursor: object
+    restarted: bool = False
+
+
 class UnclosedBag:
     """A bag rosbags cannot open, read from its one storage file; :func:`unclosed_sqlite` and :func:`cut_mcap`
     find one. Subclasses say how the file is read and what the report says was lost."""
@@ -91,8 +109,13 @@ class UnclosedBag:
         # before the file is read: a recorder closing the bag meanwhile still counts as open
         self.lock = recording_lock(path)
 
-    def messages(self):
+    def messages(self) -> list:
         """``(topic, msgtype, data)`` in file order; ``(None, how the file ends, None)`` ends a cut file."""
+        tail = self.since(None)
+        return tail.committed + tail.provisional
+
+    def since(self, cursor) -> "Tail":
+        """The messages written after ``cursor`` (None: from the start), see :class:`Tail`."""
         raise NotImplementedError
 
     def _lost_without_lock(self, n_msgs: int, ends: str) -> tuple:
@@ -134,8 +157,17 @@ class _UnclosedSqlite(UnclosedBag):
         super().__init__(path, file)
         self.reason, self.why = reason, why
 
-    def messages(self) -> list:
-        return _sqlite_messages(self.path, self.file)
+    def since(self, cursor) -> Tail:
+        """``cursor``: ``(id, timestamp)`` of the last row read. A recorder appends rows in time order; when
+        that row is gone or changed (another file under the name) or an older row came after it (another
+        writer), the file is read from its start, so the order stays that of a whole read."""
+        if cursor is not None:
+            rows = _sqlite_messages(self.path, self.file, cursor[0] - 1)
+            if rows and rows[0][:2] == cursor:
+                rows = rows[1:]
+                return Tail([r[2:] for r in rows], [], rows[-1][:2] if rows else cursor)
+        rows = _sqlite_messages(self.path, self.file)
+        return Tail([r[2:] for r in rows], [], rows[-1][:2] if rows else None, restarted=cursor is not None)
 
     def _lost_without_lock(self, n_msgs: int, ends: str) -> tuple:
         return self.reason, f"{self.path}: {self.why}; read {n_msgs} messages from {self.file.name} directly"
@@ -167,16 +199,17 @@ def unclosed_sqlite(path: Path) -> UnclosedBag | None:
                                                              " the bag; anything after its last commit is lost)")
 
 
-def _sqlite_messages(path: Path, file: Path) -> list:
-    """``(topic, msgtype, data)`` of every message committed to a rosbag2 sqlite3 file, in time order.
+def _sqlite_messages(path: Path, file: Path, after: int = 0) -> list:
+    """``(id, timestamp, topic, msgtype, data)`` of every message committed to a rosbag2 sqlite3 file after row
+    ``after``, in time order.
 
     Read-only, in one query: a live recorder's next commit waits at most that long.
     """
     import sqlite3
     from contextlib import closing
 
-    query = ("SELECT t.name, t.type, m.data FROM messages AS m JOIN topics AS t ON m.topic_id = t.id"
-             " ORDER BY m.timestamp, m.id")
+    query = ("SELECT m.id, m.timestamp, t.name, t.type, m.data FROM messages AS m JOIN topics AS t"
+             f" ON m.topic_id = t.id WHERE m.id > {int(after)} ORDER BY m.timestamp, m.id")
     try:
         with closing(sqlite3.connect(f"{file.resolve().as_uri()}?mode=ro", uri=True, timeout=1.0)) as conn:
             return conn.execute(query).fetchall()
@@ -226,17 +259,37 @@ def _sqlite_messages_of_copy(path: Path, file: Path, query: str, attempts: int =
 
 
 # ---------------------------------------------------------------------- mcap: a file without its summary
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+SIGNATURE = 64        # bytes before a resumed read's offset that must still be there (the same file grown)
+
+
 class _CutMcap(UnclosedBag):
     def __init__(self, path: Path, file: Path, open_error: Exception):
         super().__init__(path, file)
         self.open_error = open_error
 
-    def messages(self):
+    def since(self, cursor) -> Tail:
+        """``cursor``: ``(offset, the bytes before it, schemas, channels)`` after the last complete top-level
+        record read; only the bytes after it are read again, once the ones before it are still there (else
+        the file is another one under the name, read from its start)."""
+        offset, before = (cursor[0], cursor[1]) if cursor is not None else (0, b"")
         try:
-            buf = self.file.read_bytes()
+            with open(self.file, "rb") as f:
+                f.seek(offset - len(before))
+                buf = f.read()
         except OSError as exc:
             raise DataError(f"{self.path}: cannot read {self.file.name} ({exc.strerror})") from None
-        return _mcap_messages(buf)
+        if cursor is not None and buf.startswith(before):
+            schemas, channels = dict(cursor[2]), dict(cursor[3])
+        elif cursor is not None:
+            return Tail(**{**vars(self.since(None)), "restarted": True})
+        elif not buf.startswith(MCAP_MAGIC):
+            return Tail([], [(None, "not an mcap file", None)], None)
+        else:
+            offset, before, schemas, channels = len(MCAP_MAGIC), MCAP_MAGIC, {}, {}
+        committed, provisional, used = _mcap_records(buf[len(before):], offset, schemas, channels)
+        seen = buf[:len(before) + used][-SIGNATURE:]
+        return Tail(committed, provisional, (offset + used, seen, schemas, channels))
 
     def _lost_without_lock(self, n_msgs: int, ends: str) -> tuple:
         return "truncated bag", (f"{self.path}: {self.file.name} is damaged ({one_line(self.open_error)});"
@@ -253,60 +306,83 @@ def cut_mcap(path: Path, open_error: Exception) -> UnclosedBag | None:
     return _CutMcap(path, files[0], open_error) if len(files) == 1 else None
 
 
-def _mcap_messages(buf: bytes):
-    """``(topic, msgtype, data)`` of an mcap file read front to back, stopping where it breaks off.
+def _u16(b, o):
+    return int.from_bytes(b[o:o + 2], "little")
+
+
+def _u32(b, o):
+    return int.from_bytes(b[o:o + 4], "little")
+
+
+def _u64(b, o):
+    return int.from_bytes(b[o:o + 8], "little")
+
+
+def _string(b, o):
+    n = _u32(b, o)
+    return b[o + 4:o + 4 + n].decode(), o + 4 + n
+
+
+def _mcap_records(buf: bytes, base: int, schemas: dict, channels: dict) -> tuple:
+    """``(committed, provisional, bytes used)`` of the mcap records in ``buf``, the file from byte ``base``.
 
     A cut file lacks the footer and summary the normal reader needs, but its
     records are length-prefixed: every complete one before the cut is intact.
-    Yields ``(None, error, None)`` once if the file ends inside a record.
+    ``committed``: the ``(topic, msgtype, data)`` of the complete top-level
+    records, the first ``bytes used`` of ``buf``; ``provisional``: the
+    complete messages of a chunk cut off at the end, then ``(None, how the
+    file ends, None)`` where it breaks off (also a compressed chunk, which is
+    not salvaged, or a damaged record: nothing after it is read). ``schemas``
+    and ``channels`` (id -> name, id -> (topic, schema name)) are updated with
+    the committed records' definitions.
     """
-    u16 = lambda b, o: int.from_bytes(b[o:o + 2], "little")          # noqa: E731
-    u32 = lambda b, o: int.from_bytes(b[o:o + 4], "little")          # noqa: E731
-    u64 = lambda b, o: int.from_bytes(b[o:o + 8], "little")          # noqa: E731
+    committed, pos, end = [], 0, len(buf)
+    while pos < end:
+        if pos + 9 > end:
+            return committed, [(None, "ends inside a record header", None)], pos
+        op, length = buf[pos], _u64(buf, pos + 1)
+        start, stop = pos + 9, pos + 9 + length
+        if stop > end:
+            provisional, ends = [], None
+            if op == 0x06:         # a cut chunk: its complete inner records are still good
+                comp, inner = _string(buf, start + 8 + 8 + 8 + 4)
+                if comp == "":
+                    ends = _walk(buf, inner + 8, end, base, dict(schemas), dict(channels), provisional)
+            ends = ends or f"ends inside a record at byte {base + pos} of {base + end}"
+            return committed, provisional + [(None, ends, None)], pos
+        if op == 0x06:
+            comp, inner = _string(buf, start + 8 + 8 + 8 + 4)
+            if comp != "":
+                return committed, [(None, f"compressed chunk ({comp}) cannot be salvaged", None)], pos
+            messages = []
+            ends = _walk(buf, inner + 8, stop, base, schemas, channels, messages)
+            if ends is not None:
+                return committed, messages + [(None, ends, None)], pos
+            committed += messages
+        else:
+            _walk(buf, pos, stop, base, schemas, channels, committed)
+        pos = stop
+    return committed, [], pos
 
-    def string(b, o):
-        n = u32(b, o)
-        return b[o + 4:o + 4 + n].decode(), o + 4 + n
 
-    schemas, channels = {}, {}
-
-    def walk(b, pos, end, top):
-        while pos < end:
-            if pos + 9 > end:
-                yield None, "ends inside a record header", None
-                return
-            op, length = b[pos], u64(b, pos + 1)
-            start, stop = pos + 9, pos + 9 + length
-            if stop > end:
-                if op == 0x06 and top:        # a cut chunk: its complete inner records are still good
-                    inner = start + 8 + 8 + 8 + 4
-                    comp, inner = string(b, inner)
-                    if comp == "":
-                        yield from walk(b, inner + 8, end, False)
-                yield None, f"ends inside a record at byte {pos} of {end}", None
-                return
-            if op == 0x03:
-                sid = u16(b, start)
-                name, _ = string(b, start + 2)
-                schemas[sid] = name
-            elif op == 0x04:
-                cid, sid = u16(b, start), u16(b, start + 2)
-                topic, _ = string(b, start + 4)
-                channels[cid] = (topic, schemas.get(sid, ""))
-            elif op == 0x05:
-                channel = channels.get(u16(b, start))
-                if channel is not None:
-                    yield channel[0], channel[1], b[start + 22:stop]
-            elif op == 0x06:
-                inner = start + 8 + 8 + 8 + 4
-                comp, inner = string(b, inner)
-                if comp != "":
-                    yield None, f"compressed chunk ({comp}) cannot be salvaged", None
-                    return
-                yield from walk(b, inner + 8, stop, False)
-            pos = stop
-
-    if not buf.startswith(b"\x89MCAP0\r\n"):
-        yield None, "not an mcap file", None
-        return
-    yield from walk(buf, 8, len(buf), True)
+def _walk(buf: bytes, pos: int, end: int, base: int, schemas: dict, channels: dict, out: list) -> str | None:
+    """Schema, channel and message records between ``pos`` and ``end`` (no chunks): messages appended to
+    ``out``; how they break off, or None when every record is complete."""
+    while pos < end:
+        if pos + 9 > end:
+            return "ends inside a record header"
+        op, length = buf[pos], _u64(buf, pos + 1)
+        start, stop = pos + 9, pos + 9 + length
+        if stop > end:
+            return f"ends inside a record at byte {base + pos} of {base + end}"
+        if op == 0x03:
+            schemas[_u16(buf, start)] = _string(buf, start + 2)[0]
+        elif op == 0x04:
+            cid, sid = _u16(buf, start), _u16(buf, start + 2)
+            channels[cid] = (_string(buf, start + 4)[0], schemas.get(sid, ""))
+        elif op == 0x05:
+            channel = channels.get(_u16(buf, start))
+            if channel is not None:
+                out.append((channel[0], channel[1], buf[start + 22:stop]))
+        pos = stop
+    return None

@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 import threading
 import time
+from pathlib import Path
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -32,6 +33,8 @@ from tf2_msgs.msg import TFMessage
 
 from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
 from nao_skin.errors import ConfigError, DataError, NaoSkinError, TooFewTouches, one_line
+from nao_skin.formats.bag import GrowingBag
+from nao_skin.formats.inputs import find_bag
 from nao_skin.live.updates import Settling, UpdateSchedule, WarmStart, rejection, taxel_displacement_mm
 from nao_skin.model.skin import SkinCalibration, skin_frame_transforms
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC
@@ -120,6 +123,7 @@ class CalibrateNode(Node):
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
         self._last_live = None            # the last accepted live update's result: written when the session ends
+        self._followed: dict = {}         # the recording, read incrementally by the live updates
         self.warm_start = WarmStart(self.prior, float(self.p["live_refresh"]))
         self.guidance_pairs = _pairs(self.p["guidance_pairs"], self.skin, "guidance_pairs")
         if self.p["live"]:
@@ -169,7 +173,10 @@ class CalibrateNode(Node):
         t0 = time.perf_counter()
         loaded = None
         try:
-            loaded = load_inputs([self.p["recording"]], self.skin, log=log.debug, summary=log.debug)
+            recording = self.p["recording"]
+            if recording not in self._followed:      # the recorder has created it by the first touch
+                self._followed = {recording: GrowingBag(find_bag(Path(recording)), self.skin)}
+            loaded = load_inputs([recording], self.skin, log=log.debug, summary=log.debug, followed=self._followed)
             touches = loaded.touches
             start = self.warm_start.arguments(touches.n_touches)
             result = calibrate_loaded(loaded, self.skin, self.options, log=log.debug, **start)

@@ -1,0 +1,148 @@
+"""A recording read again and again while it is written (GrowingBag, the live calibrate node's input).
+
+Every read must give exactly what a whole read of the bag gives at that
+moment (read_touches: touches, skips, notes), while decoding only the
+messages written since the previous read. The bags are real: written by
+BagWriter(live=True) as the pairing recorder writes them, flushed batch by
+batch, never closed (the lock names this process, so they read as open);
+an mcap file is also cut at arbitrary bytes, as a flush in progress or a
+killed recorder leaves it.
+"""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nao_skin.formats import bag as bagmod
+from nao_skin.formats.bag import BagWriter, GrowingBag, read_touches
+from nao_skin.model.skin import load_skin
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate
+
+SEED, PER_PAIR = 3, 10
+
+
+@pytest.fixture(scope="module")
+def played():
+    skin = load_skin()
+    touches = simulate(skin, load_params("default", {"n_touches": PER_PAIR}), SEED).touches
+    return skin, touches.subset(np.argsort(touches.stamps, kind="stable"))
+
+
+def write(bag: BagWriter, skin, touches, rows) -> None:
+    """The touches ``rows`` as a recorder writes them: a JointState, then each touching part's taxels."""
+    names = np.array(touches.part_names)
+    for t in rows:
+        stamp = int(round(touches.stamps[t] * 1e9))
+        bag.write_joint_state(stamp, touches.joint_names, touches.joints[t])
+        a = np.flatnonzero(touches.act_touch == t)
+        for p in np.unique(touches.act_part[a]):
+            sel = a[touches.act_part[a] == p]
+            part = skin.part(names[p])
+            slots = touches.act_slot[sel]
+            bag.write_taxels(stamp, names[p], part.parent_frame, part.positions[slots], slots,
+                             touches.act_pressure[sel], touches.contact_id[touches.act_contact[sel]])
+
+
+def assert_same_read(got: tuple, want: tuple) -> None:
+    (g, g_rep), (w, w_rep) = got, want
+    assert g.n_touches == w.n_touches
+    assert g.part_names == w.part_names and g.joint_names == w.joint_names and g.keys == w.keys
+    for name in ("stamps", "joints", "contact_touch", "contact_part", "contact_id", "contact_cop",
+                 "act_contact", "act_slot", "act_pressure"):
+        np.testing.assert_array_equal(getattr(g, name), getattr(w, name), err_msg=name)
+    assert g_rep.summary() == w_rep.summary()
+    assert g_rep.messages == w_rep.messages and g_rep.notes == w_rep.notes
+
+
+@pytest.fixture
+def decoded(monkeypatch):
+    """How many messages the bag module decodes (each goes through ``_feed`` once)."""
+    count = [0]
+    original = bagmod._feed
+
+    def counting(*args, **kwargs):
+        count[0] += 1
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(bagmod, "_feed", counting)
+    return count
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_each_read_equals_a_whole_read_and_decodes_only_new_messages(played, tmp_path, storage, decoded):
+    skin, touches = played
+    path = tmp_path / "rec"
+    follower = GrowingBag(path, skin)
+    batches = np.split(np.arange(touches.n_touches), [1, 4, 5, 13, 21, 34])
+    with BagWriter(path, storage, kind="touches", live=True) as bag:
+        written = follower_decoded = 0
+        for rows in batches:
+            write(bag, skin, touches, rows)
+            bag.flush()
+            written += len(rows)
+            before = decoded[0]
+            got = follower.read()
+            new = decoded[0] - before
+            follower_decoded += new
+            assert_same_read(got, read_touches(path, skin))
+            assert got[0].n_touches == written
+            assert "still open" in got[1].notes[-1]
+            # the follower decoded this batch's messages, not the bag's: 1 joint state + 1-2 skin parts per touch
+            assert len(rows) <= new <= 3 * len(rows)
+        assert follower_decoded == got[1].n_read     # each message once; whole reads decode the bag each time
+    # closed: the follower reads the closed bag like any reader
+    assert_same_read(follower.read(), read_touches(path, skin))
+    assert follower.read()[0].n_touches == touches.n_touches
+
+
+def test_an_mcap_file_cut_anywhere_reads_as_a_whole_read_does(played, tmp_path):
+    """Cut at every few bytes (inside chunks, headers, records): the committed touches are kept, the rest is
+    read again when its bytes arrive, and the lines say the same as a whole read's."""
+    skin, touches = played
+    src = tmp_path / "src"
+    with BagWriter(src, "mcap", kind="touches", live=True) as bag:
+        for rows in np.array_split(np.arange(touches.n_touches), 8):
+            write(bag, skin, touches, rows)
+            bag.flush()
+        data = next(src.glob("*.mcap")).read_bytes()
+        growing = tmp_path / "growing"
+        growing.mkdir()
+        for name in ("metadata.yaml", "recording.lock"):
+            shutil.copy(src / name, growing / name)
+        file = growing / next(src.glob("*.mcap")).name
+        follower = GrowingBag(growing, skin)
+        cuts = sorted(set(np.linspace(0, len(data), 60).astype(int)) | {8, 9, 17, len(data) - 1})
+        kept = 0
+        for lo, hi in zip([0] + cuts, cuts):
+            with open(file, "ab") as f:          # appended, as a recorder writes: the same file throughout
+                f.write(data[lo:hi])
+            got = follower.read()
+            assert_same_read(got, read_touches(growing, skin))
+            assert got[0].n_touches >= kept          # nothing read before is ever lost
+            kept = got[0].n_touches
+        assert kept == touches.n_touches
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_a_replaced_recording_is_read_from_its_start(played, tmp_path, storage):
+    skin, touches = played
+    path, other = tmp_path / "rec", tmp_path / "other"
+    first = BagWriter(path, storage, kind="touches", live=True).__enter__()   # never closed: it is replaced
+    write(first, skin, touches, range(20))
+    first.flush()
+    follower = GrowingBag(path, skin)
+    assert follower.read()[0].n_touches == 20
+    suffix = {"mcap": "*.mcap", "sqlite3": "*.db3"}[storage]
+    with BagWriter(other, storage, kind="touches", live=True) as bag:
+        write(bag, skin, touches, range(5, 12))
+        bag.flush()
+        file = next(path.glob(suffix))
+        file.unlink()
+        shutil.copy(next(other.glob(suffix)), file)     # another file under the old name, fewer touches
+        got = follower.read()
+        assert_same_read(got, read_touches(path, skin))
+        np.testing.assert_array_equal(got[0].stamps, touches.stamps[5:12])
