@@ -14,7 +14,7 @@ the lines the load report needs; the bag reader feeds the messages.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from nao_skin.errors import DataError, one_line
@@ -90,8 +90,9 @@ class Tail:
     ``committed``: complete messages, in the order a whole read gives them, that later writes cannot change;
     ``provisional``: what the file holds beyond them now (the complete messages of an mcap chunk still being
     written, and ``(None, how the file ends, None)`` where it breaks off), read again next time;
-    ``cursor``: where the next read resumes, or None when this read could not resume from the cursor given
-    (the file was replaced or rewritten): ``committed`` then starts from the beginning.
+    ``cursor``: where the next read resumes (None: from the start); ``restarted``: this read could not resume
+    from the cursor it was given (another file under the name, or one rewritten), so ``committed`` starts
+    from the beginning of the file.
     """
 
     committed: list
@@ -282,7 +283,7 @@ class _CutMcap(UnclosedBag):
         if cursor is not None and buf.startswith(before):
             schemas, channels = dict(cursor[2]), dict(cursor[3])
         elif cursor is not None:
-            return Tail(**{**vars(self.since(None)), "restarted": True})
+            return replace(self.since(None), restarted=True)
         elif not buf.startswith(MCAP_MAGIC):
             return Tail([], [(None, "not an mcap file", None)], None)
         else:
