@@ -67,17 +67,9 @@ def add_arguments(parser) -> None:
 
 
 def _pairs(text: str):
-    from nao_skin.errors import DataError
+    from nao_skin.model.skin import parse_pairs
 
-    if text in ("all", ""):
-        return None
-    out = []
-    for item in text.split(","):
-        a, sep, b = item.strip().partition("-")
-        if not sep or not a or not b:
-            raise DataError(f"pair {item!r}: expected HAND-PART, e.g. l_hand-torso")
-        out.append((a, b))
-    return out
+    return None if text in ("all", "") else list(parse_pairs(text.split(",") or [text]))
 
 
 def _sim_input(args, quick: bool, say, keep: int | None = None):

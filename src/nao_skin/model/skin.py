@@ -473,6 +473,24 @@ def part_from_layout(name: str, chain: str | None, robot: RobotModel, taxel_file
                       layout_file=str(taxel_file))
 
 
+def parse_pairs(items, parts=None, where: str = "pair") -> tuple:
+    """``'hand-part'`` strings (e.g. ``'l_hand-torso'``) as ``(hand, part)`` tuples; empty strings are skipped.
+
+    ``parts``: the skin parts both sides must name (None: not checked here).
+    """
+    out = []
+    for item in items:
+        item = str(item).strip()
+        if not item:
+            continue
+        hand, sep, part = item.partition("-")
+        if not sep or not hand or not part or hand == part or (parts is not None and not {hand, part} <= set(parts)):
+            of = f" of two skin parts ({', '.join(parts)})" if parts is not None else " of two skin parts"
+            raise ConfigError(f"{where} {item!r}: expected HAND-PART{of}, e.g. l_hand-torso")
+        out.append((hand, part))
+    return tuple(out)
+
+
 def parse_taxel_files(items, where: str = "--taxels") -> dict:
     """``PART=FILE`` strings (``--taxels``, a node's ``taxels`` parameter) as ``{part: Path}``; empty items skipped."""
     files = {}

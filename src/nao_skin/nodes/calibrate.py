@@ -36,7 +36,7 @@ from nao_skin.errors import ConfigError, DataError, NaoSkinError, TooFewTouches,
 from nao_skin.formats.bag import GrowingBag
 from nao_skin.formats.inputs import find_bag
 from nao_skin.live.updates import Settling, UpdateSchedule, WarmStart, rejection, taxel_displacement_mm
-from nao_skin.model.skin import SkinCalibration, skin_frame_transforms
+from nao_skin.model.skin import SkinCalibration, parse_pairs, skin_frame_transforms
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
@@ -92,17 +92,7 @@ def _pairs(items, skin, name: str) -> tuple:
     """'hand-part' strings to (hand, part) pairs of the skin's parts; none given: the four thesis pairs."""
     from nao_skin.guidance.capture import DEFAULT_PAIRS
 
-    items = [i for i in items if i]
-    if not items:
-        return DEFAULT_PAIRS
-    out = []
-    for item in items:
-        hand, sep, part = item.partition("-")
-        if not sep or hand not in skin.parts or part not in skin.parts:
-            raise ConfigError(f"parameter {name}: {item!r} is not 'hand-part' of two skin parts"
-                              f" ({', '.join(skin.parts)})")
-        out.append((hand, part))
-    return tuple(out)
+    return parse_pairs(items, skin.parts, f"parameter {name}:") or DEFAULT_PAIRS
 
 
 class CalibrateNode(Node):

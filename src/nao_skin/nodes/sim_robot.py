@@ -32,6 +32,7 @@ from std_msgs.msg import String
 from nao_skin.errors import ConfigError
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_array, contacts_topic, taxels_array, taxels_topic
 from nao_skin.live.playback import Playback
+from nao_skin.model.skin import parse_pairs
 from nao_skin.nodes.calibrate import GUIDANCE_TOPIC, LATCHED
 from nao_skin.nodes.messages import cloud_from_array, joint_state_msg
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
@@ -61,12 +62,12 @@ PARAMS = {
 }
 
 
-def sim_overrides(touches_per_pair: int, pairs) -> dict:
+def sim_overrides(touches_per_pair: int, pairs, parts=None) -> dict:
     """Simulator parameter overrides from the node's parameters (also used by tests to recompute)."""
     out = {"n_touches": int(touches_per_pair)}
-    pairs = [p for p in pairs if p]
+    pairs = parse_pairs(pairs, parts, where="parameter pairs:")
     if pairs:
-        out["pairs"] = [p.split("-", 1) for p in pairs]
+        out["pairs"] = [list(p) for p in pairs]
     return out
 
 
@@ -75,7 +76,7 @@ class SimRobot(Node):
         super().__init__("sim_robot", **kwargs)
         p = declare(self, PARAMS)
         self.skin = skin_from_params(p)
-        params = load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"]))
+        params = load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], self.skin.parts))
         self.timing = (p["touch_period"], p["press_duration"], p["hold"])
         self.guided = bool(p["guided"])
         self.targets: list = []           # the latest guidance's targets, best first
