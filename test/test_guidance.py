@@ -130,6 +130,18 @@ def test_capture_batches_concatenate_and_simulate_unchanged(skin):
     assert again.touches.keys == ref.touches.keys and np.array_equal(again.touches.act_slot, ref.touches.act_slot)
 
 
+def test_random_touches_split_over_the_pairs_by_weight(skin):
+    """The oracle strategy of bench-capture sends a batch where the weights say; uniform without weights."""
+    cap = CaptureSim(skin, {"pairs": PAIRS}, 2)
+    only_second = cap.random(12, [0.0, 1.0])
+    assert set(only_second.labels["pair"]) == {"r_hand-torso"}
+    mostly_first = cap.random(12, [3.0, 1.0])
+    pairs = list(mostly_first.labels["pair"])
+    assert 8 <= pairs.count("l_hand-torso") <= 9 and 3 <= pairs.count("r_hand-torso") <= 4   # 9 / 3 pressed
+    uniform = list(cap.random(12).labels["pair"])
+    assert 5 <= uniform.count("l_hand-torso") <= 6
+
+
 def test_report_coverage_table_lists_held_triangles(skin, captured):
     _, _, result = captured
     cov = report_coverage(result, skin)

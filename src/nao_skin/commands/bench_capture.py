@@ -14,7 +14,8 @@ import time
 from pathlib import Path
 
 NAME = "bench-capture"
-HELP = "benchmark guided capture: touches until every part's true taxel error meets the target, random vs guided"
+HELP = ("benchmark guided capture: touches until every part's true taxel error meets the target, random vs guided"
+        " (and an oracle's split over the pairs)")
 OUTPUTS = ("capture_results.md", "capture_results.json", "capture.png")
 
 
@@ -36,6 +37,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--p95-mm", type=float, help="every part's true taxel error p95 at most (default 1.5)")
     parser.add_argument("--cold", action="store_true",
                         help="calibrate from nominal after every batch (default: warm-started from the last one)")
+    parser.add_argument("--strategies", default="random,guided,oracle",
+                        help="comma-separated, of random, guided, oracle (default: all three; oracle splits random"
+                             " touches over the pairs by the true error: an upper bound, not a capture policy)")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes (runs are independent)")
 
 
@@ -61,6 +65,10 @@ def run(args) -> int:
             setup = replace(setup, **{name: value})
     if args.cold:
         setup = replace(setup, warm_start=False)
+    strategies = tuple(s.strip() for s in args.strategies.split(",") if s.strip())
+    unknown = sorted(set(strategies) - set(bench.STRATEGIES))
+    if unknown or not strategies:
+        raise DataError(f"--strategies {args.strategies!r}: expected some of {', '.join(bench.STRATEGIES)}")
     seeds = args.seeds if args.seeds is not None else (2 if args.quick else 10)
     if seeds < 1:
         raise DataError(f"--seeds {seeds}: must be at least 1")
@@ -70,9 +78,9 @@ def run(args) -> int:
     say = lambda msg: print(msg, flush=True)  # noqa: E731
     t0 = time.perf_counter()
     seed_list = list(range(args.first_seed, args.first_seed + seeds))
-    say(f"bench-capture: {len(seed_list)} seeds x random/guided, start {setup.start}, batch {setup.batch},"
+    say(f"bench-capture: {len(seed_list)} seeds x {'/'.join(strategies)}, start {setup.start}, batch {setup.batch},"
         f" cap {setup.cap}, target median <= {setup.median_mm:g} mm and p95 <= {setup.p95_mm:g} mm in every part")
-    rows = bench.capture_matrix(load_skin(), seed_list, setup, max(1, args.jobs), say)
+    rows = bench.capture_matrix(load_skin(), seed_list, setup, max(1, args.jobs), say, strategies)
     bench.plot(rows, setup, out / "capture.png")
     argv = sys.argv[2:] + ([] if "--force" in sys.argv[2:] else ["--force"])
     seconds = time.perf_counter() - t0
@@ -83,7 +91,10 @@ def run(args) -> int:
           f" batches of {setup.batch}, recalibrated after each"
           f" ({_HOW[setup.warm_start]}), cap"
           f" {setup.cap}. Random: uniform over the pairs and each part's reachable triangles. Guided: aimed at the"
-          f" guidance's top {setup.max_targets} targets (misses topped up with random touches).", "",
+          f" guidance's top {setup.max_targets} targets (misses topped up with random touches). Oracle: random"
+          f" touches, each batch split over the pairs by how far each pair's worse part is from the target under"
+          f" the true error (share ~ distance ** {bench.ORACLE_POWER}): what perfect knowledge of where the"
+          f" error is would buy by sending touches there; no capture at the robot has that knowledge.", "",
           bench.table(rows, setup), "", "![capture](capture.png)", "", f"Wall time: {seconds:.0f} s.", ""]
     text = "\n".join(md)
     (out / "capture_results.md").write_text(text)

@@ -80,11 +80,17 @@ class CaptureSim:
         self.missed = 0             # aims not recorded (no pose reached them, or the press fired one part only)
 
     # ------------------------------------------------------------------ batches
-    def random(self, n: int) -> TouchSet:
-        """``n`` touches (before duplicates), uniform over pairs and over each part's reachable triangles."""
-        counts = np.full(len(self.pairs), n // len(self.pairs))
-        extra = self.rng.choice(len(self.pairs), size=n % len(self.pairs), replace=False)
-        counts[extra] += 1
+    def random(self, n: int, pair_weights=None) -> TouchSet:
+        """``n`` touches (before duplicates), uniform over pairs (or split by ``pair_weights``, one per pair in
+        :attr:`pairs`) and over each part's reachable triangles."""
+        if pair_weights is None:
+            counts = np.full(len(self.pairs), n // len(self.pairs))
+            extra = self.rng.choice(len(self.pairs), size=n % len(self.pairs), replace=False)
+            counts[extra] += 1
+        else:       # largest remainders: the counts sum to n and follow the weights
+            share = n * np.asarray(pair_weights, float) / np.sum(pair_weights)
+            counts = np.floor(share).astype(int)
+            counts[np.argsort(counts - share)[:n - counts.sum()]] += 1
         per_pair = []
         for (hand, target), m in zip(self.pairs, counts):
             if m:
