@@ -71,10 +71,10 @@ def kinematics_section(kin: dict) -> list:
     what was held and why; none when the calibration left the kinematics alone (kinematics=off)."""
     if not kin:
         return []
-    test = kin.get("test_taxel_mean_mm", {})
+    test = kin.get("test_taxel_surface_mm", {})
     lines = ["", f"## Kinematics (kinematics={kin['mode']}: {'kept' if kin.get('accepted') else 'not kept'})", "",
-             f"Test split's closest taxel mean: {_fmt(test.get('before'))} mm with the skin alone,"
-             f" {_fmt(test.get('after'))} mm with the kinematic stage.", ""]
+             f"Test split's closest taxel mean at the fabric surfaces: {_fmt(test.get('before'))} mm with the skin"
+             f" alone, {_fmt(test.get('after'))} mm with the kinematic unknowns.", ""]
     if kin.get("corrections"):
         lines += ["| joint / link | correction | std | unit |", "|---|---|---|---|"]
         for name, c in kin["corrections"].items():
