@@ -186,22 +186,25 @@ def test_an_unobservable_offset_is_held_and_listed(kinematic_run):
 
 
 @pytest.mark.slow
-def test_kinematics_on_keeps_the_skin_only_calibration_when_the_robot_is_the_config(skin):
-    """On touches of a robot that is the config (no kinematic error) the kinematic unknowns do not enter:
-    the held-out figure (closest taxel pairs at the fabric surfaces) gains too little, so kinematics=on
-    returns the skin-only calibration unchanged and lists every unknown as held, with the figures."""
+def test_kinematics_auto_keeps_the_skin_only_calibration_when_the_robot_is_the_config(skin):
+    """On touches of a robot that is the config (no kinematic error) the kinematic unknowns do not enter with
+    auto: the held-out figure (closest taxel pairs at the fabric surfaces) gains too little, so the result is
+    the skin-only calibration, unchanged, with every unknown listed as held and the figures; on keeps them."""
     sim = simulate(skin, load_params("default", {"n_touches": 120, "pairs": [["l_hand", "torso"]]}), 3)
     touches, _ = deduplicate(sim.touches)
     off = calibrate(touches, skin, CalibrationOptions(), truth=sim.truth)
-    on = calibrate(touches, skin, CalibrationOptions(kinematics="on"), truth=sim.truth)
-    kin = on.report.kinematics
-    assert not kin["accepted"] and kin["corrections"] == {} and on.calibration.kinematics == {}
+    auto = calibrate(touches, skin, CalibrationOptions(kinematics="auto"), truth=sim.truth)
+    kin = auto.report.kinematics
+    assert not kin["accepted"] and kin["corrections"] == {} and auto.calibration.kinematics == {}
     figures = kin["test_taxel_surface_mm"]
     assert figures["after"] > 0.9 * figures["before"]
     assert [h["name"] for h in kin["held"]] == skin.robot.kinematic_names(["l_arm"])
     assert all("fabric surfaces" in h["reason"] for h in kin["held"])
-    assert on.calibration.to_dict(skin) == off.calibration.to_dict(skin)
-    assert on.report.final["truth_taxel_error_mm"] == off.report.final["truth_taxel_error_mm"]
+    assert auto.calibration.to_dict(skin) == off.calibration.to_dict(skin)
+    assert auto.report.final["truth_taxel_error_mm"] == off.report.final["truth_taxel_error_mm"]
+    on = calibrate(touches, skin, CalibrationOptions(kinematics="on"), truth=sim.truth)
+    assert on.report.kinematics["accepted"] and on.calibration.kinematics
+    assert on.report.kinematics["test_taxel_surface_mm"] == figures
 
 
 def test_urdf_takes_the_kinematic_corrections(skin, tmp_path):

@@ -313,9 +313,9 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     plan on the corrected robot and the kinematic stage again until the kinematics settle. What the touches
     do not determine is held at nominal and said so.
 
-    The path is kept only when it brings the test split's closest taxel pairs closer by
-    ``kinematics_min_gain``; otherwise the calibration is the skin-only one, unchanged, and every
-    kinematic unknown is listed as held with the figures.
+    With ``kinematics=auto`` the path is kept only when it brings the test split's closest taxel pairs
+    closer by ``kinematics_min_gain``; otherwise the calibration is the skin-only one, unchanged, and
+    every kinematic unknown is listed as held with the figures. ``on`` keeps it whatever the figures.
     """
     step = Step(tuple(sorted({p for s in steps for p in s.targets + s.references}, key=part_rank)), ())
     test_before = _held_out_surface_mm(test, skin, fit, step)
@@ -355,7 +355,7 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     test_after = _held_out_surface_mm(test, skin, kfit, step)
     candidates = skin.robot.kinematic_names(sorted({skin.parts[p].chain for p in step.targets} - {None}))
     out = {"mode": options.kinematics, "test_taxel_surface_mm": {"before": test_before, "after": test_after}}
-    if not test_after <= (1.0 - options.kinematics_min_gain) * test_before:
+    if options.kinematics == "auto" and not test_after <= (1.0 - options.kinematics_min_gain) * test_before:
         report.stages.extend(dict(e, reverted=f"kinematics={options.kinematics}: the test split's closest taxel"
                                               f" distance (fabric surfaces) did not improve by {100 * options.kinematics_min_gain:.0f} %")
                              for e in entries)

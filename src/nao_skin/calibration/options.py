@@ -185,18 +185,18 @@ class CalibrationOptions:
     # a constant mount correction cannot absorb a joint-angle offset or a link length upstream of it
     kinematics: str = option("off", Rule(str, ("off", "on", "auto")),
                              "also estimate the arm and head joint-angle offsets and link lengths the touches"
-                             " determine, with every mount free, kept only when the test split's closest taxel"
-                             " distance at the fabric surfaces improves by kinematics_min_gain: on (or auto,"
-                             " the same) or off")
+                             " determine, with every mount free: auto (kept only when the test split's closest"
+                             " taxel distance at the fabric surfaces improves by kinematics_min_gain), on (kept"
+                             " whatever the figures) or off")
     # extra unknowns always buy a little on the test split too, measured at the fabric surfaces (simulator,
     # default preset seed 0: -4 % while the true error rose 0.53 -> 0.76 mm), where a kinematic error the
-    # config lacks buys much more (preset kinematic-error seed 0: -33 %); on and auto both ask for the gain
+    # config lacks buys much more (preset kinematic-error seed 0: -33 %): auto asks for 10 %
     kinematics_passes: int = option(3, Rule(int, low=0),
                                     "after the kinematic stage: passes of the skin plan on the corrected robot,"
                                     " each followed by the kinematic stage again, until they settle")
     kinematics_min_gain: float = option(0.1, Rule(float, low=0.0, high=1.0, high_open=True),
-                                        "the kinematic unknowns are kept when they lower the test split's closest"
-                                        " taxel mean at the fabric surfaces by at least this share")
+                                        "kinematics=auto keeps the kinematic unknowns when they lower the test"
+                                        " split's closest taxel mean at the fabric surfaces by at least this share")
 
     def solve_options(self) -> SolveOptions:
         return SolveOptions(loss=self.loss, f_scale=self.f_scale, max_iterations=self.max_iterations,
