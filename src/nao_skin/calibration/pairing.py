@@ -32,7 +32,7 @@ import numpy as np
 from nao_skin import se3
 from nao_skin.errors import DataError
 from nao_skin.model.skin import PART_NAMES, SkinCalibration, SkinModel
-from nao_skin.touch.contacts import activation_local, activations_by_part, cop_weights, segment_mean
+from nao_skin.touch.contacts import activations_by_part, cop_weights, segment_mean
 from nao_skin.touch.touches import TouchSet
 
 KIND_COP, KIND_TAXEL, KIND_TAXEL5 = 0, 1, 2
@@ -173,18 +173,22 @@ def _activation_chains(touches: TouchSet, skin: SkinModel, p: int, name: str, se
     return touches.derived(("activation chains", p), gather, (skin,))
 
 
-def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,
-                         local: np.ndarray | None = None) -> np.ndarray:
-    """(A, 3) calibrated position of every activated taxel in the base frame (one FK per part)."""
-    if local is None:
-        local, _ = activation_local(touches, skin, calib, normals=False)
-    skin = skin.with_kinematics(calib)   # the robot the calibration's kinematic corrections describe
-    out = np.full_like(local, np.nan)
+def _activation_slots(touches: TouchSet, p: int, sel: np.ndarray) -> np.ndarray:
+    """The taxel slot of every activation ``sel`` of part ``p``."""
+    return touches.derived(("activation slots", p), lambda: touches.act_slot[sel])
+
+
+def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None) -> np.ndarray:
+    """(A, 3) calibrated position of every activated taxel in the base frame (one FK per part; each
+    part's slots placed once under ``calib``, then gathered per activation)."""
+    robot_skin = skin.with_kinematics(calib)   # the robot the calibration's kinematic corrections describe
+    out = np.full((len(touches.act_slot), 3), np.nan)
     for p, (name, sel) in enumerate(zip(touches.part_names, activations_by_part(touches))):   # <= 4 parts
         if len(sel) == 0:
             continue
-        rot, trans = _activation_chains(touches, skin, p, name, sel)
-        out[sel] = np.einsum("aij,aj->ai", rot, local[sel]) + trans
+        slot_pos, _ = skin.part(name).taxel_positions(calib.parts.get(name) if calib is not None else None)
+        rot, trans = _activation_chains(touches, robot_skin, p, name, sel)
+        out[sel] = np.einsum("aij,aj->ai", rot, slot_pos[_activation_slots(touches, p, sel)]) + trans
     return out
 
 
@@ -207,8 +211,7 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
     want = {KIND_NAMES[k] if isinstance(k, str) else int(k) for k in kinds}
     if taxel_rule not in TAXEL_RULES:
         raise ValueError(f"taxel_rule must be one of {', '.join(TAXEL_RULES)}, not {taxel_rule!r}")
-    local, _ = activation_local(touches, skin, calib, normals=False)
-    pos = activation_positions(touches, skin, calib, local=local)
+    pos = activation_positions(touches, skin, calib)
     weight = cop_weights(touches)
     n_c = len(touches.contact_touch)
     cop = segment_mean(pos, touches.act_contact, n_c, weight)
