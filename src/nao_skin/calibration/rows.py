@@ -84,6 +84,16 @@ def pair_step(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, step: 
         return None
     return concat_pairings(parts)
 
+def pairing_key(calib: SkinCalibration) -> tuple:
+    """What pairing reads from a calibration, as bytes: equal keys, equal pairings of the same touches.
+
+    Every part's corrections and the kinematic corrections that are not zero (a zero one is the
+    robot without it, :meth:`SkinModel.with_kinematics`).
+    """
+    parts = tuple((name, c.mount.tobytes(), c.patches.tobytes(), c.triangles.tobytes())
+                  for name, c in sorted(calib.parts.items()))
+    return parts, tuple(sorted((k, float(v)) for k, v in calib.kinematics.items() if v != 0.0))
+
 def concat_pairings(pairings: list) -> Pairing:
     if len(pairings) == 1:
         return pairings[0]
