@@ -20,7 +20,8 @@ def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: 
     if touches.n_touches == 0:
         return {"n_touches": 0}
     pairs = plan_pairs(steps)
-    pairings = [pair_parts(touches, skin, calib, p[0], p[1], METRIC_KINDS, METRIC_TAXEL_RULE) for p in pairs
+    placed: dict = {}   # each part's slots placed once for all its part pairs
+    pairings = [pair_parts(touches, skin, calib, p[0], p[1], METRIC_KINDS, METRIC_TAXEL_RULE, placed) for p in pairs
                 if p[0] in touches.part_names and p[1] in touches.part_names]
     pairings = [p for p in pairings if len(p.row_touch)]
     if not pairings:

@@ -178,24 +178,32 @@ def _activation_slots(touches: TouchSet, p: int, sel: np.ndarray) -> np.ndarray:
     return touches.derived(("activation slots", p), lambda: touches.act_slot[sel])
 
 
-def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None) -> np.ndarray:
+def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,
+                         placed: dict | None = None) -> np.ndarray:
     """(A, 3) calibrated position of every activated taxel in the base frame (one FK per part; each
-    part's slots placed once under ``calib``, then gathered per activation)."""
+    part's slots placed once under ``calib``, then gathered per activation).
+
+    ``placed``: the slots' chain-end positions per part under ``calib``, filled as parts are placed:
+    one dict shared by the calls that pair several part pairs under one calibration.
+    """
     robot_skin = skin.with_kinematics(calib)   # the robot the calibration's kinematic corrections describe
+    placed = {} if placed is None else placed
     out = np.full((len(touches.act_slot), 3), np.nan)
     for p, (name, sel) in enumerate(zip(touches.part_names, activations_by_part(touches))):   # <= 4 parts
         if len(sel) == 0:
             continue
-        slot_pos, _ = skin.part(name).taxel_positions(calib.parts.get(name) if calib is not None else None)
+        if name not in placed:
+            placed[name], _ = skin.part(name).taxel_positions(calib.parts.get(name) if calib is not None else None)
         rot, trans = _activation_chains(touches, robot_skin, p, name, sel)
-        out[sel] = np.einsum("aij,aj->ai", rot, slot_pos[_activation_slots(touches, p, sel)]) + trans
+        out[sel] = np.einsum("aij,aj->ai", rot, placed[name][_activation_slots(touches, p, sel)]) + trans
     return out
 
 
 # ---------------------------------------------------------------------- pairing
 def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,
                  kinds=("cop", "taxel", "taxel5"), parts: tuple | None = None, *,
-                 taxel_rule: str = "contacts", cop_radius: float = DEFAULT_COP_RADIUS) -> Pairing:
+                 taxel_rule: str = "contacts", cop_radius: float = DEFAULT_COP_RADIUS,
+                 placed: dict | None = None) -> Pairing:
     """Pair every touch under ``calib`` (None: nominal layout).
 
     ``taxel_rule`` chooses the closest taxel pair (kind 1): ``"contacts"`` -
@@ -206,12 +214,12 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
     COP_A, then the taxel of B within ``cop_radius`` of COP_B closest to it
     (any taxel of B's contact if none is that close). Kind 2 is always
     searched in the selected contacts, and kind 4 is the ``"contacts"`` kind 1
-    whatever the rule.
+    whatever the rule. ``placed``: see :func:`activation_positions`.
     """
     want = {KIND_NAMES[k] if isinstance(k, str) else int(k) for k in kinds}
     if taxel_rule not in TAXEL_RULES:
         raise ValueError(f"taxel_rule must be one of {', '.join(TAXEL_RULES)}, not {taxel_rule!r}")
-    pos = activation_positions(touches, skin, calib)
+    pos = activation_positions(touches, skin, calib, placed)
     weight = cop_weights(touches)
     n_c = len(touches.contact_touch)
     cop = segment_mean(pos, touches.act_contact, n_c, weight)
