@@ -40,6 +40,7 @@ from nao_skin.calibration.layout import KINEMATICS
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.pairing import robot_joints
 from nao_skin.calibration.plan import Step, left_out_pairs, part_rank, plan_steps, touching_pairs
+from nao_skin.calibration.rows import pairing_key
 from nao_skin.calibration.stages import compress_held, fitted_kinds, initial_prior_sigma, run_stage
 from nao_skin.errors import DataError, TooFewTouches
 from nao_skin.model.skin import SkinCalibration, SkinModel
@@ -262,17 +263,20 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
     # surfaces): taxel-centre distances grow with the fabric estimate however good the fit
     # (test_calibrate: a stage that drives the touches apart is undone)
     kinds = fitted_kinds(options, levels)
-    last_step, last_kinds, last_inliers, last_cost = fit.last_cost
-    cost_before = (last_cost if last_step is step and last_inliers == int(fit.inliers.sum()) and last_kinds == kinds
-                   else fitted_pair_cost(train, skin, fit.calibration, step, fit.inliers, kinds, fit.fabric))
     stage = run_stage(train, skin, fit.calibration, step, step.targets, levels, options, fit.inliers, say,
                       fit.fabric, fit.prior_sigma, anchor)
+    # the costs are measured on the pairings the stage made where it started and (when its pairing
+    # settled) where it ended, else the touches are paired for them
+    started, ended = (stage.pairings.get(pairing_key(c)) for c in (fit.calibration, stage.calibration))
+    last_step, last_kinds, last_inliers, last_cost = fit.last_cost
+    cost_before = (last_cost if last_step is step and last_inliers == int(fit.inliers.sum()) and last_kinds == kinds
+                   else fitted_pair_cost(train, skin, fit.calibration, step, fit.inliers, kinds, fit.fabric, started))
     entry = stage.report(prefix + stage.name)
     if KINEMATICS in levels:
         entry["kinematics_held"] = list(stage.kinematics_held)
     fit.held |= stage.held_components
     cost_after = fitted_pair_cost(train, skin, stage.calibration, step, fit.inliers, kinds,
-                                  stage.fabric_thickness_mm / 1000.0)
+                                  stage.fabric_thickness_mm / 1000.0, ended)
     if cost_after > 1.25 * cost_before and not (round_no == 0 and "mount" in levels):
         # never silently diverge: a stage that leaves the touches much farther apart is undone
         entry["reverted"] = (f"undone: mean closest {'/'.join(kinds)} pair (at the fabric surfaces)"
@@ -286,7 +290,8 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
         cost_before = cost_after
     fit.last_cost = (step, kinds, int(fit.inliers.sum()), cost_before)
     if "mount" in levels and KINEMATICS not in levels and options.gate_mm > 0:
-        entry["set_aside"] = _gate(train, skin, step, prefix, options, fit)
+        paired = stage.pairings.get(pairing_key(fit.calibration)) if "cop" in kinds else None   # its COP pairs
+        entry["set_aside"] = _gate(train, skin, step, prefix, options, fit, paired)
     if not measure:
         say(f"{entry['name']}: {entry['iterations']} iterations, {entry['repairings']} pairings,"
             f" {entry['seconds']:.2f} s")
@@ -395,9 +400,11 @@ def _held_out_surface_mm(test: TouchSet, skin: SkinModel, fit: _Fit, step: Step)
     return 1000.0 * fitted_pair_cost(test, skin, fit.calibration, step, inliers, ("taxel",), fit.fabric)
 
 
-def _gate(train: TouchSet, skin: SkinModel, step: Step, prefix: str, options: CalibrationOptions, fit: _Fit) -> int:
-    """Set aside the touches no self-contact explains after a mount fit; how many."""
-    gate = gate_touches(train, skin, fit.calibration, step, options.gate_mm, fit.inliers)
+def _gate(train: TouchSet, skin: SkinModel, step: Step, prefix: str, options: CalibrationOptions, fit: _Fit,
+          pairing=None) -> int:
+    """Set aside the touches no self-contact explains after a mount fit; how many (``pairing``: the
+    touches' COP pairs under ``fit.calibration``, when at hand)."""
+    gate = gate_touches(train, skin, fit.calibration, step, options.gate_mm, fit.inliers, pairing)
     for row, dist in gate:
         fit.inliers[row] = False
         fit.set_aside.append({"touch": str(train.keys[row]), "step": prefix + step.name,

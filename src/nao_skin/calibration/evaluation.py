@@ -20,7 +20,8 @@ def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: 
     if touches.n_touches == 0:
         return {"n_touches": 0}
     pairs = plan_pairs(steps)
-    pairings = [pair_parts(touches, skin, calib, p[0], p[1], METRIC_KINDS, METRIC_TAXEL_RULE) for p in pairs
+    placed: dict = {}   # each part's slots placed once for all its part pairs
+    pairings = [pair_parts(touches, skin, calib, p[0], p[1], METRIC_KINDS, METRIC_TAXEL_RULE, placed) for p in pairs
                 if p[0] in touches.part_names and p[1] in touches.part_names]
     pairings = [p for p in pairings if len(p.row_touch)]
     if not pairings:
@@ -82,14 +83,16 @@ def closest_cop_cost(touches, skin, calib, step, inliers) -> float:
     return float(np.mean(np.minimum(pairing.distance[rows], 0.05))) if np.any(rows) else np.inf
 
 
-def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float) -> float:
+def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float, pairing=None) -> float:
     """What a stage fits, measured as it fits it: the touches paired under ``calib`` for ``kinds``,
     distances between the paired points lifted to the fabric surfaces (``fabric`` m over the
     taxels), each kind's capped mean (50 mm), averaged over the kinds.
 
     Taxel-centre distances alone grow when the fabric estimate grows, however good the fit.
+    ``pairing``: that pairing, when a stage already made it (:attr:`StageResult.pairings`).
     """
-    pairing = pair_step(touches, skin, calib, step, kinds)
+    if pairing is None:
+        pairing = pair_step(touches, skin, calib, step, kinds)
     if pairing is None or len(pairing.row_touch) == 0:
         return np.inf
     parts = tuple(p for p in step.targets + step.references if p in touches.part_names)
@@ -115,10 +118,12 @@ def explained(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps:
             np.minimum.at(best, p.row_touch, p.distance * 1000.0)
     return ok & ((best <= gate_mm) | ~np.isfinite(best))
 
-def gate_touches(touches, skin, calib, step, gate_mm, inliers) -> list:
+def gate_touches(touches, skin, calib, step, gate_mm, inliers, pairing=None) -> list:
     """``(touch, mm)`` of the inlier touches whose closest COP pair (any part pair of the step) is
-    farther than ``gate_mm``, the farthest pair's distance each, by touch."""
-    pairing = pair_step(touches, skin, calib, step, ("cop",))
+    farther than ``gate_mm``, the farthest pair's distance each, by touch (``pairing``: the touches'
+    COP pairs under ``calib``, when at hand)."""
+    if pairing is None:
+        pairing = pair_step(touches, skin, calib, step, ("cop",))
     rows = pairing.row_kind == 0
     worst = np.full(touches.n_touches, -np.inf)
     np.maximum.at(worst, pairing.row_touch[rows], pairing.distance[rows] * 1000.0)

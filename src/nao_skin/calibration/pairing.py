@@ -32,7 +32,7 @@ import numpy as np
 from nao_skin import se3
 from nao_skin.errors import DataError
 from nao_skin.model.skin import PART_NAMES, SkinCalibration, SkinModel
-from nao_skin.touch.contacts import activation_local, activations_by_part, cop_weights, segment_mean
+from nao_skin.touch.contacts import activations_by_part, cop_weights, segment_mean
 from nao_skin.touch.touches import TouchSet
 
 KIND_COP, KIND_TAXEL, KIND_TAXEL5 = 0, 1, 2
@@ -173,25 +173,37 @@ def _activation_chains(touches: TouchSet, skin: SkinModel, p: int, name: str, se
     return touches.derived(("activation chains", p), gather, (skin,))
 
 
+def _activation_slots(touches: TouchSet, p: int, sel: np.ndarray) -> np.ndarray:
+    """The taxel slot of every activation ``sel`` of part ``p``."""
+    return touches.derived(("activation slots", p), lambda: touches.act_slot[sel])
+
+
 def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,
-                         local: np.ndarray | None = None) -> np.ndarray:
-    """(A, 3) calibrated position of every activated taxel in the base frame (one FK per part)."""
-    if local is None:
-        local, _ = activation_local(touches, skin, calib, normals=False)
-    skin = skin.with_kinematics(calib)   # the robot the calibration's kinematic corrections describe
-    out = np.full_like(local, np.nan)
+                         placed: dict | None = None) -> np.ndarray:
+    """(A, 3) calibrated position of every activated taxel in the base frame (one FK per part; each
+    part's slots placed once under ``calib``, then gathered per activation).
+
+    ``placed``: the slots' chain-end positions per part under ``calib``, filled as parts are placed:
+    one dict shared by the calls that pair several part pairs under one calibration.
+    """
+    robot_skin = skin.with_kinematics(calib)   # the robot the calibration's kinematic corrections describe
+    placed = {} if placed is None else placed
+    out = np.full((len(touches.act_slot), 3), np.nan)
     for p, (name, sel) in enumerate(zip(touches.part_names, activations_by_part(touches))):   # <= 4 parts
         if len(sel) == 0:
             continue
-        rot, trans = _activation_chains(touches, skin, p, name, sel)
-        out[sel] = np.einsum("aij,aj->ai", rot, local[sel]) + trans
+        if name not in placed:
+            placed[name], _ = skin.part(name).taxel_positions(calib.parts.get(name) if calib is not None else None)
+        rot, trans = _activation_chains(touches, robot_skin, p, name, sel)
+        out[sel] = np.einsum("aij,aj->ai", rot, placed[name][_activation_slots(touches, p, sel)]) + trans
     return out
 
 
 # ---------------------------------------------------------------------- pairing
 def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,
                  kinds=("cop", "taxel", "taxel5"), parts: tuple | None = None, *,
-                 taxel_rule: str = "contacts", cop_radius: float = DEFAULT_COP_RADIUS) -> Pairing:
+                 taxel_rule: str = "contacts", cop_radius: float = DEFAULT_COP_RADIUS,
+                 placed: dict | None = None) -> Pairing:
     """Pair every touch under ``calib`` (None: nominal layout).
 
     ``taxel_rule`` chooses the closest taxel pair (kind 1): ``"contacts"`` -
@@ -202,13 +214,12 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
     COP_A, then the taxel of B within ``cop_radius`` of COP_B closest to it
     (any taxel of B's contact if none is that close). Kind 2 is always
     searched in the selected contacts, and kind 4 is the ``"contacts"`` kind 1
-    whatever the rule.
+    whatever the rule. ``placed``: see :func:`activation_positions`.
     """
     want = {KIND_NAMES[k] if isinstance(k, str) else int(k) for k in kinds}
     if taxel_rule not in TAXEL_RULES:
         raise ValueError(f"taxel_rule must be one of {', '.join(TAXEL_RULES)}, not {taxel_rule!r}")
-    local, _ = activation_local(touches, skin, calib, normals=False)
-    pos = activation_positions(touches, skin, calib, local=local)
+    pos = activation_positions(touches, skin, calib, placed)
     weight = cop_weights(touches)
     n_c = len(touches.contact_touch)
     cop = segment_mean(pos, touches.act_contact, n_c, weight)

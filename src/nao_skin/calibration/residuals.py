@@ -96,8 +96,10 @@ class ResidualModel:
         # terms of normal rows carry a direction (rotated, never translated, no fabric)
         self.term_is_dir = pairing.row_kind[pairing.term_row] == KIND_NORMAL
         self.has_dirs = bool(np.any(self.term_is_dir))
-        # the pairing is fixed while the model lives, so are which terms share a (row, block) and
-        # the chain-end rotation of each (row, block): computed once per level
+        self._dir_terms = [np.flatnonzero(self.term_is_dir[group[0]]) for group in self.groups]
+        # the pairing is fixed while the model lives, so are which terms share a (row, block), their
+        # summed weights, where each block's entries go in the Jacobian and, until the kinematics
+        # change, the chain-end rotation of each (row, block) (keys ending in "A"): computed once
         self._per_pairing: dict = {}
         self._last_jacobian = None   # (key, J): the hold check and the first solve step share it
 
@@ -129,25 +131,34 @@ class ResidualModel:
         return self.variable_parts is None or name in self.variable_parts
 
     # ------------------------------------------------------------------ evaluation
-    def _group_positions(self, group, calib: SkinCalibration) -> np.ndarray:
-        """Base-frame position of each term's taxel (its normal, for terms of normal rows)."""
-        sel, name, part, fk, slots, tri, _ = group
+    def _group_positions(self, g: int, calib: SkinCalibration) -> np.ndarray:
+        """Base-frame position of each term's taxel of group ``g`` (its normal, for terms of normal rows)."""
+        sel, name, part, fk, slots, tri, _ = self.groups[g]
         _, _, tri_pose = part.frame_poses(calib.parts[name])
         # chain-end position of every slot of the part once (<= 384), then gathered per term
         frames = tri_pose[part.slot_triangle]
         local = se3.transform_points(frames, part.taxel_local + self.fabric * part.normal_local)[slots]
         if not self.has_dirs:
             return se3.transform_points(fk, local)
-        is_dir = self.term_is_dir[sel]
-        local = np.where(is_dir[:, None], se3.rotate_vectors(frames, part.normal_local)[slots], local)
-        return se3.rotate_vectors(fk, local) + np.where(is_dir[:, None], 0.0, fk[:, :3, 3])
+        dirs = self._dir_terms[g]
+        local[dirs] = se3.rotate_vectors(frames, part.normal_local)[slots[dirs]]
+        return se3.rotate_vectors(fk, local) + self._chain_offsets(g)
+
+    def _chain_offsets(self, g: int) -> np.ndarray:
+        """The chain-end translation of each term of group ``g``, zero for directions (fixed with the chain ends)."""
+        key = (g, "chain offsets", "A")
+        hit = self._per_pairing.get(key)
+        if hit is None:
+            fk = self.groups[g][3]
+            hit = self._per_pairing[key] = np.where(self.term_is_dir[self.groups[g][0]][:, None], 0.0, fk[:, :3, 3])
+        return hit
 
     def positions(self, calib: SkinCalibration) -> np.ndarray:
         """(K, 3) base-frame positions of every term's taxel."""
         self._use_kinematics(calib)
         out = np.empty((len(self.term_row), 3))
-        for group in self.groups:
-            out[group[0]] = self._group_positions(group, calib)
+        for g, group in enumerate(self.groups):
+            out[group[0]] = self._group_positions(g, calib)
         return out
 
     def residuals(self, calib: SkinCalibration, fabric: float | None = None) -> np.ndarray:
@@ -158,18 +169,18 @@ class ResidualModel:
             self._constant = np.zeros((self.n_rows, 3))
             self._constant_done = False
         if not self._constant_done:
-            for group in self.groups:
+            for g, group in enumerate(self.groups):
                 if not self._is_variable(group[1]):
                     sel = group[0]
-                    x = self._group_positions(group, calib) * self.term_weight[sel][:, None]
+                    x = self._group_positions(g, calib) * self.term_weight[sel][:, None]
                     for d in range(3):
                         self._constant[:, d] += np.bincount(self.term_row[sel], weights=x[:, d], minlength=self.n_rows)
             self._constant_done = True
         out = self._constant.copy()
-        for group in self.groups:
+        for g, group in enumerate(self.groups):
             if self._is_variable(group[1]):
                 sel = group[0]
-                x = self._group_positions(group, calib) * self.term_weight[sel][:, None]
+                x = self._group_positions(g, calib) * self.term_weight[sel][:, None]
                 for d in range(3):
                     out[:, d] += np.bincount(self.term_row[sel], weights=x[:, d], minlength=self.n_rows)
         return out
@@ -221,7 +232,13 @@ class ResidualModel:
         col_of = np.full(self.layout.size, -1)
         col_of[cols] = np.arange(len(cols))
         n_cols = len(cols)
-        rows_all, cols_all, vals_all = [], [], []
+        shape = (3 * self.n_rows, n_cols)
+        # many unknowns at once (a joint stage): keep the block sparsity
+        dense = shape[0] * shape[1] <= DENSE_LIMIT
+        # each (row, column) entry is written once: a row's terms are summed per block below,
+        # blocks of different levels or parts own different columns, the fabric column is summed
+        out = np.zeros(shape) if dense else None
+        rows_all, cols_all, vals_all = [], [], []   # the sparse Jacobian's entries
         fabric_j = col_of[self.layout.fabric_col] if self.layout.fabric_col < len(col_of) else -1
         # the fabric column sums over both sides of a row: accumulated apart from the blocks
         fabric_column = np.zeros(3 * self.n_rows) if fabric_j >= 0 else None
@@ -230,21 +247,17 @@ class ResidualModel:
             if not levels and fabric_j < 0:
                 continue
             corr = calib.parts[name]
-            r_m = se3.rotvec_to_matrix(corr.mount[3:])
-            r_p = se3.rotvec_to_matrix(corr.patches[:, 3:])
-            r_t = se3.rotvec_to_matrix(corr.triangles[:, 3:])
+            # one batched Rodrigues for the mount, the patches and the triangles
+            rot = se3.rotvec_to_matrix(np.concatenate([corr.mount[None], corr.patches, corr.triangles])[:, 3:])
+            r_m, r_p, r_t = rot[0], rot[1:1 + len(corr.patches)], rot[1 + len(corr.patches):]
             term_row = self.term_row[sel]
             wv = self.term_weight[sel]
-            is_dir = self.term_is_dir[sel] if self.has_dirs else np.zeros(len(sel), bool)
-            wv_t = np.where(is_dir, 0.0, wv)   # directions neither translate nor depend on the fabric
             # rotation of each patch / triangle frame relative to the corrected mount frame
             r_patch = r_m @ part.patch_nominal[:, :3, :3]                                   # C of a patch
             r_tri = (r_patch @ r_p)[part.triangle_patch] @ part.triangle_nominal[:, :3, :3]  # C of a triangle
             if fabric_j >= 0:   # d r / d fabric: the weighted sum of the rows' taxel normals
-                # terms of one row on one triangle share its rotation: sum their local normals first
-                first, inverse, n_uniq = self._row_blocks((g, "triangle"), term_row, tri)
-                wn = np.stack([np.bincount(inverse, weights=wv_t * part.normal_local[slots, d], minlength=n_uniq)
-                               for d in range(3)], 1)
+                # terms of one row on one triangle share its rotation: their local normals are summed once
+                first, _, wn = self._block_sums(g, "triangle", tri, normals=True)
                 a = self._chain_rotation(g, "triangle", fk, first, part)
                 nrm = np.einsum("gij,gj->gi", a, np.einsum("gij,gj->gi", (r_tri @ r_t)[tri[first]], wn))
                 fabric_column += np.bincount((3 * term_row[first][:, None] + np.arange(3)[None, :]).ravel(),
@@ -272,14 +285,18 @@ class ResidualModel:
             for level in ("mount", "patch", "triangle"):
                 if level not in levels:
                     continue
-                y_pt, y_dir = below[level]
-                y = np.where(is_dir[:, None], y_dir[slots], y_pt[slots])
                 block_rows = {"mount": np.zeros(len(sel), int), "patch": patch, "triangle": tri}[level]
+                take, rows, cols_, flat = self._block_places(g, level, block_rows, cols, col_of)
+                if len(rows) == 0:
+                    continue
+                y_pt, y_dir = below[level]
+                y = y_pt[slots]
+                dirs = self._dir_terms[g]
+                y[dirs] = y_dir[slots[dirs]]
                 # Terms of one residual row under the same block share everything but y, and
                 # the position is affine in y: sum them first (sum w y, sum w), one block each.
-                first, inverse, n_uniq = self._row_blocks((g, level), term_row, block_rows)
-                wy = np.stack([np.bincount(inverse, weights=wv * y[:, d], minlength=n_uniq) for d in range(3)], 1)
-                wsum = np.bincount(inverse, weights=wv_t, minlength=n_uniq)
+                first, inverse, wsum = self._block_sums(g, level, block_rows)
+                wy = np.stack([np.bincount(inverse, weights=wv * y[:, d], minlength=len(first)) for d in range(3)], 1)
                 # R_G = A C_b: A (the touch's chain end and nominal mount) is fixed while the model
                 # lives, C_b (above the block, below the mount) is per block. With R_c the
                 # correction, J_r its right Jacobian and D_b = C_b R_c:
@@ -287,7 +304,7 @@ class ResidualModel:
                 a = self._chain_rotation(g, level, fk, first, part)
                 if level == "mount":
                     c_b, r_c, phi = np.eye(3)[None], r_m[None], corr.mount[None, 3:]
-                    blk = np.zeros(n_uniq, int)
+                    blk = np.zeros(len(first), int)
                 elif level == "patch":
                     c_b, r_c, phi, blk = r_patch, r_p, corr.patches[:, 3:], patch[first]
                 else:
@@ -297,35 +314,68 @@ class ResidualModel:
                 a_v = np.einsum("gij,gj->gi", a, np.einsum("gij,gj->gi", d_b[blk], wy))
                 d_phi = -(se3.skew(a_v) @ (a @ n_b[blk]))
                 d_t = (a @ c_b[blk]) * wsum[:, None, None]
-                block = np.concatenate([d_t, d_phi], axis=2)          # (G, 3, 6)
-                col0 = self.layout.block_columns(name, level, block_rows[first])
-                cc = col_of[col0[:, None] + np.arange(6)[None, :]]   # (G, 6)
-                keep = cc >= 0
-                if not np.any(keep):
-                    continue
-                row3g = 3 * term_row[first]
-                rr = np.broadcast_to(row3g[:, None, None] + np.arange(3)[None, :, None], block.shape)
-                mask = np.broadcast_to(keep[:, None, :], block.shape)
-                rows_all.append(rr[mask])
-                cols_all.append(np.broadcast_to(cc[:, None, :], block.shape)[mask])
-                vals_all.append(block[mask])
-        shape = (3 * self.n_rows, n_cols)
+                block = np.concatenate([d_t, d_phi], axis=2).ravel()   # (G, 3, 6) blocks
+                vals = block if take is None else block[take]
+                if dense:
+                    out.ravel()[flat] = vals
+                else:
+                    rows_all.append(rows)
+                    cols_all.append(cols_)
+                    vals_all.append(vals)
         if fabric_column is not None:
             nz = np.flatnonzero(fabric_column)
-            rows_all.append(nz)
-            cols_all.append(np.full(len(nz), fabric_j))
-            vals_all.append(fabric_column[nz])
+            if dense:
+                out[nz, fabric_j] = fabric_column[nz]
+            else:
+                rows_all.append(nz)
+                cols_all.append(np.full(len(nz), fabric_j))
+                vals_all.append(fabric_column[nz])
+        if dense:
+            return out
         if not rows_all:
             return np.zeros(shape)
-        rows, cols_, vals = np.concatenate(rows_all), np.concatenate(cols_all), np.concatenate(vals_all)
-        if shape[0] * shape[1] > DENSE_LIMIT:
-            # many unknowns at once (a joint stage): keep the block sparsity
-            return scipy.sparse.csr_matrix((vals, (rows, cols_)), shape=shape)
-        # each (row, column) entry is written once: a row's terms were summed per block above,
-        # blocks of different levels or parts own different columns, the fabric column was summed
-        out = np.zeros(shape)
-        out.ravel()[rows * n_cols + cols_] = vals
-        return out
+        return scipy.sparse.csr_matrix((np.concatenate(vals_all), (np.concatenate(rows_all), np.concatenate(cols_all))),
+                                       shape=shape)
+
+    def _block_sums(self, g: int, level: str, block_rows: np.ndarray, normals: bool = False):
+        """``(first, inverse, sums)`` of the (row, block) combinations of group ``g``'s terms at one level:
+        ``sums`` the terms' weights summed per combination (directions excluded), or with ``normals``
+        their weighted local taxel normals. Fixed while the pairing is: computed once."""
+        key = (g, level, "normals" if normals else "sums")
+        hit = self._per_pairing.get(key)
+        if hit is None:
+            sel, _, part, _, slots, _, _ = self.groups[g]
+            first, inverse, n = self._row_blocks((g, level), self.term_row[sel], block_rows)
+            # directions neither translate nor depend on the fabric
+            wv_t = np.where(self.term_is_dir[sel], 0.0, self.term_weight[sel])
+            if normals:
+                sums = np.stack([np.bincount(inverse, weights=wv_t * part.normal_local[slots, d], minlength=n)
+                                 for d in range(3)], 1)
+            else:
+                sums = np.bincount(inverse, weights=wv_t, minlength=n)
+            hit = self._per_pairing[key] = (first, inverse, sums)
+        return hit
+
+    def _block_places(self, g: int, level: str, block_rows: np.ndarray, cols: np.ndarray, col_of: np.ndarray):
+        """Where the entries of group ``g``'s (G, 3, 6) blocks at one level go in a Jacobian of the
+        columns ``cols`` (``col_of``: the Jacobian column of each layout column, -1 if not free):
+        ``(take, rows, cols, flat)``, ``take`` the flattened blocks' entries in a free column (None:
+        all), ``flat`` their index in a dense Jacobian. Fixed while the pairing and the free columns
+        are: computed once."""
+        key = (g, level, "places", cols.tobytes())
+        hit = self._per_pairing.get(key)
+        if hit is None:
+            sel, name = self.groups[g][:2]
+            term_row = self.term_row[sel]
+            first, _, _ = self._row_blocks((g, level), term_row, block_rows)
+            cc = col_of[self.layout.block_columns(name, level, block_rows[first])[:, None] + np.arange(6)[None, :]]
+            shape = (len(first), 3, 6)
+            keep = np.broadcast_to((cc >= 0)[:, None, :], shape)
+            rows = np.broadcast_to((3 * term_row[first])[:, None, None] + np.arange(3)[None, :, None], shape)[keep]
+            cols_ = np.broadcast_to(cc[:, None, :], shape)[keep]
+            take = None if keep.all() else np.flatnonzero(keep)
+            hit = self._per_pairing[key] = (take, rows, cols_, rows * len(cols) + cols_)
+        return hit
 
     def _chain_rotation(self, g: int, level: str, fk: np.ndarray, first: np.ndarray, part) -> np.ndarray:
         """Rotation of the touch's chain end times the nominal mount, one per (row, block) of a level."""

@@ -57,10 +57,11 @@ def _pair_subset(touches: TouchSet, pa: str, pb: str):
     return touches.derived(("pair subset", pa, pb), subset)
 
 def pair_parts(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, pa: str, pb: str,
-               kinds=("cop", "taxel", "taxel5"), taxel_rule: str = "contacts") -> Pairing:
-    """``pair_touches`` for one pair of parts, computed on the touches where both fire only."""
+               kinds=("cop", "taxel", "taxel5"), taxel_rule: str = "contacts", placed: dict | None = None) -> Pairing:
+    """``pair_touches`` for one pair of parts, computed on the touches where both fire only
+    (``placed``: see :func:`~nao_skin.calibration.pairing.activation_positions`)."""
     sub, rows = _pair_subset(touches, pa, pb)
-    p = pair_touches(sub, skin, calib, kinds=kinds, parts=(pa, pb), taxel_rule=taxel_rule)
+    p = pair_touches(sub, skin, calib, kinds=kinds, parts=(pa, pb), taxel_rule=taxel_rule, placed=placed)
     remap = np.array([touches.part_index(n) for n in sub.part_names], dtype=int)
     return Pairing(row_touch=rows[p.row_touch], row_kind=p.row_kind, row_parts=remap[p.row_parts],
                    term_row=p.term_row, term_part=remap[p.term_part], term_slot=p.term_slot,
@@ -71,18 +72,29 @@ def pair_step(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, step: 
     """Pair the touches of every (target, reference) combination of a step."""
     names = step.targets + step.references
     parts = []
+    placed: dict = {}   # each part's slots placed once for all its part pairs
     for i, a in enumerate(names):
         for b in names[i + 1:]:
             if a not in step.targets and b not in step.targets:
                 continue
             pa, pb = sorted((a, b), key=part_rank)
             if pa in touches.part_names and pb in touches.part_names:
-                p = pair_parts(touches, skin, calib, pa, pb, kinds)
+                p = pair_parts(touches, skin, calib, pa, pb, kinds, placed=placed)
                 if len(p.row_touch):
                     parts.append(p)
     if not parts:
         return None
     return concat_pairings(parts)
+
+def pairing_key(calib: SkinCalibration) -> tuple:
+    """What pairing reads from a calibration, as bytes: equal keys, equal pairings of the same touches.
+
+    Every part's corrections and the kinematic corrections that are not zero (a zero one is the
+    robot without it, :meth:`SkinModel.with_kinematics`).
+    """
+    parts = tuple((name, c.mount.tobytes(), c.patches.tobytes(), c.triangles.tobytes())
+                  for name, c in sorted(calib.parts.items()))
+    return parts, tuple(sorted((k, float(v)) for k, v in calib.kinematics.items() if v != 0.0))
 
 def concat_pairings(pairings: list) -> Pairing:
     if len(pairings) == 1:

@@ -119,7 +119,7 @@ def solve(model: ResidualModel, x0: np.ndarray, free: np.ndarray, lower: np.ndar
             converged = True
             message = "all free unknowns on their bounds"
             break
-        h_in = h[np.ix_(inactive, inactive)]
+        h_in = h if len(inactive) == len(cols) else h[np.ix_(inactive, inactive)]
         g_in = g[inactive]
         improved = False
         for _ in range(12):

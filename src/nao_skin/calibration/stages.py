@@ -2,17 +2,18 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
+import scipy.linalg
 
 from nao_skin.calibration.layout import COMPONENTS, KINEMATICS, ParameterLayout
 from nao_skin.calibration.options import KIND_ROWS
 from nao_skin.calibration.pairing import KIND_NAMES, Pairing, chain_end_poses
 from nao_skin.calibration.residuals import ResidualModel, condition_number, gram
-from nao_skin.calibration.rows import pair_step, select_rows, touch_hashes, with_normal_rows
+from nao_skin.calibration.rows import pair_step, pairing_key, select_rows, touch_hashes, with_normal_rows
 from nao_skin.calibration.solver import solve
 from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, SkinModel
@@ -45,6 +46,9 @@ class StageResult:
     seconds: float
     kinematics_held: list = ()       # kinematic unknowns it held (directions the touches do not excite)
     kinematics_std: dict | None = None   # std of the kinematic unknowns it estimated (rad, m)
+    # the touches (all of them) paired for the kinds it fits, where it started and, when the pairing
+    # settled, where it ended: rows.pairing_key of the calibration -> Pairing
+    pairings: dict = field(default_factory=dict)
 
     def report(self, name: str | None = None) -> dict:
         """The stage's entry in the calibration report (``name``: with the plan's prefix)."""
@@ -89,6 +93,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     model = None
     last_cost = np.inf
     prior_sigma = dict(initial_prior_sigma(options) if prior_sigma is None else prior_sigma)
+    pairings = {}
     for repairings in range(1, options.max_repairings + 1):
         current = layout.to_calibration(x, calib)
         pairing_all = pair_step(touches, skin, current, step, pair_kinds)
@@ -99,7 +104,11 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
             raise DataError(f"{name}: no paired activations left to fit")
         pairing = with_normal_rows(pairing, pairing_all, normal_weight, inliers)
         new_hashes = touch_hashes(pairing, touches.n_touches)
-        if hashes is not None and np.mean(np.abs(new_hashes - hashes) > 1e-9) < options.repair_tolerance:
+        settled = hashes is not None and np.mean(np.abs(new_hashes - hashes) > 1e-9) < options.repair_tolerance
+        if repairings == 1 or settled:   # where the stage starts and ends: what its cost is measured on
+            pairings[pairing_key(current)] = (pairing_all if pair_kinds == kind_names
+                                              else select_rows(pairing_all, kinds))
+        if settled:
             break
         hashes = new_hashes
         on_robot = skin.with_kinematics(current)   # the robot the corrections so far describe
@@ -168,7 +177,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
                                     **std}
     return StageResult(name, calib_out, iterations, repairings, cond, compress_held(held), set(held), estimated,
                        1000.0 * float(x[layout.fabric_col]), prior_sigma, time.perf_counter() - t0,
-                       kinematics_held, std)
+                       kinematics_held, std, pairings)
 
 
 # how far a kinematic correction may go: (m of a link length, rad of a joint offset); a real error is
@@ -257,7 +266,9 @@ def _hold_unobservable(model: ResidualModel, calib: SkinCalibration, free: np.nd
         sub = h[np.ix_(idx, idx)]
         s = np.sqrt(np.diag(sub))
         scaled = sub / np.outer(s, s)
-        ev = np.linalg.eigvalsh(scaled)   # eigenvalues alone (3x cheaper): usually nothing is weak
+        if _clearly_conditioned(scaled, limit):   # usually nothing is weak: decided without eigenvalues
+            break
+        ev = np.linalg.eigvalsh(scaled)   # eigenvalues alone (3x cheaper)
         if ev[0] >= ev[-1] / limit:
             break
         ev, vec = np.linalg.eigh(scaled)
@@ -275,6 +286,25 @@ def _hold_unobservable(model: ResidualModel, calib: SkinCalibration, free: np.nd
         held |= {int(cols[i]) for i in drop}
         idx = np.array([i for i in idx if i not in drop], dtype=int)
     return sorted(held)
+
+def _clearly_conditioned(scaled: np.ndarray, limit: float) -> bool:
+    """Whether the eigenvalues of the symmetric ``scaled`` satisfy ``smallest >= largest / limit``
+    by a margin that rounding cannot close (False: undecided, the eigenvalues decide).
+
+    The largest eigenvalue is at most the largest absolute row sum ``b``; a Cholesky factorisation of
+    ``scaled - 2 b / limit I`` exists only if the smallest exceeds ``2 b / limit``. Both tests, and
+    the eigenvalues themselves, are exact up to ~n^2 eps b, far below ``b / limit`` while
+    ``limit n^2 eps <= 0.25``. A factorisation costs a tenth of the eigenvalues at a few hundred unknowns.
+    """
+    n = len(scaled)
+    bound = float(np.max(np.abs(scaled).sum(axis=1)))
+    if not np.isfinite(bound) or limit * n * n * np.finfo(float).eps > 0.25:
+        return False
+    try:
+        scipy.linalg.cholesky(scaled - (2.0 * bound / limit) * np.eye(n), lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        return False
+    return True
 
 PRIOR_GROUPS = ("patch_translation", "patch_rotation", "triangle_translation", "triangle_rotation")
 
