@@ -21,6 +21,7 @@ from nao_skin.formats.bag import BagWriter, GrowingBag, read_touches
 from nao_skin.model.skin import load_skin
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
+from recorded_touches import write_recorded
 
 SEED, PER_PAIR = 3, 10
 
@@ -30,21 +31,6 @@ def played():
     skin = load_skin()
     touches = simulate(skin, load_params("default", {"n_touches": PER_PAIR}), SEED).touches
     return skin, touches.subset(np.argsort(touches.stamps, kind="stable"))
-
-
-def write(bag: BagWriter, skin, touches, rows) -> None:
-    """The touches ``rows`` as a recorder writes them: a JointState, then each touching part's taxels."""
-    names = np.array(touches.part_names)
-    for t in rows:
-        stamp = int(round(touches.stamps[t] * 1e9))
-        bag.write_joint_state(stamp, touches.joint_names, touches.joints[t])
-        a = np.flatnonzero(touches.act_touch == t)
-        for p in np.unique(touches.act_part[a]):
-            sel = a[touches.act_part[a] == p]
-            part = skin.part(names[p])
-            slots = touches.act_slot[sel]
-            bag.write_taxels(stamp, names[p], part.parent_frame, part.positions[slots], slots,
-                             touches.act_pressure[sel], touches.contact_id[touches.act_contact[sel]])
 
 
 def assert_same_read(got: tuple, want: tuple) -> None:
@@ -81,7 +67,7 @@ def test_each_read_equals_a_whole_read_and_decodes_only_new_messages(played, tmp
     with BagWriter(path, storage, kind="touches", live=True) as bag:
         written = follower_decoded = 0
         for rows in batches:
-            write(bag, skin, touches, rows)
+            write_recorded(bag, skin, touches, rows)
             bag.flush()
             written += len(rows)
             before = decoded[0]
@@ -106,7 +92,7 @@ def test_an_mcap_file_cut_anywhere_reads_as_a_whole_read_does(played, tmp_path):
     src = tmp_path / "src"
     with BagWriter(src, "mcap", kind="touches", live=True) as bag:
         for rows in np.array_split(np.arange(touches.n_touches), 8):
-            write(bag, skin, touches, rows)
+            write_recorded(bag, skin, touches, rows)
             bag.flush()
         data = next(src.glob("*.mcap")).read_bytes()
         growing = tmp_path / "growing"
@@ -132,13 +118,13 @@ def test_a_replaced_recording_is_read_from_its_start(played, tmp_path, storage):
     skin, touches = played
     path, other = tmp_path / "rec", tmp_path / "other"
     first = BagWriter(path, storage, kind="touches", live=True).__enter__()   # never closed: it is replaced
-    write(first, skin, touches, range(20))
+    write_recorded(first, skin, touches, range(20))
     first.flush()
     follower = GrowingBag(path, skin)
     assert follower.read()[0].n_touches == 20
     suffix = {"mcap": "*.mcap", "sqlite3": "*.db3"}[storage]
     with BagWriter(other, storage, kind="touches", live=True) as bag:
-        write(bag, skin, touches, range(5, 12))
+        write_recorded(bag, skin, touches, range(5, 12))
         bag.flush()
         file = next(path.glob(suffix))
         file.unlink()

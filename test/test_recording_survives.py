@@ -43,6 +43,7 @@ from nao_skin.formats.bag import BagWriter
 from nao_skin.model.skin import load_skin
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
+from recorded_touches import write_recorded
 
 path, storage, mode, seed, per_pair, flushed = sys.argv[1], sys.argv[2], sys.argv[3], *map(int, sys.argv[4:7])
 skin = load_skin()
@@ -51,20 +52,11 @@ bag = BagWriter(path, storage, kind="touches", live=mode != "no-lock")
 bag.__enter__()
 if mode == "spill":        # a one-page cache: the open transaction reaches the file before any commit
     bag._writer.storage.conn.execute("PRAGMA cache_size=1")
-names = np.array(touches.part_names)
-for k, t in enumerate(np.argsort(touches.stamps, kind="stable")):
-    if k == flushed:
-        bag.flush()
-        print("flushed", flush=True)
-    stamp = int(round(touches.stamps[t] * 1e9))
-    bag.write_joint_state(stamp, touches.joint_names, touches.joints[t])
-    a = np.flatnonzero(touches.act_touch == t)
-    for p in np.unique(touches.act_part[a]):
-        sel = a[touches.act_part[a] == p]
-        part = skin.part(names[p])
-        slots = touches.act_slot[sel]
-        bag.write_taxels(stamp, names[p], part.parent_frame, part.positions[slots], slots,
-                         touches.act_pressure[sel], touches.contact_id[touches.act_contact[sel]])
+order = np.argsort(touches.stamps, kind="stable")
+write_recorded(bag, skin, touches, order[:flushed])
+bag.flush()
+print("flushed", flush=True)
+write_recorded(bag, skin, touches, order[flushed:])
 print("written", flush=True)
 time.sleep(600)
 """
@@ -82,7 +74,8 @@ class Writer:
     """The writer process; started, it has written everything and flushed the first FLUSHED touches."""
 
     def __init__(self, bag: Path, storage: str, mode: str = "live"):
-        env = dict(os.environ, PYTHONPATH=str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""))
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT / "test"),
+                                                             os.environ.get("PYTHONPATH", "")]))
         self.popen = subprocess.Popen([sys.executable, "-c", WRITER, str(bag), storage, mode, str(SEED),
                                        str(PER_PAIR), str(FLUSHED)], env=env, stdout=subprocess.PIPE, text=True)
         lines = [self.popen.stdout.readline().strip() for _ in range(2)]
