@@ -69,7 +69,7 @@ def add_arguments(parser) -> None:
 def _pairs(text: str):
     from nao_skin.model.skin import parse_pairs
 
-    return None if text in ("all", "") else list(parse_pairs(text.split(",") or [text]))
+    return None if text in ("all", "") else list(parse_pairs(text.split(",")))
 
 
 def _sim_input(args, quick: bool, say, keep: int | None = None):

@@ -110,11 +110,6 @@ class UnclosedBag:
         # before the file is read: a recorder closing the bag meanwhile still counts as open
         self.lock = recording_lock(path)
 
-    def messages(self) -> list:
-        """``(topic, msgtype, data)`` in file order; ``(None, how the file ends, None)`` ends a cut file."""
-        tail = self.since(None)
-        return tail.committed + tail.provisional
-
     def since(self, cursor) -> "Tail":
         """The messages written after ``cursor`` (None: from the start), see :class:`Tail`."""
         raise NotImplementedError

@@ -32,7 +32,7 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
 from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
-from nao_skin.errors import ConfigError, DataError, NaoSkinError, TooFewTouches, one_line
+from nao_skin.errors import DataError, NaoSkinError, TooFewTouches, one_line
 from nao_skin.formats.bag import GrowingBag
 from nao_skin.formats.inputs import find_bag
 from nao_skin.live.updates import Settling, UpdateSchedule, WarmStart, rejection, taxel_displacement_mm
