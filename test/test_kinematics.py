@@ -259,7 +259,7 @@ def test_auto_keeps_the_skin_only_calibration_when_the_test_split_gains_too_litt
 
 def test_bench_kinematics_rows_say_which_goals_are_met():
     """The bench's summary and goal lines from rows (no calibration run here)."""
-    from nao_skin.bench.runner import kinematics_goal_lines, kinematics_summary, kinematics_tables
+    from nao_skin.bench.runner import kinematics_goal_lines, kinematics_summary, kinematics_tables, offset_errors
 
     def row(preset, seed, mode, hand, torso, offset_err=float("nan")):
         parts = {"l_hand": {"median": hand, "p95": 2 * hand}, "torso": {"median": torso, "p95": 2 * torso}}
@@ -277,4 +277,13 @@ def test_bench_kinematics_rows_say_which_goals_are_met():
     assert any(line.startswith("default, auto") and line.endswith("- met") for line in lines)
     summary = {(s["preset"], s["mode"]): s for s in kinematics_summary(rows)}
     assert summary[("default", "on")]["parts"]["l_hand"]["median"] == 0.45
+    # 'where determined': only offsets whose std puts two of them within the goal count
+    recovered = {"LShoulderPitch": {"value": 1.0, "true": 1.15, "std": 0.05, "unit": "rad"},
+                 "LElbowRoll": {"value": 1.0, "true": 0.3, "std": 0.2, "unit": "rad"},
+                 "LElbowOffsetY": {"value": 14.0, "true": 15.0, "std": 0.4, "unit": "m"}}
+    rows[1].update(recovered=recovered, **offset_errors(recovered))
+    lines = kinematics_goal_lines(rows)
+    assert any("worst 0.70 deg over every estimate - NOT met" in line for line in lines)
+    assert any("where determined" in line and "1 estimates): worst 0.15 deg - met" in line
+               and "weakly determined: LElbowRoll (std 0.20-0.20 deg)" in line for line in lines)
     assert "| kinematic-error | on |" in kinematics_tables(rows)
