@@ -270,13 +270,14 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
     started, ended = (stage.pairings.get(pairing_key(c)) for c in (fit.calibration, stage.calibration))
     last_step, last_kinds, last_inliers, last_cost = fit.last_cost
     cost_before = (last_cost if last_step is step and last_inliers == int(fit.inliers.sum()) and last_kinds == kinds
-                   else fitted_pair_cost(train, skin, fit.calibration, step, fit.inliers, kinds, fit.fabric, started))
+                   else fitted_pair_cost(train, skin, fit.calibration, step, fit.inliers, kinds, fit.fabric, started,
+                                     options.plane_rows()))
     entry = stage.report(prefix + stage.name)
     if KINEMATICS in levels:
         entry["kinematics_held"] = list(stage.kinematics_held)
     fit.held |= stage.held_components
     cost_after = fitted_pair_cost(train, skin, stage.calibration, step, fit.inliers, kinds,
-                                  stage.fabric_thickness_mm / 1000.0, ended)
+                                  stage.fabric_thickness_mm / 1000.0, ended, options.plane_rows())
     if cost_after > 1.25 * cost_before and not (round_no == 0 and "mount" in levels):
         # never silently diverge: a stage that leaves the touches much farther apart is undone
         entry["reverted"] = (f"undone: mean closest {'/'.join(kinds)} pair (at the fabric surfaces)"

@@ -6,7 +6,7 @@ from functools import partial
 import numpy as np
 
 from nao_skin.calibration.layout import ParameterLayout
-from nao_skin.calibration.pairing import METRIC_KINDS, METRIC_TAXEL_RULE, chain_end_poses, metrics
+from nao_skin.calibration.pairing import METRIC_KINDS, METRIC_TAXEL_RULE, PlaneRows, chain_end_poses, metrics
 from nao_skin.calibration.plan import part_rank
 from nao_skin.calibration.residuals import ResidualModel
 from nao_skin.calibration.rows import concat_pairings, pair_parts, pair_step
@@ -83,7 +83,8 @@ def closest_cop_cost(touches, skin, calib, step, inliers) -> float:
     return float(np.mean(np.minimum(pairing.distance[rows], 0.05))) if np.any(rows) else np.inf
 
 
-def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float, pairing=None) -> float:
+def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float, pairing=None,
+                     plane: PlaneRows = PlaneRows()) -> float:
     """What a stage fits, measured as it fits it: the touches paired under ``calib`` for ``kinds``,
     distances between the paired points lifted to the fabric surfaces (``fabric`` m over the
     taxels), each kind's capped mean (50 mm), averaged over the kinds.
@@ -92,7 +93,7 @@ def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float, 
     ``pairing``: that pairing, when a stage already made it (:attr:`StageResult.pairings`).
     """
     if pairing is None:
-        pairing = pair_step(touches, skin, calib, step, kinds)
+        pairing = pair_step(touches, skin, calib, step, kinds, plane)
     if pairing is None or len(pairing.row_touch) == 0:
         return np.inf
     parts = tuple(p for p in step.targets + step.references if p in touches.part_names)

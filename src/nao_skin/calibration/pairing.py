@@ -6,7 +6,14 @@ chooses, under the current calibration:
 * kind 0 - the closest pair of contact COPs, one contact on each part;
 * kind 1 - the closest pair of activated taxels of those two contacts;
 * kind 2 - up to 5 closest taxel pairs of those two contacts, greedily, each
-  taxel used once (eq. 2.5: L = min(5, P, Q)).
+  taxel used once (eq. 2.5: L = min(5, P, Q));
+* kinds 5 and 6 - point-to-plane rows (as in ICP): every activated taxel of
+  one selected contact with the closest activated taxel of the other, only the
+  distance along that taxel's normal counting (``Pairing.row_normal``). The
+  two taxel lattices are offset tangentially by up to half a taxel spacing, so
+  a closest taxel pair is millimetres apart even at the true calibration;
+  along the normal that offset does not count. Kind 5 takes side A's taxels to
+  B's surface, kind 6 B's to A's.
 
 Kinds 1 and 2 are what the solver fits. The reported closest taxel pair
 (:func:`pair_for_metrics`) is searched among every activated taxel of the two
@@ -38,12 +45,26 @@ from nao_skin.touch.touches import TouchSet
 KIND_COP, KIND_TAXEL, KIND_TAXEL5 = 0, 1, 2
 KIND_NORMAL = 3   # solver-only rows (rows.with_normal_rows): the two contacts' mean normals must cancel
 KIND_CONTACT_TAXEL = 4   # reported only: the closest taxel pair of the two selected contacts (kind 1 of "contacts")
-KIND_NAMES = {"cop": KIND_COP, "taxel": KIND_TAXEL, "taxel5": KIND_TAXEL5, "contact_taxel": KIND_CONTACT_TAXEL}
+KIND_PLANE_B, KIND_PLANE_A = 5, 6   # solver-only: A's taxels against B's surface, B's against A's
+KIND_NAMES = {"cop": KIND_COP, "taxel": KIND_TAXEL, "taxel5": KIND_TAXEL5, "contact_taxel": KIND_CONTACT_TAXEL,
+              "plane_b": KIND_PLANE_B, "plane_a": KIND_PLANE_A}
+# how a touch's point-to-plane rows are weighted: each 1; 1/sqrt(n) each (a touch's rows of one
+# direction weigh as much as one row, however many taxels fire); sqrt of the taxel's share of its
+# contact's pressure (the same total, central taxels more)
+PLANE_WEIGHTS = ("equal", "touch", "pressure")
 TAXEL_RULES = ("contacts", "thesis", "touch")
 METRIC_KINDS = ("cop", "taxel", "taxel5", "contact_taxel")
 METRIC_TAXEL_RULE = "touch"
 MAX_TAXEL_PAIRS = 5
 DEFAULT_COP_RADIUS = 0.012   # thesis rule: taxel of B searched within this distance of COP_B (m)
+
+
+@dataclass(frozen=True)
+class PlaneRows:
+    """How point-to-plane rows (kinds 5, 6) are weighted: by ``weight`` (:data:`PLANE_WEIGHTS`) times ``scale``."""
+
+    weight: str = "touch"
+    scale: float = 1.0
 
 
 @dataclass
@@ -58,6 +79,9 @@ class Pairing:
     term_slot: np.ndarray     # (K,) int taxel slot
     term_weight: np.ndarray   # (K,) float: +w on side A, -w on side B; each side's |w| sum to 1
     distance: np.ndarray      # (M,) float metres, under the calibration used for pairing
+    # (M, 3) unit normal along which a row is measured (point-to-plane rows), NaN for rows measured in
+    # full; None when no row is projected
+    row_normal: np.ndarray | None = None
 
     @property
     def n_rows(self) -> int:
@@ -199,11 +223,24 @@ def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibrat
     return out
 
 
+def activation_normals(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None) -> np.ndarray:
+    """(A, 3) calibrated base-frame normal of every activated taxel (as :func:`activation_positions`)."""
+    robot_skin = skin.with_kinematics(calib)
+    out = np.full((len(touches.act_slot), 3), np.nan)
+    for p, (name, sel) in enumerate(zip(touches.part_names, activations_by_part(touches))):   # <= 4 parts
+        if len(sel) == 0:
+            continue
+        _, normals = skin.part(name).taxel_positions(calib.parts.get(name) if calib is not None else None)
+        rot, _ = _activation_chains(touches, robot_skin, p, name, sel)
+        out[sel] = np.einsum("aij,aj->ai", rot, normals[_activation_slots(touches, p, sel)])
+    return out
+
+
 # ---------------------------------------------------------------------- pairing
 def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,
                  kinds=("cop", "taxel", "taxel5"), parts: tuple | None = None, *,
                  taxel_rule: str = "contacts", cop_radius: float = DEFAULT_COP_RADIUS,
-                 placed: dict | None = None) -> Pairing:
+                 placed: dict | None = None, plane: PlaneRows = PlaneRows()) -> Pairing:
     """Pair every touch under ``calib`` (None: nominal layout).
 
     ``taxel_rule`` chooses the closest taxel pair (kind 1): ``"contacts"`` -
@@ -215,6 +252,7 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
     (any taxel of B's contact if none is that close). Kind 2 is always
     searched in the selected contacts, and kind 4 is the ``"contacts"`` kind 1
     whatever the rule. ``placed``: see :func:`activation_positions`.
+    ``plane``: how point-to-plane rows (kinds 5, 6) are made.
     """
     want = {KIND_NAMES[k] if isinstance(k, str) else int(k) for k in kinds}
     if taxel_rule not in TAXEL_RULES:
@@ -228,10 +266,11 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
     terms = []   # per block: local row, part, slot, weight  (row numbers offset later)
     n_rows = 0
 
-    def add(block_touch, kind, pa, pb, dist, seq, t_row, t_part, t_slot, t_weight):
+    def add(block_touch, kind, pa, pb, dist, seq, t_row, t_part, t_slot, t_weight, normal=None):
         nonlocal n_rows
         m = len(block_touch)
-        rows.append((block_touch, np.full(m, kind), np.full(m, pa), np.full(m, pb), dist, seq))
+        normal = np.full((m, 3), np.nan) if normal is None else normal
+        rows.append((block_touch, np.full(m, kind), np.full(m, pa), np.full(m, pb), dist, seq, normal))
         terms.append((t_row + n_rows, t_part, t_slot, t_weight))
         n_rows += m
 
@@ -246,6 +285,12 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
     if taxel_rule == "touch" and KIND_TAXEL in want:
         # a contact's taxels lie within this of its COP: bounds every taxel distance of a contact pair
         radius = _segment_max(se3.vector_norms(pos - cop[touches.act_contact]), touches.act_contact, n_c)
+
+    plane_kinds = [k for k in (KIND_PLANE_B, KIND_PLANE_A) if k in want]
+    if plane_kinds:
+        if plane.weight not in PLANE_WEIGHTS:
+            raise ValueError(f"plane weight must be one of {', '.join(PLANE_WEIGHTS)}, not {plane.weight!r}")
+        normals = activation_normals(touches, skin, calib)
 
     fires = touches.parts_of_touch()
     for pair_no, (pa, pb) in enumerate(_part_order(touches, parts)):
@@ -269,6 +314,9 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
                 np.concatenate((ga, gb)), np.concatenate((np.full(len(ga), pa), np.full(len(gb), pb))),
                 np.concatenate((touches.act_slot[act_a], touches.act_slot[act_b])),
                 np.concatenate((weight[act_a], -weight[act_b])))
+        for kind in plane_kinds:
+            _add_plane_rows(add, kind, group_touch, pa, pb, pair_no * 10 + kind, ga, act_a, gb, act_b, coords,
+                            normals, weight, plane, touches.act_slot)
         if not want & {KIND_TAXEL, KIND_TAXEL5, KIND_CONTACT_TAXEL}:
             continue
         pair_group, a_act, b_act, dpair = candidates(ga, act_a, gb, act_b)
@@ -365,19 +413,43 @@ def _thesis_pick(pair_group, a_act, b_act, dpair, pos, cop_a, cop_b, radius):
     return cand[_argmin_per_group(pair_group[cand], dpair[cand])]
 
 
-def _add_taxel_rows(add, group_touch, kind, pa, pb, seq, group, a_act, b_act, dist, act_slot):
+def _add_taxel_rows(add, group_touch, kind, pa, pb, seq, group, a_act, b_act, dist, act_slot,
+                    row_weight=None, normal=None):
     m = len(group)
     local_row = np.arange(m)
+    w = np.ones(m) if row_weight is None else row_weight
     add(group_touch[group], kind, pa, pb, dist, np.broadcast_to(seq, (m,)).astype(float),
         np.concatenate((local_row, local_row)), np.concatenate((np.full(m, pa), np.full(m, pb))),
-        np.concatenate((act_slot[a_act], act_slot[b_act])), np.concatenate((np.ones(m), -np.ones(m))))
+        np.concatenate((act_slot[a_act], act_slot[b_act])), np.concatenate((w, -w)), normal)
+
+
+def _add_plane_rows(add, kind, group_touch, pa, pb, seq, ga, act_a, gb, act_b, coords, normals, cop_weight,
+                    plane: PlaneRows, act_slot):
+    """Point-to-plane rows: every taxel of one side's selected contact with the closest taxel of the
+    other side's, measured along that closest taxel's normal (kind 5: A's taxels, B's normals)."""
+    own_g, own_act, other_g, other_act = (ga, act_a, gb, act_b) if kind == KIND_PLANE_B else (gb, act_b, ga, act_a)
+    i, j = _cross_pairs(own_g, other_g)                  # grouped by the own taxel i
+    dist = _gathered_distances(coords, own_act[i], coords, other_act[j])
+    pick = _argmin_per_group(i, dist)
+    own, other, group = own_act[i[pick]], other_act[j[pick]], own_g[i[pick]]
+    if plane.weight == "touch":
+        w = 1.0 / np.sqrt(np.bincount(group, minlength=len(group_touch))[group])
+    elif plane.weight == "pressure":
+        w = np.sqrt(cop_weight[own])     # a contact's COP weights sum to 1
+    else:
+        w = np.ones(len(own))
+    w = plane.scale * w
+    a_act, b_act = (own, other) if kind == KIND_PLANE_B else (other, own)
+    normal = normals[other]
+    along = np.abs(np.einsum("ij,ij->i", coords[:, a_act].T - coords[:, b_act].T, normal))
+    _add_taxel_rows(add, group_touch, kind, pa, pb, seq, group, a_act, b_act, along, act_slot, w, normal)
 
 
 def _assemble(rows, terms) -> Pairing:
     if not rows:
         z = np.zeros(0, dtype=int)
         return Pairing(z, z.astype(np.int8), np.zeros((0, 2), int), z, z, z, np.zeros(0), np.zeros(0))
-    touch, kind, pa, pb, dist, seq = (np.concatenate(c) for c in zip(*rows))
+    touch, kind, pa, pb, dist, seq, normal = (np.concatenate(c) for c in zip(*rows))
     t_row, t_part, t_slot, t_weight = (np.concatenate(c) for c in zip(*terms))
     order = np.lexsort((np.arange(len(touch)), seq, touch))       # by touch, then part pair and kind
     new_row = np.empty(len(order), dtype=int)
@@ -387,7 +459,8 @@ def _assemble(rows, terms) -> Pairing:
     return Pairing(touch[order].astype(int), kind[order].astype(np.int8),
                    np.stack([pa[order], pb[order]], axis=1).astype(int),
                    t_row[t_order], t_part[t_order].astype(int), t_slot[t_order].astype(int),
-                   t_weight[t_order].astype(float), dist[order].astype(float))
+                   t_weight[t_order].astype(float), dist[order].astype(float),
+                   normal[order] if np.isfinite(normal).any() else None)
 
 
 # ---------------------------------------------------------------------- evaluation
@@ -425,7 +498,8 @@ def metrics(pairing: Pairing) -> dict:
     A touch with several firing part pairs counts once per pair.
     """
     out = {}
-    for name, kind in KIND_NAMES.items():
+    for name in METRIC_KINDS:
+        kind = KIND_NAMES[name]
         sel = pairing.row_kind == kind
         dist = pairing.distance[sel]
         if kind == KIND_TAXEL5 and np.any(sel):

@@ -102,6 +102,12 @@ class ResidualModel:
         # change, the chain-end rotation of each (row, block) (keys ending in "A"): computed once
         self._per_pairing: dict = {}
         self._last_jacobian = None   # (key, J): the hold check and the first solve step share it
+        # point-to-plane rows count only along their normal: residual and Jacobian rows are projected
+        # by n n^T (fixed while the pairing is, as in ICP), so the robust loss sees |n . r|
+        normal = getattr(pairing, "row_normal", None)   # rows built without the field: none projected
+        self._projected = (np.zeros(0, int) if normal is None
+                           else np.flatnonzero(np.all(np.isfinite(normal), axis=1)))
+        self._projection_normal = normal[self._projected] if len(self._projected) else None
 
     def _row_blocks(self, key: tuple, term_row: np.ndarray, block_rows: np.ndarray):
         """``(first, inverse, n)`` of the unique (row, block) combinations of one group's terms."""
@@ -183,7 +189,17 @@ class ResidualModel:
                 x = self._group_positions(g, calib) * self.term_weight[sel][:, None]
                 for d in range(3):
                     out[:, d] += np.bincount(self.term_row[sel], weights=x[:, d], minlength=self.n_rows)
-        return out
+        return self._project(out)
+
+    def _project(self, rows: np.ndarray) -> np.ndarray:
+        """``rows`` ((M, 3) residuals or (M, 3, C) Jacobian rows) with the point-to-plane rows projected."""
+        if self._projection_normal is None:
+            return rows
+        n = self._projection_normal
+        sub = rows[self._projected]
+        along = np.einsum("mi,mi...->m...", n, sub)
+        rows[self._projected] = n.reshape(n.shape + (1,) * (sub.ndim - 2)) * along[:, None]
+        return rows
 
     def jacobian(self, calib: SkinCalibration, free_levels: dict, cols: np.ndarray | None = None) -> np.ndarray:
         """Dense (3M, len(cols)) Jacobian of the stacked residuals w.r.t. the layout columns ``cols``.
@@ -201,12 +217,29 @@ class ResidualModel:
                3 * self.n_rows * len(cols) > DENSE_LIMIT)
         if self._last_jacobian is not None and self._last_jacobian[0] == key:
             return self._last_jacobian[1]
-        jac = self._jacobian(calib, free_levels, cols)
+        jac = self._project_jacobian(self._jacobian(calib, free_levels, cols))
         kinematic = np.flatnonzero(cols > self.layout.fabric_col)
         if len(kinematic):
             jac = self._with_kinematic_columns(jac, calib, cols, kinematic)
         self._last_jacobian = (key, jac)
         return jac
+
+    def _project_jacobian(self, jac):
+        """``jac`` (dense or sparse) with the rows of point-to-plane residuals projected on their normals."""
+        if self._projection_normal is None:
+            return jac
+        if not scipy.sparse.issparse(jac):
+            self._project(jac.reshape(self.n_rows, 3, -1))
+            return jac
+        # block-diagonal n n^T on the projected rows, identity elsewhere
+        blocks = np.broadcast_to(np.eye(3), (self.n_rows, 3, 3)).copy()
+        n = self._projection_normal
+        blocks[self._projected] = n[:, :, None] * n[:, None, :]
+        first = 3 * np.arange(self.n_rows)[:, None, None]
+        rows = np.broadcast_to(first + np.arange(3)[None, :, None], blocks.shape).ravel()
+        cols = np.broadcast_to(first + np.arange(3)[None, None, :], blocks.shape).ravel()
+        proj = scipy.sparse.csr_matrix((blocks.ravel(), (rows, cols)), shape=(3 * self.n_rows, 3 * self.n_rows))
+        return (proj @ jac).tocsr()
 
     def _with_kinematic_columns(self, jac, calib: SkinCalibration, cols: np.ndarray, kinematic: np.ndarray):
         """``jac`` with its kinematic columns (positions ``kinematic`` in ``cols``) by forward differences."""

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nao_skin.calibration.pairing import KIND_COP, KIND_NORMAL, KIND_TAXEL, Pairing, pair_touches
+from nao_skin.calibration.pairing import KIND_COP, KIND_NORMAL, KIND_TAXEL, Pairing, PlaneRows, pair_touches
 from nao_skin.calibration.plan import Step, part_rank
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.touches import TouchSet
@@ -19,7 +19,16 @@ def select_rows(pairing: Pairing, kinds: tuple, inliers: np.ndarray | None = Non
     return Pairing(row_touch=pairing.row_touch[keep], row_kind=pairing.row_kind[keep],
                    row_parts=pairing.row_parts[keep], term_row=new_index[pairing.term_row[tkeep]],
                    term_part=pairing.term_part[tkeep], term_slot=pairing.term_slot[tkeep],
-                   term_weight=pairing.term_weight[tkeep], distance=pairing.distance[keep])
+                   term_weight=pairing.term_weight[tkeep], distance=pairing.distance[keep],
+                   row_normal=_normals_of(pairing, keep))
+
+
+def _normals_of(pairing: Pairing, keep: np.ndarray) -> np.ndarray | None:
+    """The kept rows' projection normals, None when none of them is projected."""
+    if pairing.row_normal is None:
+        return None
+    normal = pairing.row_normal[keep]
+    return normal if np.isfinite(normal).any() else None
 
 def with_normal_rows(selected: Pairing, pairing: Pairing, weight: float, inliers: np.ndarray | None = None) -> Pairing:
     """``selected`` plus one normal row per closest-taxel row of ``pairing`` (closest-COP
@@ -57,18 +66,20 @@ def _pair_subset(touches: TouchSet, pa: str, pb: str):
     return touches.derived(("pair subset", pa, pb), subset)
 
 def pair_parts(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, pa: str, pb: str,
-               kinds=("cop", "taxel", "taxel5"), taxel_rule: str = "contacts", placed: dict | None = None) -> Pairing:
+               kinds=("cop", "taxel", "taxel5"), taxel_rule: str = "contacts", placed: dict | None = None,
+               plane: PlaneRows = PlaneRows()) -> Pairing:
     """``pair_touches`` for one pair of parts, computed on the touches where both fire only
     (``placed``: see :func:`~nao_skin.calibration.pairing.activation_positions`)."""
     sub, rows = _pair_subset(touches, pa, pb)
-    p = pair_touches(sub, skin, calib, kinds=kinds, parts=(pa, pb), taxel_rule=taxel_rule, placed=placed)
+    p = pair_touches(sub, skin, calib, kinds=kinds, parts=(pa, pb), taxel_rule=taxel_rule, placed=placed,
+                     plane=plane)
     remap = np.array([touches.part_index(n) for n in sub.part_names], dtype=int)
     return Pairing(row_touch=rows[p.row_touch], row_kind=p.row_kind, row_parts=remap[p.row_parts],
                    term_row=p.term_row, term_part=remap[p.term_part], term_slot=p.term_slot,
-                   term_weight=p.term_weight, distance=p.distance)
+                   term_weight=p.term_weight, distance=p.distance, row_normal=p.row_normal)
 
 def pair_step(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, step: Step,
-               kinds=("cop", "taxel", "taxel5")) -> Pairing:
+               kinds=("cop", "taxel", "taxel5"), plane: PlaneRows = PlaneRows()) -> Pairing:
     """Pair the touches of every (target, reference) combination of a step."""
     names = step.targets + step.references
     parts = []
@@ -79,7 +90,7 @@ def pair_step(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, step: 
                 continue
             pa, pb = sorted((a, b), key=part_rank)
             if pa in touches.part_names and pb in touches.part_names:
-                p = pair_parts(touches, skin, calib, pa, pb, kinds, placed=placed)
+                p = pair_parts(touches, skin, calib, pa, pb, kinds, placed=placed, plane=plane)
                 if len(p.row_touch):
                     parts.append(p)
     if not parts:
@@ -108,7 +119,9 @@ def concat_pairings(pairings: list) -> Pairing:
         term_part=np.concatenate([p.term_part for p in pairings]),
         term_slot=np.concatenate([p.term_slot for p in pairings]),
         term_weight=np.concatenate([p.term_weight for p in pairings]),
-        distance=np.concatenate([p.distance for p in pairings]))
+        distance=np.concatenate([p.distance for p in pairings]),
+        row_normal=(None if all(p.row_normal is None for p in pairings) else np.concatenate(
+            [np.full((p.n_rows, 3), np.nan) if p.row_normal is None else p.row_normal for p in pairings])))
 
 def touch_hashes(pairing: Pairing, n_touches: int) -> np.ndarray:
     """A number per touch that changes when the pairing of that touch changes."""
