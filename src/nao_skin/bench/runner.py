@@ -88,6 +88,7 @@ def strategy_variants(sweep=TOUCH_SWEEP) -> list:
         Variant("simultaneous (no reference part)", {"reference": "simultaneous"}),
         Variant("COP pairs only", {"pairs": "cop"}),
         Variant("taxel pairs only", {"pairs": "taxel"}),
+        Variant("point-to-plane rows instead of closest taxel pairs (cop+plane)", {"pairs": "cop+plane"}),
         Variant("free (no bounds; Gaussian prior kept)", {"bounded": False}),
         Variant("fixed prior (bound/3, not widened by the touches)", {"prior_scale": "fixed"}),
         Variant("robust loss off (linear)", {"loss": "linear"}),

@@ -135,11 +135,8 @@ class CalibrationOptions:
                                     "|translation| m, |rotation| rad per component of a triangle correction")
     pairs: str = option("both", Rule(str, _PAIRS), "paired points in the residuals of patch and triangle stages")
     mount_pairs: str = option("cop", Rule(str, _PAIRS), "paired points of the mount stages (robust while far off)")
-    # pairs "cop+plane" (point-to-plane rows instead of the closest taxel pair): simulator, 4 pairs, seeds 0-2,
-    # true median 0.66 -> 0.61 mm at 260 touches and 0.46 -> 0.39 mm at 1000; on the real recording the test
-    # closest COP drops 4.50 -> 4.35 mm but the closest taxel rises 1.96 -> 2.20 mm, and its point-to-plane rows
-    # stay 2.4x longer than the simulator's at the truth (whose flat triangles meet exactly at the fabric):
-    # not the default until real data with a truth says so. Heavier plane rows (scale 2) were worse.
+    # "cop+plane" is not the default: the simulator's flat triangles meet exactly at the fabric, which
+    # flatters point-to-plane rows; on the real recording they stay 2.4x longer (README, Calibration)
     plane_weight: str = option("touch", Rule(str, PLANE_WEIGHTS),
                                "weight of the point-to-plane rows (pairs with 'plane'): equal (1 each), touch"
                                " (a touch's rows weigh as one row) or pressure (as touch, by each taxel's share of"
