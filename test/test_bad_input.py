@@ -195,6 +195,8 @@ def test_an_unknown_part_in_taxels_is_one_line(capsys, tmp_path):
     assert "unknown skin part 'l_arm'" in one_line(capsys)
     assert cli_main(["stats", str(RECORDING), "--taxels", f"l_hand={tmp_path / 'none.txt'}"]) == 2
     assert "none.txt: no such file" in one_line(capsys)
+    assert cli_main(["stats", str(RECORDING), "--taxels", f"l_hand={tmp_path}"]) == 2
+    assert f"{tmp_path} is a directory, not a taxel file" in one_line(capsys)
 
 
 def test_stats_reads_a_simulator_output_directory(tmp_path, capsys):
