@@ -59,6 +59,11 @@ def thesis_touches(skin):
     (["--set", "fabric_bounds=[0.003, 0.001]"], "lower bound is above the upper one"),
     (["--test-fraction", "x"], "argument --test-fraction: invalid float value: 'x'"),
     (["--splits", "0"], "--splits 0: expected a whole number >= 1"),
+    (["--set", f"patch_bounds=[{10 ** 400}, 0.1]"], "expected 2 numbers > 0"),          # beyond any float
+    (["--set", "seed=1", "--set", "seed=2"], "--set seed=2: option seed is already given by --set seed=1; give it once"),
+    (["--seed", "1", "--set", "seed=2"], "--set seed=2: option seed is already given by --seed 1"),
+    (["--free", "--set", "bounded=true"], "--set bounded=true: option bounded is already given by --free"),
+    (["--no-first-guess", "--set", "initial_guess=rigid-fit"], "option initial_guess is already given by --no-first-guess"),
 ])
 def test_a_wrong_option_is_one_line_before_any_data_is_read(tmp_path, capsys, args, says):
     # the input is broken: had it been read first, the line would be about the input
