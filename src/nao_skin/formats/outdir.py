@@ -105,7 +105,18 @@ def check_output_dir(out: str | Path, kind: str, inputs=(), force: bool = False,
     problem = _replace_problem(given, kind, force)
     if problem:
         raise DataError(f"{name}: {problem}")
+    _check_writable(Path(os.path.realpath(given)), name)
     return Path(os.path.realpath(given))
+
+
+def _check_writable(out: Path, name: str) -> None:
+    """Refuse, before any work, a place where the output's temporary sibling cannot be made (read-only, /proc):
+    otherwise the failure would come only at the end, after minutes of calibration."""
+    place = next(p for p in (out.parent, *out.parent.parents) if p.exists())
+    try:
+        Path(tempfile.mkdtemp(prefix=f".{out.name}.probe.", dir=place)).rmdir()
+    except OSError as exc:
+        raise DataError(f"{name}: cannot write in {place} ({exc.strerror}); choose another place") from None
 
 
 def replace_dir(new: str | Path, out: str | Path, label: str = "output directory") -> Path:
