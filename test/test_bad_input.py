@@ -6,6 +6,7 @@ recording and its layouts, and simulated touches written in the thesis' format.
 """
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 
@@ -20,10 +21,12 @@ from nao_skin.cli import main as cli_main
 from nao_skin.errors import ConfigError, DataError
 from nao_skin.formats.legacy import read_legacy, skin_model_for
 from nao_skin.model.skin import SkinCalibration, load_skin
+from nao_skin.paths import package_dir
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 
 RECORDING = REAL / "l_hand_torso.legacy.txt"
+BENCH_CHEAP = ["bench", "--quick", "--only", "hard", "--seeds", "1", "--presets", "ideal"]
 REAL_TAXELS = ["--taxels", f"l_hand={REAL / 'l_hand.taxels.txt'}", "--taxels", f"torso={REAL / 'torso.taxels.txt'}"]
 
 
@@ -222,6 +225,31 @@ def test_missing_and_empty_inputs_get_the_same_line_in_every_command(tmp_path, c
         assert one_line(capsys) == f"nao-skin {command[0]}: error: {given}: {says}" + (
             "; expected a rosbag2 recording, a simulator output directory or a legacy .txt data set"
             if says == "empty directory" else "")
+
+
+def test_one_recording_named_twice_is_refused_before_its_touches_count_twice(tmp_path, capsys):
+    shutil.copy(RECORDING, tmp_path / "touches.txt")
+    (tmp_path / "link.txt").symlink_to(tmp_path / "touches.txt")
+    for again in (str(tmp_path / "touches.txt"), str(tmp_path / "." / "touches.txt"), str(tmp_path / "link.txt")):
+        assert cli_main(["calibrate", str(tmp_path / "touches.txt"), again, "--out", str(tmp_path / "o")]) == 2
+        assert one_line(capsys) == (f"nao-skin calibrate: error: {again}: the same recording as the input"
+                                    f" {tmp_path / 'touches.txt'}; give each input once (its touches would count twice)")
+    bag = package_dir() / "bags" / "sim_default"
+    assert cli_main(["calibrate", str(bag), str(bag / "touches.bag" / "touches.bag.db3"),
+                     "--out", str(tmp_path / "o")]) == 2
+    assert "the same recording as the input" in one_line(capsys)
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("command", [["calibrate", "BROKEN"], ["simulate", "--touches-per-pair", "2"],
+                                     [*BENCH_CHEAP], ["demo", "--input", "BROKEN"], ["bench-capture", "--quick"]])
+def test_an_out_nothing_can_be_written_in_is_refused_before_any_work(tmp_path, capsys, command):
+    broken = tmp_path / "broken.txt"              # had it been read first, the line would be about it
+    broken.write_text("{'0': [{0: {'cop': [0, 0,")
+    out = "/proc/nao_skin_out"                    # no directory can be made there, even by root
+    assert cli_main([str(broken) if a == "BROKEN" else a for a in command] + ["--out", out]) == 2
+    assert one_line(capsys) == f"nao-skin {command[0]}: error: --out {out}: cannot write in /proc" \
+                               f" (No such file or directory); choose another place"
 
 
 def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):

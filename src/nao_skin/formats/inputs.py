@@ -35,6 +35,7 @@ def check_inputs(paths) -> None:
     """Fail fast, with the same line in every command, on an input that cannot be read at all."""
     if not paths:
         raise DataError(f"no input given ({WHAT})")
+    seen: dict = {}             # recording -> the input that named it first
     for raw in paths:
         path = Path(raw)
         if not path.exists():
@@ -43,8 +44,22 @@ def check_inputs(paths) -> None:
             raise DataError(f"{path}: empty directory; expected {WHAT}")
         if path.is_file() and path.suffix != ".txt" and not is_bag(path):
             raise DataError(f"{path}: neither {WHAT}")
-        if path.is_dir():
-            find_bag(path)
+        recording = _recording_of(path)
+        if recording in seen:
+            raise DataError(f"{raw}: the same recording as the input {seen[recording]}; give each input once"
+                            f" (its touches would count twice)")
+        seen[recording] = raw      # as typed: './x/' and 'x' differ only there
+
+
+def _recording_of(path: Path) -> Path:
+    """The recording an input names, one path however it is named: a bag's directory, its storage file, the
+    simulator output directory holding it, through symlinks."""
+    if path.is_file() and path.suffix == ".txt":
+        return path.resolve()
+    bag = find_bag(path).resolve()
+    if bag.is_file() and (bag.parent / "metadata.yaml").exists():
+        return bag.parent
+    return bag
 
 
 def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None) -> tuple:
