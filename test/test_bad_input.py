@@ -6,6 +6,7 @@ recording and its layouts, and simulated touches written in the thesis' format.
 """
 import argparse
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -250,6 +251,48 @@ def test_an_out_nothing_can_be_written_in_is_refused_before_any_work(tmp_path, c
     assert cli_main([str(broken) if a == "BROKEN" else a for a in command] + ["--out", out]) == 2
     assert one_line(capsys) == f"nao-skin {command[0]}: error: --out {out}: cannot write in /proc" \
                                f" (No such file or directory); choose another place"
+
+
+def test_simulate_refuses_a_negative_seed_in_one_line(tmp_path, capsys):
+    assert cli_main(["simulate", "--seed", "-1", "--out", str(tmp_path / "sim")]) == 2
+    assert one_line(capsys) == "nao-skin simulate: error: --seed -1: expected a whole number >= 0"
+    assert not (tmp_path / "sim").exists()
+
+
+@pytest.mark.parametrize("output, says", [
+    ("/proc/nao_skin_bag", "/proc/nao_skin_bag: cannot write the bag (No such file or directory)"),
+    ("notes.txt/bag", "notes.txt is a file, not a directory"),
+], ids=["proc", "below-a-file"])
+def test_import_to_a_place_no_bag_can_be_written_is_one_line(tmp_path, capsys, monkeypatch, output, says):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.txt").write_text("mine\n")
+    assert cli_main(["import", str(RECORDING), "-o", output, *REAL_TAXELS]) == 2
+    line = one_line(capsys)
+    assert line.startswith("nao-skin import: error: ") and says in line, line
+    assert (tmp_path / "notes.txt").read_text() == "mine\n"
+
+
+def test_import_refuses_a_stamp_no_bag_can_hold_and_leaves_no_half_bag(tmp_path, capsys, skin, thesis_touches):
+    touches = thesis_touches.subset(np.arange(thesis_touches.n_touches))
+    touches.stamps[5] = 1e308                   # a timestamp key from a broken recorder: beyond int64 nanoseconds
+    legacy = tmp_path / "far_future.txt"
+    write_thesis_file(legacy, touches, skin)
+    assert cli_main(["import", str(legacy), "-o", str(tmp_path / "bag")]) == 2
+    line = one_line(capsys)
+    assert line.startswith(f"nao-skin import: error: {tmp_path / 'bag'}: touch '100000000000000001") and \
+        line.endswith(".000000': stamp 1e+308 is not a time between 0 and 9223372037 s (rosbag2 stamps are int64"
+                      " nanoseconds)"), line
+    assert not (tmp_path / "bag").exists()
+
+
+def test_a_legacy_cop_metres_away_skips_its_touch(tmp_path, skin, thesis_touches):
+    path = tmp_path / "far_cop.txt"
+    write_thesis_file(path, thesis_touches, skin)
+    # the first touch's first COP 1e308 m away: inf as a float32 in a bag, overflow in every sum of squares
+    path.write_text(re.sub(r"'cop': \[[^]]*\]", "'cop': [1e308, 1e308, 1e308]", path.read_text(), count=1))
+    loaded, report = read_legacy(path, skin)
+    assert loaded.n_touches == thesis_touches.n_touches - 1 and dict(report.skipped) == {"malformed field": 1}
+    assert "field 'cop': [1e+308, 1e+308, 1e+308] lies beyond 10 m of its part's frame" in report.messages[0]
 
 
 def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):

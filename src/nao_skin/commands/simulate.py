@@ -43,6 +43,8 @@ def run(args) -> int:
     from nao_skin.sim.simulate import simulate, write_outputs
 
     check_output_dir(args.out, RECORDING, inputs=(args.params, args.skin), force=args.force)
+    if args.seed < 0:           # numpy's seed sequences take no negative entropy
+        raise ConfigError(f"--seed {args.seed}: expected a whole number >= 0")
     overrides = {}
     if args.touches_per_pair is not None:
         if args.touches_per_pair < 1:

@@ -22,6 +22,7 @@ import numpy as np
 from nao_skin.errors import DataError
 from nao_skin.model.robot import RobotModel
 from nao_skin.model.skin import DEFAULT_CHAINS, SkinModel, part_from_layout
+from nao_skin.model.taxel_file import MAX_COORDINATE
 from nao_skin.touch.datasets import LoadReport
 from nao_skin.touch.touches import TouchSet
 
@@ -57,6 +58,9 @@ def _vector3(value, where: str) -> np.ndarray:
         raise _SkipTouch("malformed field", f"{where}: expected 3 numbers or None, got {value!r}") from None
     if out.shape != (3,):
         raise _SkipTouch("malformed field", f"{where}: expected 3 numbers or None, got {len(out)}")
+    if np.nanmax(np.abs(out), initial=0.0) > MAX_COORDINATE:      # NaN: not recorded, as None
+        raise _SkipTouch("malformed field", f"{where}: {value!r} lies beyond {MAX_COORDINATE:g} m of its"
+                                            f" part's frame (metres)")
     return out
 
 
