@@ -295,6 +295,33 @@ def test_a_legacy_cop_metres_away_skips_its_touch(tmp_path, skin, thesis_touches
     assert "field 'cop': [1e+308, 1e+308, 1e+308] lies beyond 10 m of its part's frame" in report.messages[0]
 
 
+@pytest.mark.parametrize("command, inputs", [
+    (["nominal", "--skin-config", "cfg/nao_skin.yaml"], ["cfg/nao_skin.yaml", "cfg/nao_h25.yaml", "cfg/layouts/head.txt"]),
+    (["urdf", "--skin-config", "cfg/nao_skin.yaml", "--calibration", "cfg/calibration_nominal.yaml"],
+     ["cfg/calibration_nominal.yaml", "cfg/nao_skin.yaml", "cfg/nao_h25.yaml"]),
+], ids=["nominal", "urdf"])
+def test_a_file_output_never_replaces_an_input_and_needs_a_writable_place(tmp_path, capsys, monkeypatch,
+                                                                         command, inputs):
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(package_dir() / "config", tmp_path / "cfg")
+    (tmp_path / "notes.txt").write_text("mine\n")
+    before = {p: p.read_bytes() for p in (tmp_path / "cfg").rglob("*") if p.is_file()}
+    for out in inputs:
+        assert cli_main([*command, "--out", out]) == 2
+        assert one_line(capsys) == (f"nao-skin {command[0]}: error: --out {out}: is the input {out};"
+                                    f" writing there would replace it, choose another file")
+    for out, says in (("cfg", "is a directory; give a file name"),
+                      ("notes.txt/out.yaml", f"{tmp_path / 'notes.txt'} is a file, not a directory"),
+                      ("/proc/nao_skin/out.yaml", "cannot write (No such file or directory)")):
+        assert cli_main([*command, "--out", out]) == 2
+        assert one_line(capsys).startswith(f"nao-skin {command[0]}: error: --out {out}: {says}")
+    assert {p: p.read_bytes() for p in (tmp_path / "cfg").rglob("*") if p.is_file()} == before
+    assert (tmp_path / "notes.txt").read_text() == "mine\n"
+    assert cli_main([*command, "--out", "new/out.yaml"]) == 0          # a new file is fine, an earlier one too
+    assert cli_main([*command, "--out", "new/out.yaml"]) == 0
+    assert sorted(p.name for p in (tmp_path / "new").iterdir()) == ["out.yaml"]     # no temporary left over
+
+
 def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):
     """The real recording under the packaged layouts: most touches name slots those layouts lack."""
     run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "calibrate", str(RECORDING), "--quiet",
