@@ -322,6 +322,21 @@ def test_a_file_output_never_replaces_an_input_and_needs_a_writable_place(tmp_pa
     assert sorted(p.name for p in (tmp_path / "new").iterdir()) == ["out.yaml"]     # no temporary left over
 
 
+def test_layouts_never_replace_a_robots_own_layout_without_force(tmp_path, capsys):
+    own = tmp_path / "layouts" / "l_hand.txt"
+    own.parent.mkdir()
+    shutil.copy(REAL / "l_hand.taxels.txt", own)
+    assert cli_main(["layouts", str(own.parent)]) == 2
+    assert one_line(capsys) == (f"nao-skin layouts: error: layouts {own.parent}: {own} differs from the default"
+                                f" layout; nothing written (pass --force to replace it, or choose another directory)")
+    assert own.read_bytes() == (REAL / "l_hand.taxels.txt").read_bytes() and len(list(own.parent.iterdir())) == 1
+    assert cli_main(["layouts", str(own.parent), "--force"]) == 0
+    assert cli_main(["layouts", str(own.parent)]) == 0                  # the defaults again: the same bytes
+    capsys.readouterr()
+    assert cli_main(["layouts", str(tmp_path / "layouts" / "head.txt")]) == 2
+    assert "head.txt is a file, not a directory" in one_line(capsys)
+
+
 def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):
     """The real recording under the packaged layouts: most touches name slots those layouts lack."""
     run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "calibrate", str(RECORDING), "--quiet",
