@@ -257,7 +257,7 @@ def test_a_binary_file_given_as_calibration_is_one_line(skin, tmp_path):
     bag.write_bytes(b"SQLite format 3\x00\xba\xff" * 8)      # what a bag's storage file begins with
     with pytest.raises(ConfigError) as err:
         SkinCalibration.load(bag, skin)
-    assert str(err.value).startswith(f"{bag}: not a text file, cannot be a calibration (")
+    assert str(err.value).startswith(f"{bag}: cannot read calibration (not a text file: ")
 
 
 # ---------------------------------------------------------------------- config errors

@@ -112,7 +112,7 @@ def test_a_binary_file_is_one_line(tmp_path):
     path.write_bytes(b"\xff\xfe garbage\n")
     with pytest.raises(DataError) as err:
         read_taxel_file(path)
-    assert str(err.value) == f"{path}: not a text file, cannot be a taxel file (invalid start byte at byte 0)"
+    assert str(err.value) == f"{path}: cannot read taxel file (not a text file: invalid start byte at byte 0)"
 
 
 def test_missing_file_is_one_line(tmp_path):

@@ -56,7 +56,7 @@ def read_taxel_file(path: str | Path, n_slots: int = DEFAULT_SLOTS) -> TaxelFile
     except OSError as exc:
         raise DataError(f"{path}: cannot read taxel file ({exc.strerror})") from None
     except UnicodeDecodeError as exc:       # e.g. a bag or another binary file passed as a layout
-        raise DataError(f"{path}: not a text file, cannot be a taxel file ({exc.reason} at byte {exc.start})") from None
+        raise DataError(f"{path}: cannot read taxel file (not a text file: {exc.reason} at byte {exc.start})") from None
     lines = text.splitlines()
     header: dict = {}
     start = 0
