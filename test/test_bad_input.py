@@ -337,6 +337,58 @@ def test_layouts_never_replace_a_robots_own_layout_without_force(tmp_path, capsy
     assert "head.txt is a file, not a directory" in one_line(capsys)
 
 
+@pytest.mark.parametrize("args, says", [
+    (["--presets", ""], "--presets '': expected preset names, comma separated"),
+    (["--hard-pairs", "l_hand-torso,l_hand-torso"], "pairs 'l_hand-torso,l_hand-torso': a pair is given twice"),
+    (["--hard-touches", "-3"], "--hard-touches -3: expected a whole number in 1..100000"),
+    (["--hard-touches", str(10 ** 12)], "--hard-touches 1000000000000: expected a whole number in 1..100000"),
+    (["--jobs", "-2"], "--jobs -2: expected a whole number >= 1"),
+    (["--sim-touches", "-1"], "--sim-touches -1: expected a whole number >= 0 (0: all)"),
+    (["--readme", "missing.md"], "--readme missing.md: cannot read (No such file or directory)"),
+    (["--readme", "binary.md"], "--readme binary.md: cannot read (not a text file: invalid start byte at byte 0)"),
+    (["--only", "real", "--real", "broken.txt", "--real", "broken.txt"],
+     "broken.txt: the same recording as the input broken.txt; give each input once"),
+])
+def test_bench_arguments_are_checked_before_anything_runs(tmp_path, capsys, monkeypatch, args, says):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "broken.txt").write_text("{'0': [{0: {'cop': [0, 0,")
+    (tmp_path / "binary.md").write_bytes(b"\xff\xfe")
+    assert cli_main([*BENCH_CHEAP, *args, "--out", "b"]) == 2
+    assert one_line(capsys).startswith(f"nao-skin bench: error: {says}")
+    assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--median-mm", "nan"], "--median-mm nan: must be a finite number above 0"),
+    (["--p95-mm", "inf"], "--p95-mm inf: must be a finite number above 0"),
+    (["--first-seed", "-1"], "--first-seed -1: expected a whole number >= 0"),
+    (["--start", "500", "--cap", "80"], "--start 500: more random touches than the cap of 80"),
+    (["--strategies", "random,random"], "--strategies 'random,random': expected some of random, guided, oracle,"
+                                        " each once"),
+    (["--jobs", "0"], "--jobs 0: expected a whole number >= 1"),
+])
+def test_bench_capture_arguments_are_checked_before_anything_runs(tmp_path, capsys, args, says):
+    assert cli_main(["bench-capture", "--quick", *args, "--out", str(tmp_path / "b")]) == 2
+    assert one_line(capsys) == f"nao-skin bench-capture: error: {says}"
+    assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("real", ["missing.txt", "broken.txt"])
+def test_a_broken_bench_input_never_costs_an_earlier_benchmark(tmp_path, capsys, monkeypatch, real):
+    from nao_skin.formats.outdir import BENCHMARK, write_marker
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "broken.txt").write_text("{'0': [{0: {'cop': [0, 0,")
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "bench_results.md").write_text("last week's figures\n")
+    write_marker(tmp_path / "b", "bench", BENCHMARK)
+    before = sorted(p.name for p in (tmp_path / "b").iterdir())
+    assert cli_main(["bench", "--only", "real", "--real", real, "--out", "b", "--force"]) == 2
+    assert real in one_line(capsys)
+    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == before
+    assert (tmp_path / "b" / "bench_results.md").read_text() == "last week's figures\n"
+
+
 def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):
     """The real recording under the packaged layouts: most touches name slots those layouts lack."""
     run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "calibrate", str(RECORDING), "--quiet",
