@@ -389,6 +389,29 @@ def test_a_broken_bench_input_never_costs_an_earlier_benchmark(tmp_path, capsys,
     assert (tmp_path / "b" / "bench_results.md").read_text() == "last week's figures\n"
 
 
+@pytest.mark.parametrize("args, says", [
+    (["--bag", "existing"], "bag {tmp}/existing: exists already; a bag is never overwritten, name a new one"),
+    (["--bag", "notes.txt/bag"], "bag {tmp}/notes.txt/bag: {tmp}/notes.txt is a file, not a directory"),
+    (["--bag", "/proc/nao_skin_bag"], "bag /proc/nao_skin_bag: cannot write in /proc (No such file or directory)"),
+    (["--calibration", "notes.txt"], "notes.txt: a calibration needs a 'parts' mapping"),
+    (["--calibration", "missing.yaml"], "missing.yaml: cannot read calibration (No such file or directory)"),
+    (["--taxels", "l_hand=binary.txt"], "{tmp}/binary.txt: cannot read taxel file (not a text file"),
+    (["--param", "sim_robot.seed=1", "--param", "sim_robot.seed=2"],
+     "--param 'sim_robot.seed=2': sim_robot.seed is already given ('1'); give it once"),
+    (["--duration", "-5"], "--duration -5.0: expected seconds >= 0 (0: until Ctrl-C)"),
+    (["--duration", "nan"], "--duration nan: expected seconds >= 0 (0: until Ctrl-C)"),
+])
+def test_record_refuses_what_a_node_would_die_of_before_any_starts(tmp_path, capsys, monkeypatch, args, says):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "existing").mkdir()
+    (tmp_path / "notes.txt").write_text("mine\n")
+    (tmp_path / "binary.txt").write_bytes(b"\xff\xfe")
+    argv = ["record", "--print", *args]
+    assert cli_main(argv if "--bag" in args else [*argv, "--bag", "new_bag"]) == 2
+    assert one_line(capsys).startswith("nao-skin record: error: " + says.format(tmp=tmp_path))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["binary.txt", "existing", "notes.txt"]
+
+
 def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):
     """The real recording under the packaged layouts: most touches name slots those layouts lack."""
     run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "calibrate", str(RECORDING), "--quiet",

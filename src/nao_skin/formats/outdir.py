@@ -105,14 +105,17 @@ def check_output_dir(out: str | Path, kind: str, inputs=(), force: bool = False,
     problem = _replace_problem(given, kind, force)
     if problem:
         raise DataError(f"{name}: {problem}")
-    _check_writable(Path(os.path.realpath(given)), name)
+    check_writable(Path(os.path.realpath(given)), name)
     return Path(os.path.realpath(given))
 
 
-def _check_writable(out: Path, name: str) -> None:
-    """Refuse, before any work, a place where the output's temporary sibling cannot be made (read-only, /proc):
-    otherwise the failure would come only at the end, after minutes of calibration."""
+def check_writable(out: Path, name: str) -> None:
+    """Refuse, before any work, a place where ``out`` or its temporary sibling cannot be made (below a file,
+    read-only, /proc): otherwise the failure would come only at the end, after minutes of calibration."""
+    out = Path(os.path.abspath(out))
     place = next(p for p in (out.parent, *out.parent.parents) if p.exists())
+    if not place.is_dir():
+        raise DataError(f"{name}: {place} is a file, not a directory; choose another place")
     try:
         Path(tempfile.mkdtemp(prefix=f".{out.name}.probe.", dir=place)).rmdir()
     except OSError as exc:
