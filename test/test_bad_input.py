@@ -412,6 +412,22 @@ def test_record_refuses_what_a_node_would_die_of_before_any_starts(tmp_path, cap
     assert sorted(p.name for p in tmp_path.iterdir()) == ["binary.txt", "existing", "notes.txt"]
 
 
+@pytest.mark.parametrize("args, says", [
+    (["--seconds", "nan"], "--seconds nan: expected a finite number of seconds above 0"),
+    (["--seconds", "-1"], "--seconds -1.0: expected a finite number of seconds above 0"),
+    (["--touch-period", "0"], "--touch-period 0.0: expected a finite number of seconds above 0"),
+    (["--update-every", "0"], "--update-every 0: expected a whole number >= 1"),
+    (["--domain", "500"], "--domain 500: expected a ROS domain id in 0..232"),
+    (["--update-input", "missing.bag"], "missing.bag: no such file or directory"),
+])
+def test_bench_live_arguments_are_checked_before_any_node_starts(tmp_path, capsys, monkeypatch, args, says):
+    monkeypatch.setenv("TMPDIR", str(tmp_path))          # its temporary directory would be made here
+    monkeypatch.chdir(tmp_path)
+    assert cli_main(["bench-live", *args]) == 2
+    assert one_line(capsys) == f"nao-skin bench-live: error: {says}"
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):
     """The real recording under the packaged layouts: most touches name slots those layouts lack."""
     run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "calibrate", str(RECORDING), "--quiet",
