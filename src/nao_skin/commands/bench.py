@@ -185,6 +185,9 @@ def run(args) -> int:
     if "speed" in sections:
         _pairs(args.sim_pairs)
     sim = (args.sim or package_dir() / "bags" / "sim_default") if sections & {"speed", "live"} else None
+    check_output_dir(args.out, BENCHMARK, force=args.force,
+                     inputs=[sim, *args.real, *(item.partition("=")[2] for item in args.taxels), args.skin,
+                             args.readme])
     # every input is checked before the output directory is cleared: a typo must not cost an earlier benchmark
     if sim is not None:
         check_inputs([sim])
@@ -194,9 +197,6 @@ def run(args) -> int:
         real_skin = skin_from_args(args)
     if args.readme:
         readme_text(Path(args.readme))
-    check_output_dir(args.out, BENCHMARK, force=args.force,
-                     inputs=[sim, *args.real, *(item.partition("=")[2] for item in args.taxels), args.skin,
-                             args.readme])
     # read before an earlier output is cleared: a recording that turns out broken must not cost it
     inputs = []
     if "speed" in sections:
