@@ -428,6 +428,34 @@ def test_bench_live_arguments_are_checked_before_any_node_starts(tmp_path, capsy
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("argv, says", [
+    (["stats", "a" * 300 + ".txt"], "{a}.txt: cannot read (File name too long)"),
+    (["stats", "loop"], "loop: cannot read (Too many levels of symbolic links)"),
+    (["calibrate", "BROKEN", "--out", "b" * 300], "--out {b}: File name too long; choose another place"),
+    (["calibrate", "BROKEN", "--out", "new/" + "b" * 250], "--out new/{b250}: the name bbbbbbbbbbbbbbbbbbbb... is"
+                                                          " longer than 239 bytes; choose a shorter one"),
+    (["calibrate", "BROKEN", "--out", "loop"], "--out loop: Too many levels of symbolic links; choose another place"),
+], ids=["input-name-too-long", "input-symlink-loop", "out-name-too-long", "out-folder-name-too-long",
+        "out-symlink-loop"])
+def test_paths_the_file_system_cannot_take_are_one_line(tmp_path, capsys, monkeypatch, argv, says):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "broken.txt").write_text("{'0': [{0: {'cop': [0, 0,")
+    (tmp_path / "loop").symlink_to("loop2")
+    (tmp_path / "loop2").symlink_to("loop")
+    assert cli_main(["broken.txt" if a == "BROKEN" else a for a in argv]) == 2
+    assert one_line(capsys) == f"nao-skin {argv[0]}: error: " + says.format(a="a" * 300, b="b" * 300, b250="b" * 250)
+
+
+def test_a_removed_current_directory_is_one_line(tmp_path, capsys, monkeypatch):
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    monkeypatch.chdir(gone)
+    gone.rmdir()
+    assert cli_main(["calibrate", str(RECORDING), "--out", "out"]) == 2
+    assert one_line(capsys) == ("nao-skin calibrate: error: --out out: the current directory no longer exists;"
+                                " change to an existing one")
+
+
 def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):
     """The real recording under the packaged layouts: most touches name slots those layouts lack."""
     run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "calibrate", str(RECORDING), "--quiet",

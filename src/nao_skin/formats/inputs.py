@@ -38,8 +38,12 @@ def check_inputs(paths) -> None:
     seen: dict = {}             # recording -> the input that named it first
     for raw in paths:
         path = Path(raw)
-        if not path.exists():
-            raise DataError(f"{path}: no such file or directory")
+        try:
+            path.stat()
+        except FileNotFoundError:
+            raise DataError(f"{path}: no such file or directory") from None
+        except OSError as exc:                  # a name too long, a loop of symlinks, no permission on a folder
+            raise DataError(f"{path}: cannot read ({exc.strerror})") from None
         if path.is_dir() and not any(path.iterdir()):
             raise DataError(f"{path}: empty directory; expected {WHAT}")
         if path.is_file() and path.suffix != ".txt" and not is_bag(path):
