@@ -466,9 +466,13 @@ def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):
     assert any("--taxels torso=FILE" in line for line in run.stderr.splitlines()), run.stderr
 
 
-def test_unknown_parts_are_refused_by_stats_pairs(capsys):
-    assert cli_main(["stats", str(RECORDING), *REAL_TAXELS, "--parts", "l_hand,knee"]) == 2
-    assert "--parts 'l_hand,knee'" in one_line(capsys)
+@pytest.mark.parametrize("parts", ["l_hand,knee", "l_hand,l_hand", "l_hand,"])
+def test_unknown_parts_are_refused_by_stats_pairs(capsys, tmp_path, parts):
+    broken = tmp_path / "broken.txt"                # told before the touches are read
+    broken.write_text("{'0': [{0: {'cop': [0, 0,")
+    assert cli_main(["stats", str(broken), *REAL_TAXELS, "--parts", parts]) == 2
+    assert one_line(capsys) == (f"nao-skin stats: error: --parts {parts!r}: expected two different skin parts A,B of"
+                                f" r_hand, l_hand, torso, head")
 
 
 def test_the_recording_model_of_the_tests_is_the_commands_model():
