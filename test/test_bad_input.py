@@ -141,6 +141,16 @@ def test_angles_outside_the_joint_limits_are_kept_counted_and_named(tmp_path, ca
     assert len(note) == 1 and "2 of 12 touches" in note[0] and "LElbowRoll" in note[0] and "kept" in note[0]
 
 
+def test_an_absurd_angle_is_named_in_a_short_line(tmp_path, capsys, skin, thesis_touches):
+    touches = thesis_touches.subset(np.arange(thesis_touches.n_touches))
+    touches.joints[1, touches.joint_names.index("LElbowRoll")] = 1e300      # finite, so kept as measured
+    path = tmp_path / "absurd.txt"
+    write_thesis_file(path, touches, skin)
+    assert cli_main(["stats", str(path), "--json"]) == 0
+    note = [line for line in capsys.readouterr().err.splitlines() if "outside the robot config's limits" in line]
+    assert len(note) == 1 and "LElbowRoll = 1e+300 rad" in note[0] and len(note[0]) < 400, note
+
+
 # ------------------------------------------------------------------------------ one skin model
 @pytest.fixture(scope="module")
 def real_calibration(tmp_path_factory):

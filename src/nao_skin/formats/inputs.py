@@ -151,5 +151,5 @@ def joint_limit_note(touches: TouchSet, robot, source: str) -> str | None:
     name = touches.joint_names[cols[j]]
     return (f"{source}: {n} of {touches.n_touches} touches have joint angles outside the robot config's limits,"
             f" kept (measured angles; the config's limits may be tighter than the joint); the farthest:"
-            f" {name} = {q[t, j]:.4f} rad in touch {touches.keys[t]!r}, {past[t, j]:.4f} rad past"
+            f" {name} = {q[t, j]:.4g} rad in touch {touches.keys[t]!r}, {past[t, j]:.4g} rad past"
             f" [{limits[j, 0]:.4f}, {limits[j, 1]:.4f}]; check the robot config if many are")
