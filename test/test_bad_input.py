@@ -226,12 +226,14 @@ def test_stats_reads_a_simulator_output_directory(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out.splitlines()[-1])["touches"] > 0
 
 
-@pytest.mark.parametrize("command", [["calibrate", "--out", "OUT"], ["stats"], ["import", "-o", "OUT"]])
+@pytest.mark.parametrize("command", [["calibrate", "--out", "OUT"], ["stats"], ["import", "-o", "OUT"],
+                                     ["demo", "--out", "OUT", "--input"]])
 def test_missing_and_empty_inputs_get_the_same_line_in_every_command(tmp_path, capsys, command):
     (tmp_path / "empty").mkdir()
     for given, says in ((tmp_path / "missing.txt", "no such file or directory"),
                         (tmp_path / "empty", "empty directory")):
-        argv = [command[0], str(given), *[str(tmp_path / "o") if a == "OUT" else a for a in command[1:]]]
+        argv = [*[str(tmp_path / "o") if a == "OUT" else a for a in command], str(given)] if command[0] == "demo" \
+            else [command[0], str(given), *[str(tmp_path / "o") if a == "OUT" else a for a in command[1:]]]
         assert cli_main(argv) == 2
         assert one_line(capsys) == f"nao-skin {command[0]}: error: {given}: {says}" + (
             "; expected a rosbag2 recording, a simulator output directory or a legacy .txt data set"
