@@ -6,6 +6,8 @@ recording and its layouts, and simulated touches written in the thesis' format.
 """
 import argparse
 import json
+import re
+import shutil
 import subprocess
 import sys
 
@@ -20,10 +22,12 @@ from nao_skin.cli import main as cli_main
 from nao_skin.errors import ConfigError, DataError
 from nao_skin.formats.legacy import read_legacy, skin_model_for
 from nao_skin.model.skin import SkinCalibration, load_skin
+from nao_skin.paths import package_dir
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 
 RECORDING = REAL / "l_hand_torso.legacy.txt"
+BENCH_CHEAP = ["bench", "--quick", "--only", "hard", "--seeds", "1", "--presets", "ideal"]
 REAL_TAXELS = ["--taxels", f"l_hand={REAL / 'l_hand.taxels.txt'}", "--taxels", f"torso={REAL / 'torso.taxels.txt'}"]
 
 
@@ -59,6 +63,11 @@ def thesis_touches(skin):
     (["--set", "fabric_bounds=[0.003, 0.001]"], "lower bound is above the upper one"),
     (["--test-fraction", "x"], "argument --test-fraction: invalid float value: 'x'"),
     (["--splits", "0"], "--splits 0: expected a whole number >= 1"),
+    (["--set", f"patch_bounds=[{10 ** 400}, 0.1]"], "expected 2 numbers > 0"),          # beyond any float
+    (["--set", "seed=1", "--set", "seed=2"], "--set seed=2: option seed is already given by --set seed=1; give it once"),
+    (["--seed", "1", "--set", "seed=2"], "--set seed=2: option seed is already given by --seed 1"),
+    (["--free", "--set", "bounded=true"], "--set bounded=true: option bounded is already given by --free"),
+    (["--no-first-guess", "--set", "initial_guess=rigid-fit"], "option initial_guess is already given by --no-first-guess"),
 ])
 def test_a_wrong_option_is_one_line_before_any_data_is_read(tmp_path, capsys, args, says):
     # the input is broken: had it been read first, the line would be about the input
@@ -132,6 +141,16 @@ def test_angles_outside_the_joint_limits_are_kept_counted_and_named(tmp_path, ca
     assert len(note) == 1 and "2 of 12 touches" in note[0] and "LElbowRoll" in note[0] and "kept" in note[0]
 
 
+def test_an_absurd_angle_is_named_in_a_short_line(tmp_path, capsys, skin, thesis_touches):
+    touches = thesis_touches.subset(np.arange(thesis_touches.n_touches))
+    touches.joints[1, touches.joint_names.index("LElbowRoll")] = 1e300      # finite, so kept as measured
+    path = tmp_path / "absurd.txt"
+    write_thesis_file(path, touches, skin)
+    assert cli_main(["stats", str(path), "--json"]) == 0
+    note = [line for line in capsys.readouterr().err.splitlines() if "outside the robot config's limits" in line]
+    assert len(note) == 1 and "LElbowRoll = 1e+300 rad" in note[0] and len(note[0]) < 400, note
+
+
 # ------------------------------------------------------------------------------ one skin model
 @pytest.fixture(scope="module")
 def real_calibration(tmp_path_factory):
@@ -195,6 +214,8 @@ def test_an_unknown_part_in_taxels_is_one_line(capsys, tmp_path):
     assert "unknown skin part 'l_arm'" in one_line(capsys)
     assert cli_main(["stats", str(RECORDING), "--taxels", f"l_hand={tmp_path / 'none.txt'}"]) == 2
     assert "none.txt: no such file" in one_line(capsys)
+    assert cli_main(["stats", str(RECORDING), "--taxels", f"l_hand={tmp_path}"]) == 2
+    assert f"{tmp_path} is a directory, not a taxel file" in one_line(capsys)
 
 
 def test_stats_reads_a_simulator_output_directory(tmp_path, capsys):
@@ -205,16 +226,246 @@ def test_stats_reads_a_simulator_output_directory(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out.splitlines()[-1])["touches"] > 0
 
 
-@pytest.mark.parametrize("command", [["calibrate", "--out", "OUT"], ["stats"], ["import", "-o", "OUT"]])
+@pytest.mark.parametrize("command", [["calibrate", "--out", "OUT"], ["stats"], ["import", "-o", "OUT"],
+                                     ["demo", "--out", "OUT", "--input"]])
 def test_missing_and_empty_inputs_get_the_same_line_in_every_command(tmp_path, capsys, command):
     (tmp_path / "empty").mkdir()
     for given, says in ((tmp_path / "missing.txt", "no such file or directory"),
                         (tmp_path / "empty", "empty directory")):
-        argv = [command[0], str(given), *[str(tmp_path / "o") if a == "OUT" else a for a in command[1:]]]
+        argv = [*[str(tmp_path / "o") if a == "OUT" else a for a in command], str(given)] if command[0] == "demo" \
+            else [command[0], str(given), *[str(tmp_path / "o") if a == "OUT" else a for a in command[1:]]]
         assert cli_main(argv) == 2
         assert one_line(capsys) == f"nao-skin {command[0]}: error: {given}: {says}" + (
             "; expected a rosbag2 recording, a simulator output directory or a legacy .txt data set"
             if says == "empty directory" else "")
+
+
+def test_one_recording_named_twice_is_refused_before_its_touches_count_twice(tmp_path, capsys):
+    shutil.copy(RECORDING, tmp_path / "touches.txt")
+    (tmp_path / "link.txt").symlink_to(tmp_path / "touches.txt")
+    for again in (str(tmp_path / "touches.txt"), str(tmp_path / "." / "touches.txt"), str(tmp_path / "link.txt")):
+        assert cli_main(["calibrate", str(tmp_path / "touches.txt"), again, "--out", str(tmp_path / "o")]) == 2
+        assert one_line(capsys) == (f"nao-skin calibrate: error: {again}: the same recording as the input"
+                                    f" {tmp_path / 'touches.txt'}; give each input once (its touches would count twice)")
+    bag = package_dir() / "bags" / "sim_default"
+    assert cli_main(["calibrate", str(bag), str(bag / "touches.bag" / "touches.bag.db3"),
+                     "--out", str(tmp_path / "o")]) == 2
+    assert "the same recording as the input" in one_line(capsys)
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("command", [["calibrate", "BROKEN"], ["simulate", "--touches-per-pair", "2"],
+                                     [*BENCH_CHEAP], ["demo", "--input", "BROKEN"], ["bench-capture", "--quick"]])
+def test_an_out_nothing_can_be_written_in_is_refused_before_any_work(tmp_path, capsys, command):
+    broken = tmp_path / "broken.txt"              # had it been read first, the line would be about it
+    broken.write_text("{'0': [{0: {'cop': [0, 0,")
+    out = "/proc/nao_skin_out"                    # no directory can be made there, even by root
+    assert cli_main([str(broken) if a == "BROKEN" else a for a in command] + ["--out", out]) == 2
+    assert one_line(capsys) == f"nao-skin {command[0]}: error: --out {out}: cannot write in /proc" \
+                               f" (No such file or directory); choose another place"
+
+
+def test_simulate_refuses_a_negative_seed_in_one_line(tmp_path, capsys):
+    assert cli_main(["simulate", "--seed", "-1", "--out", str(tmp_path / "sim")]) == 2
+    assert one_line(capsys) == "nao-skin simulate: error: --seed -1: expected a whole number >= 0"
+    assert not (tmp_path / "sim").exists()
+
+
+@pytest.mark.parametrize("output, says", [
+    ("/proc/nao_skin_bag", "/proc/nao_skin_bag: cannot write the bag (No such file or directory)"),
+    ("notes.txt/bag", "notes.txt is a file, not a directory"),
+], ids=["proc", "below-a-file"])
+def test_import_to_a_place_no_bag_can_be_written_is_one_line(tmp_path, capsys, monkeypatch, output, says):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.txt").write_text("mine\n")
+    assert cli_main(["import", str(RECORDING), "-o", output, *REAL_TAXELS]) == 2
+    line = one_line(capsys)
+    assert line.startswith("nao-skin import: error: ") and says in line, line
+    assert (tmp_path / "notes.txt").read_text() == "mine\n"
+
+
+def test_import_refuses_a_stamp_no_bag_can_hold_and_leaves_no_half_bag(tmp_path, capsys, skin, thesis_touches):
+    touches = thesis_touches.subset(np.arange(thesis_touches.n_touches))
+    touches.stamps[5] = 1e308                   # a timestamp key from a broken recorder: beyond int64 nanoseconds
+    legacy = tmp_path / "far_future.txt"
+    write_thesis_file(legacy, touches, skin)
+    assert cli_main(["import", str(legacy), "-o", str(tmp_path / "bag")]) == 2
+    line = one_line(capsys)
+    assert line.startswith(f"nao-skin import: error: {tmp_path / 'bag'}: touch '100000000000000001") and \
+        line.endswith(".000000': stamp 1e+308 is not a time between 0 and 9223372037 s (rosbag2 stamps are int64"
+                      " nanoseconds)"), line
+    assert not (tmp_path / "bag").exists()
+
+
+def test_a_legacy_cop_metres_away_skips_its_touch(tmp_path, skin, thesis_touches):
+    path = tmp_path / "far_cop.txt"
+    write_thesis_file(path, thesis_touches, skin)
+    # the first touch's first COP 1e308 m away: inf as a float32 in a bag, overflow in every sum of squares
+    path.write_text(re.sub(r"'cop': \[[^]]*\]", "'cop': [1e308, 1e308, 1e308]", path.read_text(), count=1))
+    loaded, report = read_legacy(path, skin)
+    assert loaded.n_touches == thesis_touches.n_touches - 1 and dict(report.skipped) == {"malformed field": 1}
+    assert "field 'cop': [1e+308, 1e+308, 1e+308] lies beyond 10 m of its part's frame" in report.messages[0]
+
+
+@pytest.mark.parametrize("command, inputs", [
+    (["nominal", "--skin-config", "cfg/nao_skin.yaml"], ["cfg/nao_skin.yaml", "cfg/nao_h25.yaml", "cfg/layouts/head.txt"]),
+    (["urdf", "--skin-config", "cfg/nao_skin.yaml", "--calibration", "cfg/calibration_nominal.yaml"],
+     ["cfg/calibration_nominal.yaml", "cfg/nao_skin.yaml", "cfg/nao_h25.yaml"]),
+], ids=["nominal", "urdf"])
+def test_a_file_output_never_replaces_an_input_and_needs_a_writable_place(tmp_path, capsys, monkeypatch,
+                                                                         command, inputs):
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(package_dir() / "config", tmp_path / "cfg")
+    (tmp_path / "notes.txt").write_text("mine\n")
+    before = {p: p.read_bytes() for p in (tmp_path / "cfg").rglob("*") if p.is_file()}
+    for out in inputs:
+        assert cli_main([*command, "--out", out]) == 2
+        assert one_line(capsys) == (f"nao-skin {command[0]}: error: --out {out}: is the input {out};"
+                                    f" writing there would replace it, choose another file")
+    for out, says in (("cfg", "is a directory; give a file name"),
+                      ("notes.txt/out.yaml", f"{tmp_path / 'notes.txt'} is a file, not a directory"),
+                      ("/proc/nao_skin/out.yaml", "cannot write (No such file or directory)")):
+        assert cli_main([*command, "--out", out]) == 2
+        assert one_line(capsys).startswith(f"nao-skin {command[0]}: error: --out {out}: {says}")
+    assert {p: p.read_bytes() for p in (tmp_path / "cfg").rglob("*") if p.is_file()} == before
+    assert (tmp_path / "notes.txt").read_text() == "mine\n"
+    assert cli_main([*command, "--out", "new/out.yaml"]) == 0          # a new file is fine, an earlier one too
+    assert cli_main([*command, "--out", "new/out.yaml"]) == 0
+    assert sorted(p.name for p in (tmp_path / "new").iterdir()) == ["out.yaml"]     # no temporary left over
+
+
+def test_layouts_never_replace_a_robots_own_layout_without_force(tmp_path, capsys):
+    own = tmp_path / "layouts" / "l_hand.txt"
+    own.parent.mkdir()
+    shutil.copy(REAL / "l_hand.taxels.txt", own)
+    assert cli_main(["layouts", str(own.parent)]) == 2
+    assert one_line(capsys) == (f"nao-skin layouts: error: layouts {own.parent}: {own} differs from the default"
+                                f" layout; nothing written (pass --force to replace it, or choose another directory)")
+    assert own.read_bytes() == (REAL / "l_hand.taxels.txt").read_bytes() and len(list(own.parent.iterdir())) == 1
+    assert cli_main(["layouts", str(own.parent), "--force"]) == 0
+    assert cli_main(["layouts", str(own.parent)]) == 0                  # the defaults again: the same bytes
+    capsys.readouterr()
+    assert cli_main(["layouts", str(tmp_path / "layouts" / "head.txt")]) == 2
+    assert "head.txt is a file, not a directory" in one_line(capsys)
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--presets", ""], "--presets '': expected preset names, comma separated"),
+    (["--hard-pairs", "l_hand-torso,l_hand-torso"], "pairs 'l_hand-torso,l_hand-torso': a pair is given twice"),
+    (["--hard-touches", "-3"], "--hard-touches -3: expected a whole number in 1..100000"),
+    (["--hard-touches", str(10 ** 12)], "--hard-touches 1000000000000: expected a whole number in 1..100000"),
+    (["--jobs", "-2"], "--jobs -2: expected a whole number >= 1"),
+    (["--sim-touches", "-1"], "--sim-touches -1: expected a whole number >= 0 (0: all)"),
+    (["--readme", "missing.md"], "--readme missing.md: cannot read (No such file or directory)"),
+    (["--readme", "binary.md"], "--readme binary.md: cannot read (not a text file: invalid start byte at byte 0)"),
+    (["--only", "real", "--real", "broken.txt", "--real", "broken.txt"],
+     "broken.txt: the same recording as the input broken.txt; give each input once"),
+])
+def test_bench_arguments_are_checked_before_anything_runs(tmp_path, capsys, monkeypatch, args, says):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "broken.txt").write_text("{'0': [{0: {'cop': [0, 0,")
+    (tmp_path / "binary.md").write_bytes(b"\xff\xfe")
+    assert cli_main([*BENCH_CHEAP, *args, "--out", "b"]) == 2
+    assert one_line(capsys).startswith(f"nao-skin bench: error: {says}")
+    assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--median-mm", "nan"], "--median-mm nan: must be a finite number above 0"),
+    (["--p95-mm", "inf"], "--p95-mm inf: must be a finite number above 0"),
+    (["--first-seed", "-1"], "--first-seed -1: expected a whole number >= 0"),
+    (["--start", "500", "--cap", "80"], "--start 500: more random touches than the cap of 80"),
+    (["--strategies", "random,random"], "--strategies 'random,random': expected some of random, guided, oracle,"
+                                        " each once"),
+    (["--jobs", "0"], "--jobs 0: expected a whole number >= 1"),
+])
+def test_bench_capture_arguments_are_checked_before_anything_runs(tmp_path, capsys, args, says):
+    assert cli_main(["bench-capture", "--quick", *args, "--out", str(tmp_path / "b")]) == 2
+    assert one_line(capsys) == f"nao-skin bench-capture: error: {says}"
+    assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("real", ["missing.txt", "broken.txt"])
+def test_a_broken_bench_input_never_costs_an_earlier_benchmark(tmp_path, capsys, monkeypatch, real):
+    from nao_skin.formats.outdir import BENCHMARK, write_marker
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "broken.txt").write_text("{'0': [{0: {'cop': [0, 0,")
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "bench_results.md").write_text("last week's figures\n")
+    write_marker(tmp_path / "b", "bench", BENCHMARK)
+    before = sorted(p.name for p in (tmp_path / "b").iterdir())
+    assert cli_main(["bench", "--only", "real", "--real", real, "--out", "b", "--force"]) == 2
+    assert real in one_line(capsys)
+    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == before
+    assert (tmp_path / "b" / "bench_results.md").read_text() == "last week's figures\n"
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--bag", "existing"], "bag {tmp}/existing: exists already; a bag is never overwritten, name a new one"),
+    (["--bag", "notes.txt/bag"], "bag {tmp}/notes.txt/bag: {tmp}/notes.txt is a file, not a directory"),
+    (["--bag", "/proc/nao_skin_bag"], "bag /proc/nao_skin_bag: cannot write in /proc (No such file or directory)"),
+    (["--calibration", "notes.txt"], "notes.txt: a calibration needs a 'parts' mapping"),
+    (["--calibration", "missing.yaml"], "missing.yaml: cannot read calibration (No such file or directory)"),
+    (["--taxels", "l_hand=binary.txt"], "{tmp}/binary.txt: cannot read taxel file (not a text file"),
+    (["--param", "sim_robot.seed=1", "--param", "sim_robot.seed=2"],
+     "--param 'sim_robot.seed=2': sim_robot.seed is already given ('1'); give it once"),
+    (["--duration", "-5"], "--duration -5.0: expected seconds >= 0 (0: until Ctrl-C)"),
+    (["--duration", "nan"], "--duration nan: expected seconds >= 0 (0: until Ctrl-C)"),
+])
+def test_record_refuses_what_a_node_would_die_of_before_any_starts(tmp_path, capsys, monkeypatch, args, says):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "existing").mkdir()
+    (tmp_path / "notes.txt").write_text("mine\n")
+    (tmp_path / "binary.txt").write_bytes(b"\xff\xfe")
+    argv = ["record", "--print", *args]
+    assert cli_main(argv if "--bag" in args else [*argv, "--bag", "new_bag"]) == 2
+    assert one_line(capsys).startswith("nao-skin record: error: " + says.format(tmp=tmp_path))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["binary.txt", "existing", "notes.txt"]
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--seconds", "nan"], "--seconds nan: expected a finite number of seconds above 0"),
+    (["--seconds", "-1"], "--seconds -1.0: expected a finite number of seconds above 0"),
+    (["--touch-period", "0"], "--touch-period 0.0: expected a finite number of seconds above 0"),
+    (["--update-every", "0"], "--update-every 0: expected a whole number >= 1"),
+    (["--domain", "500"], "--domain 500: expected a ROS domain id in 0..232"),
+    (["--update-input", "missing.bag"], "missing.bag: no such file or directory"),
+])
+def test_bench_live_arguments_are_checked_before_any_node_starts(tmp_path, capsys, monkeypatch, args, says):
+    monkeypatch.setenv("TMPDIR", str(tmp_path))          # its temporary directory would be made here
+    monkeypatch.chdir(tmp_path)
+    assert cli_main(["bench-live", *args]) == 2
+    assert one_line(capsys) == f"nao-skin bench-live: error: {says}"
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["stats", "a" * 300 + ".txt"], "{a}.txt: cannot read (File name too long)"),
+    (["stats", "loop"], "loop: cannot read (Too many levels of symbolic links)"),
+    (["calibrate", "BROKEN", "--out", "b" * 300], "--out {b}: File name too long; choose another place"),
+    (["calibrate", "BROKEN", "--out", "new/" + "b" * 250], "--out new/{b250}: the name bbbbbbbbbbbbbbbbbbbb... is"
+                                                          " longer than 239 bytes; choose a shorter one"),
+    (["calibrate", "BROKEN", "--out", "loop"], "--out loop: Too many levels of symbolic links; choose another place"),
+], ids=["input-name-too-long", "input-symlink-loop", "out-name-too-long", "out-folder-name-too-long",
+        "out-symlink-loop"])
+def test_paths_the_file_system_cannot_take_are_one_line(tmp_path, capsys, monkeypatch, argv, says):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "broken.txt").write_text("{'0': [{0: {'cop': [0, 0,")
+    (tmp_path / "loop").symlink_to("loop2")
+    (tmp_path / "loop2").symlink_to("loop")
+    assert cli_main(["broken.txt" if a == "BROKEN" else a for a in argv]) == 2
+    assert one_line(capsys) == f"nao-skin {argv[0]}: error: " + says.format(a="a" * 300, b="b" * 300, b250="b" * 250)
+
+
+def test_a_removed_current_directory_is_one_line(tmp_path, capsys, monkeypatch):
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    monkeypatch.chdir(gone)
+    gone.rmdir()
+    assert cli_main(["calibrate", str(RECORDING), "--out", "out"]) == 2
+    assert one_line(capsys) == ("nao-skin calibrate: error: --out out: the current directory no longer exists;"
+                                " change to an existing one")
 
 
 def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):
@@ -227,9 +478,13 @@ def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):
     assert any("--taxels torso=FILE" in line for line in run.stderr.splitlines()), run.stderr
 
 
-def test_unknown_parts_are_refused_by_stats_pairs(capsys):
-    assert cli_main(["stats", str(RECORDING), *REAL_TAXELS, "--parts", "l_hand,knee"]) == 2
-    assert "--parts 'l_hand,knee'" in one_line(capsys)
+@pytest.mark.parametrize("parts", ["l_hand,knee", "l_hand,l_hand", "l_hand,"])
+def test_unknown_parts_are_refused_by_stats_pairs(capsys, tmp_path, parts):
+    broken = tmp_path / "broken.txt"                # told before the touches are read
+    broken.write_text("{'0': [{0: {'cop': [0, 0,")
+    assert cli_main(["stats", str(broken), *REAL_TAXELS, "--parts", parts]) == 2
+    assert one_line(capsys) == (f"nao-skin stats: error: --parts {parts!r}: expected two different skin parts A,B of"
+                                f" r_hand, l_hand, torso, head")
 
 
 def test_the_recording_model_of_the_tests_is_the_commands_model():

@@ -95,6 +95,21 @@ def test_truncated_bags(real, real_skin, tmp_path):
             assert str(bag) in str(err.value) and "\n" not in str(err.value)
 
 
+def test_an_mcap_with_a_damaged_record_is_read_up_to_it(real, real_skin, tmp_path):
+    touches = real.subset(np.arange(60))
+    bag = tmp_path / "mcap"
+    write_touch_bag(bag, touches, real_skin, storage="mcap")
+    data = next(bag.glob("*.mcap"))
+    raw = bytearray(data.read_bytes())
+    topic = raw.index(b"/joint_states")             # the first channel record's topic, in the first chunk
+    raw[topic + 1] = 0xFF                           # no longer UTF-8: the record is damaged
+    data.write_bytes(bytes(raw[:-100]))             # and no summary: rosbags cannot open it, salvage reads it
+    back, report = read_touches(bag, real_skin)
+    assert report.skipped["truncated bag"] == 1
+    line = [m for m in report.messages if "damaged" in m][0]
+    assert str(bag) in line and "has a damaged record at byte" in line and "\n" not in line
+
+
 # ---------------------------------------------------------------------- streams and bad input, small bags
 def stream_bag(path, skin, storage="sqlite3", bad_slot=False, extra_part=False, nan_joint=False):
     """A raw stream: joints at 100 Hz, l_hand and torso skin at 50 Hz, one press from 0.2 to 0.6 s."""

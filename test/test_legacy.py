@@ -171,6 +171,40 @@ def test_bad_touches_are_skipped_with_one_line_each(tmp_path, skin):
     assert f"{path}:3: touch '1'" in text
 
 
+def test_integers_beyond_any_float_or_int64_skip_their_touch(tmp_path, skin):
+    huge = 10 ** 400                       # a Python literal may be any length; float() and int64 overflow
+    slot = touch()
+    slot[0][0]["taxelInfo"][str(huge)] = [0.0] * 6
+    cop = touch()
+    cop[0][0]["cop"] = [huge, 0, 0]
+    pressure = touch()
+    pressure[0][1]["averagePressure"] = huge
+    angle = touch(joints=dict(JOINTS, LElbowRoll=huge))
+    path = write(tmp_path, {"0": touch(), "1": slot, "2": cop, "3": pressure, "4": angle, huge: touch()})
+    touches, report = read_legacy(path, skin)
+    assert touches.keys == ["0", str(huge)] and touches.stamps[1] == 5.0     # an unusable key: file order
+    assert report.skipped == {"bad taxel slot": 1, "malformed field": 2, "bad joint angle": 1}
+    text = " | ".join(report.messages)
+    assert f"touch '1': contact 0: field 'taxelInfo': slot {huge} out of range 0..383 of part 'l_hand'" in text
+    assert "touch '2': contact 0: field 'cop': expected 3 numbers or None" in text
+    assert "touch '3': contact 1: field 'averagePressure': not a number" in text
+    assert "touch '4': joint 'LElbowRoll' is not a finite angle (10000000000000000000..., 401 digits)" in text
+
+
+@pytest.mark.parametrize("text, problem", [
+    ("", "empty file; a legacy dataset is one dict literal {key: [skinContacts, joints]}"),
+    ("  \n\n", "empty file; a legacy dataset is one dict literal {key: [skinContacts, joints]}"),
+    ("{'0': [{}, {}]}\x00", "Python syntax error (source code string cannot contain null bytes);"
+                            " a legacy dataset is one dict literal"),
+], ids=["empty", "blank", "nul-byte"])
+def test_an_empty_or_binary_file_is_one_line_without_a_made_up_line_number(tmp_path, skin, text, problem):
+    path = tmp_path / "data.txt"
+    path.write_text(text)
+    with pytest.raises(DataError) as err:
+        read_legacy(path, skin)
+    assert str(err.value) == f"{path}: {problem}"
+
+
 def test_not_a_dict_and_missing_file(tmp_path, skin):
     path = tmp_path / "list.txt"
     path.write_text("[1, 2, 3]\n")

@@ -194,10 +194,22 @@ def test_chain_naming_an_unknown_joint_fails_naming_file_and_joint(tmp_path):
 @pytest.mark.parametrize("mutate, expected", [
     (lambda d: d["joints"].update(HeadYaw=[1.0]), "joint 'HeadYaw' limits must be [lower, upper]"),
     (lambda d: d["joints"].update(HeadYaw=[1.0, -1.0]), "joint 'HeadYaw' lower limit 1.0 is not below upper -1.0"),
-    (lambda d: d["chains"]["head"][1].update(alpha="half a turn"), "chain 'head' row 1: cannot read 'half a turn' as an angle"),
+    (lambda d: d["chains"]["head"][1].update(alpha="half a turn"), "chain 'head' row 1 alpha: cannot read 'half a turn' as an angle"),
     (lambda d: d["chains"]["head"][0].pop("d"), "chain 'head' row 0: missing d"),
     (lambda d: d.pop("chains"), "a robot config needs 'joints' and 'chains' mappings"),
-])
+    (lambda d: d.update(chains=["head"]), "a robot config needs 'joints' and 'chains' mappings"),
+    (lambda d: d.update(joints=["HeadYaw"]), "a robot config needs 'joints' and 'chains' mappings"),
+    (lambda d: d.update(links=[1]), "'links' must be a mapping of link name to {chain, row, param}"),
+    (lambda d: d["links"]["LElbowOffsetY"].update(row="two"),
+     "link 'LElbowOffsetY' needs chain, row (a whole number) and param (a or d)"),
+    (lambda d: d["joints"].update(HeadYaw=[float("nan"), 1.0]), "joint 'HeadYaw': nan is not a finite number"),
+    (lambda d: d["joints"].update(HeadYaw=[float("-inf"), 1.0]), "joint 'HeadYaw': -inf is not a finite number"),
+    (lambda d: d["chains"]["l_arm"][1].update(d=float("nan")), "chain 'l_arm' row 1 d: nan is not a finite number"),
+    (lambda d: d["chains"]["l_arm"][1].update(d=1e300), "chain 'l_arm' row 1 d: 1e+300 m is beyond 10 m"),
+    (lambda d: d["chains"]["l_arm"][1].update(joint=["LShoulderPitch"]),
+     "chain 'l_arm' row 1: unknown joint '['LShoulderPitch']'"),
+], ids=["one-limit", "limits-swapped", "angle-words", "missing-d", "no-chains", "chains-list", "joints-list",
+        "links-list", "link-row-word", "nan-limit", "infinite-limit", "nan-length", "huge-length", "joint-list"])
 def test_malformed_robot_config_fails_with_one_line(tmp_path, mutate, expected):
     path = write_robot(tmp_path, mutate)
     with pytest.raises(ConfigError) as err:

@@ -285,6 +285,10 @@ def test_yaml_defaults_are_the_dataclass_defaults():
     ({"n_touches": 0}, ["n_touches"]),
     ({"spot_size": [0.01, 0.005]}, ["spot_size"]),
     ({"jont_noise": 0.1}, ["unknown field", "jont_noise"]),
+    ({"n_touches": 10 ** 12}, ["'n_touches' 1000000000000 is more than 100000 touches per pair"]),
+    ({"hand_mount_offset": [float("nan"), 0, 0]}, ["hand_mount_offset", "[x, y, z] metres"]),
+    ({"link_errors": {"LElbowOffsetY": 1e300}}, ["link_errors", "map link names to metres"]),
+    ({"spot_radius": 1e300}, ["'spot_radius' must be a finite number of at most 1e+06"]),
 ])
 def test_bad_parameters_fail_in_one_line(overrides, words):
     with pytest.raises(ConfigError) as exc:
@@ -305,7 +309,30 @@ def test_unknown_preset_and_missing_part_fail_in_one_line(skin, capsys, tmp_path
     err = capsys.readouterr().err.strip()
     assert "unknown preset 'nope'" in err and len(err.splitlines()) == 1
     assert cli_main(["simulate", "--touches-per-pair", "0", "--out", str(tmp_path)]) == 2
+    assert cli_main(["simulate", "--touches-per-pair", str(10 ** 12), "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == \
+        "nao-skin simulate: error: --touches-per-pair 1000000000000: expected a whole number in 1..100000"
     assert not any(tmp_path.iterdir())       # nothing written on bad input
+
+
+@pytest.mark.parametrize("overrides", [{"spot_radius": 1000.0}, {"fabric_thickness": 1000.0}])
+def test_parameters_no_touch_can_be_simulated_with_are_one_line(skin, overrides):
+    with pytest.raises(ConfigError) as exc:
+        simulate(skin, {"n_touches": 2, "pairs": [["l_hand", "torso"]], **overrides}, seed=0)
+    assert str(exc.value).startswith("simulation parameters: no touch of l_hand-torso could be posed and fired (")
+
+
+@pytest.mark.parametrize("text, says", [
+    ("defaults: [1, 2]\n", "expected 'defaults:' and 'presets:' mappings"),
+    ("presets: [1]\n", "expected 'defaults:' and 'presets:' mappings"),
+    ("presets: {x: [1]}\n", "preset 'x': expected a mapping of parameter: value"),
+], ids=["defaults-list", "presets-list", "preset-list"])
+def test_a_parameters_file_of_the_wrong_shape_is_one_line(tmp_path, text, says):
+    path = tmp_path / "simulation.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as exc:
+        load_params("x", path=path)
+    assert str(exc.value) == f"{path}: {says}"
 
 
 def test_dataclass_fields_are_documented_in_the_yaml():

@@ -198,23 +198,66 @@ def test_partial_calibration_file_leaves_the_rest_nominal(skin, tmp_path):
     assert not np.any(calib.parts["head"].mount)
 
 
+BAD_CORRECTION = ("part 'head' mount: correction must be 3 + 3 finite numbers, metres (at most 10) and radians"
+                  " (at most 100)")
+
+
 @pytest.mark.parametrize("parts, problem", [
     ({"l_foot": {}}, "unknown skin part 'l_foot' (configured: r_hand, l_hand, torso, head)"),
     ({"torso": {"patches": {7: {}}}}, "part 'torso' has no patch 7"),
     ({"torso": {"triangles": {14: {}}}}, "part 'torso' has no triangle 14"),
-    ({"head": {"mount": {"correction": {"translation": [0, 0], "rotation_vector": [0, 0, 0]}}}},
-     "part 'head' mount: correction must be 3 + 3 finite numbers"),
+    ({"head": {"mount": {"correction": {"translation": [0, 0], "rotation_vector": [0, 0, 0]}}}}, BAD_CORRECTION),
     ({"head": {"mount": {"correction": {"translation": [0, 0, ".nan"], "rotation_vector": [0, 0, 0]}}}},
-     "part 'head' mount: correction must be 3 + 3 finite numbers"),
+     BAD_CORRECTION),
+    ({"head": {"mount": {"correction": {"translation": [1e300, 0, 0], "rotation_vector": [0, 0, 0]}}}},
+     BAD_CORRECTION),
+    ({"head": {"mount": {"correction": {"translation": [0, 0, 0], "rotation_vector": [0, 1e300, 0]}}}},
+     BAD_CORRECTION),
     ({"head": {"mount": {"correction": {"translation": [0, 0, 0]}}}},
      "part 'head' mount: needs correction.translation and correction.rotation_vector"),
-])
+    ({"head": None}, "part 'head': expected a mapping (layout, mount, patches, triangles)"),
+    ({"head": 5}, "part 'head': expected a mapping (layout, mount, patches, triangles)"),
+    ({"torso": {"patches": [1, 2]}}, "part 'torso': 'patches' must be a mapping"),
+    ({"torso": {"patches": {"abc": {}}}}, "part 'torso' patch 'abc': expected a whole number"),
+    ({"torso": {"patches": {0.5: {}}}}, "part 'torso' patch 0.5: expected a whole number"),
+    ({"torso": {"triangles": {"x": {}}}}, "part 'torso' triangle 'x': expected a whole number"),
+], ids=["unknown-part", "unknown-patch", "unknown-triangle", "two-numbers", "nan", "huge-translation",
+        "huge-rotation", "no-rotation", "part-none", "part-number", "patches-list", "patch-word", "patch-half",
+        "triangle-word"])
 def test_malformed_calibration_fails_naming_file_and_entry(skin, tmp_path, parts, problem):
     path = tmp_path / "calibration.yaml"
     path.write_text(yaml.safe_dump({"parts": parts}).replace("'.nan'", ".nan"))
     with pytest.raises(ConfigError) as err:
         SkinCalibration.load(path, skin)
     assert str(err.value) == f"{path}: {problem}"
+
+
+BAD_KINEMATICS = "needs a finite numeric correction (at most 10) and, if given, a finite std >= 0"
+
+
+@pytest.mark.parametrize("top, problem", [
+    ({"kinematics": [1, 2]}, "calibration: 'kinematics' must be a mapping"),
+    ({"kinematics": {"LElbowOffsetY": {"correction": ".nan"}}}, f"kinematics: 'LElbowOffsetY' {BAD_KINEMATICS}"),
+    ({"kinematics": {"LElbowOffsetY": {"correction": 1e300}}}, f"kinematics: 'LElbowOffsetY' {BAD_KINEMATICS}"),
+    ({"kinematics": {"LElbowOffsetY": {"correction": 0.001, "std": -1}}},
+     f"kinematics: 'LElbowOffsetY' {BAD_KINEMATICS}"),
+    ({"format": "nao_skin/simulation/1"},
+     "format 'nao_skin/simulation/1', not nao_skin/calibration/1: another kind of file or a newer nao_skin's"),
+], ids=["kinematics-list", "kinematics-nan", "kinematics-huge", "negative-std", "other-format"])
+def test_malformed_calibration_beside_the_parts_fails_in_one_line(skin, tmp_path, top, problem):
+    path = tmp_path / "calibration.yaml"
+    path.write_text(yaml.safe_dump({"parts": {}, **top}).replace("'.nan'", ".nan"))
+    with pytest.raises(ConfigError) as err:
+        SkinCalibration.load(path, skin)
+    assert str(err.value) == f"{path}: {problem}"
+
+
+def test_a_binary_file_given_as_calibration_is_one_line(skin, tmp_path):
+    bag = tmp_path / "touches.bag.db3"
+    bag.write_bytes(b"SQLite format 3\x00\xba\xff" * 8)      # what a bag's storage file begins with
+    with pytest.raises(ConfigError) as err:
+        SkinCalibration.load(bag, skin)
+    assert str(err.value).startswith(f"{bag}: cannot read calibration (not a text file: ")
 
 
 # ---------------------------------------------------------------------- config errors
@@ -260,13 +303,31 @@ def test_malformed_taxel_file_fails_naming_the_taxel_file_and_line(tmp_path):
     assert str(err.value) == f"{bad}:10: expected 6 numbers 'x y z nx ny nz', got 7"
 
 
+BAD_SLOTS = "expected a multiple of 12 (slot = 12 * triangle + k) in 12..12288"
+BAD_MOUNT = "xyz and rotvec must be 3 finite numbers each, metres (at most 10) and radians (at most 100)"
+
+
 @pytest.mark.parametrize("mutate, problem", [
     (lambda d: d["parts"]["head"].update(chain="neck"), "part 'head': unknown chain 'neck' (robot has head, l_arm, r_arm)"),
     (lambda d: d["parts"]["head"].pop("taxel_file"), "part 'head': needs 'taxel_file' (and 'chain', null for the base)"),
     (lambda d: d["parts"]["torso"]["patches"][0].append(40), "part 'torso' patch 0: triangle 40 is not in 0..31"),
     (lambda d: d["parts"]["torso"]["patches"][0].remove(3),
      "part 'torso': triangles [3] have taxels in the layout but are in no patch"),
-    (lambda d: d.pop("parts"), "a skin config needs a 'parts' mapping"),
+    (lambda d: d.pop("parts"), "a skin config needs a 'parts' mapping with at least one part"),
+    (lambda d: d.update(parts={}), "a skin config needs a 'parts' mapping with at least one part"),
+    (lambda d: d.update(robot=["robot.yaml"]), "names no 'robot' config file"),
+    (lambda d: d["parts"]["head"].update(taxel_file=None), "part 'head': needs 'taxel_file' (and 'chain', null for the base)"),
+    (lambda d: d["parts"]["head"].update(chain=["head"]), "part 'head': unknown chain ['head'] (robot has head, l_arm, r_arm)"),
+    (lambda d: d["parts"]["head"].update(slots=10 ** 10), "part 'head': slots 10000000000: " + BAD_SLOTS),
+    (lambda d: d["parts"]["head"].update(slots=390), "part 'head': slots 390: " + BAD_SLOTS),
+    (lambda d: d["parts"]["head"].update(slots="many"), "part 'head': slots 'many': " + BAD_SLOTS),
+    (lambda d: d["parts"]["head"].update(patches=[0, 1]),
+     "part 'head': 'patches' must map patch numbers to lists of triangles"),
+    (lambda d: d["parts"]["head"].update(patches={"a": [0]}), "part 'head': patch 'a': expected a whole number"),
+    (lambda d: d["parts"]["head"].update(mount=5), "part 'head': mount: expected {xyz: [x, y, z], rotvec: [rx, ry, rz]}"),
+    (lambda d: d["parts"]["head"].update(mount={"xyz": [0, 0]}), "part 'head': mount: " + BAD_MOUNT),
+    (lambda d: d["parts"]["head"].update(mount={"xyz": [float("nan"), 0, 0]}), "part 'head': mount: " + BAD_MOUNT),
+    (lambda d: d["parts"]["head"].update(mount={"xyz": "abc"}), "part 'head': mount: " + BAD_MOUNT),
 ])
 def test_bad_skin_config_fails_in_one_line(tmp_path, mutate, problem):
     path = write_skin_config(tmp_path, mutate)

@@ -81,7 +81,11 @@ GOOD = "0.01 0.02 0.03 0 0 1"
     (f"{GOOD}\n0.01 0.02 zero 0 0 1\n", 2, "not a number in '0.01 0.02 zero 0 0 1'"),
     (f"nan 0.02 0.03 0 0 1\n", 1, "non-finite value in 'nan 0.02 0.03 0 0 1'"),
     (header_file([GOOD, GOOD, "1 2 3 4 5 6 7"]), 7, "expected 6 numbers 'x y z nx ny nz', got 7"),
-], ids=["five-numbers", "not-a-number", "nan", "header-form-line-number"])
+    (f"{GOOD}\n1e300 0.02 0.03 0 0 1\n", 2, "a value beyond 10 in '1e300 0.02 0.03 0 0 1'; positions are metres"
+     " in the part's frame and normals unit vectors"),
+    (f"{GOOD}\n35.1 20.2 -4.0 0 0 1\n", 2, "a value beyond 10 in '35.1 20.2 -4.0 0 0 1'; positions are metres"
+     " in the part's frame and normals unit vectors"),
+], ids=["five-numbers", "not-a-number", "nan", "header-form-line-number", "huge", "millimetres"])
 def test_malformed_row_names_file_and_line(tmp_path, text, line, problem):
     path = tmp_path / "bad_taxels.txt"
     path.write_text(text)
@@ -101,6 +105,14 @@ def test_malformed_file_names_file_and_problem(tmp_path, text, problem):
     with pytest.raises(DataError) as err:
         read_taxel_file(path)
     assert str(err.value) == f"{path}: {problem}"
+
+
+def test_a_binary_file_is_one_line(tmp_path):
+    path = tmp_path / "l_hand.taxels.txt"
+    path.write_bytes(b"\xff\xfe garbage\n")
+    with pytest.raises(DataError) as err:
+        read_taxel_file(path)
+    assert str(err.value) == f"{path}: cannot read taxel file (not a text file: invalid start byte at byte 0)"
 
 
 def test_missing_file_is_one_line(tmp_path):

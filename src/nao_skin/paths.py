@@ -16,6 +16,8 @@ def read_yaml(path: str | Path, what: str):
         return yaml.safe_load(path.read_text())
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read {what} ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:       # e.g. a bag or a binary file passed for a YAML one
+        raise ConfigError(f"{path}: cannot read {what} (not a text file: {exc.reason} at byte {exc.start})") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
 

@@ -93,7 +93,7 @@ class Rule:
                 return tuple(value)
             try:
                 out = tuple(self._number(v, float) for v in value)
-            except ValueError:
+            except (ValueError, OverflowError):     # OverflowError: an integer beyond any float
                 raise bad from None
             if len(out) != self.length or not all(self._in_range(v) for v in out):
                 raise bad

@@ -1,6 +1,7 @@
 """One module per ``nao-skin`` command (see :mod:`nao_skin.cli`)."""
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -11,14 +12,46 @@ def wall_seconds(args) -> float:
     return time.perf_counter() - getattr(args, "started", time.perf_counter())
 
 
-def write_output(text: str, out: Path | None) -> None:
-    """``text`` to ``out`` (its folder made, its path printed), or to stdout when ``out`` is None."""
+def write_output(text: str, out: Path | None, inputs=()) -> None:
+    """``text`` to ``out`` (its folder made, its path printed), or to stdout when ``out`` is None.
+
+    ``out`` may be an existing file (e.g. config/calibration_nominal.yaml regenerated), but not one of
+    ``inputs``, nor a directory; it is replaced whole or not at all (a temporary sibling renamed over it).
+    """
+    from nao_skin.errors import DataError
+
     if out is None:
         sys.stdout.write(text)
         return
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text)
+    out = Path(out)
+    if out.is_dir():
+        raise DataError(f"--out {out}: is a directory; give a file name")
+    for item in inputs:
+        if item and Path(item).exists() and out.exists() and os.path.samefile(item, out):
+            raise DataError(f"--out {out}: is the input {item}; writing there would replace it, choose another file")
+    for parent in out.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise DataError(f"--out {out}: {parent} is a file, not a directory; choose another place")
+            break
+    temporary, made = out.with_name(f".{out.name}.{os.getpid()}.tmp"), False
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        # O_EXCL: never another file under that name; mode 0o666 less the umask, as a plain write gives
+        with os.fdopen(os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), "w") as f:
+            made = True
+            f.write(text)
+        os.replace(temporary, out)
+    except OSError as exc:
+        if made:
+            temporary.unlink(missing_ok=True)
+        raise DataError(f"--out {out}: cannot write ({exc.strerror}); choose another place") from None
     print(out)
+
+
+def config_files(skin) -> list:
+    """The files a skin model was read from besides its skin config: the robot config and every part's layout."""
+    return [skin.robot.source, *(part.layout_file for part in skin.parts.values())]
 
 
 def add_skin_arguments(parser) -> None:

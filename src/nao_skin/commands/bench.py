@@ -67,9 +67,43 @@ def add_arguments(parser) -> None:
 
 
 def _pairs(text: str):
+    from nao_skin.errors import DataError
     from nao_skin.model.skin import parse_pairs
 
-    return None if text in ("all", "") else list(parse_pairs(text.split(",")))
+    if text in ("all", ""):
+        return None
+    pairs = list(parse_pairs(text.split(",")))
+    if len(set(pairs)) < len(pairs):        # each pair's runs would count twice in the tables
+        raise DataError(f"pairs {text!r}: a pair is given twice")
+    return pairs
+
+
+def _check_counts(args) -> None:
+    """The numbers of touches and workers, before anything runs: a bad one would only fail rows, silently."""
+    from nao_skin.errors import DataError
+    from nao_skin.sim.params import MAX_TOUCHES_PER_PAIR
+
+    if args.sim_touches < 0:
+        raise DataError(f"--sim-touches {args.sim_touches}: expected a whole number >= 0 (0: all)")
+    if args.hard_touches is not None and not 1 <= args.hard_touches <= MAX_TOUCHES_PER_PAIR:
+        raise DataError(f"--hard-touches {args.hard_touches}: expected a whole number in 1..{MAX_TOUCHES_PER_PAIR}")
+    if args.jobs < 1:
+        raise DataError(f"--jobs {args.jobs}: expected a whole number >= 1")
+
+
+def readme_text(readme: Path) -> str:
+    """The README whose results section the bench fills; one line when it cannot be, checked before the run."""
+    from nao_skin.errors import DataError
+
+    try:
+        text = readme.read_text()
+    except OSError as exc:
+        raise DataError(f"--readme {readme}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise DataError(f"--readme {readme}: cannot read (not a text file: {exc.reason} at byte {exc.start})") from None
+    if README_START not in text or README_END not in text:
+        raise DataError(f"{readme}: no '{README_START}' ... '{README_END}' section to fill")
+    return text
 
 
 def _sim_input(args, quick: bool, say, keep: int | None = None):
@@ -102,13 +136,11 @@ def _sim_input(args, quick: bool, say, keep: int | None = None):
     return BenchInput(name, touches, skin, truth)
 
 
-def _real_inputs(args, say) -> list:
+def _real_inputs(args, say, skin) -> list:
     from nao_skin.bench.runner import BenchInput
-    from nao_skin.commands import skin_from_args
     from nao_skin.formats.inputs import load_touches
     from nao_skin.touch.datasets import deduplicate
 
-    skin = skin_from_args(args)
     out = []
     for path in args.real:
         touches, _, truth = load_touches([path], skin, log=say)
@@ -120,7 +152,9 @@ def _real_inputs(args, say) -> list:
 
 def run(args) -> int:
     from nao_skin.bench import runner as bench
+    from nao_skin.commands import skin_from_args
     from nao_skin.errors import DataError
+    from nao_skin.formats.inputs import check_inputs
     from nao_skin.formats.outdir import BENCHMARK, check_output_dir, clear_for_writing
     from nao_skin.model.skin import load_skin
     from nao_skin.paths import package_dir
@@ -134,8 +168,12 @@ def run(args) -> int:
     sweep = QUICK["sweep"] if args.quick else bench.TOUCH_SWEEP
     if repeat < 1 or seeds < 1:
         raise DataError(f"--repeat {repeat} / --seeds {seeds}: both must be at least 1")
-    presets = [p.strip() for p in args.presets.split(",")] if args.presets else list(bench.HARD_PRESETS)
-    kin_presets = [p.strip() for p in args.presets.split(",")] if args.presets else list(bench.KINEMATIC_PRESETS)
+    _check_counts(args)
+    named = [p.strip() for p in args.presets.split(",") if p.strip()] if args.presets is not None else None
+    if named is not None and not named:        # '' would otherwise mean every preset: the longest run there is
+        raise DataError(f"--presets {args.presets!r}: expected preset names, comma separated")
+    presets = named or list(bench.HARD_PRESETS)
+    kin_presets = named or list(bench.KINEMATIC_PRESETS)
     hard_pairs = QUICK["hard_pairs"] if args.quick and args.hard_pairs == "all" else args.hard_pairs
     if sections & {"hard", "kinematics"}:   # mistakes in the arguments are told before the output dir is touched
         from nao_skin.sim.params import preset_names
@@ -150,6 +188,21 @@ def run(args) -> int:
     check_output_dir(args.out, BENCHMARK, force=args.force,
                      inputs=[sim, *args.real, *(item.partition("=")[2] for item in args.taxels), args.skin,
                              args.readme])
+    # every input is checked before the output directory is cleared: a typo must not cost an earlier benchmark
+    if sim is not None:
+        check_inputs([sim])
+    real_skin = None
+    if "real" in sections and args.real:
+        check_inputs(args.real)
+        real_skin = skin_from_args(args)
+    if args.readme:
+        readme_text(Path(args.readme))
+    # read before an earlier output is cleared: a recording that turns out broken must not cost it
+    inputs = []
+    if "speed" in sections:
+        inputs.append(_sim_input(args, args.quick, say))
+    if "real" in sections and args.real:
+        inputs += _real_inputs(args, say, real_skin)
     out = Path(args.out)
     # written section by section below (so a later failure keeps the earlier tables), not via a temporary dir
     clear_for_writing(out, NAME, BENCHMARK, OUTPUTS)
@@ -162,11 +215,6 @@ def run(args) -> int:
     failures = 0
     listing = ""
 
-    inputs = []
-    if "speed" in sections:
-        inputs.append(_sim_input(args, args.quick, say))
-    if "real" in sections and args.real:
-        inputs += _real_inputs(args, say)
     if inputs:
         variants = bench.strategy_variants(sweep)
         say(f"speed against error: {len(variants)} strategies x {len(inputs)} inputs x {repeat} repetitions"
@@ -292,11 +340,7 @@ def update_readme(readme: Path, out: Path) -> None:
     """Put the benchmark's tables between the README's markers and its plot beside the README."""
     import shutil
 
-    from nao_skin.errors import DataError
-
-    text = readme.read_text()
-    if README_START not in text or README_END not in text:
-        raise DataError(f"{readme}: no '{README_START}' ... '{README_END}' section to fill")
+    text = readme_text(readme)
     body = (out / "bench_results.md").read_text()
     body = body.split("\n", 1)[1].lstrip("\n")                       # drop the '# nao-skin bench' title
     # the README keeps the summaries; per-seed rows and touch keys stay in bench_results.md

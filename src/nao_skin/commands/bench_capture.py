@@ -9,6 +9,7 @@ empty, or an earlier bench-capture output (then with ``--force``); see
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -60,18 +61,25 @@ def run(args) -> int:
     for name in ("start", "batch", "cap", "median_mm", "p95_mm"):
         value = getattr(args, name)
         if value is not None:
-            if value <= 0:
-                raise DataError(f"--{name.replace('_', '-')} {value}: must be positive")
+            if not 0 < value < math.inf:       # NaN or inf: a target never or always met, runs up to the cap
+                raise DataError(f"--{name.replace('_', '-')} {value}: must be a finite number above 0")
             setup = replace(setup, **{name: value})
+    if setup.start > setup.cap:
+        raise DataError(f"--start {setup.start}: more random touches than the cap of {setup.cap}")
     if args.cold:
         setup = replace(setup, warm_start=False)
     strategies = tuple(s.strip() for s in args.strategies.split(",") if s.strip())
     unknown = sorted(set(strategies) - set(bench.STRATEGIES))
-    if unknown or not strategies:
-        raise DataError(f"--strategies {args.strategies!r}: expected some of {', '.join(bench.STRATEGIES)}")
+    if unknown or not strategies or len(set(strategies)) < len(strategies):
+        raise DataError(f"--strategies {args.strategies!r}: expected some of {', '.join(bench.STRATEGIES)},"
+                        f" each once")
     seeds = args.seeds if args.seeds is not None else (2 if args.quick else 10)
     if seeds < 1:
         raise DataError(f"--seeds {seeds}: must be at least 1")
+    if args.first_seed < 0:
+        raise DataError(f"--first-seed {args.first_seed}: expected a whole number >= 0")
+    if args.jobs < 1:
+        raise DataError(f"--jobs {args.jobs}: expected a whole number >= 1")
     check_output_dir(args.out, BENCHMARK, force=args.force)
     out = Path(args.out)
     clear_for_writing(out, NAME, BENCHMARK, OUTPUTS)

@@ -53,7 +53,30 @@ def add_arguments(parser) -> None:
                              " (default: removed when the command ends)")
 
 
+# ROS 2 domain ids (ROS_DOMAIN_ID) a DDS participant can take on Linux; 0 here: one from the pid
+DOMAINS = range(0, 233)
+
+
+def check_arguments(args) -> None:
+    """Each number in its range, the update input readable, before any node starts (a NaN window never ends)."""
+    import math
+
+    from nao_skin.errors import DataError
+    from nao_skin.formats.inputs import check_inputs
+
+    for flag, value in (("--seconds", args.seconds), ("--touch-period", args.touch_period)):
+        if not 0 < value < math.inf:
+            raise DataError(f"{flag} {value}: expected a finite number of seconds above 0")
+    if args.update_every < 1:
+        raise DataError(f"--update-every {args.update_every}: expected a whole number >= 1")
+    if args.domain not in DOMAINS:
+        raise DataError(f"--domain {args.domain}: expected a ROS domain id in {DOMAINS.start}..{DOMAINS.stop - 1}")
+    if args.update_input:
+        check_inputs([args.update_input])
+
+
 def run(args) -> int:
+    check_arguments(args)
     work = Path(tempfile.mkdtemp(prefix="nao_skin_bench_"))
     try:
         return _measure(args, work)

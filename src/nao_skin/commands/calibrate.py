@@ -55,15 +55,23 @@ def build_options(args):
     from nao_skin.errors import DataError
 
     options = CalibrationOptions()
+    given: dict = {}        # option -> the argument that set it: a second one would silently win
+
+    def put(name, value, where):
+        if name in given:
+            raise DataError(f"{where}: option {name} is already given by {given[name]}; give it once")
+        options.set(name, value, where=where)
+        given[name] = where
+
     flags = {**CHOICE_FLAGS, **{flag: name for flag, (name, _) in NUMBER_FLAGS.items()}}
     for flag, name in flags.items():
         value = getattr(args, flag[2:].replace("-", "_"))
         if value is not None:
-            options.set(name, value, where=f"{flag} {value}")
+            put(name, value, f"{flag} {value}")
     if args.free:
-        options.bounded = False
+        put("bounded", False, "--free")
     if args.no_first_guess:
-        options.initial_guess = "none"
+        put("initial_guess", "none", "--no-first-guess")
     for item in args.set:
         key, sep, raw = item.partition("=")
         if not sep or not key:
@@ -72,7 +80,7 @@ def build_options(args):
             value = yaml.safe_load(raw)
         except yaml.YAMLError:
             value = raw
-        options.set(key.strip(), value, where=f"--set {item}")
+        put(key.strip(), value, f"--set {item}")
     options.validate()
     return options
 

@@ -34,6 +34,7 @@ def run(args) -> int:
     from nao_skin.calibration.options import CalibrationOptions
     from nao_skin.calibration.pipeline import calibrate_recordings, check_output
     from nao_skin.errors import DataError
+    from nao_skin.formats.inputs import check_inputs
     from nao_skin.formats.outdir import read_marker
     from nao_skin.model.skin import load_skin
     from nao_skin.model.urdf import expand_xacro
@@ -43,7 +44,9 @@ def run(args) -> int:
     # the demo is meant to be run again and again: its own earlier output (marked) is replaced without --force
     force = args.force or (read_marker(args.out) or {}).get("command") == f"nao-skin {NAME}"
     check_output(args.out, [source], force=force)
-    if not source.exists():
+    if args.input:
+        check_inputs([source])             # the user's input: the line every command gives
+    elif not source.exists():
         raise DataError(f"{source}: bundled recording not found (regenerate it: see bags/README.md)")
     log(f"reading {source}; calibrating (thesis plan + joint refinement)")
     run = calibrate_recordings([source], load_skin(), CalibrationOptions(), args.out, force=force, command=NAME,

@@ -7,11 +7,43 @@ HELP = "write the default Nao taxel layouts (skinManager position files) to a di
 
 def add_arguments(parser) -> None:
     parser.add_argument("directory", help="output directory, e.g. config/layouts")
+    parser.add_argument("--force", action="store_true",
+                        help="replace files of the same names that differ from the default layouts (e.g. a robot's"
+                             " own measured layout); without it they are kept and nothing is written")
 
 
 def run(args) -> int:
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    from nao_skin.errors import DataError
     from nao_skin.model.layouts import write_default_layouts
 
-    for path in write_default_layouts(args.directory):
-        print(path)
+    if not args.directory.strip():
+        raise DataError("layouts '': expected a directory, e.g. config/layouts")
+    directory = Path(args.directory)
+    for place in (directory, *directory.absolute().parents):
+        if place.exists():
+            if not place.is_dir():
+                raise DataError(f"layouts {directory}: {place} is a file, not a directory; choose another place")
+            break
+    with tempfile.TemporaryDirectory() as tmp:
+        fresh = write_default_layouts(tmp)
+        targets = [directory / f.name for f in fresh]
+        # regenerating config/layouts rewrites the same bytes; another file under a layout's name is someone's own
+        differing = [t for f, t in zip(fresh, targets)
+                     if (t.exists() or t.is_symlink()) and (not t.is_file() or t.read_bytes() != f.read_bytes())]
+        if differing and not args.force:
+            more = f" and {len(differing) - 1} more" if len(differing) > 1 else ""
+            raise DataError(f"layouts {directory}: {differing[0]}{more} differs from the default layout; nothing"
+                            f" written (pass --force to replace it, or choose another directory)")
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+            for f, target in zip(fresh, targets):
+                shutil.copyfile(f, target)
+        except OSError as exc:
+            raise DataError(f"layouts {directory}: cannot write ({exc.strerror}); choose another place") from None
+    for target in targets:
+        print(target)
     return 0

@@ -9,7 +9,7 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from nao_skin.commands import write_output
+from nao_skin.commands import config_files, write_output
 
 NAME = "nominal"
 HELP = "write the nominal (zero-correction) calibration YAML of a skin config"
@@ -39,6 +39,9 @@ def nominal_calibration_text(skin_config: Path) -> str:
 def run(args) -> int:
     from nao_skin.paths import default_skin_config
 
-    text = nominal_calibration_text(args.skin_config or default_skin_config())
-    write_output(text, args.out)
+    from nao_skin.model.skin import SkinModel
+
+    skin_config = args.skin_config or default_skin_config()
+    text = nominal_calibration_text(skin_config)
+    write_output(text, args.out, inputs=[skin_config, *config_files(SkinModel.from_yaml(skin_config))])
     return 0

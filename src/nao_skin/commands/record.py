@@ -65,6 +65,8 @@ def parse_overrides(items) -> dict:
         node, dot, name = key.partition(".")
         if not sep or not dot or not name:
             raise ConfigError(f"--param {item!r}: expected NODE.NAME=VALUE")
+        if name in out.get(node, {}):       # the second would silently win
+            raise ConfigError(f"--param {item!r}: {node}.{name} is already given ({out[node][name]!r}); give it once")
         out.setdefault(node, {})[name] = value
     return out
 
@@ -84,7 +86,13 @@ def check_needs(specs) -> None:
 
 
 def run(args) -> int:
+    import math
+
+    from nao_skin.errors import ConfigError
     from nao_skin.live.session import record_session
+
+    if not (args.duration >= 0 and math.isfinite(args.duration)):     # NaN, -5, inf would all mean 'forever'
+        raise ConfigError(f"--duration {args.duration}: expected seconds >= 0 (0: until Ctrl-C)")
 
     specs = record_session(args.robot, nao_ip=args.nao_ip, naoqi=not args.no_naoqi, events_port=args.events_port,
                            bag_path=args.bag, calibration=args.calibration, rviz=args.rviz, taxels=args.taxels,

@@ -39,14 +39,17 @@ def run(args) -> int:
     from nao_skin.formats.outdir import RECORDING, check_output_dir
     from nao_skin.model.skin import SkinModel
     from nao_skin.paths import default_skin_config
-    from nao_skin.sim.params import load_params
+    from nao_skin.sim.params import MAX_TOUCHES_PER_PAIR, load_params
     from nao_skin.sim.simulate import simulate, write_outputs
 
     check_output_dir(args.out, RECORDING, inputs=(args.params, args.skin), force=args.force)
+    if args.seed < 0:           # numpy's seed sequences take no negative entropy
+        raise ConfigError(f"--seed {args.seed}: expected a whole number >= 0")
     overrides = {}
     if args.touches_per_pair is not None:
-        if args.touches_per_pair < 1:
-            raise ConfigError(f"--touches-per-pair must be at least 1, got {args.touches_per_pair}")
+        if not 1 <= args.touches_per_pair <= MAX_TOUCHES_PER_PAIR:
+            raise ConfigError(f"--touches-per-pair {args.touches_per_pair}: expected a whole number in"
+                              f" 1..{MAX_TOUCHES_PER_PAIR}")
         overrides["n_touches"] = args.touches_per_pair
     params = load_params(args.preset, overrides, args.params)
     skin = SkinModel.from_yaml(args.skin or default_skin_config())

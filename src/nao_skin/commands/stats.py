@@ -30,6 +30,12 @@ def run(args) -> int:
 
     check_inputs([args.input])
     skin = skin_from_args(args)
+    parts = tuple(args.parts.split(",")) if args.parts else None
+    # before the touches are read: a typo costs nothing
+    if parts is not None and (len(parts) != 2 or parts[0] == parts[1] or any(p not in skin.parts for p in parts)):
+        from nao_skin.errors import ConfigError
+
+        raise ConfigError(f"--parts {args.parts!r}: expected two different skin parts A,B of {', '.join(skin.parts)}")
     calib = SkinCalibration.load(args.calibration, skin) if args.calibration else None
     lines = []
     touches, report, _ = load_touches([args.input], skin, log=lines.append)
@@ -38,11 +44,6 @@ def run(args) -> int:
     pair_counts = {f"{a}+{b}": int(np.sum(fires[:, i] & fires[:, j]))
                    for (i, a), (j, b) in combinations(enumerate(touches.part_names), 2)
                    if np.any(fires[:, i] & fires[:, j])}
-    parts = tuple(args.parts.split(",")) if args.parts else None
-    if parts is not None and (len(parts) != 2 or any(p not in skin.parts for p in parts)):
-        from nao_skin.errors import ConfigError
-
-        raise ConfigError(f"--parts {args.parts!r}: expected two skin parts A,B of {', '.join(skin.parts)}")
     m = metrics(pair_for_metrics(touches, skin, calib, parts=parts))
     out = {"input": str(args.input), "touches": touches.n_touches, "exact_duplicates": n_dup,
            "skipped": dict(report.skipped), "pairs": pair_counts,

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from nao_skin.commands import write_output
+from nao_skin.commands import config_files, write_output
 
 NAME = "urdf"
 HELP = "expand urdf/nao_skin.urdf.xacro for a calibration YAML and write the URDF"
@@ -30,5 +30,5 @@ def run(args) -> int:
     check_calibration_origins(calibration, skin)
     robot_config = Path(skin.robot.source)
     text = expand_xacro(calibration, robot_config=robot_config if robot_config.is_file() else None)
-    write_output(text, args.out)
+    write_output(text, args.out, inputs=[calibration, skin_config, *config_files(skin)])
     return 0

@@ -19,6 +19,7 @@ reads) with the Jazzy type store.
 from __future__ import annotations
 
 import copy
+import shutil
 from collections import Counter
 from pathlib import Path
 
@@ -65,8 +66,17 @@ class BagWriter:
         if storage not in plugins:
             raise DataError(f"{path}: storage must be one of {', '.join(plugins)}, not {storage!r}")
         self.path = Path(path)
-        if self.path.exists():
+        if self.path.exists() or self.path.is_symlink():
             raise DataError(f"{self.path}: exists already; a bag is never overwritten")
+        for parent in self.path.absolute().parents:        # rosbags makes only the bag's own directory
+            if parent.exists():
+                if not parent.is_dir():
+                    raise DataError(f"{self.path}: {parent} is a file, not a directory; choose another place")
+                break
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise DataError(f"{self.path}: cannot make its folder ({exc.strerror}); choose another place") from None
         self.store = _typestore()
         self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=plugins[storage])
         self._writer.set_custom_data(BAG_KIND_KEY, kind)
@@ -78,7 +88,10 @@ class BagWriter:
         self._JointState, self._Cloud, self._Field = t[JOINT_STATE], t[POINT_CLOUD], t["sensor_msgs/msg/PointField"]
 
     def __enter__(self) -> "BagWriter":
-        self._writer.open()
+        try:
+            self._writer.open()
+        except OSError as exc:
+            raise DataError(f"{self.path}: cannot write the bag ({exc.strerror}); choose another place") from None
         if self._live:          # first: no reader may take the bag for an abandoned one
             write_lock(self.path)
         self._write_provisional_metadata()
@@ -182,9 +195,14 @@ def record_parts(record: TouchRecord, skin: SkinModel, part_names) -> list:
     return out
 
 
+# rosbag2 stamps are int64 nanoseconds: the last one is in the year 2262
+LAST_STAMP = (2 ** 63 - 1) / 1e9
+
+
 def _stamp_ns(stamp: float, where: str) -> int:
-    if not np.isfinite(stamp) or stamp < 0:
-        raise DataError(f"{where}: stamp {stamp!r} is not a non-negative time")
+    if not np.isfinite(stamp) or not 0 <= stamp < LAST_STAMP:
+        raise DataError(f"{where}: stamp {float(stamp)!r} is not a time between 0 and {LAST_STAMP:.0f} s"
+                        f" (rosbag2 stamps are int64 nanoseconds)")
     return int(round(float(stamp) * 1e9))
 
 
@@ -196,9 +214,16 @@ def write_touch_bag(path: str | Path, touches: TouchSet, skin: SkinModel, storag
     their recorded COP, the layout's geometric centre and normal, and the mean
     activation pressure; force and moment are not kept in a TouchSet (NaN).
     """
-    with BagWriter(path, storage, kind="touches") as bag:
-        for touch in touch_messages(touches, skin, path):
-            bag.write_touch(*touch)
+    for t in range(touches.n_touches):      # a bad stamp is refused before anything is written
+        _stamp_ns(touches.stamps[t], f"{path}: touch {touches.keys[t]!r}")
+    writer = BagWriter(path, storage, kind="touches")      # refuses an existing path: what is there now is ours
+    try:
+        with writer as bag:
+            for touch in touch_messages(touches, skin, path):
+                bag.write_touch(*touch)
+    except BaseException:
+        shutil.rmtree(path, ignore_errors=True)            # no half-written bag left to be taken for a recording
+        raise
 
 
 def touch_messages(touches: TouchSet, skin: SkinModel, where: str | Path = "touches"):

@@ -35,16 +35,35 @@ def check_inputs(paths) -> None:
     """Fail fast, with the same line in every command, on an input that cannot be read at all."""
     if not paths:
         raise DataError(f"no input given ({WHAT})")
+    seen: dict = {}             # recording -> the input that named it first
     for raw in paths:
         path = Path(raw)
-        if not path.exists():
-            raise DataError(f"{path}: no such file or directory")
+        try:
+            path.stat()
+        except FileNotFoundError:
+            raise DataError(f"{path}: no such file or directory") from None
+        except OSError as exc:                  # a name too long, a loop of symlinks, no permission on a folder
+            raise DataError(f"{path}: cannot read ({exc.strerror})") from None
         if path.is_dir() and not any(path.iterdir()):
             raise DataError(f"{path}: empty directory; expected {WHAT}")
         if path.is_file() and path.suffix != ".txt" and not is_bag(path):
             raise DataError(f"{path}: neither {WHAT}")
-        if path.is_dir():
-            find_bag(path)
+        recording = _recording_of(path)
+        if recording in seen:
+            raise DataError(f"{raw}: the same recording as the input {seen[recording]}; give each input once"
+                            f" (its touches would count twice)")
+        seen[recording] = raw      # as typed: './x/' and 'x' differ only there
+
+
+def _recording_of(path: Path) -> Path:
+    """The recording an input names, one path however it is named: a bag's directory, its storage file, the
+    simulator output directory holding it, through symlinks."""
+    if path.is_file() and path.suffix == ".txt":
+        return path.resolve()
+    bag = find_bag(path).resolve()
+    if bag.is_file() and (bag.parent / "metadata.yaml").exists():
+        return bag.parent
+    return bag
 
 
 def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None) -> tuple:
@@ -132,5 +151,5 @@ def joint_limit_note(touches: TouchSet, robot, source: str) -> str | None:
     name = touches.joint_names[cols[j]]
     return (f"{source}: {n} of {touches.n_touches} touches have joint angles outside the robot config's limits,"
             f" kept (measured angles; the config's limits may be tighter than the joint); the farthest:"
-            f" {name} = {q[t, j]:.4f} rad in touch {touches.keys[t]!r}, {past[t, j]:.4f} rad past"
+            f" {name} = {q[t, j]:.4g} rad in touch {touches.keys[t]!r}, {past[t, j]:.4g} rad past"
             f" [{limits[j, 0]:.4f}, {limits[j, 1]:.4f}]; check the robot config if many are")

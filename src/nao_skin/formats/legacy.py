@@ -22,6 +22,7 @@ import numpy as np
 from nao_skin.errors import DataError
 from nao_skin.model.robot import RobotModel
 from nao_skin.model.skin import DEFAULT_CHAINS, SkinModel, part_from_layout
+from nao_skin.model.taxel_file import MAX_COORDINATE
 from nao_skin.touch.datasets import LoadReport
 from nao_skin.touch.touches import TouchSet
 
@@ -53,18 +54,23 @@ def _vector3(value, where: str) -> np.ndarray:
         return np.full(3, np.nan)
     try:
         out = np.array([float(v) for v in value], dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):      # OverflowError: an integer beyond any float
         raise _SkipTouch("malformed field", f"{where}: expected 3 numbers or None, got {value!r}") from None
     if out.shape != (3,):
         raise _SkipTouch("malformed field", f"{where}: expected 3 numbers or None, got {len(out)}")
+    if np.nanmax(np.abs(out), initial=0.0) > MAX_COORDINATE:      # NaN: not recorded, as None
+        raise _SkipTouch("malformed field", f"{where}: {value!r} lies beyond {MAX_COORDINATE:g} m of its"
+                                            f" part's frame (metres)")
     return out
 
 
 def _stamp_of(key, row: int) -> float:
     try:
-        return float(key)
-    except (TypeError, ValueError):
-        return float(row)      # neither an index nor a timestamp: file order
+        stamp = float(key)
+    except (TypeError, ValueError, OverflowError):
+        return float(row)
+    # 'nan' or a 400-digit number is no time either (an import would refuse it as a bag stamp): file order
+    return stamp if math.isfinite(stamp) else float(row)      # neither an index nor a timestamp: file order
 
 
 class _Touch:
@@ -109,6 +115,10 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
         except (TypeError, ValueError):
             bad = next(s for s in info if not _is_int(s))
             raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {bad!r} is not an integer") from None
+        except OverflowError:           # an integer beyond int64: out of range like any other
+            bad = next(s for s in info if abs(int(s)) >= 2 ** 63)
+            raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {bad} out of range"
+                             f" 0..{len(sp.present) - 1} of part '{part}'", part) from None
         outside = (slots < 0) | (slots >= len(sp.present))
         if outside.any():
             raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {slots[outside][0]} out of range"
@@ -120,7 +130,7 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
         pressure = contact.get("averagePressure")
         try:
             pressure = np.nan if pressure is None else float(pressure)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise _SkipTouch("malformed field", f"{cwhere}: field 'averagePressure': not a number ({pressure!r})") from None
         cop = _vector3(contact.get("cop"), f"{cwhere}: field 'cop'")
         try:
@@ -139,6 +149,9 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
             joints[idx] = np.nan if angle is None else float(angle)
         except (TypeError, ValueError):
             raise _SkipTouch("bad joint angle", f"{where}: joint '{name}': not a number ({angle!r})") from None
+        except OverflowError:           # an integer beyond any float
+            raise _SkipTouch("bad joint angle", f"{where}: joint '{name}' is not a finite angle"
+                             f" ({str(angle)[:20]}..., {len(str(angle))} digits)") from None
     robot = skin.robot
     for p in sorted({c[0] for c in contacts}):
         part = skin.parts[list(part_index)[p]]
@@ -240,10 +253,13 @@ def _json_entries(text: str) -> list | None:
 
 def _ast_entries(text: str, path: Path) -> list:
     """The entries of any file Python's literal syntax accepts; one bad entry does not lose the others."""
+    if not text.strip():
+        raise DataError(f"{path}: empty file; a legacy dataset is one dict literal {{key: [skinContacts, joints]}}")
     try:
         tree = ast.parse(text, filename=str(path), mode="eval")
     except SyntaxError as exc:
-        raise DataError(f"{path}:{exc.lineno}: Python syntax error ({exc.msg});"
+        line = f":{exc.lineno}" if exc.lineno else ""       # none for e.g. a NUL byte
+        raise DataError(f"{path}{line}: Python syntax error ({exc.msg});"
                         f" a legacy dataset is one dict literal") from None
     except (ValueError, MemoryError, RecursionError) as exc:
         raise DataError(f"{path}: cannot parse as a Python literal ({exc})") from None

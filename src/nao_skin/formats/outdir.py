@@ -74,6 +74,16 @@ def check_output_dir(out: str | Path, kind: str, inputs=(), force: bool = False,
     """
     given = Path(out)
     name = f"{label} {given}"
+    try:
+        os.getcwd()
+    except FileNotFoundError:           # every relative path below means the directory that was removed
+        raise DataError(f"{name}: the current directory no longer exists; change to an existing one") from None
+    try:
+        given.stat()
+    except FileNotFoundError:
+        pass
+    except OSError as exc:              # a name too long, a loop of symlinks, no permission on a folder
+        raise DataError(f"{name}: {exc.strerror}; choose another place") from None
     if given.exists() and not given.is_dir():
         raise DataError(f"{name}: is an existing file, not a directory; choose a directory")
     for parent in Path(os.path.abspath(given)).parents:
@@ -105,7 +115,29 @@ def check_output_dir(out: str | Path, kind: str, inputs=(), force: bool = False,
     problem = _replace_problem(given, kind, force)
     if problem:
         raise DataError(f"{name}: {problem}")
+    check_writable(Path(os.path.realpath(given)), name)
     return Path(os.path.realpath(given))
+
+
+def check_writable(out: Path, name: str) -> None:
+    """Refuse, before any work, a place where ``out`` or its temporary sibling cannot be made (below a file,
+    read-only, /proc): otherwise the failure would come only at the end, after minutes of calibration."""
+    out = Path(os.path.abspath(out))
+    place = next(p for p in (out.parent, *out.parent.parents) if p.exists())
+    if not place.is_dir():
+        raise DataError(f"{name}: {place} is a file, not a directory; choose another place")
+    try:
+        longest = os.pathconf(place, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        longest = 255
+    # the folders still to be made (and the temporary sibling's longer name) only fail when written, at the end
+    for part in out.relative_to(place).parts:
+        if len(os.fsencode(part)) > longest - 16:
+            raise DataError(f"{name}: the name {part[:20]}... is longer than {longest - 16} bytes; choose a shorter one")
+    try:
+        Path(tempfile.mkdtemp(prefix=f".{out.name}.probe.", dir=place)).rmdir()
+    except OSError as exc:
+        raise DataError(f"{name}: cannot write in {place} ({exc.strerror}); choose another place") from None
 
 
 def replace_dir(new: str | Path, out: str | Path, label: str = "output directory") -> Path:

@@ -314,9 +314,21 @@ def _u64(b, o):
     return int.from_bytes(b[o:o + 8], "little")
 
 
+class _DamagedRecord(Exception):
+    """A record whose bytes cannot be what the mcap format says (a text field that is not UTF-8)."""
+
+
 def _string(b, o):
     n = _u32(b, o)
-    return b[o + 4:o + 4 + n].decode(), o + 4 + n
+    try:
+        return b[o + 4:o + 4 + n].decode(), o + 4 + n
+    except UnicodeDecodeError:
+        raise _DamagedRecord from None
+
+
+def _chunk_compression(buf: bytes, start: int) -> tuple:
+    """``(compression, offset of the records' length)`` of the chunk record whose fields begin at ``start``."""
+    return _string(buf, start + 8 + 8 + 8 + 4)
 
 
 def _mcap_records(buf: bytes, base: int, schemas: dict, channels: dict) -> tuple:
@@ -338,16 +350,23 @@ def _mcap_records(buf: bytes, base: int, schemas: dict, channels: dict) -> tuple
             return committed, [(None, "ends inside a record header", None)], pos
         op, length = buf[pos], _u64(buf, pos + 1)
         start, stop = pos + 9, pos + 9 + length
+        damaged = f"has a damaged record at byte {base + pos}"
         if stop > end:
             provisional, ends = [], None
             if op == 0x06:         # a cut chunk: its complete inner records are still good
-                comp, inner = _string(buf, start + 8 + 8 + 8 + 4)
+                try:
+                    comp, inner = _chunk_compression(buf, start)
+                except _DamagedRecord:
+                    comp, ends = None, damaged
                 if comp == "":
                     ends = _walk(buf, inner + 8, end, base, dict(schemas), dict(channels), provisional)
             ends = ends or f"ends inside a record at byte {base + pos} of {base + end}"
             return committed, provisional + [(None, ends, None)], pos
         if op == 0x06:
-            comp, inner = _string(buf, start + 8 + 8 + 8 + 4)
+            try:
+                comp, inner = _chunk_compression(buf, start)
+            except _DamagedRecord:
+                return committed, [(None, damaged, None)], pos
             if comp != "":
                 return committed, [(None, f"compressed chunk ({comp}) cannot be salvaged", None)], pos
             messages = []
@@ -356,7 +375,9 @@ def _mcap_records(buf: bytes, base: int, schemas: dict, channels: dict) -> tuple
                 return committed, messages + [(None, ends, None)], pos
             committed += messages
         else:
-            _walk(buf, pos, stop, base, schemas, channels, committed)
+            ends = _walk(buf, pos, stop, base, schemas, channels, committed)
+            if ends is not None:
+                return committed, [(None, ends, None)], pos
         pos = stop
     return committed, [], pos
 
@@ -371,12 +392,15 @@ def _walk(buf: bytes, pos: int, end: int, base: int, schemas: dict, channels: di
         start, stop = pos + 9, pos + 9 + length
         if stop > end:
             return f"ends inside a record at byte {base + pos} of {base + end}"
-        if op == 0x03:
-            schemas[_u16(buf, start)] = _string(buf, start + 2)[0]
-        elif op == 0x04:
-            cid, sid = _u16(buf, start), _u16(buf, start + 2)
-            channels[cid] = (_string(buf, start + 4)[0], schemas.get(sid, ""))
-        elif op == 0x05:
+        try:
+            if op == 0x03:
+                schemas[_u16(buf, start)] = _string(buf, start + 2)[0]
+            elif op == 0x04:
+                cid, sid = _u16(buf, start), _u16(buf, start + 2)
+                channels[cid] = (_string(buf, start + 4)[0], schemas.get(sid, ""))
+        except _DamagedRecord:
+            return f"has a damaged record at byte {base + pos}"
+        if op == 0x05:
             channel = channels.get(_u16(buf, start))
             if channel is not None:
                 out.append((channel[0], channel[1], buf[start + 22:stop]))

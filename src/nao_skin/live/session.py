@@ -110,7 +110,24 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                               f" (robot {robot}: {', '.join(by_name)})")
         spec = by_name[node]
         spec.overrides.update(typed_overrides(spec, values) if spec.ours else _as_yaml(values))
+    _check_files(bag_path, calibration, by_name["calibrate"].overrides)
     return specs
+
+
+def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> None:
+    """What the nodes read and write first, checked before any starts: one line here instead of a node dying
+    after the others are up (a bag is never overwritten; a calibration must fit the skin the nodes read)."""
+    from nao_skin.formats.outdir import check_writable
+    from nao_skin.model.skin import SkinCalibration, load_skin
+
+    bag = Path(bag_path)
+    if bag.exists() or bag.is_symlink():
+        raise ConfigError(f"bag {bag}: exists already; a bag is never overwritten, name a new one")
+    check_writable(bag, f"bag {bag}")
+    skin = load_skin(calibrate_params.get("skin_config") or None,
+                     parse_taxel_files(calibrate_params.get("taxels") or [], "taxels"))
+    if calibration:
+        SkinCalibration.load(calibration, skin)
 
 
 def node_parameters(spec: NodeSpec) -> dict:

@@ -18,19 +18,31 @@ _ANGLE_RE = re.compile(r"^\s*([+-]?)\s*(\d*\.?\d*)\s*\*?\s*pi\s*(?:/\s*(\d+(?:\.
 def parse_angle(value, where: str) -> float:
     """A number, or a string like ``"pi"``, ``"-pi/2"``, ``"2*pi/3"`` (no eval)."""
     if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return float(value)
+        return _finite(float(value), value, where)
     if isinstance(value, str):
         m = _ANGLE_RE.match(value)
         if m:
             sign = -1.0 if m.group(1) == "-" else 1.0
             factor = float(m.group(2)) if m.group(2) else 1.0
             divisor = float(m.group(3)) if m.group(3) else 1.0
-            return sign * factor * math.pi / divisor
+            return _finite(sign * factor * math.pi / divisor, value, where)
         try:
-            return float(value)
+            return _finite(float(value), value, where)
         except ValueError:
             pass
     raise ConfigError(f"{where}: cannot read {value!r} as an angle (a number or e.g. 'pi/2')")
+
+
+def _finite(number: float, value, where: str) -> float:
+    # a NaN or infinite DH parameter or limit would turn every pose computed from it into NaN, silently
+    if not math.isfinite(number):
+        raise ConfigError(f"{where}: {value!r} is not a finite number")
+    return number
+
+
+# A Nao's links are centimetres long: a DH length beyond this is another unit or a broken file, and its
+# products overflow to inf in forward kinematics.
+MAX_LINK_LENGTH = 10.0
 
 
 DH_PARAMS = ("a", "d")   # the DH columns a named link length may be (translations along x and z of a row)
@@ -92,10 +104,13 @@ class RobotModel:
     def from_yaml(cls, path: str | Path) -> "RobotModel":
         path = Path(path)
         doc = read_yaml(path, "robot config")
-        if not isinstance(doc, dict) or "chains" not in doc or "joints" not in doc:
+        if not isinstance(doc, dict) or not isinstance(doc.get("chains"), dict) \
+                or not isinstance(doc.get("joints"), dict):
             raise ConfigError(f"{path}: a robot config needs 'joints' and 'chains' mappings")
+        if not isinstance(doc.get("links") or {}, dict):
+            raise ConfigError(f"{path}: 'links' must be a mapping of link name to {{chain, row, param}}")
         limits = {}
-        for jname, lim in (doc["joints"] or {}).items():
+        for jname, lim in doc["joints"].items():
             if not (isinstance(lim, (list, tuple)) and len(lim) == 2):
                 raise ConfigError(f"{path}: joint '{jname}' limits must be [lower, upper]")
             lo, hi = (parse_angle(v, f"{path}: joint '{jname}'") for v in lim)
@@ -103,7 +118,7 @@ class RobotModel:
                 raise ConfigError(f"{path}: joint '{jname}' lower limit {lo} is not below upper {hi}")
             limits[str(jname)] = (lo, hi)
         chains = {}
-        for cname, rows in (doc["chains"] or {}).items():
+        for cname, rows in doc["chains"].items():
             if not isinstance(rows, list) or not rows:
                 raise ConfigError(f"{path}: chain '{cname}' must be a non-empty list of DH rows")
             dh, joints, frames = [], [], []
@@ -114,10 +129,14 @@ class RobotModel:
                 missing = [k for k in ("a", "d", "alpha", "offset") if k not in row]
                 if missing:
                     raise ConfigError(f"{where}: missing {', '.join(missing)}")
-                dh.append([parse_angle(row["a"], where), parse_angle(row["d"], where),
-                           parse_angle(row["alpha"], where), parse_angle(row["offset"], where)])
+                dh.append([parse_angle(row["a"], f"{where} a"), parse_angle(row["d"], f"{where} d"),
+                           parse_angle(row["alpha"], f"{where} alpha"), parse_angle(row["offset"], f"{where} offset")])
+                for name, length in zip(DH_PARAMS, dh[-1][:2]):
+                    if abs(length) > MAX_LINK_LENGTH:
+                        raise ConfigError(f"{where} {name}: {length:g} m is beyond {MAX_LINK_LENGTH:g} m"
+                                          f" (lengths are metres)")
                 joint = row.get("joint")
-                if joint is not None and joint not in limits:
+                if joint is not None and (not isinstance(joint, str) or joint not in limits):
                     raise ConfigError(f"{where}: unknown joint '{joint}'"
                                       f" (not listed under 'joints')")
                 joints.append(joint)
@@ -125,8 +144,9 @@ class RobotModel:
             chains[str(cname)] = Chain(str(cname), np.array(dh), tuple(joints), tuple(frames))
         links = {}
         for lname, spec in (doc.get("links") or {}).items():
-            if not isinstance(spec, dict) or not {"chain", "row", "param"} <= set(spec):
-                raise ConfigError(f"{path}: link '{lname}' needs chain, row and param (a or d)")
+            if not isinstance(spec, dict) or not {"chain", "row", "param"} <= set(spec) \
+                    or not isinstance(spec["row"], int) or isinstance(spec["row"], bool):
+                raise ConfigError(f"{path}: link '{lname}' needs chain, row (a whole number) and param (a or d)")
             links[str(lname)] = Link(str(spec["chain"]), int(spec["row"]), str(spec["param"]))
         return cls(str(doc.get("name", path.stem)), str(doc.get("base_frame", "torso")),
                    limits, chains, source=str(path), links=links)

@@ -21,6 +21,7 @@ frame through the chain's forward kinematics.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, NamedTuple
@@ -31,7 +32,7 @@ import yaml
 from nao_skin import se3
 from nao_skin.errors import ConfigError, DataError
 from nao_skin.model.robot import RobotModel
-from nao_skin.model.taxel_file import SLOTS_PER_TRIANGLE, TaxelFile, read_taxel_file, write_taxel_file
+from nao_skin.model.taxel_file import DEFAULT_SLOTS, SLOTS_PER_TRIANGLE, TaxelFile, read_taxel_file, write_taxel_file
 from nao_skin.paths import read_yaml
 
 PART_NAMES = ("r_hand", "l_hand", "torso", "head")   # skinManager part names on the Nao
@@ -261,6 +262,50 @@ def build_part(name: str, chain: str | None, parent_frame: str, taxels: TaxelFil
                     tri_rel, taxel_local, normal_local, layout_file or source)
 
 
+CALIBRATION_FORMAT = "nao_skin/calibration/1"
+# A Nao is half a metre tall: a skin frame farther off than this is another unit (mm) or a broken file.
+MAX_OFFSET = 10.0
+# Any rotation vector equals one of norm <= pi; far beyond is a broken file (and squaring 1e300 overflows).
+MAX_ROTATION = 100.0
+# skinManager parts have 384 slots; iCub's largest (an arm) 768: far beyond is a typo that costs memory
+MAX_SLOTS = 12 * 1024
+
+
+def _slot_count(value, where: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 < value <= MAX_SLOTS \
+            or value % SLOTS_PER_TRIANGLE:
+        raise ConfigError(f"{where}: slots {value!r}: expected a multiple of {SLOTS_PER_TRIANGLE}"
+                          f" (slot = {SLOTS_PER_TRIANGLE} * triangle + k) in {SLOTS_PER_TRIANGLE}..{MAX_SLOTS}")
+    return value
+
+
+def _whole_number(key, where: str) -> int:
+    """A patch or triangle number as YAML gives it (an int, or a string of one): not 0.5, not 'abc'."""
+    if isinstance(key, bool) or not isinstance(key, (int, str)) or not str(key).strip().lstrip("-").isdigit():
+        raise ConfigError(f"{where} {key!r}: expected a whole number")
+    return int(key)
+
+
+def _mount_vector(mount, where: str) -> np.ndarray:
+    """``xyz`` + ``rotvec`` of a skin config's nominal mount: 6 finite numbers (missing ones zero)."""
+    if not isinstance(mount, dict):
+        raise ConfigError(f"{where}: expected {{xyz: [x, y, z], rotvec: [rx, ry, rz]}}")
+    try:
+        vector = np.array([float(v) for key in ("xyz", "rotvec") for v in mount.get(key, [0.0, 0.0, 0.0])])
+    except (TypeError, ValueError, OverflowError):
+        vector = None
+    if vector is None or not _plausible_pose(vector):
+        raise ConfigError(f"{where}: xyz and rotvec must be 3 finite numbers each, metres (at most"
+                          f" {MAX_OFFSET:g}) and radians (at most {MAX_ROTATION:g})")
+    return vector
+
+
+def _plausible_pose(vector: np.ndarray) -> bool:
+    """6 finite numbers, a translation and a rotation vector within :data:`MAX_OFFSET` / :data:`MAX_ROTATION`."""
+    return vector.shape == (6,) and bool(np.all(np.isfinite(vector))) \
+        and np.abs(vector[:3]).max() <= MAX_OFFSET and np.abs(vector[3:]).max() <= MAX_ROTATION
+
+
 class SkinModel:
     """The robot plus its skin parts: taxel positions in the base frame for batches of poses."""
 
@@ -277,29 +322,30 @@ class SkinModel:
         """Load ``config/nao_skin.yaml``-style files (paths inside are relative to the file)."""
         path = Path(path)
         doc = read_yaml(path, "skin config")
-        if not isinstance(doc, dict) or not isinstance(doc.get("parts"), dict):
-            raise ConfigError(f"{path}: a skin config needs a 'parts' mapping")
+        if not isinstance(doc, dict) or not isinstance(doc.get("parts"), dict) or not doc["parts"]:
+            raise ConfigError(f"{path}: a skin config needs a 'parts' mapping with at least one part")
         if robot is None:
-            if "robot" not in doc:
+            if not isinstance(doc.get("robot"), str):
                 raise ConfigError(f"{path}: names no 'robot' config file")
             robot = RobotModel.from_yaml(path.parent / doc["robot"])
         parts = {}
         for name, spec in doc["parts"].items():
             where = f"{path}: part '{name}'"
-            if not isinstance(spec, dict) or "taxel_file" not in spec:
+            if not isinstance(spec, dict) or not isinstance(spec.get("taxel_file"), str):
                 raise ConfigError(f"{where}: needs 'taxel_file' (and 'chain', null for the base)")
             chain = spec.get("chain")
-            if chain is not None and chain not in robot.chains:
-                raise ConfigError(f"{where}: unknown chain '{chain}' (robot has {', '.join(robot.chains)})")
+            if chain is not None and (not isinstance(chain, str) or chain not in robot.chains):
+                raise ConfigError(f"{where}: unknown chain {chain!r} (robot has {', '.join(robot.chains)})")
             taxel_path = path.parent / spec["taxel_file"]
-            taxels = read_taxel_file(taxel_path, int(spec.get("slots", 384)))
+            taxels = read_taxel_file(taxel_path, _slot_count(spec.get("slots", DEFAULT_SLOTS), where))
             patches = spec.get("patches")
             if patches is not None:
-                patches = {int(k): v for k, v in patches.items()}
+                if not isinstance(patches, dict):
+                    raise ConfigError(f"{where}: 'patches' must map patch numbers to lists of triangles")
+                patches = {_whole_number(k, f"{where}: patch"): v for k, v in patches.items()}
             mount = None
             if "mount" in spec:
-                m = spec["mount"]
-                mount = se3.pose_matrix(np.r_[m.get("xyz", [0, 0, 0]), m.get("rotvec", [0, 0, 0])])
+                mount = se3.pose_matrix(_mount_vector(spec["mount"], f"{where}: mount"))
             parts[str(name)] = build_part(str(name), chain, robot.end_frame(chain), taxels, patches,
                                           str(path), mount, str(taxel_path))
         return cls(robot, parts, str(path))
@@ -370,7 +416,7 @@ class SkinCalibration:
                            "rpy": [round(float(v), 10) for v in se3.rpy_from_matrix(f.pose[:3, :3])]},
             }
 
-        out = {"format": "nao_skin/calibration/1", "robot": skin.robot.name,
+        out = {"format": CALIBRATION_FORMAT, "robot": skin.robot.name,
                "base_frame": skin.robot.base_frame, "parts": {}}
         for name, part in skin.parts.items():
             mount, *others = part.frames(self.parts.get(name))
@@ -407,6 +453,9 @@ class SkinCalibration:
         doc = read_yaml(path, "calibration")
         if not isinstance(doc, dict) or not isinstance(doc.get("parts"), dict):
             raise ConfigError(f"{path}: a calibration needs a 'parts' mapping")
+        if doc.get("format", CALIBRATION_FORMAT) != CALIBRATION_FORMAT:     # older files have none
+            raise ConfigError(f"{path}: format {doc['format']!r}, not {CALIBRATION_FORMAT}: another kind of file"
+                              f" or a newer nao_skin's")
         calib = skin.zero_calibration()
 
         def vec(entry, where):
@@ -415,38 +464,55 @@ class SkinCalibration:
                 v = np.array(list(c["translation"]) + list(c["rotation_vector"]), dtype=float)
             except (KeyError, TypeError, ValueError):
                 raise ConfigError(f"{path}: {where}: needs correction.translation and correction.rotation_vector") from None
-            if v.shape != (6,) or not np.all(np.isfinite(v)):
-                raise ConfigError(f"{path}: {where}: correction must be 3 + 3 finite numbers")
+            if not _plausible_pose(v):
+                raise ConfigError(f"{path}: {where}: correction must be 3 + 3 finite numbers, metres (at most"
+                                  f" {MAX_OFFSET:g}) and radians (at most {MAX_ROTATION:g})")
             return v
+
+        def entries(spec, key, where) -> dict:
+            value = spec.get(key) or {}
+            if not isinstance(value, dict):
+                raise ConfigError(f"{path}: {where}: '{key}' must be a mapping")
+            return value
 
         for name, spec in doc["parts"].items():
             if name not in skin.parts:
                 raise ConfigError(f"{path}: unknown skin part '{name}' (configured: {', '.join(skin.parts)})")
+            if not isinstance(spec, dict):
+                raise ConfigError(f"{path}: part '{name}': expected a mapping (layout, mount, patches, triangles)")
             part = skin.parts[name]
             _check_layout(path, name, spec.get("layout"), part)
             corr = calib.parts[name]
             if "mount" in spec:
                 corr.mount = vec(spec["mount"], f"part '{name}' mount")
             rows = {int(p): i for i, p in enumerate(part.patch_ids)}
-            for pid, entry in (spec.get("patches") or {}).items():
-                if int(pid) not in rows:
+            for key, entry in entries(spec, "patches", f"part '{name}'").items():
+                pid = _whole_number(key, f"{path}: part '{name}' patch")
+                if pid not in rows:
                     raise ConfigError(f"{path}: part '{name}' has no patch {pid}")
-                corr.patches[rows[int(pid)]] = vec(entry, f"part '{name}' patch {pid}")
+                corr.patches[rows[pid]] = vec(entry, f"part '{name}' patch {pid}")
             rows = {int(t): i for i, t in enumerate(part.triangle_ids)}
-            for tid, entry in (spec.get("triangles") or {}).items():
-                if int(tid) not in rows:
+            for key, entry in entries(spec, "triangles", f"part '{name}'").items():
+                tid = _whole_number(key, f"{path}: part '{name}' triangle")
+                if tid not in rows:
                     raise ConfigError(f"{path}: part '{name}' has no triangle {tid}")
-                corr.triangles[rows[int(tid)]] = vec(entry, f"part '{name}' triangle {tid}")
-        for name, entry in (doc.get("kinematics") or {}).items():
+                corr.triangles[rows[tid]] = vec(entry, f"part '{name}' triangle {tid}")
+        for name, entry in entries(doc, "kinematics", "calibration").items():
             if name not in skin.robot.links and name not in skin.robot.joint_index:
                 raise ConfigError(f"{path}: kinematics: '{name}' is neither a joint nor a named link of"
                                   f" {skin.robot.name}")
             try:
-                calib.kinematics[str(name)] = float(entry["correction"])
-                if "std" in entry:
-                    calib.kinematics_std[str(name)] = float(entry["std"])
-            except (KeyError, TypeError, ValueError):
-                raise ConfigError(f"{path}: kinematics: '{name}' needs a numeric correction") from None
+                correction = float(entry["correction"])
+                std = float(entry["std"]) if "std" in entry else None
+            except (KeyError, TypeError, ValueError, OverflowError):
+                correction = std = math.nan
+            # a joint offset (rad) or link length (m): either far beyond MAX_OFFSET is a broken file
+            if not abs(correction) <= MAX_OFFSET or not (std is None or 0 <= std < math.inf):
+                raise ConfigError(f"{path}: kinematics: '{name}' needs a finite numeric correction (at most"
+                                  f" {MAX_OFFSET:g}) and, if given, a finite std >= 0")
+            calib.kinematics[str(name)] = correction
+            if std is not None:
+                calib.kinematics_std[str(name)] = std
         return calib
 
 
@@ -502,6 +568,8 @@ def parse_taxel_files(items, where: str = "--taxels") -> dict:
             raise ConfigError(f"{where} {item!r}: expected PART=FILE, e.g. l_hand=l_hand.taxels.txt")
         if part in files:
             raise ConfigError(f"{where} {item!r}: part '{part}' is given twice")
+        if Path(path).is_dir():
+            raise ConfigError(f"{where} {item!r}: {path} is a directory, not a taxel file")
         if not Path(path).is_file():
             raise ConfigError(f"{where} {item!r}: {path}: no such file")
         files[part] = Path(path)

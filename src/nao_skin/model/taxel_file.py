@@ -28,6 +28,9 @@ from nao_skin.errors import DataError
 SLOTS_PER_TRIANGLE = 12
 THERMAL_SLOTS = (6, 10)
 DEFAULT_SLOTS = 384
+# A Nao is about half a metre tall: a coordinate beyond this is another unit (mm) or a broken file,
+# and squared distances of values near 1e300 overflow to inf in every later step.
+MAX_COORDINATE = 10.0
 
 
 @dataclass
@@ -52,6 +55,8 @@ def read_taxel_file(path: str | Path, n_slots: int = DEFAULT_SLOTS) -> TaxelFile
         text = path.read_text()
     except OSError as exc:
         raise DataError(f"{path}: cannot read taxel file ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:       # e.g. a bag or another binary file passed as a layout
+        raise DataError(f"{path}: cannot read taxel file (not a text file: {exc.reason} at byte {exc.start})") from None
     lines = text.splitlines()
     header: dict = {}
     start = 0
@@ -80,6 +85,9 @@ def read_taxel_file(path: str | Path, n_slots: int = DEFAULT_SLOTS) -> TaxelFile
             raise DataError(f"{path}:{lineno}: not a number in {stripped!r}") from None
         if not np.all(np.isfinite(values)):
             raise DataError(f"{path}:{lineno}: non-finite value in {stripped!r}")
+        if max(abs(v) for v in values) > MAX_COORDINATE:
+            raise DataError(f"{path}:{lineno}: a value beyond {MAX_COORDINATE:g} in {stripped!r}; positions are"
+                            f" metres in the part's frame and normals unit vectors")
         rows.append(values)
     if not rows:
         raise DataError(f"{path}: no taxel rows found")

@@ -97,6 +97,10 @@ _NON_NEGATIVE = NOISES + ("noise_scale", "hand_mount_rotation_deg", "hand_mount_
                           "joint_offset_deg")
 _POSITIVE = ("pose_tolerance", "normal_tolerance_deg", "penetration_tolerance", "spot_radius",
              "cluster_distance")
+MAX_METRES = 10.0          # a Nao is half a metre tall
+MAX_NUMBER = 1e6
+# the bundled recording has 1000 per pair; the poses of 10**12 would ask for terabytes before the first one
+MAX_TOUCHES_PER_PAIR = 100_000
 _RANGES = ("touch_interval", "footprint_radius", "pressure_spots", "spot_size", "press_reach")
 
 
@@ -110,8 +114,11 @@ def _read_doc(path: Path) -> dict:
     from nao_skin.paths import read_yaml
 
     doc = read_yaml(path, "simulation parameters")
-    if not isinstance(doc, dict):
+    if not isinstance(doc, dict) or not all(isinstance(doc.get(key) or {}, dict) for key in ("defaults", "presets")):
         raise ConfigError(f"{path}: expected 'defaults:' and 'presets:' mappings")
+    for name, fields in (doc.get("presets") or {}).items():
+        if not isinstance(fields or {}, dict):
+            raise ConfigError(f"{path}: preset '{name}': expected a mapping of parameter: value")
     return doc
 
 
@@ -129,7 +136,7 @@ def load_params(preset: str = "default", overrides: Mapping | None = None,
     values = dict(doc.get("defaults") or {})
     if preset != "default":
         if preset not in presets:
-            raise ConfigError(f"{path}: unknown preset '{preset}' (known: {', '.join(['default', *presets])})")
+            raise ConfigError(f"{path}: unknown preset '{preset}' (known: {', '.join(map(str, ['default', *presets]))})")
         values.update(presets[preset] or {})
     values.update(overrides or {})
     return make_params(values, where=f"{path}: preset '{preset}'")
@@ -148,11 +155,17 @@ def make_params(values: Mapping | SimParams, where: str = "simulation parameters
     return params
 
 
+def _metres(value) -> bool:
+    """A finite length within MAX_METRES: far beyond, forward kinematics overflows (warnings on stderr)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and abs(value) <= MAX_METRES
+
+
 def validate(p: SimParams, where: str = "simulation parameters") -> None:
     def number(name):
         v = getattr(p, name)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise ConfigError(f"{where}: '{name}' must be a finite number, got {v!r}")
+        # far beyond any size or noise of the simulator, products overflow (warnings on stderr, then NaN)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= MAX_NUMBER:
+            raise ConfigError(f"{where}: '{name}' must be a finite number of at most {MAX_NUMBER:g}, got {v!r}")
         return float(v)
 
     for name in _NON_NEGATIVE:
@@ -176,11 +189,12 @@ def validate(p: SimParams, where: str = "simulation parameters") -> None:
         v = getattr(p, name)
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise ConfigError(f"{where}: '{name}' must be a whole number >= 1, got {v!r}")
+    if p.n_touches > MAX_TOUCHES_PER_PAIR:
+        raise ConfigError(f"{where}: 'n_touches' {p.n_touches} is more than {MAX_TOUCHES_PER_PAIR} touches per pair")
     off = p.hand_mount_offset
-    if not isinstance(off, (list, tuple)) or len(off) != 3 or not all(isinstance(x, (int, float)) for x in off):
+    if not isinstance(off, (list, tuple)) or len(off) != 3 or not all(_metres(x) for x in off):
         raise ConfigError(f"{where}: 'hand_mount_offset' must be [x, y, z] metres, got {off!r}")
-    if not isinstance(p.link_errors, dict) or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in p.link_errors.values()):
+    if not isinstance(p.link_errors, dict) or not all(_metres(v) for v in p.link_errors.values()):
         raise ConfigError(f"{where}: 'link_errors' must map link names to metres, got {p.link_errors!r}")
     if not isinstance(p.pairs, (list, tuple)) or not p.pairs:
         raise ConfigError(f"{where}: 'pairs' must be a non-empty list of [hand, part] pairs")

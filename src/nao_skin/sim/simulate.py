@@ -72,6 +72,11 @@ def simulate(skin: SkinModel, params: SimParams | dict | None, seed: int) -> Sim
         per_pair.append((hand, target, poses, acts))
         report[f"{hand}-{target}"] = {"touches": int(len(poses.q)), "attempted": poses.attempted,
                                       "unreachable": poses.unreachable, "silent": silent}
+    if not any(len(poses.q) for _, _, poses, _ in per_pair):      # nothing to assemble: say why, not IndexError
+        tried = sum(info["attempted"] for info in report.values())
+        raise ConfigError(f"simulation parameters: no touch of {', '.join(report)} could be posed and fired"
+                          f" ({tried} target spots tried); a size in the parameters (e.g. spot_radius,"
+                          f" fabric_thickness, hand_mount_offset, link_errors) is out of reach")
     touches = _assemble(skin, per_pair, p, rng_record)
     for name, info in report.items():
         rows = touches.labels["pair"] == name

@@ -276,7 +276,7 @@ class EventDetector:
             for col, name in zip(self._needed[p], self._needed_names[p]):
                 if not np.isfinite(q[col]):
                     self._drop("missing joint", f"touch at {cand.stamp:.6f}: joint '{name}' needed by part"
-                                                f" '{self.part_names[p]}' is missing or NaN")
+                                                f" '{self.part_names[p]}' is missing or not finite ({q[col]})")
                     return None
         contacts = []
         for p in sorted(cand.samples):
