@@ -408,8 +408,6 @@ def test_a_broken_bench_input_never_costs_an_earlier_benchmark(tmp_path, capsys,
     (["--calibration", "notes.txt"], "notes.txt: a calibration needs a 'parts' mapping"),
     (["--calibration", "missing.yaml"], "missing.yaml: cannot read calibration (No such file or directory)"),
     (["--taxels", "l_hand=binary.txt"], "{tmp}/binary.txt: cannot read taxel file (not a text file"),
-    (["--param", "sim_robot.seed=1", "--param", "sim_robot.seed=2"],
-     "--param 'sim_robot.seed=2': sim_robot.seed is already given ('1'); give it once"),
     (["--duration", "-5"], "--duration -5.0: expected seconds >= 0 (0: until Ctrl-C)"),
     (["--duration", "nan"], "--duration nan: expected seconds >= 0 (0: until Ctrl-C)"),
 ])

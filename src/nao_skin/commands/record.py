@@ -46,8 +46,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--guided", action="store_true",
                         help="robot sim: the simulated robot's next touches follow the guidance (/nao_skin/guidance)")
     parser.add_argument("--param", action="append", default=[], metavar="NODE.NAME=VALUE",
-                        help="override a node parameter, e.g. sim_robot.touches_per_pair=5 (repeatable); checked"
-                             " against the parameters the node declares before anything starts")
+                        help="override a node parameter, e.g. sim_robot.touches_per_pair=5 (repeatable; a later one"
+                             " wins, as with ros2's -p); checked against the parameters the node declares before"
+                             " anything starts")
     parser.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: until Ctrl-C)")
     parser.add_argument("--print", action="store_true", help="print the node command lines and exit")
     parser.add_argument("--keep-temp", action="store_true",
@@ -65,8 +66,6 @@ def parse_overrides(items) -> dict:
         node, dot, name = key.partition(".")
         if not sep or not dot or not name:
             raise ConfigError(f"--param {item!r}: expected NODE.NAME=VALUE")
-        if name in out.get(node, {}):       # the second would silently win
-            raise ConfigError(f"--param {item!r}: {node}.{name} is already given ({out[node][name]!r}); give it once")
         out.setdefault(node, {})[name] = value
     return out
 
