@@ -137,6 +137,7 @@ def _session(specs, work: Path, args, stop: dict) -> int:
     env = dict(os.environ, **{PARENT_ENV: str(os.getpid())})
     preexec = _die_with_parent(os.getpid())
     procs = []
+    failed = None       # (name, exit code) of the first node that ended by itself
     try:
         for name, argv in commands:
             if stop["signal"] is not None:
@@ -145,7 +146,6 @@ def _session(specs, work: Path, args, stop: dict) -> int:
             procs.append((name, subprocess.Popen(argv, start_new_session=True, env=env, preexec_fn=preexec)))
         _say(f"record: started {', '.join(n for n, _ in procs)} (pids {' '.join(str(p.pid) for _, p in procs)})")
         deadline = time.monotonic() + args.duration if args.duration > 0 else None
-        failed = None
         while stop["signal"] is None and failed is None:
             if deadline is not None and time.monotonic() >= deadline:
                 break
@@ -160,7 +160,8 @@ def _session(specs, work: Path, args, stop: dict) -> int:
     bad = {n: c for n, c in codes.items() if c not in (0, None)}
     if bad:
         _say(f"record: exit codes {bad}")
-        return 1
+        # a node that ends with 2 said in one line what in its input or parameters is wrong: so does record
+        return 2 if failed is not None and failed[1] == 2 else 1
     return 0
 
 
