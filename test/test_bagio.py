@@ -110,6 +110,24 @@ def test_an_mcap_with_a_damaged_record_is_read_up_to_it(real, real_skin, tmp_pat
     assert str(bag) in line and "has a damaged record at byte" in line and "\n" not in line
 
 
+def test_a_whole_mcap_under_a_broken_metadata_yaml_loses_nothing_and_says_so(real, real_skin, tmp_path):
+    """rosbags refuses the bag for its metadata.yaml alone: the mcap, read to its closing magic, gives every
+    touch, nothing is counted as lost, and the note says what failed; cut short, the same bag says what is lost."""
+    touches = real.subset(np.arange(60))
+    bag = tmp_path / "mcap"
+    write_touch_bag(bag, touches, real_skin, storage="mcap")
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: [\n")
+    back, report = read_touches(bag, real_skin)
+    assert back.n_touches == touches.n_touches and report.n_skipped == 0
+    np.testing.assert_array_equal(back.joints, touches.joints)
+    note = [n for n in report.notes if "nothing lost" in n]
+    assert len(note) == 1 and "does not open" in note[0] and "whole to its end" in note[0]
+    data = next(bag.glob("*.mcap"))
+    data.write_bytes(data.read_bytes()[:-8])        # the closing magic gone: no longer a whole file
+    _, report = read_touches(bag, real_skin)
+    assert report.skipped["truncated bag"] == 1 and not any("nothing lost" in n for n in report.notes)
+
+
 # ---------------------------------------------------------------------- streams and bad input, small bags
 def stream_bag(path, skin, storage="sqlite3", bad_slot=False, extra_part=False, nan_joint=False):
     """A raw stream: joints at 100 Hz, l_hand and torso skin at 50 Hz, one press from 0.2 to 0.6 s."""

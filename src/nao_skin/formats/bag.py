@@ -372,7 +372,7 @@ class GrowingBag:
             report.skip(*lost)
         touches = self._finish(now, extra, self._touches)
         now.account(touches)
-        note = bag.still_open(now.n_msgs, touches.n_touches)
+        note = bag.note(now.n_msgs, touches.n_touches)
         if note is not None:
             report.notes.append(note)
         return touches, report

@@ -132,8 +132,9 @@ class UnclosedBag:
                                      f" {self._read_until_death(n_msgs, ends)}")
         return None
 
-    def still_open(self, n_msgs: int, n_touches: int) -> str | None:
-        """The report note of a recording read while (maybe) still being written; None when it is not one."""
+    def note(self, n_msgs: int, n_touches: int) -> str | None:
+        """The report note of a bag read from its storage file that lost nothing (so far): a recording read
+        while (maybe) still being written; None when it is not one."""
         lock = self.lock
         if lock is None or lock.state == "died":
             return None
@@ -257,12 +258,16 @@ def _sqlite_messages_of_copy(path: Path, file: Path, query: str, attempts: int =
 # ---------------------------------------------------------------------- mcap: a file without its summary
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 SIGNATURE = 64        # bytes before a resumed read's offset that must still be there (the same file grown)
+OP_FOOTER, FOOTER_LENGTH = 0x02, 20     # summary start, summary offset start (u64 each), summary crc (u32)
 
 
 class _CutMcap(UnclosedBag):
     def __init__(self, path: Path, file: Path, open_error: Exception):
         super().__init__(path, file)
         self.open_error = open_error
+        # the last read reached the footer and closing magic: the file is whole, only the bag around it
+        # (metadata.yaml) failed to open
+        self.whole = False
 
     def since(self, cursor) -> Tail:
         """``cursor``: ``(offset, the bytes before it, schemas, channels)`` after the last complete top-level
@@ -283,9 +288,21 @@ class _CutMcap(UnclosedBag):
             return Tail([], [(None, "not an mcap file", None)], None)
         else:
             offset, before, schemas, channels = len(MCAP_MAGIC), MCAP_MAGIC, {}, {}
-        committed, provisional, used = _mcap_records(buf[len(before):], offset, schemas, channels)
+        whole = _closed_mcap(buf)
+        body = buf[len(before):len(buf) - len(MCAP_MAGIC)] if whole else buf[len(before):]
+        committed, provisional, used = _mcap_records(body, offset, schemas, channels)
+        self.whole = whole and not provisional
         seen = buf[:len(before) + used][-SIGNATURE:]
         return Tail(committed, provisional, (offset + used, seen, schemas, channels))
+
+    def lost(self, n_msgs: int, ends: str) -> tuple | None:
+        return None if self.whole and self.lock is None else super().lost(n_msgs, ends)
+
+    def note(self, n_msgs: int, n_touches: int) -> str | None:
+        if self.whole and self.lock is None:
+            return (f"{self.path}: the bag does not open ({one_line(self.open_error)}); read its {self.file.name}"
+                    f" directly, whole to its end: {n_msgs} messages, {n_touches} touches, nothing lost")
+        return super().note(n_msgs, n_touches)
 
     def _lost_without_lock(self, n_msgs: int, ends: str) -> tuple:
         return "truncated bag", (f"{self.path}: {self.file.name} is damaged ({one_line(self.open_error)});"
@@ -300,6 +317,16 @@ def cut_mcap(path: Path, open_error: Exception) -> UnclosedBag | None:
     damage); None when the bag has no single mcap file."""
     files = sorted(path.glob("*.mcap")) if path.is_dir() else []
     return _CutMcap(path, files[0], open_error) if len(files) == 1 else None
+
+
+def _closed_mcap(buf: bytes) -> bool:
+    """Whether ``buf`` (the end of an mcap file) ends with a footer record and the closing magic, as a
+    writer leaves the file when it closes it."""
+    footer = 1 + 8 + FOOTER_LENGTH
+    n = len(buf)
+    return (n >= footer + len(MCAP_MAGIC) and buf.endswith(MCAP_MAGIC)
+            and buf[n - len(MCAP_MAGIC) - footer] == OP_FOOTER
+            and _u64(buf, n - len(MCAP_MAGIC) - footer + 1) == FOOTER_LENGTH)
 
 
 def _u16(b, o):
