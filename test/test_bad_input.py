@@ -378,10 +378,12 @@ def test_bench_arguments_are_checked_before_anything_runs(tmp_path, capsys, monk
     (["--strategies", "random,random"], "--strategies 'random,random': expected some of random, guided, oracle,"
                                         " each once"),
     (["--jobs", "0"], "--jobs 0: expected a whole number >= 1"),
+    (["--set", "pairs=nope"], "--set pairs=nope: expected one of cop, taxel, both"),
+    (["--set", "seed=1", "--set", "seed=2"], "--set seed=2: option seed is already given by --set seed=1; give it once"),
 ])
 def test_bench_capture_arguments_are_checked_before_anything_runs(tmp_path, capsys, args, says):
     assert cli_main(["bench-capture", "--quick", *args, "--out", str(tmp_path / "b")]) == 2
-    assert one_line(capsys) == f"nao-skin bench-capture: error: {says}"
+    assert one_line(capsys).startswith(f"nao-skin bench-capture: error: {says}")
     assert not (tmp_path / "b").exists()
 
 

@@ -236,3 +236,30 @@ class CalibrationOptions:
 
 
 OPTION_FIELDS = {f.name: f for f in fields(CalibrationOptions)}
+
+
+def set_once(options: CalibrationOptions, name: str, value, where: str, given: dict) -> None:
+    """``options.set`` that refuses an option ``given`` already holds (option -> the argument that set it):
+    given twice, the second would silently win."""
+    if name in given:
+        raise DataError(f"{where}: option {name} is already given by {given[name]}; give it once")
+    options.set(name, value, where=where)
+    given[name] = where
+
+
+def set_items(options: CalibrationOptions, items, given: dict | None = None) -> dict:
+    """Apply ``--set OPTION=VALUE`` items (the value in YAML) to ``options``, each checked by its rule and
+    given once (see :func:`set_once`); returns ``given`` with the items' options added."""
+    import yaml
+
+    given = {} if given is None else given
+    for item in items:
+        key, sep, raw = item.partition("=")
+        if not sep or not key:
+            raise DataError(f"--set {item!r}: expected OPTION=VALUE, e.g. --set normal_weight=0.01")
+        try:
+            value = yaml.safe_load(raw)
+        except yaml.YAMLError:
+            value = raw
+        set_once(options, key.strip(), value, f"--set {item}", given)
+    return given

@@ -42,6 +42,9 @@ def add_arguments(parser) -> None:
                         help="comma-separated, of random, guided, oracle (default: all three; oracle splits random"
                              " touches over the pairs by the true error: an upper bound, not a capture policy)")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes (runs are independent)")
+    parser.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
+                        help="a calibration option of every update (YAML value), e.g. --set pairs=cop+plane;"
+                             " repeatable, as nao-skin calibrate takes it")
 
 
 _HOW = {True: "as the live calibrate node updates: warm-started, from scratch whenever the touches doubled",
@@ -52,6 +55,7 @@ def run(args) -> int:
     from dataclasses import replace
 
     from nao_skin.bench import capture as bench
+    from nao_skin.calibration.options import CalibrationOptions, set_items
     from nao_skin.errors import DataError
     from nao_skin.formats.outdir import BENCHMARK, check_output_dir, clear_for_writing
     from nao_skin.model.skin import load_skin
@@ -68,6 +72,10 @@ def run(args) -> int:
         raise DataError(f"--start {setup.start}: more random touches than the cap of {setup.cap}")
     if args.cold:
         setup = replace(setup, warm_start=False)
+    options = CalibrationOptions()
+    given = set_items(options, args.set)
+    options.validate()
+    setup = replace(setup, options={name: getattr(options, name) for name in given})
     strategies = tuple(s.strip() for s in args.strategies.split(",") if s.strip())
     unknown = sorted(set(strategies) - set(bench.STRATEGIES))
     if unknown or not strategies or len(set(strategies)) < len(strategies):
@@ -103,6 +111,8 @@ def run(args) -> int:
           f" touches, each batch split over the pairs by how far each pair's worse part is from the target under"
           f" the true error (share ~ distance ** {bench.ORACLE_POWER}): what perfect knowledge of where the"
           f" error is would buy by sending touches there; no capture at the robot has that knowledge.", "",
+          *([f"Calibration options changed from the default: "
+             f"{', '.join(f'{k}={v}' for k, v in setup.options.items())}.", ""] if setup.options else []),
           bench.table(rows, setup), "", "![capture](capture.png)", "", f"Wall time: {seconds:.0f} s.", ""]
     text = "\n".join(md)
     (out / "capture_results.md").write_text(text)

@@ -49,38 +49,20 @@ def add_arguments(parser) -> None:
 
 def build_options(args):
     """The options of the flags and ``--set`` items, each checked by its rule before any data is read."""
-    import yaml
-
-    from nao_skin.calibration.options import CalibrationOptions
-    from nao_skin.errors import DataError
+    from nao_skin.calibration.options import CalibrationOptions, set_items, set_once
 
     options = CalibrationOptions()
-    given: dict = {}        # option -> the argument that set it: a second one would silently win
-
-    def put(name, value, where):
-        if name in given:
-            raise DataError(f"{where}: option {name} is already given by {given[name]}; give it once")
-        options.set(name, value, where=where)
-        given[name] = where
-
+    given: dict = {}
     flags = {**CHOICE_FLAGS, **{flag: name for flag, (name, _) in NUMBER_FLAGS.items()}}
     for flag, name in flags.items():
         value = getattr(args, flag[2:].replace("-", "_"))
         if value is not None:
-            put(name, value, f"{flag} {value}")
+            set_once(options, name, value, f"{flag} {value}", given)
     if args.free:
-        put("bounded", False, "--free")
+        set_once(options, "bounded", False, "--free", given)
     if args.no_first_guess:
-        put("initial_guess", "none", "--no-first-guess")
-    for item in args.set:
-        key, sep, raw = item.partition("=")
-        if not sep or not key:
-            raise DataError(f"--set {item!r}: expected OPTION=VALUE, e.g. --set normal_weight=0.01")
-        try:
-            value = yaml.safe_load(raw)
-        except yaml.YAMLError:
-            value = raw
-        put(key.strip(), value, f"--set {item}")
+        set_once(options, "initial_guess", "none", "--no-first-guess", given)
+    set_items(options, args.set, given)
     options.validate()
     return options
 
