@@ -5,6 +5,22 @@ import os
 from pathlib import Path
 
 
+def read_text(path: str | Path, what: str = "", error: type | None = None, name: str | None = None) -> str:
+    """The text of ``path``; one line naming it (``name``, default the path) and ``what`` it was read as when it
+    cannot be read or is no text (a bag or another binary file given for a text one), as ``error`` (DataError)."""
+    from nao_skin.errors import DataError
+
+    error = error or DataError
+    what = f" {what}" if what else ""
+    name = str(path) if name is None else name
+    try:
+        return Path(path).read_text()
+    except OSError as exc:
+        raise error(f"{name}: cannot read{what} ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise error(f"{name}: cannot read{what} (not a text file: {exc.reason} at byte {exc.start})") from None
+
+
 def read_yaml(path: str | Path, what: str):
     """The YAML document in ``path``; one-line ConfigError naming the file when unreadable."""
     import yaml
@@ -12,12 +28,9 @@ def read_yaml(path: str | Path, what: str):
     from nao_skin.errors import ConfigError
 
     path = Path(path)
+    text = read_text(path, what, ConfigError)
     try:
-        return yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read {what} ({exc.strerror})") from None
-    except UnicodeDecodeError as exc:       # e.g. a bag or a binary file passed for a YAML one
-        raise ConfigError(f"{path}: cannot read {what} (not a text file: {exc.reason} at byte {exc.start})") from None
+        return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
 

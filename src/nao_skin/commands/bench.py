@@ -94,13 +94,9 @@ def _check_counts(args) -> None:
 def readme_text(readme: Path) -> str:
     """The README whose results section the bench fills; one line when it cannot be, checked before the run."""
     from nao_skin.errors import DataError
+    from nao_skin.paths import read_text
 
-    try:
-        text = readme.read_text()
-    except OSError as exc:
-        raise DataError(f"--readme {readme}: cannot read ({exc.strerror})") from None
-    except UnicodeDecodeError as exc:
-        raise DataError(f"--readme {readme}: cannot read (not a text file: {exc.reason} at byte {exc.start})") from None
+    text = read_text(readme, name=f"--readme {readme}")
     if README_START not in text or README_END not in text:
         raise DataError(f"{readme}: no '{README_START}' ... '{README_END}' section to fill")
     return text

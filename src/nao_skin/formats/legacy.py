@@ -23,6 +23,7 @@ from nao_skin.errors import DataError
 from nao_skin.model.robot import RobotModel
 from nao_skin.model.skin import DEFAULT_CHAINS, SkinModel, part_from_layout
 from nao_skin.model.taxel_file import MAX_COORDINATE
+from nao_skin.paths import read_text
 from nao_skin.touch.datasets import LoadReport
 from nao_skin.touch.touches import TouchSet
 
@@ -198,12 +199,7 @@ def _literal_entries(path: Path, exact: bool = False) -> list:
     Python literal allows, or a broken file, takes the exact path through
     :mod:`ast`, which names the line of each problem. Both give the same entries.
     """
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise DataError(f"{path}: cannot read legacy dataset ({exc.strerror})") from None
-    except UnicodeDecodeError as exc:
-        raise DataError(f"{path}: not a text file ({exc.reason} at byte {exc.start})") from None
+    text = read_text(path, "legacy dataset")
     entries = None if exact else _json_entries(text)
     return entries if entries is not None else _ast_entries(text, path)
 

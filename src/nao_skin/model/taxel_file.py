@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from nao_skin.errors import DataError
+from nao_skin.paths import read_text
 
 SLOTS_PER_TRIANGLE = 12
 THERMAL_SLOTS = (6, 10)
@@ -51,12 +52,7 @@ class TaxelFile:
 def read_taxel_file(path: str | Path, n_slots: int = DEFAULT_SLOTS) -> TaxelFile:
     """Read either form; rows beyond the file are zero (no taxel)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise DataError(f"{path}: cannot read taxel file ({exc.strerror})") from None
-    except UnicodeDecodeError as exc:       # e.g. a bag or another binary file passed as a layout
-        raise DataError(f"{path}: cannot read taxel file (not a text file: {exc.reason} at byte {exc.start})") from None
+    text = read_text(path, "taxel file")
     lines = text.splitlines()
     header: dict = {}
     start = 0
