@@ -173,7 +173,9 @@ def test_record_removes_its_temporary_directory(tmp_path):
     assert code == 0, session.stderr()[-3000:]
     assert record_temp_dirs(tmp) == []
 
-    # a node that fails at start ends the session: removed too
+    # a node that refuses a parameter at start ends the session with its one line and exit 2, as every
+    # other mistake: the directory is removed too
     run = nao_skin(["record", "--bag", str(tmp_path / "b2"), "--param", "pairing_recorder.storage=bogus"], env=env)
-    assert run.returncode == 1 and "pairing_recorder exited with code 2" in run.stderr, run.stderr
+    assert run.returncode == 2 and "pairing_recorder exited with code 2" in run.stderr, run.stderr
+    assert "storage must be one of sqlite3, mcap, not 'bogus'" in run.stderr and "Traceback" not in run.stderr
     assert record_temp_dirs(tmp) == []
