@@ -128,6 +128,24 @@ def test_a_whole_mcap_under_a_broken_metadata_yaml_loses_nothing_and_says_so(rea
     assert report.skipped["truncated bag"] == 1 and not any("nothing lost" in n for n in report.notes)
 
 
+def test_a_folder_with_both_storage_files_and_no_metadata_to_choose_is_refused(real, real_skin, tmp_path):
+    """Read without its metadata, one of two storage files would silently leave the other's touches out."""
+    touches = real.subset(np.arange(20))
+    write_touch_bag(tmp_path / "s", touches, real_skin, storage="sqlite3")
+    write_touch_bag(tmp_path / "m", touches, real_skin, storage="mcap")
+    bag = tmp_path / "s"
+    shutil.copy(next((tmp_path / "m").glob("*.mcap")), bag)
+    for broken in ("rosbag2_bagfile_information: [\n", None):
+        if broken is None:
+            (bag / "metadata.yaml").unlink()
+        else:
+            (bag / "metadata.yaml").write_text(broken)
+        with pytest.raises(DataError) as err:
+            read_touches(bag, real_skin)
+        line = str(err.value)
+        assert line.startswith(f"{bag}: holds both ") and ".db3" in line and ".mcap" in line and "\n" not in line
+
+
 # ---------------------------------------------------------------------- streams and bad input, small bags
 def stream_bag(path, skin, storage="sqlite3", bad_slot=False, extra_part=False, nan_joint=False):
     """A raw stream: joints at 100 Hz, l_hand and torso skin at 50 Hz, one press from 0.2 to 0.6 s."""

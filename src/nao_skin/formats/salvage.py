@@ -183,17 +183,29 @@ def unclosed_sqlite(path: Path) -> UnclosedBag | None:
         return None
     meta = path / "metadata.yaml"
     if not meta.exists():
-        return _UnclosedSqlite(path, files[0], "no metadata", "it has no metadata.yaml")
+        return _UnclosedSqlite(path, _only_storage(path, files[0], "it has no metadata.yaml"), "no metadata",
+                               "it has no metadata.yaml")
     try:
         info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
         listed = bool(info.get("files") or info.get("topics_with_message_count"))
     except Exception as exc:  # noqa: BLE001 - yaml and a malformed layout raise assorted types
-        return _UnclosedSqlite(path, files[0], "no metadata", f"its metadata.yaml is unreadable ({one_line(exc)})")
+        why = f"its metadata.yaml is unreadable ({one_line(exc)})"
+        return _UnclosedSqlite(path, _only_storage(path, files[0], why), "no metadata", why)
     # BagWriter's provisional metadata (written at open) lists neither; the real one, written on close, both
     if listed:
         return None
     return _UnclosedSqlite(path, files[0], "truncated bag", "metadata.yaml is incomplete (the recorder did not close"
                                                              " the bag; anything after its last commit is lost)")
+
+
+def _only_storage(path: Path, db3: Path, why: str) -> Path:
+    """``db3``, the bag's storage file, when nothing else in the folder could be: without metadata to say which,
+    reading the sqlite3 file beside an mcap one would silently leave the other's touches out."""
+    mcap = sorted(path.glob("*.mcap"))
+    if mcap:
+        raise DataError(f"{path}: holds both {db3.name} and {mcap[0].name} and {why}, so nothing says which is the"
+                        f" recording; move the other file out of the folder")
+    return db3
 
 
 def _sqlite_messages(path: Path, file: Path, after: int = 0) -> list:
