@@ -141,6 +141,21 @@ def test_angles_outside_the_joint_limits_are_kept_counted_and_named(tmp_path, ca
     assert len(note) == 1 and "2 of 12 touches" in note[0] and "LElbowRoll" in note[0] and "kept" in note[0]
 
 
+def test_a_note_given_to_the_summary_is_not_logged_again(tmp_path, skin, thesis_touches):
+    """calibrate logs to stdout and summarises to stderr: a note on both would be printed twice."""
+    from nao_skin.formats.inputs import load_touches
+
+    touches = thesis_touches.subset(np.arange(thesis_touches.n_touches))
+    touches.joints[[1, 4], touches.joint_names.index("LElbowRoll")] = 10.0
+    path = tmp_path / "past_limits.txt"
+    write_thesis_file(path, touches, skin)
+    logged, summarised = [], []
+    load_touches([path], skin, log=logged.append, summary=summarised.append)
+    said = [line for line in logged + summarised if "outside the robot config's limits" in line]
+    assert len(said) == 1 and said[0] in summarised, (logged, summarised)
+    assert any("touches loaded" in line for line in logged)
+
+
 def test_an_absurd_angle_is_named_in_a_short_line(tmp_path, capsys, skin, thesis_touches):
     touches = thesis_touches.subset(np.arange(thesis_touches.n_touches))
     touches.joints[1, touches.joint_names.index("LElbowRoll")] = 1e300      # finite, so kept as measured

@@ -99,11 +99,13 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
             rep.notes.append(note)
         lines = rep.lines(limit=5)
         log(lines[0])
+        summarised = rep.notes if summary is not log else []
         if summary is not log:
             for line in ([lines[0]] if rep.n_skipped else []) + rep.notes:
                 summary(line)
         for line in lines[1:]:
-            log(line)
+            if line not in summarised:      # said once, on the summary's stream
+                log(line)
         for hint in layout_hints(touches, rep, skin):
             summary(hint)
         report.n_read += rep.n_read
