@@ -52,7 +52,7 @@ die() { echo "setup_venv: ERROR: $*" >&2; exit 1; }
 
 # --- packages ----------------------------------------------------------------
 # Exact versions come from docker/venv-constraints.txt.
-PY_PKGS=(numpy scipy pyyaml matplotlib rosbags xacro qi pytest setuptools wheel import-linter
+PY_PKGS=(numpy scipy pyyaml matplotlib rosbags threadpoolctl xacro qi pytest setuptools wheel import-linter
   colcon-common-extensions)
 ROS_RUNTIME_PKGS=(ros-rclpy ros-rmw-fastrtps-cpp ros-std-msgs ros-sensor-msgs
   ros-geometry-msgs ros-visualization-msgs)

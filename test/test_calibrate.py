@@ -195,8 +195,8 @@ def test_a_stage_that_drives_the_touches_apart_is_undone(skin, left_hand_sim, mo
     touches, truth = left_hand_sim
     real_stage = engine.run_stage
 
-    def patch_stage_diverges(train, skin_, calib, step, parts, levels, *args):
-        out = real_stage(train, skin_, calib, step, parts, levels, *args)
+    def patch_stage_diverges(train, skin_, calib, step, parts, levels, *args, **kwargs):
+        out = real_stage(train, skin_, calib, step, parts, levels, *args, **kwargs)
         if levels == {"patch"}:
             out.calibration.parts[parts[0]].patches[:, 0] += 0.02         # every patch 2 cm off
         return out
@@ -302,3 +302,19 @@ def test_a_pair_with_too_few_touches_is_left_out_not_fatal(skin):
     assert not np.any(result.calibration.parts["l_hand"].mount)          # held at its prior
     assert np.any(result.calibration.parts["r_hand"].mount)
     assert "left out (too few touches): l_hand+torso" in summary_line(result)
+
+
+def test_the_engine_runs_on_one_blas_thread_and_gives_the_threads_back(skin, left_hand_sim):
+    """Small matrices: OpenBLAS's own threads would only contend with the session's other processes."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas_threads():
+        return {lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+
+    touches, _ = left_hand_sim
+    seen = []
+    with threadpool_limits(2, user_api="blas"):       # as on a machine with two cores or more
+        calibrate(touches.subset(np.arange(60)), skin, CalibrationOptions(max_repairings=1, max_iterations=2),
+                  progress=lambda msg: seen.append(blas_threads()))
+        assert blas_threads() == {2}
+    assert seen and all(s == {1} for s in seen), seen

@@ -189,7 +189,7 @@ def test_the_installed_calibrate_node_calibrates_the_installed_recording(workspa
 # Python modules src/ and launch/ import that are not ROS packages: their rosdep keys, or None for the
 # pip-only ones package.xml names in a comment (no rosdep key)
 NOT_ROS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
-           "matplotlib": "python3-matplotlib", "rosbags": None, "qi": None, "yarp": None}
+           "matplotlib": "python3-matplotlib", "rosbags": None, "threadpoolctl": None, "qi": None, "yarp": None}
 
 
 def _imported_top_level_modules(paths) -> set:

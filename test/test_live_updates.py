@@ -49,6 +49,21 @@ def test_a_part_new_to_the_prior_gets_the_whole_plan(skin, session):
     assert "l_hand from torso: mount" in names and "r_hand from torso: mount" not in names
 
 
+def test_a_warm_update_pairs_each_stage_once_and_a_part_new_to_it_until_settled(skin, session):
+    """A warm update is one step of the pairing's fixed point (options.warm_repairings); the next update
+    takes the next. A stage that fits a part the last update did not calibrate re-pairs as usual."""
+    touches, truth, first = session
+    warm = calibrate(touches, skin, CalibrationOptions(), prior=first.calibration, warm=first.report.parts)
+    assert [s["repairings"] for s in warm.report.stages] == [1, 1, 1]
+    longer = calibrate(touches, skin, CalibrationOptions(warm_repairings=8), prior=first.calibration,
+                       warm=first.report.parts)
+    assert max(s["repairings"] for s in longer.report.stages) > 1
+    new = calibrate(touches, skin, CalibrationOptions(), prior=first.calibration, warm=("r_hand", "torso"))
+    repairings = {s["name"]: s["repairings"] for s in new.report.stages}
+    assert max(v for k, v in repairings.items() if k.startswith("l_hand from torso")) > 1
+    assert max(v for k, v in repairings.items() if k.startswith("joint refinement")) > 1   # l_hand is in it
+
+
 def test_too_few_touches_is_its_own_error(skin, session):
     touches, _, _ = session
     with pytest.raises(TooFewTouches):

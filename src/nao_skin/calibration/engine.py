@@ -32,6 +32,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Callable, Iterable
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from nao_skin.calibration.evaluation import (closest_cop_cost, evaluate, explained, fitted_pair_cost, gate_touches,
                                              plan_pairs, truth_error)
@@ -116,7 +117,20 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
     ``anchor``: with ``warm``, the calibration the live session started from
     (nominal by default): the prior of the patches and triangles stays centred
     there instead of on the last update, which the same touches made.
+
+    The engine runs with one BLAS thread: its matrices are small, and the threads OpenBLAS starts by
+    default only contend for the cores with whatever else runs (the recorder and the other nodes of a
+    session, a bench's other job): two calibrations at once each took twice as long with them, one
+    alone no less time without them.
     """
+    with threadpool_limits(1, user_api="blas"):
+        return _calibrate(touches, skin, options, prior, truth, progress, split, warm, anchor)
+
+
+def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | None,
+               prior: SkinCalibration | None, truth: SkinCalibration | None,
+               progress: Callable[[str], None] | None, split: tuple | None, warm: Iterable[str],
+               anchor: SkinCalibration | None) -> CalibrationResult:
     options = options or CalibrationOptions()
     options.validate()
     say = progress or (lambda msg: None)
@@ -150,7 +164,8 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
             _first_guess(train, skin, step, options, fit, say, prefix)
         for levels in _stage_levels(step, options):
             report.stages.append(_fit_stage(train, test, skin, step, levels, round_no, prefix, options, fit,
-                                            truth, say, measure=not warm, anchor=anchor))
+                                            truth, say, measure=not warm, anchor=anchor,
+                                            warm=bool(warm) and warm.issuperset(step.targets)))
     if options.kinematics != "off":
         report.kinematics = _fit_kinematics(train, test, skin, steps, schedule, start, options, fit, truth, say,
                                             report)
@@ -257,14 +272,18 @@ def _first_guess(train: TouchSet, skin: SkinModel, step: Step, options: Calibrat
 
 def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, levels: set, round_no: int,
                prefix: str, options: CalibrationOptions, fit: _Fit, truth, say, measure: bool = True,
-               anchor: SkinCalibration | None = None) -> dict:
-    """One stage: solve, keep it unless it drove the touches apart, gate after a mount fit; its report entry."""
+               anchor: SkinCalibration | None = None, warm: bool = False) -> dict:
+    """One stage: solve, keep it unless it drove the touches apart, gate after a mount fit; its report entry.
+
+    ``warm``: every part the stage fits was calibrated by the last update: ``options.warm_repairings``
+    re-pairings at most (a part new to the session gets all ``max_repairings``)."""
     # a stage is judged on what it fits, as it fits it (closest COP and taxel pairs, at the fabric
     # surfaces): taxel-centre distances grow with the fabric estimate however good the fit
     # (test_calibrate: a stage that drives the touches apart is undone)
     kinds = fitted_kinds(options, levels)
     stage = run_stage(train, skin, fit.calibration, step, step.targets, levels, options, fit.inliers, say,
-                      fit.fabric, fit.prior_sigma, anchor)
+                      fit.fabric, fit.prior_sigma, anchor,
+                      max_repairings=min(options.warm_repairings, options.max_repairings) if warm else None)
     # the costs are measured on the pairings the stage made where it started and (when its pairing
     # settled) where it ended, else the touches are paired for them
     started, ended = (stage.pairings.get(pairing_key(c)) for c in (fit.calibration, stage.calibration))

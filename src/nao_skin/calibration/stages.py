@@ -58,7 +58,8 @@ class StageResult:
 
 
 def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, say, fabric,
-              prior_sigma: dict | None = None, anchor: SkinCalibration | None = None) -> StageResult:
+              prior_sigma: dict | None = None, anchor: SkinCalibration | None = None,
+              max_repairings: int | None = None) -> StageResult:
     """One stage: pair, solve, re-pair under the new calibration, until the pairing settles.
 
     ``prior_sigma``: prior std per group (:data:`PRIOR_GROUPS`); with
@@ -67,7 +68,8 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     solve. The stage returns the last estimate. ``anchor``: where the prior of
     the patches and triangles is centred (default: ``calib``, where the stage
     starts); a warm-started update centres it where its session started, or
-    each update would count the touches of the one before again.
+    each update would count the touches of the one before again. ``max_repairings``: instead of
+    ``options.max_repairings`` (a warm update's ``options.warm_repairings``).
     """
     t0 = time.perf_counter()
     name = f"{step.name}: {'+'.join(sorted(levels, key=['mount', 'patch', 'triangle', KINEMATICS].index))}"
@@ -94,7 +96,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     last_cost = np.inf
     prior_sigma = dict(initial_prior_sigma(options) if prior_sigma is None else prior_sigma)
     pairings = {}
-    for repairings in range(1, options.max_repairings + 1):
+    for repairings in range(1, (max_repairings or options.max_repairings) + 1):
         current = layout.to_calibration(x, calib)
         pairing_all = pair_step(touches, skin, current, step, pair_kinds, options.plane_rows())
         if pairing_all is None:
