@@ -70,7 +70,8 @@ def update_timings(touches: TouchSet, skin: SkinModel, truth: SkinCalibration, s
             now = touches.subset(np.sort(order[:n]))
             before = calibrate(touches.subset(np.sort(order[:n - step])), skin, options)
             t0 = time.perf_counter()
-            warm = calibrate(now, skin, options, prior=before.calibration, warm=before.report.parts, truth=truth)
+            warm = calibrate(now, skin, options, prior=before.calibration, warm=before.report.parts,
+                             resume=before.state, truth=truth)
             t.warm_seconds.append(time.perf_counter() - t0)
             t0 = time.perf_counter()
             cold = calibrate(now, skin, options, truth=truth)

@@ -85,6 +85,15 @@ class CalibrationReport:
         return out
 
 
+@dataclass(frozen=True)
+class FitState:
+    """What a calibration learnt besides the frames, for a warm update to go on from: the fabric estimate (m)
+    and the prior std per group of patch and triangle components (:data:`~.stages.PRIOR_GROUPS`)."""
+
+    fabric: float
+    prior_sigma: dict
+
+
 @dataclass
 class CalibrationResult:
     calibration: SkinCalibration
@@ -93,6 +102,10 @@ class CalibrationResult:
     test: TouchSet
     set_aside: list = field(default_factory=list)
 
+    @property
+    def state(self) -> FitState:
+        return FitState(self.report.fabric_thickness_mm / 1000.0, dict(self.report.prior_sigma))
+
 
 # ---------------------------------------------------------------------- planning
 
@@ -100,7 +113,7 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
               prior: SkinCalibration | None = None, truth: SkinCalibration | None = None,
               progress: Callable[[str], None] | None = None,
               split: tuple | None = None, warm: Iterable[str] = (),
-              anchor: SkinCalibration | None = None) -> CalibrationResult:
+              anchor: SkinCalibration | None = None, resume: FitState | None = None) -> CalibrationResult:
     """Calibrate the skin parts that the touches connect.
 
     ``split``: ``(train, test)`` touch sets; by default a seeded random 70/30
@@ -117,6 +130,9 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
     ``anchor``: with ``warm``, the calibration the live session started from
     (nominal by default): the prior of the patches and triangles stays centred
     there instead of on the last update, which the same touches made.
+    ``resume``: with ``warm``, the last update's :attr:`CalibrationResult.state`: the fit starts from its
+    fabric estimate and prior widths, as from its frames, instead of the options' (the real recording's
+    fabric is 0.05 mm, not the 1 mm assumed; its skin is glued less carefully than the prior assumes).
 
     The engine runs with one BLAS thread: its matrices are small, and the threads OpenBLAS starts by
     default only contend for the cores with whatever else runs (the recorder and the other nodes of a
@@ -124,13 +140,13 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
     alone no less time without them.
     """
     with threadpool_limits(1, user_api="blas"):
-        return _calibrate(touches, skin, options, prior, truth, progress, split, warm, anchor)
+        return _calibrate(touches, skin, options, prior, truth, progress, split, warm, anchor, resume)
 
 
 def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | None,
                prior: SkinCalibration | None, truth: SkinCalibration | None,
                progress: Callable[[str], None] | None, split: tuple | None, warm: Iterable[str],
-               anchor: SkinCalibration | None) -> CalibrationResult:
+               anchor: SkinCalibration | None, resume: FitState | None) -> CalibrationResult:
     options = options or CalibrationOptions()
     options.validate()
     say = progress or (lambda msg: None)
@@ -140,10 +156,13 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
     steps = plan_steps(train, options)
     _check_enough(train, steps, options)
     start = _start_calibration(prior, skin)
-    fit = _Fit(start, options.fabric_thickness, initial_prior_sigma(options), np.ones(train.n_touches, bool))
+    warm = frozenset(warm)
+    resume = resume if warm and resume is not None and np.isfinite(resume.fabric) else None
+    fit = _Fit(start, resume.fabric if resume else options.fabric_thickness,
+               dict(resume.prior_sigma) if resume and resume.prior_sigma else initial_prior_sigma(options),
+               np.ones(train.n_touches, bool))
     # with kinematic corrections the true taxel error is measured at the touches' poses
     fit.truth_poses = robot_joints(train, skin) if truth is not None else None
-    warm = frozenset(warm)
     anchor = (anchor or skin.zero_calibration()) if warm else None
     schedule = _schedule(steps, options, warm)
     report = CalibrationReport(

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
-from nao_skin.calibration.engine import CalibrationResult, calibrate
+from nao_skin.calibration.engine import CalibrationResult, FitState, calibrate
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.report import write_outputs
 from nao_skin.calibration.splits import split_spread, spread_text
@@ -91,13 +91,13 @@ def load_inputs(inputs: Sequence, skin: SkinModel, log: Callable[[str], None] | 
 def calibrate_loaded(loaded: LoadedInputs, skin: SkinModel, options: CalibrationOptions,
                      prior: SkinCalibration | None = None, truth: SkinCalibration | None = None,
                      log: Callable[[str], None] | None = None, warm: Sequence[str] = (),
-                     anchor: SkinCalibration | None = None) -> CalibrationResult:
+                     anchor: SkinCalibration | None = None, resume: FitState | None = None) -> CalibrationResult:
     """The pipeline's calibrate step; the report says what was read.
 
-    ``warm``, ``anchor``: a live update's (see :func:`calibrate`).
+    ``warm``, ``anchor``, ``resume``: a live update's (see :func:`calibrate`).
     """
     result = calibrate(loaded.touches, skin, options, prior=prior, truth=truth or loaded.truth, progress=log,
-                       warm=warm, anchor=anchor)
+                       warm=warm, anchor=anchor, resume=resume)
     report = loaded.load_report
     result.report.input = {"files": loaded.files, "touches_read": report.n_read, "touches_loaded": report.n_loaded,
                            "skipped": dict(report.skipped), "notes": list(report.notes),

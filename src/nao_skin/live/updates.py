@@ -37,9 +37,10 @@ class UpdateSchedule:
 class WarmStart:
     """What the next live update starts from: mostly the last accepted calibration, now and then the whole plan.
 
-    A warm update (``calibrate(..., prior=last, warm=parts, anchor=start)``)
-    runs only the joint refinement from the last accepted calibration, its
-    patch and triangle prior centred where the session started. Warm updates
+    A warm update (``calibrate(..., prior=last, warm=parts, anchor=start, resume=state)``)
+    runs only the joint refinement from the last accepted calibration and what
+    else its fit learnt (fabric, prior widths), its patch and triangle prior
+    centred where the session started. Warm updates
     cannot undo everything an early estimate from a few touches got wrong, so
     whenever the touches have grown ``refresh`` times since the last update
     from scratch, the next one is from scratch again (the whole plan from the
@@ -52,17 +53,21 @@ class WarmStart:
     last: SkinCalibration | None = None     # the last accepted update's
     parts: tuple = ()                       # the parts it calibrated
     scratch_touches: int = 0                # touches of the last update from scratch
+    state: object = None                    # the last accepted update's CalibrationResult.state
 
     def arguments(self, n_touches: int) -> dict:
-        """``prior``, ``warm`` and ``anchor`` of :func:`~nao_skin.calibration.engine.calibrate` for the next update."""
+        """``prior``, ``warm``, ``anchor`` and ``resume`` of :func:`~nao_skin.calibration.engine.calibrate`
+        for the next update."""
         if self.last is None or not self.parts or n_touches >= self.refresh * self.scratch_touches:
-            return {"prior": self.start, "warm": (), "anchor": None}
-        return {"prior": self.last, "warm": self.parts, "anchor": self.start}
+            return {"prior": self.start, "warm": (), "anchor": None, "resume": None}
+        return {"prior": self.last, "warm": self.parts, "anchor": self.start, "resume": self.state}
 
-    def accepted(self, calibration: SkinCalibration, parts, n_touches: int, arguments: dict) -> None:
+    def accepted(self, calibration: SkinCalibration, parts, n_touches: int, arguments: dict,
+                 state=None) -> None:
+        """An update was accepted (``state``: its result's ``state``, what the next warm one goes on from)."""
         if not arguments["warm"]:
             self.scratch_touches = n_touches
-        self.last, self.parts = calibration, tuple(parts)
+        self.last, self.parts, self.state = calibration, tuple(parts), state
 
 
 def taxel_displacement_mm(skin: SkinModel, before: SkinCalibration, after: SkinCalibration, parts) -> dict:
