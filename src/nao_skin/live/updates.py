@@ -38,9 +38,9 @@ class WarmStart:
     """What the next live update starts from: mostly the last accepted calibration, now and then the whole plan.
 
     A warm update (``calibrate(..., prior=last, warm=parts, anchor=start, resume=state)``)
-    runs only the joint refinement from the last accepted calibration and what
-    else its fit learnt (fabric, prior widths), its patch and triangle prior
-    centred where the session started. Warm updates
+    runs only the joint refinement from the last accepted calibration and the
+    prior widths its fit learnt, its patch and triangle prior centred where the
+    session started. Warm updates
     cannot undo everything an early estimate from a few touches got wrong, so
     whenever the touches have grown ``refresh`` times since the last update
     from scratch, the next one is from scratch again (the whole plan from the
