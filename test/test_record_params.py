@@ -179,3 +179,11 @@ def test_record_removes_its_temporary_directory(tmp_path):
     assert run.returncode == 2 and "pairing_recorder exited with code 2" in run.stderr, run.stderr
     assert "storage must be one of sqlite3, mcap, not 'bogus'" in run.stderr and "Traceback" not in run.stderr
     assert record_temp_dirs(tmp) == []
+
+
+def test_the_calibrate_node_takes_the_warm_update_options_from_the_session_config():
+    """record.yaml's warm_repairings reaches the engine: an operator can let each live update re-pair more."""
+    session = yaml.safe_load(RECORD_YAML.read_text())["calibrate"]["ros__parameters"]
+    params = {name: value for name, (value, _) in calibrate_node.PARAMS.items()}
+    assert calibrate_node.options_from_params({**params, **session}).warm_repairings == session["warm_repairings"]
+    assert calibrate_node.options_from_params({**params, "warm_repairings": 3}).warm_repairings == 3
