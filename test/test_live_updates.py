@@ -132,3 +132,43 @@ def test_an_update_from_scratch_whenever_the_touches_doubled(skin, session):
     # what the engine makes of them: a warm update is the joint refinement alone
     result = calibrate(touches, skin, CalibrationOptions(), **warm)
     assert all(s["name"].startswith("joint refinement") for s in result.report.stages)
+
+
+def test_a_refresh_keeps_the_warm_update_when_its_held_out_touches_pair_closer(skin, session):
+    """At a refresh the warm update runs beside the one from scratch and the closer on the test split wins;
+    either way the next refresh waits for the touches to double again."""
+    touches, _, first = session
+    updates = WarmStart(skin.zero_calibration(), refresh=2.0)
+    updates.accepted(first.calibration, first.report.parts, 30, updates.arguments(30), first.state)
+    ran = []
+
+    def run(args):
+        ran.append(bool(args["warm"]))
+        return calibrate(touches, skin, CalibrationOptions(), **args)
+
+    result, arguments = updates.update(60, run)              # 60 >= 2 x 30: a refresh
+    assert ran == [False, True]
+    scratch, warm = (calibrate(touches, skin, CalibrationOptions(), **a)
+                     for a in ({"prior": updates.start}, {"prior": first.calibration, "warm": first.report.parts,
+                                                          "anchor": updates.start, "resume": first.state}))
+    figures = {False: scratch.report.final["test"]["taxel_mean_mm"], True: warm.report.final["test"]["taxel_mean_mm"]}
+    assert bool(arguments["warm"]) == (figures[True] < figures[False]), figures
+    assert result.report.final["test"]["taxel_mean_mm"] == min(figures.values())
+    updates.accepted(result.calibration, result.report.parts, 60, arguments, result.state)
+    ran.clear()
+    updates.update(100, run)                                  # < 2 x 60: warm only
+    assert ran == [True]
+
+
+def test_a_refresh_stands_alone_when_the_warm_update_fails(skin, session):
+    touches, _, first = session
+    updates = WarmStart(skin.zero_calibration(), refresh=2.0)
+    updates.accepted(first.calibration, first.report.parts, 30, updates.arguments(30), first.state)
+
+    def run(args):
+        if args["warm"]:
+            raise TooFewTouches("the warm update failed")
+        return calibrate(touches, skin, CalibrationOptions(max_repairings=1), **args)
+
+    result, arguments = updates.update(60, run)
+    assert not arguments["warm"] and result.report.stages[0]["name"] == "r_hand from torso: mount"

@@ -96,8 +96,11 @@ def run_capture(skin: SkinModel, seed: int, strategy: str, setup: CaptureSetup |
     while True:
         touches, _ = deduplicate(TouchSet.concatenate(batches))
         try:
-            start = updates.arguments(touches.n_touches) if setup.warm_start else {}
-            result = calibrate(touches, skin, options, truth=cap.truth, **start)
+            if setup.warm_start:
+                result, start = updates.update(touches.n_touches,
+                                               lambda args: calibrate(touches, skin, options, truth=cap.truth, **args))
+            else:
+                result = calibrate(touches, skin, options, truth=cap.truth)
             calib = result.calibration
             if setup.warm_start:
                 updates.accepted(calib, result.report.parts, touches.n_touches, start, result.state)

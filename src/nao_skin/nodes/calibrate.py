@@ -168,8 +168,8 @@ class CalibrateNode(Node):
                 self._followed = {recording: GrowingBag(find_bag(Path(recording)), self.skin)}
             loaded = load_inputs([recording], self.skin, log=log.debug, summary=log.debug, followed=self._followed)
             touches = loaded.touches
-            start = self.warm_start.arguments(touches.n_touches)
-            result = calibrate_loaded(loaded, self.skin, self.options, log=log.debug, **start)
+            result, start = self.warm_start.update(
+                touches.n_touches, lambda args: calibrate_loaded(loaded, self.skin, self.options, log=log.debug, **args))
             report = result.report
             before = self.warm_start.last or self.warm_start.start
             moved = taxel_displacement_mm(self.skin, before, result.calibration, report.parts)
