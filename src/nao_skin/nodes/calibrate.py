@@ -70,8 +70,9 @@ PARAMS = {
     "guidance_targets": (5, "live: how many targets the guidance names"),
     "guidance_pairs": ([""], "live: the pairs the guidance may ask for, as 'hand-part' (e.g. l_hand-torso);"
                              " empty: the four thesis pairs"),
-    "live_refresh": (2.0, "live: an update from scratch (the whole plan) whenever the touches grew this many times"
-                          " since the last one; warm-started updates in between"),
+    "live_refresh": (2.0, "live: an update from scratch (the whole plan) beside the warm one whenever the touches"
+                          " grew this many times since the last such; the one the held-out touches pair closer"
+                          " is published"),
     "live_max_move_mm": (20.0, "live: an update moving a calibrated part's taxels farther than this (mm) diverged:"
                                " not published"),
     # engine options (their defaults and help come from CalibrationOptions' table, OPTION_FIELDS)
