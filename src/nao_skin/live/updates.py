@@ -66,6 +66,9 @@ class WarmStart:
         for the next update."""
         if self.last is None or not self.parts or n_touches >= self.refresh * self.scratch_touches:
             return {"prior": self.start, "warm": (), "anchor": None, "resume": None}
+        return self._warm_arguments()
+
+    def _warm_arguments(self) -> dict:
         return {"prior": self.last, "warm": self.parts, "anchor": self.start, "resume": self.state}
 
     def update(self, n_touches: int, run: Callable[[dict], Any]) -> tuple:
@@ -79,7 +82,7 @@ class WarmStart:
         if arguments["warm"] or self.last is None or not self.parts:
             return result, arguments
         self.scratch_touches = n_touches
-        warm = {"prior": self.last, "warm": self.parts, "anchor": self.start, "resume": self.state}
+        warm = self._warm_arguments()
         try:
             other = run(warm)
         except NaoSkinError:      # the update from scratch stands on its own
