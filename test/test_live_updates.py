@@ -123,11 +123,11 @@ def test_an_update_from_scratch_whenever_the_touches_doubled(skin, session):
     start = skin.zero_calibration()
     updates = WarmStart(start, refresh=2.0)
     assert updates.arguments(30) == {"prior": start, "warm": (), "anchor": None, "resume": None}
-    updates.accepted(first.calibration, first.report.parts, 30, updates.arguments(30), first.state)
+    updates.accepted(first, 30, updates.arguments(30))
     warm = updates.arguments(45)
     assert warm["prior"] is first.calibration and warm["anchor"] is start and warm["resume"] == first.state
     assert set(warm["warm"]) == set(first.report.parts)
-    updates.accepted(first.calibration, first.report.parts, 45, warm)
+    updates.accepted(first, 45, warm)
     assert updates.arguments(59)["warm"] and not updates.arguments(60)["warm"]
     # what the engine makes of them: a warm update is the joint refinement alone
     result = calibrate(touches, skin, CalibrationOptions(), **warm)
@@ -139,7 +139,7 @@ def test_a_refresh_keeps_the_warm_update_when_its_held_out_touches_pair_closer(s
     either way the next refresh waits for the touches to double again."""
     touches, _, first = session
     updates = WarmStart(skin.zero_calibration(), refresh=2.0)
-    updates.accepted(first.calibration, first.report.parts, 30, updates.arguments(30), first.state)
+    updates.accepted(first, 30, updates.arguments(30))
     ran = []
 
     def run(args):
@@ -154,7 +154,7 @@ def test_a_refresh_keeps_the_warm_update_when_its_held_out_touches_pair_closer(s
     figures = {False: scratch.report.final["test"]["taxel_mean_mm"], True: warm.report.final["test"]["taxel_mean_mm"]}
     assert bool(arguments["warm"]) == (figures[True] < figures[False]), figures
     assert result.report.final["test"]["taxel_mean_mm"] == min(figures.values())
-    updates.accepted(result.calibration, result.report.parts, 60, arguments, result.state)
+    updates.accepted(result, 60, arguments)
     ran.clear()
     updates.update(100, run)                                  # < 2 x 60: warm only
     assert ran == [True]
@@ -163,7 +163,7 @@ def test_a_refresh_keeps_the_warm_update_when_its_held_out_touches_pair_closer(s
 def test_a_refresh_stands_alone_when_the_warm_update_fails(skin, session):
     touches, _, first = session
     updates = WarmStart(skin.zero_calibration(), refresh=2.0)
-    updates.accepted(first.calibration, first.report.parts, 30, updates.arguments(30), first.state)
+    updates.accepted(first, 30, updates.arguments(30))
 
     def run(args):
         if args["warm"]:

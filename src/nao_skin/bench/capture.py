@@ -103,7 +103,7 @@ def run_capture(skin: SkinModel, seed: int, strategy: str, setup: CaptureSetup |
                 result = calibrate(touches, skin, options, truth=cap.truth)
             calib = result.calibration
             if setup.warm_start:
-                updates.accepted(calib, result.report.parts, touches.n_touches, start, result.state)
+                updates.accepted(result, touches.n_touches, start)
         except NaoSkinError as exc:      # too few touches of a pair yet: the next batch brings more
             failures += 1
             say(f"seed {seed} {strategy} at {touches.n_touches}: {one_line(exc)}")

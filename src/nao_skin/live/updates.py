@@ -91,12 +91,12 @@ class WarmStart:
             return other, warm
         return result, arguments
 
-    def accepted(self, calibration: SkinCalibration, parts, n_touches: int, arguments: dict,
-                 state=None) -> None:
-        """An update was accepted (``state``: its result's ``state``, what the next warm one goes on from)."""
+    def accepted(self, result, n_touches: int, arguments: dict) -> None:
+        """An update's result was published: the next warm update goes on from its calibration, the parts it
+        calibrated and its fit's :attr:`~nao_skin.calibration.engine.CalibrationResult.state`."""
         if not arguments["warm"]:
             self.scratch_touches = n_touches
-        self.last, self.parts, self.state = calibration, tuple(parts), state
+        self.last, self.parts, self.state = result.calibration, tuple(result.report.parts), result.state
 
 
 def _test_taxel_mm(result) -> float:

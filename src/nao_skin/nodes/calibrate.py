@@ -179,7 +179,7 @@ class CalibrateNode(Node):
             if why is not None:
                 raise DataError(f"update over {touches.n_touches} touches not published: {why}")
             self.settling.add(moved, report.final.get("test", {}).get("taxel_mean_mm", float("nan")))
-            self.warm_start.accepted(result.calibration, report.parts, touches.n_touches, start, result.state)
+            self.warm_start.accepted(result, touches.n_touches, start)
             self._last_live = result
             self.publish_calibration(result.calibration, "live update", quiet=True)
             self._status({"state": "updated", "live": True, "generation": self.generation,
