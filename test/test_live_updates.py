@@ -32,8 +32,11 @@ def test_a_warm_update_skips_what_the_prior_settled_and_lands_as_close(skin, ses
     assert [s["name"] for s in cold.report.stages][:1] == ["r_hand from torso: mount"]
     assert all(s["name"].startswith("joint refinement") for s in warm.report.stages)
     assert len(warm.report.stages) == 3 < len(cold.report.stages)
-    # final figures only: nothing measured before or per stage, nor the subsets a self-contact explains
+    # final figures only: nothing measured before or per stage (not even the conditioning), nor the subsets
+    # a self-contact explains
     assert warm.report.before == {} and "train" not in warm.report.stages[0]
+    assert all(s["condition"] is None for s in warm.report.stages)
+    assert all(s["condition"] >= 1.0 for s in cold.report.stages), [s["condition"] for s in cold.report.stages]
     assert {"train", "test"} <= set(warm.report.final) and "test_accepted" not in warm.report.final
     assert "test_accepted" in cold.report.final
     cold_err = cold.report.final["truth_taxel_error_mm"]["all"]["median"]

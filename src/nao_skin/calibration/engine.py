@@ -305,7 +305,8 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
     kinds = fitted_kinds(options, levels)
     stage = run_stage(train, skin, fit.calibration, step, step.targets, levels, options, fit.inliers, say,
                       fit.fabric, fit.prior_sigma, anchor,
-                      max_repairings=min(options.warm_repairings, options.max_repairings) if warm else None)
+                      max_repairings=min(options.warm_repairings, options.max_repairings) if warm else None,
+                      condition=measure)
     # the costs are measured on the pairings the stage made where it started and (when its pairing
     # settled) where it ended, else the touches are paired for them
     started, ended = (stage.pairings.get(pairing_key(c)) for c in (fit.calibration, stage.calibration))

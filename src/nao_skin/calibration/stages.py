@@ -59,7 +59,7 @@ class StageResult:
 
 def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, say, fabric,
               prior_sigma: dict | None = None, anchor: SkinCalibration | None = None,
-              max_repairings: int | None = None) -> StageResult:
+              max_repairings: int | None = None, condition: bool = True) -> StageResult:
     """One stage: pair, solve, re-pair under the new calibration, until the pairing settles.
 
     ``prior_sigma``: prior std per group (:data:`PRIOR_GROUPS`); with
@@ -69,7 +69,9 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     the patches and triangles is centred (default: ``calib``, where the stage
     starts); a warm-started update centres it where its session started, or
     each update would count the touches of the one before again. ``max_repairings``: instead of
-    ``options.max_repairings`` (a warm update's ``options.warm_repairings``).
+    ``options.max_repairings`` (a warm update's ``options.warm_repairings``). ``condition``: report the
+    condition number of the final normal equations (a Jacobian and an eigendecomposition more: a live
+    update, which reports no stage, skips it).
     """
     t0 = time.perf_counter()
     name = f"{step.name}: {'+'.join(sorted(levels, key=['mount', 'patch', 'triangle', KINEMATICS].index))}"
@@ -165,7 +167,8 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
             break
         last_cost = result.cost
     calib_out = layout.to_calibration(x, calib)
-    cond = condition_number(model, calib_out, free_levels, np.flatnonzero(free)) if model is not None else None
+    cond = (condition_number(model, calib_out, free_levels, np.flatnonzero(free))
+            if condition and model is not None else None)
     kinematics_held = [h.split("/", 1)[1] for h in held_names if h.startswith(f"{KINEMATICS}/")]
     for kname in kinematics_held:   # held at nominal: not a correction of the calibration
         calib_out.kinematics.pop(kname, None)
