@@ -520,3 +520,21 @@ def test_nodes_build_the_skin_as_the_commands_do():
     assert {n: p.layout_sha256 for n, p in skin.parts.items()} == {n: p.layout_sha256 for n, p in same.parts.items()}
     with pytest.raises(ConfigError, match="parameter taxels 'l_hand': expected PART=FILE"):
         skin_from_params({"skin_config": "", "taxels": ["l_hand"]})
+
+
+def test_a_key_given_twice_in_a_config_is_one_line_naming_both_lines(tmp_path, capsys):
+    """YAML keeps the second of two equal keys without a word: a hand edit above a forgotten line lost."""
+    robot = (package_dir() / "config" / "nao_h25.yaml").read_text().splitlines()
+    first = next(i for i, line in enumerate(robot) if re.match(r"^[a-z_]+:", line))
+    doubled = tmp_path / "robot.yaml"
+    doubled.write_text("\n".join(robot + [robot[first]]) + "\n")
+    assert cli_main(["stats", str(RECORDING), "--robot", str(doubled), *REAL_TAXELS]) == 2
+    key = robot[first].split(":")[0]
+    assert one_line(capsys) == (f"nao-skin stats: error: {doubled}: key '{key}' given twice"
+                                f" (lines {first + 1} and {len(robot) + 1}); give it once")
+    # a key merged in with '<<' may be given again: that is YAML's own override
+    from nao_skin.paths import read_yaml
+
+    merged = tmp_path / "merged.yaml"
+    merged.write_text("base: &base {a: 1, b: 2}\nthis:\n  <<: *base\n  a: 3\n")
+    assert read_yaml(merged, "test")["this"] == {"a": 3, "b": 2}

@@ -88,3 +88,32 @@ def test_urdf_for_the_session_leaves_skin_frames_to_the_calibrate_node():
 def test_launch_files_compile():
     for name in ("record.launch.py", "calibrate.launch.py"):
         compile((ROOT / "launch" / name).read_text(), name, "exec")
+
+
+def test_every_default_keeps_its_own_rule_and_a_later_change_is_held_to_it():
+    """A node's rule is checked at declaration and on ``ros2 param set`` (a real rclpy node, no DDS traffic)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from nao_skin.nodes.runtime import declare
+
+    for node in NODE_MODULES.values():      # a default outside its own rule would stop every session
+        for name, (default, _, *rule) in importlib.import_module(f"nao_skin.nodes.{node}").PARAMS.items():
+            if rule:
+                rule[0].check(f"{node}.{name}", default)
+    context = Context()
+    rclpy.init(context=context, domain_id=0)
+    try:
+        module = importlib.import_module("nao_skin.nodes.skin_heatmap")
+        node = Node("rule_check", context=context, start_parameter_services=False)
+        values = declare(node, {"rate": module.PARAMS["rate"]})
+        assert values == {"rate": 10.0}
+        (refused,) = node.set_parameters([Parameter("rate", Parameter.Type.DOUBLE, 0.0)])
+        assert not refused.successful and refused.reason == "parameter rate:=0.0: expected a number > 0"
+        (taken,) = node.set_parameters([Parameter("rate", Parameter.Type.DOUBLE, 2.5)])
+        assert taken.successful and node.get_parameter("rate").value == 2.5
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

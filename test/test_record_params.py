@@ -4,9 +4,10 @@
    as ``ros2 launch`` passes it, ``-p progress_period:=1`` on a command line)
    is taken by real nodes and stored as a float; a string for it ends the
    node with one line and exit 2.
-2. ``nao-skin record --param``: an unknown parameter, an unknown node or a
-   value of the wrong type is refused with one line (the node's parameters,
-   the session's nodes) and exit 2, before any node starts.
+2. ``nao-skin record --param``: an unknown parameter, an unknown node, a
+   value of the wrong type or out of the node's range is refused with one
+   line (the node's parameters, the session's nodes) and exit 2, before any
+   node starts; a node started without record refuses the same range.
 3. ``nao-skin record --robot nao`` on a machine without YARP's Python
    bindings: one line saying what to install, exit 2, nothing started.
 4. The temporary directory of generated parameter files is removed when
@@ -88,6 +89,22 @@ def test_node_refuses_a_string_for_a_float_parameter(tmp_path):
     assert "error: node 'calibrate': parameter 'gate_mm' must be a number like 15.0, not 'abc'" in err.splitlines()
 
 
+@pytest.mark.parametrize("node, params, line", [
+    ("skin_heatmap", {"rate": 0.0}, "error: node 'skin_heatmap': parameter rate:=0.0: expected a number > 0"),
+    ("calibrate", {"live_every_touches": -3},
+     "error: node 'calibrate': parameter live_every_touches:=-3: expected a whole number >= 1"),
+])
+def test_a_node_refuses_a_value_out_of_its_range_in_one_line(tmp_path, node, params, line):
+    """``ros2 run`` / ``ros2 launch`` reach the node without record's checks: the node holds the same rule."""
+    proc = node_process(node, params, ros_env(unique_domain_id()), tmp_path, params_file=RECORD_YAML)
+    try:
+        proc.popen.wait(timeout=60)
+    finally:
+        code = proc.stop()
+    assert code == 2 and "Traceback" not in proc.stderr()
+    assert line in proc.stderr().splitlines(), proc.stderr()[-2000:]
+
+
 def nao_skin(args, env=None, timeout=120) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "nao_skin.cli", *args], env=env or ros_env(unique_domain_id()),
                           cwd=str(ROOT), capture_output=True, text=True, timeout=timeout)
@@ -113,10 +130,19 @@ def test_record_refuses_unknown_or_mistyped_parameters(tmp_path):
     line = one_error_line(nao_skin(["record", "--print", "--bag", str(bag), "--param", "calibrate.gate_mm=abc"]))
     assert "calibrate.gate_mm=abc" in line and "expected a number" in line
 
+    # out of the range the node accepts: its own rule, checked here (a rate of 0 was a node's traceback)
+    for item, expected in (("skin_heatmap.rate=0", "expected a number > 0"),
+                           ("calibrate.live_every_touches=-3", "expected a whole number >= 1"),
+                           ("calibrate.gate_mm=-1", "expected a number >= 0"),
+                           ("pairing_recorder.storage=zip", "expected one of mcap, sqlite3")):
+        line = one_error_line(nao_skin(["record", "--print", "--bag", str(bag), "--param", item]))
+        assert f"--param {item}: {expected}" in line, line
+
     # without --print: refused before any node starts (no bag, no "started")
-    run = nao_skin(["record", "--bag", str(bag), "--param", "calibrate.gate_mmm=3"])
-    one_error_line(run)
-    assert not bag.exists()
+    for item in ("calibrate.gate_mmm=3", "sim_robot.touch_period=0"):
+        run = nao_skin(["record", "--bag", str(bag), "--param", item])
+        one_error_line(run)
+        assert not bag.exists()
 
     # an integer for a float is what people type: accepted, passed on as a float
     run = nao_skin(["record", "--print", "--bag", str(bag), "--param", "calibrate.gate_mm=20",
@@ -175,15 +201,17 @@ def test_record_removes_its_temporary_directory(tmp_path):
 
     # a node that refuses a parameter at start ends the session with its one line and exit 2, as every
     # other mistake: the directory is removed too
-    run = nao_skin(["record", "--bag", str(tmp_path / "b2"), "--param", "pairing_recorder.storage=bogus"], env=env)
+    missing = tmp_path / "no_such_taxels.txt"
+    run = nao_skin(["record", "--bag", str(tmp_path / "b2"), "--param", f"pairing_recorder.taxels=[l_hand={missing}]"],
+                   env=env)
     assert run.returncode == 2 and "pairing_recorder exited with code 2" in run.stderr, run.stderr
-    assert "storage must be one of sqlite3, mcap, not 'bogus'" in run.stderr and "Traceback" not in run.stderr
+    assert f"{missing}: no such file" in run.stderr and "Traceback" not in run.stderr
     assert record_temp_dirs(tmp) == []
 
 
 def test_the_calibrate_node_takes_the_warm_update_options_from_the_session_config():
     """record.yaml's warm_repairings reaches the engine: an operator can let each live update re-pair more."""
     session = yaml.safe_load(RECORD_YAML.read_text())["calibrate"]["ros__parameters"]
-    params = {name: value for name, (value, _) in calibrate_node.PARAMS.items()}
+    params = {name: value for name, (value, *_) in calibrate_node.PARAMS.items()}
     assert calibrate_node.options_from_params({**params, **session}).warm_repairings == session["warm_repairings"]
     assert calibrate_node.options_from_params({**params, "warm_repairings": 3}).warm_repairings == 3

@@ -22,7 +22,8 @@ def read_text(path: str | Path, what: str = "", error: type | None = None, name:
 
 
 def read_yaml(path: str | Path, what: str):
-    """The YAML document in ``path``; one-line ConfigError naming the file when unreadable."""
+    """The YAML document in ``path``; one-line ConfigError naming the file when unreadable, or when a
+    mapping gives a key twice (YAML would keep the second silently: a hand edit lost without a word)."""
     import yaml
 
     from nao_skin.errors import ConfigError
@@ -30,9 +31,40 @@ def read_yaml(path: str | Path, what: str):
     path = Path(path)
     text = read_text(path, what, ConfigError)
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_unique_key_loader())
+    except _DuplicateKey as exc:
+        raise ConfigError(f"{path}: {exc}; give it once") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+
+
+class _DuplicateKey(Exception):
+    pass
+
+
+def _unique_key_loader():
+    """A safe YAML loader (the C one when built) that refuses a mapping giving a key twice (keys it
+    merges in with ``<<`` may be given again: that is how YAML overrides them)."""
+    import yaml
+
+    base = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+    class UniqueKeyLoader(base):
+        def construct_mapping(self, node, deep=False):
+            seen: dict = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":   # '<<: *base' then a key of base: an override
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                if not isinstance(key, (str, int, float, bool)):   # the base constructor judges the rest
+                    continue
+                line = key_node.start_mark.line + 1
+                if key in seen:
+                    raise _DuplicateKey(f"key '{key}' given twice (lines {seen[key]} and {line})")
+                seen[key] = line
+            return super().construct_mapping(node, deep)
+
+    return UniqueKeyLoader
 
 
 def package_dir() -> Path:

@@ -15,6 +15,7 @@ from nao_skin.calibration.pairing import (KIND_COP, KIND_PLANE_A, KIND_PLANE_B, 
                                           PlaneRows)
 from nao_skin.calibration.solver import SolveOptions
 from nao_skin.errors import DataError
+from nao_skin.rules import Rule
 
 # what each value of the ``pairs`` and ``mount_pairs`` options puts into the residuals: rows of these kinds
 # ("plane": point-to-plane rows both ways, "plane_b" / "plane_a": one side's taxels against the other's surface)
@@ -22,89 +23,6 @@ KIND_ROWS = {"cop": (KIND_COP,), "taxel": (KIND_TAXEL,), "both": (KIND_COP, KIND
              "cop+taxel5": (KIND_COP, KIND_TAXEL5), "cop+plane": (KIND_COP, KIND_PLANE_B, KIND_PLANE_A),
              "cop+plane_b": (KIND_COP, KIND_PLANE_B), "cop+plane_a": (KIND_COP, KIND_PLANE_A),
              "both+plane": (KIND_COP, KIND_TAXEL, KIND_PLANE_B, KIND_PLANE_A)}
-
-
-@dataclass(frozen=True)
-class Rule:
-    """What values an option takes; :meth:`check` returns the value typed, or raises one line naming it."""
-
-    kind: type                      # bool, int, float, str or tuple
-    choices: tuple = ()             # allowed values (str) or allowed items (tuple)
-    low: float | None = None
-    high: float | None = None
-    high_open: bool = False
-    low_open: bool = False
-    length: int | None = None       # tuple of this many numbers
-    optional: bool = False          # None allowed
-    why: str = ""                   # said after a value out of range
-
-    def describe(self) -> str:
-        if self.kind is bool:
-            return "true or false"
-        if self.kind is str:
-            return "one of " + ", ".join(self.choices)
-        if self.kind is tuple and self.choices:
-            return "a list of " + ", ".join(self.choices)
-        what = "a whole number" if self.kind is int else "a number"
-        if self.kind is tuple:
-            what = f"{self.length} numbers"
-        if self.low is not None and self.high is not None:
-            what += f" in {'(' if self.low_open else '['}{self.low:g}, {self.high:g}{')' if self.high_open else ']'}"
-        elif self.low is not None:
-            what += f" {'>' if self.low_open else '>='} {self.low:g}"
-        return what + (" or null" if self.optional else "")
-
-    def _number(self, value, kind):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError
-        if kind is int:
-            if float(value) != int(value):
-                raise ValueError
-            return int(value)
-        value = float(value)
-        if not np.isfinite(value):
-            raise ValueError
-        return value
-
-    def _in_range(self, v) -> bool:
-        return not ((self.low is not None and (v < self.low or (self.low_open and v == self.low)))
-                    or (self.high is not None and (v > self.high or (self.high_open and v == self.high))))
-
-    def check(self, where: str, value):
-        bad = DataError(f"{where}: expected {self.describe()}" + (f" ({self.why})" if self.why else ""))
-        if value is None and self.optional:
-            return None
-        if self.kind is bool:
-            if not isinstance(value, bool):
-                raise bad
-            return value
-        if self.kind is str:
-            if isinstance(value, bool) and {"on", "off"} <= set(self.choices):
-                value = "on" if value else "off"   # YAML 1.1 (--set, parameter files) reads on/off as booleans
-            if value not in self.choices:
-                raise bad
-            return value
-        if self.kind is tuple:
-            if isinstance(value, str) or not isinstance(value, (list, tuple)):
-                raise bad
-            if self.choices:
-                if any(v not in self.choices for v in value):
-                    raise bad
-                return tuple(value)
-            try:
-                out = tuple(self._number(v, float) for v in value)
-            except (ValueError, OverflowError):     # OverflowError: an integer beyond any float
-                raise bad from None
-            if len(out) != self.length or not all(self._in_range(v) for v in out):
-                raise bad
-            return out
-        try:
-            out = self._number(value, self.kind)
-        except (ValueError, OverflowError):
-            raise bad from None
-        if not self._in_range(out):
-            raise bad
-        return out
 
 
 def option(default, rule: Rule, help: str):

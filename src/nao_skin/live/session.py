@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
-from nao_skin.errors import ConfigError
+from nao_skin.errors import ConfigError, NaoSkinError
 from nao_skin.model.skin import parse_taxel_files
 from nao_skin.model.urdf import expand_xacro
 from nao_skin.paths import config_dir
@@ -132,12 +132,17 @@ def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> Non
 
 def node_parameters(spec: NodeSpec) -> dict:
     """``{name: default}`` of every parameter one of our nodes declares (its module's ``PARAMS``)."""
+    return {name: default for name, (default, _) in _declared(spec).items()}
+
+
+def _declared(spec: NodeSpec) -> dict:
+    """``{name: (default, rule or None)}`` of every parameter one of our nodes declares."""
     import importlib
 
     from nao_skin.paths import read_yaml
 
-    params = {name: default for name, (default, _) in importlib.import_module(f"nao_skin.nodes.{spec.executable}")
-              .PARAMS.items()}
+    params = {name: (default, rule[0] if rule else None) for name, (default, _, *rule)
+              in importlib.import_module(f"nao_skin.nodes.{spec.executable}").PARAMS.items()}
     families = PER_PART_PARAMS.get(spec.executable, {})
     if families:
         skin_config = spec.overrides.get("skin_config") or str(config_dir() / "nao_skin.yaml")
@@ -145,7 +150,7 @@ def node_parameters(spec: NodeSpec) -> dict:
         parts = doc.get("parts") if isinstance(doc, dict) else None
         if not isinstance(parts, dict):
             raise ConfigError(f"{skin_config}: a skin config needs a 'parts' mapping")
-        params.update({f"{family}.{part}": default for family, default in families.items() for part in parts})
+        params.update({f"{family}.{part}": (default, None) for family, default in families.items() for part in parts})
     return params
 
 
@@ -157,7 +162,7 @@ def typed_overrides(spec: NodeSpec, values: dict) -> dict:
     """
     import difflib
 
-    known = node_parameters(NodeSpec(spec.name, spec.executable, overrides={**spec.overrides, **values}))
+    known = _declared(NodeSpec(spec.name, spec.executable, overrides={**spec.overrides, **values}))
     out = {}
     for name, value in values.items():
         where = f"--param {spec.name}.{name}"
@@ -166,7 +171,13 @@ def typed_overrides(spec: NodeSpec, values: dict) -> dict:
             raise ConfigError(f"{where}: node '{spec.name}' has no parameter '{name}'"
                               + (f" (did you mean '{close[0]}'?)" if close else "")
                               + f"; its parameters: {', '.join(known)}")
-        out[name] = _typed(value, known[name], where)
+        default, rule = known[name]
+        out[name] = _typed(value, default, where)
+        if rule is not None:     # the node's own check, made before any node starts
+            try:
+                rule.check(f"{where}={_text(value)}", out[name])
+            except NaoSkinError as exc:
+                raise ConfigError(str(exc)) from None
     return out
 
 

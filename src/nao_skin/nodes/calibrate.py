@@ -39,6 +39,7 @@ from nao_skin.live.updates import Settling, UpdateSchedule, WarmStart, rejection
 from nao_skin.model.skin import SkinCalibration, parse_pairs, skin_frame_transforms
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
+from nao_skin.rules import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Rule
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
 from nao_skin.plain import jsonable
 
@@ -61,22 +62,24 @@ PARAMS = {
     "out_dir": ("nao_skin_calibration", "output directory (replaced when a run succeeds)"),
     "plots": (False, "write the report's plots too (slower)"),
     "live": (False, "recalibrate in the background while the recorder stores touches (on in a record session)"),
-    "live_every_touches": (25, "live: an update after this many new touches ..."),
-    "live_period": (10.0, "live: ... or this many seconds after the last one, if any touch came since"),
-    "live_settle_mm": (0.1, "live: a part is done when its taxels moved less than this (mm) ..."),
-    "live_settle_updates": (3, "live: ... in each of this many updates in a row, ..."),
-    "live_flat_percent": (5.0, "live: ... and the held-out closest taxel figure stayed within this % of its mean"),
+    "live_every_touches": (25, "live: an update after this many new touches ...", AT_LEAST_ONE),
+    "live_period": (10.0, "live: ... or this many seconds after the last one, if any touch came since", POSITIVE),
+    "live_settle_mm": (0.1, "live: a part is done when its taxels moved less than this (mm) ...", POSITIVE),
+    "live_settle_updates": (3, "live: ... in each of this many updates in a row, ...", AT_LEAST_ONE),
+    "live_flat_percent": (5.0, "live: ... and the held-out closest taxel figure stayed within this % of its mean",
+                          NON_NEGATIVE),
     "guidance": (True, "live: after each update, publish where touches would help most on /nao_skin/guidance"),
-    "guidance_targets": (5, "live: how many targets the guidance names"),
+    "guidance_targets": (5, "live: how many targets the guidance names", AT_LEAST_ONE),
     "guidance_pairs": ([""], "live: the pairs the guidance may ask for, as 'hand-part' (e.g. l_hand-torso);"
                              " empty: the four thesis pairs"),
     "live_refresh": (2.0, "live: an update from scratch (the whole plan) beside the warm one whenever the touches"
                           " grew this many times since the last such; the one the held-out touches pair closer"
-                          " is published"),
+                          " is published (1: every update from scratch)", Rule(float, low=1.0)),
     "live_max_move_mm": (20.0, "live: an update moving a calibrated part's taxels farther than this (mm) diverged:"
-                               " not published"),
-    # engine options (their defaults and help come from CalibrationOptions' table, OPTION_FIELDS)
-    **{name: (OPTION_FIELDS[name].default, OPTION_FIELDS[name].metadata["help"]) for name in NODE_OPTIONS},
+                               " not published", POSITIVE),
+    # engine options (their defaults, help and rules come from CalibrationOptions' table, OPTION_FIELDS)
+    **{name: (OPTION_FIELDS[name].default, OPTION_FIELDS[name].metadata["help"], OPTION_FIELDS[name].metadata["rule"])
+       for name in NODE_OPTIONS},
 }
 
 

@@ -22,7 +22,7 @@ from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
-from nao_skin.errors import ConfigError, NaoSkinError
+from nao_skin.errors import ConfigError, DataError, NaoSkinError
 from nao_skin.live.session import PARENT_ENV
 
 # every node that reads the skin builds it the way the commands do (model.skin.load_skin)
@@ -35,15 +35,17 @@ STOP_SIGNALS = tuple(getattr(signal, s) for s in ("SIGINT", "SIGTERM", "SIGHUP")
 
 
 def declare(node, params: dict) -> dict:
-    """Declare ``{name: (default, description)}`` and return ``{name: value}``.
+    """Declare ``{name: (default, description[, rule])}`` and return ``{name: value}``.
 
     A float parameter (or list of floats) also takes integers, as people
     write them (``-p gate_mm:=20``, ``gate_mm: 20`` in a params file): it is
     stored as a float, so it keeps its type for introspection and the node.
-    Any other type mismatch is a one-line ConfigError naming the parameter.
+    Any other type mismatch, or a value its :class:`~nao_skin.rules.Rule`
+    refuses (``rate:=0``), is a one-line ConfigError naming the parameter;
+    later changes (``ros2 param set``) are held to the same.
     """
-    out, numeric = {}, {}
-    for name, (default, text) in params.items():
+    out, numeric, rules = {}, {}, {}
+    for name, (default, text, *rule) in params.items():
         if _is_float(default):
             # declared with dynamic typing only to let an integer in; set back to float right away
             node.declare_parameter(name, default, ParameterDescriptor(description=text, dynamic_typing=True))
@@ -67,8 +69,14 @@ def declare(node, params: dict) -> dict:
                 raise ConfigError(f"node '{node.get_name()}': parameter '{name}' takes a value like {default!r}"
                                   f" ({given})") from None
         out[name] = node.get_parameter(name).value
-    if numeric:
-        node.add_on_set_parameters_callback(lambda changed: _numbers_only(changed, numeric))
+        if rule:
+            rules[name] = rule[0]
+            try:
+                rule[0].check(f"node '{node.get_name()}': parameter {name}:={out[name]!r}", out[name])
+            except DataError as exc:
+                raise ConfigError(str(exc)) from None
+    if numeric or rules:
+        node.add_on_set_parameters_callback(lambda changed: _checked(changed, numeric, rules))
     return out
 
 
@@ -96,11 +104,17 @@ def _as_float(value, default):
     return None
 
 
-def _numbers_only(changed, numeric: dict) -> SetParametersResult:
-    """Later changes (``ros2 param set``) of a float parameter: numbers only, as at declaration."""
+def _checked(changed, numeric: dict, rules: dict) -> SetParametersResult:
+    """Later changes (``ros2 param set``): numbers only for a float parameter, and within its rule, as at
+    declaration."""
     for p in changed:
         if p.name in numeric and _as_float(p.value, numeric[p.name]) is None:
             return SetParametersResult(successful=False, reason=f"'{p.name}' takes a number like {numeric[p.name]!r}")
+        if p.name in rules:
+            try:
+                rules[p.name].check(f"parameter {p.name}:={p.value!r}", p.value)
+            except DataError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
     return SetParametersResult(successful=True)
 
 

@@ -36,6 +36,7 @@ from nao_skin.model.skin import parse_pairs
 from nao_skin.nodes.calibrate import GUIDANCE_TOPIC, LATCHED
 from nao_skin.nodes.messages import cloud_from_array, joint_state_msg
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
+from nao_skin.rules import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, WHOLE
 from nao_skin.sim.capture import Aim, CaptureSim
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
@@ -45,20 +46,21 @@ STATUS_TOPIC = "/sim_robot/status"
 PARAMS = {
     **SKIN_PARAMS,
     "preset": ("default", "simulation preset of config/simulation.yaml"),
-    "seed": (1, "simulator seed: the same seed plays the same touches"),
-    "touches_per_pair": (20, "accepted touches per self-touch pair"),
+    "seed": (1, "simulator seed: the same seed plays the same touches", WHOLE),
+    "touches_per_pair": (20, "accepted touches per self-touch pair", AT_LEAST_ONE),
     "pairs": ([""], "pairs to play as 'hand-part' (e.g. l_hand-torso); empty: the preset's pairs"),
-    "joint_rate": (100.0, "joint state rate (Hz)"),
-    "skin_rate": (50.0, "skin message rate per part (Hz), like skinManager's period"),
-    "touch_period": (1.0, "seconds between the starts of two presses"),
-    "press_duration": (0.3, "seconds each press lasts"),
-    "hold": (0.1, "seconds the arm holds still before and after a press"),
+    "joint_rate": (100.0, "joint state rate (Hz)", POSITIVE),
+    "skin_rate": (50.0, "skin message rate per part (Hz), like skinManager's period", POSITIVE),
+    "touch_period": (1.0, "seconds between the starts of two presses", POSITIVE),
+    "press_duration": (0.3, "seconds each press lasts", POSITIVE),
+    "hold": (0.1, "seconds the arm holds still before and after a press", NON_NEGATIVE),
     "loop": (False, "start again after the last touch"),
-    "wait_for_subscribers": (0, "start only when each skin taxels topic has this many subscribers (0: at once)"),
-    "wait_timeout": (20.0, "longest wait for subscribers (s), then play anyway"),
+    "wait_for_subscribers": (0, "start only when each skin taxels topic has this many subscribers (0: at once)",
+                             WHOLE),
+    "wait_timeout": (20.0, "longest wait for subscribers (s), then play anyway", NON_NEGATIVE),
     "guided": (False, "follow /nao_skin/guidance: the next touches aim at its top targets"),
-    "guided_start": (20, "guided: random touches before the first batch aimed at the guidance"),
-    "guided_batch": (5, "guided: touches per batch aimed at the guidance's top targets"),
+    "guided_start": (20, "guided: random touches before the first batch aimed at the guidance", WHOLE),
+    "guided_batch": (5, "guided: touches per batch aimed at the guidance's top targets", AT_LEAST_ONE),
 }
 
 

@@ -35,6 +35,7 @@ from nao_skin.live.heatmap import (GUIDANCE_COLOUR, SCALE_LEVELS, ActivationCoun
                                    triangle_slots)
 from nao_skin.nodes.calibrate import GUIDANCE_TOPIC, LATCHED, STATUS_TOPIC
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
+from nao_skin.rules import POSITIVE
 
 TOPIC = "/nao_skin/heatmap"
 GUIDANCE_MARKERS_TOPIC = "/nao_skin/guidance/markers"
@@ -44,8 +45,8 @@ LEGEND_HEIGHT = 0.12      # m: height of the colour bar
 
 PARAMS = {
     **SKIN_PARAMS,
-    "rate": (10.0, "marker updates per second (Hz)"),
-    "taxel_diameter": (0.005, "sphere diameter of a taxel (m)"),
+    "rate": (10.0, "marker updates per second (Hz)", POSITIVE),
+    "taxel_diameter": (0.005, "sphere diameter of a taxel (m)", POSITIVE),
     "legend_origin": ([0.0, -0.25, 0.15], "where the colour bar starts, in the base frame (m)"),
 }
 
