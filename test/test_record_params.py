@@ -90,7 +90,13 @@ def test_node_refuses_a_string_for_a_float_parameter(tmp_path):
 
 
 @pytest.mark.parametrize("node, params, line", [
-    ("skin_heatmap", {"rate": 0.0}, "error: node 'skin_heatmap': parameter rate:=0.0: expected a number > 0"),
+    ("skin_heatmap", {"rate": 0.0}, "error: node 'skin_heatmap': parameter rate:=0.0: expected a number in [1e-05, 1000]"),
+    ("skin_heatmap", {"rate": 1e-300},        # its timer period would overflow rcl's nanoseconds
+     "error: node 'skin_heatmap': parameter rate:=1e-300: expected a number in [1e-05, 1000]"),
+    ("skin_heatmap", {"legend_origin": [1.0, 2.0]},
+     "error: node 'skin_heatmap': parameter legend_origin:=[1.0, 2.0]: expected 3 numbers"),
+    ("skin_heatmap", {"rate": []}, "error: node 'skin_heatmap': parameter 'rate' must be a number like 10.0,"
+                                   " not an empty list"),
     ("calibrate", {"live_every_touches": -3},
      "error: node 'calibrate': parameter live_every_touches:=-3: expected a whole number >= 1"),
 ])
@@ -103,6 +109,35 @@ def test_a_node_refuses_a_value_out_of_its_range_in_one_line(tmp_path, node, par
         code = proc.stop()
     assert code == 2 and "Traceback" not in proc.stderr()
     assert line in proc.stderr().splitlines(), proc.stderr()[-2000:]
+
+
+def test_a_node_takes_an_empty_list_and_refuses_arguments_rcl_cannot_parse_in_one_line(tmp_path):
+    from visualization_msgs.msg import MarkerArray
+
+    from nao_skin.nodes.skin_heatmap import TOPIC
+
+    env = ros_env(unique_domain_id())
+    # '-p taxels:=[]': rcl gives an empty list no type; it means no layout file, as [''] does
+    node = node_process("skin_heatmap", {"taxels": []}, env, tmp_path)
+    listener = None
+    try:
+        listener = Listener(int(env["ROS_DOMAIN_ID"]))
+        heat = listener.subscribe(MarkerArray, TOPIC)
+        assert listener.spin_until(lambda: heat, procs=[node]), node.stderr()[-2000:]   # up and drawing
+    finally:
+        if listener is not None:
+            listener.close()
+        code = node.stop()
+    assert code == 0 and "Traceback" not in node.stderr()
+    bad = Proc([sys.executable, "-m", "nao_skin.nodes.skin_heatmap", "--ros-args", "-p", "skin_config:={a: 1}"],
+               env, tmp_path, "bad_args")
+    try:
+        bad.popen.wait(timeout=60)
+    finally:
+        code = bad.stop()
+    assert code == 2 and "Traceback" not in bad.stderr()
+    assert ("error: the ROS arguments: Couldn't parse parameter override rule: '-p skin_config:={a: 1}'."
+            " Error: Unknown YAML event") in bad.stderr().splitlines(), bad.stderr()
 
 
 def nao_skin(args, env=None, timeout=120) -> subprocess.CompletedProcess:
@@ -131,7 +166,7 @@ def test_record_refuses_unknown_or_mistyped_parameters(tmp_path):
     assert "calibrate.gate_mm=abc" in line and "expected a number" in line
 
     # out of the range the node accepts: its own rule, checked here (a rate of 0 was a node's traceback)
-    for item, expected in (("skin_heatmap.rate=0", "expected a number > 0"),
+    for item, expected in (("skin_heatmap.rate=0", "expected a number in [1e-05, 1000]"),
                            ("calibrate.live_every_touches=-3", "expected a whole number >= 1"),
                            ("calibrate.gate_mm=-1", "expected a number >= 0"),
                            ("pairing_recorder.storage=zip", "expected one of mcap, sqlite3")):

@@ -96,8 +96,13 @@ class Rule:
 
 
 # the rules most settings need (Rule is frozen: these are constants)
-POSITIVE = Rule(float, low=0.0, low_open=True)        # a rate, period, length or tolerance
+POSITIVE = Rule(float, low=0.0, low_open=True)        # a length or tolerance
 NON_NEGATIVE = Rule(float, low=0.0)
+# a ROS timer counts its period in 64-bit nanoseconds (a rate of 1e-300 Hz overflows it); a day is the
+# longest period that makes sense for a node, 1 kHz more than a Python callback keeps up with
+SECONDS = Rule(float, low=0.0, low_open=True, high=86400.0)
+SECONDS_OR_ZERO = Rule(float, low=0.0, high=86400.0)
+RATE = Rule(float, low=1e-5, high=1000.0)             # Hz
 AT_LEAST_ONE = Rule(int, low=1)                       # a count of things that must happen at least once
 WHOLE = Rule(int, low=0)                              # a count or seed that may be 0
 PORT = Rule(int, low=1, high=65535)

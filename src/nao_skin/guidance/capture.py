@@ -60,6 +60,7 @@ import numpy as np
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.plan import HANDS, REFERENCE_BODY, part_rank
 from nao_skin.calibration.report import paired_activation_counts
+from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.plain import jsonable
 from nao_skin.sim.params import SimParams
@@ -129,6 +130,47 @@ class Guidance:
         return {"n_touches": self.n_touches, "seconds": self.seconds, "pair_touches": dict(self.pair_touches),
                 "targets": [t.to_dict() for t in self.targets],
                 "coverage": {k: v.to_dict() for k, v in self.coverage.items()}, "notes": list(self.notes)}
+
+
+def targets_from_json(text: str, skin: SkinModel) -> tuple:
+    """The targets of a guidance message (``Guidance.to_dict`` as JSON) that name this skin's parts and
+    triangles, as dicts with the fields a consumer reads, checked: ``(targets, skipped)``.
+
+    What arrives on a topic is anybody's: a message that is not the guidance's JSON is a DataError, a
+    target that names another skin's part or triangle, or whose fields have the wrong type, is skipped
+    and counted. ``pose`` is kept only when it maps joint names to finite angles.
+    """
+    import json
+    import math
+
+    try:
+        doc = json.loads(text)
+    except ValueError as exc:
+        raise DataError(f"not JSON ({exc})") from None
+    targets = doc.get("targets", []) if isinstance(doc, dict) else None
+    if not isinstance(targets, list):
+        raise DataError("not the guidance's JSON: no 'targets' list")
+
+    def triangle(part, value):
+        ok = isinstance(value, int) and not isinstance(value, bool) and value in skin.parts[part].triangle_ids
+        return value if ok else None
+
+    out = []
+    for t in targets:
+        if not isinstance(t, dict) or not all(isinstance(t.get(k), str) and t[k] in skin.parts
+                                              for k in ("part", "hand", "touched")):
+            continue
+        if triangle(t["part"], t.get("triangle_id")) is None:
+            continue
+        pose = t.get("pose")
+        pose = (pose if isinstance(pose, dict) and pose and all(
+            isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            for k, v in pose.items()) else None)
+        out.append({"part": t["part"], "triangle_id": t["triangle_id"], "hand": t["hand"], "touched": t["touched"],
+                    "reason": t["reason"] if isinstance(t.get("reason"), str) else "",
+                    "hand_triangle_id": triangle(t["hand"], t.get("hand_triangle_id")),
+                    "touched_triangle_id": triangle(t["touched"], t.get("touched_triangle_id")), "pose": pose})
+    return out, len(targets) - len(out)
 
 
 # ---------------------------------------------------------------------------- counting

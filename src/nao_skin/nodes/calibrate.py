@@ -39,7 +39,7 @@ from nao_skin.live.updates import Settling, UpdateSchedule, WarmStart, rejection
 from nao_skin.model.skin import SkinCalibration, parse_pairs, skin_frame_transforms
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
-from nao_skin.rules import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Rule
+from nao_skin.rules import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Rule, SECONDS
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
 from nao_skin.plain import jsonable
 
@@ -63,7 +63,7 @@ PARAMS = {
     "plots": (False, "write the report's plots too (slower)"),
     "live": (False, "recalibrate in the background while the recorder stores touches (on in a record session)"),
     "live_every_touches": (25, "live: an update after this many new touches ...", AT_LEAST_ONE),
-    "live_period": (10.0, "live: ... or this many seconds after the last one, if any touch came since", POSITIVE),
+    "live_period": (10.0, "live: ... or this many seconds after the last one, if any touch came since", SECONDS),
     "live_settle_mm": (0.1, "live: a part is done when its taxels moved less than this (mm) ...", POSITIVE),
     "live_settle_updates": (3, "live: ... in each of this many updates in a row, ...", AT_LEAST_ONE),
     "live_flat_percent": (5.0, "live: ... and the held-out closest taxel figure stayed within this % of its mean",
@@ -143,9 +143,11 @@ class CalibrateNode(Node):
     # ------------------------------------------------------------------ live updates
     def _on_progress(self, msg: String) -> None:
         try:
-            self._recorded = int(json.loads(msg.data).get("touches", 0))
-        except (ValueError, TypeError, AttributeError):
-            pass                          # a malformed progress message: the next one will do
+            touches = json.loads(msg.data).get("touches", 0)
+        except (ValueError, AttributeError):
+            return                        # a malformed progress message: the next one will do
+        if isinstance(touches, int) and not isinstance(touches, bool) and touches >= 0:
+            self._recorded = touches
 
     def _maybe_update(self) -> None:
         now = time.monotonic()

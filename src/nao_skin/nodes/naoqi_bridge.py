@@ -22,7 +22,7 @@ from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC
 from nao_skin.live.reconnect import Backoff
 from nao_skin.nodes.messages import joint_state_msg
 from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.rules import PORT, POSITIVE
+from nao_skin.rules import PORT, RATE, SECONDS
 
 DEFAULT_JOINTS = ["HeadYaw", "HeadPitch",
                   "LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll", "LWristYaw",
@@ -31,11 +31,11 @@ DEFAULT_JOINTS = ["HeadYaw", "HeadPitch",
 PARAMS = {
     "nao_ip": ("127.0.0.1", "IP address or host name of the robot running NAOqi"),
     "nao_port": (9559, "NAOqi port", PORT),
-    "rate": (50.0, "joint angle reads per second (Hz)", POSITIVE),
+    "rate": (50.0, "joint angle reads per second (Hz)", RATE),
     "joint_names": (DEFAULT_JOINTS, "NAOqi joint names to read and publish"),
     "use_sensors": (True, "getAngles' useSensors: sensed (true) or commanded (false) angles"),
-    "reconnect_min": (0.5, "first reconnection delay after the robot vanished (s)", POSITIVE),
-    "reconnect_max": (5.0, "longest reconnection delay (s)", POSITIVE),
+    "reconnect_min": (0.5, "first reconnection delay after the robot vanished (s)", SECONDS),
+    "reconnect_max": (5.0, "longest reconnection delay (s)", SECONDS),
 }
 
 

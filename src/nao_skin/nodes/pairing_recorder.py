@@ -34,7 +34,7 @@ from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_topic, read
 from nao_skin.live.heatmap import ActivationCounts
 from nao_skin.nodes.messages import joint_state_arrays, stamp_from_msg
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
-from nao_skin.rules import NON_NEGATIVE, POSITIVE, Rule
+from nao_skin.rules import NON_NEGATIVE, Rule, SECONDS
 from nao_skin.touch.events import EventConfig, EventDetector
 
 PROGRESS_TOPIC = "/nao_skin/recorder/progress"
@@ -46,8 +46,8 @@ PARAMS = {
     "bag_path": ("", "touch bag to create (a new directory; empty: ./nao_skin_touches_<date>_<time>)"),
     "storage": ("mcap", "bag storage: mcap (survives kill -9 up to the last flush) or sqlite3",
                 Rule(str, ("mcap", "sqlite3"))),
-    "flush_period": (1.0, "seconds between flushes of the bag to disk", POSITIVE),
-    "progress_period": (1.0, "seconds between progress messages", POSITIVE),
+    "flush_period": (1.0, "seconds between flushes of the bag to disk", SECONDS),
+    "progress_period": (1.0, "seconds between progress messages", SECONDS),
     "skin_tolerance": (_D.skin_tolerance, "s: skin samples of different parts this close are one moment",
                        NON_NEGATIVE),
     "joint_tolerance": (_D.joint_tolerance, "s: bracketing joint states must be this close to the touch",

@@ -12,13 +12,15 @@ from __future__ import annotations
 
 import array
 import os
+import re
 import signal
 import sys
 import threading
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from rclpy.exceptions import InvalidParameterTypeException
+from rclpy._rclpy_pybind11 import RCLError
+from rclpy.exceptions import InvalidParameterTypeException, ParameterUninitializedException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
@@ -54,7 +56,7 @@ def declare(node, params: dict) -> dict:
             if number is None:
                 raise ConfigError(f"node '{node.get_name()}': parameter '{name}' must be"
                                   f" {'a list of numbers' if isinstance(default, list) else 'a number'}"
-                                  f" like {default!r}, not {value!r}")
+                                  f" like {default!r}, not {'an empty list' if value is None else repr(value)}")
             kind = Parameter.Type.from_parameter_value(default)
             if node.get_parameter(name).type_ != kind:
                 result = node.set_parameters([Parameter(name, kind, number)])[0]
@@ -68,7 +70,13 @@ def declare(node, params: dict) -> dict:
                 given = str(exc).rsplit(f": {name}", 1)[0]        # rclpy appends ": <name>"
                 raise ConfigError(f"node '{node.get_name()}': parameter '{name}' takes a value like {default!r}"
                                   f" ({given})") from None
-        out[name] = node.get_parameter(name).value
+        try:
+            out[name] = node.get_parameter(name).value
+        except ParameterUninitializedException:   # '-p name:=[]': an empty list has no type for rcl
+            if not isinstance(default, list):
+                raise ConfigError(f"node '{node.get_name()}': parameter '{name}' takes a value like {default!r},"
+                                  f" not an empty list") from None
+            out[name] = []
         if rule:
             rules[name] = rule[0]
             try:
@@ -118,6 +126,12 @@ def _checked(changed, numeric: dict, rules: dict) -> SetParametersResult:
     return SetParametersResult(successful=True)
 
 
+def _rcl_reason(exc: Exception) -> str:
+    """rcl's message without its source locations (', at /project/src/...')."""
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return re.sub(r", at /\S+:\d+", "", text).removeprefix("failed to initialize rcl: ")
+
+
 def _parent_gone():
     """A check "has ``nao-skin record`` gone?" for a node it started, else None.
 
@@ -145,7 +159,11 @@ def _parent_gone():
 
 def run_node(factory, args=None) -> int:
     """Create the node with ``factory()``, spin it, shut it down cleanly on a stop signal or when record is gone."""
-    rclpy.init(args=sys.argv if args is None else args, signal_handler_options=rclpy.SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=sys.argv if args is None else args, signal_handler_options=rclpy.SignalHandlerOptions.NO)
+    except RCLError as exc:      # e.g. '-p name:={a: 1}': rcl cannot parse the override
+        print(f"error: the ROS arguments: {_rcl_reason(exc)}", file=sys.stderr)
+        return 2
     stop = threading.Event()
 
     def on_signal(signum, frame):      # noqa: ARG001 - signal handler signature

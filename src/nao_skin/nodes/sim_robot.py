@@ -29,14 +29,15 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 
-from nao_skin.errors import ConfigError
+from nao_skin.errors import ConfigError, DataError
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_array, contacts_topic, taxels_array, taxels_topic
+from nao_skin.guidance.capture import targets_from_json
 from nao_skin.live.playback import Playback
 from nao_skin.model.skin import parse_pairs
 from nao_skin.nodes.calibrate import GUIDANCE_TOPIC, LATCHED
 from nao_skin.nodes.messages import cloud_from_array, joint_state_msg
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
-from nao_skin.rules import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, WHOLE
+from nao_skin.rules import AT_LEAST_ONE, RATE, SECONDS, SECONDS_OR_ZERO, WHOLE
 from nao_skin.sim.capture import Aim, CaptureSim
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
@@ -49,15 +50,15 @@ PARAMS = {
     "seed": (1, "simulator seed: the same seed plays the same touches", WHOLE),
     "touches_per_pair": (20, "accepted touches per self-touch pair", AT_LEAST_ONE),
     "pairs": ([""], "pairs to play as 'hand-part' (e.g. l_hand-torso); empty: the preset's pairs"),
-    "joint_rate": (100.0, "joint state rate (Hz)", POSITIVE),
-    "skin_rate": (50.0, "skin message rate per part (Hz), like skinManager's period", POSITIVE),
-    "touch_period": (1.0, "seconds between the starts of two presses", POSITIVE),
-    "press_duration": (0.3, "seconds each press lasts", POSITIVE),
-    "hold": (0.1, "seconds the arm holds still before and after a press", NON_NEGATIVE),
+    "joint_rate": (100.0, "joint state rate (Hz)", RATE),
+    "skin_rate": (50.0, "skin message rate per part (Hz), like skinManager's period", RATE),
+    "touch_period": (1.0, "seconds between the starts of two presses", SECONDS),
+    "press_duration": (0.3, "seconds each press lasts", SECONDS),
+    "hold": (0.1, "seconds the arm holds still before and after a press", SECONDS_OR_ZERO),
     "loop": (False, "start again after the last touch"),
     "wait_for_subscribers": (0, "start only when each skin taxels topic has this many subscribers (0: at once)",
                              WHOLE),
-    "wait_timeout": (20.0, "longest wait for subscribers (s), then play anyway", NON_NEGATIVE),
+    "wait_timeout": (20.0, "longest wait for subscribers (s), then play anyway", SECONDS_OR_ZERO),
     "guided": (False, "follow /nao_skin/guidance: the next touches aim at its top targets"),
     "guided_start": (20, "guided: random touches before the first batch aimed at the guidance", WHOLE),
     "guided_batch": (5, "guided: touches per batch aimed at the guidance's top targets", AT_LEAST_ONE),
@@ -165,16 +166,16 @@ class SimRobot(Node):
 
     def _on_guidance(self, msg: String) -> None:
         try:
-            self.targets = list(json.loads(msg.data).get("targets", []))
-        except (ValueError, TypeError, AttributeError):
-            self.get_logger().warning("skipped a guidance message that is not the guidance's JSON")
+            self.targets, _ = targets_from_json(msg.data, self.skin)
+        except DataError as exc:
+            self.get_logger().warning(f"skipped a guidance message: {exc}")
 
     def _next_batch(self):
         """The next touches: aimed at the guidance's top targets (random while there is none)."""
         n = min(self.batch[1], self.total - self.played)
         pairs = set(self.capture.pairs)
-        aims = [Aim(t["hand"], t["touched"], t.get("hand_triangle_id"), t.get("touched_triangle_id"))
-                for t in self.targets if t.get("pose") is not None and (t.get("hand"), t.get("touched")) in pairs][:n]
+        aims = [Aim(t["hand"], t["touched"], t["hand_triangle_id"], t["touched_triangle_id"])
+                for t in self.targets if t["pose"] is not None and (t["hand"], t["touched"]) in pairs][:n]
         touches = self.capture.aimed(aims) if aims else None
         if touches is None or touches.n_touches == 0:
             touches = self.capture.random(n)

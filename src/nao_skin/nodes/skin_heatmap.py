@@ -31,11 +31,12 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from nao_skin.errors import DataError
 from nao_skin.formats.pointcloud import read_taxels, taxels_topic
+from nao_skin.guidance.capture import targets_from_json
 from nao_skin.live.heatmap import (GUIDANCE_COLOUR, SCALE_LEVELS, ActivationCounts, palette, triangle_outline,
                                    triangle_slots)
 from nao_skin.nodes.calibrate import GUIDANCE_TOPIC, LATCHED, STATUS_TOPIC
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
-from nao_skin.rules import POSITIVE
+from nao_skin.rules import POSITIVE, RATE, Rule
 
 TOPIC = "/nao_skin/heatmap"
 GUIDANCE_MARKERS_TOPIC = "/nao_skin/guidance/markers"
@@ -45,9 +46,10 @@ LEGEND_HEIGHT = 0.12      # m: height of the colour bar
 
 PARAMS = {
     **SKIN_PARAMS,
-    "rate": (10.0, "marker updates per second (Hz)", POSITIVE),
+    "rate": (10.0, "marker updates per second (Hz)", RATE),
     "taxel_diameter": (0.005, "sphere diameter of a taxel (m)", POSITIVE),
-    "legend_origin": ([0.0, -0.25, 0.15], "where the colour bar starts, in the base frame (m)"),
+    "legend_origin": ([0.0, -0.25, 0.15], "where the colour bar starts, in the base frame (m)",
+                      Rule(tuple, length=3)),
 }
 
 
@@ -97,12 +99,12 @@ class SkinHeatmap(Node):
 
     def _on_guidance(self, msg: String) -> None:
         try:
-            targets = json.loads(msg.data).get("targets", [])
-            self.targets = [t for t in targets if t.get("part") in self.skin.parts
-                            and int(t.get("triangle_id", -1)) in self.skin.parts[t["part"]].triangle_ids]
-        except (ValueError, TypeError, AttributeError, KeyError):
-            self.get_logger().warning("skipped a guidance message that is not the guidance's JSON")
+            self.targets, skipped = targets_from_json(msg.data, self.skin)
+        except DataError as exc:
+            self.get_logger().warning(f"skipped a guidance message: {exc}")
             return
+        if skipped:
+            self.get_logger().warning(f"guidance: skipped {skipped} targets that are not this skin's triangles")
         self._publish_guidance()
 
     def _on_status(self, msg: String) -> None:
@@ -110,8 +112,11 @@ class SkinHeatmap(Node):
             states = json.loads(msg.data).get("parts")
         except (ValueError, TypeError, AttributeError):
             return
-        if isinstance(states, dict) and states != self.states:
-            self.states = {k: v for k, v in states.items() if k in self.skin.parts}
+        if not isinstance(states, dict):
+            return
+        states = {k: v for k, v in states.items() if k in self.skin.parts and isinstance(v, str)}
+        if states != self.states:
+            self.states = states
             self._publish_guidance()
 
     def _publish_guidance(self) -> None:
