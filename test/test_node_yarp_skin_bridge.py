@@ -188,3 +188,16 @@ def test_skin_bridge(tmp_path, monkeypatch):
         yarp.Network.fini()
     assert code == 0, bridge.stderr()[-3000:]
     assert "skipped:" in bridge.stderr() and "contact 0" in bridge.stderr()
+
+
+def test_two_parts_on_one_skin_part_id_are_refused_in_one_line(tmp_path):
+    """One skinPart id feeds one part: mapping two parts to it dropped one without a word."""
+    node = node_process("yarp_skin_bridge", {"part_ids.head": 7, "part_ids.torso": 7},
+                        ros_env(unique_domain_id()), tmp_path)
+    try:
+        node.popen.wait(timeout=60)
+    finally:
+        code = node.stop()
+    assert code == 2 and "Traceback" not in node.stderr()
+    assert "error: parameter part_ids: torso and head both have skinPart id 7" in node.stderr().splitlines(), \
+        node.stderr()[-2000:]

@@ -97,6 +97,8 @@ def test_node_refuses_a_string_for_a_float_parameter(tmp_path):
      "error: node 'skin_heatmap': parameter legend_origin:=[1.0, 2.0]: expected 3 numbers"),
     ("skin_heatmap", {"rate": []}, "error: node 'skin_heatmap': parameter 'rate' must be a number like 10.0,"
                                    " not an empty list"),
+    ("naoqi_bridge", {"reconnect_min": 10.0, "reconnect_max": 1.0},     # each within its rule, not together
+     "error: parameters reconnect_min:=10.0 and reconnect_max:=1.0: the first delay is longer than the longest"),
     ("calibrate", {"live_every_touches": -3},
      "error: node 'calibrate': parameter live_every_touches:=-3: expected a whole number >= 1"),
 ])
@@ -109,6 +111,30 @@ def test_a_node_refuses_a_value_out_of_its_range_in_one_line(tmp_path, node, par
         code = proc.stop()
     assert code == 2 and "Traceback" not in proc.stderr()
     assert line in proc.stderr().splitlines(), proc.stderr()[-2000:]
+
+
+def test_a_node_names_what_it_was_given_and_does_not_have(tmp_path):
+    """ROS ignores an override the node does not declare: a typo, or a mapping where a value belongs."""
+    from visualization_msgs.msg import MarkerArray
+
+    from nao_skin.nodes.skin_heatmap import TOPIC
+
+    env = ros_env(unique_domain_id())
+    params = tmp_path / "heatmap.yaml"
+    params.write_text("skin_heatmap:\n  ros__parameters:\n    rate: {hz: 5}\n")
+    node = node_process("skin_heatmap", {"rat": 5.0}, env, tmp_path, params_file=params)
+    listener = None
+    try:
+        listener = Listener(int(env["ROS_DOMAIN_ID"]))
+        heat = listener.subscribe(MarkerArray, TOPIC)
+        assert listener.spin_until(lambda: heat, procs=[node]), node.stderr()[-2000:]
+    finally:
+        if listener is not None:
+            listener.close()
+        code = node.stop()
+    assert code == 0
+    assert ("ignored parameters this node does not have: rat (did you mean 'rate'?), rate.hz (did you mean"
+            " 'rate'?)") in node.stderr(), node.stderr()[-2000:]
 
 
 def test_a_node_takes_an_empty_list_and_refuses_arguments_rcl_cannot_parse_in_one_line(tmp_path):
@@ -138,6 +164,18 @@ def test_a_node_takes_an_empty_list_and_refuses_arguments_rcl_cannot_parse_in_on
     assert code == 2 and "Traceback" not in bad.stderr()
     assert ("error: the ROS arguments: Couldn't parse parameter override rule: '-p skin_config:={a: 1}'."
             " Error: Unknown YAML event") in bad.stderr().splitlines(), bad.stderr()
+    # a parameters file that is not there, or not YAML: our one line before rcl's two
+    for text in (None, "calibrate: [\n"):
+        params = tmp_path / "params.yaml"
+        if text is not None:
+            params.write_text(text)
+        node = node_process("calibrate", {}, env, tmp_path, params_file=params)
+        try:
+            node.popen.wait(timeout=60)
+        finally:
+            code = node.stop()
+        lines = node.stderr().strip().splitlines()
+        assert code == 2 and len(lines) == 1 and lines[0].startswith(f"error: {params}: "), lines
 
 
 def nao_skin(args, env=None, timeout=120) -> subprocess.CompletedProcess:
@@ -181,9 +219,10 @@ def test_record_refuses_unknown_or_mistyped_parameters(tmp_path):
 
     # an integer for a float is what people type: accepted, passed on as a float
     run = nao_skin(["record", "--print", "--bag", str(bag), "--param", "calibrate.gate_mm=20",
-                    "--param", "pairing_recorder.flush_period=2"])
+                    "--param", "pairing_recorder.flush_period=2", "--param", "skin_heatmap.rate=1e2"])
     assert run.returncode == 0, run.stderr
     assert "-p gate_mm:=20.0" in run.stdout and "-p flush_period:=2.0" in run.stdout
+    assert "-p rate:=100.0" in run.stdout      # '1e2' as rcl reads it, where YAML 1.1 reads a string
 
 
 def test_record_for_the_nao_without_yarp_says_what_to_install(tmp_path):

@@ -185,6 +185,11 @@ def _typed(value, default, where: str):
     """``value`` as the type of ``default``; a str is parsed as YAML unless the parameter is a string."""
     import yaml
 
+    if isinstance(value, str) and isinstance(default, float) and not isinstance(default, bool):
+        try:            # '1e3' as rcl reads it (YAML 1.1 wants '1.0e+3')
+            return float(value)
+        except ValueError:
+            pass
     if isinstance(value, str) and not isinstance(default, str):
         try:
             value = yaml.safe_load(value) if value else ([""] if isinstance(default, list) else None)

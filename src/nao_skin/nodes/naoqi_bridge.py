@@ -17,7 +17,7 @@ import time
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from nao_skin.errors import one_line
+from nao_skin.errors import ConfigError, one_line
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC
 from nao_skin.live.reconnect import Backoff
 from nao_skin.nodes.messages import joint_state_msg
@@ -76,6 +76,9 @@ class NaoqiBridge(Node):
         self.period = 1.0 / float(p["rate"])
         self.url = f"tcp://{p['nao_ip']}:{int(p['nao_port'])}"
         self.link = MotionLink(self.url)
+        if p["reconnect_min"] > p["reconnect_max"]:
+            raise ConfigError(f"parameters reconnect_min:={p['reconnect_min']} and reconnect_max:={p['reconnect_max']}:"
+                              f" the first delay is longer than the longest")
         self.backoff = Backoff(f"NAOqi at {self.url}", p["reconnect_min"], p["reconnect_max"])
         self.publisher = self.create_publisher(JointState, JOINT_STATES_TOPIC, 10)
         self.stats = {"published": 0, "bad_reads": 0, "outages": 0}

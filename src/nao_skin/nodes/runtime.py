@@ -126,6 +126,35 @@ def _checked(changed, numeric: dict, rules: dict) -> SetParametersResult:
     return SetParametersResult(successful=True)
 
 
+def _check_params_files(args) -> None:
+    """Each ``--params-file`` of the ROS arguments readable YAML (rcl says so in two lines, one a log line)."""
+    from nao_skin.paths import read_yaml
+
+    args = list(args)
+    for i, arg in enumerate(args[:-1]):
+        if arg == "--params-file":
+            read_yaml(args[i + 1], "ROS parameters file")
+
+
+def _warn_undeclared(node) -> None:
+    """One warning naming the parameters given to the node that it does not declare (a typo, or a mapping
+    where a value belongs: ``rate: {hz: 5}`` arrives as ``rate.hz``), which ROS ignores without a word.
+    A warning, not an error: a ``/**`` section of a parameters file rightly gives every node the same set."""
+    import difflib
+
+    given = getattr(node, "_parameter_overrides", {})     # rclpy keeps the overrides there, undeclared ones too
+    unknown = sorted(name for name in given if not node.has_parameter(name))
+    if not unknown:
+        return
+    declared = [name for name in node._parameters]
+    hints = []
+    for name in unknown:
+        close = difflib.get_close_matches(name, declared, n=1) or difflib.get_close_matches(
+            name.split(".")[0], declared, n=1)
+        hints.append(f"{name} (did you mean '{close[0]}'?)" if close else name)
+    node.get_logger().warning(f"ignored parameters this node does not have: {', '.join(hints)}")
+
+
 def _rcl_reason(exc: Exception) -> str:
     """rcl's message without its source locations (', at /project/src/...')."""
     text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
@@ -159,8 +188,13 @@ def _parent_gone():
 
 def run_node(factory, args=None) -> int:
     """Create the node with ``factory()``, spin it, shut it down cleanly on a stop signal or when record is gone."""
+    args = sys.argv if args is None else args
     try:
-        rclpy.init(args=sys.argv if args is None else args, signal_handler_options=rclpy.SignalHandlerOptions.NO)
+        _check_params_files(args)
+        rclpy.init(args=args, signal_handler_options=rclpy.SignalHandlerOptions.NO)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     except RCLError as exc:      # e.g. '-p name:={a: 1}': rcl cannot parse the override
         print(f"error: the ROS arguments: {_rcl_reason(exc)}", file=sys.stderr)
         return 2
@@ -180,6 +214,7 @@ def run_node(factory, args=None) -> int:
         except NaoSkinError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
+        _warn_undeclared(node)
         # one thread: a node's callbacks never run concurrently (the recorder's detector is not
         # thread-safe); slow work (polling NAOqi, YARP reads, calibration) has its own threads
         executor = SingleThreadedExecutor()

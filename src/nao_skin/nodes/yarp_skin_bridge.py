@@ -29,7 +29,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
-from nao_skin.errors import DataError
+from nao_skin.errors import ConfigError, DataError
 from nao_skin.formats.pointcloud import contacts_array, contacts_topic, taxels_array, taxels_topic
 from nao_skin.formats.skinmanager import activated_taxels, parse_skin_events, part_id_map
 from nao_skin.live.reconnect import Backoff
@@ -64,8 +64,14 @@ class YarpSkinBridge(Node):
                              for n in parts})
         comp = declare(self, {f"compensated_ports.{n}": ("", f"compensated taxel port of '{n}' (empty: none)")
                               for n in parts})
-        self.part_of_id = part_id_map({v: k.split(".", 1)[1] for k, v in ids.items() if v >= 0}, parts,
-                                      "parameter part_ids")
+        named: dict = {}
+        for key, pid in ids.items():
+            if pid >= 0:
+                named.setdefault(pid, []).append(key.split(".", 1)[1])
+        for pid, names in named.items():
+            if len(names) > 1:    # one skinPart id feeds one part: the others would be dropped without a word
+                raise ConfigError(f"parameter part_ids: {' and '.join(names)} both have skinPart id {pid}")
+        self.part_of_id = part_id_map({pid: names[0] for pid, names in named.items()}, parts, "parameter part_ids")
         self.comp_port_of = {k.split(".", 1)[1]: v for k, v in comp.items() if v}
         self.threshold = float(p["compensated_threshold"])
         self.bridged = sorted(set(self.part_of_id.values()) | set(self.comp_port_of), key=parts.index)
