@@ -6,6 +6,7 @@ dimensions (shoulder 98 mm beside and 100 mm above the torso origin, upper arm
 elementary DH matrices built straight from the YAML rows.
 """
 import math
+import re
 
 import numpy as np
 import pytest
@@ -223,4 +224,7 @@ def test_angle_strings(robot):
     assert parse_angle("2*pi/3", "x") == 2 * math.pi / 3
     assert parse_angle("pi", "x") == math.pi
     assert parse_angle("0.25", "x") == 0.25
+    for text in ("pi/0", "pi/0.0", ".pi"):     # a division by zero and a bare dot were tracebacks
+        with pytest.raises(ConfigError, match=f"x: cannot read '{re.escape(text)}' as an angle"):
+            parse_angle(text, "x")
     np.testing.assert_allclose(robot.limits[robot.joint_index["LElbowRoll"]], [-1.5446, -0.0349])

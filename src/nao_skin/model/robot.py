@@ -21,7 +21,7 @@ def parse_angle(value, where: str) -> float:
         return _finite(float(value), value, where)
     if isinstance(value, str):
         m = _ANGLE_RE.match(value)
-        if m:
+        if m and m.group(2) != "." and (m.group(3) is None or float(m.group(3)) != 0.0):
             sign = -1.0 if m.group(1) == "-" else 1.0
             factor = float(m.group(2)) if m.group(2) else 1.0
             divisor = float(m.group(3)) if m.group(3) else 1.0
