@@ -362,6 +362,15 @@ def test_layouts_never_replace_a_robots_own_layout_without_force(tmp_path, capsy
     capsys.readouterr()
     assert cli_main(["layouts", str(tmp_path / "layouts" / "head.txt")]) == 2
     assert "head.txt is a file, not a directory" in one_line(capsys)
+    # --force replaces a link under a layout's name, never the file it points to outside the directory
+    elsewhere = tmp_path / "precious.txt"
+    elsewhere.write_text("the user's own file\n")
+    linked = tmp_path / "linked"
+    linked.mkdir()
+    (linked / "l_hand.txt").symlink_to(elsewhere)
+    assert cli_main(["layouts", str(linked), "--force"]) == 0
+    assert elsewhere.read_text() == "the user's own file\n"
+    assert not (linked / "l_hand.txt").is_symlink() and (linked / "l_hand.txt").read_bytes() == own.read_bytes()
 
 
 @pytest.mark.parametrize("args, says", [

@@ -309,14 +309,26 @@ BAD_MOUNT = "xyz and rotvec must be 3 finite numbers each, metres (at most 10) a
 
 @pytest.mark.parametrize("mutate, problem", [
     (lambda d: d["parts"]["head"].update(chain="neck"), "part 'head': unknown chain 'neck' (robot has head, l_arm, r_arm)"),
-    (lambda d: d["parts"]["head"].pop("taxel_file"), "part 'head': needs 'taxel_file' (and 'chain', null for the base)"),
+    (lambda d: d["parts"]["head"].pop("taxel_file"), "part 'head': needs 'taxel_file' and 'chain' (null for the base)"),
+    (lambda d: d["parts"]["head"].pop("chain"), "part 'head': needs 'taxel_file' and 'chain' (null for the base)"),
+    # a part name becomes frame and file names: '../../x' wrote taxels/../../x.txt outside the output
+    (lambda d: d["parts"].update({"../../evil": d["parts"].pop("head")}),
+     "part '../../evil': a part name is a letter, then letters, digits or '_'"),
+    (lambda d: d["parts"].update({"r hand": d["parts"].pop("head")}),
+     "part 'r hand': a part name is a letter, then letters, digits or '_'"),
+    # a typo's value would be ignored without a word
+    (lambda d: d["parts"]["head"].update(chian="head"),
+     "part 'head': unknown key 'chian' (did you mean 'chain'?); it takes chain, taxel_file, slots, patches, mount"),
+    (lambda d: d["parts"]["head"].update(mount={"xyz": [0, 0, 0], "rpy": [0, 0, 1]}),
+     "part 'head': mount: unknown key 'rpy'; it takes xyz, rotvec"),
+    (lambda d: d.update(robots="x.yaml"), "unknown key 'robots' (did you mean 'robot'?); it takes robot, parts"),
     (lambda d: d["parts"]["torso"]["patches"][0].append(40), "part 'torso' patch 0: triangle 40 is not in 0..31"),
     (lambda d: d["parts"]["torso"]["patches"][0].remove(3),
      "part 'torso': triangles [3] have taxels in the layout but are in no patch"),
     (lambda d: d.pop("parts"), "a skin config needs a 'parts' mapping with at least one part"),
     (lambda d: d.update(parts={}), "a skin config needs a 'parts' mapping with at least one part"),
     (lambda d: d.update(robot=["robot.yaml"]), "names no 'robot' config file"),
-    (lambda d: d["parts"]["head"].update(taxel_file=None), "part 'head': needs 'taxel_file' (and 'chain', null for the base)"),
+    (lambda d: d["parts"]["head"].update(taxel_file=None), "part 'head': needs 'taxel_file' and 'chain' (null for the base)"),
     (lambda d: d["parts"]["head"].update(chain=["head"]), "part 'head': unknown chain ['head'] (robot has head, l_arm, r_arm)"),
     (lambda d: d["parts"]["head"].update(slots=10 ** 10), "part 'head': slots 10000000000: " + BAD_SLOTS),
     (lambda d: d["parts"]["head"].update(slots=390), "part 'head': slots 390: " + BAD_SLOTS),

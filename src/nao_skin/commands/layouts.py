@@ -41,6 +41,8 @@ def run(args) -> int:
         try:
             directory.mkdir(parents=True, exist_ok=True)
             for f, target in zip(fresh, targets):
+                if target.is_symlink():   # --force replaces the link, never the file it points to elsewhere
+                    target.unlink()
                 shutil.copyfile(f, target)
         except OSError as exc:
             raise DataError(f"layouts {directory}: cannot write ({exc.strerror}); choose another place") from None

@@ -22,6 +22,7 @@ frame through the chain's forward kinematics.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, NamedTuple
@@ -290,6 +291,7 @@ def _mount_vector(mount, where: str) -> np.ndarray:
     """``xyz`` + ``rotvec`` of a skin config's nominal mount: 6 finite numbers (missing ones zero)."""
     if not isinstance(mount, dict):
         raise ConfigError(f"{where}: expected {{xyz: [x, y, z], rotvec: [rx, ry, rz]}}")
+    _known_keys(mount, ("xyz", "rotvec"), where)      # 'rpy' would be dropped without a word
     try:
         vector = np.array([float(v) for key in ("xyz", "rotvec") for v in mount.get(key, [0.0, 0.0, 0.0])])
     except (TypeError, ValueError, OverflowError):
@@ -304,6 +306,22 @@ def _plausible_pose(vector: np.ndarray) -> bool:
     """6 finite numbers, a translation and a rotation vector within :data:`MAX_OFFSET` / :data:`MAX_ROTATION`."""
     return vector.shape == (6,) and bool(np.all(np.isfinite(vector))) \
         and np.abs(vector[:3]).max() <= MAX_OFFSET and np.abs(vector[3:]).max() <= MAX_ROTATION
+
+
+PART_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+SKIN_CONFIG_KEYS = ("robot", "parts")
+PART_KEYS = ("chain", "taxel_file", "slots", "patches", "mount")
+
+
+def _known_keys(doc: dict, known: tuple, where: str) -> None:
+    """A key the config does not have is a typo whose value would be ignored without a word."""
+    import difflib
+
+    for key in doc:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), known, n=1)
+            raise ConfigError(f"{where}: unknown key '{key}'" + (f" (did you mean '{close[0]}'?)" if close else "")
+                              + f"; it takes {', '.join(known)}")
 
 
 class SkinModel:
@@ -324,6 +342,7 @@ class SkinModel:
         doc = read_yaml(path, "skin config")
         if not isinstance(doc, dict) or not isinstance(doc.get("parts"), dict) or not doc["parts"]:
             raise ConfigError(f"{path}: a skin config needs a 'parts' mapping with at least one part")
+        _known_keys(doc, SKIN_CONFIG_KEYS, f"{path}")
         if robot is None:
             if not isinstance(doc.get("robot"), str):
                 raise ConfigError(f"{path}: names no 'robot' config file")
@@ -331,8 +350,12 @@ class SkinModel:
         parts = {}
         for name, spec in doc["parts"].items():
             where = f"{path}: part '{name}'"
-            if not isinstance(spec, dict) or not isinstance(spec.get("taxel_file"), str):
-                raise ConfigError(f"{where}: needs 'taxel_file' (and 'chain', null for the base)")
+            if not isinstance(name, str) or not PART_NAME.match(name):
+                # a part's name becomes TF frame names and file names (taxels/<part>.txt of an output)
+                raise ConfigError(f"{where}: a part name is a letter, then letters, digits or '_'")
+            if not isinstance(spec, dict) or not isinstance(spec.get("taxel_file"), str) or "chain" not in spec:
+                raise ConfigError(f"{where}: needs 'taxel_file' and 'chain' (null for the base)")
+            _known_keys(spec, PART_KEYS, where)
             chain = spec.get("chain")
             if chain is not None and (not isinstance(chain, str) or chain not in robot.chains):
                 raise ConfigError(f"{where}: unknown chain {chain!r} (robot has {', '.join(robot.chains)})")
