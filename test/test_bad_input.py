@@ -54,8 +54,13 @@ def thesis_touches(skin):
     (["--test-fraction", "2"], "--test-fraction 2.0: expected a number in [0, 1)"),
     (["--test-fraction", "1"], "leaves no touch to train on"),
     (["--set", "test_fraction=abc"], "--set test_fraction=abc: expected a number"),
-    (["--seed", "-1"], "--seed -1: expected a whole number >= 0"),
-    (["--gate-mm", "nan"], "--gate-mm nan: expected a number >= 0"),
+    (["--seed", "-1"], "--seed -1: expected a whole number in [0, 4294967295]"),
+    (["--gate-mm", "nan"], "--gate-mm nan: expected a number in [0, 10000]"),
+    # a float literal beyond 2**53 passed as a whole number: 1e22 rounds ran for ever
+    (["--set", "rounds=1.0e+22"], "--set rounds=1.0e+22: expected a whole number in [1, 100]"),
+    (["--set", "max_iterations=100000"], "--set max_iterations=100000: expected a whole number in [1, 10000]"),
+    (["--set", "estimate_fabric=false", "--set", "fabric_thickness=99999999999999999999999"],
+     "expected a number in [0, 0.01]"),
     (["--set", "patch_bounds=[0.003]"], "--set patch_bounds=[0.003]: expected 2 numbers > 0"),
     (["--set", "bounded=1"], "--set bounded=1: expected true or false"),
     (["--set", "joint_levels=[mount, wrist]"], "expected a list of mount, patch, triangle"),
@@ -381,6 +386,7 @@ def test_layouts_never_replace_a_robots_own_layout_without_force(tmp_path, capsy
     (["--jobs", "-2"], "--jobs -2: expected a whole number >= 1"),
     (["--sim-touches", "-1"], "--sim-touches -1: expected a whole number >= 0 (0: all)"),
     (["--readme", "missing.md"], "--readme missing.md: cannot read (No such file or directory)"),
+    (["--skin", "broken.txt"], "broken.txt: not valid YAML"),          # read although no --real uses it
     (["--readme", "binary.md"], "--readme binary.md: cannot read (not a text file: invalid start byte at byte 0)"),
     (["--only", "real", "--real", "broken.txt", "--real", "broken.txt"],
      "broken.txt: the same recording as the input broken.txt; give each input once"),
@@ -502,13 +508,23 @@ def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):
     assert any("--taxels torso=FILE" in line for line in run.stderr.splitlines()), run.stderr
 
 
-@pytest.mark.parametrize("parts", ["l_hand,knee", "l_hand,l_hand", "l_hand,"])
+@pytest.mark.parametrize("parts", ["l_hand,knee", "l_hand,l_hand", "l_hand,", ""])
 def test_unknown_parts_are_refused_by_stats_pairs(capsys, tmp_path, parts):
     broken = tmp_path / "broken.txt"                # told before the touches are read
     broken.write_text("{'0': [{0: {'cop': [0, 0,")
     assert cli_main(["stats", str(broken), *REAL_TAXELS, "--parts", parts]) == 2
     assert one_line(capsys) == (f"nao-skin stats: error: --parts {parts!r}: expected two different skin parts A,B of"
                                 f" r_hand, l_hand, torso, head")
+
+
+def test_stats_of_a_pair_the_recording_lacks_is_one_line_and_its_json_is_json(capsys):
+    # every figure was NaN with exit 0, and '--json' printed a bare NaN no JSON reader takes
+    assert cli_main(["stats", str(RECORDING), *REAL_TAXELS, "--parts", "r_hand,head"]) == 2
+    assert one_line(capsys) == (f"nao-skin stats: error: {RECORDING}: no touch of the parts r_hand and head"
+                                f" together (pairs touching: l_hand+torso)")
+    assert cli_main(["stats", str(RECORDING), *REAL_TAXELS, "--parts", "torso,l_hand", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
+    assert out["pairs"]["l_hand+torso"] > 0
 
 
 def test_the_recording_model_of_the_tests_is_the_commands_model():

@@ -289,8 +289,24 @@ def test_bench_live_removes_its_temporary_directory_unless_kept(tmp_path):
     assert (kept[0] / "pairing_recorder.err").is_file()
 
 
+def _nodes_of_domain(domain: str) -> list:
+    """pids of nao_skin node processes running on ROS domain ``domain`` (read from /proc)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        try:
+            cmd = (entry / "cmdline").read_bytes()
+            env = (entry / "environ").read_bytes()
+        except (OSError, ValueError):
+            continue
+        if b"nao_skin.nodes." in cmd and f"ROS_DOMAIN_ID={domain}\0".encode() in env + b"\0":
+            out.append(int(entry.name))
+    return out
+
+
 @pytest.mark.middleware   # starts ROS 2 nodes
-def test_bench_live_removes_its_temporary_directory_on_ctrl_c(tmp_path):
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+def test_bench_live_stops_its_nodes_and_removes_its_temporary_directory_when_stopped(tmp_path, stop):
+    """Ctrl-C, or SIGTERM (a timeout, a cancelled job): a SIGTERM left four nodes running and the directory."""
     env = _bench_live_env(tmp_path / "tmp")
     # SIGINT as a terminal sends it (a shell's background job would start with it ignored)
     proc = subprocess.Popen([sys.executable, "-m", "nao_skin.cli", "bench-live", "--seconds", "60", *_domain(env)],
@@ -303,7 +319,8 @@ def test_bench_live_removes_its_temporary_directory_on_ctrl_c(tmp_path):
             time.sleep(0.1)
         assert glob.glob(str(tmp_path / "tmp" / "nao_skin_bench_*")), "bench-live made no temporary directory"
         time.sleep(2.0)                                  # the nodes are up and writing into it
-        proc.send_signal(signal.SIGINT)
+        assert len(_nodes_of_domain(env["ROS_DOMAIN_ID"])) == 4
+        proc.send_signal(stop)
         out, err = proc.communicate(timeout=90)
     finally:
         if proc.poll() is None:
@@ -311,6 +328,7 @@ def test_bench_live_removes_its_temporary_directory_on_ctrl_c(tmp_path):
             proc.communicate()
     assert proc.returncode == 130 and err.strip() == "nao-skin bench-live: interrupted", (proc.returncode, err)
     assert list((tmp_path / "tmp").iterdir()) == []
+    assert _nodes_of_domain(env["ROS_DOMAIN_ID"]) == []
 
 
 # ------------------------------------------------------------------------------ the calibrate node

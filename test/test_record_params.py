@@ -206,10 +206,17 @@ def test_record_refuses_unknown_or_mistyped_parameters(tmp_path):
     # out of the range the node accepts: its own rule, checked here (a rate of 0 was a node's traceback)
     for item, expected in (("skin_heatmap.rate=0", "expected a number in [1e-05, 1000]"),
                            ("calibrate.live_every_touches=-3", "expected a whole number >= 1"),
-                           ("calibrate.gate_mm=-1", "expected a number >= 0"),
+                           ("calibrate.gate_mm=-1", "expected a number in [0, 10000]"),
                            ("pairing_recorder.storage=zip", "expected one of mcap, sqlite3")):
         line = one_error_line(nao_skin(["record", "--print", "--bag", str(bag), "--param", item]))
         assert f"--param {item}: {expected}" in line, line
+
+    # the robot's address and skinManager's port, by the bridges' own rules
+    line = one_error_line(nao_skin(["record", "--robot", "nao", "--print", "--events-port", "-1"]))
+    assert line.endswith("events_port:=-1: expected a YARP port name: '/' and no spaces,"
+                         " e.g. /skinManager/skin_events:o"), line
+    line = one_error_line(nao_skin(["record", "--robot", "nao", "--print", "--nao-ip", "not an ip!"]))
+    assert line.endswith("nao_ip:=not an ip!: expected an IP address or a host name, e.g. 192.168.1.10"), line
 
     # without --print: refused before any node starts (no bag, no "started")
     for item in ("calibrate.gate_mmm=3", "sim_robot.touch_period=0"):

@@ -5,6 +5,7 @@ starts all read the same rules, so a value out of range is the same one line whe
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,28 +26,34 @@ class Rule:
     length: int | None = None       # tuple of this many numbers
     optional: bool = False          # None allowed
     why: str = ""                   # said after a value out of range
+    pattern: str = ""               # a str must match this whole (regular expression) instead of a choice
 
     def describe(self) -> str:
         if self.kind is bool:
             return "true or false"
         if self.kind is str:
-            return "one of " + ", ".join(self.choices)
+            return "one of " + ", ".join(self.choices) if self.choices else (self.why or f"a text like {self.pattern}")
         if self.kind is tuple and self.choices:
             return "a list of " + ", ".join(self.choices)
         what = "a whole number" if self.kind is int else "a number"
         if self.kind is tuple:
             what = f"{self.length} numbers"
+        def number(v):
+            return f"{int(v)}" if self.kind is int else f"{v:g}"
+
         if self.low is not None and self.high is not None:
-            what += f" in {'(' if self.low_open else '['}{self.low:g}, {self.high:g}{')' if self.high_open else ']'}"
+            what += (f" in {'(' if self.low_open else '['}{number(self.low)}, {number(self.high)}"
+                     f"{')' if self.high_open else ']'}")
         elif self.low is not None:
-            what += f" {'>' if self.low_open else '>='} {self.low:g}"
+            what += f" {'>' if self.low_open else '>='} {number(self.low)}"
         return what + (" or null" if self.optional else "")
 
     def _number(self, value, kind):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ValueError
         if kind is int:
-            if float(value) != int(value):
+            # a float beyond 2**53 is no whole number any more ('1.0e+22' passed as one)
+            if float(value) != int(value) or (isinstance(value, float) and abs(value) > 2.0 ** 53):
                 raise ValueError
             return int(value)
         value = float(value)
@@ -59,7 +66,8 @@ class Rule:
                     or (self.high is not None and (v > self.high or (self.high_open and v == self.high))))
 
     def check(self, where: str, value):
-        bad = DataError(f"{where}: expected {self.describe()}" + (f" ({self.why})" if self.why else ""))
+        said = self.why and not (self.kind is str and self.pattern)      # a pattern's why is its description
+        bad = DataError(f"{where}: expected {self.describe()}" + (f" ({self.why})" if said else ""))
         if value is None and self.optional:
             return None
         if self.kind is bool:
@@ -69,7 +77,8 @@ class Rule:
         if self.kind is str:
             if isinstance(value, bool) and {"on", "off"} <= set(self.choices):
                 value = "on" if value else "off"   # YAML 1.1 (--set, parameter files) reads on/off as booleans
-            if value not in self.choices:
+            if (value not in self.choices if self.choices else
+                    not isinstance(value, str) or not re.fullmatch(self.pattern or ".*", value)):
                 raise bad
             return value
         if self.kind is tuple:
@@ -106,3 +115,5 @@ RATE = Rule(float, low=1e-5, high=1000.0)             # Hz
 AT_LEAST_ONE = Rule(int, low=1)                       # a count of things that must happen at least once
 WHOLE = Rule(int, low=0)                              # a count or seed that may be 0
 PORT = Rule(int, low=1, high=65535)
+YARP_PORT = Rule(str, pattern=r"/\S+", why="a YARP port name: '/' and no spaces, e.g. /skinManager/skin_events:o")
+HOST = Rule(str, pattern=r"(?!-)[A-Za-z0-9.:-]+", why="an IP address or a host name, e.g. 192.168.1.10")

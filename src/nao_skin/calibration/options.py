@@ -59,60 +59,60 @@ class CalibrationOptions:
                                "weight of the point-to-plane rows (pairs with 'plane'): equal (1 each), touch"
                                " (a touch's rows weigh as one row) or pressure (as touch, by each taxel's share of"
                                " its contact's pressure)")
-    plane_scale: float = option(1.0, Rule(float, low=0.0, low_open=True),
+    plane_scale: float = option(1.0, Rule(float, low=0.0, low_open=True, high=1e3),
                                 "times the point-to-plane rows' weight (plane_weight)")
     loss: str = option("huber", Rule(str, ("huber", "linear")), "robust (huber) or plain (linear) least squares")
     # at the residual noise (residual_sigma); farther rows are mostly wrong closest pairs (simulator,
     # every preset: true error lower than at 4 mm)
-    f_scale: float = option(0.002, Rule(float, low=0.0, low_open=True),
+    f_scale: float = option(0.002, Rule(float, low=0.0, low_open=True, high=1.0),
                             "m: where the Huber loss starts to discount a row")
     # touching surfaces face each other: each closest taxel pair (COP pair in mount stages) also asks
     # its two normals to cancel
-    normal_weight: float = option(0.005, Rule(float, low=0.0), "m per rad of the normal rows (0: off)")
+    normal_weight: float = option(0.005, Rule(float, low=0.0, high=1.0), "m per rad of the normal rows (0: off)")
     # the mounts' rotation about a band of contacts is left free by points; at patch and triangle level
     # the layout's own normals (plane fits) are no better than the few degrees being estimated
     normal_levels: tuple = option(("mount",), _LEVELS_RULE, "stages whose unknowns include these use normal rows")
     jacobian: str = option("analytic", Rule(str, ("analytic", "2-point")), "analytic or finite-difference Jacobian")
     initial_guess: str = option("rigid-fit", Rule(str, ("rigid-fit", "none")),
                                 "closed-form rigid fit of the mounts first (finds a 160 deg mount error), or none")
-    min_triangle_activations: int = option(10, Rule(int, low=1),
+    min_triangle_activations: int = option(10, Rule(int, low=1, high=1e6),
                                            "a triangle with fewer paired activations is held (thesis: 10)")
-    min_mount_touches: int = option(10, Rule(int, low=1),
+    min_mount_touches: int = option(10, Rule(int, low=1, high=1e6),
                                     "fewer training touches with a reference: the mount is not determined")
-    min_patch_touches: int = option(20, Rule(int, low=1), "patches need about twice the mount's data (thesis)")
+    min_patch_touches: int = option(20, Rule(int, low=1, high=1e6), "patches need about twice the mount's data (thesis)")
     condition_limit: float = option(1e7, Rule(float, low=1.0, low_open=True),
                                     "of the Jacobi-scaled normal equations: weaker directions are held")
-    max_repairings: int = option(8, Rule(int, low=1), "re-pairings of the touches per stage at most")
+    max_repairings: int = option(8, Rule(int, low=1, high=1000), "re-pairings of the touches per stage at most")
     # a warm update is one step of the pairing's fixed-point iteration, the next update the next step:
     # over a live session (README, Live calibration) 1 ends as close to the truth as 8, in 2/3 of the time
-    warm_repairings: int = option(1, Rule(int, low=1),
+    warm_repairings: int = option(1, Rule(int, low=1, high=1000),
                                   "re-pairings per stage at most in a live update warm-started from the last one")
     repair_tolerance: float = option(0.01, Rule(float, low=0.0, high=1.0),
                                      "stop re-pairing when fewer touches than this share change pairs")
-    max_iterations: int = option(50, Rule(int, low=1), "solver iterations per solve at most")
-    gate_mm: float = option(15.0, Rule(float, low=0.0),
+    max_iterations: int = option(50, Rule(int, low=1, high=1e4), "solver iterations per solve at most")
+    gate_mm: float = option(15.0, Rule(float, low=0.0, high=1e4),
                             "mm: touches farther apart than this after the mount fit are set aside (0: off)")
     test_fraction: float = option(0.3, Rule(float, low=0.0, high=1.0, high_open=True,
                                             why="the share of touches held out for testing; 1 leaves no touch"
                                                 " to train on"),
                                   "share of the touches held out for the test figures")
-    seed: int = option(0, Rule(int, low=0), "seed of the train/test split")
-    max_touches: int | None = option(None, Rule(int, low=1, optional=True),
+    seed: int = option(0, Rule(int, low=0, high=2 ** 32 - 1), "seed of the train/test split")
+    max_touches: int | None = option(None, Rule(int, low=1, high=1e8, optional=True),
                                      "use only this many training touches (speed/error sweeps); null: all")
     # touching skins meet at their fabric surfaces, 2 x this apart at the taxel centres
-    fabric_thickness: float = option(0.001, Rule(float, low=0.0), "m of fabric over the taxels of each part")
+    fabric_thickness: float = option(0.001, Rule(float, low=0.0, high=0.01), "m of fabric over the taxels of each part")
     estimate_fabric: bool = option(True, Rule(bool),
                                    "estimate the (pressed) fabric thickness from the touches, within fabric_bounds")
-    fabric_bounds: tuple = option((0.0, 0.003), Rule(tuple, low=0.0, length=2), "m: lowest and highest fabric")
-    prior_strength: float = option(3.0, Rule(float, low=0.0),
+    fabric_bounds: tuple = option((0.0, 0.003), Rule(tuple, low=0.0, high=0.01, length=2), "m: lowest and highest fabric")
+    prior_strength: float = option(3.0, Rule(float, low=0.0, high=1e6),
                                    "patch/triangle prior std starts at bound / this (0: no prior)")
     prior_scale: str = option("empirical", Rule(str, ("empirical", "fixed")),
                               "prior width: empirical (widened to what the touches determine, evidence"
                               " approximation) or fixed (bound / prior_strength)")
-    residual_sigma: float = option(0.002, Rule(float, low=0.0, low_open=True),
+    residual_sigma: float = option(0.002, Rule(float, low=0.0, low_open=True, high=1.0),
                                    "m: noise per coordinate of a paired-point difference")
     joint_levels: tuple = option(LEVELS, _LEVELS_RULE, "what the joint refinement frees")
-    rounds: int = option(1, Rule(int, low=1), "passes over the plan of fixed-reference steps")
+    rounds: int = option(1, Rule(int, low=1, high=100), "passes over the plan of fixed-reference steps")
     # a part fitted to a fixed reference inherits that reference's error, which a joint solve of all
     # parts removes (measured on simulated truth)
     joint_refinement: bool = option(True, Rule(bool), "finish with every part free at once")
@@ -125,7 +125,7 @@ class CalibrationOptions:
     # extra unknowns always buy a little on the test split too, measured at the fabric surfaces (simulator,
     # default preset seed 0: -4 % while the true error rose 0.53 -> 0.76 mm), where a kinematic error the
     # config lacks buys much more (preset kinematic-error seed 0: -33 %): auto asks for 10 %
-    kinematics_passes: int = option(3, Rule(int, low=0),
+    kinematics_passes: int = option(3, Rule(int, low=0, high=100),
                                     "after the kinematic stage: passes of the skin plan on the corrected robot,"
                                     " each followed by the kinematic stage again, until they settle")
     kinematics_min_gain: float = option(0.1, Rule(float, low=0.0, high=1.0, high_open=True),

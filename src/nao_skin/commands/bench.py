@@ -190,7 +190,8 @@ def run(args) -> int:
     real_skin = None
     if "real" in sections and args.real:
         check_inputs(args.real)
-        real_skin = skin_from_args(args)
+    if ("real" in sections and args.real) or args.skin or args.taxels:
+        real_skin = skin_from_args(args)     # read even when no section uses it: a broken one is one line now
     if args.readme:
         readme_text(Path(args.readme))
     # read before an earlier output is cleared: a recording that turns out broken must not cost it

@@ -98,6 +98,8 @@ def _measure(args, work: Path) -> int:
     from std_msgs.msg import String
     from visualization_msgs.msg import MarkerArray
 
+    from nao_skin.commands.record import die_with_parent
+    from nao_skin.live.session import PARENT_ENV
     from nao_skin.model.skin import load_skin
     from nao_skin.paths import config_dir
 
@@ -142,14 +144,19 @@ def _measure(args, work: Path) -> int:
     skin_parts = set(load_skin().parts)
     node.create_subscription(MarkerArray, "/nao_skin/heatmap", on_heat, 10)
     interrupted = threading.Event()
-    previous_handler = signal.signal(signal.SIGINT, lambda signum, frame: interrupted.set())
+    # SIGTERM (a timeout, a CI job cancelled) and SIGHUP stop the run as Ctrl-C does: the nodes are stopped and
+    # the temporary directory removed; a kill -9 of this process reaches them as in record (parent death)
+    stop_signals = [s for s in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None)) if s is not None]
+    previous_handlers = {s: signal.signal(s, lambda signum, frame: interrupted.set()) for s in stop_signals}
+    env[PARENT_ENV] = str(os.getpid())
+    preexec = die_with_parent(os.getpid())
     try:
         for name, over in nodes.items():
             argv = [sys.executable, "-m", f"nao_skin.nodes.{name}", "--ros-args", "--params-file", params]
             for k, v in over.items():
                 argv += ["-p", f"{k}:={json.dumps(v) if not isinstance(v, str) else repr(v)}"]
             procs.append(subprocess.Popen(argv, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
-                                          stderr=open(work / f"{name}.err", "wb")))
+                                          stderr=open(work / f"{name}.err", "wb"), preexec_fn=preexec))
         # wait until the play has started (the recorder reports touches), then measure a clean window
         deadline = time.monotonic() + 60
         while (time.monotonic() < deadline and not (progress and progress[-1]["touches"] > 0)
@@ -182,7 +189,8 @@ def _measure(args, work: Path) -> int:
         executor.shutdown()
         node.destroy_node()
         ctx.try_shutdown()
-        signal.signal(signal.SIGINT, previous_handler)
+        for s, handler in previous_handlers.items():
+            signal.signal(s, handler)
     last = progress[-1]
     ms = last["skin_message_ms"]
     joints_hz = (counts["joints"] - start_counts["joints"]) / window

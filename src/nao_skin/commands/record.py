@@ -135,7 +135,7 @@ def _session(specs, work: Path, args, stop: dict) -> int:
         return 0
 
     env = dict(os.environ, **{PARENT_ENV: str(os.getpid())})
-    preexec = _die_with_parent(os.getpid())
+    preexec = die_with_parent(os.getpid())
     procs = []
     failed = None       # (name, exit code) of the first node that ended by itself
     try:
@@ -165,7 +165,7 @@ def _session(specs, work: Path, args, stop: dict) -> int:
     return 0
 
 
-def _die_with_parent(parent_pid: int):
+def die_with_parent(parent_pid: int):
     """``preexec_fn`` for a child: the kernel sends it SIGTERM when this process ends (Linux), or None.
 
     The parent-death signal fires when the thread that forked the child exits;

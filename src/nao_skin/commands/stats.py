@@ -26,11 +26,12 @@ def run(args) -> int:
     from nao_skin.calibration.pairing import metrics, pair_for_metrics
     from nao_skin.formats.inputs import check_inputs, load_touches
     from nao_skin.model.skin import SkinCalibration
+    from nao_skin.plain import jsonable
     from nao_skin.touch.datasets import deduplicate
 
     check_inputs([args.input])
     skin = skin_from_args(args)
-    parts = tuple(args.parts.split(",")) if args.parts else None
+    parts = tuple(args.parts.split(",")) if args.parts is not None else None
     # before the touches are read: a typo costs nothing
     if parts is not None and (len(parts) != 2 or parts[0] == parts[1] or any(p not in skin.parts for p in parts)):
         from nao_skin.errors import ConfigError
@@ -44,6 +45,11 @@ def run(args) -> int:
     pair_counts = {f"{a}+{b}": int(np.sum(fires[:, i] & fires[:, j]))
                    for (i, a), (j, b) in combinations(enumerate(touches.part_names), 2)
                    if np.any(fires[:, i] & fires[:, j])}
+    if parts is not None and f"{parts[0]}+{parts[1]}" not in pair_counts and f"{parts[1]}+{parts[0]}" not in pair_counts:
+        from nao_skin.errors import DataError
+
+        raise DataError(f"{args.input}: no touch of the parts {parts[0]} and {parts[1]} together"
+                        f" (pairs touching: {', '.join(pair_counts) or 'none'})")
     m = metrics(pair_for_metrics(touches, skin, calib, parts=parts))
     out = {"input": str(args.input), "touches": touches.n_touches, "exact_duplicates": n_dup,
            "skipped": dict(report.skipped), "pairs": pair_counts,
@@ -54,7 +60,7 @@ def run(args) -> int:
     if args.json:           # what loading said goes beside the JSON, not into it
         for line in lines:
             print(line, file=sys.stderr)
-        print(json.dumps(out))
+        print(json.dumps(jsonable(out)))       # JSON has no NaN: a figure with no touch is null
         return 0
     for line in lines:
         print(line)

@@ -68,6 +68,14 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     """
     if robot not in ROBOTS:
         raise ConfigError(f"robot:={robot!r}: expected one of {', '.join(ROBOTS)}")
+    for value, node, name, where in ((nao_ip, "naoqi_bridge", "nao_ip", "nao_ip:="),
+                                     (events_port, "yarp_skin_bridge", "events_port", "events_port:=")):
+        if value:    # the node's own rule, before any node starts
+            _, rule = _declared(NodeSpec(node, node))[name]
+            try:
+                rule.check(f"{where}{value}", value)
+            except NaoSkinError as exc:
+                raise ConfigError(str(exc)) from None
     cfg = config_dir()
     # one name for the recorder and the calibrate node (which calibrates on that bag on request)
     bag_path = str(Path(bag_path or f"nao_skin_touches_{datetime.now():%Y%m%d_%H%M%S}").expanduser().resolve())

@@ -22,14 +22,14 @@ from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC
 from nao_skin.live.reconnect import Backoff
 from nao_skin.nodes.messages import joint_state_msg
 from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.rules import PORT, RATE, SECONDS
+from nao_skin.rules import HOST, PORT, RATE, SECONDS
 
 DEFAULT_JOINTS = ["HeadYaw", "HeadPitch",
                   "LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll", "LWristYaw",
                   "RShoulderPitch", "RShoulderRoll", "RElbowYaw", "RElbowRoll", "RWristYaw"]
 
 PARAMS = {
-    "nao_ip": ("127.0.0.1", "IP address or host name of the robot running NAOqi"),
+    "nao_ip": ("127.0.0.1", "IP address or host name of the robot running NAOqi", HOST),
     "nao_port": (9559, "NAOqi port", PORT),
     "rate": (50.0, "joint angle reads per second (Hz)", RATE),
     "joint_names": (DEFAULT_JOINTS, "NAOqi joint names to read and publish"),

@@ -35,7 +35,7 @@ from nao_skin.formats.skinmanager import activated_taxels, parse_skin_events, pa
 from nao_skin.live.reconnect import Backoff
 from nao_skin.nodes.messages import cloud_from_array, stamp_to_msg
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
-from nao_skin.rules import Rule, SECONDS
+from nao_skin.rules import SECONDS, YARP_PORT, Rule
 
 # iCub skinDynLib SkinPart ids; the Nao build put the head on the unused right forearm id (thesis §3.1.1).
 DEFAULT_PART_IDS = {"l_hand": 1, "r_hand": 4, "torso": 7, "head": 5}
@@ -44,8 +44,9 @@ STATUS_TOPIC = "/skin/bridge_status"
 
 PARAMS = {
     **SKIN_PARAMS,
-    "events_port": ("/skinManager/skin_events:o", "skinManager's skin events (skinContactList) output port"),
-    "local_prefix": ("/nao_skin/skin_bridge", "prefix of the YARP ports this bridge opens"),
+    "events_port": ("/skinManager/skin_events:o", "skinManager's skin events (skinContactList) output port",
+                    YARP_PORT),
+    "local_prefix": ("/nao_skin/skin_bridge", "prefix of the YARP ports this bridge opens", YARP_PORT),
     "compensated_threshold": (0.0, "a compensated taxel value above this counts as activated (0-255 scale)",
                               Rule(float, low=0.0, high=255.0)),
     "reconnect_period": (1.0, "seconds between checks that the YARP connections still exist", SECONDS),
