@@ -132,6 +132,19 @@ def test_a_nan_joint_angle_is_named_as_a_non_finite_angle(tmp_path, skin, thesis
     assert "joint 'LElbowRoll' is not a finite angle" in report.messages[0], report.messages
 
 
+def test_a_boolean_joint_angle_is_no_angle(tmp_path, skin, thesis_touches):
+    path = tmp_path / "with_bool.txt"
+    write_thesis_file(path, thesis_touches, skin)
+    text = path.read_text()
+    at = text.index("'LElbowRoll': ") + len("'LElbowRoll': ")
+    end = min(i for i in (text.find(",", at), text.find("}", at)) if i >= 0)
+    path.write_text(text[:at] + "True" + text[end:])            # float(True) was taken as 1 rad
+    loaded, report = read_legacy(path, skin)
+    assert loaded.n_touches == thesis_touches.n_touches - 1
+    assert dict(report.skipped) == {"bad joint angle": 1}
+    assert "joint 'LElbowRoll': not a number (True)" in report.messages[0], report.messages
+
+
 def test_angles_outside_the_joint_limits_are_kept_counted_and_named(tmp_path, capsys, skin, thesis_touches):
     touches = thesis_touches.subset(np.arange(thesis_touches.n_touches))
     j = touches.joint_names.index("LElbowRoll")

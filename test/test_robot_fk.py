@@ -197,6 +197,9 @@ def test_chain_naming_an_unknown_joint_fails_naming_file_and_joint(tmp_path):
     (lambda d: d["joints"].update(HeadYaw=[1.0, -1.0]), "joint 'HeadYaw' lower limit 1.0 is not below upper -1.0"),
     (lambda d: d["chains"]["head"][1].update(alpha="half a turn"), "chain 'head' row 1 alpha: cannot read 'half a turn' as an angle"),
     (lambda d: d["chains"]["head"][0].pop("d"), "chain 'head' row 0: missing d"),
+    (lambda d: d["chains"]["r_arm"][0].update(frame="l_shoulder_base"),
+     "chain 'r_arm' row 0: frame 'l_shoulder_base' is also chain 'l_arm' row 0's"),
+    (lambda d: d["chains"]["head"][0].update(frame="torso"), "chain 'head' row 0: frame 'torso' is also the base frame"),
     (lambda d: d.pop("chains"), "a robot config needs 'joints' and 'chains' mappings"),
     (lambda d: d.update(chains=["head"]), "a robot config needs 'joints' and 'chains' mappings"),
     (lambda d: d.update(joints=["HeadYaw"]), "a robot config needs 'joints' and 'chains' mappings"),
@@ -209,7 +212,7 @@ def test_chain_naming_an_unknown_joint_fails_naming_file_and_joint(tmp_path):
     (lambda d: d["chains"]["l_arm"][1].update(d=1e300), "chain 'l_arm' row 1 d: 1e+300 m is beyond 10 m"),
     (lambda d: d["chains"]["l_arm"][1].update(joint=["LShoulderPitch"]),
      "chain 'l_arm' row 1: unknown joint '['LShoulderPitch']'"),
-], ids=["one-limit", "limits-swapped", "angle-words", "missing-d", "no-chains", "chains-list", "joints-list",
+], ids=["one-limit", "limits-swapped", "angle-words", "missing-d", "frame-twice", "frame-is-base", "no-chains", "chains-list", "joints-list",
         "links-list", "link-row-word", "nan-limit", "infinite-limit", "nan-length", "huge-length", "joint-list"])
 def test_malformed_robot_config_fails_with_one_line(tmp_path, mutate, expected):
     path = write_robot(tmp_path, mutate)

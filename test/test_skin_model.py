@@ -221,15 +221,26 @@ BAD_CORRECTION = ("part 'head' mount: correction must be 3 + 3 finite numbers, m
     ({"torso": {"patches": {"abc": {}}}}, "part 'torso' patch 'abc': expected a whole number"),
     ({"torso": {"patches": {0.5: {}}}}, "part 'torso' patch 0.5: expected a whole number"),
     ({"torso": {"triangles": {"x": {}}}}, "part 'torso' triangle 'x': expected a whole number"),
+    ({"r_hand": {"chain": "l_arm"}}, "part 'r_hand' was calibrated on chain 'l_arm'; the skin config hangs it off"
+                                     " 'r_arm'"),
 ], ids=["unknown-part", "unknown-patch", "unknown-triangle", "two-numbers", "nan", "huge-translation",
         "huge-rotation", "no-rotation", "part-none", "part-number", "patches-list", "patch-word", "patch-half",
-        "triangle-word"])
+        "triangle-word", "other-chain"])
 def test_malformed_calibration_fails_naming_file_and_entry(skin, tmp_path, parts, problem):
     path = tmp_path / "calibration.yaml"
     path.write_text(yaml.safe_dump({"parts": parts}).replace("'.nan'", ".nan"))
     with pytest.raises(ConfigError) as err:
         SkinCalibration.load(path, skin)
     assert str(err.value) == f"{path}: {problem}"
+
+
+def test_a_calibration_of_another_robot_is_refused(skin, tmp_path):
+    path = tmp_path / "calibration.yaml"
+    path.write_text(yaml.safe_dump({"robot": "pepper", "parts": {}}))
+    with pytest.raises(ConfigError) as err:
+        SkinCalibration.load(path, skin)
+    assert str(err.value) == (f"{path}: made for robot 'pepper'; the skin config's robot is 'nao_h25'"
+                              f" ({skin.robot.source})")
 
 
 BAD_KINEMATICS = "needs a finite numeric correction (at most 10) and, if given, a finite std >= 0"

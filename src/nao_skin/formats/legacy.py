@@ -147,6 +147,8 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
         if idx is None:
             continue                     # a joint the model does not use (e.g. legs)
         try:
+            if isinstance(angle, bool):     # float(True) is 1.0 rad: a flag where an angle belongs
+                raise TypeError
             joints[idx] = np.nan if angle is None else float(angle)
         except (TypeError, ValueError):
             raise _SkipTouch("bad joint angle", f"{where}: joint '{name}': not a number ({angle!r})") from None

@@ -142,6 +142,13 @@ class RobotModel:
                 joints.append(joint)
                 frames.append(str(row.get("frame", f"{cname}_dh{i + 1}")))
             chains[str(cname)] = Chain(str(cname), np.array(dh), tuple(joints), tuple(frames))
+        # frames are URDF links and TF frames: one name, one frame (a second one made a URDF with a link twice)
+        named = {str(doc.get("base_frame", "torso")): "the base frame"}
+        for cname, chain in chains.items():
+            for i, frame in enumerate(chain.frames):
+                if frame in named:
+                    raise ConfigError(f"{path}: chain '{cname}' row {i}: frame '{frame}' is also {named[frame]}")
+                named[frame] = f"chain '{cname}' row {i}'s"
         links = {}
         for lname, spec in (doc.get("links") or {}).items():
             if not isinstance(spec, dict) or not {"chain", "row", "param"} <= set(spec) \

@@ -479,6 +479,9 @@ class SkinCalibration:
         if doc.get("format", CALIBRATION_FORMAT) != CALIBRATION_FORMAT:     # older files have none
             raise ConfigError(f"{path}: format {doc['format']!r}, not {CALIBRATION_FORMAT}: another kind of file"
                               f" or a newer nao_skin's")
+        if "robot" in doc and doc["robot"] != skin.robot.name:
+            raise ConfigError(f"{path}: made for robot {doc['robot']!r}; the skin config's robot is"
+                              f" {skin.robot.name!r} ({skin.robot.source})")
         calib = skin.zero_calibration()
 
         def vec(entry, where):
@@ -504,6 +507,9 @@ class SkinCalibration:
             if not isinstance(spec, dict):
                 raise ConfigError(f"{path}: part '{name}': expected a mapping (layout, mount, patches, triangles)")
             part = skin.parts[name]
+            if "chain" in spec and spec["chain"] != part.chain:   # its frames would hang off another arm
+                raise ConfigError(f"{path}: part '{name}' was calibrated on chain {spec['chain']!r}; the skin config"
+                                  f" hangs it off {part.chain!r}")
             _check_layout(path, name, spec.get("layout"), part)
             corr = calib.parts[name]
             if "mount" in spec:
