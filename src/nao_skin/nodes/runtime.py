@@ -146,7 +146,7 @@ def _warn_undeclared(node) -> None:
     unknown = sorted(name for name in given if not node.has_parameter(name))
     if not unknown:
         return
-    declared = [name for name in node._parameters]
+    declared = list(node.get_parameters_by_prefix(""))
     hints = []
     for name in unknown:
         close = difflib.get_close_matches(name, declared, n=1) or difflib.get_close_matches(
