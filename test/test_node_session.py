@@ -9,6 +9,7 @@ while still being the parent of every skin mount.
 """
 from __future__ import annotations
 
+import array
 import importlib
 import re
 import xml.etree.ElementTree as ET
@@ -114,6 +115,12 @@ def test_every_default_keeps_its_own_rule_and_a_later_change_is_held_to_it():
         assert not refused.successful and refused.reason == "parameter rate:=0.0: expected a number in [1e-05, 1000]"
         (taken,) = node.set_parameters([Parameter("rate", Parameter.Type.DOUBLE, 2.5)])
         assert taken.successful and node.get_parameter("rate").value == 2.5
+        # a double array arrives as array.array: judged by its values
+        declare(node, {"legend_origin": module.PARAMS["legend_origin"]})
+        for values, ok in (([1.0, 2.0, 3.0], True), ([1.0, 2.0], False)):
+            (result,) = node.set_parameters([Parameter("legend_origin", Parameter.Type.DOUBLE_ARRAY,
+                                                       array.array("d", values))])
+            assert result.successful == ok, result.reason
         node.destroy_node()
     finally:
         rclpy.shutdown(context=context)

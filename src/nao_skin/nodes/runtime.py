@@ -119,8 +119,9 @@ def _checked(changed, numeric: dict, rules: dict) -> SetParametersResult:
         if p.name in numeric and _as_float(p.value, numeric[p.name]) is None:
             return SetParametersResult(successful=False, reason=f"'{p.name}' takes a number like {numeric[p.name]!r}")
         if p.name in rules:
+            value = list(p.value) if isinstance(p.value, array.array) else p.value   # a double array's values
             try:
-                rules[p.name].check(f"parameter {p.name}:={p.value!r}", p.value)
+                rules[p.name].check(f"parameter {p.name}:={value!r}", value)
             except DataError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
     return SetParametersResult(successful=True)
