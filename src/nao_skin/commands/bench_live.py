@@ -99,7 +99,7 @@ def _measure(args, work: Path) -> int:
     from visualization_msgs.msg import MarkerArray
 
     from nao_skin.commands.record import die_with_parent
-    from nao_skin.live.session import PARENT_ENV
+    from nao_skin.live.session import PARENT_ENV, STOP_SIGNALS
     from nao_skin.model.skin import load_skin
     from nao_skin.paths import config_dir
 
@@ -146,8 +146,7 @@ def _measure(args, work: Path) -> int:
     interrupted = threading.Event()
     # SIGTERM (a timeout, a CI job cancelled) and SIGHUP stop the run as Ctrl-C does: the nodes are stopped and
     # the temporary directory removed; a kill -9 of this process reaches them as in record (parent death)
-    stop_signals = [s for s in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None)) if s is not None]
-    previous_handlers = {s: signal.signal(s, lambda signum, frame: interrupted.set()) for s in stop_signals}
+    previous_handlers = {s: signal.signal(s, lambda signum, frame: interrupted.set()) for s in STOP_SIGNALS}
     env[PARENT_ENV] = str(os.getpid())
     preexec = die_with_parent(os.getpid())
     try:

@@ -28,7 +28,6 @@ from pathlib import Path
 NAME = "record"
 HELP = "record self-touch: start the bridges or the simulated robot, the recorder, heat-map and calibrate node"
 PR_SET_PDEATHSIG = 1           # linux/prctl.h
-STOP_SIGNALS = tuple(getattr(signal, s) for s in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, s))
 
 
 def add_arguments(parser) -> None:
@@ -88,7 +87,7 @@ def run(args) -> int:
     import math
 
     from nao_skin.errors import ConfigError
-    from nao_skin.live.session import record_session
+    from nao_skin.live.session import STOP_SIGNALS, record_session
 
     if not (args.duration >= 0 and math.isfinite(args.duration)):     # NaN, -5, inf would all mean 'forever'
         raise ConfigError(f"--duration {args.duration}: expected seconds >= 0 (0: until Ctrl-C)")

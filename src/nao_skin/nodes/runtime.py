@@ -25,7 +25,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from nao_skin.errors import ConfigError, DataError, NaoSkinError
-from nao_skin.live.session import PARENT_ENV
+from nao_skin.live.session import PARENT_ENV, STOP_SIGNALS
 
 # every node that reads the skin builds it the way the commands do (model.skin.load_skin)
 SKIN_PARAMS = {
@@ -33,7 +33,6 @@ SKIN_PARAMS = {
     "taxels": ([""], "skinManager taxel files replacing a part's layout, PART=FILE each (e.g. the robot's own);"
                      " empty entries are ignored"),
 }
-STOP_SIGNALS = tuple(getattr(signal, s) for s in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, s))
 
 
 def declare(node, params: dict) -> dict:
