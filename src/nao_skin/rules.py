@@ -104,6 +104,14 @@ class Rule:
         return out
 
 
+def did_you_mean(name: str, known) -> str:
+    """`` (did you mean 'x'?)`` for the known name closest to a mistyped ``name``, or ``""``."""
+    import difflib
+
+    close = difflib.get_close_matches(str(name), list(known), n=1)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
 # the rules most settings need (Rule is frozen: these are constants)
 POSITIVE = Rule(float, low=0.0, low_open=True)        # a length or tolerance
 NON_NEGATIVE = Rule(float, low=0.0)

@@ -26,6 +26,7 @@ from nao_skin.errors import ConfigError, NaoSkinError
 from nao_skin.model.skin import parse_taxel_files
 from nao_skin.model.urdf import expand_xacro
 from nao_skin.paths import config_dir
+from nao_skin.rules import did_you_mean
 
 ROBOTS = ("sim", "nao")
 SKIN_NODES = ("sim_robot", "yarp_skin_bridge", "pairing_recorder", "skin_heatmap", "calibrate")   # read the skin
@@ -171,17 +172,13 @@ def typed_overrides(spec: NodeSpec, values: dict) -> dict:
     An integer is taken for a float parameter (``gate_mm=20``); anything else
     of the wrong type, or a name the node does not declare, is a ConfigError.
     """
-    import difflib
-
     known = _declared(NodeSpec(spec.name, spec.executable, overrides={**spec.overrides, **values}))
     out = {}
     for name, value in values.items():
         where = f"--param {spec.name}.{name}"
         if name not in known:
-            close = difflib.get_close_matches(name, known, n=1)
-            raise ConfigError(f"{where}: node '{spec.name}' has no parameter '{name}'"
-                              + (f" (did you mean '{close[0]}'?)" if close else "")
-                              + f"; its parameters: {', '.join(known)}")
+            raise ConfigError(f"{where}: node '{spec.name}' has no parameter '{name}'{did_you_mean(name, known)};"
+                              f" its parameters: {', '.join(known)}")
         default, rule = known[name]
         out[name] = _typed(value, default, where)
         if rule is not None:     # the node's own check, made before any node starts

@@ -35,6 +35,7 @@ from nao_skin.errors import ConfigError, DataError
 from nao_skin.model.robot import RobotModel
 from nao_skin.model.taxel_file import DEFAULT_SLOTS, SLOTS_PER_TRIANGLE, TaxelFile, read_taxel_file, write_taxel_file
 from nao_skin.paths import read_yaml
+from nao_skin.rules import did_you_mean
 
 PART_NAMES = ("r_hand", "l_hand", "torso", "head")   # skinManager part names on the Nao
 DEFAULT_CHAINS = {"r_hand": "r_arm", "l_hand": "l_arm", "torso": None, "head": "head"}
@@ -315,13 +316,9 @@ PART_KEYS = ("chain", "taxel_file", "slots", "patches", "mount")
 
 def _known_keys(doc: dict, known: tuple, where: str) -> None:
     """A key the config does not have is a typo whose value would be ignored without a word."""
-    import difflib
-
     for key in doc:
         if key not in known:
-            close = difflib.get_close_matches(str(key), known, n=1)
-            raise ConfigError(f"{where}: unknown key '{key}'" + (f" (did you mean '{close[0]}'?)" if close else "")
-                              + f"; it takes {', '.join(known)}")
+            raise ConfigError(f"{where}: unknown key '{key}'{did_you_mean(key, known)}; it takes {', '.join(known)}")
 
 
 class SkinModel:

@@ -26,6 +26,7 @@ from rclpy.parameter import Parameter
 
 from nao_skin.errors import ConfigError, DataError, NaoSkinError
 from nao_skin.live.session import PARENT_ENV, STOP_SIGNALS
+from nao_skin.rules import did_you_mean
 
 # every node that reads the skin builds it the way the commands do (model.skin.load_skin)
 SKIN_PARAMS = {
@@ -140,18 +141,13 @@ def _warn_undeclared(node) -> None:
     """One warning naming the parameters given to the node that it does not declare (a typo, or a mapping
     where a value belongs: ``rate: {hz: 5}`` arrives as ``rate.hz``), which ROS ignores without a word.
     A warning, not an error: a ``/**`` section of a parameters file rightly gives every node the same set."""
-    import difflib
-
     given = getattr(node, "_parameter_overrides", {})     # rclpy keeps the overrides there, undeclared ones too
     unknown = sorted(name for name in given if not node.has_parameter(name))
     if not unknown:
         return
     declared = list(node.get_parameters_by_prefix(""))
-    hints = []
-    for name in unknown:
-        close = difflib.get_close_matches(name, declared, n=1) or difflib.get_close_matches(
-            name.split(".")[0], declared, n=1)
-        hints.append(f"{name} (did you mean '{close[0]}'?)" if close else name)
+    # 'rate.hz' (a mapping where a value belongs) is closest to 'rate' by its first part
+    hints = [name + (did_you_mean(name, declared) or did_you_mean(name.split(".")[0], declared)) for name in unknown]
     node.get_logger().warning(f"ignored parameters this node does not have: {', '.join(hints)}")
 
 
