@@ -56,12 +56,12 @@ setup(
     entry_points={
         'console_scripts': [
             'nao-skin = nao_skin.cli:main',
-            'calibrate = nao_skin.nodes.calibrate:main',
-            'naoqi_bridge = nao_skin.nodes.naoqi_bridge:main',
-            'yarp_skin_bridge = nao_skin.nodes.yarp_skin_bridge:main',
-            'sim_robot = nao_skin.nodes.sim_robot:main',
-            'pairing_recorder = nao_skin.nodes.pairing_recorder:main',
-            'skin_heatmap = nao_skin.nodes.skin_heatmap:main',
+            'calibrate = nao_skin.nodes.entry:calibrate',
+            'naoqi_bridge = nao_skin.nodes.entry:naoqi_bridge',
+            'yarp_skin_bridge = nao_skin.nodes.entry:yarp_skin_bridge',
+            'sim_robot = nao_skin.nodes.entry:sim_robot',
+            'pairing_recorder = nao_skin.nodes.entry:pairing_recorder',
+            'skin_heatmap = nao_skin.nodes.entry:skin_heatmap',
         ],
     },
 )

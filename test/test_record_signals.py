@@ -10,6 +10,8 @@
    by a plain parent (no parent-death signal) stops and closes its bag when
    that parent is killed with SIGKILL.
 4. A recorder node sent SIGHUP itself closes its bag as on SIGINT, exit 0.
+5. A Ctrl-C while a console script (a node as ``ros2 run`` starts it, or
+   ``nao-skin``) still imports: one line, exit 130, no traceback.
 
 Node processes are found by the pids record prints on stderr and checked
 by their command line in /proc, so no other test's process is matched.
@@ -220,3 +222,26 @@ def test_recorder_node_closes_its_bag_on_sighup(tmp_path):
     assert not (bag / LOCK_FILE).exists()
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert info["files"], "the recorder did not close its bag"
+
+
+@pytest.mark.parametrize("after_s", [0.1, 0.4])
+@pytest.mark.parametrize("argv", [["calibrate"], ["nao-skin", "record", "--help"]], ids=["node", "command"])
+def test_a_ctrl_c_while_a_console_script_imports_ends_in_one_line(tmp_path, argv, after_s):
+    """``ros2 run nao_skin calibrate`` runs the console script in lib/nao_skin, ``nao-skin`` imports every
+    command; a Ctrl-C in the first second lands while they import rclpy and scipy, before the node's own
+    stop handler. That ends in one line and exit 130 (or, had it started, as a stop: exit 0), never in a
+    traceback (from inside the import, or as the ImportError a C extension's import makes of it)."""
+    script = Path(sys.executable).parent / argv[0]       # pip puts the console scripts beside python
+    assert script.is_file(), f"{script}: the package's console scripts are not installed (pip install -e .)"
+    proc = Proc([str(script), *argv[1:]], ros_env(unique_domain_id()), tmp_path, argv[0])
+    try:
+        time.sleep(after_s)
+        proc.popen.send_signal(signal.SIGINT)
+        code = proc.popen.wait(timeout=30)
+    finally:
+        proc.stop()
+    err = proc.stderr()
+    assert "Traceback" not in err, err[-2000:]
+    assert code in (0, 130), (code, err[-2000:])
+    if code == 130:
+        assert err.strip().splitlines()[-1] == f"{argv[0]}: interrupted while starting"

@@ -11,11 +11,12 @@ from __future__ import annotations
 import argparse
 import importlib
 import pkgutil
+import signal
 import sys
 import time
 
 from nao_skin import commands
-from nao_skin.errors import NaoSkinError
+from nao_skin.errors import NaoSkinError, end_at_once_on_ctrl_c
 
 
 class _Parser(argparse.ArgumentParser):
@@ -40,11 +41,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     started = time.perf_counter()
-    parser = build_parser()
+    previous = end_at_once_on_ctrl_c("nao-skin")     # while the commands' modules import
     try:
+        parser = build_parser()
         args = parser.parse_args(argv)
     except SystemExit as exc:            # --help, or a mistake already said in one line
         return int(exc.code or 0)
+    finally:
+        signal.signal(signal.SIGINT, previous)          # a command stops on KeyboardInterrupt
     args.started = started
     func = getattr(args, "func", None)
     if func is None:

@@ -1,6 +1,9 @@
 """One exception type whose message is a single line naming the input at fault."""
 from __future__ import annotations
 
+import os
+import signal
+
 
 class NaoSkinError(ValueError):
     """Bad input: the message is one line that names the file/touch/field and the problem."""
@@ -24,3 +27,21 @@ class TooFewTouches(DataError):
 def one_line(exc: BaseException, limit: int = 300) -> str:
     """Any exception as one line for a report or a log: its type and message, whitespace collapsed."""
     return " ".join(f"{type(exc).__name__}: {exc}".split())[:limit]
+
+
+def end_at_once_on_ctrl_c(prog: str):
+    """Until the program installs its own SIGINT handling, a Ctrl-C ends the process at once with one line
+    (``<prog>: interrupted while starting``) and exit code 130. Returns the handler it replaced.
+
+    Starting means importing rclpy, numpy and scipy, a second or more. Python's own KeyboardInterrupt
+    would surface there as a traceback from inside an import, or, inside a C extension's, as an
+    ImportError around it. Nothing is held yet, so nothing is lost; ``os._exit``, because even a
+    SystemExit would surface inside the import.
+    """
+    line = f"{prog}: interrupted while starting\n".encode()
+
+    def interrupted(signum, frame):      # noqa: ARG001 - signal handler signature
+        os.write(2, line)
+        os._exit(130)
+
+    return signal.signal(signal.SIGINT, interrupted)
