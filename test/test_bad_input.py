@@ -393,7 +393,14 @@ def test_layouts_never_replace_a_robots_own_layout_without_force(tmp_path, capsy
 
 @pytest.mark.parametrize("args, says", [
     (["--presets", ""], "--presets '': expected preset names, comma separated"),
-    (["--hard-pairs", "l_hand-torso,l_hand-torso"], "pairs 'l_hand-torso,l_hand-torso': a pair is given twice"),
+    (["--hard-pairs", "l_hand-torso,l_hand-torso"], "--hard-pairs 'l_hand-torso,l_hand-torso': a pair is given twice"),
+    # '' and ',' had meant every pair; a pair the simulator cannot make touch had failed every case, row by row
+    (["--hard-pairs", ""], "--hard-pairs '': expected HAND-PART pairs, comma separated (e.g. l_hand-torso), or 'all'"),
+    (["--hard-pairs", ","], "--hard-pairs ',': expected HAND-PART pairs"),
+    (["--hard-pairs", "torso-head"], "--hard-pairs 'torso-head': the simulator cannot make torso-head touch"),
+    (["--hard-pairs", "l_hand-elbow"], "--hard-pairs 'l_hand-elbow': expected HAND-PART of two skin parts"),
+    (["--only", "speed", "--sim-pairs", ""], "--sim-pairs '': expected HAND-PART pairs"),
+    (["--only", "speed", "--sim-pairs", "foo-bar"], "--sim-pairs 'foo-bar': expected HAND-PART of two skin parts"),
     (["--hard-touches", "-3"], "--hard-touches -3: expected a whole number in 1..100000"),
     (["--hard-touches", str(10 ** 12)], "--hard-touches 1000000000000: expected a whole number in 1..100000"),
     (["--jobs", "-2"], "--jobs -2: expected a whole number >= 1"),

@@ -66,15 +66,26 @@ def add_arguments(parser) -> None:
     parser.add_argument("--strict", action="store_true", help="exit 1 when a row failed or a target is not met")
 
 
-def _pairs(text: str):
+def _pairs(text: str, option: str, simulated: bool = False):
+    """``--sim-pairs`` / ``--hard-pairs``: None for 'all', else the pairs, each a pair of the package's skin
+    (``simulated``: one the simulator can make touch)."""
     from nao_skin.errors import DataError
-    from nao_skin.model.skin import parse_pairs
+    from nao_skin.model.skin import load_skin, parse_pairs
 
-    if text in ("all", ""):
+    if text == "all":
         return None
-    pairs = list(parse_pairs(text.split(",")))
+    pairs = list(parse_pairs(text.split(","), sorted(load_skin().parts), where=option))
+    if not pairs:             # '' or ',' would otherwise mean every pair: not what was typed
+        raise DataError(f"{option} {text!r}: expected HAND-PART pairs, comma separated (e.g. l_hand-torso), or 'all'")
     if len(set(pairs)) < len(pairs):        # each pair's runs would count twice in the tables
-        raise DataError(f"pairs {text!r}: a pair is given twice")
+        raise DataError(f"{option} {text!r}: a pair is given twice")
+    if simulated:             # every simulated case would fail, one row at a time
+        from nao_skin.sim.params import HANDS, TARGETS
+
+        for hand, part in pairs:
+            if hand not in HANDS or part not in TARGETS:
+                raise DataError(f"{option} {text!r}: the simulator cannot make {hand}-{part} touch (a hand,"
+                                f" {' or '.join(HANDS)}, pressed on {' or '.join(TARGETS)})")
     return pairs
 
 
@@ -118,7 +129,7 @@ def _sim_input(args, quick: bool, say, keep: int | None = None):
     if truth is None:
         raise DataError(f"{path}: no truth_calibration.yaml next to the recording; the speed matrix needs ground truth")
     touches, _ = deduplicate(touches)
-    pairs = _pairs(args.sim_pairs)
+    pairs = _pairs(args.sim_pairs, "--sim-pairs")
     label = "all pairs"
     if pairs:
         touches = restrict_pairs(touches, pairs)
@@ -177,9 +188,9 @@ def run(args) -> int:
         unknown = sorted((set(presets) | set(kin_presets)) - set(preset_names()))
         if unknown:
             raise DataError(f"--presets: unknown preset(s) {', '.join(unknown)} (known: {', '.join(preset_names())})")
-        _pairs(hard_pairs)
+        _pairs(hard_pairs, "--hard-pairs", simulated=True)
     if "speed" in sections:
-        _pairs(args.sim_pairs)
+        _pairs(args.sim_pairs, "--sim-pairs")
     sim = (args.sim or package_dir() / "bags" / "sim_default") if sections & {"speed", "live"} else None
     check_output_dir(args.out, BENCHMARK, force=args.force,
                      inputs=[sim, *args.real, *(item.partition("=")[2] for item in args.taxels), args.skin,
@@ -257,7 +268,7 @@ def run(args) -> int:
         failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in t for t in bench.target_lines(rows))
 
     if "hard" in sections:
-        setup = bench.HardCaseSetup(pairs=_pairs(hard_pairs),
+        setup = bench.HardCaseSetup(pairs=_pairs(hard_pairs, "--hard-pairs"),
                                     n_touches=args.hard_touches or (QUICK["hard_touches"] if args.quick else None))
         scene = (", ".join(f"{a}-{b}" for a, b in setup.pairs) if setup.pairs else "all four thesis pairs")
         say(f"hard cases: {len(presets)} presets x {seeds} seeds on {scene}")
@@ -299,7 +310,7 @@ def run(args) -> int:
         failures += "NOT met" in target
 
     if "kinematics" in sections:
-        setup = bench.HardCaseSetup(pairs=_pairs(hard_pairs),
+        setup = bench.HardCaseSetup(pairs=_pairs(hard_pairs, "--hard-pairs"),
                                     n_touches=args.hard_touches or (QUICK["hard_touches"] if args.quick else None))
         scene = (", ".join(f"{a}-{b}" for a, b in setup.pairs) if setup.pairs else "all four thesis pairs")
         say(f"kinematics: {len(kin_presets)} presets x {seeds} seeds x {len(bench.KINEMATIC_MODES)} modes on {scene}")
