@@ -47,14 +47,14 @@ def ros_env(domain_id: int, **extra) -> dict:
 class Proc:
     """A subprocess in its own process group, with its output in files."""
 
-    def __init__(self, argv, env, log_dir: Path, name: str):
+    def __init__(self, argv, env, log_dir: Path, name: str, preexec_fn=None):
         self.name = name
         self.out_path = Path(log_dir) / f"{name}.out"
         self.err_path = Path(log_dir) / f"{name}.err"
         self._out = open(self.out_path, "wb")
         self._err = open(self.err_path, "wb")
         self.popen = subprocess.Popen(argv, env=env, stdout=self._out, stderr=self._err, cwd=str(ROOT),
-                                      start_new_session=True)
+                                      start_new_session=True, preexec_fn=preexec_fn)
 
     def alive(self) -> bool:
         return self.popen.poll() is None

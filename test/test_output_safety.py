@@ -11,6 +11,7 @@ import glob
 import hashlib
 import json
 import os
+import resource
 import shutil
 import signal
 import subprocess
@@ -179,6 +180,34 @@ def test_own_output_is_replaced_only_with_force(work):
     assert {k: v for k, v in second.items() if not k.startswith("cal/")} == \
            {k: v for k, v in first.items() if not k.startswith("cal/")}
     assert sorted(p.name for p in work.iterdir()) == ["cal", "notes.txt", "session"]   # no temporary left over
+
+
+def file_size_limit(size: int):
+    """``preexec_fn``: the stand-in for a full disk. Past ``size`` bytes a write fails for real (EFBIG, "File
+    too large") as one on a full disk does (ENOSPC: the same lines, seen on a small tmpfs)."""
+    return lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+
+
+@pytest.mark.parametrize("argv, limit, says", [
+    (["calibrate", "session", "--out", "cal", "--seed", "1", "--no-plots", "--quiet", "--force"], 20_000,
+     "nao-skin calibrate: error: cal: cannot write the calibration (File too large); an earlier output there is"
+     " unchanged"),
+    (["simulate", "--out", "sim", "--touches-per-pair", "50"], 20_000,
+     "nao-skin simulate: error: sim: cannot write the simulated recording (File too large); nothing written"),
+    # past the truth YAML (56 kB), in the bag: sqlite3 says "disk I/O error"
+    (["simulate", "--out", "sim", "--touches-per-pair", "50"], 150_000,
+     "nao-skin simulate: error: sim: cannot write the simulated recording (touches.bag: cannot write the bag (disk"
+     " I/O error)); nothing written"),
+])
+def test_a_full_disk_is_one_line_and_leaves_what_was_there(work, argv, limit, says):
+    ok(nao_skin("calibrate", "session", "--out", "cal", "--no-plots", "--quiet", cwd=work))
+    before = tree(work)
+    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", *argv], cwd=work, capture_output=True, text=True,
+                         timeout=600, preexec_fn=file_size_limit(limit))
+    assert run.returncode == 2, (run.returncode, run.stderr[-2000:])
+    assert run.stderr.strip().splitlines()[-1] == says, run.stderr[-2000:]
+    assert "Traceback" not in run.stderr
+    assert tree(work) == before           # the earlier calibration as it was, no half-written output or temporary
 
 
 @pytest.mark.parametrize("foreign", ["notes.md", "taxels/my_layout.txt", "drafts/a.txt"])

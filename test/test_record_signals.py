@@ -10,7 +10,9 @@
    by a plain parent (no parent-death signal) stops and closes its bag when
    that parent is killed with SIGKILL.
 4. A recorder node sent SIGHUP itself closes its bag as on SIGINT, exit 0.
-5. A Ctrl-C while a console script (a node as ``ros2 run`` starts it, or
+5. The disk full while recording: one line from the recorder, the session
+   ends with exit 2, and the bag keeps every touch flushed before.
+6. A Ctrl-C while a console script (a node as ``ros2 run`` starts it, or
    ``nao-skin``) still imports: one line, exit 130, no traceback.
 
 Node processes are found by the pids record prints on stderr and checked
@@ -21,6 +23,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import resource
 import signal
 import sys
 import time
@@ -159,6 +162,37 @@ def test_record_hangup_closes_the_bag(tmp_path):
     got, report = run.recorded()
     assert got.n_touches == int(wrote.group(1)) >= run.reported
     assert info["message_count"] == report.n_read
+
+
+def test_a_full_disk_ends_the_session_in_one_line_and_keeps_every_touch_flushed_before(tmp_path):
+    """The stand-in for a full disk is a real failing write: a file size limit (RLIMIT_FSIZE) on the
+    session, so a write past it fails (EFBIG, "File too large") as one on a full disk does (ENOSPC,
+    seen on a 400 kB tmpfs: the same lines). The bag fills after about twenty touches of the sixty."""
+    limit = 60_000
+    bag = tmp_path / "touches"
+    want = expected_touches(load_skin(), 15, 19)
+
+    def limited() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    session = Proc(record_cmd(bag, 19, 15), ros_env(unique_domain_id()), tmp_path, "record", preexec_fn=limited)
+    try:
+        code = session.popen.wait(timeout=180)
+    finally:
+        session.stop()
+    err = session.stderr()
+    assert code == 2, err[-3000:]
+    assert "Traceback" not in err, err[-3000:]
+    line = re.search(r"error: (\S+): cannot write the bag \(File too large\) after (\d+) touches; recording"
+                     r" stopped\. The bag keeps the (\d+) touches flushed before", err)
+    assert line and line.group(1) == str(bag), err[-3000:]
+    assert "record: pairing_recorder exited with code 2; stopping the session" in err
+    flushed = int(line.group(3))
+    assert 0 < flushed < want.n_touches
+    assert (bag / LOCK_FILE).exists()           # left as it is: readers take it for an unclosed recording
+    got, report = read_touches(bag, load_skin())
+    assert flushed <= got.n_touches <= int(line.group(2))
+    assert_same_touches(got, want.subset(np.arange(got.n_touches)))
 
 
 SPAWN = ("import os, subprocess, sys\n"

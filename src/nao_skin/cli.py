@@ -16,7 +16,7 @@ import sys
 import time
 
 from nao_skin import commands
-from nao_skin.errors import NaoSkinError, end_at_once_on_ctrl_c
+from nao_skin.errors import NaoSkinError, end_at_once_on_ctrl_c, os_reason
 
 
 class _Parser(argparse.ArgumentParser):
@@ -62,6 +62,10 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print(f"nao-skin {args.command}: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:     # the machine, not the input (a full disk, a permission): outputs are written
+        where = f"{exc.filename}: " if exc.filename else ""      # whole or not at all, earlier ones stay
+        print(f"nao-skin {args.command}: error: {where}{os_reason(exc)}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -20,8 +20,17 @@ class DataError(NaoSkinError):
     """A recording, taxel file or message is wrong."""
 
 
+class OutputError(NaoSkinError):
+    """An output cannot be written (a full disk, no permission, a folder gone): what was written before stays."""
+
+
 class TooFewTouches(DataError):
     """The touches cannot determine what is asked yet: more touches will (a live update waits for them)."""
+
+
+def os_reason(exc: OSError) -> str:
+    """An OSError's reason without its errno and file name, e.g. 'No space left on device'."""
+    return exc.strerror or str(exc) or type(exc).__name__
 
 
 def one_line(exc: BaseException, limit: int = 300) -> str:

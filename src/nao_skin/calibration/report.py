@@ -20,6 +20,7 @@ from nao_skin.calibration.pairing import KIND_NAMES, pair_for_metrics
 from nao_skin.calibration.plan import part_rank, touching_pairs
 from nao_skin.calibration.rows import concat_pairings, pair_parts
 from nao_skin.calibration.splits import spread_table
+from nao_skin.errors import OutputError, os_reason
 from nao_skin.formats.outdir import CALIBRATION, replace_dir, write_marker
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.plain import jsonable
@@ -37,8 +38,11 @@ def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Pat
     callers check the directory with ``check_output_dir`` before any work.
     """
     given, out_dir = Path(out_dir), Path(os.path.realpath(out_dir))
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    try:
+        out_dir.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    except OSError as exc:
+        raise OutputError(f"{given}: cannot write the calibration there ({os_reason(exc)})") from None
     try:
         calibrated = list(result.report.parts)
         result.calibration.save(tmp / "calibration.yaml", skin,
@@ -56,6 +60,10 @@ def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Pat
             extra(tmp)
         write_marker(tmp, command, CALIBRATION)
         replace_dir(tmp, out_dir)
+    except OSError as exc:     # e.g. a full disk: the calibration is not written, an earlier one there stays
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise OutputError(f"{given}: cannot write the calibration ({os_reason(exc)}); an earlier output there is"
+                          f" unchanged") from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

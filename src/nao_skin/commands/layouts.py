@@ -29,7 +29,11 @@ def run(args) -> int:
                 raise DataError(f"layouts {directory}: {place} is a file, not a directory; choose another place")
             break
     with tempfile.TemporaryDirectory() as tmp:
-        fresh = write_default_layouts(tmp)
+        try:
+            fresh = write_default_layouts(tmp)
+        except OSError as exc:       # the temporary directory's disk is full
+            raise DataError(f"layouts {directory}: cannot write the layouts first into {tmp}"
+                            f" ({exc.strerror or exc})") from None
         targets = [directory / f.name for f in fresh]
         # regenerating config/layouts rewrites the same bytes; another file under a layout's name is someone's own
         differing = [t for f, t in zip(fresh, targets)

@@ -20,12 +20,13 @@ from __future__ import annotations
 
 import copy
 import shutil
+import sqlite3
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
-from nao_skin.errors import DataError, one_line
+from nao_skin.errors import DataError, OutputError, one_line, os_reason
 from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, encode_cloud,
                                          read_contacts, read_taxels, skin_topic, taxels_array, taxels_topic)
 from nao_skin.formats.salvage import LOCK_FILE, cut_mcap, unclosed_sqlite, write_lock
@@ -49,6 +50,10 @@ def _typestore():
 
 
 # ---------------------------------------------------------------------- writing
+# what a write to a bag raises when the disk is full or a file size limit is reached
+WRITE_ERRORS = (OSError, sqlite3.Error)
+
+
 class BagWriter:
     """Write the nao_skin topics to a new rosbag2 (context manager). Used for touch and stream bags.
 
@@ -92,9 +97,12 @@ class BagWriter:
             self._writer.open()
         except OSError as exc:
             raise DataError(f"{self.path}: cannot write the bag ({exc.strerror}); choose another place") from None
-        if self._live:          # first: no reader may take the bag for an abandoned one
-            write_lock(self.path)
-        self._write_provisional_metadata()
+        try:
+            if self._live:          # first: no reader may take the bag for an abandoned one
+                write_lock(self.path)
+            self._write_provisional_metadata()
+        except WRITE_ERRORS as exc:
+            raise self._cannot_write(exc) from None
         return self
 
     # Live recording (pairing_recorder): survive ``kill -9``. rosbags writes
@@ -120,18 +128,30 @@ class BagWriter:
         import os
 
         storage = self._writer.storage
-        if hasattr(storage, "close_chunk"):              # mcap: end the open chunk, write it out
-            if storage.chunk.bio.tell():
-                storage.close_chunk()
-            storage.bio.flush()
-            os.fsync(storage.bio.fileno())
-        elif hasattr(storage, "conn"):                   # sqlite3
-            storage.conn.commit()
+        try:
+            if hasattr(storage, "close_chunk"):              # mcap: end the open chunk, write it out
+                if storage.chunk.bio.tell():
+                    storage.close_chunk()
+                storage.bio.flush()
+                os.fsync(storage.bio.fileno())
+            elif hasattr(storage, "conn"):                   # sqlite3
+                storage.conn.commit()
+        except WRITE_ERRORS as exc:
+            raise self._cannot_write(exc) from None
 
     def __exit__(self, *exc) -> None:
-        self._writer.close()
+        try:
+            self._writer.close()
+        except WRITE_ERRORS as err:
+            if exc[0] is None:      # else the error being handled says more
+                raise self._cannot_write(err) from None
+            return
         if self._live:          # only now: a reader seeing no lock finds complete metadata
             (self.path / LOCK_FILE).unlink(missing_ok=True)
+
+    def _cannot_write(self, exc: Exception) -> OutputError:
+        """A failed write (a full disk, a file size limit) as one line; sqlite3 says 'disk I/O error'."""
+        return OutputError(f"{self.path}: cannot write the bag ({os_reason(exc) if isinstance(exc, OSError) else exc})")
 
     def _header(self, stamp_ns: int, frame: str):
         return self._Header(stamp=self._Time(sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000)),
@@ -142,7 +162,10 @@ class BagWriter:
         if conn is None:
             conn = self._writer.add_connection(topic, msgtype, typestore=self.store)
             self._connections[topic] = conn
-        self._writer.write(conn, stamp_ns, self.store.serialize_cdr(msg, msgtype))
+        try:
+            self._writer.write(conn, stamp_ns, self.store.serialize_cdr(msg, msgtype))
+        except WRITE_ERRORS as exc:
+            raise self._cannot_write(exc) from None
 
     def _write_cloud(self, topic: str, stamp_ns: int, frame: str, points: np.ndarray) -> None:
         cloud = encode_cloud(points)

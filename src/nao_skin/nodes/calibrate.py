@@ -288,14 +288,12 @@ class CalibrateNode(Node):
             from nao_skin.calibration.report import write_outputs
             from nao_skin.formats.outdir import CALIBRATION, check_output_dir
 
-            try:
-                check_output_dir(self.p["out_dir"], CALIBRATION, inputs=[self.p["recording"]], force=True,
-                                 label="out_dir")
-                out = write_outputs(self._last_live, self.skin, self.p["out_dir"], plots=False,
-                                    command="calibrate (node, live)")
-                self.get_logger().info(f"the last live calibration -> {out}")
-            except NaoSkinError as exc:
-                self.get_logger().error(str(exc))
+            # a failure here (out_dir refused, the disk full) is the node's one line and exit 2
+            check_output_dir(self.p["out_dir"], CALIBRATION, inputs=[self.p["recording"]], force=True,
+                             label="out_dir")
+            out = write_outputs(self._last_live, self.skin, self.p["out_dir"], plots=False,
+                                command="calibrate (node, live)")
+            self.get_logger().info(f"the last live calibration -> {out}")
 
 
 def main(args=None) -> int:

@@ -28,7 +28,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 
-from nao_skin.errors import DataError
+from nao_skin.errors import DataError, OutputError
 from nao_skin.formats.bag import BagWriter, record_parts
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_topic, read_contacts, read_taxels, taxels_topic
 from nao_skin.live.heatmap import ActivationCounts
@@ -81,6 +81,7 @@ class PairingRecorder(Node):
         self.skin_ms: deque = deque(maxlen=20000)     # processing time of recent skin messages
         self._dirty = False
         self._closed = False
+        self._flushed = 0            # touches made durable by the last flush
         self.create_subscription(JointState, JOINT_STATES_TOPIC, self._on_joints, 200)
         for n in self.parts:
             self.create_subscription(PointCloud2, taxels_topic(n), lambda m, n=n: self._on_taxels(n, m), 200)
@@ -125,8 +126,13 @@ class PairingRecorder(Node):
     # ------------------------------------------------------------------ output
     def _write(self, records) -> None:
         for rec in records:
+            if self._closed:
+                return
             parts = record_parts(rec, self.skin, self.detector.part_names)
-            self.bag.write_touch(int(round(rec.stamp * 1e9)), self.joint_names, rec.joints, parts)
+            try:
+                self.bag.write_touch(int(round(rec.stamp * 1e9)), self.joint_names, rec.joints, parts)
+            except OutputError as exc:
+                self._cannot_write(exc)
             for part, taxels, _ in parts:
                 self.touched.update(part.name, taxels["slot"])
             self.pairs["+".join(sorted((part.name for part, _, _ in parts), key=self.parts.index))] += 1
@@ -135,8 +141,24 @@ class PairingRecorder(Node):
 
     def _flush(self) -> None:
         if self._dirty and not self._closed:
-            self.bag.flush()
+            try:
+                self.bag.flush()
+            except OutputError as exc:
+                self._cannot_write(exc)
             self._dirty = False
+            self._flushed = self.n_touches
+
+    def _cannot_write(self, exc: OutputError):
+        """The bag cannot take more (e.g. the disk is full): stop recording, leave the bag as it is.
+
+        Closing it would write again; left open, with its lock, every reader takes it for a recording
+        whose recorder died and reads it up to its last flush. The node ends (exit 2) and with it a
+        record session, rather than let the operator go on touching for nothing.
+        """
+        self._closed = True
+        raise OutputError(f"{exc} after {self.n_touches} touches; recording stopped. The bag keeps the"
+                          f" {self._flushed} touches flushed before (maybe a few more) and nao-skin reads it as it"
+                          f" is; free some space, then record on into a new bag") from None
 
     def progress(self) -> dict:
         ms = np.array(self.skin_ms) if self.skin_ms else np.zeros(1)
@@ -158,7 +180,10 @@ class PairingRecorder(Node):
             return
         self._write(self.detector.flush())
         self._closed = True
-        self.bag.__exit__(None, None, None)
+        try:
+            self.bag.__exit__(None, None, None)
+        except OutputError as exc:
+            self._cannot_write(exc)
         self.get_logger().info(f"wrote {self.n_touches} touches to {self.bag_path}: {json.dumps(dict(self.pairs))}")
 
 

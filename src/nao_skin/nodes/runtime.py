@@ -223,13 +223,20 @@ def run_node(factory, args=None) -> int:
                     break
         except ExternalShutdownException:
             pass
+        except NaoSkinError as exc:      # a callback that cannot go on (e.g. its disk is full) said why
+            print(f"error: {exc}", file=sys.stderr)
+            code = 2
         finally:
             executor.shutdown(timeout_sec=1.0)
     finally:
         if node is not None:
             close = getattr(node, "close", None)
             if close is not None:
-                close()
+                try:
+                    close()
+                except NaoSkinError as exc:     # e.g. the last results cannot be written
+                    print(f"error: {exc}", file=sys.stderr)
+                    code = 2
             node.destroy_node()
         rclpy.try_shutdown()
     return code

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from nao_skin.errors import ConfigError
+from nao_skin.errors import ConfigError, OutputError, os_reason
 from nao_skin.model.skin import PART_NAMES, SkinCalibration, SkinModel
 from nao_skin.sim import contact as sim_contact
 from nao_skin.sim.params import SimParams, make_params, pair_list
@@ -297,6 +297,10 @@ def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, prese
         # no time in the marker: the same seed gives the same bytes, marker included
         write_marker(tmp, "simulate", RECORDING, stamp=False)
         replace_dir(tmp, final)
+    except (OSError, OutputError) as exc:      # e.g. a full disk: nothing of this run stays
+        shutil.rmtree(tmp, ignore_errors=True)
+        reason = os_reason(exc) if isinstance(exc, OSError) else str(exc).replace(f"{tmp}{os.sep}", "")
+        raise OutputError(f"{out}: cannot write the simulated recording ({reason}); nothing written") from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
