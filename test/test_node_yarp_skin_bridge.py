@@ -14,6 +14,7 @@ import json
 import shutil
 import socket
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -89,7 +90,7 @@ def test_skin_bridge(tmp_path, monkeypatch):
         monkeypatch.setenv(k, str(v))
     domain = unique_domain_id()
     skin = load_skin()
-    server = bridge = listener = None
+    server = bridge = listener = receiving = None
     writers = []
     try:
         server = Proc([yarpserver_exe(), "--ip", "127.0.0.1", "--socket", str(free_port())],
@@ -177,11 +178,29 @@ def test_skin_bridge(tmp_path, monkeypatch):
         send(events_port, format_skin_events(ev2), 4, 3000.0)
         assert listener.spin_until(lambda: stamped(taxels["head"], 3000.0), procs=[bridge]), "no data after reconnect"
         assert status[-1]["counts"]["outages"] == 1
+
+        # 5. stamp:=receive (skinManager's host on another clock): a second bridge on the same port stamps
+        # what it reads with this machine's clock, the first still with the envelope's
+        receiving = node_process("yarp_skin_bridge", {**params, "local_prefix": LOCAL + "_receive",
+                                                      "stamp": "receive"},
+                                 ros_env(domain, **yenv), tmp_path, "yarp_skin_bridge_receive")
+        assert listener.spin_until(lambda: yarp.Network.isConnected(EVENTS, f"{LOCAL}_receive/skin_events:i", True),
+                                   procs=[receiving]), "the second bridge did not connect"
+        listener.spin_for(1.0)       # DDS discovery of its publishers
+        sent = time.time()
+        send(events_port, format_skin_events(ev2), 5, 4000.0)
+        now_stamped = lambda: [m for m in taxels["head"] if abs(stamp_from_msg(m.header.stamp) - sent) < 30]  # noqa: E731
+        assert listener.spin_until(lambda: stamped(taxels["head"], 4000.0) and now_stamped(),
+                                   procs=[bridge, receiving]), "envelope and receive stamps"
+        assert receiving.stop() == 0, receiving.stderr()[-2000:]
+        assert "ignored parameters" not in receiving.stderr(), receiving.stderr()[-2000:]
     finally:
         for w in writers:
             w.close()
         if listener is not None:
             listener.close()
+        if receiving is not None:
+            receiving.stop()
         code = bridge.stop() if bridge is not None else 0
         if server is not None:
             server.stop()

@@ -13,7 +13,9 @@ properly.
 Progress on ``/nao_skin/recorder/progress`` (std_msgs/String, JSON) every
 ``progress_period`` s: touches per pair (e.g. ``l_hand+torso``), the share of
 each part's taxels in at least one recorded touch, dropped events by reason,
-and the processing time per skin message (p50/p99, ms).
+the processing time per skin message (p50/p99, ms), and per skin topic how far
+its stamps lag the joint states' (``clock_skew_s``; beyond a quarter second the
+two come from different clocks, and the node says so once).
 """
 from __future__ import annotations
 
@@ -31,6 +33,7 @@ from std_msgs.msg import String
 from nao_skin.errors import DataError, OutputError
 from nao_skin.formats.bag import BagWriter, record_parts
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_topic, read_contacts, read_taxels, taxels_topic
+from nao_skin.live.clocks import SKEW_LIMIT_S, ArrivalLags
 from nao_skin.live.heatmap import ActivationCounts
 from nao_skin.nodes.messages import joint_state_arrays, stamp_from_msg
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
@@ -82,6 +85,8 @@ class PairingRecorder(Node):
         self._dirty = False
         self._closed = False
         self._flushed = 0            # touches made durable by the last flush
+        self.lags = ArrivalLags()    # do the skin and the joints share a clock?
+        self._skew_said: set = set()
         self.create_subscription(JointState, JOINT_STATES_TOPIC, self._on_joints, 200)
         for n in self.parts:
             self.create_subscription(PointCloud2, taxels_topic(n), lambda m, n=n: self._on_taxels(n, m), 200)
@@ -96,6 +101,7 @@ class PairingRecorder(Node):
             stamp, names, positions = joint_state_arrays(msg)
         except DataError as exc:
             return self._bad(exc)
+        self.lags.add(JOINT_STATES_TOPIC, stamp, self._now())
         self._write(self.detector.add_joint_state(stamp, names, positions))
 
     def _on_taxels(self, part: str, msg) -> None:
@@ -104,8 +110,9 @@ class PairingRecorder(Node):
             slots, pressures, contacts = read_taxels(msg, self.skin.parts[part], taxels_topic(part))
         except DataError as exc:
             return self._bad(exc)
-        self._write(self.detector.add_skin(stamp_from_msg(msg.header.stamp), part, slots.tolist(), pressures.tolist(),
-                                           contacts.tolist()))
+        stamp = stamp_from_msg(msg.header.stamp)
+        self.lags.add(taxels_topic(part), stamp, self._now())
+        self._write(self.detector.add_skin(stamp, part, slots.tolist(), pressures.tolist(), contacts.tolist()))
         self.skin_ms.append((time.perf_counter() - t0) * 1e3)
 
     def _on_contacts(self, part: str, msg) -> None:
@@ -116,6 +123,20 @@ class PairingRecorder(Node):
             return self._bad(exc)
         self.detector.add_contacts(stamp_from_msg(msg.header.stamp), part, contact_ids, cops)
         self.skin_ms.append((time.perf_counter() - t0) * 1e3)
+
+    def _now(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _check_clocks(self, skew: dict) -> None:
+        """Say once per skin stream when its stamps are on another clock than the joint states'."""
+        for topic, s in skew.items():
+            if abs(s) > SKEW_LIMIT_S and topic not in self._skew_said:
+                self._skew_said.add(topic)
+                self.get_logger().warning(
+                    f"{topic} is stamped {abs(s):.2f} s {'behind' if s > 0 else 'ahead of'} {JOINT_STATES_TOPIC}"
+                    f" for messages that arrive together: the skin's clock is not the joints' (skinManager on"
+                    f" another host?), so every touch takes the arm pose of another moment. Synchronise the"
+                    f" clocks (chrony/NTP), or start yarp_skin_bridge with stamp:=receive")
 
     def _bad(self, exc: Exception) -> None:
         self.errors["bad message"] += 1
@@ -167,12 +188,16 @@ class PairingRecorder(Node):
             "bag": str(self.bag_path), "touches": self.n_touches, "pairs": dict(self.pairs),
             "coverage": {n: round(self.touched.coverage(n, self.skin.parts[n].present), 4) for n in self.parts},
             "dropped": drops | dict(self.errors),
+            # per skin topic, s its stamps lag the joint states' (beyond a few ms: another clock)
+            "clock_skew_s": {t: round(v, 4) for t, v in self.lags.skew(JOINT_STATES_TOPIC).items()},
             "skin_message_ms": {"n": len(self.skin_ms), "p50": round(float(np.percentile(ms, 50)), 4),
                                 "p99": round(float(np.percentile(ms, 99)), 4), "max": round(float(ms.max()), 4)},
         }
 
     def _publish_progress(self) -> None:
-        self.progress_pub.publish(String(data=json.dumps(self.progress(), sort_keys=True)))
+        progress = self.progress()
+        self._check_clocks(progress["clock_skew_s"])
+        self.progress_pub.publish(String(data=json.dumps(progress, sort_keys=True)))
 
     def close(self) -> None:
         """End of the session: resolve what waits, write it, close the bag (metadata)."""

@@ -3,7 +3,9 @@
 Opens local YARP ports, connects them to skinManager's skin events port
 (skinContactList bottles) and, optionally per part, to a compensated taxel
 port (one value per taxel). Publishes per part, stamped with the YARP
-envelope time (the receive time when a writer sends no envelope):
+envelope time (the receive time when a writer sends no envelope, or with
+``stamp:=receive`` when skinManager's host keeps another clock than the one
+stamping ``/joint_states``: the recorder warns when they differ):
 
 * ``/skin/<part>/contacts``: the part's contacts of every contact list (empty
   when the part has none: "released");
@@ -49,6 +51,9 @@ PARAMS = {
     "local_prefix": ("/nao_skin/skin_bridge", "prefix of the YARP ports this bridge opens", YARP_PORT),
     "compensated_threshold": (0.0, "a compensated taxel value above this counts as activated (0-255 scale)",
                               Rule(float, low=0.0, high=255.0)),
+    "stamp": ("envelope", "what stamps the messages: envelope (the time skinManager wrote, on its host's clock) or"
+                          " receive (this machine's clock when the bridge reads: when skinManager's host clock"
+                          " differs from the one stamping /joint_states)", Rule(str, ("envelope", "receive"))),
     "reconnect_period": (1.0, "seconds between checks that the YARP connections still exist", SECONDS),
     "status_period": (1.0, "seconds between /skin/bridge_status messages", SECONDS),
 }
@@ -59,6 +64,7 @@ class YarpSkinBridge(Node):
         super().__init__("yarp_skin_bridge", **kwargs)
         p = declare(self, PARAMS)
         self.skin = skin_from_params(p)
+        self._receive_stamps = p["stamp"] == "receive"
         parts = list(self.skin.parts)
         ids = declare(self, {f"part_ids.{n}": (DEFAULT_PART_IDS.get(n, -1),
                                                f"skinManager skinPart id of '{n}' (-1: not bridged)")
@@ -138,7 +144,9 @@ class YarpSkinBridge(Node):
             bottle = port.read(True)
             if bottle is None or self._stop.is_set():
                 continue
-            if port.getEnvelope(envelope) and envelope.isValid():
+            if self._receive_stamps:
+                stamp = time.time()
+            elif port.getEnvelope(envelope) and envelope.isValid():
                 stamp = envelope.getTime()
             else:
                 self.counts["no envelope"] += 1
