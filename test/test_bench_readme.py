@@ -26,3 +26,30 @@ def test_readme_without_markers_is_one_clear_error(tmp_path):
     readme.write_text("no section here\n")
     with pytest.raises(DataError, match="README.md"):
         update_readme(readme, tmp_path / "out")
+
+
+def test_a_kinematics_run_fills_its_own_block_and_leaves_the_main_one(tmp_path):
+    from nao_skin.commands.bench import README_KIN_END, README_KIN_START
+
+    out = tmp_path / "out"
+    out.mkdir()
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{README_START}\nmain tables\n{README_END}\nmiddle\n"
+                      f"{README_KIN_START}\nold kinematics\n{README_KIN_END}\noutro\n")
+    (out / "bench_results.md").write_text("# nao-skin bench\n\nCommand: `nao-skin bench --only kinematics`\n\n"
+                                          "## Kinematics\n\n| preset | kinematics |\n\nBenchmark wall time: 9 s.\n")
+    update_readme(readme, out)
+    text = readme.read_text()
+    assert "main tables" in text and "old kinematics" not in text and "middle" in text
+    kin = text.split(README_KIN_START)[1].split(README_KIN_END)[0]
+    assert kin.strip().splitlines() == ["Command: `nao-skin bench --only kinematics`", "", "### Kinematics", "",
+                                        "| preset | kinematics |", "", "Benchmark wall time: 9 s."]
+    # a whole run: the kinematics to their block, everything else to the main one
+    (out / "bench_results.md").write_text("# nao-skin bench\n\nCommand: `nao-skin bench`\n\n## Speed against error"
+                                          "\n\n| a |\n\n## Kinematics\n\n| k |\n\nBenchmark wall time: 99 s.\n")
+    update_readme(readme, out)
+    text = readme.read_text()
+    main = text.split(README_START)[1].split(README_END)[0]
+    kin = text.split(README_KIN_START)[1].split(README_KIN_END)[0]
+    assert "### Speed against error" in main and "| k |" not in main and "Benchmark wall time: 99 s." in main
+    assert "| k |" in kin and "| a |" not in kin and kin.strip().startswith("Command: `nao-skin bench`")

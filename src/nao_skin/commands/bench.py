@@ -341,11 +341,17 @@ def run(args) -> int:
 
 
 README_START, README_END = "<!-- BENCH:START -->", "<!-- BENCH:END -->"
+# the kinematics section (a run of its own, about half an hour) has a block of its own when the README has one
+README_KIN_START, README_KIN_END = "<!-- BENCH:KINEMATICS:START -->", "<!-- BENCH:KINEMATICS:END -->"
+KINEMATICS_TITLE = "## Kinematics"
 README_PLOT = "README-speed-vs-error.png"
 
 
 def update_readme(readme: Path, out: Path) -> None:
-    """Put the benchmark's tables between the README's markers and its plot beside the README."""
+    """Put the benchmark's tables between the README's markers and its plot beside the README.
+
+    With a kinematics block in the README, the run's kinematics section goes there and the rest into
+    the main block; a block the run has nothing for is left as it was."""
     import shutil
 
     text = readme_text(readme)
@@ -362,12 +368,25 @@ def update_readme(readme: Path, out: Path) -> None:
         if not skipping:
             kept.append(line)
     body = "\n".join(line for i, line in enumerate(kept) if i == 0 or line != kept[i - 1])
-    body = ("\n" + body).replace("](speed_vs_error.png)", f"]({README_PLOT})").replace("\n## ", "\n### ")
-    if (out / "speed_vs_error.png").exists():
+    blocks = {README_START: body}
+    if README_KIN_START in text and f"\n{KINEMATICS_TITLE}" in "\n" + body:
+        head, _, kin = ("\n" + body).partition(f"\n{KINEMATICS_TITLE}")
+        command = head.strip().splitlines()[0]          # the 'Command: ...' line, for both blocks
+        kin_lines = (KINEMATICS_TITLE + kin).splitlines()
+        wall = [line for line in kin_lines if line.startswith("Benchmark wall time")]
+        kin_lines = [line for line in kin_lines if not line.startswith("Benchmark wall time")]
+        blocks = {README_KIN_START: "\n".join([command, "", *kin_lines, *wall])}
+        if "\n## " in head:                              # the run had other sections too
+            blocks[README_START] = "\n".join([head.strip(), *wall])
+    if README_START in blocks and (out / "speed_vs_error.png").exists():
         shutil.copyfile(out / "speed_vs_error.png", readme.parent / README_PLOT)
-    head, rest = text.split(README_START, 1)
-    _, tail = rest.split(README_END, 1)
-    readme.write_text(f"{head}{README_START}\n{body.strip()}\n{README_END}{tail}")
+    ends = {README_START: README_END, README_KIN_START: README_KIN_END}
+    for start, block in blocks.items():
+        block = ("\n" + block).replace("](speed_vs_error.png)", f"]({README_PLOT})").replace("\n## ", "\n### ")
+        before, rest = text.split(start, 1)
+        _, after = rest.split(ends[start], 1)
+        text = f"{before}{start}\n{block.strip()}\n{ends[start]}{after}"
+    readme.write_text(text)
 
 
 def _write(out: Path, md: list, results: dict, listing: str) -> str:
