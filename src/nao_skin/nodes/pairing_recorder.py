@@ -24,6 +24,7 @@ import time
 from collections import Counter, deque
 from datetime import datetime
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 from rclpy.node import Node
@@ -169,7 +170,7 @@ class PairingRecorder(Node):
             self._dirty = False
             self._flushed = self.n_touches
 
-    def _cannot_write(self, exc: OutputError):
+    def _cannot_write(self, exc: OutputError) -> NoReturn:
         """The bag cannot take more (e.g. the disk is full): stop recording, leave the bag as it is.
 
         Closing it would write again; left open, with its lock, every reader takes it for a recording
