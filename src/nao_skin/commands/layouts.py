@@ -17,7 +17,7 @@ def run(args) -> int:
     import tempfile
     from pathlib import Path
 
-    from nao_skin.errors import DataError
+    from nao_skin.errors import DataError, os_reason
     from nao_skin.model.layouts import write_default_layouts
 
     if not args.directory.strip():
@@ -33,7 +33,7 @@ def run(args) -> int:
             fresh = write_default_layouts(tmp)
         except OSError as exc:       # the temporary directory's disk is full
             raise DataError(f"layouts {directory}: cannot write the layouts first into {tmp}"
-                            f" ({exc.strerror or exc})") from None
+                            f" ({os_reason(exc)})") from None
         targets = [directory / f.name for f in fresh]
         # regenerating config/layouts rewrites the same bytes; another file under a layout's name is someone's own
         differing = [t for f, t in zip(fresh, targets)
