@@ -72,6 +72,8 @@ def thesis_touches(skin):
     (["--set", "seed=1", "--set", "seed=2"], "--set seed=2: option seed is already given by --set seed=1; give it once"),
     (["--seed", "1", "--set", "seed=2"], "--set seed=2: option seed is already given by --seed 1"),
     (["--free", "--set", "bounded=true"], "--set bounded=true: option bounded is already given by --free"),
+    (["--bounded", "--set", "bounded=false"], "--set bounded=false: option bounded is already given by --bounded"),
+    (["--bounded", "--free"], "argument --free: not allowed with argument --bounded"),
     (["--no-first-guess", "--set", "initial_guess=rigid-fit"], "option initial_guess is already given by --no-first-guess"),
 ])
 def test_a_wrong_option_is_one_line_before_any_data_is_read(tmp_path, capsys, args, says):

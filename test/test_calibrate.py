@@ -282,7 +282,8 @@ def test_figures_over_seeded_splits_through_the_pipeline(tmp_path, skin, left_ha
     assert "## Over 3 repeated seeded splits" in (tmp_path / "out" / "report.md").read_text()
     assert "over 3 splits (mean ± std)" in summary_line(run.result)
     spread5, lines = real_split_lines(BenchInput("sim", touches, skin), k=2)
-    assert spread5["seeds"] == [0, 1] and lines[-1].startswith("Targets on the mean over the 2 splits")
+    assert spread5["seeds"] == [0, 1] and lines[-2].startswith("Targets on the mean over the 2 splits")
+    assert lines[-1].startswith("Goal of the accuracy issue on the same mean (closest COP <= 4.3 mm")
 
 
 def test_a_pair_with_too_few_touches_is_left_out_not_fatal(skin):

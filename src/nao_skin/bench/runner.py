@@ -89,7 +89,8 @@ def strategy_variants(sweep=TOUCH_SWEEP) -> list:
         Variant("COP pairs only", {"pairs": "cop"}),
         Variant("taxel pairs only", {"pairs": "taxel"}),
         Variant("point-to-plane rows instead of closest taxel pairs (cop+plane)", {"pairs": "cop+plane"}),
-        Variant("free (no bounds; Gaussian prior kept)", {"bounded": False}),
+        Variant("bounded (the thesis' box on patch and triangle corrections)", {"bounded": True}),
+        Variant("wider prior (starts at the bound: prior_strength=1)", {"prior_strength": 1.0}),
         Variant("fixed prior (bound/3, not widened by the touches)", {"prior_scale": "fixed"}),
         Variant("robust loss off (linear)", {"loss": "linear"}),
         Variant("finite-difference Jacobian (2-point)", {"jacobian": "2-point"}, single_run=True),
@@ -239,6 +240,9 @@ def headline(rows: list, input_name: str) -> str:
 REAL_TARGET_MM = {"cop": 5.5, "taxel": 2.2}       # mean closest COP / closest taxel, train and test
 REAL_TARGET_SECONDS = 2.0                          # whole sequential calibration of the real recording
 REAL_SPLITS = 5                                    # seeded splits the real figures are averaged over
+# the accuracy issue's goal on the same mean (thesis: 5.49 / 2.67 mm, train only): said beside the targets,
+# not counted as a failure of the bench
+REAL_GOAL_MM = {"cop": 4.3, "taxel": 1.8}
 SIM_TARGET_MM = {"median": 0.5, "p95": 1.5}       # true taxel error of every calibrated part
 
 
@@ -736,12 +740,17 @@ def real_split_lines(inp: BenchInput, k: int = REAL_SPLITS) -> tuple:
 
     spread = split_spread(inp.touches, inp.skin, CalibrationOptions(), k)
     lines = spread_table(spread)
-    misses = [f"{sp} closest {kind.upper() if kind == 'cop' else kind} mean {spread[sp][kind + '_mean_mm']['mean']:.2f}"
-              f" > {limit} mm" for kind, limit in REAL_TARGET_MM.items() for sp in ("train", "test")
-              if not spread[sp][kind + "_mean_mm"]["mean"] <= limit]
-    lines += ["", f"Targets on the mean over the {k} splits (closest COP <= {REAL_TARGET_MM['cop']} mm, closest taxel"
-                  f" <= {REAL_TARGET_MM['taxel']} mm, train and test): "
-                  + ("met" if not misses else "NOT met: " + "; ".join(misses))]
+
+    def judged(limits: dict) -> str:
+        misses = [f"{sp} closest {kind.upper() if kind == 'cop' else kind} mean"
+                  f" {spread[sp][kind + '_mean_mm']['mean']:.2f} > {limit} mm"
+                  for kind, limit in limits.items() for sp in ("train", "test")
+                  if not spread[sp][kind + "_mean_mm"]["mean"] <= limit]
+        return (f"closest COP <= {limits['cop']} mm, closest taxel <= {limits['taxel']} mm, train and test): "
+                + ("met" if not misses else "NOT met: " + "; ".join(misses)))
+
+    lines += ["", f"Targets on the mean over the {k} splits ({judged(REAL_TARGET_MM)}",
+              f"Goal of the accuracy issue on the same mean ({judged(REAL_GOAL_MM)}"]
     return spread, lines
 
 

@@ -46,11 +46,17 @@ class CalibrationOptions:
                            "sequential (mount, then patches, then triangles) or all-at-once")
     reference: str = option("fixed", Rule(str, ("fixed", "simultaneous")),
                             "fixed (one part is the reference while the other is fitted) or simultaneous")
-    bounded: bool = option(True, Rule(bool), "bound patch and triangle corrections (thesis)")
+    # the thesis boxes patch and triangle corrections in; on the real recording the box binds (5 splits:
+    # closest COP 4.54 -> 4.32 mm, taxel 2.04 -> 1.86 mm on train without it) where the simulator's truth
+    # never reaches it (7 presets x 5 seeds: the same true error), so the prior alone holds them by default
+    bounded: bool = option(False, Rule(bool), "bound patch and triangle corrections to patch_bounds and"
+                                              " triangle_bounds (thesis); off: the Gaussian prior alone")
     patch_bounds: tuple = option((0.003, np.pi / 30), Rule(tuple, low=0.0, low_open=True, length=2),
-                                 "|translation| m, |rotation| rad per component of a patch correction")
+                                 "|translation| m, |rotation| rad per component of a patch correction: the box of"
+                                 " bounded, the prior's scale (bound / prior_strength) either way")
     triangle_bounds: tuple = option((0.0005, np.pi / 40), Rule(tuple, low=0.0, low_open=True, length=2),
-                                    "|translation| m, |rotation| rad per component of a triangle correction")
+                                    "|translation| m, |rotation| rad per component of a triangle correction: the box"
+                                    " of bounded, the prior's scale (bound / prior_strength) either way")
     pairs: str = option("both", Rule(str, _PAIRS), "paired points in the residuals of patch and triangle stages")
     mount_pairs: str = option("cop", Rule(str, _PAIRS), "paired points of the mount stages (robust while far off)")
     # "cop+plane" is not the default: the simulator's flat triangles meet exactly at the fabric, which

@@ -34,7 +34,11 @@ def add_arguments(parser) -> None:
     for flag, (name, kind) in NUMBER_FLAGS.items():
         spec = OPTION_FIELDS[name]
         parser.add_argument(flag, type=kind, default=None, help=f"{spec.metadata['help']} (default {spec.default})")
-    parser.add_argument("--free", action="store_true", help="no bounds on patch and triangle corrections")
+    bounds = parser.add_mutually_exclusive_group()
+    bounds.add_argument("--bounded", action="store_true",
+                        help="bound patch and triangle corrections to the thesis' box (patch_bounds, triangle_bounds)")
+    bounds.add_argument("--free", action="store_true",
+                        help="no bounds on patch and triangle corrections, the Gaussian prior alone (the default)")
     parser.add_argument("--no-first-guess", action="store_true", help="skip the closed-form mount fit")
     parser.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
                         help="any calibration option (YAML value), e.g. --set normal_weight=0.01; repeatable."
@@ -58,8 +62,9 @@ def build_options(args):
         value = getattr(args, flag[2:].replace("-", "_"))
         if value is not None:
             set_once(options, name, value, f"{flag} {value}", given)
-    if args.free:
-        set_once(options, "bounded", False, "--free", given)
+    for flag in ("--bounded", "--free"):
+        if getattr(args, flag[2:]):
+            set_once(options, "bounded", flag == "--bounded", flag, given)
     if args.no_first_guess:
         set_once(options, "initial_guess", "none", "--no-first-guess", given)
     set_items(options, args.set, given)
