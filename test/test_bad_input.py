@@ -585,3 +585,16 @@ def test_a_key_given_twice_in_a_config_is_one_line_naming_both_lines(tmp_path, c
     merged = tmp_path / "merged.yaml"
     merged.write_text("base: &base {a: 1, b: 2}\nthis:\n  <<: *base\n  a: 3\n")
     assert read_yaml(merged, "test")["this"] == {"a": 3, "b": 2}
+
+
+def test_standard_output_on_a_full_disk_is_one_line():
+    """``nao-skin stats ... > file`` on a full disk: the failed write has no file name to say, so the line
+    says it was the output; exit 2, no traceback."""
+    with open("/dev/full", "w") as full:
+        bundled = package_dir() / "bags" / "sim_default"
+        run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "stats", str(bundled), "--json"],
+                             stdout=full, stderr=subprocess.PIPE, text=True, timeout=300)
+    assert run.returncode == 2, run.stderr
+    assert "Traceback" not in run.stderr
+    assert run.stderr.strip().splitlines()[-1] == ("nao-skin stats: error: cannot write the output"
+                                                   " (No space left on device)")

@@ -254,13 +254,53 @@ BAD_KINEMATICS = "needs a finite numeric correction (at most 10) and, if given, 
      f"kinematics: 'LElbowOffsetY' {BAD_KINEMATICS}"),
     ({"format": "nao_skin/simulation/1"},
      "format 'nao_skin/simulation/1', not nao_skin/calibration/1: another kind of file or a newer nao_skin's"),
-], ids=["kinematics-list", "kinematics-nan", "kinematics-huge", "negative-std", "other-format"])
+    ({"contents": {"frames": -1}}, "contents must be a mapping of frames and (optional) kinematics, each a whole"
+                                   " number >= 0"),
+    ({"contents": {"frames": 1.5}}, "contents must be a mapping of frames and (optional) kinematics, each a whole"
+                                    " number >= 0"),
+    ({"contents": 3}, "contents must be a mapping of frames and (optional) kinematics, each a whole number >= 0"),
+    ({"contents": {"frames": 2}}, "holds 0 frames and 0 kinematic corrections where its contents line says 2 and"
+                                  " 0: the file was cut short or edited; restore it, or after a deliberate edit"
+                                  " correct that line"),
+], ids=["kinematics-list", "kinematics-nan", "kinematics-huge", "negative-std", "other-format", "contents-negative",
+        "contents-fraction", "contents-number", "contents-more"])
 def test_malformed_calibration_beside_the_parts_fails_in_one_line(skin, tmp_path, top, problem):
     path = tmp_path / "calibration.yaml"
     path.write_text(yaml.safe_dump({"parts": {}, **top}).replace("'.nan'", ".nan"))
     with pytest.raises(ConfigError) as err:
         SkinCalibration.load(path, skin)
     assert str(err.value) == f"{path}: {problem}"
+
+
+def test_a_calibration_cut_short_is_refused_never_read_as_another(skin, tmp_path):
+    """A copy that stopped, or a full disk where someone copied the file: cut anywhere, the file either
+    loads as the calibration it was (only the last entry's origin, which load() does not read, was cut)
+    or is refused in one line; never as fewer corrections with the rest at nominal."""
+    calib = random_calibration(skin, seed=8)
+    calib.kinematics = {"LElbowOffsetY": 0.0012, "LShoulderRoll": -0.01}
+    whole = tmp_path / "calibration.yaml"
+    calib.save(whole, skin)
+    text = whole.read_text()
+    assert "contents:" in text.split("parts:")[0]          # the count comes ahead of what it counts
+    ends = [i + 1 for i, c in enumerate(text) if c == "\n"][:-1]
+    cuts = ends[::5] + [e - 7 for e in ends[3::23]]        # line ends, and cuts in the middle of a line
+    loaded_whole = refused = 0
+    cut = tmp_path / "cut.yaml"
+    for at in cuts:
+        cut.write_text(text[:at])
+        try:
+            got = SkinCalibration.load(cut, skin)
+        except ConfigError as err:
+            assert "\n" not in str(err) and str(err).startswith(str(cut)), err
+            refused += 1
+            continue
+        loaded_whole += 1
+        assert got.kinematics == pytest.approx(calib.kinematics, abs=1e-10), at
+        for name, corr in calib.parts.items():
+            np.testing.assert_allclose(got.parts[name].triangles, corr.triangles, atol=1e-10, err_msg=str(at))
+            np.testing.assert_allclose(got.parts[name].patches, corr.patches, atol=1e-10, err_msg=str(at))
+            np.testing.assert_allclose(got.parts[name].mount, corr.mount, atol=1e-10, err_msg=str(at))
+    assert refused > 0.95 * len(cuts)
 
 
 def test_a_binary_file_given_as_calibration_is_one_line(skin, tmp_path):

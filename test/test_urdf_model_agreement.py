@@ -199,6 +199,11 @@ def test_missing_frame_entry_is_caught(skin, tmp_path):
     del doc["parts"]["torso"]["patches"][pid]
     path = tmp_path / "partial.yaml"
     path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ConfigError, match="holds 108 frames and 0 kinematic corrections where its contents line"
+                                          " says 109 and 0: the file was cut short or edited"):
+        check_calibration_origins(path, skin)
+    del doc["contents"]       # as a file written by hand, without the count: the URDF check still names the frame
+    path.write_text(yaml.safe_dump(doc))
     with pytest.raises(ConfigError) as err:
         check_calibration_origins(path, skin)
     assert str(err.value) == f"{path}: part 'torso' patch {pid}: missing (the URDF would lack frame 'torso_skin_patch_{pid}')"

@@ -63,8 +63,10 @@ def main(argv=None) -> int:
         print(f"nao-skin {args.command}: interrupted", file=sys.stderr)
         return 130
     except OSError as exc:     # the machine, not the input (a full disk, a permission): outputs are written
-        where = f"{exc.filename}: " if exc.filename else ""      # whole or not at all, earlier ones stay
-        print(f"nao-skin {args.command}: error: {where}{os_reason(exc)}", file=sys.stderr)
+        # whole or not at all, earlier ones stay; a failed write to an open stream (standard output
+        # redirected to a full disk, a closed pipe) carries no file name: every named output says its own
+        where = f"{exc.filename}: {os_reason(exc)}" if exc.filename else f"cannot write the output ({os_reason(exc)})"
+        print(f"nao-skin {args.command}: error: {where}", file=sys.stderr)
         return 2
 
 

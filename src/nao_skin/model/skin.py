@@ -436,8 +436,12 @@ class SkinCalibration:
                            "rpy": [round(float(v), 10) for v in se3.rpy_from_matrix(f.pose[:3, :3])]},
             }
 
-        out = {"format": CALIBRATION_FORMAT, "robot": skin.robot.name,
-               "base_frame": skin.robot.base_frame, "parts": {}}
+        # how many entries follow, ahead of them: a file cut short (a copy that stopped, a full disk
+        # elsewhere) is refused by load() instead of read as a calibration with frames at nominal
+        n_frames = sum(1 + len(part.patch_ids) + len(part.triangle_ids) for part in skin.parts.values())
+        out = {"format": CALIBRATION_FORMAT, "robot": skin.robot.name, "base_frame": skin.robot.base_frame,
+               "contents": {"frames": n_frames, **({"kinematics": len(self.kinematics)} if self.kinematics else {})},
+               "parts": {}}
         for name, part in skin.parts.items():
             mount, *others = part.frames(self.parts.get(name))
             out["parts"][name] = {
@@ -459,7 +463,8 @@ class SkinCalibration:
         header = ("# nao_skin calibration: pose corrections of skin mount, patch and triangle frames.\n"
                   "# correction: translation (m) and rotation vector (rad) in the frame's own axes,\n"
                   "#   applied after the nominal pose from the layout; origin: resulting pose relative\n"
-                  "#   to the parent frame (URDF xyz/rpy), read by urdf/nao_skin.urdf.xacro.\n")
+                  "#   to the parent frame (URDF xyz/rpy), read by urdf/nao_skin.urdf.xacro.\n"
+                  "# contents: how many frames and kinematic corrections the file holds (checked on load).\n")
         if self.kinematics:
             header += ("# kinematics: corrections of the robot config, a joint's (rad) added to the angle it\n"
                        "#   reports, a link's (m) to its DH parameter; std from the normal equations.\n")
@@ -539,7 +544,30 @@ class SkinCalibration:
             calib.kinematics[str(name)] = correction
             if std is not None:
                 calib.kinematics_std[str(name)] = std
+        _check_contents(path, doc, calib)
         return calib
+
+
+def _check_contents(path: Path, doc: dict, calib: SkinCalibration) -> None:
+    """The entries read against the ``contents`` the file announces ahead of them (files without it, older
+    or written by hand, are taken as they are)."""
+    if "contents" not in doc:
+        return
+    said = doc["contents"]
+    if isinstance(said, dict):
+        said = {"kinematics": 0, **said}    # without kinematic corrections the count is left out
+    if not (isinstance(said, dict) and set(said) == {"frames", "kinematics"}
+            and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in said.values())):
+        raise ConfigError(f"{path}: contents must be a mapping of frames and (optional) kinematics, each a whole"
+                          f" number >= 0")
+    frames = 0
+    for spec in doc["parts"].values():
+        frames += ("mount" in spec) + len(spec.get("patches") or {}) + len(spec.get("triangles") or {})
+    kinematics = len(doc.get("kinematics") or {})
+    if (frames, kinematics) != (said["frames"], said["kinematics"]):
+        raise ConfigError(f"{path}: holds {frames} frames and {kinematics} kinematic corrections where its contents"
+                          f" line says {said['frames']} and {said['kinematics']}: the file was cut short or edited;"
+                          f" restore it, or after a deliberate edit correct that line")
 
 
 def skin_frame_transforms(skin: SkinModel, calib: SkinCalibration) -> list:
