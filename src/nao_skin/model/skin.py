@@ -484,6 +484,7 @@ class SkinCalibration:
         if "robot" in doc and doc["robot"] != skin.robot.name:
             raise ConfigError(f"{path}: made for robot {doc['robot']!r}; the skin config's robot is"
                               f" {skin.robot.name!r} ({skin.robot.source})")
+        _check_contents(path, doc)     # first: a file cut short is said as such, not as its last entry broken
         calib = skin.zero_calibration()
 
         def vec(entry, where):
@@ -544,11 +545,10 @@ class SkinCalibration:
             calib.kinematics[str(name)] = correction
             if std is not None:
                 calib.kinematics_std[str(name)] = std
-        _check_contents(path, doc, calib)
         return calib
 
 
-def _check_contents(path: Path, doc: dict, calib: SkinCalibration) -> None:
+def _check_contents(path: Path, doc: dict) -> None:
     """The entries read against the ``contents`` the file announces ahead of them (files without it, older
     or written by hand, are taken as they are)."""
     if "contents" not in doc:
@@ -562,8 +562,10 @@ def _check_contents(path: Path, doc: dict, calib: SkinCalibration) -> None:
                           f" number >= 0")
     frames = 0
     for spec in doc["parts"].values():
-        frames += ("mount" in spec) + len(spec.get("patches") or {}) + len(spec.get("triangles") or {})
-    kinematics = len(doc.get("kinematics") or {})
+        if isinstance(spec, dict):       # anything else is said by load(), naming the part
+            frames += ("mount" in spec) + sum(len(spec[key]) for key in ("patches", "triangles")
+                                              if isinstance(spec.get(key), dict))
+    kinematics = len(doc["kinematics"]) if isinstance(doc.get("kinematics"), dict) else 0
     if (frames, kinematics) != (said["frames"], said["kinematics"]):
         raise ConfigError(f"{path}: holds {frames} frames and {kinematics} kinematic corrections where its contents"
                           f" line says {said['frames']} and {said['kinematics']}: the file was cut short or edited;"
