@@ -6,7 +6,7 @@ import pytest
 
 from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.calibration.layout import ParameterLayout
-from nao_skin.calibration.stages import _group_columns, _prior_weights, evidence_prior_sigma, initial_prior_sigma
+from nao_skin.calibration.stages import _prior_weights, evidence_prior_sigma, initial_prior_sigma, prior_group_columns
 from nao_skin.touch.datasets import deduplicate
 
 PART = ("l_hand",)
@@ -32,7 +32,7 @@ def _solve_result(layout, options, x, data_information):
 def _triangle_corrections(layout, rng, translation_std, rotation_std):
     x = np.zeros(layout.size)
     for group, std in (("triangle_translation", translation_std), ("triangle_rotation", rotation_std)):
-        cols = _group_columns(layout, PART, group)
+        cols = prior_group_columns(layout, PART, group)
         x[cols] = rng.normal(0.0, std, len(cols))
     return x
 
@@ -44,7 +44,7 @@ def test_well_determined_corrections_set_the_prior_width_to_their_spread(layout)
     sigma = evidence_prior_sigma(result, x, free, weights, layout, PART, {"triangle"},
                                  initial_prior_sigma(options), options)
     for group in ("triangle_translation", "triangle_rotation"):
-        spread = np.sqrt(np.mean(x[_group_columns(layout, PART, group)] ** 2))
+        spread = np.sqrt(np.mean(x[prior_group_columns(layout, PART, group)] ** 2))
         assert sigma[group] == pytest.approx(spread, rel=1e-3)
     # half determined (data information = prior information): half the components count
     result, free, weights = _solve_result(layout, options, x, data_information=1.0)

@@ -323,7 +323,7 @@ def initial_prior_sigma(options: "CalibrationOptions") -> dict:
                                    tt / options.prior_strength, tr / options.prior_strength)))
 
 
-def _group_columns(layout, parts, group: str) -> np.ndarray:
+def prior_group_columns(layout, parts, group: str) -> np.ndarray:
     """Columns of ``parts`` in one prior group, e.g. 'triangle_rotation'."""
     level, comp = group.split("_")
     out = []
@@ -339,7 +339,7 @@ def _prior_weights(layout, parts, options, prior_sigma: dict):
     """Per-unknown prior weights (sigma_residual / sigma_prior)^2 for patches and triangles."""
     w = np.zeros(layout.size)
     for group, sigma in prior_sigma.items():
-        w[_group_columns(layout, parts, group)] = (options.residual_sigma / sigma) ** 2
+        w[prior_group_columns(layout, parts, group)] = (options.residual_sigma / sigma) ** 2
     return w
 
 
@@ -375,7 +375,7 @@ def evidence_prior_sigma(result, x: np.ndarray, free: np.ndarray, weights: np.nd
         level, comp = group.split("_")
         if level not in levels:
             continue
-        idx = np.flatnonzero(np.isin(cols, _group_columns(layout, parts, group)))   # positions among free
+        idx = np.flatnonzero(np.isin(cols, prior_group_columns(layout, parts, group)))   # positions among free
         determined = float(np.sum(np.clip(1.0 - weights[cols[idx]] * inv_diag[idx], 0.0, 1.0)))
         if determined < 1.0:
             continue   # the touches say next to nothing about this group: keep what was assumed

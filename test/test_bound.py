@@ -1,0 +1,49 @@
+"""The linearised bound of what choosing the touches could buy (nao_skin.bench.bound, nao-skin bench-bound)."""
+import json
+
+import numpy as np
+import pytest
+
+from nao_skin.bench.bound import bound_rows, random_touches_for
+from nao_skin.cli import main as cli_main
+from nao_skin.model.skin import load_skin
+
+
+def test_random_touches_for_follows_the_power_law_between_the_sizes_measured():
+    errors = {100: 1.0, 400: 0.5, 1600: 0.25}                 # error ~ N^-1/2
+    assert random_touches_for(1 / np.sqrt(2), errors) == pytest.approx(200)
+    assert random_touches_for(0.35, errors) == pytest.approx(400 * (0.5 / 0.35) ** 2)
+    assert random_touches_for(0.125, errors) == pytest.approx(6400)        # beyond: the last two extrapolated
+    assert np.isnan(random_touches_for(0.5, {100: 1.0}))
+    assert np.isnan(random_touches_for(0.5, {100: 1.0, 200: 1.2}))         # not falling: no power law
+
+
+@pytest.fixture(scope="module")
+def rows():
+    return bound_rows(load_skin(), seed=3, pool_per_pair=40, sizes=(30, 60, 120), batch=10)
+
+
+def test_more_touches_predict_a_smaller_error_and_the_best_choice_beats_random_in_the_tail(rows):
+    assert [r["touches"] for r in rows] == [30, 60, 120] and all(r["pool"] > 120 for r in rows)
+    assert all(0.2 < r["sigma_mm"] < 3.0 for r in rows)              # the residual noise of paired taxels
+    for key in ("random_median_mm", "random_p95_mm", "greedy_median_mm", "greedy_p95_mm"):
+        values = [r[key] for r in rows]
+        assert values == sorted(values, reverse=True), key
+    # the greedy choice lowers the summed taxel variance, which the tail dominates
+    for r in rows:
+        assert r["greedy_p95_mm"] <= 1.02 * r["random_p95_mm"], r
+    assert rows[-1]["greedy_p95_mm"] < rows[-1]["random_p95_mm"]
+
+
+def test_bench_bound_writes_its_table_and_refuses_sizes_beyond_the_pool(tmp_path, capsys):
+    out = tmp_path / "bound"
+    assert cli_main(["bench-bound", "--seeds", "1", "--pool", "20", "--sizes", "20,40", "--out", str(out)]) == 0
+    result = json.loads((out / "bound_results.json").read_text())
+    assert [r["touches"] for r in result["rows"]] == [20, 40]
+    assert "| 0 | 40 |" in (out / "bound_results.md").read_text()
+    capsys.readouterr()
+    assert cli_main(["bench-bound", "--pool", "20", "--sizes", "20,81", "--out", str(tmp_path / "b2")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["nao-skin bench-bound: error: --sizes '20,81': expected whole numbers from 1 to the pool's 80"
+                   " touches, comma-separated"]
+    assert not (tmp_path / "b2").exists()
