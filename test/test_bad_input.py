@@ -6,6 +6,7 @@ recording and its layouts, and simulated touches written in the thesis' format.
 """
 import argparse
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -596,5 +597,15 @@ def test_standard_output_on_a_full_disk_is_one_line():
                              stdout=full, stderr=subprocess.PIPE, text=True, timeout=300)
     assert run.returncode == 2, run.stderr
     assert "Traceback" not in run.stderr
-    assert run.stderr.strip().splitlines()[-1] == ("nao-skin stats: error: cannot write the output"
+    assert run.stderr.strip().splitlines()[-1] == ("nao-skin stats: error: cannot write to standard output"
                                                    " (No space left on device)")
+
+
+def test_a_closed_standard_output_is_one_line_before_anything_runs(tmp_path):
+    """Started with standard output closed (``>&-``): a result printed there would be lost unseen."""
+    for argv in (["stats", str(package_dir() / "bags" / "sim_default"), "--json"], ["nominal"]):
+        run = subprocess.run([sys.executable, "-m", "nao_skin.cli", *argv], stderr=subprocess.PIPE, text=True,
+                             timeout=300, preexec_fn=lambda: os.close(1))
+        assert run.returncode == 2, run.stderr
+        assert run.stderr.strip().splitlines() == [f"nao-skin {argv[0]}: error: standard output is closed;"
+                                                   f" redirect it (e.g. > /dev/null)"]

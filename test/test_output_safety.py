@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from nao_skin.formats.outdir import MARKER
+from nao_skin.paths import package_dir
 
 pytestmark = pytest.mark.slow   # every test runs the nao-skin CLI as processes (~1-15 s each)
 
@@ -208,6 +209,61 @@ def test_a_full_disk_is_one_line_and_leaves_what_was_there(work, argv, limit, sa
     assert run.stderr.strip().splitlines()[-1] == says, run.stderr[-2000:]
     assert "Traceback" not in run.stderr
     assert tree(work) == before           # the earlier calibration as it was, no half-written output or temporary
+
+
+def test_a_readme_the_bench_cannot_write_whole_is_left_as_it_was(tmp_path):
+    """``bench --readme``: the README is the user's; a write that fails part way (a full disk) must not leave
+    it cut short. The run's own results, far smaller, are written."""
+    readme = tmp_path / "README.md"
+    readme.write_text("# my robot\n\n<!-- BENCH:START -->\nold results\n<!-- BENCH:END -->\n"
+                      + "notes of the lab, line after line\n" * 6000)           # ~200 kB
+    before = readme.read_bytes()
+    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", *BENCH_CHEAP, "--out", "bench", "--readme",
+                          "README.md"], cwd=tmp_path, capture_output=True, text=True, timeout=600,
+                         preexec_fn=file_size_limit(100_000))
+    assert run.returncode == 2, (run.returncode, run.stderr[-2000:])
+    assert "Traceback" not in run.stderr
+    assert run.stderr.strip().splitlines()[-1] == (
+        "nao-skin bench: error: --readme README.md: cannot write it or its plot README-speed-vs-error.png (File too"
+        " large); what was not replaced is unchanged, the results are in bench")
+    assert readme.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["README.md", "bench"]     # no temporary left
+    assert (tmp_path / "bench" / "bench_results.md").is_file()
+
+
+@pytest.mark.parametrize("argv, started", [
+    # the bundled 4000 touches: seconds of calibration after its first progress line
+    (["calibrate", str(package_dir() / "bags" / "sim_default"), "--out", "cal", "--no-plots", "--force"],
+     "first guess"),
+    (["simulate", "--touches-per-pair", "300", "--out", "cal", "--force"], None),      # ~20 s of simulation
+], ids=["calibrate", "simulate"])
+def test_a_kill_mid_run_keeps_the_earlier_output_and_leaves_nothing_half_written(work, argv, started):
+    """SIGTERM (kill, a job's timeout) as Ctrl-C: one line, exit 143, the earlier output and everything
+    else as it was, no temporary directory left. Python's default for SIGTERM skipped every cleanup."""
+    if argv[0] == "simulate":
+        ok(nao_skin("simulate", "--touches-per-pair", "3", "--out", "cal", cwd=work))
+    else:
+        ok(nao_skin("calibrate", "session", "--out", "cal", "--no-plots", "--quiet", cwd=work))
+    before = tree(work)
+    proc = subprocess.Popen([sys.executable, "-u", "-m", "nao_skin.cli", *argv], cwd=work, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        if started:
+            for line in proc.stdout:
+                if started in line:
+                    break
+        else:
+            time.sleep(4.0)
+        assert proc.poll() is None, "the command ended before the signal: give it more work"
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 143, (proc.returncode, err[-2000:])
+    assert err.strip().splitlines()[-1] == f"nao-skin {argv[0]}: terminated (SIGTERM)"
+    assert tree(work) == before
 
 
 @pytest.mark.parametrize("foreign", ["notes.md", "taxels/my_layout.txt", "drafts/a.txt"])

@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import signal
 import sys
 import time
 
 from nao_skin import commands
-from nao_skin.errors import NaoSkinError, end_at_once_on_ctrl_c, os_reason
+from nao_skin.errors import NaoSkinError, Terminated, end_at_once_on_ctrl_c, os_reason, stop_on_sigterm
 
 
 class _Parser(argparse.ArgumentParser):
@@ -54,20 +55,63 @@ def main(argv=None) -> int:
     if func is None:
         parser.print_help()
         return 0 if args.command is None else 2
+    if sys.stdout is None:      # started with it closed (>&-): what a command prints would be lost unseen
+        print(f"nao-skin {args.command}: error: standard output is closed; redirect it (e.g. > /dev/null)",
+              file=sys.stderr)
+        return 2
+    previous_term = stop_on_sigterm()     # a kill stops a command as a Ctrl-C does, its outputs whole or not at all
+    stdout = sys.stdout = _WatchedStream(sys.stdout)
     try:
         return int(func(args) or 0)
     except NaoSkinError as exc:
         print(f"nao-skin {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except Terminated:
+        print(f"nao-skin {args.command}: terminated (SIGTERM)", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except KeyboardInterrupt:
         print(f"nao-skin {args.command}: interrupted", file=sys.stderr)
         return 130
     except OSError as exc:     # the machine, not the input (a full disk, a permission): outputs are written
-        # whole or not at all, earlier ones stay; a failed write to an open stream (standard output
-        # redirected to a full disk, a closed pipe) carries no file name: every named output says its own
-        where = f"{exc.filename}: {os_reason(exc)}" if exc.filename else f"cannot write the output ({os_reason(exc)})"
+        # whole or not at all, earlier ones stay; a failed write to an open stream carries no file name
+        if exc.filename:
+            where = f"{exc.filename}: {os_reason(exc)}"
+        elif stdout.failed:
+            where = f"cannot write to standard output ({os_reason(exc)})"
+        else:
+            where = f"cannot write the output ({os_reason(exc)})"
         print(f"nao-skin {args.command}: error: {where}", file=sys.stderr)
         return 2
+    finally:
+        signal.signal(signal.SIGTERM, previous_term)
+        # a stream that failed once fails again at Python's own flush at exit, with a second message
+        sys.stdout = open(os.devnull, "w") if stdout.failed else stdout.stream  # noqa: SIM115 - until exit
+
+
+class _WatchedStream:
+    """Standard output, remembering whether a write to it failed: such an OSError names no file, and the
+    line should say it was standard output (redirected to a full disk, a pipe closed early)."""
+
+    def __init__(self, stream):
+        self.stream = stream
+        self.failed = False
+
+    def write(self, text):
+        try:
+            return self.stream.write(text)
+        except OSError:
+            self.failed = True
+            raise
+
+    def flush(self):
+        try:
+            return self.stream.flush()
+        except OSError:
+            self.failed = True
+            raise
+
+    def __getattr__(self, name):
+        return getattr(self.stream, name)
 
 
 if __name__ == "__main__":

@@ -54,3 +54,18 @@ def end_at_once_on_ctrl_c(prog: str):
         os._exit(130)
 
     return signal.signal(signal.SIGINT, interrupted)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, a session manager, a CI timeout) raised where the program is, as a Ctrl-C is: the
+    same ``except KeyboardInterrupt`` and ``finally`` clauses remove what is half written and keep what was
+    there before. Python's default for SIGTERM ends the process without running them."""
+
+
+def stop_on_sigterm():
+    """Make SIGTERM raise :class:`Terminated` in the main thread; returns the handler it replaced."""
+
+    def terminated(signum, frame):      # noqa: ARG001 - signal handler signature
+        raise Terminated()
+
+    return signal.signal(signal.SIGTERM, terminated)

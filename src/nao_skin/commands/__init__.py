@@ -19,6 +19,7 @@ def write_output(text: str, out: Path | None, inputs=()) -> None:
     ``inputs``, nor a directory; it is replaced whole or not at all (a temporary sibling renamed over it).
     """
     from nao_skin.errors import DataError
+    from nao_skin.formats.outdir import replace_file
 
     if out is None:
         sys.stdout.write(text)
@@ -34,17 +35,10 @@ def write_output(text: str, out: Path | None, inputs=()) -> None:
             if not parent.is_dir():
                 raise DataError(f"--out {out}: {parent} is a file, not a directory; choose another place")
             break
-    temporary, made = out.with_name(f".{out.name}.{os.getpid()}.tmp"), False
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        # O_EXCL: never another file under that name; mode 0o666 less the umask, as a plain write gives
-        with os.fdopen(os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), "w") as f:
-            made = True
-            f.write(text)
-        os.replace(temporary, out)
+        replace_file(out, text)
     except OSError as exc:
-        if made:
-            temporary.unlink(missing_ok=True)
         raise DataError(f"--out {out}: cannot write ({exc.strerror}); choose another place") from None
     print(out)
 

@@ -352,7 +352,8 @@ def update_readme(readme: Path, out: Path) -> None:
 
     With a kinematics block in the README, the run's kinematics section goes there and the rest into
     the main block; a block the run has nothing for is left as it was."""
-    import shutil
+    from nao_skin.errors import OutputError, os_reason
+    from nao_skin.formats.outdir import replace_file
 
     text = readme_text(readme)
     body = (out / "bench_results.md").read_text()
@@ -378,15 +379,21 @@ def update_readme(readme: Path, out: Path) -> None:
         blocks = {README_KIN_START: "\n".join([command, "", *kin_lines, *wall])}
         if "\n## " in head:                              # the run had other sections too
             blocks[README_START] = "\n".join([head.strip(), *wall])
-    if README_START in blocks and (out / "speed_vs_error.png").exists():
-        shutil.copyfile(out / "speed_vs_error.png", readme.parent / README_PLOT)
     ends = {README_START: README_END, README_KIN_START: README_KIN_END}
     for start, block in blocks.items():
         block = ("\n" + block).replace("](speed_vs_error.png)", f"]({README_PLOT})").replace("\n## ", "\n### ")
         before, rest = text.split(start, 1)
         _, after = rest.split(ends[start], 1)
         text = f"{before}{start}\n{block.strip()}\n{ends[start]}{after}"
-    readme.write_text(text)
+    # each whole or not at all: a README cut short by a full disk would lose what the user wrote in it
+    plot = readme.parent / README_PLOT
+    try:
+        replace_file(readme, text)
+        if README_START in blocks and (out / "speed_vs_error.png").exists():
+            replace_file(plot, (out / "speed_vs_error.png").read_bytes())
+    except OSError as exc:
+        raise OutputError(f"--readme {readme}: cannot write it or its plot {plot.name} ({os_reason(exc)});"
+                          f" what was not replaced is unchanged, the results are in {out}") from None
 
 
 def _write(out: Path, md: list, results: dict, listing: str) -> str:

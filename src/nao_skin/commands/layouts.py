@@ -13,11 +13,11 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    import shutil
     import tempfile
     from pathlib import Path
 
     from nao_skin.errors import DataError, os_reason
+    from nao_skin.formats.outdir import replace_file
     from nao_skin.model.layouts import write_default_layouts
 
     if not args.directory.strip():
@@ -47,7 +47,7 @@ def run(args) -> int:
             for f, target in zip(fresh, targets):
                 if target.is_symlink():   # --force replaces the link, never the file it points to elsewhere
                     target.unlink()
-                shutil.copyfile(f, target)
+                replace_file(target, f.read_bytes())    # whole or not at all: a full disk keeps the old one
         except OSError as exc:
             raise DataError(f"layouts {directory}: cannot write ({exc.strerror}); choose another place") from None
     for target in targets:

@@ -140,6 +140,25 @@ def check_writable(out: Path, name: str) -> None:
         raise DataError(f"{name}: cannot write in {place} ({exc.strerror}); choose another place") from None
 
 
+def replace_file(path: str | Path, data: str | bytes) -> None:
+    """Write ``path`` whole or not at all: a temporary sibling (mode 0o666 less the umask, as a plain write
+    gives) renamed over it, so a failed write (a full disk, a signal) leaves the earlier file as it was.
+    Raises the ``OSError``; the temporary file is gone then."""
+    path = Path(path)
+    temporary, made = path.with_name(f".{path.name}.{os.getpid()}.tmp"), False
+    try:
+        # O_EXCL: never another file under that name
+        with os.fdopen(os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666),
+                       "wb" if isinstance(data, bytes) else "w") as f:
+            made = True
+            f.write(data)
+        os.replace(temporary, path)
+    except BaseException:
+        if made:
+            temporary.unlink(missing_ok=True)
+        raise
+
+
 def replace_dir(new: str | Path, out: str | Path, label: str = "output directory") -> Path:
     """Move the finished, marked directory ``new`` to ``out`` (same file system, e.g. a temporary sibling).
 
