@@ -68,7 +68,11 @@ def thesis_touches(skin):
     (["--set", "lateral_weight=0.3"], "unknown calibration option 'lateral_weight'"),
     (["--set", "fabric_bounds=[0.003, 0.001]"], "lower bound is above the upper one"),
     (["--test-fraction", "x"], "argument --test-fraction: invalid float value: 'x'"),
-    (["--splits", "0"], "--splits 0: expected a whole number >= 1"),
+    (["--splits", "0"], "--splits 0: expected a whole number from 1 to 100"),
+    (["--splits", "100000000000"], "--splits 100000000000: expected a whole number from 1 to 100"),   # had run out of memory
+    # had failed after the first calibration, on a seed the user never gave
+    (["--seed", "4294967295", "--splits", "2"], "--splits 2: the splits take seeds 4294967295..4294967296, beyond the"
+                                                " largest seed 4294967295; give a smaller --seed"),
     (["--set", f"patch_bounds=[{10 ** 400}, 0.1]"], "expected 2 numbers > 0"),          # beyond any float
     (["--set", "seed=1", "--set", "seed=2"], "--set seed=2: option seed is already given by --set seed=1; give it once"),
     (["--seed", "1", "--set", "seed=2"], "--set seed=2: option seed is already given by --seed 1"),
@@ -406,7 +410,8 @@ def test_layouts_never_replace_a_robots_own_layout_without_force(tmp_path, capsy
     (["--only", "speed", "--sim-pairs", "foo-bar"], "--sim-pairs 'foo-bar': expected HAND-PART of two skin parts"),
     (["--hard-touches", "-3"], "--hard-touches -3: expected a whole number in 1..100000"),
     (["--hard-touches", str(10 ** 12)], "--hard-touches 1000000000000: expected a whole number in 1..100000"),
-    (["--jobs", "-2"], "--jobs -2: expected a whole number >= 1"),
+    (["--jobs", "-2"], "--jobs -2: expected a whole number from 1 to 64"),
+    (["--jobs", "100000"], "--jobs 100000: expected a whole number from 1 to 64"),
     (["--sim-touches", "-1"], "--sim-touches -1: expected a whole number >= 0 (0: all)"),
     (["--readme", "missing.md"], "--readme missing.md: cannot read (No such file or directory)"),
     (["--skin", "broken.txt"], "broken.txt: not valid YAML"),          # read although no --real uses it
@@ -430,7 +435,8 @@ def test_bench_arguments_are_checked_before_anything_runs(tmp_path, capsys, monk
     (["--start", "500", "--cap", "80"], "--start 500: more random touches than the cap of 80"),
     (["--strategies", "random,random"], "--strategies 'random,random': expected some of random, guided, oracle,"
                                         " each once"),
-    (["--jobs", "0"], "--jobs 0: expected a whole number >= 1"),
+    (["--jobs", "0"], "--jobs 0: expected a whole number from 1 to 64"),
+    (["--jobs", "65"], "--jobs 65: expected a whole number from 1 to 64"),
     (["--set", "pairs=nope"], "--set pairs=nope: expected one of cop, taxel, both"),
     (["--set", "seed=1", "--set", "seed=2"], "--set seed=2: option seed is already given by --set seed=1; give it once"),
 ])

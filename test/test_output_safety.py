@@ -266,6 +266,64 @@ def test_a_kill_mid_run_keeps_the_earlier_output_and_leaves_nothing_half_written
     assert tree(work) == before
 
 
+def _children(pid: int) -> list:
+    """pids of the live processes whose parent is ``pid`` (read from /proc)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if int(fields[1]) == pid and fields[0] != "Z":
+            out.append(int(stat.parent.name))
+    return out
+
+
+@pytest.mark.parametrize("stop", ["kill a worker", "terminate the benchmark"])
+def test_a_benchmark_with_workers_ends_in_one_line_and_leaves_no_worker(tmp_path, stop):
+    """A worker killed (out of memory) had ended the run in a BrokenProcessPool traceback; a SIGTERM had
+    left the workers running their cases to the end."""
+    proc = subprocess.Popen([sys.executable, "-m", "nao_skin.cli", "bench-capture", "--quick", "--seeds", "1",
+                             "--strategies", "random,guided", "--jobs", "2", "--out", "b"], cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while len(_children(proc.pid)) < 2 and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.1)
+        workers = _children(proc.pid)
+        assert len(workers) >= 2, "the workers did not start"
+        time.sleep(1.0)                                  # at work on their cases
+        if stop == "kill a worker":
+            os.kill(workers[0], signal.SIGKILL)
+        else:
+            proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    last = err.strip().splitlines()[-1]
+    if stop == "kill a worker":
+        assert proc.returncode == 2 and last.startswith("nao-skin bench-capture: error: a worker process ended"
+                                                        " abruptly"), (proc.returncode, err[-2000:])
+    else:
+        assert proc.returncode == 143 and last == "nao-skin bench-capture: terminated (SIGTERM)", err[-2000:]
+    assert "Traceback" not in err
+    deadline = time.monotonic() + 10
+    while any(map(_running, workers)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not [w for w in workers if _running(w)], "workers left running"
+    assert not (tmp_path / "b").exists()
+
+
+def _running(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
 @pytest.mark.parametrize("foreign", ["notes.md", "taxels/my_layout.txt", "drafts/a.txt"])
 def test_a_file_added_to_our_output_is_never_deleted(work, foreign):
     ok(nao_skin("calibrate", "session", "--out", "cal", "--no-plots", "--quiet", cwd=work))

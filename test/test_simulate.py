@@ -289,6 +289,13 @@ def test_yaml_defaults_are_the_dataclass_defaults():
     ({"hand_mount_offset": [float("nan"), 0, 0]}, ["hand_mount_offset", "[x, y, z] metres"]),
     ({"link_errors": {"LElbowOffsetY": 1e300}}, ["link_errors", "map link names to metres"]),
     ({"spot_radius": 1e300}, ["'spot_radius' must be a finite number of at most 1e+06"]),
+    # the batched pose search asked for 12 GiB and ended in a traceback
+    ({"pose_restarts": 100_000_000}, ["'pose_restarts' 100000000 is more than 1000"]),
+    ({"pose_iterations": 10 ** 9}, ["'pose_iterations' 1000000000 is more than 10000"]),
+    # had failed later, naming the temporary bag
+    ({"start_stamp": -5}, ["'start_stamp' must be seconds since 1970 from 0 to 4000000000, got -5"]),
+    ({"start_stamp": 1e20}, ["'start_stamp' must be seconds since 1970", "got 1e+20"]),
+    ({"start_stamp": float("nan")}, ["'start_stamp' must be seconds since 1970", "got nan"]),
 ])
 def test_bad_parameters_fail_in_one_line(overrides, words):
     with pytest.raises(ConfigError) as exc:

@@ -163,9 +163,9 @@ def capture_matrix(skin: SkinModel, seeds, setup: CaptureSetup | None = None, jo
     work = [(skin, s, st, setup) for s in seeds for st in strategies]
     rows = []
     if jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
+        from nao_skin.bench.pool import worker_pool
 
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        with worker_pool(jobs, len(work)) as pool:
             for row in pool.map(_one, work):
                 say(_row_line(row))
                 rows.append(row)

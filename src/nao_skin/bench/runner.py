@@ -488,9 +488,9 @@ def hard_case_matrix(skin: SkinModel, presets=HARD_PRESETS, seeds=range(20), set
     cases = [(p, int(s)) for p in presets for s in seeds]
     rows = []
     if jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
+        from nao_skin.bench.pool import worker_pool
 
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        with worker_pool(jobs, len(cases)) as pool:
             futures = [pool.submit(run_hard_case, skin, p, s, setup) for p, s in cases]
             for fut in futures:
                 rows.append(fut.result())
@@ -832,9 +832,9 @@ def kinematics_matrix(skin: SkinModel, presets=KINEMATIC_PRESETS, seeds=range(20
                         f" ({_f(r.get('seconds'), 1)} s)" if r["status"] == "ok" else f"{r['mode']} {r['status']}"
                         for r in case_rows))
     if jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
+        from nao_skin.bench.pool import worker_pool
 
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        with worker_pool(jobs, len(cases)) as pool:
             for fut in [pool.submit(run_kinematic_case, skin, p, s, setup) for p, s in cases]:
                 report(fut.result())
     else:

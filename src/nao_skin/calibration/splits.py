@@ -16,6 +16,7 @@ from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.touches import TouchSet
 
+MAX_SPLITS = 100        # a calibration each: beyond, minutes of work for a spread that no longer moves
 FIGURES = ("cop_mean_mm", "taxel_mean_mm", "contact_taxel_mean_mm")    # of the report's final train/test
 
 

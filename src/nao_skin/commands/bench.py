@@ -91,6 +91,7 @@ def _pairs(text: str, option: str, simulated: bool = False):
 
 def _check_counts(args) -> None:
     """The numbers of touches and workers, before anything runs: a bad one would only fail rows, silently."""
+    from nao_skin.bench.pool import MAX_JOBS
     from nao_skin.errors import DataError
     from nao_skin.sim.params import MAX_TOUCHES_PER_PAIR
 
@@ -98,8 +99,8 @@ def _check_counts(args) -> None:
         raise DataError(f"--sim-touches {args.sim_touches}: expected a whole number >= 0 (0: all)")
     if args.hard_touches is not None and not 1 <= args.hard_touches <= MAX_TOUCHES_PER_PAIR:
         raise DataError(f"--hard-touches {args.hard_touches}: expected a whole number in 1..{MAX_TOUCHES_PER_PAIR}")
-    if args.jobs < 1:
-        raise DataError(f"--jobs {args.jobs}: expected a whole number >= 1")
+    if not 1 <= args.jobs <= MAX_JOBS:
+        raise DataError(f"--jobs {args.jobs}: expected a whole number from 1 to {MAX_JOBS}")
 
 
 def readme_text(readme: Path) -> str:
@@ -212,8 +213,15 @@ def run(args) -> int:
     if "real" in sections and args.real:
         inputs += _real_inputs(args, say, real_skin)
     out = Path(args.out)
-    # written section by section below (so a later failure keeps the earlier tables), not via a temporary dir
-    clear_for_writing(out, NAME, BENCHMARK, OUTPUTS)
+    cleared: list = []
+
+    def ready() -> Path:
+        """``out``, emptied of an earlier output when the first new result is ready to be written (section by
+        section below, so a later failure keeps the earlier tables): a run stopped before that keeps it."""
+        if not cleared:
+            cleared.append(clear_for_writing(out, NAME, BENCHMARK, OUTPUTS))
+        return out
+
     t_start = time.perf_counter()
     # with --force, the quoted command also runs again where its earlier output is
     argv = sys.argv[2:] + ([] if "--force" in sys.argv[2:] else ["--force"])
@@ -240,7 +248,7 @@ def run(args) -> int:
         md += ["", "Targets (default row):", ""] + ["- " + line for line in bench.target_lines(rows)]
         for inp in inputs:
             md += ["", f"### {inp.name}", "", bench.speed_table(rows, inp.name)]
-        bench.plot_speed_vs_error(rows, out / "speed_vs_error.png")
+        bench.plot_speed_vs_error(rows, ready() / "speed_vs_error.png")
         md += ["", "![speed against error](speed_vs_error.png)", ""]
         for inp in (i for i in inputs if i.truth is None):
             say(f"{inp.name}: the default calibration over {bench.REAL_SPLITS} seeded splits")
@@ -264,7 +272,7 @@ def run(args) -> int:
                           f" {t['fast_s']:.3f} s (x{t['exact_s'] / t['fast_s']:.0f}); same touches and skip reasons:"
                           f" {'yes' if t['same_touches'] else 'NO'}")
             md.append("")
-        _write(out, md, results, listing)      # kept even if a later section fails
+        _write(ready(), md, results, listing)      # kept even if a later section fails
         failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in t for t in bench.target_lines(rows))
 
     if "hard" in sections:
@@ -306,7 +314,7 @@ def run(args) -> int:
         md += ["## One live update", "", live.__doc__.split("\n\n", 1)[1].replace("\n", " ").strip(), "",
                f"Input: {inp.name}; {live.LIVE_STEP} new touches per update, {live_repeat} subsets per size.", "",
                *live.update_table(timings), "", f"- {target}", ""]
-        _write(out, md, results, listing)
+        _write(ready(), md, results, listing)
         failures += "NOT met" in target
 
     if "kinematics" in sections:
@@ -327,11 +335,11 @@ def run(args) -> int:
                f" robot), else in the chain-end frame. Seconds: the engine's.", "",
                "Goals:", "", *("- " + line for line in goals), "", bench.kinematics_tables(rows), ""]
         failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in line for line in goals)
-        _write(out, md, results, listing)
+        _write(ready(), md, results, listing)
 
     results["seconds"] = time.perf_counter() - t_start
     md.append(f"Benchmark wall time: {results['seconds']:.0f} s.")
-    text = _write(out, md, results, listing)
+    text = _write(ready(), md, results, listing)
     print(text.replace(LISTING, f"(in {out / 'bench_results.md'})"))
     print(f"-> {out / 'bench_results.md'}, {out / 'speed_vs_error.png'}" if inputs else f"-> {out / 'bench_results.md'}")
     if args.readme:

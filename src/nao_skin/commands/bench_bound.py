@@ -60,7 +60,6 @@ def run(args) -> int:
     sizes = _sizes(args.sizes, 4 * args.pool)
     check_output_dir(args.out, BENCHMARK, force=args.force)
     out = Path(args.out)
-    clear_for_writing(out, NAME, BENCHMARK, OUTPUTS)
     t0 = time.perf_counter()
     rows = []
     for seed in range(args.seeds):
@@ -85,6 +84,7 @@ def run(args) -> int:
           f"Random / greedy touches for the same predicted error: {min(ratios):.2f}-{max(ratios):.2f}"
           f" (median {float(sorted(ratios)[len(ratios) // 2]):.2f}).", "", f"Wall time: {seconds:.0f} s.", ""]
     text = "\n".join(md)
+    clear_for_writing(out, NAME, BENCHMARK, OUTPUTS)       # an earlier output goes only now, when the new is ready
     (out / "bound_results.md").write_text(text)
     (out / "bound_results.json").write_text(json.dumps(jsonable({"rows": rows, "seconds": seconds}), indent=1) + "\n")
     print(text)

@@ -55,6 +55,7 @@ def run(args) -> int:
     from dataclasses import replace
 
     from nao_skin.bench import capture as bench
+    from nao_skin.bench.pool import MAX_JOBS
     from nao_skin.calibration.options import CalibrationOptions, set_items
     from nao_skin.errors import DataError
     from nao_skin.formats.outdir import BENCHMARK, check_output_dir, clear_for_writing
@@ -86,17 +87,18 @@ def run(args) -> int:
         raise DataError(f"--seeds {seeds}: must be at least 1")
     if args.first_seed < 0:
         raise DataError(f"--first-seed {args.first_seed}: expected a whole number >= 0")
-    if args.jobs < 1:
-        raise DataError(f"--jobs {args.jobs}: expected a whole number >= 1")
+    if not 1 <= args.jobs <= MAX_JOBS:
+        raise DataError(f"--jobs {args.jobs}: expected a whole number from 1 to {MAX_JOBS}")
     check_output_dir(args.out, BENCHMARK, force=args.force)
     out = Path(args.out)
-    clear_for_writing(out, NAME, BENCHMARK, OUTPUTS)
     say = lambda msg: print(msg, flush=True)  # noqa: E731
     t0 = time.perf_counter()
     seed_list = list(range(args.first_seed, args.first_seed + seeds))
     say(f"bench-capture: {len(seed_list)} seeds x {'/'.join(strategies)}, start {setup.start}, batch {setup.batch},"
         f" cap {setup.cap}, target median <= {setup.median_mm:g} mm and p95 <= {setup.p95_mm:g} mm in every part")
     rows = bench.capture_matrix(load_skin(), seed_list, setup, max(1, args.jobs), say, strategies)
+    # an earlier output goes only now: a run stopped before keeps it
+    clear_for_writing(out, NAME, BENCHMARK, OUTPUTS)
     bench.plot(rows, setup, out / "capture.png")
     argv = sys.argv[2:] + ([] if "--force" in sys.argv[2:] else ["--force"])
     seconds = time.perf_counter() - t0

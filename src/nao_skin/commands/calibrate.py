@@ -73,14 +73,22 @@ def build_options(args):
 
 
 def run(args) -> int:
+    from nao_skin.calibration.options import OPTION_FIELDS
     from nao_skin.calibration.pipeline import calibrate_recordings, summary_line
+    from nao_skin.calibration.splits import MAX_SPLITS
     from nao_skin.model.skin import SkinCalibration
 
     options = build_options(args)
-    if args.splits < 1:
+    if not 1 <= args.splits <= MAX_SPLITS:
         from nao_skin.errors import DataError
 
-        raise DataError(f"--splits {args.splits}: expected a whole number >= 1")
+        raise DataError(f"--splits {args.splits}: expected a whole number from 1 to {MAX_SPLITS}")
+    if options.seed + args.splits - 1 > OPTION_FIELDS["seed"].metadata["rule"].high:
+        from nao_skin.errors import DataError
+
+        raise DataError(f"--splits {args.splits}: the splits take seeds {options.seed}.."
+                        f"{options.seed + args.splits - 1}, beyond the largest seed"
+                        f" {OPTION_FIELDS['seed'].metadata['rule'].high:.0f}; give a smaller --seed")
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     skin = skin_from_args(args)
     prior = SkinCalibration.load(args.prior, skin) if args.prior else None

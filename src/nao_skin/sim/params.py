@@ -100,6 +100,8 @@ _POSITIVE = ("pose_tolerance", "normal_tolerance_deg", "penetration_tolerance", 
 MAX_METRES = 10.0          # a Nao is half a metre tall
 MAX_NUMBER = 1e6
 # the bundled recording has 1000 per pair; the poses of 10**12 would ask for terabytes before the first one
+POSE_SEARCH_LIMITS = {"pose_restarts": 1000, "pose_iterations": 10_000}
+MAX_START_STAMP = 4.0e9          # seconds: the year 2096, far below what 64-bit nanoseconds hold
 MAX_TOUCHES_PER_PAIR = 100_000
 _RANGES = ("touch_interval", "footprint_radius", "pressure_spots", "spot_size", "press_reach")
 
@@ -189,6 +191,14 @@ def validate(p: SimParams, where: str = "simulation parameters") -> None:
         v = getattr(p, name)
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise ConfigError(f"{where}: '{name}' must be a whole number >= 1, got {v!r}")
+    for name, most in POSE_SEARCH_LIMITS.items():     # beyond, the batched pose search asks for gigabytes
+        if getattr(p, name) > most:
+            raise ConfigError(f"{where}: '{name}' {getattr(p, name)} is more than {most}")
+    # a stamp is seconds since 1970 as rosbag2 stores it (unsigned nanoseconds in 64 bits)
+    stamp = p.start_stamp
+    if isinstance(stamp, bool) or not isinstance(stamp, (int, float)) or not 0 <= stamp <= MAX_START_STAMP:
+        raise ConfigError(f"{where}: 'start_stamp' must be seconds since 1970 from 0 to {MAX_START_STAMP:.0f},"
+                          f" got {p.start_stamp!r}")
     if p.n_touches > MAX_TOUCHES_PER_PAIR:
         raise ConfigError(f"{where}: 'n_touches' {p.n_touches} is more than {MAX_TOUCHES_PER_PAIR} touches per pair")
     off = p.hand_mount_offset
