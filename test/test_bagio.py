@@ -128,6 +128,42 @@ def test_a_whole_mcap_under_a_broken_metadata_yaml_loses_nothing_and_says_so(rea
     assert report.skipped["truncated bag"] == 1 and not any("nothing lost" in n for n in report.notes)
 
 
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_a_storage_file_that_ends_early_without_an_error_says_what_is_lost(real, real_skin, tmp_path, storage):
+    """A damaged mcap chunk can end the messages early without the reader raising: 47 of 83 touches were read
+    with nothing said. The metadata's counts say what is missing (here: it lists 50 messages more than the
+    storage file holds)."""
+    bag = tmp_path / "bag"
+    write_touch_bag(bag, real.subset(np.arange(40)), real_skin, storage=storage)
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())
+    info = meta["rosbag2_bagfile_information"]
+    joints = next(t for t in info["topics_with_message_count"] if t["topic_metadata"]["name"] == "/joint_states")
+    joints["message_count"] += 50
+    info["message_count"] += 50
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+    back, report = read_touches(bag, real_skin)
+    assert back.n_touches == 40
+    assert report.skipped["truncated bag"] == 50
+    line = [m for m in report.messages if "could be read" in m][0]
+    assert line.startswith(f"{bag}: ") and "of the " in line and "messages its metadata lists could be read" in line
+
+
+def test_a_topic_of_another_message_type_is_said_not_dropped_silently(real, real_skin, tmp_path):
+    bag = tmp_path / "bag"
+    write_touch_bag(bag, real.subset(np.arange(40)), real_skin)
+    text = (bag / "metadata.yaml").read_text()
+    meta = yaml.safe_load(text)
+    topics = meta["rosbag2_bagfile_information"]["topics_with_message_count"]
+    skin = next(t for t in topics if t["topic_metadata"]["name"].startswith("/skin/"))
+    skin["topic_metadata"]["type"] = "std_msgs/msg/String"
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+    _, report = read_touches(bag, real_skin)
+    name = skin["topic_metadata"]["name"]
+    assert report.skipped["unexpected message type"] == skin["message_count"]
+    assert any(m == f"{bag}: topic '{name}' holds std_msgs/msg/String, not sensor_msgs/msg/PointCloud2; its"
+                    f" {skin['message_count']} messages skipped" for m in report.messages), report.messages
+
+
 def test_a_folder_with_both_storage_files_and_no_metadata_to_choose_is_refused(real, real_skin, tmp_path):
     """Read without its metadata, one of two storage files would silently leave the other's touches out."""
     touches = real.subset(np.arange(20))

@@ -320,6 +320,15 @@ def _skip_unknown_parts(report: LoadReport, path: Path, unknown: dict, skin: Ski
                     count=count)
 
 
+def _skip_other_type(report: LoadReport, path: Path, conn) -> None:
+    """Say a topic touches are read from whose messages are of another type (another tool's, a mistake)."""
+    expected = (JOINT_STATE if conn.topic == JOINT_STATES_TOPIC
+                else POINT_CLOUD if skin_topic(conn.topic) is not None else None)
+    if expected is not None and conn.msgtype != expected:
+        report.skip("unexpected message type", f"{path}: topic '{conn.topic}' holds {conn.msgtype}, not {expected};"
+                                               f" its {conn.msgcount} messages skipped", count=conn.msgcount)
+
+
 def _skip_bad(report: LoadReport, exc: DataError) -> None:
     report.skip(getattr(exc, "reason", "bad message"), str(exc), part=getattr(exc, "part", None))
 
@@ -414,6 +423,7 @@ class GrowingBag:
             wanted, unknown = [], {}
             for conn in reader.connections:
                 if not _is_read(conn.topic, conn.msgtype):
+                    _skip_other_type(report, self.path, conn)
                     continue
                 if _of_unknown_part(conn.topic, self.skin):
                     unknown[conn.topic] = conn.msgcount
@@ -426,6 +436,14 @@ class GrowingBag:
             except Exception as exc:  # noqa: BLE001 - a broken file raises whatever its storage library raises
                 report.skip("truncated bag", f"{self.path}: unreadable after {feed.n_msgs} messages"
                                              f" ({one_line(exc)}); the rest of the bag is lost")
+            else:
+                # a damaged storage file can also end early without an error (an mcap whose chunk is
+                # broken): the metadata's counts say what is missing
+                listed = sum(conn.msgcount for conn in wanted)
+                if feed.n_msgs < listed:
+                    report.skip("truncated bag", f"{self.path}: {feed.n_msgs} of the {listed} messages its metadata"
+                                                 f" lists could be read; the storage file is damaged, the rest is"
+                                                 f" lost", count=listed - feed.n_msgs)
             feed.records += feed.detector.flush()
         finally:
             try:
