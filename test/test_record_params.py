@@ -113,6 +113,24 @@ def test_a_node_refuses_a_value_out_of_its_range_in_one_line(tmp_path, node, par
     assert line in proc.stderr().splitlines(), proc.stderr()[-2000:]
 
 
+def test_the_live_calibrate_node_refuses_its_out_dir_at_start_not_when_the_session_ends(tmp_path):
+    """The session's last live calibration goes to out_dir: a directory it may not replace was only said
+    when the session ended, after every update of it."""
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("a user's notes\n")
+    proc = node_process("calibrate", {"live": True, "out_dir": str(foreign)}, ros_env(unique_domain_id()), tmp_path,
+                        params_file=RECORD_YAML)
+    try:
+        proc.popen.wait(timeout=60)
+    finally:
+        code = proc.stop()
+    assert code == 2 and "Traceback" not in proc.stderr()
+    assert (f"error: out_dir {foreign}: is a non-empty directory nao-skin did not write (it holds notes.txt);"
+            f" choose a new or empty directory") in proc.stderr().splitlines(), proc.stderr()[-2000:]
+    assert [p.name for p in foreign.iterdir()] == ["notes.txt"]
+
+
 def test_a_node_names_what_it_was_given_and_does_not_have(tmp_path):
     """ROS ignores an override the node does not declare: a typo, or a mapping where a value belongs."""
     from visualization_msgs.msg import MarkerArray

@@ -121,6 +121,11 @@ class CalibrateNode(Node):
         self.warm_start = WarmStart(self.prior, float(self.p["live_refresh"]))
         self.guidance_pairs = _pairs(self.p["guidance_pairs"], self.skin, "guidance_pairs")
         if self.p["live"]:
+            from nao_skin.formats.outdir import CALIBRATION, check_output_dir
+
+            # where the session's last live calibration goes: refused now, not after an hour at the robot
+            check_output_dir(self.p["out_dir"], CALIBRATION, inputs=[self.p["recording"]], force=True,
+                             label="out_dir")
             self.schedule = UpdateSchedule(int(self.p["live_every_touches"]), float(self.p["live_period"]))
             self.settling = Settling(float(self.p["live_settle_mm"]), int(self.p["live_settle_updates"]),
                                      float(self.p["live_flat_percent"]))
