@@ -256,14 +256,22 @@ def test_a_kill_mid_run_keeps_the_earlier_output_and_leaves_nothing_half_written
             time.sleep(4.0)
         assert proc.poll() is None, "the command ended before the signal: give it more work"
         proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=120)
+    finally:
+        err = _ended(proc)
+    assert proc.returncode == 143, (proc.returncode, err[-2000:])
+    assert err.strip().splitlines()[-1] == f"nao-skin {argv[0]}: terminated (SIGTERM)"
+    assert tree(work) == before
+
+
+def _ended(proc: subprocess.Popen) -> str:
+    """The process's standard error once it has ended (killed if it has not within 2 minutes: a test's
+    failure, never a process left behind)."""
+    try:
+        return proc.communicate(timeout=120)[1]
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
-    assert proc.returncode == 143, (proc.returncode, err[-2000:])
-    assert err.strip().splitlines()[-1] == f"nao-skin {argv[0]}: terminated (SIGTERM)"
-    assert tree(work) == before
 
 
 def _children(pid: int) -> list:
@@ -298,11 +306,8 @@ def test_a_benchmark_with_workers_ends_in_one_line_and_leaves_no_worker(tmp_path
             os.kill(workers[0], signal.SIGKILL)
         else:
             proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=120)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+        err = _ended(proc)
     last = err.strip().splitlines()[-1]
     if stop == "kill a worker":
         assert proc.returncode == 2 and last.startswith("nao-skin bench-capture: error: a worker process ended"
