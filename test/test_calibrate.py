@@ -305,6 +305,17 @@ def test_a_pair_with_too_few_touches_is_left_out_not_fatal(skin):
     assert "left out (too few touches): l_hand+torso" in summary_line(result)
 
 
+def test_no_touch_held_out_gives_the_train_figures_alone_not_nan(skin):
+    from nao_skin.calibration.pipeline import summary_line
+
+    touches = simulate(skin, load_params("default", {"pairs": [["r_hand", "torso"]], "n_touches": 40}), seed=2).touches
+    touches, _ = deduplicate(touches)
+    line = summary_line(calibrate(touches, skin, CalibrationOptions(test_fraction=0.0)))
+    assert "nan" not in line and "(train; no touch held out)" in line, line
+    line = summary_line(calibrate(touches, skin, CalibrationOptions()))
+    assert "nan" not in line and "(train / test)" in line, line
+
+
 def test_the_engine_runs_on_one_blas_thread_and_gives_the_threads_back(skin, left_hand_sim):
     """Small matrices: OpenBLAS's own threads would only contend with the session's other processes."""
     from threadpoolctl import threadpool_info, threadpool_limits

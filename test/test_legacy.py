@@ -133,6 +133,17 @@ def test_none_pressure_force_moment_and_real_pressure(tmp_path, skin):
     np.testing.assert_allclose(touches.contact_cop[0], [0.01, 0.02, 0.03])
 
 
+def test_a_byte_order_mark_is_not_part_of_the_text(tmp_path, skin):
+    """A file saved by a Windows editor begins with a UTF-8 byte-order mark: it had been a 'syntax error'."""
+    plain = write(tmp_path, {"0": touch(), "1": touch(hand_slots=(3,))})
+    marked = tmp_path / "marked.txt"
+    marked.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    a, report_a = read_legacy(plain, skin)
+    b, report_b = read_legacy(marked, skin)
+    assert report_b.n_loaded == report_a.n_loaded == 2 and b.keys == a.keys
+    np.testing.assert_array_equal(b.act_slot, a.act_slot)
+
+
 # ---------------------------------------------------------------------- bad input
 def test_syntax_error_names_file_and_line(tmp_path, skin):
     path = write(tmp_path, {"0": touch(), "1": "[{0: {'cop': [1, 2,}}, {}]"})

@@ -14,7 +14,8 @@ def read_text(path: str | Path, what: str = "", error: type | None = None, name:
     what = f" {what}" if what else ""
     name = str(path) if name is None else name
     try:
-        return Path(path).read_text()
+        # UTF-8 whatever the locale; a byte-order mark (as Windows editors write it) is not part of the text
+        return Path(path).read_text(encoding="utf-8-sig")
     except OSError as exc:
         raise error(f"{name}: cannot read{what} ({exc.strerror})") from None
     except UnicodeDecodeError as exc:

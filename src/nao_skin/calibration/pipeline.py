@@ -119,12 +119,16 @@ def summary_line(result: CalibrationResult) -> str:
     """The figures of a calibration in one line: what was calibrated and how close the touches came."""
     final = result.report.final
 
+    # test_fraction 0 holds no touch out: the train figures alone, not "nan"
+    splits = ("train", "test") if final["test"].get("n_touches") else ("train",)
+
     def train_test(key):
-        return " / ".join(f"{final[split].get(key, float('nan')):.2f}" for split in ("train", "test"))
+        return " / ".join(f"{final[split].get(key, float('nan')):.2f}" for split in splits)
 
     line = (f"calibrated {', '.join(result.report.plan)}: "
             f"closest COP {train_test('cop_mean_mm')} mm, closest taxel {train_test('taxel_mean_mm')} mm"
-            f" (selected contacts' {train_test('contact_taxel_mean_mm')} mm) (train / test)")
+            f" (selected contacts' {train_test('contact_taxel_mean_mm')} mm)"
+            f" ({' / '.join(splits) if len(splits) > 1 else 'train; no touch held out'})")
     if "truth_taxel_error_mm" in final:
         t = final["truth_taxel_error_mm"]["all"]
         line += f"; true taxel error median {t['median']:.2f} mm, p95 {t['p95']:.2f} mm"
