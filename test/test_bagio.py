@@ -235,6 +235,37 @@ def test_bad_slot_unknown_part_and_nan_joints_are_counted(skin, tmp_path):
     assert any("'LElbowRoll'" in m for m in report.messages)
 
 
+def test_a_slot_field_of_a_float_type_is_read_when_whole_and_refused_when_not(skin, tmp_path):
+    """A producer that writes uint32 slots under a float32 PointField must not make every slot 0."""
+    from nao_skin.formats.pointcloud import TAXEL_DTYPE, taxels_array, taxels_topic
+    float_slot = np.dtype([(n, "<f4" if n == "slot" else TAXEL_DTYPE.fields[n][0]) for n in TAXEL_DTYPE.names])
+    hand, torso = skin.parts["l_hand"], skin.parts["torso"]
+    for name, as_float in (("floats", True), ("integer_bits", False)):
+        with BagWriter(tmp_path / name) as bag:
+            for k in range(60):
+                t = k * 10_000_000
+                bag.write_joint_state(t, skin.robot.joint_names, np.zeros(len(skin.robot.joint_names)))
+                for part in (hand, torso):
+                    slots = part.slots[:3] if 20 <= k < 40 else part.slots[:0]
+                    pts = taxels_array(slots, part.positions[slots], np.full(len(slots), 2.0))
+                    if as_float:                  # slot values written as float32 numbers
+                        cloud = np.zeros(len(pts), float_slot)
+                        for n in TAXEL_DTYPE.names:
+                            cloud[n] = pts[n]
+                    else:                         # uint32 bits under a float32 field
+                        cloud = pts.view(float_slot)
+                    bag._write_cloud(taxels_topic(part.name), t + 3_000_000, part.parent_frame, cloud)
+        touches, report = read_touches(tmp_path / name, skin)
+        if as_float:
+            assert touches.n_touches == 1 and report.n_skipped == 0
+            hand_act = touches.act_slot[touches.act_part == touches.part_index("l_hand")]
+            np.testing.assert_array_equal(np.sort(hand_act), np.sort(hand.slots[:3]))
+        else:
+            assert touches.n_touches == 0 and report.skipped["bad message"] == 40
+            assert "field 'slot'" in report.messages[0] and "is not a whole number" in report.messages[0]
+            assert report.unknown_slots == {}      # not blamed on the layout
+
+
 def test_not_a_bag_and_no_overwrite(skin, tmp_path):
     with pytest.raises(DataError, match="cannot open as a rosbag2"):
         read_touches(tmp_path / "missing", skin)

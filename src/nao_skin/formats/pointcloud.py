@@ -171,7 +171,7 @@ def read_taxels(msg, part: SkinPart, where: str) -> tuple:
     slot must be a taxel of ``part``'s layout, else :class:`BadSlot`.
     """
     cloud = decode_cloud(msg, where)
-    slots = cloud_field(cloud, "slot", np.int64, where)
+    slots = _whole_numbers(cloud_field(cloud, "slot", float, where), "slot", where)
     bad = (slots < 0) | (slots >= part.n_slots)
     if np.any(bad):
         raise BadSlot(f"{where}: field 'slot': slot {int(slots[bad][0])} out of range 0..{part.n_slots - 1}"
@@ -181,6 +181,19 @@ def read_taxels(msg, part: SkinPart, where: str) -> tuple:
         raise BadSlot(f"{where}: field 'slot': slot {int(slots[absent][0])} is not a taxel of the"
                       f" '{part.name}' layout ({part.layout_file}); sample skipped", part.name)
     return slots, cloud_field(cloud, "pressure", float, where, np.nan), cloud_field(cloud, "contact", int, where, -1)
+
+
+def _whole_numbers(values: np.ndarray, name: str, where: str) -> np.ndarray:
+    """``values`` as int64; a :class:`DataError` naming ``where`` when one is not a whole number.
+
+    A field declared float but written as integers reads as tiny or huge
+    floats: truncating them would turn every slot into slot 0 without a word.
+    """
+    whole = np.isfinite(values) & (values == np.round(values))
+    if not np.all(whole):
+        raise DataError(f"{where}: field '{name}': {float(values[~whole][0])!r} is not a whole number (is the"
+                        f" field's datatype right?); sample skipped")
+    return values.astype(np.int64)
 
 
 def read_contacts(msg, where: str) -> tuple:
