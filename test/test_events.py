@@ -155,3 +155,27 @@ def test_three_parts_in_one_moment_and_contacts(skin):
     r_rows = np.flatnonzero(ts.contact_part == ts.part_index("r_hand"))
     assert ts.contact_id[r_rows].tolist() == [1, 2]
     np.testing.assert_allclose(ts.contact_cop[r_rows][:, 2], [0.1, 0.2])
+
+
+def test_a_touch_stamped_out_of_order_is_named_and_its_neighbours_kept(skin):
+    """Touch-bag input (exact stamps): one touch's messages stamped 20 s early, as a clock step would.
+
+    The touch before it used to be lost without a word (its moment replaced
+    unclosed); the early one is dropped with its own reason.
+    """
+    det = EventDetector.for_skin(skin, EventConfig(skin_tolerance=0.0, joint_tolerance=0.0, min_interval=0.0,
+                                                   release_gap=0.0))
+    names = skin.robot.joint_names
+    hand = skin.parts["l_hand"].slots[:4].tolist()
+    torso = skin.parts["torso"].slots[:3].tolist()
+    stamps = [100.0 + 2.0 * k for k in range(12)]
+    stamps[6] -= 20.0
+    out = []
+    for k, t in enumerate(stamps):
+        out += det.add_joint_state(t, names, angles(names, t))
+        out += det.add_skin(t, "l_hand", hand if k % 2 else hand[:2])
+        out += det.add_skin(t, "torso", torso)
+    out += det.flush()
+    assert sorted(r.stamp for r in out) == sorted(stamps[:6] + stamps[7:])
+    assert det.counts["stamp out of order"] == 1 and det.counts["touches"] == 11
+    assert any("stamps out of order" in n and f"{stamps[6]:.6f}" in n for n in det.notes)

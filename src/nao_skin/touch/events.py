@@ -106,6 +106,7 @@ class EventDetector:
         self._columns_cache: dict = {}
         self._joint_stamps: list = []
         self._joint_values: list = []
+        self._trimmed_until = float("-inf")   # the latest joint stamp let go of (older than joint_history)
         self._latest: dict = {}               # part index -> _Sample (latest non-empty) or None (released)
         self._open: _Candidate | None = None
         self._pending: deque = deque()        # finalised candidates waiting for a later joint state
@@ -156,6 +157,7 @@ class EventDetector:
             cut = bisect.bisect_left(self._joint_stamps, horizon)
             cut = min(cut, len(self._joint_stamps) - 2) if len(self._joint_stamps) > 2 else 0
             if cut > 0:
+                self._trimmed_until = max(self._trimmed_until, self._joint_stamps[cut - 1])
                 del self._joint_stamps[:cut], self._joint_values[:cut]
         return self._resolve_pending(final=False)
 
@@ -222,7 +224,9 @@ class EventDetector:
     # ------------------------------------------------------------------ moments -> touches
     def _close_open(self, now: float | None) -> list:
         cand = self._open
-        if cand is None or (now is not None and now <= cand.stamp + self.config.skin_tolerance):
+        # a sample from well before the open moment (stamps out of order) closes it as a later one would:
+        # replaced unclosed, the moment's touch would be lost without a word
+        if cand is None or (now is not None and abs(now - cand.stamp) <= self.config.skin_tolerance):
             return []
         self._open = None
         combo = tuple(sorted(cand.samples))
@@ -257,7 +261,12 @@ class EventDetector:
             before = after if stamps[after] == t else after - 1
             tol = self.config.joint_tolerance
             if before < 0:
-                self._drop("no joint state before", f"touch at {t:.6f}: no joint state at or before it")
+                if t < self._trimmed_until:
+                    self._drop("stamp out of order", f"touch at {t:.6f}: {stamps[-1] - t:.3f} s before the latest"
+                                                     f" joint state, older than the {self.config.joint_history} s"
+                                                     f" of joint states kept (stamps out of order?)")
+                else:
+                    self._drop("no joint state before", f"touch at {t:.6f}: no joint state at or before it")
                 continue
             if t - stamps[before] > tol or stamps[after] - t > tol:
                 self._drop("stale joints", f"touch at {t:.6f}: bracketing joint states at {stamps[before]:.6f}"
