@@ -211,6 +211,40 @@ def test_a_full_disk_is_one_line_and_leaves_what_was_there(work, argv, limit, sa
     assert tree(work) == before           # the earlier calibration as it was, no half-written output or temporary
 
 
+def without_file_privileges() -> list:
+    """Command prefix under which permission bits bind: as root, ``setpriv`` drops the capabilities that
+    override them (as an ordinary user, nothing is needed)."""
+    if os.geteuid() != 0:
+        return []
+    if shutil.which("setpriv") is None:
+        pytest.skip("running as root without setpriv: read-only directories cannot be made to bind")
+    caps = "-dac_override,-dac_read_search,-fowner"
+    return ["setpriv", "--bounding-set", caps, "--inh-caps", caps]
+
+
+@pytest.mark.parametrize("read_only", [".", "taxels"])
+def test_an_earlier_output_that_cannot_be_replaced_is_refused_before_the_work(work, read_only):
+    """A read-only output directory (or folder in it) used to fail only after the calibration, leaving a
+    ``.cal.old.*`` behind."""
+    ok(nao_skin("calibrate", "session", "--out", "cal", "--no-plots", "--quiet", cwd=work))
+    folder = work / "cal" / read_only
+    folder.chmod(0o555)
+    try:
+        before = tree(work)
+        run = subprocess.run([*without_file_privileges(), sys.executable, "-m", "nao_skin.cli", "calibrate",
+                              "session", "--out", "cal", "--force", "--no-plots"], cwd=work, capture_output=True,
+                             text=True, timeout=600)
+        after = tree(work)
+    finally:
+        folder.chmod(0o755)
+    assert run.returncode == 2, (run.returncode, run.stderr[-2000:])
+    assert run.stdout == ""                                       # refused before any calibration ran
+    assert run.stderr.strip() == (f"nao-skin calibrate: error: --out cal: its earlier output cannot be replaced:"
+                                  f" cannot write in {folder.resolve()} (Permission denied); make it writable or"
+                                  f" choose another directory"), run.stderr
+    assert after == before
+
+
 def test_a_readme_the_bench_cannot_write_whole_is_left_as_it_was(tmp_path):
     """``bench --readme``: the README is the user's; a write that fails part way (a full disk) must not leave
     it cut short. The run's own results, far smaller, are written."""

@@ -116,6 +116,7 @@ def check_output_dir(out: str | Path, kind: str, inputs=(), force: bool = False,
     if problem:
         raise DataError(f"{name}: {problem}")
     check_writable(Path(os.path.realpath(given)), name)
+    _check_replaceable(Path(os.path.realpath(given)), name)
     return Path(os.path.realpath(given))
 
 
@@ -138,6 +139,23 @@ def check_writable(out: Path, name: str) -> None:
         Path(tempfile.mkdtemp(prefix=f".{out.name}.probe.", dir=place)).rmdir()
     except OSError as exc:
         raise DataError(f"{name}: cannot write in {place} ({exc.strerror}); choose another place") from None
+
+
+def _check_replaceable(out: Path, name: str) -> None:
+    """Refuse, before any work, an earlier output that could not be moved aside and removed at the end.
+
+    Moving a directory to another parent rewrites its ``..``, and removing an
+    entry writes its folder: a read-only output directory (or folder in it)
+    would otherwise fail only after the calibration, or leave its old copy behind.
+    """
+    if not out.is_dir() or not any(out.iterdir()):
+        return
+    for folder in [out] + [out / rel for rel, is_dir in _walk(out) if is_dir]:
+        try:
+            Path(tempfile.mkdtemp(prefix=".probe.", dir=folder)).rmdir()
+        except OSError as exc:
+            raise DataError(f"{name}: its earlier output cannot be replaced: cannot write in {folder}"
+                            f" ({exc.strerror}); make it writable or choose another directory") from None
 
 
 def replace_file(path: str | Path, data: str | bytes) -> None:
@@ -178,7 +196,11 @@ def replace_dir(new: str | Path, out: str | Path, label: str = "output directory
         os.replace(new, out)
         return out
     aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
-    os.replace(out, aside / out.name)
+    try:
+        os.replace(out, aside / out.name)
+    except BaseException:
+        aside.rmdir()
+        raise
     try:
         os.replace(new, out)
     except BaseException:
