@@ -159,11 +159,17 @@ def test_non_empty_directory_nao_skin_did_not_write_is_refused(work, argv):
 
 def test_a_missing_or_empty_directory_is_fine(work):
     (work / "empty").mkdir()
+    (work / "empty").chmod(0o750)
     ok(nao_skin("calibrate", "session", "--out", "empty", "--no-plots", "--quiet", cwd=work))
     ok(nao_skin("calibrate", "session", "--out", "new/deeper", "--no-plots", "--quiet", cwd=work))
     for out in ("empty", "new/deeper"):
         assert json.loads((work / out / MARKER).read_text())["command"] == "nao-skin calibrate"
         assert (work / out / "calibration.yaml").is_file()
+    # the user's directory keeps its mode; a new one gets what mkdir gives (not the temporary's private 0700)
+    assert (work / "empty").stat().st_mode & 0o777 == 0o750
+    umask = os.umask(0o022)
+    os.umask(umask)                     # the command inherited it
+    assert (work / "new" / "deeper").stat().st_mode & 0o777 == 0o777 & ~umask
 
 
 # ------------------------------------------------------------------------------ our own outputs

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import stat
 import tempfile
 import time
 from pathlib import Path
@@ -192,6 +193,9 @@ def replace_dir(new: str | Path, out: str | Path, label: str = "output directory
     problem = _replace_problem(out, marker["kind"], force=True)
     if problem:
         raise DataError(f"{label} {out}: {problem}")
+    # the temporary directory is private (0700): the output gets the mode of the directory it replaces,
+    # or the one a plain mkdir gives
+    os.chmod(new, stat.S_IMODE(out.stat().st_mode) if out.is_dir() else 0o777 & ~_umask())
     if not out.exists():
         os.replace(new, out)
         return out
@@ -228,6 +232,12 @@ def clear_for_writing(out: str | Path, command: str, kind: str, entries, label: 
         shutil.rmtree(fresh, ignore_errors=True)
         raise
     return out
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def _replace_problem(out: Path, kind: str, force: bool) -> str | None:
