@@ -229,6 +229,18 @@ def test_record_refuses_unknown_or_mistyped_parameters(tmp_path):
         line = one_error_line(nao_skin(["record", "--print", "--bag", str(bag), "--param", item]))
         assert f"--param {item}: {expected}" in line, line
 
+    # parameters each within its rule but not together: the node's own check of them together, here, with
+    # the values of record.yaml (a press longer than the period was a node's error after the others started)
+    line = one_error_line(nao_skin(["record", "--print", "--bag", str(bag), "--param", "sim_robot.touch_period=0.3"]))
+    assert line.startswith("nao-skin record: error: node sim_robot (parameters from ") and "record.yaml" in line
+    assert line.endswith("press_duration 0.3 s + 2 x hold 0.1 s must be shorter than touch_period 0.3 s"
+                         " (and press_duration > 0)"), line
+    line = one_error_line(nao_skin(["record", "--robot", "nao", "--print", "--bag", str(bag),
+                                    "--param", "naoqi_bridge.reconnect_min=10"]))
+    assert "node naoqi_bridge" in line and "bridges.yaml" in line
+    assert line.endswith("parameters reconnect_min:=10.0 and reconnect_max:=5.0: the first delay is longer than"
+                         " the longest"), line
+
     # the robot's address and skinManager's port, by the bridges' own rules
     line = one_error_line(nao_skin(["record", "--robot", "nao", "--print", "--events-port", "-1"]))
     assert line.endswith("events_port:=-1: expected a YARP port name: '/' and no spaces,"

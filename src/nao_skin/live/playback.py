@@ -35,12 +35,17 @@ class PartSample:
     pressure: np.ndarray       # (k,) mean pressure of each contact
 
 
+def check_timing(period: float, press: float, hold: float, where: str = "playback") -> None:
+    """Presses that never overlap: ``press + 2 hold < period`` (ConfigError naming ``where`` otherwise)."""
+    if not (0 < press and 0 <= hold and press + 2 * hold < period):
+        raise ConfigError(f"{where}: press_duration {press:g} s + 2 x hold {hold:g} s must be shorter than"
+                          f" touch_period {period:g} s (and press_duration > 0)")
+
+
 class Playback:
     def __init__(self, touches: TouchSet, skin: SkinModel, period: float = 1.0, press: float = 0.3,
                  hold: float = 0.1, lead_in: float = 0.5):
-        if not (0 < press and 0 <= hold and press + 2 * hold < period):
-            raise ConfigError(f"playback: press_duration {press:g} s + 2 x hold {hold:g} s must be shorter than"
-                              f" touch_period {period:g} s (and press_duration > 0)")
+        check_timing(period, press, hold)
         self.touches = touches
         self.skin = skin
         self.joint_names = list(touches.joint_names)

@@ -122,8 +122,34 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                               f" (robot {robot}: {', '.join(by_name)})")
         spec = by_name[node]
         spec.overrides.update(typed_overrides(spec, values) if spec.ours else _as_yaml(values))
+    for spec in specs:
+        if spec.ours:
+            _check_together(spec)
     _check_files(bag_path, calibration, by_name["calibrate"].overrides)
     return specs
+
+
+def _check_together(spec: NodeSpec) -> None:
+    """The node's own check of its parameters taken together (its module's ``check_params``, if any) on the
+    values it will start with: declared defaults, then its parameter files, then the overrides."""
+    import importlib
+
+    from nao_skin.paths import read_yaml
+
+    check = getattr(importlib.import_module(f"nao_skin.nodes.{spec.executable}"), "check_params", None)
+    if check is None:
+        return
+    values = node_parameters(spec)
+    for path in spec.params_files:
+        doc = read_yaml(path, "ROS parameters file")
+        for key in ("/**", spec.name, f"/{spec.name}"):
+            section = doc.get(key) if isinstance(doc, dict) else None
+            given = section.get("ros__parameters") if isinstance(section, dict) else None
+            if isinstance(given, dict):
+                values.update(given)
+    values.update(spec.overrides)
+    check(values, f"node {spec.name} (parameters from {', '.join(map(str, spec.params_files)) or 'its defaults'}"
+                  f" and --param)")
 
 
 def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> None:

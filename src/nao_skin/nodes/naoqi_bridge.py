@@ -39,6 +39,13 @@ PARAMS = {
 }
 
 
+
+def check_params(p: dict, where: str = "") -> None:
+    """What no single parameter's rule can say (``nao-skin record`` checks it before any node starts)."""
+    if p["reconnect_min"] > p["reconnect_max"]:
+        raise ConfigError(f"{where + ': ' if where else ''}parameters reconnect_min:={p['reconnect_min']} and"
+                          f" reconnect_max:={p['reconnect_max']}: the first delay is longer than the longest")
+
 class MotionLink:
     """A libqi session to ALMotion; every failure closes it (the caller reconnects)."""
 
@@ -76,9 +83,7 @@ class NaoqiBridge(Node):
         self.period = 1.0 / float(p["rate"])
         self.url = f"tcp://{p['nao_ip']}:{int(p['nao_port'])}"
         self.link = MotionLink(self.url)
-        if p["reconnect_min"] > p["reconnect_max"]:
-            raise ConfigError(f"parameters reconnect_min:={p['reconnect_min']} and reconnect_max:={p['reconnect_max']}:"
-                              f" the first delay is longer than the longest")
+        check_params(p)
         self.backoff = Backoff(f"NAOqi at {self.url}", p["reconnect_min"], p["reconnect_max"])
         self.publisher = self.create_publisher(JointState, JOINT_STATES_TOPIC, 10)
         self.stats = {"published": 0, "bad_reads": 0, "outages": 0}

@@ -32,7 +32,7 @@ from std_msgs.msg import String
 from nao_skin.errors import ConfigError, DataError
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_array, contacts_topic, taxels_array, taxels_topic
 from nao_skin.guidance.capture import targets_from_json
-from nao_skin.live.playback import Playback
+from nao_skin.live.playback import Playback, check_timing
 from nao_skin.model.skin import parse_pairs
 from nao_skin.nodes.calibrate import GUIDANCE_TOPIC, LATCHED
 from nao_skin.nodes.messages import cloud_from_array, joint_state_msg
@@ -65,6 +65,12 @@ PARAMS = {
 }
 
 
+def check_params(p: dict, where: str = "sim_robot") -> None:
+    """What no single parameter's rule can say: presses that do not overlap (``nao-skin record`` checks it
+    before any node starts, the node again at its start)."""
+    check_timing(p["touch_period"], p["press_duration"], p["hold"], where)
+
+
 def sim_overrides(touches_per_pair: int, pairs, parts=None) -> dict:
     """Simulator parameter overrides from the node's parameters (also used by tests to recompute)."""
     out = {"n_touches": int(touches_per_pair)}
@@ -78,6 +84,7 @@ class SimRobot(Node):
     def __init__(self, **kwargs):
         super().__init__("sim_robot", **kwargs)
         p = declare(self, PARAMS)
+        check_params(p)
         self.skin = skin_from_params(p)
         params = load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], self.skin.parts))
         self.timing = (p["touch_period"], p["press_duration"], p["hold"])
