@@ -173,7 +173,7 @@ def test_stats_of_an_unclosed_sqlite_bag_without_lock(played, tmp_path):
     assert info["message_count"] == 0 and info["topics_with_message_count"] == []      # the provisional one
     got, report = read_touches(bag, skin)
     assert_first_touches(got, want, FLUSHED)
-    line = [m for m in report.messages if "metadata.yaml is incomplete" in m]
+    line = [m for m in report.messages if "metadata.yaml lists no messages" in m]
     assert len(line) == 1 and "touches.db3 directly" in line[0] and "did not close the bag" in line[0]
 
     env = dict(os.environ, PYTHONPATH=str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""))

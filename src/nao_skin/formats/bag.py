@@ -29,7 +29,7 @@ import numpy as np
 from nao_skin.errors import DataError, OutputError, one_line, os_reason
 from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, encode_cloud,
                                          read_contacts, read_taxels, skin_topic, taxels_array, taxels_topic)
-from nao_skin.formats.salvage import LOCK_FILE, cut_mcap, unclosed_sqlite, write_lock
+from nao_skin.formats.salvage import LOCK_FILE, cut_mcap, stored_metadata, unclosed_sqlite, write_lock
 from nao_skin.model.skin import SkinModel
 from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST, cluster_contacts, contact_geometry
 from nao_skin.touch.datasets import LoadReport
@@ -286,10 +286,14 @@ def _event_config(kind: str) -> EventConfig:
     return TOUCH_BAG_CONFIG if kind == "touches" else LIVE_CONFIG
 
 
-def _bag_kind(reader) -> str:
+def _bag_kind(reader, path: Path) -> str:
+    """The kind the bag's metadata names: rosbags reads it from metadata.yaml, not from a storage file opened
+    alone (its own copy of the metadata is read here then); a stream when nothing names one."""
     custom = getattr(getattr(reader, "storage", None), "metadata", None)
-    custom = getattr(custom, "custom", None) or {}
-    return str(custom.get(BAG_KIND_KEY, "stream"))
+    custom = getattr(custom, "custom", None)
+    if custom is None and path.is_file():
+        custom = (stored_metadata(path) or {}).get("custom_data")
+    return str((custom or {}).get(BAG_KIND_KEY, "stream"))
 
 
 def _provisional_kind(path: Path) -> str:
@@ -387,7 +391,7 @@ class GrowingBag:
                 return self._read_closed(reader)
         tail = bag.since(self._cursor)
         if self._feed is None or tail.restarted:
-            config = self.config or _event_config(_provisional_kind(self.path))
+            config = self.config or _event_config(bag.custom_data.get(BAG_KIND_KEY) or _provisional_kind(self.path))
             self._feed = _Feed(self.path, self.skin, config, LoadReport(str(self.path)))
             self._touches = None
         self._cursor = tail.cursor
@@ -419,7 +423,7 @@ class GrowingBag:
     def _read_closed(self, reader) -> tuple:
         report = LoadReport(str(self.path))
         try:
-            feed = _Feed(self.path, self.skin, self.config or _event_config(_bag_kind(reader)), report)
+            feed = _Feed(self.path, self.skin, self.config or _event_config(_bag_kind(reader, self.path)), report)
             wanted, unknown = [], {}
             for conn in reader.connections:
                 if not _is_read(conn.topic, conn.msgtype):

@@ -109,6 +109,7 @@ class UnclosedBag:
         self.path, self.file = path, file
         # before the file is read: a recorder closing the bag meanwhile still counts as open
         self.lock = recording_lock(path)
+        self.custom_data: dict = {}     # the bag's custom metadata, where the storage file holds a copy of it
 
     def since(self, cursor) -> "Tail":
         """The messages written after ``cursor`` (None: from the start), see :class:`Tail`."""
@@ -150,9 +151,27 @@ class UnclosedBag:
 
 # ---------------------------------------------------------------------- sqlite3: metadata.yaml lists no messages
 class _UnclosedSqlite(UnclosedBag):
-    def __init__(self, path: Path, file: Path, reason: str, why: str):
+    def __init__(self, path: Path, file: Path, reason: str, why: str, unless_closed: str = ""):
         super().__init__(path, file)
-        self.reason, self.why = reason, why
+        self.reason, self.why, self.unless_closed = reason, why, unless_closed
+        # a bag closed by rosbag2 (Iron on) or rosbags keeps a copy of its metadata in the file: with it, a lost
+        # or broken metadata.yaml costs nothing, and the file's message count says whether all is there
+        stored = stored_metadata(file)
+        self.stored_count = None
+        if stored is not None:
+            self.custom_data = stored.get("custom_data") or {}
+            count = stored.get("message_count")
+            if isinstance(count, int) and count == _sqlite_count(file):
+                self.stored_count = count
+
+    def lost(self, n_msgs: int, ends: str) -> tuple | None:
+        return None if self.stored_count is not None and self.lock is None else super().lost(n_msgs, ends)
+
+    def note(self, n_msgs: int, n_touches: int) -> str | None:
+        if self.stored_count is not None and self.lock is None:
+            return (f"{self.path}: {self.why}; the bag was closed and {self.file.name} holds its metadata too:"
+                    f" read all {self.stored_count} messages it lists from it directly, nothing lost")
+        return super().note(n_msgs, n_touches)
 
     def since(self, cursor) -> Tail:
         """``cursor``: ``(id, timestamp)`` of the last row read. A recorder appends rows in time order; when
@@ -167,7 +186,8 @@ class _UnclosedSqlite(UnclosedBag):
         return Tail([r[2:] for r in rows], [], rows[-1][:2] if rows else None, restarted=cursor is not None)
 
     def _lost_without_lock(self, n_msgs: int, ends: str) -> tuple:
-        return self.reason, f"{self.path}: {self.why}; read {n_msgs} messages from {self.file.name} directly"
+        return self.reason, (f"{self.path}: {self.why}{self.unless_closed}; read {n_msgs} messages from"
+                             f" {self.file.name} directly")
 
     def _read_until_death(self, n_msgs: int, ends: str) -> str:
         return (f"read {n_msgs} messages from {self.file.name} directly, up to its last flush;"
@@ -181,21 +201,105 @@ def unclosed_sqlite(path: Path) -> UnclosedBag | None:
     files = sorted(path.glob("*.db3")) if path.is_dir() else []
     if len(files) != 1:
         return None
-    meta = path / "metadata.yaml"
-    if not meta.exists():
-        return _UnclosedSqlite(path, _only_storage(path, files[0], "it has no metadata.yaml"), "no metadata",
-                               "it has no metadata.yaml")
-    try:
-        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
-        listed = bool(info.get("files") or info.get("topics_with_message_count"))
-    except Exception as exc:  # noqa: BLE001 - yaml and a malformed layout raise assorted types
-        why = f"its metadata.yaml is unreadable ({one_line(exc)})"
+    why = metadata_yaml_problem(path)
+    if why is not None:
         return _UnclosedSqlite(path, _only_storage(path, files[0], why), "no metadata", why)
+    info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    listed = bool(info.get("files") or info.get("topics_with_message_count"))
     # BagWriter's provisional metadata (written at open) lists neither; the real one, written on close, both
     if listed:
         return None
-    return _UnclosedSqlite(path, files[0], "truncated bag", "metadata.yaml is incomplete (the recorder did not close"
-                                                             " the bag; anything after its last commit is lost)")
+    return _UnclosedSqlite(path, files[0], "truncated bag", "metadata.yaml lists no messages",
+                           " (the recorder did not close the bag; anything after its last commit is lost)")
+
+
+def metadata_yaml_problem(path: Path) -> str | None:
+    """What is wrong with the bag directory's metadata.yaml, in words ("it has no metadata.yaml", "its
+    metadata.yaml is unreadable (not YAML from line 2: ...)"); None when it reads as rosbag2 metadata."""
+    import yaml
+
+    meta = path / "metadata.yaml"
+    if not meta.exists():
+        return "it has no metadata.yaml"
+    try:
+        info = yaml.safe_load(meta.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        info.get("files")
+    except OSError as exc:
+        problem = exc.strerror or one_line(exc)
+    except UnicodeDecodeError:
+        problem = "not text"
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        problem = f"not YAML{f' from line {mark.line + 1}' if mark is not None else ''}: {getattr(exc, 'problem', '')}"
+    except (KeyError, TypeError, AttributeError):
+        problem = "not rosbag2 metadata: no 'rosbag2_bagfile_information' mapping"
+    else:
+        return None
+    return f"its metadata.yaml is unreadable ({problem})"
+
+
+def stored_metadata(file: Path) -> dict | None:
+    """The rosbag2 metadata a closed storage file holds itself (rosbag2 from Iron on, and rosbags, write it on
+    close: a sqlite3 file's ``metadata`` table, an mcap file's ``rosbag2`` metadata record); None when it holds
+    none (never closed, an older writer) or it does not read. What metadata.yaml says, without it."""
+    import yaml
+
+    text = _sqlite_stored(file) if file.suffix == ".db3" else _mcap_stored(file) if file.suffix == ".mcap" else None
+    try:
+        info = yaml.safe_load(text) if text else None
+    except yaml.YAMLError:
+        return None
+    if isinstance(info, dict) and isinstance(info.get("rosbag2_bagfile_information"), dict):
+        info = info["rosbag2_bagfile_information"]
+    return info if isinstance(info, dict) else None
+
+
+def _sqlite_stored(file: Path) -> str | None:
+    import sqlite3
+    from contextlib import closing
+
+    try:
+        with closing(sqlite3.connect(f"{file.resolve().as_uri()}?mode=ro", uri=True, timeout=1.0)) as conn:
+            row = conn.execute("SELECT metadata FROM metadata ORDER BY metadata_version DESC LIMIT 1").fetchone()
+    except sqlite3.Error:
+        return None
+    return row[0] if row and isinstance(row[0], str) else None
+
+
+def _mcap_stored(file: Path) -> str | None:
+    """``serialized_metadata`` of the last ``rosbag2`` Metadata record (opcode 0x0C) in the file."""
+    try:
+        buf = file.read_bytes()
+    except OSError:
+        return None
+    name = len(b"rosbag2").to_bytes(4, "little") + b"rosbag2"
+    at = buf.rfind(name)
+    while at >= 9:
+        record, end = at - 9, at + _u64(buf, at - 8)
+        if buf[record] == 0x0C and end <= len(buf):
+            try:
+                pos, size = at + len(name) + 4, _u32(buf, at + len(name))
+                stop = min(pos + size, end)
+                while pos < stop:
+                    key, pos = _string(buf, pos)
+                    value, pos = _string(buf, pos)
+                    if key == "serialized_metadata":
+                        return value
+            except _DamagedRecord:
+                pass
+        at = buf.rfind(name, 0, at)
+    return None
+
+
+def _sqlite_count(file: Path) -> int | None:
+    import sqlite3
+    from contextlib import closing
+
+    try:
+        with closing(sqlite3.connect(f"{file.resolve().as_uri()}?mode=ro", uri=True, timeout=1.0)) as conn:
+            return int(conn.execute("SELECT COUNT(*) FROM messages").fetchone()[0])
+    except sqlite3.Error:
+        return None
 
 
 def _only_storage(path: Path, db3: Path, why: str) -> Path:
@@ -280,6 +384,7 @@ class _CutMcap(UnclosedBag):
         # the last read reached the footer and closing magic: the file is whole, only the bag around it
         # (metadata.yaml) failed to open
         self.whole = False
+        self.custom_data = (stored_metadata(file) or {}).get("custom_data") or {}
 
     def since(self, cursor) -> Tail:
         """``cursor``: ``(offset, the bytes before it, schemas, channels)`` after the last complete top-level
@@ -312,8 +417,9 @@ class _CutMcap(UnclosedBag):
 
     def note(self, n_msgs: int, n_touches: int) -> str | None:
         if self.whole and self.lock is None:
-            return (f"{self.path}: the bag does not open ({one_line(self.open_error)}); read its {self.file.name}"
-                    f" directly, whole to its end: {n_msgs} messages, {n_touches} touches, nothing lost")
+            why = metadata_yaml_problem(self.path) or f"the bag does not open ({one_line(self.open_error)})"
+            return (f"{self.path}: {why}; read its {self.file.name} directly, whole to its end: {n_msgs} messages,"
+                    f" {n_touches} touches, nothing lost")
         return super().note(n_msgs, n_touches)
 
     def _lost_without_lock(self, n_msgs: int, ends: str) -> tuple:
