@@ -212,14 +212,27 @@ def test_chain_naming_an_unknown_joint_fails_naming_file_and_joint(tmp_path):
     (lambda d: d["chains"]["l_arm"][1].update(d=1e300), "chain 'l_arm' row 1 d: 1e+300 m is beyond 10 m"),
     (lambda d: d["chains"]["l_arm"][1].update(joint=["LShoulderPitch"]),
      "chain 'l_arm' row 1: unknown joint '['LShoulderPitch']'"),
+    # frames become TF frame ids and URDF link names: a number, a space or markup made a URDF nothing reads
+    (lambda d: d["chains"]["head"][1].update(frame=5), "chain 'head' row 1 frame: 5 is not a frame name"),
+    (lambda d: d["chains"]["head"][1].update(frame="head link"),
+     "chain 'head' row 1 frame: 'head link' is not a frame name"),
+    (lambda d: d["chains"]["head"][1].update(frame='head<&"'), "chain 'head' row 1 frame: 'head<&\"' is not a frame name"),
+    (lambda d: d.update(base_frame=[1]), "base_frame: [1] is not a frame name"),
+    (lambda d: d.update(name=None), "name: None is not a robot name"),
 ], ids=["one-limit", "limits-swapped", "angle-words", "missing-d", "frame-twice", "frame-is-base", "no-chains", "chains-list", "joints-list",
-        "links-list", "link-row-word", "nan-limit", "infinite-limit", "nan-length", "huge-length", "joint-list"])
+        "links-list", "link-row-word", "nan-limit", "infinite-limit", "nan-length", "huge-length", "joint-list",
+        "frame-number", "frame-space", "frame-markup", "base-frame-list", "name-null"])
 def test_malformed_robot_config_fails_with_one_line(tmp_path, mutate, expected):
     path = write_robot(tmp_path, mutate)
     with pytest.raises(ConfigError) as err:
         RobotModel.from_yaml(path)
     assert str(err.value).startswith(f"{path}: {expected}")
     assert "\n" not in str(err.value)
+
+
+def test_a_frame_name_may_carry_a_tf_prefix(tmp_path):
+    path = write_robot(tmp_path, lambda d: d["chains"]["head"][1].update(frame="nao1/head_link"))
+    assert "nao1/head_link" in RobotModel.from_yaml(path).chains["head"].frames
 
 
 def test_angle_strings(robot):

@@ -12,6 +12,8 @@ import numpy as np
 from nao_skin.errors import ConfigError, DataError
 from nao_skin.paths import read_yaml
 
+# TF frame ids and URDF names: no spaces or markup, '/' only between names (a tf2 prefix like robot1/torso)
+FRAME_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
 _ANGLE_RE = re.compile(r"^\s*([+-]?)\s*(\d*\.?\d*)\s*\*?\s*pi\s*(?:/\s*(\d+(?:\.\d*)?))?\s*$")
 
 
@@ -55,6 +57,14 @@ class Link:
     chain: str
     row: int
     param: str                      # "a" or "d"
+
+
+def frame_name(value, where: str, what: str = "frame name") -> str:
+    """``value`` if it is a name a TF frame and a URDF link can carry, else a one-line ConfigError."""
+    if not isinstance(value, str) or not FRAME_NAME.match(value):
+        raise ConfigError(f"{where}: {value!r} is not a {what} (letters, digits and '_', not starting with a"
+                          f" digit; '/' between such names)")
+    return value
 
 
 @dataclass(frozen=True)
@@ -140,10 +150,11 @@ class RobotModel:
                     raise ConfigError(f"{where}: unknown joint '{joint}'"
                                       f" (not listed under 'joints')")
                 joints.append(joint)
-                frames.append(str(row.get("frame", f"{cname}_dh{i + 1}")))
+                frames.append(frame_name(row.get("frame", f"{cname}_dh{i + 1}"), f"{where} frame"))
             chains[str(cname)] = Chain(str(cname), np.array(dh), tuple(joints), tuple(frames))
         # frames are URDF links and TF frames: one name, one frame (a second one made a URDF with a link twice)
-        named = {str(doc.get("base_frame", "torso")): "the base frame"}
+        base_frame = frame_name(doc.get("base_frame", "torso"), f"{path}: base_frame")
+        named = {base_frame: "the base frame"}
         for cname, chain in chains.items():
             for i, frame in enumerate(chain.frames):
                 if frame in named:
@@ -155,7 +166,7 @@ class RobotModel:
                     or not isinstance(spec["row"], int) or isinstance(spec["row"], bool):
                 raise ConfigError(f"{path}: link '{lname}' needs chain, row (a whole number) and param (a or d)")
             links[str(lname)] = Link(str(spec["chain"]), int(spec["row"]), str(spec["param"]))
-        return cls(str(doc.get("name", path.stem)), str(doc.get("base_frame", "torso")),
+        return cls(frame_name(doc.get("name", path.stem), f"{path}: name", "robot name"), base_frame,
                    limits, chains, source=str(path), links=links)
 
     # ------------------------------------------------------------------ corrections
