@@ -25,16 +25,18 @@ def worker_pool(jobs: int, tasks: int):
     try:
         yield pool
     except BrokenProcessPool as exc:   # a worker killed (out of memory, a kill): the run cannot go on
-        for process in list((getattr(pool, "_processes", None) or {}).values()):
-            process.kill()
         # waited for: the executor's own thread, left running, printed a traceback on a closed pipe at exit
-        pool.shutdown(wait=True, cancel_futures=True)
+        _kill_workers(pool, wait=True)
         raise NaoSkinError(f"a worker process ended abruptly ({exc.__class__.__name__}: killed, or out of"
                            f" memory?); the benchmark stops, its earlier output is kept") from None
     except BaseException:
-        # the executor has no way to stop running work; its worker processes are the only handle
-        for process in list((getattr(pool, "_processes", None) or {}).values()):
-            process.kill()
-        pool.shutdown(wait=False, cancel_futures=True)
+        _kill_workers(pool, wait=False)
         raise
     pool.shutdown()
+
+
+def _kill_workers(pool: ProcessPoolExecutor, wait: bool) -> None:
+    # the executor has no way to stop running work; its worker processes are the only handle
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.kill()
+    pool.shutdown(wait=wait, cancel_futures=True)
