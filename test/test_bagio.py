@@ -11,6 +11,7 @@ import yaml
 from nao_skin.calibration.pairing import metrics, pair_touches
 from nao_skin.errors import DataError
 from nao_skin.formats.bag import BagWriter, read_touches, write_touch_bag
+from nao_skin.touch.events import LIVE_CONFIG
 
 
 def canonical_pairs(touches, pairing):
@@ -300,6 +301,37 @@ def test_a_slot_field_of_a_float_type_is_read_when_whole_and_refused_when_not(sk
             assert touches.n_touches == 0 and report.skipped["bad message"] == 40
             assert "field 'slot'" in report.messages[0] and "is not a whole number" in report.messages[0]
             assert report.unknown_slots == {}      # not blamed on the layout
+
+
+@pytest.mark.parametrize("kind, case, says", [
+    ("touches", "apart", "of its 10 skin samples with a taxel on, none met another part's at one stamp: nothing in it"
+                         " is a self-touch (a touch bag stores each touch's messages at one stamp: are its stamps"
+                         " rewritten?)"),
+    ("stream", "apart", f"of its 10 skin samples with a taxel on, none met another part's within"
+                        f" {LIVE_CONFIG.skin_tolerance:g} s of each other:"
+                        " nothing in it is a self-touch"),
+    ("stream", "released", "none of its skin samples has a taxel on: nothing was pressed"),
+])
+def test_a_bag_without_a_touch_says_why_in_its_one_line(skin, tmp_path, kind, case, says):
+    """Every message read and none dropped, yet no touch: the line says what it saw (a touch bag whose stamps
+    were rewritten per message had said only "0 touches loaded of 415")."""
+    from nao_skin.formats.inputs import load_touches
+    hand, torso = skin.parts["l_hand"], skin.parts["torso"]
+    names = skin.robot.joint_names
+    with BagWriter(tmp_path / "bag", kind=kind) as bag:
+        for k in range(5):
+            t = 1_000_000_000 * (k + 1)
+            bag.write_joint_state(t, names, np.zeros(len(names)))
+            for part, shift in ((hand, 0), (torso, 400_000_000)):     # each part pressed at its own moment
+                slots = part.slots[:0] if case == "released" else part.slots[:3]
+                bag.write_taxels(t + shift, part.name, part.parent_frame, part.positions[slots], slots,
+                                 np.full(len(slots), 2.0), np.full(len(slots), -1))
+            bag.write_joint_state(t + 500_000_000, names, np.zeros(len(names)))
+    with pytest.raises(DataError) as err:
+        load_touches([tmp_path / "bag"], skin, log=lambda line: None)
+    line = str(err.value)
+    assert "\n" not in line and "0 touches loaded of" in line
+    assert line.endswith(f"; {tmp_path / 'bag'}: {says}"), line
 
 
 def test_not_a_bag_and_no_overwrite(skin, tmp_path):

@@ -500,6 +500,17 @@ class _Feed:
             if reason not in ("touches", "continued press"):
                 self.report.skipped[reason] += count
         self.report.messages.extend(f"{self.report.source}: {note}" for note in self.detector.notes)
+        if touches.n_touches == 0 and self.n_msgs and not self.detector.counts and not self.report.skipped:
+            # nothing was dropped, so nothing was ever a moment of two parts pressed together: say why
+            tolerance = self.detector.config.skin_tolerance
+            when = "at one stamp" if tolerance == 0 else f"within {tolerance:g} s of each other"
+            pressed = self.detector.n_pressed
+            self.report.notes.append(
+                f"{self.report.source}: " + (f"of its {pressed} skin samples with a taxel on, none met another part's"
+                                             f" {when}: nothing in it is a self-touch" if pressed else
+                                             "none of its skin samples has a taxel on: nothing was pressed")
+                + (" (a touch bag stores each touch's messages at one stamp: are its stamps rewritten?)"
+                   if tolerance == 0 and pressed else ""))
         self.report.n_read = self.n_msgs
         self.report.n_loaded = touches.n_touches
         self.report.unit = "messages"

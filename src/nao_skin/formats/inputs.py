@@ -110,11 +110,13 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
             summary(hint)
         report.n_read += rep.n_read
         report.n_loaded += rep.n_loaded
+        report.unit = rep.unit if raw == paths[0] or rep.unit == report.unit else "touches or messages"
         report.merge(rep)
         if touches.n_touches:
             sets.append(touches)
     if not sets:
-        raise DataError(f"{report.source}: no usable touch in the input ({report.summary()})")
+        why = f"; {report.notes[0]}" if report.notes else ""    # e.g. why no moment was a touch
+        raise DataError(f"{report.source}: no usable touch in the input ({report.summary()}){why}")
     return (sets[0] if len(sets) == 1 else TouchSet.concatenate(sets)), report, truth
 
 

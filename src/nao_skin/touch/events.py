@@ -114,6 +114,7 @@ class EventDetector:
         self._summaries: dict = {}            # (part, stamp) -> contacts summary arriving before its taxels
         self.counts: Counter = Counter()
         self.notes: list = []
+        self.n_pressed = 0                    # skin samples with a taxel on: what a reader says when none paired
 
     @classmethod
     def for_skin(cls, skin, config: EventConfig = LIVE_CONFIG) -> "EventDetector":
@@ -197,6 +198,7 @@ class EventDetector:
         if len(slots) == 0:
             self._latest[p] = None
             return out + self._resolve_pending(final=False)
+        self.n_pressed += 1
         n = len(slots)
         pressures = tuple(pressures) if pressures is not None else (float("nan"),) * n
         contact_ids = tuple(int(c) for c in contact_ids) if contact_ids is not None else (-1,) * n
