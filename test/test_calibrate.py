@@ -330,3 +330,19 @@ def test_the_engine_runs_on_one_blas_thread_and_gives_the_threads_back(skin, lef
                   progress=lambda msg: seen.append(blas_threads()))
         assert blas_threads() == {2}
     assert seen and all(s == {1} for s in seen), seen
+
+
+@pytest.mark.parametrize("levels", [("mount", "patch"), ("mount",)])
+def test_a_level_left_out_is_never_freed_and_its_frames_stay_where_they_start(skin, left_hand_sim, levels):
+    """``levels``: model only what the scene needs. A level left out gets no stage, sequential or joint."""
+    touches, truth = left_hand_sim
+    result = calibrate(touches, skin, CalibrationOptions(levels=levels), truth=truth)
+    stages = [s["name"].split(": ")[-1] for s in result.report.stages]
+    assert set(stages) == set(levels), stages
+    for name in ("l_hand", "torso"):
+        part = result.calibration.parts[name]
+        assert not part.triangles.any()
+        assert part.patches.any() == ("patch" in levels)
+    assert not any("triangle" in h for h in result.report.held)    # not estimated is not "held"
+    with pytest.raises(DataError, match=r"levels=\[\]: frees nothing"):
+        calibrate(touches, skin, CalibrationOptions(levels=()))

@@ -44,7 +44,8 @@ from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.touches import TouchSet
 
 CONVERGED_MM = 1.0                  # final true median taxel error that counts as converged
-HARD_PRESETS = ("default", "cad-rotation", "perturb-5cm", "few-touches", "outliers-20", "planar-poses", "noisy")
+HARD_PRESETS = ("default", "cad-rotation", "perturb-5cm", "few-touches", "outliers-20", "planar-poses", "noisy",
+                "real-glue")
 TOUCH_SWEEP = (50, 100, 200, 500)   # plus "all" = the default row
 NOISY_RATIO_LIMIT = 2.0             # noisy's true median may be this many times the default's ("about 2x")
 OUTLIER_RECALL_TARGET = 0.9
@@ -93,6 +94,7 @@ def strategy_variants(sweep=TOUCH_SWEEP) -> list:
         Variant("wider prior (starts at the bound: prior_strength=1)", {"prior_strength": 1.0}),
         Variant("fixed prior (bound/3, not widened by the touches)", {"prior_scale": "fixed"}),
         Variant("robust loss off (linear)", {"loss": "linear"}),
+        Variant("no triangle level (levels=[mount, patch])", {"levels": ("mount", "patch")}),
         Variant("finite-difference Jacobian (2-point)", {"jacobian": "2-point"}, single_run=True),
     ]
     rows += [Variant(f"{n} training touches", {"max_touches": int(n)}) for n in sweep]

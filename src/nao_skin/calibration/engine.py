@@ -269,11 +269,11 @@ def _stage_levels(step: Step, options: CalibrationOptions):
                   else [{"mount", "patch", "triangle"}])
     joint_step = not step.references and options.reference == "fixed"
     for levels in levels_seq:
+        levels = levels & set(options.levels)
         if joint_step:
             levels = levels & set(options.joint_levels)
-            if not levels:
-                continue
-        yield levels
+        if levels:
+            yield levels
 
 
 def _first_guess(train: TouchSet, skin: SkinModel, step: Step, options: CalibrationOptions, fit: _Fit, say,
