@@ -48,6 +48,17 @@ def config_files(skin) -> list:
     return [skin.robot.source, *(part.layout_file for part in skin.parts.values())]
 
 
+def add_output_arguments(parser, command: str) -> None:
+    """``--out`` (default ``out/<command>``) and ``--force`` of a benchmark writing its own output directory."""
+    default = f"out/{command.replace('-', '_')}"
+    parser.add_argument("--out", default=default,
+                        help=f"output directory (default: {default}): new, empty, or an earlier {command} output"
+                             f" (with --force)")
+    parser.add_argument("--force", action="store_true",
+                        help=f"replace the outputs of an earlier {command} in --out (never a file nao-skin did not"
+                             f" write)")
+
+
 def add_skin_arguments(parser) -> None:
     """The options that say which skin layout the data belongs to: the same in every command."""
     parser.add_argument("--skin", default=None, metavar="YAML",

@@ -12,6 +12,8 @@ import sys
 import time
 from pathlib import Path
 
+from nao_skin.commands import add_output_arguments
+
 NAME = "bench"
 HELP = "benchmark calibration strategies (seconds against error) and the simulator's hard cases"
 
@@ -27,11 +29,7 @@ QUICK = {"repeat": 1, "seeds": 2, "sweep": (50, 200), "sim_touches": 400, "hard_
 def add_arguments(parser) -> None:
     parser.add_argument("--readme", metavar="README.md",
                         help="also put the tables into this README's results section and the plot beside it")
-    parser.add_argument("--out", default="out/bench",
-                        help="output directory (default: out/bench): new, empty, or an earlier bench output"
-                             " (with --force)")
-    parser.add_argument("--force", action="store_true",
-                        help="replace the outputs of an earlier bench in --out (never a file nao-skin did not write)")
+    add_output_arguments(parser, "bench")
     parser.add_argument("--quick", action="store_true",
                         help=f"smoke run: {QUICK['repeat']} repetition, {QUICK['seeds']} seeds, sweep "
                              f"{'/'.join(map(str, QUICK['sweep']))} touches, {QUICK['sim_touches']} simulated touches,"

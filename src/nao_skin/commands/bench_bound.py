@@ -14,6 +14,8 @@ import sys
 import time
 from pathlib import Path
 
+from nao_skin.commands import add_output_arguments
+
 NAME = "bench-bound"
 HELP = ("benchmark what any choice of touches could buy: linearised bound on the true taxel error, random against"
         " the best (greedy, truth-informed) choice")
@@ -21,12 +23,7 @@ OUTPUTS = ("bound_results.md", "bound_results.json")
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--out", default="out/bench_bound",
-                        help="output directory (default: out/bench_bound): new, empty, or an earlier bench-bound"
-                             " output (with --force)")
-    parser.add_argument("--force", action="store_true",
-                        help="replace the outputs of an earlier bench-bound in --out (never a file nao-skin did not"
-                             " write)")
+    add_output_arguments(parser, "bench-bound")
     parser.add_argument("--seeds", type=int, default=2, help="simulated robots (default 2)")
     parser.add_argument("--pool", type=int, default=1000,
                         help="touches per pair in each robot's pool to choose from (default 1000: 4000 in all)")

@@ -14,6 +14,8 @@ import sys
 import time
 from pathlib import Path
 
+from nao_skin.commands import add_output_arguments
+
 NAME = "bench-capture"
 HELP = ("benchmark guided capture: touches until every part's true taxel error meets the target, random vs guided"
         " (and an oracle's split over the pairs)")
@@ -21,12 +23,7 @@ OUTPUTS = ("capture_results.md", "capture_results.json", "capture.png")
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--out", default="out/bench_capture",
-                        help="output directory (default: out/bench_capture): new, empty, or an earlier bench-capture"
-                             " output (with --force)")
-    parser.add_argument("--force", action="store_true",
-                        help="replace the outputs of an earlier bench-capture in --out (never a file nao-skin did"
-                             " not write)")
+    add_output_arguments(parser, "bench-capture")
     parser.add_argument("--seeds", type=int, default=None, help="seeds (default 10; --quick: 2)")
     parser.add_argument("--first-seed", type=int, default=0, help="first seed (default 0)")
     parser.add_argument("--quick", action="store_true",
