@@ -155,8 +155,9 @@ class _UnclosedSqlite(UnclosedBag):
         super().__init__(path, file)
         self.reason, self.why, self.unless_closed = reason, why, unless_closed
         # a bag closed by rosbag2 (Iron on) or rosbags keeps a copy of its metadata in the file: with it, a lost
-        # or broken metadata.yaml costs nothing, and the file's message count says whether all is there
-        stored = stored_metadata(file)
+        # or broken metadata.yaml costs nothing, and the file's message count says whether all is there (not
+        # looked for while a recorder holds the bag: it writes the copy on close, and is not to be waited for)
+        stored = stored_metadata(file) if self.lock is None else None
         self.stored_count = None
         if stored is not None:
             self.custom_data = stored.get("custom_data") or {}
@@ -384,7 +385,8 @@ class _CutMcap(UnclosedBag):
         # the last read reached the footer and closing magic: the file is whole, only the bag around it
         # (metadata.yaml) failed to open
         self.whole = False
-        self.custom_data = (stored_metadata(file) or {}).get("custom_data") or {}
+        if self.lock is None:    # a live recording has no copy yet (see _UnclosedSqlite), nor a whole file to read
+            self.custom_data = (stored_metadata(file) or {}).get("custom_data") or {}
 
     def since(self, cursor) -> Tail:
         """``cursor``: ``(offset, the bytes before it, schemas, channels)`` after the last complete top-level

@@ -136,7 +136,11 @@ def _check_together(spec: NodeSpec) -> None:
 
     from nao_skin.paths import read_yaml
 
-    check = getattr(importlib.import_module(f"nao_skin.nodes.{spec.executable}"), "check_params", None)
+    try:
+        module = importlib.import_module(f"nao_skin.nodes.{spec.executable}")
+    except ImportError:       # no rclpy here (`record --print`): the node checks them itself when it starts
+        return
+    check = getattr(module, "check_params", None)
     if check is None:
         return
     values = node_parameters(spec)
