@@ -235,6 +235,13 @@ def clear_for_writing(out: str | Path, command: str, kind: str, entries, label: 
 
 
 def _umask() -> int:
+    """The process's umask, read without setting it where Linux says it (a node writes from a thread)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
