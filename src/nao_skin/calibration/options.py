@@ -119,8 +119,8 @@ class CalibrationOptions:
     residual_sigma: float = option(0.002, Rule(float, low=0.0, low_open=True, high=1.0),
                                    "m: noise per coordinate of a paired-point difference")
     # model only what the scene determines: on the simulator's default glue errors the triangle level buys
-    # 5 % of the true error for a third of the time, on the real recording 0.4 mm of the held-out figures
-    # (README, Results: the speed table's row without it)
+    # 7 % of the true error for a third of the time, on the real recording 0.4 mm of the held-out figures
+    # (README, Calibration: "Levels")
     levels: tuple = option(LEVELS, _LEVELS_RULE, "what the stages free, of mount, patch and triangle (the others"
                                                  " stay where they start)")
     joint_levels: tuple = option(LEVELS, _LEVELS_RULE, "what the joint refinement frees (of levels)")
