@@ -90,6 +90,7 @@ def strategy_variants(sweep=TOUCH_SWEEP) -> list:
         Variant("COP pairs only", {"pairs": "cop"}),
         Variant("taxel pairs only", {"pairs": "taxel"}),
         Variant("point-to-plane rows instead of closest taxel pairs (cop+plane)", {"pairs": "cop+plane"}),
+        Variant("point-to-plane rows beside closest taxel pairs (both+plane)", {"pairs": "both+plane"}),
         Variant("bounded (the thesis' box on patch and triangle corrections)", {"bounded": True}),
         Variant("wider prior (starts at the bound: prior_strength=1)", {"prior_strength": 1.0}),
         Variant("fixed prior (bound/3, not widened by the touches)", {"prior_scale": "fixed"}),
