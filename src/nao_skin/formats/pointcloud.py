@@ -171,7 +171,9 @@ def read_taxels(msg, part: SkinPart, where: str) -> tuple:
     slot must be a taxel of ``part``'s layout, else :class:`BadSlot`.
     """
     cloud = decode_cloud(msg, where)
-    slots = _whole_numbers(cloud_field(cloud, "slot", float, where), "slot", where)
+    slots = cloud_field(cloud, "slot", np.int64, where)     # required: raises when the cloud lacks it
+    if cloud.dtype["slot"].kind == "f":      # a producer's float field: whole numbers only, else refused
+        slots = _whole_numbers(cloud["slot"].astype(float), "slot", where)
     bad = (slots < 0) | (slots >= part.n_slots)
     if np.any(bad):
         raise BadSlot(f"{where}: field 'slot': slot {int(slots[bad][0])} out of range 0..{part.n_slots - 1}"
