@@ -179,3 +179,43 @@ def test_a_touch_stamped_out_of_order_is_named_and_its_neighbours_kept(skin):
     assert sorted(r.stamp for r in out) == sorted(stamps[:6] + stamps[7:])
     assert det.counts["stamp out of order"] == 1 and det.counts["touches"] == 11
     assert any("stamps out of order" in n and f"{stamps[6]:.6f}" in n for n in det.notes)
+
+
+def test_joint_states_naming_some_joints_or_nan_ones_are_merged_per_joint(skin):
+    """A second driver publishing the head's joints between the full states (ROS allows it), or a state
+    with NaN, lost every touch near it ("missing joint"). Each joint is interpolated from the nearest
+    states that give it; a needed joint no state gives within the tolerance still drops the touch."""
+    names = list(skin.robot.joint_names)
+    head = ["HeadYaw", "HeadPitch"]
+    cols = [skin.robot.joint_index[n] for n in head]
+    hand, torso = skin.parts["l_hand"].slots[:4].tolist(), skin.parts["torso"].slots[:3].tolist()
+    for extra in ("head only", "all NaN"):
+        det = EventDetector.for_skin(skin)
+        out = []
+        for k in range(10):      # a touch every 0.1 s, full states every 0.02 s, the extra one beside each
+            t0 = 0.1 * k
+            for t in t0 + np.array([0.0, 0.02, 0.04, 0.06, 0.08]):
+                out += det.add_joint_state(t, names, angles(names, t))
+                if extra == "head only":
+                    out += det.add_joint_state(t + 0.011, head, angles(names, t + 0.011)[cols])
+                else:
+                    out += det.add_joint_state(t + 0.011, names, np.full(len(names), np.nan))
+                if t == t0 + 0.02:
+                    out += det.add_skin(t + 0.005, "l_hand", hand)
+                    out += det.add_skin(t + 0.005, "torso", torso)
+                if t == t0 + 0.06:     # released
+                    out += det.add_skin(t + 0.005, "l_hand", [])
+                    out += det.add_skin(t + 0.005, "torso", [])
+        out += det.flush()
+        assert len(out) == 10 and det.counts["missing joint"] == 0, (extra, det.counts, det.notes[:2])
+        for r in out:
+            np.testing.assert_allclose(r.joints, angles(names, r.stamp), atol=1e-12)
+    # the arm's states stop, only the head's go on: the arm joints are missing, not guessed
+    det = EventDetector.for_skin(skin)
+    det.add_joint_state(0.0, names, angles(names, 0.0))
+    for t in (0.3, 0.4, 0.5, 0.6):
+        det.add_joint_state(t, head, angles(names, t)[cols])
+    det.add_skin(0.45, "l_hand", hand)
+    det.add_skin(0.45, "torso", torso)
+    det.add_joint_state(0.7, head, angles(names, 0.7)[cols])
+    assert det.flush() == [] and det.counts["missing joint"] == 1

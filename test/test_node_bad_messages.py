@@ -8,17 +8,26 @@ good one, which must still take effect. Each node stops with exit 0 and no trace
 from __future__ import annotations
 
 import json
+import time
 
+import numpy as np
 import pytest
 from ros_harness import Listener, node_process, ros_env, unique_domain_id
 
 pytest.importorskip("rclpy")
+from rcl_interfaces.msg import Parameter as ParameterMsg  # noqa: E402
+from rcl_interfaces.msg import ParameterValue  # noqa: E402
+from rcl_interfaces.srv import SetParameters  # noqa: E402
+from sensor_msgs.msg import JointState, PointCloud2  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 from nao_skin.errors import DataError  # noqa: E402
+from nao_skin.formats.bag import read_touches  # noqa: E402
+from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, taxels_array, taxels_topic  # noqa: E402
 from nao_skin.guidance.capture import targets_from_json  # noqa: E402
 from nao_skin.nodes.calibrate import GUIDANCE_TOPIC, LATCHED, STATUS_TOPIC  # noqa: E402
+from nao_skin.nodes.messages import cloud_from_array, joint_state_msg, stamp_to_msg  # noqa: E402
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC  # noqa: E402
 from nao_skin.nodes.skin_heatmap import GUIDANCE_MARKERS_TOPIC  # noqa: E402
 
@@ -82,3 +91,75 @@ def test_nodes_skip_malformed_messages_and_stay_up(tmp_path):
         codes = [node.stop() for node in nodes]
     for node, code in zip(nodes, codes):
         assert code == 0 and "Traceback" not in node.stderr(), f"{node.name} {code}: {node.stderr()[-2000:]}"
+
+
+def _press(skin, part: str, n: int = 4):
+    """``n`` present taxel slots of ``part`` with their nominal positions, pressed."""
+    slots = np.flatnonzero(skin.parts[part].present)[:n]
+    return taxels_array(slots, skin.parts[part].taxel_positions(None)[0][slots], np.full(n, 40.0),
+                        np.zeros(n, int))
+
+
+@pytest.mark.middleware
+def test_the_recorder_outlives_a_malformed_request_and_unplaceable_stamps_and_keeps_every_touch(tmp_path, skin):
+    """A SetParameters request rclpy's own service cannot parse (type 99) ended the node with a traceback,
+    and with it a record session; a negative stamp crashed the bag writer; joint states naming only the
+    head's joints (a second driver) cost every touch near them. Each is skipped now, or merged per
+    joint, and every touch of the session is in the bag."""
+    domain = unique_domain_id()
+    listener = recorder = None
+    bag = tmp_path / "touches"
+    names = list(skin.robot.joint_names)
+    head = ["HeadYaw", "HeadPitch"]
+    n_touches = 6
+    try:
+        listener = Listener(domain)
+        recorder = node_process("pairing_recorder", {"bag_path": str(bag), "flush_period": 0.2}, ros_env(domain),
+                                tmp_path)
+        joints = listener.node.create_publisher(JointState, JOINT_STATES_TOPIC, 100)
+        clouds = {p: listener.node.create_publisher(PointCloud2, taxels_topic(p), 100) for p in ("l_hand", "torso")}
+        setter = listener.node.create_client(SetParameters, "/pairing_recorder/set_parameters")
+        assert listener.spin_until(lambda: setter.service_is_ready() and all(
+            c.get_subscription_count() > 0 for c in clouds.values()), timeout=60, procs=[recorder])
+
+        def ask(name: str, value: ParameterValue):
+            future = setter.call_async(SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)]))
+            listener.spin_until(future.done, timeout=3)
+            return future.result()
+
+        assert ask("flush_period", ParameterValue(type=99)) is None     # no answer, and the node goes on
+        refused = ask("flush_period", ParameterValue(type=3, double_value=2.0)).results[0]
+        assert not refused.successful and "read when the node starts" in refused.reason, refused.reason
+
+        released = taxels_array(np.zeros(0, int), np.zeros((0, 3)))
+        frame = {p: skin.parts[p].parent_frame for p in clouds}
+        base = time.time()
+        for k in range(n_touches):
+            t = base + 0.6 * k
+            for dt in (-0.05, -0.02, 0.02, 0.05):     # full joint states, each followed by a head-only one
+                joints.publish(joint_state_msg(names, np.zeros(len(names)), stamp_to_msg(t + dt)))
+                joints.publish(joint_state_msg(head, np.zeros(2), stamp_to_msg(t + dt + 0.005)))
+            joints.publish(joint_state_msg(names, np.full(len(names), np.nan), stamp_to_msg(t + 0.01)))
+            joints.publish(joint_state_msg(names, np.zeros(len(names)), stamp_to_msg(-0.5)))
+            for part, pub in clouds.items():
+                pub.publish(cloud_from_array(_press(skin, part), frame[part], stamp_to_msg(t)))
+            listener.spin_for(0.05)
+            # a released sample without a stamp, and one before 1970, in the middle of the press
+            clouds["torso"].publish(cloud_from_array(released, frame["torso"], None))
+            clouds["l_hand"].publish(cloud_from_array(_press(skin, "l_hand"), frame["l_hand"], stamp_to_msg(-0.5)))
+            for part, pub in clouds.items():
+                pub.publish(cloud_from_array(released, frame[part], stamp_to_msg(t + 0.3)))
+            joints.publish(joint_state_msg(names, np.zeros(len(names)), stamp_to_msg(t + 0.35)))
+            listener.spin_for(0.1)
+        listener.spin_for(1.0)
+        assert recorder.alive(), recorder.stderr()[-2000:]
+    finally:
+        if listener is not None:
+            listener.close()
+        code = recorder.stop() if recorder is not None else None
+    err = recorder.stderr()
+    assert code == 0 and "Traceback" not in err, err[-3000:]
+    assert "a callback failed and was skipped (ValueError" in err, err[-3000:]
+    assert "header stamp" in err and "not set" in err and "before 1970" in err, err[-3000:]
+    touches, _ = read_touches(bag, skin)
+    assert touches.n_touches == n_touches, err[-3000:]

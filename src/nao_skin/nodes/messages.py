@@ -25,6 +25,19 @@ def stamp_from_msg(stamp) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
+def header_stamp(msg, where: str) -> float:
+    """The message's header stamp in seconds; DataError for one that is no time: unset (0) or before 1970.
+
+    A touch takes its stamp from the skin and its arm pose from the joint states at that stamp, so a
+    message without a real stamp cannot be placed: an unset one would end the press it falls into.
+    """
+    stamp = msg.header.stamp
+    if stamp.sec < 0 or (stamp.sec == 0 and stamp.nanosec == 0):
+        raise DataError(f"{where}: header stamp {stamp_from_msg(stamp):.9f} s is"
+                        f" {'not set' if stamp.sec == 0 else 'before 1970'}: the message cannot be placed in time")
+    return stamp_from_msg(stamp)
+
+
 def stamp_ns(stamp) -> int:
     return stamp.sec * 1_000_000_000 + stamp.nanosec
 
@@ -55,9 +68,10 @@ def joint_state_msg(names, positions, stamp: Time) -> JointState:
 
 
 def joint_state_arrays(msg: JointState, where: str = JOINT_STATES_TOPIC) -> tuple:
-    """``(stamp seconds, names list, positions (J,) float)``; DataError if names and positions disagree."""
+    """``(stamp seconds, names list, positions (J,) float)``; DataError if names and positions disagree
+    or the stamp is no time (:func:`header_stamp`)."""
     names = list(msg.name)
     positions = np.asarray(msg.position, dtype=float)
     if len(names) != len(positions):
         raise DataError(f"{where}: JointState has {len(names)} names but {len(positions)} positions")
-    return stamp_from_msg(msg.header.stamp), names, positions
+    return header_stamp(msg, where), names, positions

@@ -36,7 +36,7 @@ from nao_skin.formats.bag import BagWriter, record_parts
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_topic, read_contacts, read_taxels, taxels_topic
 from nao_skin.live.clocks import SKEW_LIMIT_S, ArrivalLags
 from nao_skin.live.heatmap import ActivationCounts
-from nao_skin.nodes.messages import joint_state_arrays, stamp_from_msg
+from nao_skin.nodes.messages import header_stamp, joint_state_arrays
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
 from nao_skin.rules import NON_NEGATIVE, Rule, SECONDS
 from nao_skin.touch.events import EventConfig, EventDetector
@@ -108,10 +108,10 @@ class PairingRecorder(Node):
     def _on_taxels(self, part: str, msg) -> None:
         t0 = time.perf_counter()
         try:
+            stamp = header_stamp(msg, taxels_topic(part))
             slots, pressures, contacts = read_taxels(msg, self.skin.parts[part], taxels_topic(part))
         except DataError as exc:
             return self._bad(exc)
-        stamp = stamp_from_msg(msg.header.stamp)
         self.lags.add(taxels_topic(part), stamp, self._now())
         self._write(self.detector.add_skin(stamp, part, slots.tolist(), pressures.tolist(), contacts.tolist()))
         self.skin_ms.append((time.perf_counter() - t0) * 1e3)
@@ -119,10 +119,11 @@ class PairingRecorder(Node):
     def _on_contacts(self, part: str, msg) -> None:
         t0 = time.perf_counter()
         try:
+            stamp = header_stamp(msg, contacts_topic(part))
             contact_ids, cops = read_contacts(msg, contacts_topic(part))
         except DataError as exc:
             return self._bad(exc)
-        self.detector.add_contacts(stamp_from_msg(msg.header.stamp), part, contact_ids, cops)
+        self.detector.add_contacts(stamp, part, contact_ids, cops)
         self.skin_ms.append((time.perf_counter() - t0) * 1e3)
 
     def _now(self) -> float:

@@ -16,6 +16,7 @@ import re
 import signal
 import sys
 import threading
+from collections import Counter
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -27,6 +28,8 @@ from rclpy.parameter import Parameter
 from nao_skin.errors import ConfigError, DataError, NaoSkinError
 from nao_skin.live.session import PARENT_ENV, STOP_SIGNALS
 from nao_skin.rules import did_you_mean
+
+MAX_LOGGED_FAILURES = 5   # callback errors of one kind logged one by one (then every 100th)
 
 # every node that reads the skin builds it the way the commands do (model.skin.load_skin)
 SKIN_PARAMS = {
@@ -83,8 +86,7 @@ def declare(node, params: dict) -> dict:
                 rule[0].check(f"node '{node.get_name()}': parameter {name}:={out[name]!r}", out[name])
             except DataError as exc:
                 raise ConfigError(str(exc)) from None
-    if numeric or rules:
-        node.add_on_set_parameters_callback(lambda changed: _checked(changed, numeric, rules))
+    node.add_on_set_parameters_callback(lambda changed: _checked(changed, numeric, rules, set(params)))
     return out
 
 
@@ -112,9 +114,10 @@ def _as_float(value, default):
     return None
 
 
-def _checked(changed, numeric: dict, rules: dict) -> SetParametersResult:
+def _checked(changed, numeric: dict, rules: dict, declared: set) -> SetParametersResult:
     """Later changes (``ros2 param set``): numbers only for a float parameter, and within its rule, as at
-    declaration."""
+    declaration; a valid value is refused too, saying so: the node read its parameters when it started,
+    and taking the value without using it would tell the user it did."""
     for p in changed:
         if p.name in numeric and _as_float(p.value, numeric[p.name]) is None:
             return SetParametersResult(successful=False, reason=f"'{p.name}' takes a number like {numeric[p.name]!r}")
@@ -124,6 +127,10 @@ def _checked(changed, numeric: dict, rules: dict) -> SetParametersResult:
                 rules[p.name].check(f"parameter {p.name}:={value!r}", value)
             except DataError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
+        if p.name in declared:
+            return SetParametersResult(successful=False,
+                                       reason=f"'{p.name}' is read when the node starts: restart the node with"
+                                              f" -p {p.name}:=VALUE (nao-skin record: --param NODE.{p.name}=VALUE)")
     return SetParametersResult(successful=True)
 
 
@@ -182,6 +189,23 @@ def _parent_gone():
     return gone
 
 
+def _spin_once(executor, node, failures: Counter) -> None:
+    """One turn of the executor. Any other error of a callback (a request rclpy's own parameter service
+    cannot parse, a bug) is said in a line and skipped: a node that ended for it would end the whole
+    recording session for one bad message. The first few of each kind are logged, then every 100th."""
+    try:
+        executor.spin_once(timeout_sec=0.1)
+    except (ExternalShutdownException, NaoSkinError):
+        raise
+    except Exception as exc:     # noqa: BLE001 - whatever a callback raised, the node goes on
+        kind = type(exc).__name__
+        failures[kind] += 1
+        n = failures[kind]
+        if n <= MAX_LOGGED_FAILURES or n % 100 == 0:
+            node.get_logger().error(f"a callback failed and was skipped ({kind}: {exc}); the node goes on"
+                                    + (f" ({n} so far)" if n > 1 else ""))
+
+
 def run_node(factory, args=None) -> int:
     """Create the node with ``factory()``, spin it, shut it down cleanly on a stop signal or when record is gone."""
     args = sys.argv if args is None else args
@@ -216,8 +240,9 @@ def run_node(factory, args=None) -> int:
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         try:
+            failures = Counter()
             while not stop.is_set() and rclpy.ok():
-                executor.spin_once(timeout_sec=0.1)
+                _spin_once(executor, node, failures)
                 if parent_gone is not None and parent_gone():
                     node.get_logger().warning(f"nao-skin record (pid {os.environ[PARENT_ENV]}) is gone; stopping")
                     break

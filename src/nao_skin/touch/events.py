@@ -11,8 +11,11 @@ Rules (each drop is counted in ``counts`` under its reason, never guessed):
 * an event waits ``skin_tolerance`` for the other parts' samples of the same
   moment, then waits for a joint state at or after its stamp;
 * both bracketing joint states must lie within ``joint_tolerance`` of the
-  stamp ("stale joints" otherwise); a joint needed by a touching part's chain
-  that is missing or NaN drops the event ("missing joint");
+  stamp ("stale joints" otherwise); a joint state may name only some joints
+  (or give NaN for some): a joint those leave out is interpolated from the
+  nearest states that have it, within ``joint_tolerance`` on both sides, and a
+  joint needed by a touching part's chain that none gives drops the event
+  ("missing joint");
 * a continuous press is one touch per *distinct activation pattern*: while
   every part of a combination stays pressed (no empty sample, no silence
   longer than ``release_gap``), a new touch is emitted only when the set of
@@ -277,10 +280,33 @@ class EventDetector:
             q0, q1 = self._joint_values[before], self._joint_values[after]
             span = stamps[after] - stamps[before]
             q = q0 if span <= 0 else q0 + (q1 - q0) * ((t - stamps[before]) / span)
+            if np.isnan(q).any():
+                q = self._per_joint(t, q)
             record = self._record(cand, q)
             if record is not None:
                 out.append(record)
         return out
+
+    def _per_joint(self, t: float, q: np.ndarray) -> np.ndarray:
+        """``q`` with each joint the bracketing states left NaN interpolated from the nearest states that
+        have it, within ``joint_tolerance`` on both sides: joint states naming only some joints (a second
+        driver publishing the head's) or NaN for some arrive between the full ones."""
+        tol = self.config.joint_tolerance
+        lo = bisect.bisect_left(self._joint_stamps, t - tol)
+        hi = bisect.bisect_right(self._joint_stamps, t + tol)
+        stamps = np.array(self._joint_stamps[lo:hi])
+        values = np.array(self._joint_values[lo:hi])
+        q = q.copy()
+        for col in np.flatnonzero(np.isnan(q)):
+            has = np.isfinite(values[:, col])
+            before = np.flatnonzero(has & (stamps <= t))
+            after = np.flatnonzero(has & (stamps >= t))
+            if len(before) and len(after):
+                b, a = before[-1], after[0]
+                span = stamps[a] - stamps[b]
+                w = 0.0 if span <= 0 else (t - stamps[b]) / span
+                q[col] = values[b, col] + (values[a, col] - values[b, col]) * w
+        return q
 
     def _record(self, cand: _Candidate, q: np.ndarray) -> TouchRecord | None:
         for p in sorted(cand.samples):
