@@ -14,6 +14,7 @@ import os
 import resource
 import shutil
 import signal
+import stat
 import subprocess
 import sys
 import time
@@ -549,3 +550,47 @@ def test_calibrate_node_refuses_an_out_dir_holding_its_input(work):
         code = node.stop() if node is not None else None
     assert code == 0, node.stderr()[-3000:]
     assert tree(work / "session") == before
+
+
+def test_a_file_out_replaces_no_device_or_fifo_and_writes_through_a_symlink(tmp_path):
+    """``--out`` of a single file renamed a temporary over whatever was there: a device node (as root,
+    ``--out /dev/null`` would have replaced the system's), a FIFO, a symlink itself."""
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    specials = {fifo: ("a FIFO", stat_kind(fifo))}
+    try:    # a device node of our own (the null device's numbers), never the system's
+        os.mknod(tmp_path / "null", 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+        specials[tmp_path / "null"] = ("a character device", stat_kind(tmp_path / "null"))
+    except PermissionError:
+        pass
+    for path, (kind, mode) in specials.items():
+        for command in ("nominal", "urdf"):
+            run = nao_skin(command, "--out", path, cwd=tmp_path, timeout=120)
+            err = run.stderr.strip()
+            assert run.returncode == 2 and len(err.splitlines()) == 1, (run.returncode, err)
+            assert f"--out {path}: cannot write (it is {kind}, not a regular file)" in err, err
+            assert stat_kind(path) == mode
+    target = tmp_path / "kept" / "calibration.yaml"
+    target.parent.mkdir()
+    target.write_text("old\n")
+    link = tmp_path / "link.yaml"
+    link.symlink_to(target)
+    ok(nao_skin("nominal", "--out", link, cwd=tmp_path))
+    assert link.is_symlink() and "nominal calibration" in target.read_text()
+    assert sorted(p.name for p in target.parent.iterdir()) == ["calibration.yaml"]     # no temporary left
+
+
+def test_an_input_that_is_no_regular_file_is_one_line_not_a_hang_or_all_memory(work):
+    """``--skin-config /dev/zero`` read until the kernel killed it (24 GB); a FIFO waited for ever."""
+    fifo = work / "pipe"
+    os.mkfifo(fifo)
+    for path, kind in ((fifo, "a FIFO"), (Path("/dev/zero"), "a character device")):
+        for argv in (["nominal", "--skin-config", path], ["stats", "session", "--calibration", path]):
+            run = nao_skin(*argv, cwd=work, timeout=120)
+            err = run.stderr.strip()
+            assert run.returncode == 2 and len(err.splitlines()) == 1, (argv, run.returncode, err[-2000:])
+            assert f"{path}: cannot read" in err and f"(it is {kind}, not a regular file)" in err, err
+
+
+def stat_kind(path: Path) -> int:
+    return stat.S_IFMT(os.lstat(path).st_mode)

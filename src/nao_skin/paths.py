@@ -5,17 +5,39 @@ import os
 from pathlib import Path
 
 
+MAX_TEXT_BYTES = 1 << 30   # a text input larger than this is not one of ours (a recording of 810 touches: 5 MB)
+
+
+def not_a_file(mode: int) -> str | None:
+    """What a path of this ``st_mode`` is when it is not a regular file ("a directory", "a FIFO", ...), else None."""
+    import stat
+
+    if stat.S_ISREG(mode):
+        return None
+    kinds = ((stat.S_ISDIR, "a directory"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+             (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"))
+    return next((text for test, text in kinds if test(mode)), "not a regular file")
+
+
 def read_text(path: str | Path, what: str = "", error: type | None = None, name: str | None = None) -> str:
     """The text of ``path``; one line naming it (``name``, default the path) and ``what`` it was read as when it
-    cannot be read or is no text (a bag or another binary file given for a text one), as ``error`` (DataError)."""
+    cannot be read or is no text (a bag or another binary file given for a text one), as ``error`` (DataError).
+    Only a regular file is read, and at most :data:`MAX_TEXT_BYTES`: ``/dev/zero`` never ends, a FIFO waits."""
     from nao_skin.errors import DataError
 
     error = error or DataError
     what = f" {what}" if what else ""
     name = str(path) if name is None else name
     try:
+        kind = not_a_file(os.stat(path).st_mode)
+        if kind:
+            raise error(f"{name}: cannot read{what} (it is {kind}, not a regular file)")
+        with open(path, "rb") as f:
+            data = f.read(MAX_TEXT_BYTES + 1)
+        if len(data) > MAX_TEXT_BYTES:
+            raise error(f"{name}: cannot read{what} (larger than {MAX_TEXT_BYTES >> 30} GiB: is it the right file?)")
         # UTF-8 whatever the locale; a byte-order mark (as Windows editors write it) is not part of the text
-        return Path(path).read_text(encoding="utf-8-sig")
+        return data.decode("utf-8-sig")
     except OSError as exc:
         raise error(f"{name}: cannot read{what} ({exc.strerror})") from None
     except UnicodeDecodeError as exc:

@@ -12,6 +12,7 @@ because a calibration can run for minutes while the user works in the directory.
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
@@ -162,8 +163,13 @@ def _check_replaceable(out: Path, name: str) -> None:
 def replace_file(path: str | Path, data: str | bytes) -> None:
     """Write ``path`` whole or not at all: a temporary sibling (mode 0o666 less the umask, as a plain write
     gives) renamed over it, so a failed write (a full disk, a signal) leaves the earlier file as it was.
-    Raises the ``OSError``; the temporary file is gone then."""
-    path = Path(path)
+    Raises the ``OSError``; the temporary file is gone then. A symlink's target is written, as a plain write
+    would; anything else that is not a regular file (``/dev/null``, a FIFO) is refused, never replaced."""
+    from nao_skin.paths import not_a_file
+
+    path = Path(os.path.realpath(path))
+    if path.exists() and not_a_file(path.stat().st_mode):
+        raise OSError(errno.EEXIST, f"it is {not_a_file(path.stat().st_mode)}, not a regular file")
     temporary, made = path.with_name(f".{path.name}.{os.getpid()}.tmp"), False
     try:
         # O_EXCL: never another file under that name

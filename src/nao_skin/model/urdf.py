@@ -152,11 +152,9 @@ class UrdfModel:
 
     @classmethod
     def from_file(cls, path: str | Path) -> "UrdfModel":
-        path = Path(path)
-        try:
-            return cls.from_string(path.read_text(), str(path))
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read URDF ({exc.strerror})") from None
+        from nao_skin.paths import read_text
+
+        return cls.from_string(read_text(path, "URDF", ConfigError), str(path))
 
     # ------------------------------------------------------------------ structure
     def _topological_order(self) -> list:
