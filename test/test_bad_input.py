@@ -17,7 +17,7 @@ import pytest
 from real_data import REAL_DIR as REAL  # noqa: E402
 from thesis_format import write_thesis_file  # noqa: E402
 
-from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
+from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions, set_items
 from nao_skin.cli import build_parser
 from nao_skin.cli import main as cli_main
 from nao_skin.errors import ConfigError, DataError
@@ -89,6 +89,18 @@ def test_a_wrong_option_is_one_line_before_any_data_is_read(tmp_path, capsys, ar
     line = one_line(capsys)
     assert says in line and "broken.txt" not in line, line
     assert not (tmp_path / "out").exists()
+
+
+def test_a_number_in_exponent_notation_is_a_number(tmp_path, capsys):
+    """YAML 1.1 reads '1e-3' as a string: '--set f_scale=1e-3' was refused as "expected a number"."""
+    broken = tmp_path / "broken.txt"
+    broken.write_text("{'0': [{0: {'cop': [0, 0,")
+    args = ["--set", "f_scale=1e-3", "--set", "patch_bounds=[3E-3, 1e-1]", "--set", "condition_limit=1e8"]
+    assert cli_main(["calibrate", str(broken), "--out", str(tmp_path / "out"), *args]) == 2
+    assert "broken.txt" in one_line(capsys)      # the options passed: the line is about the input
+    options = CalibrationOptions()
+    set_items(options, args[1::2])
+    assert (options.f_scale, options.patch_bounds, options.condition_limit) == (1e-3, (3e-3, 0.1), 1e8)
 
 
 def test_every_option_has_a_rule_and_help_and_takes_an_integer_for_a_float():

@@ -343,6 +343,15 @@ def test_triangle_listed_in_two_patches_fails_naming_file_part_and_patches(tmp_p
     assert str(err.value) == f"{path}: part 'torso': triangle 5 is listed in patch 0 and in patch 1"
 
 
+@pytest.mark.parametrize("number", [10 ** 23, -3])
+def test_a_patch_number_beyond_a_label_fails_naming_file_and_patch(tmp_path, number):
+    """10**23 overflowed numpy (a traceback in every command); -3 made a frame 'torso_skin_patch_-3'."""
+    path = write_skin_config(tmp_path, lambda d: d["parts"]["torso"]["patches"].update({number: [40]}))
+    with pytest.raises(ConfigError) as err:
+        SkinModel.from_yaml(path)
+    assert str(err.value) == f"{path}: part 'torso': patch {number!r}: expected a whole number in 0..65535"
+
+
 def test_malformed_taxel_file_fails_naming_the_taxel_file_and_line(tmp_path):
     bad = tmp_path / "head_bad.txt"
     lines = (config_dir() / "layouts" / "head.txt").read_text().splitlines()

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 
@@ -87,7 +88,34 @@ def _unique_key_loader():
                 seen[key] = line
             return super().construct_mapping(node, deep)
 
+    # YAML 1.1 reads '1e-3' as a string (it wants '1.0e-3'); people and YAML 1.2 (rcl) write it as a number
+    UniqueKeyLoader.add_implicit_resolver("tag:yaml.org,2002:float", _EXPONENT_FLOAT, list("-+0123456789."))
     return UniqueKeyLoader
+
+
+_EXPONENT_FLOAT = re.compile(r"^[-+]?([0-9]+(\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+$")
+
+
+def parse_yaml(text: str):
+    """YAML text read as the config files are (:func:`read_yaml`); ``yaml.YAMLError`` when it is not YAML
+    or a mapping gives a key twice."""
+    import yaml
+
+    try:
+        return yaml.load(text, Loader=_unique_key_loader())
+    except _DuplicateKey as exc:
+        raise yaml.YAMLError(str(exc)) from None
+
+
+def yaml_value(text: str):
+    """A value given on the command line (``--set f_scale=1e-3``, ``--param NODE.NAME=[1, 2]``), read as the
+    config files are; text that is not YAML stays the text."""
+    import yaml
+
+    try:
+        return parse_yaml(text)
+    except yaml.YAMLError:
+        return text
 
 
 def package_dir() -> Path:

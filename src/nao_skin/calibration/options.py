@@ -15,6 +15,7 @@ from nao_skin.calibration.pairing import (KIND_COP, KIND_PLANE_A, KIND_PLANE_B, 
                                           PlaneRows)
 from nao_skin.calibration.solver import SolveOptions
 from nao_skin.errors import DataError
+from nao_skin.paths import yaml_value
 from nao_skin.rules import Rule
 
 # what each value of the ``pairs`` and ``mount_pairs`` options puts into the residuals: rows of these kinds
@@ -187,16 +188,10 @@ def set_once(options: CalibrationOptions, name: str, value, where: str, given: d
 def set_items(options: CalibrationOptions, items, given: dict | None = None) -> dict:
     """Apply ``--set OPTION=VALUE`` items (the value in YAML) to ``options``, each checked by its rule and
     given once (see :func:`set_once`); returns ``given`` with the items' options added."""
-    import yaml
-
     given = {} if given is None else given
     for item in items:
         key, sep, raw = item.partition("=")
         if not sep or not key:
             raise DataError(f"--set {item!r}: expected OPTION=VALUE, e.g. --set normal_weight=0.01")
-        try:
-            value = yaml.safe_load(raw)
-        except yaml.YAMLError:
-            value = raw
-        set_once(options, key.strip(), value, f"--set {item}", given)
+        set_once(options, key.strip(), yaml_value(raw), f"--set {item}", given)
     return given

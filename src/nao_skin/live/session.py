@@ -25,7 +25,7 @@ from pathlib import Path
 from nao_skin.errors import ConfigError, NaoSkinError
 from nao_skin.model.skin import parse_taxel_files
 from nao_skin.model.urdf import expand_xacro
-from nao_skin.paths import config_dir
+from nao_skin.paths import config_dir, parse_yaml, yaml_value
 from nao_skin.rules import did_you_mean
 
 ROBOTS = ("sim", "nao")
@@ -230,7 +230,7 @@ def _typed(value, default, where: str):
             pass
     if isinstance(value, str) and not isinstance(default, str):
         try:
-            value = yaml.safe_load(value) if value else ([""] if isinstance(default, list) else None)
+            value = parse_yaml(value) if value else ([""] if isinstance(default, list) else None)
         except yaml.YAMLError:
             raise ConfigError(f"{where}={value}: not a valid value (YAML flow syntax, e.g. [a, b])") from None
     if isinstance(default, list):
@@ -258,15 +258,7 @@ def _scalar(value, kind):
 
 def _as_yaml(values: dict) -> dict:
     """Overrides of a node we know no parameters of: text as YAML, as ``ros2 run -p`` would take it."""
-    import yaml
-
-    out = {}
-    for name, value in values.items():
-        try:
-            out[name] = yaml.safe_load(value) if isinstance(value, str) and value else value
-        except yaml.YAMLError:
-            out[name] = value
-    return out
+    return {name: yaml_value(value) if isinstance(value, str) and value else value for name, value in values.items()}
 
 
 def _text(value) -> str:

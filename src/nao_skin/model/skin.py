@@ -281,10 +281,13 @@ def _slot_count(value, where: str) -> int:
     return value
 
 
-def _whole_number(key, where: str) -> int:
-    """A patch or triangle number as YAML gives it (an int, or a string of one): not 0.5, not 'abc'."""
+def _whole_number(key, where: str, high: int | None = None) -> int:
+    """A patch or triangle number as YAML gives it (an int, or a string of one): not 0.5, not 'abc'; with
+    ``high``, in 0..high (a patch number names frames: not -3, not 10**23)."""
     if isinstance(key, bool) or not isinstance(key, (int, str)) or not str(key).strip().lstrip("-").isdigit():
         raise ConfigError(f"{where} {key!r}: expected a whole number")
+    if high is not None and not 0 <= int(key) <= high:
+        raise ConfigError(f"{where} {key!r}: expected a whole number in 0..{high}")
     return int(key)
 
 
@@ -311,6 +314,8 @@ def _plausible_pose(vector: np.ndarray) -> bool:
 
 PART_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 SKIN_CONFIG_KEYS = ("robot", "parts")
+MAX_PATCH_NUMBER = 65535   # patch numbers are labels (frame names), skinManager's are small
+
 PART_KEYS = ("chain", "taxel_file", "slots", "patches", "mount")
 
 
@@ -362,7 +367,7 @@ class SkinModel:
             if patches is not None:
                 if not isinstance(patches, dict):
                     raise ConfigError(f"{where}: 'patches' must map patch numbers to lists of triangles")
-                patches = {_whole_number(k, f"{where}: patch"): v for k, v in patches.items()}
+                patches = {_whole_number(k, f"{where}: patch", MAX_PATCH_NUMBER): v for k, v in patches.items()}
             mount = None
             if "mount" in spec:
                 mount = se3.pose_matrix(_mount_vector(spec["mount"], f"{where}: mount"))
