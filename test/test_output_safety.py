@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 from nao_skin.formats.outdir import MARKER
 from nao_skin.paths import package_dir
@@ -128,6 +129,21 @@ def test_other_inputs_are_protected_too(work):
     for argv in (["calibrate", "session", "--truth", "cfg/truth.yaml"], ["simulate", "--params", "cfg/truth.yaml"],
                  [*BENCH_CHEAP, "--readme", "cfg/truth.yaml"]):
         refused(work, [*argv, "--out", "cfg"], "--out cfg", "contains the input cfg/truth.yaml")
+
+
+def test_a_layout_named_only_inside_the_skin_config_is_protected_too(work):
+    """A skin config whose l_hand layout lies in an earlier output: '--out that --force' overwrote the
+    layout the run read (the new calibration then failed its own sha256 check)."""
+    ok(nao_skin("calibrate", "session", "--out", "earlier", cwd=work))
+    config = yaml.safe_load((package_dir() / "config" / "nao_skin.yaml").read_text())
+    for name, part in config["parts"].items():      # every path relative to the copy's place
+        part["taxel_file"] = str(package_dir() / "config" / part["taxel_file"])
+    config["parts"]["l_hand"]["taxel_file"] = str(work / "earlier" / "taxels" / "l_hand.txt")
+    if "robot" in config:
+        config["robot"] = str(package_dir() / "config" / config["robot"])
+    (work / "skin.yaml").write_text(yaml.safe_dump(config))
+    refused(work, ["calibrate", "session", "--skin", "skin.yaml", "--out", "earlier", "--force"],
+            "--out earlier", "contains the input", "earlier/taxels/l_hand.txt")
 
 
 def test_out_is_checked_before_any_input_is_read(work):

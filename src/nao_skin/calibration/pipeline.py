@@ -45,8 +45,9 @@ def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: Calibration
                          summary: Callable[[str], None] | None = None) -> PipelineRun:
     """Calibrate the skin from recordings and write the result where users apply it.
 
-    ``protected``: other files the run reads (skin config, layouts, prior) that
-    the output must not touch. ``truth`` overrides a simulator's ground truth
+    ``protected``: other files the run reads (a prior, a truth) that the output
+    must not touch; the skin model's own files are protected too, however they
+    were named (a layout named only inside the skin config). ``truth`` overrides a simulator's ground truth
     found beside a recording. ``log`` gets progress; ``summary`` what loading
     skipped, even when ``log`` is silent. ``extra(directory)`` adds files to
     the output before it is moved into place (see :func:`write_outputs`).
@@ -55,7 +56,7 @@ def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: Calibration
     calibration written is the first split's.
     """
     log = log or (lambda msg: None)
-    check_output(out_dir, [*inputs, *protected], force=force, label=label)
+    check_output(out_dir, [*inputs, *protected, *skin.source_files()], force=force, label=label)
     result, touches, load_report, n_dup = calibrate_inputs(inputs, skin, options, prior, truth, log, summary)
     if splits > 1:
         log(f"the same calibration on {splits - 1} more splits (seeds {options.seed + 1}..{options.seed + splits - 1})")

@@ -44,8 +44,8 @@ def write_output(text: str, out: Path | None, inputs=()) -> None:
 
 
 def config_files(skin) -> list:
-    """The files a skin model was read from besides its skin config: the robot config and every part's layout."""
-    return [skin.robot.source, *(part.layout_file for part in skin.parts.values())]
+    """The files a skin model was read from: its skin config, the robot config and every part's layout."""
+    return skin.source_files()
 
 
 def add_output_arguments(parser, command: str) -> None:

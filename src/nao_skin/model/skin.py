@@ -375,6 +375,12 @@ class SkinModel:
                                           str(path), mount, str(taxel_path))
         return cls(robot, parts, str(path))
 
+    def source_files(self) -> list:
+        """The files this model was read from: the skin config, the robot config and every part's layout
+        (what an output must never be written over)."""
+        files = (self.source, self.robot.source, *(p.layout_file for p in self.parts.values()))
+        return list(dict.fromkeys(f for f in files if f and Path(f).is_file()))     # not "<memory>"
+
     def part(self, name: str) -> SkinPart:
         try:
             return self.parts[name]
