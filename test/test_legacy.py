@@ -123,6 +123,18 @@ def test_timestamp_keys_become_stamps(tmp_path, skin):
     assert touches.keys == ["1589880000.25", "1589880000.5"]
 
 
+@pytest.mark.parametrize("exact", [False, True], ids=["fast reader", "exact reader"])
+def test_a_key_given_twice_keeps_the_first_touch_and_says_so(tmp_path, skin, exact):
+    """A touch key given twice (a hand edit) loaded both under one stamp, and an import into a bag then
+    kept one of them without a word."""
+    path = tmp_path / "data.txt"
+    path.write_text("{'0': %r,\n '1': %r,\n '0': %r}" % (touch(), touch(hand_slots=(3,)), touch(hand_slots=(4,))))
+    touches, report = read_legacy(path, skin, exact=exact)
+    assert report.n_loaded == 2 and touches.keys == ["0", "1"]
+    assert report.skipped == {"key given twice": 1}
+    assert report.messages == [f"{path}:3: touch '0': the key was given before, at line 1; the first is kept"]
+
+
 def test_none_pressure_force_moment_and_real_pressure(tmp_path, skin):
     t = touch()
     t[0][0]["averagePressure"] = 3.5

@@ -297,12 +297,19 @@ def read_legacy(path: str | Path, skin: SkinModel, exact: bool = False) -> tuple
     part_index = {n: i for i, n in enumerate(part_names)}
     joint_index = robot.joint_index
     parsed = []
+    first_line: dict = {}        # key -> the line that gave it first
     for row, (line, key, value) in enumerate(entries):
         report.n_read += 1
         where = f"{path}:{line}: touch {key!r}"
         if not isinstance(key, (str, int, float)):
             report.skip("malformed touch", f"{path}:{line}: touch #{row}: key is not a string or number")
             continue
+        if str(key) in first_line:
+            # a key is a touch's time: two touches under one would be one in a bag (and one in Python)
+            report.skip("key given twice", f"{where}: the key was given before, at line {first_line[str(key)]};"
+                                           f" the first is kept")
+            continue
+        first_line[str(key)] = line
         if value is _NOT_A_LITERAL:
             report.skip("not a literal", f"{where}: not a Python literal (only dicts, lists, numbers,"
                                          f" strings, None are allowed)")
