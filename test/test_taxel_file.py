@@ -60,6 +60,15 @@ def test_real_layouts_have_the_documented_taxel_counts():
     assert read_taxel_file(REAL / "torso.taxels.txt").present.sum() == 220
 
 
+def test_a_thermal_pad_or_an_empty_row_needs_no_normal(tmp_path):
+    path = tmp_path / "pads.txt"
+    rows = [f"0.01 0.02 0.03 0 0 1"] * 12
+    rows[6] = "0.01 0.02 0.03 0 0 0"          # a thermal pad's position without a normal
+    rows[7] = "0 0 0 0 0 0"                    # no taxel
+    path.write_text("\n".join(rows) + "\n")
+    assert read_taxel_file(path).present.sum() == 9     # 12 less two pads and the empty row
+
+
 def test_short_file_pads_missing_slots_with_zeros(tmp_path):
     path = tmp_path / "short.txt"
     path.write_text("0.01 0.02 0.03 0 0 1\n\n# a comment line\n0.04 0.05 0.06 0 0 1  // trailing comment\n")
@@ -85,7 +94,13 @@ GOOD = "0.01 0.02 0.03 0 0 1"
      " in the part's frame and normals unit vectors"),
     (f"{GOOD}\n35.1 20.2 -4.0 0 0 1\n", 2, "a value beyond 10 in '35.1 20.2 -4.0 0 0 1'; positions are metres"
      " in the part's frame and normals unit vectors"),
-], ids=["five-numbers", "not-a-number", "nan", "header-form-line-number", "huge", "millimetres"])
+    # a normal places the fabric surface and orients the triangle: (5, 5, 5) moved a calibration by 1 mm
+    (f"{GOOD}\n0.01 0.02 0.03 5 5 5\n", 2, "the normal of slot 1 has length 8.66 in '0.01 0.02 0.03 5 5 5';"
+     " normals are unit vectors"),
+    (f"{GOOD}\n0.01 0.02 0.03 0 0 0\n", 2, "the normal of slot 1 has length 0 in '0.01 0.02 0.03 0 0 0';"
+     " normals are unit vectors"),
+], ids=["five-numbers", "not-a-number", "nan", "header-form-line-number", "huge", "millimetres", "long-normal",
+        "zero-normal"])
 def test_malformed_row_names_file_and_line(tmp_path, text, line, problem):
     path = tmp_path / "bad_taxels.txt"
     path.write_text(text)

@@ -32,6 +32,7 @@ DEFAULT_SLOTS = 384
 # A Nao is about half a metre tall: a coordinate beyond this is another unit (mm) or a broken file,
 # and squared distances of values near 1e300 overflow to inf in every later step.
 MAX_COORDINATE = 10.0
+NORMAL_TOLERANCE = 0.01     # of a taxel normal's length: files give them to 3 decimals or better
 
 
 @dataclass
@@ -84,6 +85,12 @@ def read_taxel_file(path: str | Path, n_slots: int = DEFAULT_SLOTS) -> TaxelFile
         if max(abs(v) for v in values) > MAX_COORDINATE:
             raise DataError(f"{path}:{lineno}: a value beyond {MAX_COORDINATE:g} in {stripped!r}; positions are"
                             f" metres in the part's frame and normals unit vectors")
+        length = float(np.linalg.norm(values[3:]))
+        if any(values) and len(rows) % SLOTS_PER_TRIANGLE not in THERMAL_SLOTS and abs(length - 1.0) > NORMAL_TOLERANCE:
+            # a taxel's normal places its fabric surface and orients its triangle: (5, 5, 5) moved a
+            # calibration by a millimetre without a word
+            raise DataError(f"{path}:{lineno}: the normal of slot {len(rows)} has length {length:.4g} in"
+                            f" {stripped!r}; normals are unit vectors")
         rows.append(values)
     if not rows:
         raise DataError(f"{path}: no taxel rows found")
