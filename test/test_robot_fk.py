@@ -219,9 +219,14 @@ def test_chain_naming_an_unknown_joint_fails_naming_file_and_joint(tmp_path):
     (lambda d: d["chains"]["head"][1].update(frame='head<&"'), "chain 'head' row 1 frame: 'head<&\"' is not a frame name"),
     (lambda d: d.update(base_frame=[1]), "base_frame: [1] is not a frame name"),
     (lambda d: d.update(name=None), "name: None is not a robot name"),
+    # a key the config does not have was ignored: a misspelt 'links' dropped every link without a word
+    (lambda d: d.update(linkz=d.pop("links")), "unknown key 'linkz' (did you mean 'links'?)"),
+    (lambda d: d["chains"]["head"][1].update(foo=1), "chain 'head' row 1: unknown key 'foo'"),
+    (lambda d: d["links"]["LElbowOffsetY"].update(sign=-1), "link 'LElbowOffsetY': unknown key 'sign'"),
 ], ids=["one-limit", "limits-swapped", "angle-words", "missing-d", "frame-twice", "frame-is-base", "no-chains", "chains-list", "joints-list",
         "links-list", "link-row-word", "nan-limit", "infinite-limit", "nan-length", "huge-length", "joint-list",
-        "frame-number", "frame-space", "frame-markup", "base-frame-list", "name-null"])
+        "frame-number", "frame-space", "frame-markup", "base-frame-list", "name-null", "top-key", "row-key",
+        "link-key"])
 def test_malformed_robot_config_fails_with_one_line(tmp_path, mutate, expected):
     path = write_robot(tmp_path, mutate)
     with pytest.raises(ConfigError) as err:

@@ -112,6 +112,15 @@ def did_you_mean(name: str, known) -> str:
     return f" (did you mean '{close[0]}'?)" if close else ""
 
 
+def known_keys(doc: dict, known: tuple, where: str) -> None:
+    """A key a config does not have is a typo whose value would be ignored without a word: ConfigError."""
+    from nao_skin.errors import ConfigError
+
+    for key in doc:
+        if key not in known:
+            raise ConfigError(f"{where}: unknown key '{key}'{did_you_mean(key, known)}; it takes {', '.join(known)}")
+
+
 # the rules most settings need (Rule is frozen: these are constants)
 POSITIVE = Rule(float, low=0.0, low_open=True)        # a length or tolerance
 NON_NEGATIVE = Rule(float, low=0.0)

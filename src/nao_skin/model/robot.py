@@ -11,6 +11,7 @@ import numpy as np
 
 from nao_skin.errors import ConfigError, DataError
 from nao_skin.paths import read_yaml
+from nao_skin.rules import known_keys
 
 # TF frame ids and URDF names: no spaces or markup, '/' only between names (a tf2 prefix like robot1/torso)
 FRAME_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
@@ -47,6 +48,8 @@ def _finite(number: float, value, where: str) -> float:
 MAX_LINK_LENGTH = 10.0
 
 
+ROBOT_KEYS = ("name", "base_frame", "joints", "chains", "links")
+DH_ROW_KEYS = ("joint", "a", "d", "alpha", "offset", "frame")
 DH_PARAMS = ("a", "d")   # the DH columns a named link length may be (translations along x and z of a row)
 
 
@@ -117,6 +120,7 @@ class RobotModel:
         if not isinstance(doc, dict) or not isinstance(doc.get("chains"), dict) \
                 or not isinstance(doc.get("joints"), dict):
             raise ConfigError(f"{path}: a robot config needs 'joints' and 'chains' mappings")
+        known_keys(doc, ROBOT_KEYS, str(path))        # a misspelt 'links' dropped every link without a word
         if not isinstance(doc.get("links") or {}, dict):
             raise ConfigError(f"{path}: 'links' must be a mapping of link name to {{chain, row, param}}")
         limits = {}
@@ -136,6 +140,7 @@ class RobotModel:
                 where = f"{path}: chain '{cname}' row {i}"
                 if not isinstance(row, dict):
                     raise ConfigError(f"{where}: must be a mapping with a, d, alpha, offset, joint")
+                known_keys(row, DH_ROW_KEYS, where)
                 missing = [k for k in ("a", "d", "alpha", "offset") if k not in row]
                 if missing:
                     raise ConfigError(f"{where}: missing {', '.join(missing)}")
@@ -165,6 +170,7 @@ class RobotModel:
             if not isinstance(spec, dict) or not {"chain", "row", "param"} <= set(spec) \
                     or not isinstance(spec["row"], int) or isinstance(spec["row"], bool):
                 raise ConfigError(f"{path}: link '{lname}' needs chain, row (a whole number) and param (a or d)")
+            known_keys(spec, ("chain", "row", "param"), f"{path}: link '{lname}'")
             links[str(lname)] = Link(str(spec["chain"]), int(spec["row"]), str(spec["param"]))
         return cls(frame_name(doc.get("name", path.stem), f"{path}: name", "robot name"), base_frame,
                    limits, chains, source=str(path), links=links)

@@ -35,7 +35,7 @@ from nao_skin.errors import ConfigError, DataError
 from nao_skin.model.robot import RobotModel
 from nao_skin.model.taxel_file import DEFAULT_SLOTS, SLOTS_PER_TRIANGLE, TaxelFile, read_taxel_file, write_taxel_file
 from nao_skin.paths import read_yaml
-from nao_skin.rules import did_you_mean
+from nao_skin.rules import known_keys
 
 PART_NAMES = ("r_hand", "l_hand", "torso", "head")   # skinManager part names on the Nao
 DEFAULT_CHAINS = {"r_hand": "r_arm", "l_hand": "l_arm", "torso": None, "head": "head"}
@@ -295,7 +295,7 @@ def _mount_vector(mount, where: str) -> np.ndarray:
     """``xyz`` + ``rotvec`` of a skin config's nominal mount: 6 finite numbers (missing ones zero)."""
     if not isinstance(mount, dict):
         raise ConfigError(f"{where}: expected {{xyz: [x, y, z], rotvec: [rx, ry, rz]}}")
-    _known_keys(mount, ("xyz", "rotvec"), where)      # 'rpy' would be dropped without a word
+    known_keys(mount, ("xyz", "rotvec"), where)      # 'rpy' would be dropped without a word
     try:
         vector = np.array([float(v) for key in ("xyz", "rotvec") for v in mount.get(key, [0.0, 0.0, 0.0])])
     except (TypeError, ValueError, OverflowError):
@@ -319,13 +319,6 @@ MAX_PATCH_NUMBER = 65535   # patch numbers are labels (frame names), skinManager
 PART_KEYS = ("chain", "taxel_file", "slots", "patches", "mount")
 
 
-def _known_keys(doc: dict, known: tuple, where: str) -> None:
-    """A key the config does not have is a typo whose value would be ignored without a word."""
-    for key in doc:
-        if key not in known:
-            raise ConfigError(f"{where}: unknown key '{key}'{did_you_mean(key, known)}; it takes {', '.join(known)}")
-
-
 class SkinModel:
     """The robot plus its skin parts: taxel positions in the base frame for batches of poses."""
 
@@ -344,7 +337,7 @@ class SkinModel:
         doc = read_yaml(path, "skin config")
         if not isinstance(doc, dict) or not isinstance(doc.get("parts"), dict) or not doc["parts"]:
             raise ConfigError(f"{path}: a skin config needs a 'parts' mapping with at least one part")
-        _known_keys(doc, SKIN_CONFIG_KEYS, f"{path}")
+        known_keys(doc, SKIN_CONFIG_KEYS, f"{path}")
         if robot is None:
             if not isinstance(doc.get("robot"), str):
                 raise ConfigError(f"{path}: names no 'robot' config file")
@@ -357,7 +350,7 @@ class SkinModel:
                 raise ConfigError(f"{where}: a part name is a letter, then letters, digits or '_'")
             if not isinstance(spec, dict) or not isinstance(spec.get("taxel_file"), str) or "chain" not in spec:
                 raise ConfigError(f"{where}: needs 'taxel_file' and 'chain' (null for the base)")
-            _known_keys(spec, PART_KEYS, where)
+            known_keys(spec, PART_KEYS, where)
             chain = spec.get("chain")
             if chain is not None and (not isinstance(chain, str) or chain not in robot.chains):
                 raise ConfigError(f"{where}: unknown chain {chain!r} (robot has {', '.join(robot.chains)})")
