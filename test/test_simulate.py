@@ -333,7 +333,10 @@ def test_parameters_no_touch_can_be_simulated_with_are_one_line(skin, overrides)
     ("defaults: [1, 2]\n", "expected 'defaults:' and 'presets:' mappings"),
     ("presets: [1]\n", "expected 'defaults:' and 'presets:' mappings"),
     ("presets: {x: [1]}\n", "preset 'x': expected a mapping of parameter: value"),
-], ids=["defaults-list", "presets-list", "preset-list"])
+    # a robot config given for the parameters was simulated with the built-in defaults, exit 0
+    ("joints: {HeadYaw: [-2, 2]}\nchains: {}\n", "expected 'defaults:' and 'presets:' mappings"),
+    ("defaults: {}\npresetz: {x: {}}\n", "unknown key 'presetz' (did you mean 'presets'?); it takes defaults, presets"),
+], ids=["defaults-list", "presets-list", "preset-list", "another-config", "unknown-key"])
 def test_a_parameters_file_of_the_wrong_shape_is_one_line(tmp_path, text, says):
     path = tmp_path / "simulation.yaml"
     path.write_text(text)

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Mapping
 
 from nao_skin.errors import ConfigError
+from nao_skin.rules import known_keys
 
 HANDS = ("r_hand", "l_hand")
 TARGETS = ("torso", "head")   # what a hand can press in this simulator (thesis' four pairs)
@@ -106,6 +107,9 @@ MAX_TOUCHES_PER_PAIR = 100_000
 _RANGES = ("touch_interval", "footprint_radius", "pressure_spots", "spot_size", "press_reach")
 
 
+PARAMS_FILE_KEYS = ("defaults", "presets")
+
+
 def default_params_file() -> Path:
     from nao_skin.paths import config_dir
 
@@ -116,8 +120,11 @@ def _read_doc(path: Path) -> dict:
     from nao_skin.paths import read_yaml
 
     doc = read_yaml(path, "simulation parameters")
-    if not isinstance(doc, dict) or not all(isinstance(doc.get(key) or {}, dict) for key in ("defaults", "presets")):
+    if not isinstance(doc, dict) or not all(isinstance(doc.get(key) or {}, dict) for key in PARAMS_FILE_KEYS) \
+            or not set(doc) & set(PARAMS_FILE_KEYS):
         raise ConfigError(f"{path}: expected 'defaults:' and 'presets:' mappings")
+    # another config given here (a robot's: 'joints', 'chains') simulated with the built-in defaults
+    known_keys(doc, PARAMS_FILE_KEYS, str(path))
     for name, fields in (doc.get("presets") or {}).items():
         if not isinstance(fields or {}, dict):
             raise ConfigError(f"{path}: preset '{name}': expected a mapping of parameter: value")
