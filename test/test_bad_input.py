@@ -239,6 +239,17 @@ def test_another_layout_refuses_the_calibration_in_one_line(capsys, real_calibra
 
 
 @pytest.mark.slow   # real_calibration: the real recording calibrated by the command
+def test_urdf_takes_the_layouts_a_calibration_was_made_with(tmp_path, capsys, real_calibration):
+    """urdf told a user to give the same layout with --taxels, which it did not have."""
+    out, _ = real_calibration
+    calibration = str(out / "calibration.yaml")
+    assert cli_main(["urdf", "--calibration", calibration, "--out", str(tmp_path / "a.urdf")]) == 2
+    assert "--taxels l_hand=" in one_line(capsys)
+    assert cli_main(["urdf", "--calibration", calibration, *REAL_TAXELS, "--out", str(tmp_path / "b.urdf")]) == 0
+    assert "l_hand_skin_mount" in (tmp_path / "b.urdf").read_text()
+
+
+@pytest.mark.slow   # real_calibration: the real recording calibrated by the command
 def test_calibrate_prints_the_engine_time_and_the_whole_command_time(real_calibration):
     _, run = real_calibration
     line = run.stdout.strip().splitlines()[-1]
