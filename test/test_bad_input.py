@@ -522,6 +522,16 @@ def test_bench_live_arguments_are_checked_before_any_node_starts(tmp_path, capsy
     assert list(tmp_path.iterdir()) == []
 
 
+def test_bench_live_reads_its_update_input_before_any_node_starts(tmp_path, capsys, monkeypatch):
+    """A file with no touches made every live update fail, and the benchmark ended with exit 0."""
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    (tmp_path / "junk.txt").write_bytes(b"\xff\xfe\x00junk")
+    assert cli_main(["bench-live", "--update-input", str(tmp_path / "junk.txt")]) == 2
+    line = one_line(capsys)
+    assert line.startswith(f"nao-skin bench-live: error: {tmp_path / 'junk.txt'}: cannot read"), line
+    assert [p.name for p in tmp_path.iterdir()] == ["junk.txt"]
+
+
 @pytest.mark.parametrize("argv, says", [
     (["stats", "a" * 300 + ".txt"], "{a}.txt: cannot read (File name too long)"),
     (["stats", "loop"], "loop: cannot read (Too many levels of symbolic links)"),

@@ -58,7 +58,8 @@ DOMAINS = range(0, 233)
 
 
 def check_arguments(args) -> None:
-    """Each number in its range, the update input readable, before any node starts (a NaN window never ends)."""
+    """Each number in its range, the update input a recording that gives touches, before any node starts (a NaN
+    window never ends)."""
     import math
 
     from nao_skin.errors import DataError
@@ -73,6 +74,12 @@ def check_arguments(args) -> None:
         raise DataError(f"--domain {args.domain}: expected a ROS domain id in {DOMAINS.start}..{DOMAINS.stop - 1}")
     if args.update_input:
         check_inputs([args.update_input])
+        # read once here: a file that holds no touches made every update fail ("published: 1, failed: 5"),
+        # exit 0
+        from nao_skin.calibration.pipeline import load_inputs
+        from nao_skin.model.skin import load_skin
+
+        load_inputs([args.update_input], load_skin(), log=lambda msg: None)
 
 
 def run(args) -> int:
