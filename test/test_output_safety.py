@@ -610,3 +610,27 @@ def test_an_input_that_is_no_regular_file_is_one_line_not_a_hang_or_all_memory(w
 
 def stat_kind(path: Path) -> int:
     return stat.S_IFMT(os.lstat(path).st_mode)
+
+
+def test_a_stop_signal_during_the_swap_waits_until_it_is_done(tmp_path, monkeypatch):
+    """Ctrl-C while an earlier output was being removed left it half deleted beside the new one."""
+    from nao_skin.formats import outdir
+
+    old, new = tmp_path / "cal", tmp_path / ".cal.new"
+    for d, text in ((old, "old"), (new, "new")):
+        d.mkdir()
+        (d / "calibration.yaml").write_text(text)
+        outdir.write_marker(d, "calibrate", outdir.CALIBRATION)
+    rmtree = shutil.rmtree
+
+    def interrupted_rmtree(path, *args, **kwargs):      # Ctrl-C arrives while the old copy is removed
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.1)
+        rmtree(path, *args, **kwargs)
+
+    monkeypatch.setattr(outdir.shutil, "rmtree", interrupted_rmtree)
+    with pytest.raises(KeyboardInterrupt):              # delivered, once the swap is whole
+        outdir.replace_dir(new, old)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal"]
+    assert (old / "calibration.yaml").read_text() == "new"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

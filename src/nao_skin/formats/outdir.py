@@ -16,9 +16,12 @@ import errno
 import json
 import os
 import shutil
+import signal
 import stat
 import tempfile
+import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 from nao_skin.errors import DataError
@@ -205,20 +208,46 @@ def replace_dir(new: str | Path, out: str | Path, label: str = "output directory
     if not out.exists():
         os.replace(new, out)
         return out
-    aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
-    try:
-        os.replace(out, aside / out.name)
-    except BaseException:
-        aside.rmdir()
-        raise
-    try:
-        os.replace(new, out)
-    except BaseException:
-        os.replace(aside / out.name, out)
-        aside.rmdir()
-        raise
-    shutil.rmtree(aside, ignore_errors=True)
+    with _stops_deferred():
+        aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
+        try:
+            os.replace(out, aside / out.name)
+        except BaseException:
+            aside.rmdir()
+            raise
+        try:
+            os.replace(new, out)
+        except BaseException:
+            os.replace(aside / out.name, out)
+            aside.rmdir()
+            raise
+        shutil.rmtree(aside, ignore_errors=True)
     return out
+
+
+# what stops a command or a node: Ctrl-C, kill, the terminal closed
+STOP_SIGNALS = tuple(getattr(signal, s) for s in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, s))
+
+
+@contextmanager
+def _stops_deferred():
+    """A stop signal (Ctrl-C, kill) waits until the block is done, then reaches the handlers the command had:
+    stopped inside it, a swap left the earlier output half deleted beside the new one. Only the main thread
+    can change handlers; elsewhere (a node's worker) the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list = []
+    before = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+    for s in STOP_SIGNALS:
+        signal.signal(s, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        for s, handler in before.items():
+            signal.signal(s, signal.SIG_DFL if handler is None else handler)
+        for s in dict.fromkeys(caught):
+            signal.raise_signal(s)
 
 
 def clear_for_writing(out: str | Path, command: str, kind: str, entries, label: str = "output directory") -> Path:

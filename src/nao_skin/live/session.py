@@ -16,13 +16,13 @@ parameter, or a value of the wrong type, is one ConfigError line.
 from __future__ import annotations
 
 import shutil
-import signal
 import sys
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
 from nao_skin.errors import ConfigError, NaoSkinError
+from nao_skin.formats.outdir import STOP_SIGNALS  # noqa: F401 - the nodes' and record's stop signals
 from nao_skin.model.skin import parse_taxel_files
 from nao_skin.model.urdf import expand_xacro
 from nao_skin.paths import config_dir, parse_yaml, yaml_value
@@ -32,7 +32,6 @@ ROBOTS = ("sim", "nao")
 SKIN_NODES = ("sim_robot", "yarp_skin_bridge", "pairing_recorder", "skin_heatmap", "calibrate")   # read the skin
 PARENT_ENV = "NAO_SKIN_PARENT_PID"     # set by `nao-skin record` for its nodes: they stop when it is gone
 # what stops record, bench-live and a node as Ctrl-C does: a closed terminal (SIGHUP), a kill or timeout (SIGTERM)
-STOP_SIGNALS = tuple(getattr(signal, s) for s in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, s))
 YARP_HINT = ("yarp_skin_bridge needs YARP's Python bindings: `make setup-test` or `docker/setup_venv.sh --with-yarp`"
              " (pip package yarp-middleware)")
 # parameters a node declares per configured skin part, ``<family>.<part>``: family -> a default of the right type
