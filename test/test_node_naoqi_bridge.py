@@ -111,3 +111,62 @@ def test_joint_states_and_recovery(tmp_path):
 
 def got_values_before(got, n):
     return [tuple(m.position) for m in got[:n]]
+
+
+class MoodyMotion(FakeMotion):
+    """MOCK of the robot's body that answers getAngles as told: with angles, an error (NAOqi's answer to a
+    joint name it does not know), None, or not at all for a while."""
+
+    def __init__(self):
+        super().__init__(3)
+        self.mood = "ok"
+
+    def getAngles(self, names, useSensors):  # noqa: N802 - NAOqi's method name
+        mood = self.mood
+        if mood == "error":
+            raise RuntimeError("ALMotion.getAngles: wrong joint name 'Foo'")
+        if mood == "none":
+            return None
+        if mood == "hang":
+            threading.Event().wait(3.0)
+        return super().getAngles(names, useSensors)
+
+
+def test_a_robot_that_answers_with_errors_is_no_outage_and_one_that_hangs_is(tmp_path):
+    """An error or a None from getAngles made the bridge drop the session and reconnect at every tick,
+    logging an outage each time (16 lines in 2 s); a call that never answered left it silent."""
+    port = free_port()
+    domain = unique_domain_id()
+    motion = MoodyMotion()
+    robot = serve(port, motion)
+    bridge = listener = None
+    try:
+        bridge = node_process("naoqi_bridge", {"nao_ip": "127.0.0.1", "nao_port": port, "rate": 50.0,
+                                               "reconnect_min": 0.1, "reconnect_max": 0.3, "read_timeout": 0.5},
+                              ros_env(domain), tmp_path)
+        listener = Listener(domain)
+        got = listener.subscribe(JointState, "/joint_states")
+        assert listener.spin_until(lambda: len(got) >= 5, procs=[bridge])
+        for mood in ("error", "none"):
+            motion.mood = mood
+            listener.spin_for(1.5)
+            motion.mood = "ok"
+            n = len(got)
+            assert listener.spin_until(lambda: len(got) >= n + 5, procs=[bridge]), mood
+        motion.mood = "hang"
+        listener.spin_for(1.5)
+        motion.mood = "ok"
+        n = len(got)
+        assert listener.spin_until(lambda: len(got) >= n + 5, timeout=30, procs=[bridge]), "no recovery after a hang"
+    finally:
+        if listener is not None:
+            listener.close()
+        code = bridge.stop() if bridge is not None else None
+        robot.close()
+    err = bridge.stderr()
+    assert code == 0 and "Traceback" not in err, err[-3000:]
+    assert err.count("ALMotion.getAngles failed (") == 1 and "wrong joint name 'Foo'" in err, err[-3000:]
+    assert err.count("ALMotion.getAngles returned NoneType, not a list of 12 angles") == 1, err[-3000:]
+    # the only outage is the hang: said once, with its reason, and once recovered
+    assert err.count("retrying") == 1 and "no answer from ALMotion.getAngles in 0.5 s" in err, err[-3000:]
+    assert err.count("connected again") == 1, err[-3000:]

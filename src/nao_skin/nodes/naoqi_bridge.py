@@ -36,7 +36,9 @@ PARAMS = {
     "use_sensors": (True, "getAngles' useSensors: sensed (true) or commanded (false) angles"),
     "reconnect_min": (0.5, "first reconnection delay after the robot vanished (s)", SECONDS),
     "reconnect_max": (5.0, "longest reconnection delay (s)", SECONDS),
+    "read_timeout": (2.0, "s a getAngles call may take before the robot counts as gone (then: reconnect)", SECONDS),
 }
+MAX_LOGGED_REASONS = 5    # distinct reasons a read was bad, each logged once
 
 
 
@@ -46,8 +48,12 @@ def check_params(p: dict, where: str = "") -> None:
         raise ConfigError(f"{where + ': ' if where else ''}parameters reconnect_min:={p['reconnect_min']} and"
                           f" reconnect_max:={p['reconnect_max']}: the first delay is longer than the longest")
 
+class ReadTimeout(Exception):
+    """getAngles did not answer in time (a hung robot or network): the link counts as gone."""
+
+
 class MotionLink:
-    """A libqi session to ALMotion; every failure closes it (the caller reconnects)."""
+    """A libqi session to ALMotion; the caller closes it when the link is gone and reconnects."""
 
     def __init__(self, url: str):
         self.url = url
@@ -70,8 +76,19 @@ class MotionLink:
             except Exception:  # noqa: BLE001 - closing a broken session may fail too; nothing to save
                 pass
 
-    def read(self, names, use_sensors: bool) -> list:
-        return list(self.motion.getAngles(list(names), bool(use_sensors)))
+    def connected(self) -> bool:
+        session = self.session
+        return session is not None and bool(session.isConnected())
+
+    def read(self, names, use_sensors: bool, timeout: float):
+        """ALMotion's reply as it is (the caller judges it); ReadTimeout after ``timeout`` s without one."""
+        future = self.motion.getAngles(list(names), bool(use_sensors), _async=True)
+        try:
+            return future.value(max(1, int(timeout * 1000)))
+        except RuntimeError:
+            if not future.isFinished():
+                raise ReadTimeout(f"no answer from ALMotion.getAngles in {timeout:g} s") from None
+            raise
 
 
 class NaoqiBridge(Node):
@@ -86,7 +103,10 @@ class NaoqiBridge(Node):
         check_params(p)
         self.backoff = Backoff(f"NAOqi at {self.url}", p["reconnect_min"], p["reconnect_max"])
         self.publisher = self.create_publisher(JointState, JOINT_STATES_TOPIC, 10)
+        self.read_timeout = float(p["read_timeout"])
         self.stats = {"published": 0, "bad_reads": 0, "outages": 0}
+        self._logged_reasons: set = set()
+        self._answered = False      # since the last connection
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="naoqi_poll", daemon=True)
         self._thread.start()
@@ -118,30 +138,59 @@ class NaoqiBridge(Node):
             if line:
                 self.get_logger().warning(line)
             return
-        line = self.backoff.succeeded(time.monotonic())
-        if line:
-            self.get_logger().info(line)
+        # the outage ends with the first answer, not the connection: a robot that accepts the session but
+        # never answers (hung) is one outage, not one per reconnection
+        self._answered = False
+
+    def _confirm(self) -> None:
+        """The robot answered a read: the link works (logs "connected" or the recovery once)."""
+        if not self._answered:
+            self._answered = True
+            line = self.backoff.succeeded(time.monotonic())
+            if line:
+                self.get_logger().info(line)
 
     def _read_once(self) -> None:
         try:
-            values = self.link.read(self.names, self.use_sensors)
-        except Exception as exc:  # noqa: BLE001 - any failure of the call means the link is gone
+            values = self.link.read(self.names, self.use_sensors, self.read_timeout)
+        except Exception as exc:  # noqa: BLE001 - libqi raises RuntimeError and others
+            # a robot that answers with an error (a joint name it does not know) is there: a bad read,
+            # not an outage to reconnect from at every tick
+            if not isinstance(exc, ReadTimeout) and self.link.connected():
+                self._confirm()
+                return self._bad_read("failed", f"ALMotion.getAngles failed ({one_line(exc)})")
             self.link.close()
             self.stats["outages"] += 1
             line = self.backoff.failed(time.monotonic(), f"lost ({one_line(exc)})")
             if line:
                 self.get_logger().warning(line)
             return
+        self._confirm()
         # Stamp when the angles were read, not when they are published.
         stamp = self.get_clock().now().to_msg()
-        if len(values) != len(self.names) or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
-            self.stats["bad_reads"] += 1
-            if self.stats["bad_reads"] == 1:
-                self.get_logger().warning(f"ALMotion.getAngles returned {len(values)} values for"
-                                          f" {len(self.names)} joints or non-finite angles; such reads are skipped")
-            return
-        self.publisher.publish(joint_state_msg(self.names, values, stamp))
+        problem = self._reply_problem(values)
+        if problem:
+            return self._bad_read(problem[0], f"ALMotion.getAngles returned {problem[1]}")
+        self.publisher.publish(joint_state_msg(self.names, list(values), stamp))
         self.stats["published"] += 1
+
+    def _reply_problem(self, values) -> tuple | None:
+        """``(kind, what)`` is wrong with a getAngles reply for ``self.names``, or None."""
+        if not isinstance(values, (list, tuple)):
+            return "type", f"{type(values).__name__}, not a list of {len(self.names)} angles"
+        if len(values) != len(self.names):
+            return "length", f"{len(values)} values for {len(self.names)} joints"
+        for name, v in zip(self.names, values):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                return "angle", f"{v!r} for {name}, not a finite angle"
+        return None
+
+    def _bad_read(self, kind: str, reason: str) -> None:
+        """A read that gives no angles: counted, and the first of each kind logged."""
+        self.stats["bad_reads"] += 1
+        if kind not in self._logged_reasons and len(self._logged_reasons) < MAX_LOGGED_REASONS:
+            self._logged_reasons.add(kind)
+            self.get_logger().warning(f"{reason}; such reads are skipped (joints {', '.join(self.names)})")
 
     def close(self) -> None:
         self._stop.set()
