@@ -87,6 +87,12 @@ def test_skin_event_text_roundtrip_and_errors():
         "((3 1 6 7) (0 0 0) (0 0 0) (0 0 0) (0 0 0) (0 0 1) (-1) 1)": "taxel id -1",
         "((3 1 6 7) (0 0 0) (0 0 0)": "unbalanced",
         "((3 1 6 7) (0 0 0) (0 0 0) (0 0 0) (0 0 0) (0 0 1) (1) nan)": "finite number",
+        # published as int32 and float32: these became "no contact" and inf without a word
+        "((99999999999999999999999 1 6 7) (0 0 0) (0 0 0) (0 0 0) (0 0 0) (0 0 1) (1) 1)":
+            "contactId 99999999999999999999999 is outside 0..2147483647",
+        "((1099511627776 1 6 7) (0 0 0) (0 0 0) (0 0 0) (0 0 0) (0 0 1) (1) 1)": "contactId 1099511627776 is outside",
+        "((3 1 6 7) (1e300 0 0) (0 0 0) (0 0 0) (0 0 0) (0 0 1) (1) 1)": "not a finite float32",
+        "((3 1 6 7) (0 0 0) (0 0 0) (0 0 0) (0 0 0) (0 0 1) (1) 1e300)": "finite number",
     }
     for text, what in bad.items():
         with pytest.raises(NaoSkinError, match=what) as info:

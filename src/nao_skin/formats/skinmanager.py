@@ -95,6 +95,10 @@ class SkinEvents:
         return rows, taxels
 
 
+MAX_CONTACT_ID = 2 ** 31 - 1                       # the int32 'contact' field of the taxel points
+FLOAT32_MAX = float(np.finfo(np.float32).max)        # COPs, forces and pressures are published as float32
+
+
 def _vector(value, n: int, where: str, what: str, kind=float) -> list:
     if not isinstance(value, list) or len(value) != n:
         got = f"{len(value)} values" if isinstance(value, list) else repr(value)
@@ -118,6 +122,8 @@ def contacts_from_lists(items: list, where: str, max_taxel_id: int = 1 << 16) ->
             n = len(c) if isinstance(c, list) else "no list"
             raise DataError(f"{here}: expected 8 items ({' '.join(_CONTACT_FIELDS)}), got {n}")
         head = _vector(c[0], 4, here, "(contactId bodyPart linkNumber skinPart)", int)
+        if not 0 <= head[0] <= MAX_CONTACT_ID:     # stored as int32: 2**40 became 0, 10**23 "no contact"
+            raise DataError(f"{here}: contactId {head[0]} is outside 0..{MAX_CONTACT_ID}")
         row = [_vector(c[i], 3, here, _CONTACT_FIELDS[i]) for i in range(1, 6)]
         taxels = c[6]
         if not isinstance(taxels, list):
@@ -127,7 +133,7 @@ def contacts_from_lists(items: list, where: str, max_taxel_id: int = 1 << 16) ->
             bad = next(t for t in taxels if t < 0 or t >= max_taxel_id)
             raise DataError(f"{here}: taxel id {bad} is outside 0..{max_taxel_id - 1}")
         p = c[7]
-        if isinstance(p, bool) or not isinstance(p, (int, float)) or not np.isfinite(p):
+        if isinstance(p, bool) or not isinstance(p, (int, float)) or not abs(p) <= FLOAT32_MAX:
             raise DataError(f"{here}: pressure must be a finite number, got {p!r}")
         ids.append(head)
         vecs.append(row)
@@ -136,9 +142,11 @@ def contacts_from_lists(items: list, where: str, max_taxel_id: int = 1 << 16) ->
         t_id += taxels
     head = np.array(ids, dtype=int).reshape(-1, 4)
     v = np.array(vecs, dtype=float).reshape(-1, 5, 3)
-    if not np.all(np.isfinite(v)):
-        k = int(np.flatnonzero(~np.all(np.isfinite(v), axis=(1, 2)))[0])
-        raise DataError(f"{where}: contact {k}: non-finite COP/force/moment/geoCenter/normal")
+    fits = np.all(np.abs(v) <= FLOAT32_MAX, axis=(1, 2))     # published as float32: 1e300 would become inf
+    if not np.all(fits):
+        k = int(np.flatnonzero(~fits)[0])
+        raise DataError(f"{where}: contact {k}: a COP/force/moment/geoCenter/normal value that is not a finite"
+                        f" float32")
     return SkinEvents(head[:, 3], head[:, 0], head[:, 1], head[:, 2], v[:, 0], v[:, 1], v[:, 2], v[:, 3], v[:, 4],
                       np.array(pressure, dtype=float), np.array(t_contact, dtype=int), np.array(t_id, dtype=int))
 
