@@ -44,9 +44,14 @@ def test_the_guidance_parser_keeps_this_skins_targets_and_counts_the_rest(skin):
     assert skipped == len(BAD_TARGETS)
     assert targets[0] == GOOD
     assert targets[1]["pose"] is None and targets[2]["touched_triangle_id"] is None   # unusable fields dropped
-    for text in ("{", "[]", '{"targets": 3}'):
+    for text in ("{", "[]", '{"targets": 3}', "[" * 100_000 + "]" * 100_000):     # the last: RecursionError
         with pytest.raises(DataError):
             targets_from_json(text, skin)
+    # an integer of 400 digits is JSON, but no angle: the pose is dropped (it was an OverflowError that
+    # lost the message's valid targets)
+    huge = json.dumps({"targets": [GOOD]}).replace('"LShoulderPitch": 0.5', '"LShoulderPitch": ' + "9" * 400)
+    (target,), skipped = targets_from_json(huge, skin)
+    assert target["pose"] is None and skipped == 0
 
 
 @pytest.mark.middleware
@@ -67,11 +72,12 @@ def test_nodes_skip_malformed_messages_and_stay_up(tmp_path):
                    for topic in (GUIDANCE_TOPIC, STATUS_TOPIC, PROGRESS_TOPIC)}
         listener.spin_until(lambda: all(p.get_subscription_count() > 0 for p in publish.values()), timeout=60,
                             procs=nodes)
-        bad = {GUIDANCE_TOPIC: ["{", "[]", json.dumps({"targets": BAD_TARGETS})],
+        deep = "[" * 100_000 + "]" * 100_000
+        bad = {GUIDANCE_TOPIC: ["{", "[]", json.dumps({"targets": BAD_TARGETS}), deep],
                STATUS_TOPIC: ["{", json.dumps({"parts": {"head": {"a": 1}, "torso": ["done"]}}),
-                              json.dumps({"parts": [1]})],
+                              json.dumps({"parts": [1]}), deep],
                PROGRESS_TOPIC: ["[]", json.dumps({"touches": 1e400}), json.dumps({"touches": "many"}),
-                                json.dumps({"touches": -4})]}
+                                json.dumps({"touches": -4}), deep]}
         for topic, texts in bad.items():
             for text in texts:
                 publish[topic].publish(String(data=text))
@@ -91,6 +97,8 @@ def test_nodes_skip_malformed_messages_and_stay_up(tmp_path):
         codes = [node.stop() for node in nodes]
     for node, code in zip(nodes, codes):
         assert code == 0 and "Traceback" not in node.stderr(), f"{node.name} {code}: {node.stderr()[-2000:]}"
+        # each message is judged by the node itself, not left to the last resort of run_node
+        assert "a callback failed" not in node.stderr(), f"{node.name}: {node.stderr()[-2000:]}"
 
 
 def _press(skin, part: str, n: int = 4):

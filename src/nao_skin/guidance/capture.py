@@ -52,6 +52,7 @@ reaches: the hand's back, the torso's sides); reachable targets come first
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -132,6 +133,16 @@ class Guidance:
                 "coverage": {k: v.to_dict() for k, v in self.coverage.items()}, "notes": list(self.notes)}
 
 
+def _finite_number(v) -> bool:
+    """A JSON number that is a finite angle (an integer of 400 digits is a number, but no float)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
+
+
 def targets_from_json(text: str, skin: SkinModel) -> tuple:
     """The targets of a guidance message (``Guidance.to_dict`` as JSON) that name this skin's parts and
     triangles, as dicts with the fields a consumer reads, checked: ``(targets, skipped)``.
@@ -141,12 +152,13 @@ def targets_from_json(text: str, skin: SkinModel) -> tuple:
     and counted. ``pose`` is kept only when it maps joint names to finite angles.
     """
     import json
-    import math
 
     try:
         doc = json.loads(text)
     except ValueError as exc:
         raise DataError(f"not JSON ({exc})") from None
+    except RecursionError:
+        raise DataError("JSON nested too deeply to be the guidance's") from None
     targets = doc.get("targets", []) if isinstance(doc, dict) else None
     if not isinstance(targets, list):
         raise DataError("not the guidance's JSON: no 'targets' list")
@@ -164,8 +176,7 @@ def targets_from_json(text: str, skin: SkinModel) -> tuple:
             continue
         pose = t.get("pose")
         pose = (pose if isinstance(pose, dict) and pose and all(
-            isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-            for k, v in pose.items()) else None)
+            isinstance(k, str) and _finite_number(v) for k, v in pose.items()) else None)
         out.append({"part": t["part"], "triangle_id": t["triangle_id"], "hand": t["hand"], "touched": t["touched"],
                     "reason": t["reason"] if isinstance(t.get("reason"), str) else "",
                     "hand_triangle_id": triangle(t["hand"], t.get("hand_triangle_id")),

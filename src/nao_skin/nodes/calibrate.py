@@ -149,7 +149,7 @@ class CalibrateNode(Node):
     def _on_progress(self, msg: String) -> None:
         try:
             touches = json.loads(msg.data).get("touches", 0)
-        except (ValueError, AttributeError):
+        except (ValueError, AttributeError, RecursionError):
             return                        # a malformed progress message: the next one will do
         if isinstance(touches, int) and not isinstance(touches, bool) and touches >= 0:
             self._recorded = touches

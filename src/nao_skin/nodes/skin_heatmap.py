@@ -110,7 +110,7 @@ class SkinHeatmap(Node):
     def _on_status(self, msg: String) -> None:
         try:
             states = json.loads(msg.data).get("parts")
-        except (ValueError, TypeError, AttributeError):
+        except (ValueError, TypeError, AttributeError, RecursionError):
             return
         if not isinstance(states, dict):
             return
