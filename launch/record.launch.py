@@ -40,13 +40,14 @@ ARGUMENTS = {
 
 
 def _nodes(context):
-    from nao_skin.live.session import record_session, robot_description
+    from nao_skin.live.session import check_needs, record_session, robot_description
 
     arg = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
     specs = record_session(arg["robot"], nao_ip=arg["nao_ip"], naoqi=arg["naoqi"].lower() == "true",
                            events_port=arg["events_port"], bag_path=arg["bag"], calibration=arg["calibration"],
                            rviz=arg["rviz"].lower() == "true", taxels=arg["taxels"].split(),
                            guided=arg["guided"].lower() == "true")
+    check_needs(specs)    # e.g. robot:=nao without YARP's Python bindings: one line before any node starts
     actions = []
     for spec in specs:
         overrides = {}

@@ -275,6 +275,15 @@ def test_record_for_the_nao_without_yarp_says_what_to_install(tmp_path):
     assert "yarp_skin_bridge needs YARP's Python bindings" in line
     assert "make setup-test" in line and "--with-yarp" in line and "yarp-middleware" in line
     assert not bag.exists()
+    # started alone (ros2 run): the same line, exit 2, not a traceback of the import
+    node = node_process("yarp_skin_bridge", {}, env, tmp_path)
+    deadline = time.monotonic() + 60
+    while node.alive() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    code = node.stop()
+    err = [x for x in node.stderr().splitlines() if x.strip()]
+    assert code == 2 and len(err) == 1 and "Traceback" not in err[0], (code, err)
+    assert "yarp_skin_bridge needs YARP's Python bindings" in err[0] and "--break-system-packages" in err[0]
 
 
 def record_temp_dirs(tmp) -> list:

@@ -69,25 +69,11 @@ def parse_overrides(items) -> dict:
     return out
 
 
-def check_needs(specs) -> None:
-    """Every Python module a node needs imports here (same interpreter): else one line saying what to install."""
-    import importlib
-
-    from nao_skin.errors import ConfigError
-
-    for spec in specs:
-        for module, hint in spec.needs.items():
-            try:
-                importlib.import_module(module)
-            except ImportError as exc:
-                raise ConfigError(f"{hint} (import {module}: {' '.join(str(exc).split())})") from None
-
-
 def run(args) -> int:
     import math
 
     from nao_skin.errors import ConfigError
-    from nao_skin.live.session import STOP_SIGNALS, record_session
+    from nao_skin.live.session import STOP_SIGNALS, check_needs, record_session
 
     if not (args.duration >= 0 and math.isfinite(args.duration)):     # NaN, -5, inf would all mean 'forever'
         raise ConfigError(f"--duration {args.duration}: expected seconds >= 0 (0: until Ctrl-C)")

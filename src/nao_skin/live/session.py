@@ -32,8 +32,22 @@ ROBOTS = ("sim", "nao")
 SKIN_NODES = ("sim_robot", "yarp_skin_bridge", "pairing_recorder", "skin_heatmap", "calibrate")   # read the skin
 PARENT_ENV = "NAO_SKIN_PARENT_PID"     # set by `nao-skin record` for its nodes: they stop when it is gone
 # what stops record, bench-live and a node as Ctrl-C does: a closed terminal (SIGHUP), a kill or timeout (SIGTERM)
-YARP_HINT = ("yarp_skin_bridge needs YARP's Python bindings: `make setup-test` or `docker/setup_venv.sh --with-yarp`"
-             " (pip package yarp-middleware)")
+YARP_HINT = ("yarp_skin_bridge needs YARP's Python bindings (pip package yarp-middleware, built from source): in"
+             " the venv `make setup-test` or `docker/setup_venv.sh --with-yarp`, in a ROS workspace"
+             " `pip install --break-system-packages yarp-middleware` or YARP built with its Python bindings")
+def check_needs(specs) -> None:
+    """Every Python module a node needs imports here (the nodes run on this interpreter): else one line saying
+    what to install, before any node starts (``nao-skin record`` and the launch file)."""
+    import importlib
+
+    for spec in specs:
+        for module, hint in spec.needs.items():
+            try:
+                importlib.import_module(module)
+            except ImportError as exc:
+                raise ConfigError(f"{hint} (import {module}: {' '.join(str(exc).split())})") from None
+
+
 # parameters a node declares per configured skin part, ``<family>.<part>``: family -> a default of the right type
 PER_PART_PARAMS = {"yarp_skin_bridge": {"part_ids": -1, "compensated_ports": ""}}
 

@@ -35,6 +35,7 @@ from nao_skin.errors import ConfigError, DataError
 from nao_skin.formats.pointcloud import contacts_array, contacts_topic, taxels_array, taxels_topic
 from nao_skin.formats.skinmanager import activated_taxels, parse_skin_events, part_id_map
 from nao_skin.live.reconnect import Backoff
+from nao_skin.live.session import YARP_HINT
 from nao_skin.nodes.messages import cloud_from_array, stamp_to_msg
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
 from nao_skin.rules import SECONDS, YARP_PORT, Rule
@@ -91,8 +92,10 @@ class YarpSkinBridge(Node):
         # retry on every check (the back-off is the check period itself)
         self.retry = float(p["reconnect_period"]) / 2
 
-        import yarp
-
+        try:
+            import yarp
+        except ImportError as exc:      # started alone (ros2 run): the line record and the launch file give
+            raise ConfigError(f"{YARP_HINT} (import yarp: {' '.join(str(exc).split())})") from None
         self.yarp = yarp
         yarp.Network.init()
         self.links = []      # (remote port, local port object, local name, handler, backoff)
