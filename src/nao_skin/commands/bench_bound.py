@@ -34,8 +34,8 @@ def add_arguments(parser) -> None:
 def _sizes(text: str, pool: int) -> list:
     from nao_skin.errors import DataError
 
-    try:
-        sizes = sorted({int(s) for s in text.split(",") if s.strip()})
+    try:    # an empty entry ('250,,500') is a typo, not nothing
+        sizes = sorted({int(s) for s in text.split(",")})
     except ValueError:
         sizes = []
     if not sizes or sizes[0] < 1 or sizes[-1] > pool:
@@ -55,6 +55,8 @@ def run(args) -> int:
             raise DataError(f"--{name} {getattr(args, name)}: expected a whole number >= {low}")
     skin = load_skin()
     sizes = _sizes(args.sizes, 4 * args.pool)
+    if args.batch > sizes[0]:     # the greedy choice adds this many at a time: beyond a size it never stops at it
+        raise DataError(f"--batch {args.batch}: expected a whole number from 1 to the smallest size, {sizes[0]}")
     check_output_dir(args.out, BENCHMARK, force=args.force)
     out = Path(args.out)
     t0 = time.perf_counter()
