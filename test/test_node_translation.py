@@ -146,3 +146,18 @@ def test_backoff_logs_once_per_outage():
     assert "after 8.0 s (4 failed attempts)" in b.succeeded(8.0)
     assert not b.due(9.0)
     assert "retrying" in b.failed(20.0, "lost again") and b.outages == 2
+
+
+def test_a_float_contact_field_that_is_no_whole_number_is_no_contact():
+    """A producer's float 'contact' field holding NaN was cast to contact 0: every such taxel of a sample
+    joined one contact. Now it is -1 (no skinManager contact: grouped by where the taxels are)."""
+    from nao_skin.formats.pointcloud import TAXEL_DTYPE, _contact_ids, taxels_array
+
+    pts = taxels_array([0, 1, 2, 3], np.zeros((4, 3)), None, [5, 5, 7, 7])
+    float_contact = np.dtype([(n, "<f4" if n == "contact" else TAXEL_DTYPE.fields[n][0]) for n in TAXEL_DTYPE.names])
+    cloud = np.zeros(4, float_contact)
+    for n in TAXEL_DTYPE.names:
+        cloud[n] = pts[n]
+    cloud["contact"] = [5.0, np.nan, 7.5, np.inf]
+    np.testing.assert_array_equal(_contact_ids(cloud, "t"), [5, -1, -1, -1])
+    np.testing.assert_array_equal(_contact_ids(pts, "t"), [5, 5, 7, 7])          # the int32 field as it is

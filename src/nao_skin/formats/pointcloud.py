@@ -182,7 +182,7 @@ def read_taxels(msg, part: SkinPart, where: str) -> tuple:
     if np.any(absent):
         raise BadSlot(f"{where}: field 'slot': slot {int(slots[absent][0])} is not a taxel of the"
                       f" '{part.name}' layout ({part.layout_file}); sample skipped", part.name)
-    return slots, cloud_field(cloud, "pressure", float, where, np.nan), cloud_field(cloud, "contact", int, where, -1)
+    return slots, cloud_field(cloud, "pressure", float, where, np.nan), _contact_ids(cloud, where, -1)
 
 
 def _whole_numbers(values: np.ndarray, name: str, where: str) -> np.ndarray:
@@ -198,8 +198,19 @@ def _whole_numbers(values: np.ndarray, name: str, where: str) -> np.ndarray:
     return values.astype(np.int64)
 
 
+def _contact_ids(cloud: np.ndarray, where: str, default=None) -> np.ndarray:
+    """The ``contact`` field as int64; in a producer's float field a value that is no whole number (NaN) is -1,
+    no skinManager contact (its taxels are then grouped by where they are): cast, NaN became contact 0 and
+    joined every such taxel into one contact."""
+    if "contact" in cloud.dtype.names and cloud.dtype["contact"].kind == "f":
+        values = cloud["contact"].astype(float)
+        whole = np.isfinite(values) & (values == np.round(values)) & (np.abs(values) < 2.0 ** 62)
+        return np.where(whole, np.where(whole, values, 0.0).astype(np.int64), -1)
+    return cloud_field(cloud, "contact", np.int64, where, default)
+
+
 def read_contacts(msg, where: str) -> tuple:
     """``(contact ids (K,), COPs (K, 3))`` of a ``/skin/<part>/contacts`` message; the other fields are not needed."""
     cloud = decode_cloud(msg, where)
     cop = np.stack([cloud_field(cloud, k, float, where) for k in ("x", "y", "z")], axis=1)
-    return cloud_field(cloud, "contact", int, where), cop
+    return _contact_ids(cloud, where), cop
