@@ -104,6 +104,18 @@ class Rule:
         return out
 
 
+def finite_float(value) -> float | None:
+    """``value`` as a float when it is a finite number (not a bool, not an integer beyond any float), else None:
+    what arrives in JSON or from a middleware is anybody's."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        value = float(value)
+    except OverflowError:
+        return None
+    return value if np.isfinite(value) else None
+
+
 def did_you_mean(name: str, known) -> str:
     """`` (did you mean 'x'?)`` for the known name closest to a mistyped ``name``, or ``""``."""
     import difflib

@@ -171,8 +171,9 @@ def replace_file(path: str | Path, data: str | bytes) -> None:
     from nao_skin.paths import not_a_file
 
     path = Path(os.path.realpath(path))
-    if path.exists() and not_a_file(path.stat().st_mode):
-        raise OSError(errno.EEXIST, f"it is {not_a_file(path.stat().st_mode)}, not a regular file")
+    kind = not_a_file(path.stat().st_mode) if path.exists() else None
+    if kind:
+        raise OSError(errno.EEXIST, f"it is {kind}, not a regular file")
     temporary, made = path.with_name(f".{path.name}.{os.getpid()}.tmp"), False
     try:
         # O_EXCL: never another file under that name

@@ -185,13 +185,18 @@ def read_taxels(msg, part: SkinPart, where: str) -> tuple:
     return slots, cloud_field(cloud, "pressure", float, where, np.nan), _contact_ids(cloud, where, -1)
 
 
+def _whole(values: np.ndarray) -> np.ndarray:
+    """Which float ``values`` are whole numbers an int64 holds."""
+    return np.isfinite(values) & (values == np.round(values)) & (np.abs(values) < 2.0 ** 62)
+
+
 def _whole_numbers(values: np.ndarray, name: str, where: str) -> np.ndarray:
     """``values`` as int64; a :class:`DataError` naming ``where`` when one is not a whole number.
 
     A field declared float but written as integers reads as tiny or huge
     floats: truncating them would turn every slot into slot 0 without a word.
     """
-    whole = np.isfinite(values) & (values == np.round(values))
+    whole = _whole(values)
     if not np.all(whole):
         raise DataError(f"{where}: field '{name}': {float(values[~whole][0])!r} is not a whole number (is the"
                         f" field's datatype right?); sample skipped")
@@ -204,8 +209,10 @@ def _contact_ids(cloud: np.ndarray, where: str, default=None) -> np.ndarray:
     joined every such taxel into one contact."""
     if "contact" in cloud.dtype.names and cloud.dtype["contact"].kind == "f":
         values = cloud["contact"].astype(float)
-        whole = np.isfinite(values) & (values == np.round(values)) & (np.abs(values) < 2.0 ** 62)
-        return np.where(whole, np.where(whole, values, 0.0).astype(np.int64), -1)
+        ids = np.full(len(values), -1, dtype=np.int64)
+        whole = _whole(values)
+        ids[whole] = values[whole].astype(np.int64)
+        return ids
     return cloud_field(cloud, "contact", np.int64, where, default)
 
 

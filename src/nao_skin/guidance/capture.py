@@ -52,7 +52,6 @@ reaches: the hand's back, the torso's sides); reachable targets come first
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from dataclasses import dataclass, field
 
@@ -64,6 +63,7 @@ from nao_skin.calibration.report import paired_activation_counts
 from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.plain import jsonable
+from nao_skin.rules import finite_float
 from nao_skin.sim.params import SimParams
 from nao_skin.sim.poses import Spots, choose_spots, idle_joints, solve_poses
 from nao_skin.touch.touches import TouchSet
@@ -133,16 +133,6 @@ class Guidance:
                 "coverage": {k: v.to_dict() for k, v in self.coverage.items()}, "notes": list(self.notes)}
 
 
-def _finite_number(v) -> bool:
-    """A JSON number that is a finite angle (an integer of 400 digits is a number, but no float)."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return False
-    try:
-        return math.isfinite(v)
-    except OverflowError:
-        return False
-
-
 def targets_from_json(text: str, skin: SkinModel) -> tuple:
     """The targets of a guidance message (``Guidance.to_dict`` as JSON) that name this skin's parts and
     triangles, as dicts with the fields a consumer reads, checked: ``(targets, skipped)``.
@@ -176,7 +166,7 @@ def targets_from_json(text: str, skin: SkinModel) -> tuple:
             continue
         pose = t.get("pose")
         pose = (pose if isinstance(pose, dict) and pose and all(
-            isinstance(k, str) and _finite_number(v) for k, v in pose.items()) else None)
+            isinstance(k, str) and finite_float(v) is not None for k, v in pose.items()) else None)
         out.append({"part": t["part"], "triangle_id": t["triangle_id"], "hand": t["hand"], "touched": t["touched"],
                     "reason": t["reason"] if isinstance(t.get("reason"), str) else "",
                     "hand_triangle_id": triangle(t["hand"], t.get("hand_triangle_id")),

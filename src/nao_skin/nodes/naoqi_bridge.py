@@ -10,7 +10,6 @@ naoqi_driver2) already publishes ``/joint_states``.
 """
 from __future__ import annotations
 
-import math
 import threading
 import time
 
@@ -22,7 +21,7 @@ from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC
 from nao_skin.live.reconnect import Backoff
 from nao_skin.nodes.messages import joint_state_msg
 from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.rules import HOST, PORT, RATE, SECONDS
+from nao_skin.rules import HOST, PORT, RATE, SECONDS, finite_float
 
 DEFAULT_JOINTS = ["HeadYaw", "HeadPitch",
                   "LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll", "LWristYaw",
@@ -38,7 +37,6 @@ PARAMS = {
     "reconnect_max": (5.0, "longest reconnection delay (s)", SECONDS),
     "read_timeout": (2.0, "s a getAngles call may take before the robot counts as gone (then: reconnect)", SECONDS),
 }
-MAX_LOGGED_REASONS = 5    # distinct reasons a read was bad, each logged once
 
 
 
@@ -181,14 +179,14 @@ class NaoqiBridge(Node):
         if len(values) != len(self.names):
             return "length", f"{len(values)} values for {len(self.names)} joints"
         for name, v in zip(self.names, values):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            if finite_float(v) is None:
                 return "angle", f"{v!r} for {name}, not a finite angle"
         return None
 
     def _bad_read(self, kind: str, reason: str) -> None:
         """A read that gives no angles: counted, and the first of each kind logged."""
         self.stats["bad_reads"] += 1
-        if kind not in self._logged_reasons and len(self._logged_reasons) < MAX_LOGGED_REASONS:
+        if kind not in self._logged_reasons:
             self._logged_reasons.add(kind)
             self.get_logger().warning(f"{reason}; such reads are skipped (joints {', '.join(self.names)})")
 
