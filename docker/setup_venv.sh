@@ -82,19 +82,21 @@ check_tools() {
   command -v "$PYTHON" >/dev/null || die "base interpreter '$PYTHON' not found (set PYTHON=...)"
   "$PYTHON" -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)' \
     || die "Python 3.11 required (ROS Kilted cp311 wheels); '$PYTHON' is $("$PYTHON" -V 2>&1)"
-  "$PYTHON" -c 'import venv, ensurepip' 2>/dev/null \
-    || die "'$PYTHON' lacks venv/ensurepip (Debian: apt-get install -y python3-venv)"
   local missing=()
+  # Debian packages what a bare python3 lacks: venv/ensurepip, and the headers the tf2_msgs build needs
+  "$PYTHON" -c 'import venv, ensurepip' 2>/dev/null || missing+=(python3-venv)
+  [[ -f "$("$PYTHON" -c "import sysconfig; print(sysconfig.get_paths()['include'])")/Python.h" ]] \
+    || missing+=(python3-dev)
   command -v cmake >/dev/null || missing+=(cmake)
   command -v make >/dev/null || missing+=(make)
   { command -v cc >/dev/null && command -v c++ >/dev/null; } || missing+=(g++)
   if ((${#missing[@]})); then
     if [[ $(id -u) == 0 ]] && command -v apt-get >/dev/null; then
-      step "installing missing build tools via apt-get: ${missing[*]}"
+      step "installing what the set-up needs via apt-get: ${missing[*]}"
       apt-get update -qq >/dev/null && apt-get install -y -qq "${missing[@]/g++/build-essential}" >/dev/null \
         || die "apt-get install ${missing[*]} failed"
     else
-      die "missing build tools: ${missing[*]} (install cmake, make and a C/C++ compiler)"
+      die "missing: ${missing[*]} (Debian: sudo apt-get install -y ${missing[*]/g++/build-essential})"
     fi
   fi
 }

@@ -17,10 +17,20 @@ NAME = "simulate"
 HELP = "simulate self-touch touches with a known true skin placement (bag + ground truth)"
 
 
+def _shipped_presets() -> str:
+    """The presets config/simulation.yaml defines, for the help text (the file is the one list)."""
+    from nao_skin.errors import NaoSkinError
+    from nao_skin.sim.params import preset_names
+
+    try:
+        return ", ".join(preset_names())
+    except NaoSkinError:   # a broken package file is said where it is loaded, not in the help
+        return "see the file"
+
+
 def add_arguments(parser) -> None:
     parser.add_argument("--preset", default="default",
-                        help="parameter preset of config/simulation.yaml (default, cad-rotation, perturb-5cm, "
-                             "few-touches, outliers-20, planar-poses, noisy, ideal)")
+                        help=f"parameter preset of config/simulation.yaml or --params ({_shipped_presets()})")
     parser.add_argument("--seed", type=int, default=0, help="random seed (same seed, same bytes)")
     parser.add_argument("--touches-per-pair", type=int, default=None, metavar="N",
                         help="touches per hand/part pair (default: the preset's n_touches)")

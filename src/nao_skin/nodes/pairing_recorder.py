@@ -15,11 +15,14 @@ Progress on ``/nao_skin/recorder/progress`` (std_msgs/String, JSON) every
 each part's taxels in at least one recorded touch, dropped events by reason,
 the processing time per skin message (p50/p99, ms), and per skin topic how far
 its stamps lag the joint states' (``clock_skew_s``; beyond a quarter second the
-two come from different clocks, and the node says so once).
+two come from different clocks, and the node says so once). It also says once
+per skin topic when a second publisher feeds it (another session on the same
+ROS_DOMAIN_ID).
 """
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections import Counter, deque
 from datetime import datetime
@@ -88,6 +91,8 @@ class PairingRecorder(Node):
         self._flushed = 0            # touches made durable by the last flush
         self.lags = ArrivalLags()    # do the skin and the joints share a clock?
         self._skew_said: set = set()
+        self._skew_seen: dict = {}   # skin topic -> progress checks in a row it was beyond the limit
+        self._crowded_said: set = set()
         self.create_subscription(JointState, JOINT_STATES_TOPIC, self._on_joints, 200)
         for n in self.parts:
             self.create_subscription(PointCloud2, taxels_topic(n), lambda m, n=n: self._on_taxels(n, m), 200)
@@ -130,15 +135,35 @@ class PairingRecorder(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _check_clocks(self, skew: dict) -> None:
-        """Say once per skin stream when its stamps are on another clock than the joint states'."""
+        """Say once per skin stream when its stamps are on another clock than the joint states': beyond
+        the limit at two progress checks in a row (one check's window can still hold a start-up queue)."""
         for topic, s in skew.items():
-            if abs(s) > SKEW_LIMIT_S and topic not in self._skew_said:
+            beyond = abs(s) > SKEW_LIMIT_S
+            self._skew_seen[topic] = self._skew_seen.get(topic, 0) + 1 if beyond else 0
+            if self._skew_seen[topic] >= 2 and topic not in self._skew_said:
                 self._skew_said.add(topic)
                 self.get_logger().warning(
                     f"{topic} is stamped {abs(s):.2f} s {'behind' if s > 0 else 'ahead of'} {JOINT_STATES_TOPIC}"
                     f" for messages that arrive together: the skin's clock is not the joints' (skinManager on"
                     f" another host?), so every touch takes the arm pose of another moment. Synchronise the"
                     f" clocks (chrony/NTP), or start yarp_skin_bridge with stamp:=receive")
+
+    def _check_publishers(self) -> None:
+        """Say once per skin topic when more than one publisher feeds it: one bridge (or simulated robot)
+        publishes a part's skin, so a second is most likely another session on this ROS_DOMAIN_ID whose
+        touches would be recorded as this robot's."""
+        for part in self.parts:
+            for topic in (taxels_topic(part), contacts_topic(part)):
+                if topic in self._crowded_said:
+                    continue
+                infos = self.get_publishers_info_by_topic(topic)
+                if len(infos) > 1:
+                    self._crowded_said.add(topic)
+                    nodes = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos})
+                    self.get_logger().warning(
+                        f"{topic} has {len(infos)} publishers ({', '.join(nodes)}): is another session"
+                        f" on this ROS_DOMAIN_ID ({os.environ.get('ROS_DOMAIN_ID') or 0})? Its touches would"
+                        f" be recorded as this robot's: give each robot a ROS_DOMAIN_ID of its own")
 
     def _bad(self, exc: Exception) -> None:
         self.errors["bad message"] += 1
@@ -199,6 +224,7 @@ class PairingRecorder(Node):
     def _publish_progress(self) -> None:
         progress = self.progress()
         self._check_clocks(progress["clock_skew_s"])
+        self._check_publishers()
         self.progress_pub.publish(String(data=json.dumps(progress, sort_keys=True)))
 
     def close(self) -> None:
