@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 import yaml
 
-from nao_skin.formats.bag import read_touches
+from nao_skin.formats.bag import LIVE_CONFIG, read_touches
 from nao_skin.formats.salvage import LOCK_FILE
 from nao_skin.model.skin import load_skin
 from nao_skin.sim.params import load_params
@@ -181,3 +181,59 @@ def test_stats_of_an_unclosed_sqlite_bag_without_lock(played, tmp_path):
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
     assert json.loads(run.stdout)["touches"] == FLUSHED
+
+
+def test_a_closed_mcap_whose_metadata_was_never_written_reads_whole(played, tmp_path):
+    """A recorder killed after its writer closed the mcap file but before metadata.yaml was rewritten (or
+    whose disk filled then, or whose folder was renamed while it recorded) leaves the provisional
+    metadata.yaml, which lists no messages: rosbags opens that bag and finds nothing in it (0 touches, and
+    a user deletes an 'empty' recording). Every touch is in the file, and is read from it."""
+    from nao_skin.formats.bag import write_touch_bag
+
+    skin, want = played
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, want, skin, storage="mcap")
+    closed, _ = read_touches(bag, skin)
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    provisional = {**info, "message_count": 0, "topics_with_message_count": [], "files": [],
+                   "duration": {"nanoseconds": 0}, "starting_time": {"nanoseconds_since_epoch": 0}}
+    (bag / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": provisional}))
+    for lock in (None, {"pid": 2 ** 22 + 12345, "host": os.uname().nodename, "start": "1"}):   # no recorder; a dead one
+        if lock is not None:
+            (bag / LOCK_FILE).write_text(json.dumps(lock) + "\n")
+        got, report = read_touches(bag, skin)
+        assert_first_touches(got, closed, closed.n_touches)
+        assert got.n_touches == want.n_touches and not report.skipped, report.lines()
+        note = " | ".join(report.notes)
+        assert "metadata.yaml lists no messages" in note and "nothing lost" in note, note
+
+
+def test_a_killed_mcap_named_by_its_file_or_without_metadata_reads_as_its_bag(played, tmp_path):
+    """The cut mcap file of a killed recording, named itself, copied alone, or in its folder without
+    metadata.yaml, gives the touches its bag gives (it was "cannot open as a rosbag2")."""
+    import shutil
+
+    skin, want = played
+    bag = tmp_path / "touches"
+    writer = Writer(bag, "mcap")
+    try:
+        writer.kill()
+    finally:
+        writer.stop()
+    file = bag / "touches.mcap"
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    shutil.copy(file, alone / file.name)
+    bare = tmp_path / "bare"
+    shutil.copytree(bag, bare)
+    (bare / "metadata.yaml").unlink()
+    for path in (bag, file):
+        got, report = read_touches(path, skin)
+        assert_first_touches(got, want, FLUSHED)
+        assert dict(report.skipped) == {"truncated bag": 1}, (path, report.lines())
+    # without its metadata.yaml nothing says it is a touch bag: read as a live stream, as the bag would be
+    as_stream, _ = read_touches(bag, skin, LIVE_CONFIG)
+    for path in (alone / file.name, alone, bare):
+        got, report = read_touches(path, skin)
+        assert_first_touches(got, as_stream, as_stream.n_touches)
+        assert dict(report.skipped) == {"truncated bag": 1}, (path, report.lines())

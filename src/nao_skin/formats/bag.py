@@ -29,7 +29,8 @@ import numpy as np
 from nao_skin.errors import DataError, OutputError, one_line, os_reason
 from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, encode_cloud,
                                          read_contacts, read_taxels, skin_topic, taxels_array, taxels_topic)
-from nao_skin.formats.salvage import LOCK_FILE, cut_mcap, stored_metadata, unclosed_sqlite, write_lock
+from nao_skin.formats.salvage import (LOCK_FILE, cut_mcap, provisional_mcap, stored_metadata, unclosed_sqlite,
+                                      write_lock)
 from nao_skin.model.skin import SkinModel
 from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST, cluster_contacts, contact_geometry
 from nao_skin.touch.datasets import LoadReport
@@ -297,11 +298,13 @@ def _bag_kind(reader, path: Path) -> str:
 
 
 def _provisional_kind(path: Path) -> str:
-    """The kind an unclosed bag's provisional metadata.yaml names; a stream when it names none."""
+    """The kind an unclosed bag's provisional metadata.yaml names (beside the storage file, when that is
+    what ``path`` names); a stream when it names none."""
     import yaml
 
     try:
-        info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        meta = (path if path.is_dir() else path.parent) / "metadata.yaml"
+        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
         return str((info.get("custom_data") or {}).get(BAG_KIND_KEY, "stream"))
     except Exception:  # noqa: BLE001 - no or unreadable metadata: nothing says it is a touch bag
         return "stream"
@@ -377,7 +380,7 @@ class GrowingBag:
         from rosbags.rosbag2 import Reader
 
         # metadata.yaml lists the messages only once the bag is closed: read an unclosed sqlite3 file itself
-        bag = unclosed_sqlite(self.path)
+        bag = unclosed_sqlite(self.path) or provisional_mcap(self.path)
         if bag is None:
             try:
                 reader = Reader(self.path)

@@ -102,13 +102,14 @@ class Tail:
 
 
 class UnclosedBag:
-    """A bag rosbags cannot open, read from its one storage file; :func:`unclosed_sqlite` and :func:`cut_mcap`
-    find one. Subclasses say how the file is read and what the report says was lost."""
+    """A bag rosbags cannot open (or opens empty), read from its one storage file; :func:`unclosed_sqlite`,
+    :func:`cut_mcap` and :func:`provisional_mcap` find one. Subclasses say how the file is read and what the report says was lost."""
 
     def __init__(self, path: Path, file: Path):
         self.path, self.file = path, file
-        # before the file is read: a recorder closing the bag meanwhile still counts as open
-        self.lock = recording_lock(path)
+        # before the file is read: a recorder closing the bag meanwhile still counts as open (a storage
+        # file named itself: the lock of the folder it is in)
+        self.lock = recording_lock(path if path.is_dir() else path.parent)
         self.custom_data: dict = {}     # the bag's custom metadata, where the storage file holds a copy of it
 
     def since(self, cursor) -> "Tail":
@@ -379,9 +380,10 @@ OP_FOOTER, FOOTER_LENGTH = 0x02, 20     # summary start, summary offset start (u
 
 
 class _CutMcap(UnclosedBag):
-    def __init__(self, path: Path, file: Path, open_error: Exception):
+    def __init__(self, path: Path, file: Path, open_error: Exception | None, why: str | None = None):
         super().__init__(path, file)
         self.open_error = open_error
+        self.why = why      # why the bag is read from its file, when it opens (see provisional_mcap)
         # the last read reached the footer and closing magic: the file is whole, only the bag around it
         # (metadata.yaml) failed to open
         self.whole = False
@@ -414,18 +416,26 @@ class _CutMcap(UnclosedBag):
         seen = buf[:len(before) + used][-SIGNATURE:]
         return Tail(committed, provisional, (offset + used, seen, schemas, channels))
 
+    def _closed_whole(self) -> bool:
+        """The file reached its footer and closing magic and no recorder holds it: every message is read
+        (a recorder that died after its writer closed the file, while writing metadata.yaml, lost nothing)."""
+        return self.whole and (self.lock is None or self.lock.state == "died")
+
     def lost(self, n_msgs: int, ends: str) -> tuple | None:
-        return None if self.whole and self.lock is None else super().lost(n_msgs, ends)
+        return None if self._closed_whole() else super().lost(n_msgs, ends)
 
     def note(self, n_msgs: int, n_touches: int) -> str | None:
-        if self.whole and self.lock is None:
-            why = metadata_yaml_problem(self.path) or f"the bag does not open ({one_line(self.open_error)})"
-            return (f"{self.path}: {why}; read its {self.file.name} directly, whole to its end: {n_msgs} messages,"
-                    f" {n_touches} touches, nothing lost")
+        if self._closed_whole():
+            why = (self.why or (self.path.is_dir() and metadata_yaml_problem(self.path))
+                   or f"the bag does not open ({one_line(self.open_error)})")
+            died = f" (its recorder, pid {self.lock.pid}, died after closing it)" if self.lock is not None else ""
+            return (f"{self.path}: {why}; read its {self.file.name} directly, whole to its end{died}: {n_msgs}"
+                    f" messages, {n_touches} touches, nothing lost")
         return super().note(n_msgs, n_touches)
 
     def _lost_without_lock(self, n_msgs: int, ends: str) -> tuple:
-        return "truncated bag", (f"{self.path}: {self.file.name} is damaged ({one_line(self.open_error)});"
+        damage = one_line(self.open_error) if self.open_error is not None else self.why
+        return "truncated bag", (f"{self.path}: {self.file.name} is damaged ({damage});"
                                  f" read {n_msgs} messages up to where it {ends}, the rest is lost")
 
     def _read_until_death(self, n_msgs: int, ends: str) -> str:
@@ -433,10 +443,27 @@ class _CutMcap(UnclosedBag):
 
 
 def cut_mcap(path: Path, open_error: Exception) -> UnclosedBag | None:
-    """The bag's one mcap file, which rosbags failed to open with ``open_error`` (in progress, recorder died,
-    damage); None when the bag has no single mcap file."""
-    files = sorted(path.glob("*.mcap")) if path.is_dir() else []
+    """The bag's one mcap file (``path`` itself when it is one), which rosbags failed to open with
+    ``open_error`` (in progress, recorder died, damage); None when the bag has no single mcap file."""
+    files = (sorted(path.glob("*.mcap")) if path.is_dir()
+             else [path] if path.suffix == ".mcap" and path.is_file() else [])
     return _CutMcap(path, files[0], open_error) if len(files) == 1 else None
+
+
+def provisional_mcap(path: Path) -> UnclosedBag | None:
+    """An mcap bag whose metadata.yaml is still the provisional one (it lists no messages): its recorder
+    was killed, or its disk filled, or the folder was renamed, before the metadata was written on close.
+    rosbags opens such a bag and finds nothing in it; its mcap file holds every message written (the whole
+    file, when the writer closed it). None for any other bag."""
+    import yaml
+
+    files = sorted(path.glob("*.mcap")) if path.is_dir() else []
+    if len(files) != 1 or sorted(path.glob("*.db3")) or metadata_yaml_problem(path) is not None:
+        return None
+    info = yaml.safe_load((path / "metadata.yaml").read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+    if not isinstance(info, dict) or info.get("files") or info.get("topics_with_message_count"):
+        return None
+    return _CutMcap(path, files[0], None, "its metadata.yaml lists no messages (the bag was not closed)")
 
 
 def _closed_mcap(buf: bytes) -> bool:
