@@ -262,6 +262,28 @@ def test_record_refuses_unknown_or_mistyped_parameters(tmp_path):
     assert "-p rate:=100.0" in run.stdout      # '1e2' as rcl reads it, where YAML 1.1 reads a string
 
 
+def test_record_refuses_what_its_nodes_would_fail_on_before_any_starts(tmp_path):
+    """An earlier output where the session's calibration goes (`nao-skin calibrate --out foo_calibration`,
+    then `record --bag foo`) was replaced at the session's end without a word; a simulator preset or
+    pair it does not know, a calibration that does not exist, each ended a node after the others had
+    started and left an empty bag behind, its name taken."""
+    bag = tmp_path / "foo"
+    earlier = tmp_path / "foo_calibration"
+    earlier.mkdir()
+    (earlier / "calibration.yaml").write_text("mine\n")
+    line = one_error_line(nao_skin(["record", "--bag", str(bag)]))
+    assert f"calibration output {earlier}: exists already" in line and "calibrate.out_dir=NEW_DIR" in line
+    assert (earlier / "calibration.yaml").read_text() == "mine\n" and not bag.exists()
+    other = tmp_path / "other"
+    for item, expected in (("sim_robot.preset=nosuch", "unknown preset 'nosuch'"),
+                           ("sim_robot.pairs=[l_hand-nose]", "'l_hand-nose': expected HAND-PART"),
+                           (f"calibrate.calibration={tmp_path / 'none.yaml'}", "none.yaml: cannot read calibration"),
+                           ("calibrate.out_dir=/dev/null", "calibration output /dev/null: exists already")):
+        line = one_error_line(nao_skin(["record", "--bag", str(other), "--param", item]))
+        assert expected in line, line
+        assert not other.exists()
+
+
 def test_record_for_the_nao_without_yarp_says_what_to_install(tmp_path):
     # stands in for a machine without YARP's Python bindings: `import yarp` fails in the record process
     shim = tmp_path / "no_yarp"

@@ -150,6 +150,20 @@ def test_record_killed_with_sigkill_takes_its_nodes_along(tmp_path):
     assert got.n_touches >= run.reported
 
 
+def test_a_killed_recorder_ends_the_session_naming_the_bag_that_keeps_its_touches(tmp_path):
+    """kill -9 of the recorder alone (the OOM killer, a user's pkill): record stops the session, exits 1,
+    and says where the touches are, not only "pairing_recorder exited with code -9"."""
+    with RecordingSession(tmp_path, seed=23) as run:
+        recorder = next(pid for pid, c in run.nodes.items() if b"nao_skin.nodes.pairing_recorder" in c)
+        os.kill(recorder, signal.SIGKILL)
+        code = run.session.popen.wait(timeout=60)
+    err = run.session.stderr()
+    assert code == 1 and "Traceback" not in err, err[-3000:]
+    assert f"record: the bag {run.bag} keeps every touch recorded up to its last flush" in err, err[-3000:]
+    got, report = read_touches(run.bag, load_skin())
+    assert got.n_touches > 0 and dict(report.skipped) == {"truncated bag": 1}, report.lines()
+
+
 def test_record_hangup_closes_the_bag(tmp_path):
     with RecordingSession(tmp_path, seed=17) as run:
         run.session.popen.send_signal(signal.SIGHUP)     # record only, as a closing terminal does

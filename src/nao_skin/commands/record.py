@@ -145,8 +145,13 @@ def _session(specs, work: Path, args, stop: dict) -> int:
     bad = {n: c for n, c in codes.items() if c not in (0, None)}
     if bad:
         _say(f"record: exit codes {bad}")
-        # a node that ends with 2 said in one line what in its input or parameters is wrong: so does record
-        return 2 if failed is not None and failed[1] == 2 else 1
+        bag = next((spec.overrides.get("bag_path") for spec in specs if spec.name == "pairing_recorder"), None)
+        if bag and any(c not in (0, 2, None) for c in bad.values()):     # killed or crashed: it said nothing
+            _say(f"record: the bag {bag} keeps every touch recorded up to its last flush; nao-skin reads it as"
+                 f" it is (nao-skin stats {bag})")
+        # a node that ends with 2 (also while it stops: a full disk as the bag closes) said in one line what
+        # in its input, parameters or output is wrong: so does record
+        return 2 if 2 in bad.values() else 1
     return 0
 
 

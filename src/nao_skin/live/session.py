@@ -179,8 +179,18 @@ def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> Non
     if bag.exists() or bag.is_symlink():
         raise ConfigError(f"bag {bag}: exists already; a bag is never overwritten, name a new one")
     check_writable(bag, f"bag {bag}")
+    # the session's calibration is written there at its end, replacing what the session itself wrote:
+    # anything there before (an earlier `nao-skin calibrate --out` of that name) would be lost
+    out = Path(calibrate_params["out_dir"]).expanduser() if calibrate_params.get("out_dir") else None
+    if out is not None:
+        if out.exists() or out.is_symlink():
+            raise ConfigError(f"calibration output {out}: exists already; the session writes its calibration there"
+                              f" and replaces nothing it did not write: name another bag, or --param"
+                              f" calibrate.out_dir=NEW_DIR")
+        check_writable(out, f"calibration output {out}")
     skin = load_skin(calibrate_params.get("skin_config") or None,
                      parse_taxel_files(calibrate_params.get("taxels") or [], "taxels"))
+    calibration = calibrate_params.get("calibration") or calibration
     if calibration:
         SkinCalibration.load(calibration, skin)
 

@@ -66,9 +66,11 @@ PARAMS = {
 
 
 def check_params(p: dict, where: str = "sim_robot") -> None:
-    """What no single parameter's rule can say: presses that do not overlap (``nao-skin record`` checks it
-    before any node starts, the node again at its start)."""
+    """What no single parameter's rule can say: presses that do not overlap, a preset and pairs the
+    simulator knows for this skin (``nao-skin record`` checks it before any node starts, the node again at
+    its start)."""
     check_timing(p["touch_period"], p["press_duration"], p["hold"], where)
+    load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], skin_from_params(p).parts))
 
 
 def sim_overrides(touches_per_pair: int, pairs, parts=None) -> dict:
