@@ -62,7 +62,10 @@ def thesis_touches(skin):
     (["--set", "max_iterations=100000"], "--set max_iterations=100000: expected a whole number in [1, 10000]"),
     (["--set", "estimate_fabric=false", "--set", "fabric_thickness=99999999999999999999999"],
      "expected a number in [0, 0.01]"),
-    (["--set", "patch_bounds=[0.003]"], "--set patch_bounds=[0.003]: expected 2 numbers > 0"),
+    (["--set", "patch_bounds=[0.003]"], "--set patch_bounds=[0.003]: expected 2 numbers in [1e-06, 10]"),
+    # a bound of 1e-300 overflowed the prior's weight (a traceback)
+    (["--set", "triangle_bounds=[1e-300, 1e-300]"], "--set triangle_bounds=[1e-300, 1e-300]: expected 2 numbers in"
+                                                   " [1e-06, 10]"),
     (["--set", "bounded=1"], "--set bounded=1: expected true or false"),
     (["--set", "joint_levels=[mount, wrist]"], "expected a list of mount, patch, triangle"),
     (["--set", "lateral_weight=0.3"], "unknown calibration option 'lateral_weight'"),
@@ -73,7 +76,7 @@ def thesis_touches(skin):
     # had failed after the first calibration, on a seed the user never gave
     (["--seed", "4294967295", "--splits", "2"], "--splits 2: the splits take seeds 4294967295..4294967296, beyond the"
                                                 " largest seed 4294967295; give a smaller --seed"),
-    (["--set", f"patch_bounds=[{10 ** 400}, 0.1]"], "expected 2 numbers > 0"),          # beyond any float
+    (["--set", f"patch_bounds=[{10 ** 400}, 0.1]"], "expected 2 numbers in [1e-06, 10]"),   # beyond any float
     (["--set", "seed=1", "--set", "seed=2"], "--set seed=2: option seed is already given by --set seed=1; give it once"),
     (["--seed", "1", "--set", "seed=2"], "--set seed=2: option seed is already given by --seed 1"),
     (["--free", "--set", "bounded=true"], "--set bounded=true: option bounded is already given by --free"),
@@ -349,14 +352,14 @@ def test_import_to_a_place_no_bag_can_be_written_is_one_line(tmp_path, capsys, m
 
 def test_import_refuses_a_stamp_no_bag_can_hold_and_leaves_no_half_bag(tmp_path, capsys, skin, thesis_touches):
     touches = thesis_touches.subset(np.arange(thesis_touches.n_touches))
-    touches.stamps[5] = 1e308                   # a timestamp key from a broken recorder: beyond int64 nanoseconds
+    touches.stamps[5] = 3e9     # a timestamp key beyond what a ROS header's int32 seconds hold (was a struct.error)
     legacy = tmp_path / "far_future.txt"
     write_thesis_file(legacy, touches, skin)
     assert cli_main(["import", str(legacy), "-o", str(tmp_path / "bag")]) == 2
     line = one_line(capsys)
-    assert line.startswith(f"nao-skin import: error: {tmp_path / 'bag'}: touch '100000000000000001") and \
-        line.endswith(".000000': stamp 1e+308 is not a time between 0 and 9223372037 s (rosbag2 stamps are int64"
-                      " nanoseconds)"), line
+    assert line.startswith(f"nao-skin import: error: {tmp_path / 'bag'}: touch '3000000000") and \
+        line.endswith("': stamp 3000000000.0 is not a time between 0 and 2147483647 s (a ROS message header holds"
+                      " int32 seconds: up to January 2038)"), line
     assert not (tmp_path / "bag").exists()
 
 

@@ -195,6 +195,9 @@ def test_chain_naming_an_unknown_joint_fails_naming_file_and_joint(tmp_path):
 @pytest.mark.parametrize("mutate, expected", [
     (lambda d: d["joints"].update(HeadYaw=[1.0]), "joint 'HeadYaw' limits must be [lower, upper]"),
     (lambda d: d["joints"].update(HeadYaw=[1.0, -1.0]), "joint 'HeadYaw' lower limit 1.0 is not below upper -1.0"),
+    # finite, but the pose search's draw between them overflowed (a traceback in simulate)
+    (lambda d: d["joints"].update(HeadYaw=[-1e308, 1e308]), "joint 'HeadYaw' limits [-1e+308, 1e+308] reach beyond"
+                                                            " two turns (|limit| <= 12.57 rad)"),
     (lambda d: d["chains"]["head"][1].update(alpha="half a turn"), "chain 'head' row 1 alpha: cannot read 'half a turn' as an angle"),
     (lambda d: d["chains"]["head"][0].pop("d"), "chain 'head' row 0: missing d"),
     (lambda d: d["chains"]["r_arm"][0].update(frame="l_shoulder_base"),
@@ -223,7 +226,7 @@ def test_chain_naming_an_unknown_joint_fails_naming_file_and_joint(tmp_path):
     (lambda d: d.update(linkz=d.pop("links")), "unknown key 'linkz' (did you mean 'links'?)"),
     (lambda d: d["chains"]["head"][1].update(foo=1), "chain 'head' row 1: unknown key 'foo'"),
     (lambda d: d["links"]["LElbowOffsetY"].update(sign=-1), "link 'LElbowOffsetY': unknown key 'sign'"),
-], ids=["one-limit", "limits-swapped", "angle-words", "missing-d", "frame-twice", "frame-is-base", "no-chains", "chains-list", "joints-list",
+], ids=["one-limit", "limits-swapped", "limits-beyond-two-turns", "angle-words", "missing-d", "frame-twice", "frame-is-base", "no-chains", "chains-list", "joints-list",
         "links-list", "link-row-word", "nan-limit", "infinite-limit", "nan-length", "huge-length", "joint-list",
         "frame-number", "frame-space", "frame-markup", "base-frame-list", "name-null", "top-key", "row-key",
         "link-key"])

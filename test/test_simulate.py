@@ -293,7 +293,8 @@ def test_yaml_defaults_are_the_dataclass_defaults():
     ({"pose_restarts": 100_000_000}, ["'pose_restarts' 100000000 is more than 1000"]),
     ({"pose_iterations": 10 ** 9}, ["'pose_iterations' 1000000000 is more than 10000"]),
     # had failed later, naming the temporary bag
-    ({"start_stamp": -5}, ["'start_stamp' must be seconds since 1970 from 0 to 4000000000, got -5"]),
+    ({"start_stamp": -5}, ["'start_stamp' must be seconds since 1970 from 0 to 2000000000, got -5"]),
+    ({"start_stamp": 2.2e9}, ["'start_stamp' must be seconds since 1970", "got 2200000000.0"]),   # past 2038's int32
     ({"start_stamp": 1e20}, ["'start_stamp' must be seconds since 1970", "got 1e+20"]),
     ({"start_stamp": float("nan")}, ["'start_stamp' must be seconds since 1970", "got nan"]),
 ])

@@ -53,10 +53,10 @@ class CalibrationOptions:
     # median over the seeds), so the prior alone holds them by default
     bounded: bool = option(False, Rule(bool), "bound patch and triangle corrections to patch_bounds and"
                                               " triangle_bounds (thesis); off: the Gaussian prior alone")
-    patch_bounds: tuple = option((0.003, np.pi / 30), Rule(tuple, low=0.0, low_open=True, length=2),
+    patch_bounds: tuple = option((0.003, np.pi / 30), Rule(tuple, low=1e-6, high=10.0, length=2),
                                  "|translation| m, |rotation| rad per component of a patch correction: the box of"
                                  " bounded, the prior's scale (bound / prior_strength) either way")
-    triangle_bounds: tuple = option((0.0005, np.pi / 40), Rule(tuple, low=0.0, low_open=True, length=2),
+    triangle_bounds: tuple = option((0.0005, np.pi / 40), Rule(tuple, low=1e-6, high=10.0, length=2),
                                     "|translation| m, |rotation| rad per component of a triangle correction: the box"
                                     " of bounded, the prior's scale (bound / prior_strength) either way")
     pairs: str = option("both", Rule(str, _PAIRS), "paired points in the residuals of patch and triangle stages")

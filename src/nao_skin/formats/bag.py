@@ -219,14 +219,15 @@ def record_parts(record: TouchRecord, skin: SkinModel, part_names) -> list:
     return out
 
 
-# rosbag2 stamps are int64 nanoseconds: the last one is in the year 2262
-LAST_STAMP = (2 ** 63 - 1) / 1e9
+# a message header's stamp (builtin_interfaces/Time) holds int32 seconds: the last is in January 2038
+# (rosbag2's own int64 nanoseconds would reach 2262)
+LAST_STAMP = float(2 ** 31 - 1)
 
 
 def _stamp_ns(stamp: float, where: str) -> int:
     if not np.isfinite(stamp) or not 0 <= stamp < LAST_STAMP:
         raise DataError(f"{where}: stamp {float(stamp)!r} is not a time between 0 and {LAST_STAMP:.0f} s"
-                        f" (rosbag2 stamps are int64 nanoseconds)")
+                        f" (a ROS message header holds int32 seconds: up to January 2038)")
     return int(round(float(stamp) * 1e9))
 
 

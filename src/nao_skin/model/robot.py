@@ -84,6 +84,9 @@ class Chain:
         return self.frames[-1]
 
 
+MAX_JOINT_LIMIT = 4 * np.pi    # rad: a humanoid's joint turns less than this either way
+
+
 class RobotModel:
     """Kinematic model of the robot's upper body.
 
@@ -130,6 +133,9 @@ class RobotModel:
             lo, hi = (parse_angle(v, f"{path}: joint '{jname}'") for v in lim)
             if not lo < hi:
                 raise ConfigError(f"{path}: joint '{jname}' lower limit {lo} is not below upper {hi}")
+            if max(abs(lo), abs(hi)) > MAX_JOINT_LIMIT:    # the pose search draws angles between them
+                raise ConfigError(f"{path}: joint '{jname}' limits [{lo}, {hi}] reach beyond two turns"
+                                  f" (|limit| <= {MAX_JOINT_LIMIT:.2f} rad)")
             limits[str(jname)] = (lo, hi)
         chains = {}
         for cname, rows in doc["chains"].items():

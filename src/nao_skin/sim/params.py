@@ -102,7 +102,8 @@ MAX_METRES = 10.0          # a Nao is half a metre tall
 MAX_NUMBER = 1e6
 # the bundled recording has 1000 per pair; the poses of 10**12 would ask for terabytes before the first one
 POSE_SEARCH_LIMITS = {"pose_restarts": 1000, "pose_iterations": 10_000}
-MAX_START_STAMP = 4.0e9          # seconds: the year 2096, far below what 64-bit nanoseconds hold
+# seconds: 2033, leaving a recording of years before the int32 seconds of a ROS header end (2038)
+MAX_START_STAMP = 2.0e9
 MAX_TOUCHES_PER_PAIR = 100_000
 _RANGES = ("touch_interval", "footprint_radius", "pressure_spots", "spot_size", "press_reach")
 
