@@ -406,3 +406,32 @@ def test_bad_skin_config_fails_in_one_line(tmp_path, mutate, problem):
     with pytest.raises(ConfigError) as err:
         SkinModel.from_yaml(path)
     assert str(err.value) == f"{path}: {problem}"
+
+
+def test_taxels_of_a_part_keep_the_configs_patch_table_where_it_places_every_triangle(tmp_path):
+    """``--taxels PART=FILE`` replaces a part's layout, not the config's patch table: the very layout of the
+    config, given again, was regrouped 16 triangles per patch, and a calibration's patch corrections landed
+    on other triangles (closest COP 5.60 -> 5.81 mm with exit 0). A layout the table does not cover (a
+    recording's own, with triangles the package's layout lacks) is grouped by the convention, as before."""
+    from nao_skin.model.skin import load_skin
+
+    doc = yaml.safe_load(default_skin_config().read_text())
+    table = doc["parts"]["l_hand"]["patches"]
+    doc["parts"]["l_hand"]["patches"] = {0: table[1], 1: table[0]}          # the two patches numbered the other way
+    doc["robot"] = str(config_dir() / doc["robot"])
+    for part in doc["parts"].values():
+        part["taxel_file"] = str(config_dir() / part["taxel_file"])
+    config = tmp_path / "swapped.yaml"
+    config.write_text(yaml.safe_dump(doc))
+    layout = doc["parts"]["l_hand"]["taxel_file"]
+
+    def grouping(part):
+        return {int(p): sorted(part.triangle_ids[part.triangle_patch == i].tolist()) for i, p in enumerate(part.patch_ids)}
+
+    configured = load_skin(config).parts["l_hand"]
+    given_again = load_skin(config, {"l_hand": layout}).parts["l_hand"]
+    assert grouping(given_again) == grouping(configured) and grouping(configured)[1][0] == 0
+    np.testing.assert_allclose(given_again.patch_nominal, configured.patch_nominal)
+    assert given_again.layout_sha256 == configured.layout_sha256
+    real = load_skin(config, {"l_hand": REAL / "l_hand.taxels.txt"}).parts["l_hand"]
+    assert grouping(real) == {p: [t for t in real.triangle_ids.tolist() if t // 16 == p] for p in (0, 1)}

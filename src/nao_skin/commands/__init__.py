@@ -65,7 +65,9 @@ def add_skin_arguments(parser) -> None:
                         help="skin config YAML (default: the package's config/nao_skin.yaml)")
     parser.add_argument("--taxels", action="append", default=[], metavar="PART=FILE",
                         help="skinManager taxel file of a part (e.g. the recording's own, l_hand=l_hand.taxels.txt);"
-                             " it replaces that part's layout in the skin config; repeatable")
+                             " it replaces that part's layout in the skin config (grouped by the config's patch"
+                             " table where that places every triangle of the file, else 16 triangles per patch);"
+                             " repeatable")
     parser.add_argument("--robot", default=None, metavar="YAML",
                         help="robot config YAML (default: the one the skin config names, config/nao_h25.yaml)")
 

@@ -111,6 +111,9 @@ class SkinPart:
     taxel_local: np.ndarray          # (S, 3) in the nominal triangle frame
     normal_local: np.ndarray         # (S, 3) in the nominal triangle frame
     layout_file: str = ""            # the taxel file the layout came from
+    # what the skin config gave beside the layout (None: derived from it): kept when --taxels replaces the layout
+    patch_table: dict | None = None  # patch number -> triangle numbers
+    mount_given: np.ndarray | None = None   # (4, 4) nominal mount
 
     @property
     def layout_sha256(self) -> str:
@@ -199,6 +202,7 @@ def build_part(name: str, chain: str | None, parent_frame: str, taxels: TaxelFil
     present = taxels.present
     n_tri_slots = n_slots // SLOTS_PER_TRIANGLE
     tri_of_slot = np.arange(n_slots) // SLOTS_PER_TRIANGLE
+    given = patches
     if patches is None:  # Nao convention: 16 triangles per patch
         used = np.unique(tri_of_slot[present])
         patches = {}
@@ -261,7 +265,9 @@ def build_part(name: str, chain: str | None, parent_frame: str, taxels: TaxelFil
     normal_local[idx] = se3.rotate_vectors(inv, nor[idx])
     return SkinPart(name, chain, parent_frame, source, pos.copy(), nor.copy(), present.copy(),
                     triangle_ids, patch_ids, triangle_patch, slot_triangle, mount_abs, patch_rel,
-                    tri_rel, taxel_local, normal_local, layout_file or source)
+                    tri_rel, taxel_local, normal_local, layout_file or source,
+                    {int(k): list(v) for k, v in given.items()} if given is not None else None,
+                    None if mount_pose is None else np.asarray(mount_pose, dtype=float).copy())
 
 
 CALIBRATION_FORMAT = "nao_skin/calibration/1"
@@ -599,6 +605,14 @@ def part_from_layout(name: str, chain: str | None, robot: RobotModel, taxel_file
                       layout_file=str(taxel_file))
 
 
+def _covers(patch_table: Mapping[int, list], layout: TaxelFile) -> bool:
+    """Whether ``patch_table`` places every triangle with a taxel in ``layout``, and only triangles it has slots for."""
+    n_tri = len(layout.positions) // SLOTS_PER_TRIANGLE
+    listed = {t for tris in patch_table.values() for t in tris}
+    used = set((np.flatnonzero(layout.present) // SLOTS_PER_TRIANGLE).tolist())
+    return used <= listed and all(isinstance(t, int) and 0 <= t < n_tri for t in listed)
+
+
 def parse_pairs(items, parts=None, where: str = "pair") -> tuple:
     """``'hand-part'`` strings (e.g. ``'l_hand-torso'``) as ``(hand, part)`` tuples; empty strings are skipped.
 
@@ -642,7 +656,9 @@ def load_skin(skin_config: str | Path | None = None, taxel_files: Mapping[str, s
 
     A part named in ``taxel_files`` keeps its chain from the config (or the
     skinManager part's usual chain) and takes its layout from the file, e.g. a
-    recording's own; every other part stays as configured.
+    recording's own, grouped by the config's patch table (and placed by its
+    nominal mount) where that table places every triangle of the file, else 16
+    triangles per patch; every other part stays as configured.
     """
     from nao_skin.paths import default_skin_config
 
@@ -657,7 +673,16 @@ def load_skin(skin_config: str | Path | None = None, taxel_files: Mapping[str, s
         else:
             raise ConfigError(f"--taxels {name}={path}: unknown skin part '{name}'"
                               f" (skinManager parts: {', '.join(sorted(set(parts) | set(DEFAULT_CHAINS)))})")
-        parts[name] = part_from_layout(name, chain, skin.robot, path)
+        was = skin.parts.get(name)
+        layout = read_taxel_file(path)
+        if was is not None and was.patch_table is not None and _covers(was.patch_table, layout):
+            # the config's own patch table (and nominal mount), where it places every triangle of the new
+            # layout: the same layout given again must not be regrouped by the convention
+            parts[name] = build_part(name, chain, skin.robot.end_frame(chain), layout, was.patch_table,
+                                     f"{skin.source} with --taxels {name}={path}", was.mount_given, str(path))
+        else:
+            parts[name] = build_part(name, chain, skin.robot.end_frame(chain), layout, None, str(path),
+                                     layout_file=str(path))
     if not taxel_files:
         return skin
     return SkinModel(skin.robot, parts, f"{skin.source} + " + ", ".join(str(p) for p in taxel_files.values()))
