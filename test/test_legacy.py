@@ -133,6 +133,12 @@ def test_a_key_given_twice_keeps_the_first_touch_and_says_so(tmp_path, skin, exa
     assert report.n_loaded == 2 and touches.keys == ["0", "1"]
     assert report.skipped == {"key given twice": 1}
     assert report.messages == [f"{path}:3: touch '0': the key was given before, at line 1; the first is kept"]
+    # one time written two ways: an import wrote both, and read back one ("wrote 39", then "38 loaded")
+    path.write_text("{'5': %r,\n '6': %r,\n '5.0': %r}" % (touch(), touch(hand_slots=(3,)), touch(hand_slots=(4,))))
+    touches, report = read_legacy(path, skin, exact=exact)
+    assert report.n_loaded == 2 and touches.keys == ["5", "6"]
+    assert report.messages == [f"{path}:3: touch '5.0': the key is the time of '5' at line 1 (one time, written two"
+                               f" ways); the first is kept"]
 
 
 def test_none_pressure_force_moment_and_real_pressure(tmp_path, skin):

@@ -65,6 +65,16 @@ def _vector3(value, where: str) -> np.ndarray:
     return out
 
 
+def _numeric(key) -> bool:
+    """Whether the key is a time (or an index) rather than a name: its stamp is ``float(key)``."""
+    if isinstance(key, bool):
+        return False
+    try:
+        return math.isfinite(float(key))
+    except (TypeError, ValueError, OverflowError):
+        return False
+
+
 def _stamp_of(key, row: int) -> float:
     try:
         stamp = float(key)
@@ -298,6 +308,7 @@ def read_legacy(path: str | Path, skin: SkinModel, exact: bool = False) -> tuple
     joint_index = robot.joint_index
     parsed = []
     first_line: dict = {}        # key -> the line that gave it first
+    first_stamp: dict = {}       # time of a numeric key -> (line, key) that gave it first
     for row, (line, key, value) in enumerate(entries):
         report.n_read += 1
         where = f"{path}:{line}: touch {key!r}"
@@ -310,6 +321,15 @@ def read_legacy(path: str | Path, skin: SkinModel, exact: bool = False) -> tuple
                                            f" the first is kept")
             continue
         first_line[str(key)] = line
+        stamp, numeric = _stamp_of(key, row), _numeric(key)
+        if numeric and stamp in first_stamp:
+            # '5' and '5.0' are one time: a bag would hold the two touches as one
+            at, other = first_stamp[stamp]
+            report.skip("key given twice", f"{where}: the key is the time of {other!r} at line {at} (one time,"
+                                           f" written two ways); the first is kept")
+            continue
+        if numeric:
+            first_stamp[stamp] = (line, key)
         if value is _NOT_A_LITERAL:
             report.skip("not a literal", f"{where}: not a Python literal (only dicts, lists, numbers,"
                                          f" strings, None are allowed)")
@@ -319,7 +339,7 @@ def read_legacy(path: str | Path, skin: SkinModel, exact: bool = False) -> tuple
         except _SkipTouch as exc:
             report.skip(exc.reason, str(exc), part=exc.part)
             continue
-        parsed.append(_Touch(str(key), _stamp_of(key, row), joints, contacts))
+        parsed.append(_Touch(str(key), stamp, joints, contacts))
     report.n_loaded = len(parsed)
     return _to_touchset(parsed, part_names, tuple(robot.joint_names)), report
 
