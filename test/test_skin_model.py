@@ -215,6 +215,9 @@ BAD_CORRECTION = ("part 'head' mount: correction must be 3 + 3 finite numbers, m
      BAD_CORRECTION),
     ({"head": {"mount": {"correction": {"translation": [0, 0, 0]}}}},
      "part 'head' mount: needs correction.translation and correction.rotation_vector"),
+    # true was read as 1 m
+    ({"head": {"mount": {"correction": {"translation": [True, False, False], "rotation_vector": [0, 0, 0]}}}},
+     BAD_CORRECTION),
     ({"head": None}, "part 'head': expected a mapping (layout, mount, patches, triangles)"),
     ({"head": 5}, "part 'head': expected a mapping (layout, mount, patches, triangles)"),
     ({"torso": {"patches": [1, 2]}}, "part 'torso': 'patches' must be a mapping"),
@@ -224,7 +227,7 @@ BAD_CORRECTION = ("part 'head' mount: correction must be 3 + 3 finite numbers, m
     ({"r_hand": {"chain": "l_arm"}}, "part 'r_hand' was calibrated on chain 'l_arm'; the skin config hangs it off"
                                      " 'r_arm'"),
 ], ids=["unknown-part", "unknown-patch", "unknown-triangle", "two-numbers", "nan", "huge-translation",
-        "huge-rotation", "no-rotation", "part-none", "part-number", "patches-list", "patch-word", "patch-half",
+        "huge-rotation", "no-rotation", "bool-translation", "part-none", "part-number", "patches-list", "patch-word", "patch-half",
         "triangle-word", "other-chain"])
 def test_malformed_calibration_fails_naming_file_and_entry(skin, tmp_path, parts, problem):
     path = tmp_path / "calibration.yaml"
@@ -243,7 +246,7 @@ def test_a_calibration_of_another_robot_is_refused(skin, tmp_path):
                               f" ({skin.robot.source})")
 
 
-BAD_KINEMATICS = "needs a finite numeric correction (at most 10) and, if given, a finite std >= 0"
+BAD_KINEMATICS = "needs a finite numeric correction (at most 0.1 m) and, if given, a finite std >= 0"
 
 
 @pytest.mark.parametrize("top, problem", [
@@ -252,6 +255,13 @@ BAD_KINEMATICS = "needs a finite numeric correction (at most 10) and, if given, 
     ({"kinematics": {"LElbowOffsetY": {"correction": 1e300}}}, f"kinematics: 'LElbowOffsetY' {BAD_KINEMATICS}"),
     ({"kinematics": {"LElbowOffsetY": {"correction": 0.001, "std": -1}}},
      f"kinematics: 'LElbowOffsetY' {BAD_KINEMATICS}"),
+    # read as 1 m / as metres, and a 9 m elbow went into the URDF with exit 0
+    ({"kinematics": {"LElbowOffsetY": {"correction": True}}}, f"kinematics: 'LElbowOffsetY' {BAD_KINEMATICS}"),
+    ({"kinematics": {"LElbowOffsetY": {"correction": 9.0}}}, f"kinematics: 'LElbowOffsetY' {BAD_KINEMATICS}"),
+    ({"kinematics": {"LElbowOffsetY": {"correction": 0.005, "unit": "mm"}}},
+     "kinematics: 'LElbowOffsetY' is in m, not 'mm' (a link length)"),
+    ({"kinematics": {"HeadYaw": {"correction": 0.6}}},
+     "kinematics: 'HeadYaw' needs a finite numeric correction (at most 0.5 rad) and, if given, a finite std >= 0"),
     ({"format": "nao_skin/simulation/1"},
      "format 'nao_skin/simulation/1', not nao_skin/calibration/1: another kind of file or a newer nao_skin's"),
     ({"contents": {"frames": -1}}, "contents must be a mapping of frames and (optional) kinematics, each a whole"
@@ -262,7 +272,8 @@ BAD_KINEMATICS = "needs a finite numeric correction (at most 10) and, if given, 
     ({"contents": {"frames": 2}}, "holds 0 frames and 0 kinematic corrections where its contents line says 2 and"
                                   " 0: the file was cut short or edited; restore it, or after a deliberate edit"
                                   " correct that line"),
-], ids=["kinematics-list", "kinematics-nan", "kinematics-huge", "negative-std", "other-format", "contents-negative",
+], ids=["kinematics-list", "kinematics-nan", "kinematics-huge", "negative-std", "kinematics-bool", "link-9m",
+        "unit-mm", "joint-beyond", "other-format", "contents-negative",
         "contents-fraction", "contents-number", "contents-more"])
 def test_malformed_calibration_beside_the_parts_fails_in_one_line(skin, tmp_path, top, problem):
     path = tmp_path / "calibration.yaml"

@@ -231,3 +231,35 @@ def test_urdfdom_parses_the_expanded_urdf(tmp_path):
     done = subprocess.run([exe, str(out)], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert "root Link: torso has 4 child(ren)" in done.stdout   # 3 chains + the torso skin mount
+
+
+def test_a_robot_frame_named_like_a_skin_frame_is_refused_not_written_twice(tmp_path):
+    """A robot config whose frame is named like a frame the xacro makes for the skin (or for its own rows)
+    gave a URDF with that link and its joint twice, exit 0, which every URDF reader refuses."""
+    doc = yaml.safe_load((config_dir() / "nao_h25.yaml").read_text())
+    doc["chains"]["head"][0]["frame"] = "torso_skin_patch_0"
+    robot = tmp_path / "robot.yaml"
+    robot.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ConfigError) as err:
+        expand_xacro(robot_config=robot)
+    assert str(err.value) == (f"{robot}: the URDF would define the link 'torso_skin_patch_0' twice: a frame or"
+                              f" joint of the robot config is named like a skin frame or another generated name;"
+                              f" rename it")
+
+
+def test_a_kinematic_correction_in_exponent_notation_reaches_the_urdf(tmp_path, skin):
+    """'2e-3' is a number to nao_skin (YAML 1.2) but text to the YAML the xacro loads: the urdf command failed
+    inside xacro ("unsupported operand type(s) for +: 'int' and 'str'")."""
+    calib = tmp_path / "calibration.yaml"
+    text = (config_dir() / "calibration_nominal.yaml").read_text()
+    doc = yaml.safe_load(text)
+    doc["kinematics"] = {"HeadYaw": {"correction": 0.002, "unit": "rad"}}
+    doc["contents"]["kinematics"] = 1
+    calib.write_text(yaml.safe_dump(doc, sort_keys=False).replace("correction: 0.002", "correction: 2e-3"))
+    assert "correction: 2e-3" in calib.read_text()
+    urdf = UrdfModel.from_string(expand_xacro(calib))
+    plain = UrdfModel.from_string(expand_xacro(config_dir() / "calibration_nominal.yaml"))
+    moved = [j.name for j in urdf.joints.values() if not np.allclose(j.origin, plain.joints[j.name].origin)]
+    assert moved == ["HeadYaw"], moved
+    assert rotation_angle(plain.joints["HeadYaw"].origin[:3, :3], urdf.joints["HeadYaw"].origin[:3, :3]) == \
+        pytest.approx(0.002)

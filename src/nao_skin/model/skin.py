@@ -271,6 +271,10 @@ def build_part(name: str, chain: str | None, parent_frame: str, taxels: TaxelFil
 
 
 CALIBRATION_FORMAT = "nao_skin/calibration/1"
+# A kinematic correction is a few mm or degrees (the solver itself stops at 3 cm and 0.2 rad): beyond these
+# is a broken file or another unit
+MAX_LINK_CORRECTION = 0.1       # m
+MAX_JOINT_CORRECTION = 0.5      # rad
 # A Nao is half a metre tall: a skin frame farther off than this is another unit (mm) or a broken file.
 MAX_OFFSET = 10.0
 # Any rotation vector equals one of norm <= pi; far beyond is a broken file (and squaring 1e300 overflows).
@@ -500,10 +504,11 @@ class SkinCalibration:
         def vec(entry, where):
             try:
                 c = entry["correction"]
-                v = np.array(list(c["translation"]) + list(c["rotation_vector"]), dtype=float)
+                values = list(c["translation"]) + list(c["rotation_vector"])
+                v = np.array(values, dtype=float)
             except (KeyError, TypeError, ValueError):
                 raise ConfigError(f"{path}: {where}: needs correction.translation and correction.rotation_vector") from None
-            if not _plausible_pose(v):
+            if any(isinstance(x, bool) for x in values) or not _plausible_pose(v):   # true is no 1 m
                 raise ConfigError(f"{path}: {where}: correction must be 3 + 3 finite numbers, metres (at most"
                                   f" {MAX_OFFSET:g}) and radians (at most {MAX_ROTATION:g})")
             return v
@@ -543,15 +548,21 @@ class SkinCalibration:
             if name not in skin.robot.links and name not in skin.robot.joint_index:
                 raise ConfigError(f"{path}: kinematics: '{name}' is neither a joint nor a named link of"
                                   f" {skin.robot.name}")
+            unit, limit = ("m", MAX_LINK_CORRECTION) if name in skin.robot.links else ("rad", MAX_JOINT_CORRECTION)
             try:
+                if any(isinstance(entry.get(k), bool) for k in ("correction", "std")):
+                    raise TypeError("true is no number")
                 correction = float(entry["correction"])
                 std = float(entry["std"]) if "std" in entry else None
-            except (KeyError, TypeError, ValueError, OverflowError):
+            except (KeyError, TypeError, ValueError, OverflowError, AttributeError):
                 correction = std = math.nan
-            # a joint offset (rad) or link length (m): either far beyond MAX_OFFSET is a broken file
-            if not abs(correction) <= MAX_OFFSET or not (std is None or 0 <= std < math.inf):
+            # a link length (m) or a joint offset (rad): beyond a few cm or tens of degrees is a broken file
+            if not abs(correction) <= limit or not (std is None or 0 <= std < math.inf):
                 raise ConfigError(f"{path}: kinematics: '{name}' needs a finite numeric correction (at most"
-                                  f" {MAX_OFFSET:g}) and, if given, a finite std >= 0")
+                                  f" {limit:g} {unit}) and, if given, a finite std >= 0")
+            if entry.get("unit", unit) != unit:
+                raise ConfigError(f"{path}: kinematics: '{name}' is in {unit}, not {entry.get('unit')!r}"
+                                  f" (a {'link length' if unit == 'm' else 'joint offset'})")
             calib.kinematics[str(name)] = correction
             if std is not None:
                 calib.kinematics_std[str(name)] = std

@@ -55,6 +55,16 @@ def expand_xacro(calibration: str | Path | None = None, robot_config: str | Path
         raise ConfigError(f"{where}: xacro expansion of {xacro_file.name} failed: {exc}") from None
     finally:
         xacro.all_includes.clear()  # xacro keeps a module-level list that would grow per call
+    for tag in ("link", "joint"):   # a robot frame named like a skin frame (or a generated one) collides
+        seen: set = set()
+        for element in doc.getElementsByTagName(tag):
+            name = element.getAttribute("name")
+            if name in seen:
+                where = robot_config if robot_config is not None else xacro_file
+                raise ConfigError(f"{where}: the URDF would define the {tag} '{name}' twice: a frame or joint of"
+                                  f" the robot config is named like a skin frame or another generated name;"
+                                  f" rename it")
+            seen.add(name)
     return doc.toprettyxml(indent="  ")
 
 
