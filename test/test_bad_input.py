@@ -292,6 +292,29 @@ def test_stats_reads_a_simulator_output_directory(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out.splitlines()[-1])["touches"] > 0
 
 
+def test_a_ground_truth_beside_the_inputs_is_used_only_where_it_describes_them(tmp_path, capsys):
+    """The simulator's truth_calibration.yaml is found beside its recording, never asked for: another robot
+    config refused the recording itself ("made for robot 'nao_h25'", naming a file the user never gave), and
+    two simulations calibrated together were judged against the first one's truth (8.6 mm, exit 0)."""
+    from nao_skin.formats.inputs import load_touches
+
+    for seed in (1, 2):
+        assert cli_main(["simulate", "--seed", str(seed), "--touches-per-pair", "2", "--out",
+                         str(tmp_path / f"sim{seed}")]) == 0
+    capsys.readouterr()
+    skin, notes = load_skin(), []
+    _, _, truth = load_touches([str(tmp_path / "sim1")], skin, log=lambda line: None)
+    assert truth is not None
+    _, _, truth = load_touches([str(tmp_path / "sim1"), str(tmp_path / "sim2")], skin, log=notes.append)
+    assert truth is None and any("the inputs carry different ground truths" in n for n in notes), notes
+    manufacturer = load_skin(robot_config=package_dir() / "config" / "nao_h25_manufacturer.yaml")
+    touches, _, truth = load_touches([str(tmp_path / "sim1")], manufacturer, log=notes.append)
+    assert truth is None and touches.n_touches > 0
+    assert "the simulator's ground truth does not fit this skin" in notes[-1], notes
+    assert cli_main(["stats", str(tmp_path / "sim1"), "--robot", str(package_dir() / "config" /
+                                                                   "nao_h25_manufacturer.yaml")]) == 0
+
+
 @pytest.mark.parametrize("command", [["calibrate", "--out", "OUT"], ["stats"], ["import", "-o", "OUT"],
                                      ["demo", "--out", "OUT", "--input"]])
 def test_missing_and_empty_inputs_get_the_same_line_in_every_command(tmp_path, capsys, command):

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nao_skin.errors import DataError
+from nao_skin.errors import DataError, NaoSkinError
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.datasets import LoadReport
 from nao_skin.touch.touches import TouchSet
@@ -81,7 +81,7 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
 
     check_inputs(paths)
     summary = summary or log
-    sets, truth = [], None
+    sets, truths = [], {}     # input -> the simulator's ground truth beside it (None: a real recording)
     report = LoadReport(source=", ".join(str(p) for p in paths))
     for raw in paths:
         path = Path(raw)
@@ -91,9 +91,7 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
             bag = find_bag(path)
             follower = (followed or {}).get(raw)
             touches, rep = follower.read() if follower is not None else read_touches(bag, skin)
-            for candidate in (path / TRUTH_FILE, bag.parent / TRUTH_FILE):
-                if candidate.exists() and truth is None:
-                    truth = SkinCalibration.load(candidate, skin)
+            truths[raw] = next((c for c in (path / TRUTH_FILE, bag.parent / TRUTH_FILE) if c.exists()), None)
         note = joint_limit_note(touches, skin.robot, str(path))
         if note:
             rep.notes.append(note)
@@ -117,7 +115,28 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
     if not sets:
         why = f"; {report.notes[0]}" if report.notes else ""    # e.g. why no moment was a touch
         raise DataError(f"{report.source}: no usable touch in the input ({report.summary()}){why}")
+    truth, note = _ground_truth(truths, skin)
+    if note:
+        report.notes.append(note)
+        summary(note)
     return (sets[0] if len(sets) == 1 else TouchSet.concatenate(sets)), report, truth
+
+
+def _ground_truth(truths: dict, skin: SkinModel) -> tuple:
+    """``(truth or None, note or None)``: the simulator's ground truth the inputs carry, when they all carry
+    the same one and it is of this skin. Found beside a recording, never asked for: one that does not fit
+    (another robot or skin config given) or inputs of different simulations (or a real one among them),
+    whose touches no one truth describes, mean no true error, said in a note, never a refused input."""
+    files = {str(f.resolve()) if f is not None else None for f in truths.values()}
+    if files == {None}:
+        return None, None
+    if None in files or len({Path(f).read_bytes() for f in files}) > 1:
+        each = ", ".join(f"{raw}: {f or 'none'}" for raw, f in truths.items())
+        return None, f"the inputs carry different ground truths ({each}): no true taxel error is reported"
+    try:
+        return SkinCalibration.load(next(iter(truths.values())), skin), None
+    except NaoSkinError as exc:
+        return None, f"the simulator's ground truth does not fit this skin ({exc}): no true taxel error is reported"
 
 
 def layout_hints(touches: TouchSet, report: LoadReport, skin: SkinModel) -> list:
