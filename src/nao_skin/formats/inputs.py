@@ -87,6 +87,7 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
         path = Path(raw)
         if path.is_file() and path.suffix == ".txt":
             touches, rep = read_legacy(path, skin)
+            truths[raw] = None
         else:
             bag = find_bag(path)
             follower = (followed or {}).get(raw)
@@ -128,7 +129,7 @@ def _ground_truth(truths: dict, skin: SkinModel) -> tuple:
     (another robot or skin config given) or inputs of different simulations (or a real one among them),
     whose touches no one truth describes, mean no true error, said in a note, never a refused input."""
     files = {str(f.resolve()) if f is not None else None for f in truths.values()}
-    if files == {None}:
+    if files <= {None}:
         return None, None
     if None in files or len({Path(f).read_bytes() for f in files}) > 1:
         each = ", ".join(f"{raw}: {f or 'none'}" for raw, f in truths.items())
