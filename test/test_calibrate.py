@@ -346,3 +346,25 @@ def test_a_level_left_out_is_never_freed_and_its_frames_stay_where_they_start(sk
     assert not any("triangle" in h for h in result.report.held)    # not estimated is not "held"
     with pytest.raises(DataError, match=r"levels=\[\]: frees nothing"):
         calibrate(touches, skin, CalibrationOptions(levels=()))
+
+
+def test_the_closing_stage_frees_the_triangles_once_more_from_where_the_refinement_ended(skin, left_hand_sim,
+                                                                                        left_hand_result):
+    """``closing_levels`` (default: triangles): after the joint refinement, one stage per level, its prior
+    centred where the refinement left the skin; none with ``[]`` (the stages before are the same), none in a
+    warm live update."""
+    touches, truth = left_hand_sim
+    names = [s["name"] for s in left_hand_result.report.stages]
+    assert names[-1] == "closing: l_hand+torso: triangle" and names[-2].startswith("joint refinement: ")
+    assert left_hand_result.report.plan[-2:] == ["joint refinement: l_hand+torso", "closing: l_hand+torso"]
+    without = calibrate(touches, skin, CalibrationOptions(closing_levels=()), truth=truth)
+    assert [s["name"] for s in without.report.stages] == names[:-1]
+    ended = without.calibration.parts["l_hand"].triangles
+    # the closing stage starts there and moves the triangles only
+    after = left_hand_result.calibration.parts["l_hand"]
+    assert not np.allclose(after.triangles, ended)
+    np.testing.assert_allclose(after.mount, without.calibration.parts["l_hand"].mount)
+    np.testing.assert_allclose(after.patches, without.calibration.parts["l_hand"].patches)
+    warm = calibrate(touches, skin, CalibrationOptions(), prior=left_hand_result.calibration,
+                     warm=("l_hand", "torso"), split=(left_hand_result.train, left_hand_result.test))
+    assert not any(s["name"].startswith("closing: ") for s in warm.report.stages)

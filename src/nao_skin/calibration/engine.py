@@ -38,7 +38,7 @@ from nao_skin.calibration.evaluation import (closest_cop_cost, evaluate, explain
                                              plan_pairs, truth_error)
 from nao_skin.calibration.first_guess import guess_targets, rigid_mount_guess
 from nao_skin.calibration.layout import KINEMATICS
-from nao_skin.calibration.options import CalibrationOptions
+from nao_skin.calibration.options import LEVELS, CalibrationOptions
 from nao_skin.calibration.pairing import robot_joints
 from nao_skin.calibration.plan import Step, left_out_pairs, part_rank, plan_steps, touching_pairs
 from nao_skin.calibration.rows import pairing_key
@@ -170,8 +170,8 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
     schedule = _schedule(steps, options, warm)
     report = CalibrationReport(
         options=_options_dict(options),
-        plan=[("joint refinement: " if not step.references and options.reference == "fixed" else "") + step.name
-              for round_no, step, _ in schedule if round_no == 0 or not step.references],
+        plan=[(prefix if prefix in (JOINT, CLOSING) else "") + step.name
+              for round_no, step, prefix in schedule if round_no == 0 or not step.references],
         parts=sorted({p for s in steps for p in s.targets}, key=part_rank),
         pairs=sorted(sorted(p, key=part_rank) for p in touching_pairs(train)),
         before={} if warm else _figures(train, test, skin, fit.calibration, steps, truth, fit.truth_poses),
@@ -184,7 +184,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
         if options.initial_guess == "rigid-fit" and round_no == 0 and not warm.issuperset(step.targets) \
                 and (step.references or options.reference == "simultaneous"):
             _first_guess(train, skin, step, options, fit, say, prefix)
-        for levels in _stage_levels(step, options):
+        for levels in _stage_levels(step, options, prefix):
             report.stages.append(_fit_stage(train, test, skin, step, levels, round_no, prefix, options, fit,
                                             truth, say, measure=not warm, anchor=anchor,
                                             warm=bool(warm) and warm.issuperset(step.targets)))
@@ -251,20 +251,30 @@ def _schedule(steps: list, options: CalibrationOptions, warm: frozenset = frozen
     refine = options.joint_refinement and options.reference == "fixed" and len(steps) > 1
     schedule = [(r, step) for r in range(max(1, options.rounds)) for step in steps
                 if not (refine and step.references and warm.issuperset(step.targets))]
+    joint = Step(tuple(sorted({p for s in steps for p in s.targets + s.references}, key=part_rank)), ())
     if refine:
-        schedule.append((options.rounds, Step(tuple(sorted({p for s in steps for p in s.targets + s.references},
-                                                           key=part_rank)), ())))
+        schedule.append((options.rounds, joint))
     out = []
     for round_no, step in schedule:
         prefix = f"round {round_no + 1}: " if options.rounds > 1 and step.references else ""
         if not step.references and options.reference == "fixed":
-            prefix = "joint refinement: "
+            prefix = JOINT
         out.append((round_no, step, prefix))
+    # a warm update leaves them out: it continues from the last update's frames anyway, within its time
+    if refine and not warm and set(options.closing_levels) & set(options.levels):
+        out.append((options.rounds, joint, CLOSING))
     return out
 
 
-def _stage_levels(step: Step, options: CalibrationOptions):
-    """The levels freed stage by stage: mount, patches, triangles in turn (or all at once)."""
+JOINT, CLOSING = "joint refinement: ", "closing: "      # name prefixes of the schedule's last stages
+
+
+def _stage_levels(step: Step, options: CalibrationOptions, prefix: str = ""):
+    """The levels freed stage by stage: mount, patches, triangles in turn (or all at once); for the closing
+    stages (``prefix`` :data:`CLOSING`), each of ``closing_levels`` alone."""
+    if prefix == CLOSING:
+        yield from ({level} for level in LEVELS if level in options.closing_levels and level in options.levels)
+        return
     levels_seq = ([{"mount"}, {"patch"}, {"triangle"}] if options.strategy == "sequential"
                   else [{"mount", "patch", "triangle"}])
     joint_step = not step.references and options.reference == "fixed"
@@ -376,11 +386,11 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     kfit = _Fit(start.copy(), options.fabric_thickness, initial_prior_sigma(options), fit.inliers.copy(),
                 list(fit.set_aside))
     entries = []
-    for round_no, st, prefix in schedule:
-        prefix = "kinematics, mounts: " + prefix
+    for round_no, st, stage_prefix in schedule:
+        prefix = "kinematics, mounts: " + stage_prefix
         if options.initial_guess == "rigid-fit" and round_no == 0 and (st.references or options.reference == "simultaneous"):
             _first_guess(train, skin, st, options, kfit, say, prefix)
-        if any("mount" in levels for levels in _stage_levels(st, options)):
+        if any("mount" in levels for levels in _stage_levels(st, options, stage_prefix)):
             entries.append(_fit_stage(train, test, skin, st, {"mount"}, round_no, prefix, options, kfit, truth, say))
     entries.append(_fit_stage(train, test, skin, step, {"mount", KINEMATICS}, options.rounds, "kinematics: ", options,
                               kfit, truth, say))
@@ -392,7 +402,7 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
         kfit.calibration = calib
         kfit.last_cost = (None, (), -1, np.inf)
         for round_no, st, prefix in schedule:
-            for levels in _stage_levels(st, options):
+            for levels in _stage_levels(st, options, prefix):
                 entries.append(_fit_stage(train, test, skin, st, levels, round_no, f"kinematics pass {n}: " + prefix,
                                           options, kfit, truth, say))
         entries.append(_fit_stage(train, test, skin, step, {"mount", KINEMATICS}, options.rounds,
