@@ -72,6 +72,7 @@ def thesis_touches(skin):
     (["--set", "fabric_bounds=[0.003, 0.001]"], "lower bound is above the upper one"),
     (["--test-fraction", "x"], "argument --test-fraction: invalid float value: 'x'"),
     (["--splits", "0"], "--splits 0: expected a whole number from 1 to 100"),
+    (["--splits", "3", "--set", "test_fraction=0"], "--splits 3: with test_fraction 0 no touch is held out"),
     (["--splits", "100000000000"], "--splits 100000000000: expected a whole number from 1 to 100"),   # had run out of memory
     # had failed after the first calibration, on a seed the user never gave
     (["--seed", "4294967295", "--splits", "2"], "--splits 2: the splits take seeds 4294967295..4294967296, beyond the"

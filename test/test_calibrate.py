@@ -365,6 +365,10 @@ def test_the_closing_stage_frees_the_triangles_once_more_from_where_the_refineme
     assert not np.allclose(after.triangles, ended)
     np.testing.assert_allclose(after.mount, without.calibration.parts["l_hand"].mount)
     np.testing.assert_allclose(after.patches, without.calibration.parts["l_hand"].patches)
+    # a joint refinement that frees nothing is none, and not in the plan (it was listed, and no stage ran)
+    none = calibrate(touches, skin, CalibrationOptions(levels=("mount", "patch"), joint_levels=("triangle",)),
+                     truth=truth)
+    assert not any(p.startswith(("joint refinement: ", "closing: ")) for p in none.report.plan), none.report.plan
     warm = calibrate(touches, skin, CalibrationOptions(), prior=left_hand_result.calibration,
                      warm=("l_hand", "torso"), split=(left_hand_result.train, left_hand_result.test))
     assert not any(s["name"].startswith("closing: ") for s in warm.report.stages)

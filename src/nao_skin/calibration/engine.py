@@ -248,7 +248,9 @@ def _schedule(steps: list, options: CalibrationOptions, warm: frozenset = frozen
     With a joint refinement to follow, a step whose targets are all ``warm``
     is left out: the joint refinement frees those parts anyway.
     """
-    refine = options.joint_refinement and options.reference == "fixed" and len(steps) > 1
+    # a joint refinement that frees nothing (joint_levels disjoint from levels) is none, and not in the plan
+    refine = (options.joint_refinement and options.reference == "fixed" and len(steps) > 1
+              and bool(set(options.joint_levels) & set(options.levels)))
     schedule = [(r, step) for r in range(max(1, options.rounds)) for step in steps
                 if not (refine and step.references and warm.issuperset(step.targets))]
     joint = Step(tuple(sorted({p for s in steps for p in s.targets + s.references}, key=part_rank)), ())

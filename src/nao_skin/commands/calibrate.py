@@ -78,14 +78,15 @@ def run(args) -> int:
     from nao_skin.calibration.splits import MAX_SPLITS
     from nao_skin.model.skin import SkinCalibration
 
+    from nao_skin.errors import DataError
+
     options = build_options(args)
     if not 1 <= args.splits <= MAX_SPLITS:
-        from nao_skin.errors import DataError
-
         raise DataError(f"--splits {args.splits}: expected a whole number from 1 to {MAX_SPLITS}")
+    if args.splits > 1 and options.test_fraction == 0:      # K identical runs and a "nan ± nan" test figure
+        raise DataError(f"--splits {args.splits}: with test_fraction 0 no touch is held out and every split is the"
+                        f" same; give a test fraction or --splits 1")
     if options.seed + args.splits - 1 > OPTION_FIELDS["seed"].metadata["rule"].high:
-        from nao_skin.errors import DataError
-
         raise DataError(f"--splits {args.splits}: the splits take seeds {options.seed}.."
                         f"{options.seed + args.splits - 1}, beyond the largest seed"
                         f" {OPTION_FIELDS['seed'].metadata['rule'].high:.0f}; give a smaller --seed")
