@@ -656,7 +656,8 @@ def parse_taxel_files(items, where: str = "--taxels") -> dict:
         if Path(path).is_dir():
             raise ConfigError(f"{where} {item!r}: {path} is a directory, not a taxel file")
         if not Path(path).is_file():
-            raise ConfigError(f"{where} {item!r}: {path}: no such file")
+            what = "not a regular file" if Path(path).exists() else "no such file"   # /dev/zero, a FIFO
+            raise ConfigError(f"{where} {item!r}: {path}: {what}")
         files[part] = Path(path)
     return files
 
