@@ -296,6 +296,12 @@ def test_yaml_defaults_are_the_dataclass_defaults():
     ({"start_stamp": -5}, ["'start_stamp' must be seconds since 1970 from 0 to 2000000000, got -5"]),
     ({"start_stamp": 2.2e9}, ["'start_stamp' must be seconds since 1970", "got 2200000000.0"]),   # past 2038's int32
     ({"start_stamp": 1e20}, ["'start_stamp' must be seconds since 1970", "got 1e+20"]),
+    # each wrote a recording its own readers merged, lost touches of, or whose truth they refused
+    ({"touch_interval": [0, 0]}, ["'touch_interval' must start at 0.001 s or more"]),
+    ({"cluster_distance": 1000}, ["'cluster_distance' 1000 m is beyond 0.5 m"]),
+    ({"patch_rotation": 150}, ["'patch_rotation' 150 rad is more than half a turn"]),
+    ({"joint_offset_deg": 800}, ["'joint_offset_deg' 800 is more than 20.0 deg"]),
+    ({"link_errors": {"LElbowOffsetY": 9.0}}, ["'link_errors' beyond 0.1 m"]),
     ({"start_stamp": float("nan")}, ["'start_stamp' must be seconds since 1970", "got nan"]),
 ])
 def test_bad_parameters_fail_in_one_line(overrides, words):

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Mapping
 
 from nao_skin.errors import ConfigError
+from nao_skin.model.skin import MAX_JOINT_CORRECTION, MAX_LINK_CORRECTION
 from nao_skin.rules import known_keys
 
 HANDS = ("r_hand", "l_hand")
@@ -99,6 +100,9 @@ _NON_NEGATIVE = NOISES + ("noise_scale", "hand_mount_rotation_deg", "hand_mount_
 _POSITIVE = ("pose_tolerance", "normal_tolerance_deg", "penetration_tolerance", "spot_radius",
              "cluster_distance")
 MAX_METRES = 10.0          # a Nao is half a metre tall
+MIN_TOUCH_INTERVAL = 0.001     # s: touches closer than a millisecond would share a stamp's nanoseconds
+MAX_CLUSTER_DISTANCE = 0.5     # m: beyond, every taxel of a part is one contact (clusters lie 1000 m apart)
+MAX_JOINT_OFFSET_DEG = 20.0    # the truth file of a larger one would be refused by every command
 MAX_NUMBER = 1e6
 # the bundled recording has 1000 per pair; the poses of 10**12 would ask for terabytes before the first one
 POSE_SEARCH_LIMITS = {"pose_restarts": 1000, "pose_iterations": 10_000}
@@ -193,6 +197,19 @@ def validate(p: SimParams, where: str = "simulation parameters") -> None:
                 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
                 or not 0 <= v[0] <= v[1]):
             raise ConfigError(f"{where}: '{name}' must be [low, high] with 0 <= low <= high, got {v!r}")
+    # what the readers and the calibration file take: a recording its own tools refuse or merge is no recording
+    if p.touch_interval[0] < MIN_TOUCH_INTERVAL:    # two touches at one stamp are one touch in a bag
+        raise ConfigError(f"{where}: 'touch_interval' must start at {MIN_TOUCH_INTERVAL} s or more, got"
+                          f" {p.touch_interval!r}")
+    if p.cluster_distance > MAX_CLUSTER_DISTANCE:
+        raise ConfigError(f"{where}: 'cluster_distance' {p.cluster_distance} m is beyond {MAX_CLUSTER_DISTANCE} m"
+                          f" (a neighbourhood of taxels, skinManager's maxNeighborDist: about 0.012 m)")
+    for name in ("body_mount_rotation", "patch_rotation", "triangle_rotation"):
+        if number(name) > math.pi:
+            raise ConfigError(f"{where}: '{name}' {getattr(p, name)} rad is more than half a turn")
+    if number("joint_offset_deg") > MAX_JOINT_OFFSET_DEG:
+        raise ConfigError(f"{where}: 'joint_offset_deg' {p.joint_offset_deg} is more than {MAX_JOINT_OFFSET_DEG} deg"
+                          f" (a calibration file takes joint offsets up to {math.degrees(MAX_JOINT_CORRECTION):.1f})")
     if p.pressure_spots[0] < 1:
         raise ConfigError(f"{where}: 'pressure_spots' must start at 1 or more, got {p.pressure_spots!r}")
     for name in ("n_touches", "pose_restarts", "pose_iterations"):
@@ -214,6 +231,9 @@ def validate(p: SimParams, where: str = "simulation parameters") -> None:
         raise ConfigError(f"{where}: 'hand_mount_offset' must be [x, y, z] metres, got {off!r}")
     if not isinstance(p.link_errors, dict) or not all(_metres(v) for v in p.link_errors.values()):
         raise ConfigError(f"{where}: 'link_errors' must map link names to metres, got {p.link_errors!r}")
+    if any(abs(v) > MAX_LINK_CORRECTION for v in p.link_errors.values()):
+        raise ConfigError(f"{where}: 'link_errors' beyond {MAX_LINK_CORRECTION} m (a calibration file takes link"
+                          f" corrections up to that), got {p.link_errors!r}")
     if not isinstance(p.pairs, (list, tuple)) or not p.pairs:
         raise ConfigError(f"{where}: 'pairs' must be a non-empty list of [hand, part] pairs")
     seen = set()
