@@ -76,25 +76,22 @@ def test_the_recorder_warns_when_a_skin_topic_is_stamped_by_another_clock(tmp_pa
             skew = progress[-1].get("clock_skew_s", {}) if progress else {}
             return {taxels_topic(p) for p in late} <= set(skew)
 
-        deadline = time.monotonic() + 60
-        while not skewed() and time.monotonic() < deadline and recorder.alive():
-            now = time.time()
-            joints.publish(joint_state_msg(names, np.zeros(len(names)), stamp_to_msg(now)))
-            for part, behind in late.items():
-                clouds[part].publish(cloud_from_array(released, skin.parts[part].parent_frame,
-                                                      stamp_to_msg(now - behind)))
-            listener.spin_for(0.02)
+        def warned():
+            return recorder.stderr().count(" is stamped ") >= sum(b > SKEW_LIMIT_S for b in late.values())
+
+        def publish_until(done, timeout: float) -> None:
+            deadline = time.monotonic() + timeout
+            while not done() and time.monotonic() < deadline and recorder.alive():
+                now = time.time()
+                joints.publish(joint_state_msg(names, np.zeros(len(names)), stamp_to_msg(now)))
+                for part, behind in late.items():
+                    clouds[part].publish(cloud_from_array(released, skin.parts[part].parent_frame,
+                                                          stamp_to_msg(now - behind)))
+                listener.spin_for(0.02)
+
+        publish_until(skewed, 60)
         assert skewed(), (progress[-1:], recorder.stderr()[-2000:])
-        # the warnings come with the second progress in a row that shows the skew: keep publishing
-        deadline = time.monotonic() + 20
-        while (time.monotonic() < deadline and recorder.alive()
-               and recorder.stderr().count(" is stamped ") < sum(b > SKEW_LIMIT_S for b in late.values())):
-            now = time.time()
-            joints.publish(joint_state_msg(names, np.zeros(len(names)), stamp_to_msg(now)))
-            for part, behind in late.items():
-                clouds[part].publish(cloud_from_array(released, skin.parts[part].parent_frame,
-                                                      stamp_to_msg(now - behind)))
-            listener.spin_for(0.02)
+        publish_until(warned, 20)   # the warnings come with the second progress in a row that shows the skew
     finally:
         if listener is not None:
             listener.close()

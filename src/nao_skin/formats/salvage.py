@@ -103,7 +103,8 @@ class Tail:
 
 class UnclosedBag:
     """A bag rosbags cannot open (or opens empty), read from its one storage file; :func:`unclosed_sqlite`,
-    :func:`cut_mcap` and :func:`provisional_mcap` find one. Subclasses say how the file is read and what the report says was lost."""
+    :func:`cut_mcap` and :func:`provisional_mcap` find one. Subclasses say how the file is read and what the
+    report says was lost."""
 
     def __init__(self, path: Path, file: Path):
         self.path, self.file = path, file
@@ -198,21 +199,25 @@ class _UnclosedSqlite(UnclosedBag):
 
 def unclosed_sqlite(path: Path) -> UnclosedBag | None:
     """A sqlite3 bag whose metadata.yaml does not list its messages (never closed); None for any other bag."""
-    import yaml
-
     files = sorted(path.glob("*.db3")) if path.is_dir() else []
     if len(files) != 1:
         return None
     why = metadata_yaml_problem(path)
     if why is not None:
         return _UnclosedSqlite(path, _only_storage(path, files[0], why), "no metadata", why)
-    info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    listed = bool(info.get("files") or info.get("topics_with_message_count"))
-    # BagWriter's provisional metadata (written at open) lists neither; the real one, written on close, both
-    if listed:
+    if not _lists_no_messages(path):
         return None
     return _UnclosedSqlite(path, files[0], "truncated bag", "metadata.yaml lists no messages",
                            " (the recorder did not close the bag; anything after its last commit is lost)")
+
+
+def _lists_no_messages(path: Path) -> bool:
+    """The bag directory's (readable) metadata.yaml lists no messages: BagWriter's provisional one, written
+    at open, lists neither files nor topics; the real one, written on close, both."""
+    import yaml
+
+    info = yaml.safe_load((path / "metadata.yaml").read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+    return isinstance(info, dict) and not (info.get("files") or info.get("topics_with_message_count"))
 
 
 def metadata_yaml_problem(path: Path) -> str | None:
@@ -455,13 +460,10 @@ def provisional_mcap(path: Path) -> UnclosedBag | None:
     was killed, or its disk filled, or the folder was renamed, before the metadata was written on close.
     rosbags opens such a bag and finds nothing in it; its mcap file holds every message written (the whole
     file, when the writer closed it). None for any other bag."""
-    import yaml
-
     files = sorted(path.glob("*.mcap")) if path.is_dir() else []
     if len(files) != 1 or sorted(path.glob("*.db3")) or metadata_yaml_problem(path) is not None:
         return None
-    info = yaml.safe_load((path / "metadata.yaml").read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
-    if not isinstance(info, dict) or info.get("files") or info.get("topics_with_message_count"):
+    if not _lists_no_messages(path):
         return None
     return _CutMcap(path, files[0], None, "its metadata.yaml lists no messages (the bag was not closed)")
 
