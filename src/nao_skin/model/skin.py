@@ -610,10 +610,12 @@ def _check_layout(path: Path, name: str, recorded, part: SkinPart) -> None:
                           f" (--taxels {name}=FILE)")
 
 
-def part_from_layout(name: str, chain: str | None, robot: RobotModel, taxel_file: str | Path) -> SkinPart:
-    """A part built from a taxel file alone (patches: 16 triangles each, the Nao convention)."""
-    return build_part(name, chain, robot.end_frame(chain), read_taxel_file(taxel_file), None, str(taxel_file),
-                      layout_file=str(taxel_file))
+def part_from_layout(name: str, chain: str | None, robot: RobotModel, taxel_file: str | Path,
+                     layout: TaxelFile | None = None) -> SkinPart:
+    """A part built from a taxel file alone (patches: 16 triangles each, the Nao convention); ``layout``: the
+    file's contents, when already read."""
+    layout = read_taxel_file(taxel_file) if layout is None else layout
+    return build_part(name, chain, robot.end_frame(chain), layout, None, str(taxel_file), layout_file=str(taxel_file))
 
 
 def _covers(patch_table: Mapping[int, list], layout: TaxelFile) -> bool:
@@ -693,8 +695,7 @@ def load_skin(skin_config: str | Path | None = None, taxel_files: Mapping[str, s
             parts[name] = build_part(name, chain, skin.robot.end_frame(chain), layout, was.patch_table,
                                      f"{skin.source} with --taxels {name}={path}", was.mount_given, str(path))
         else:
-            parts[name] = build_part(name, chain, skin.robot.end_frame(chain), layout, None, str(path),
-                                     layout_file=str(path))
+            parts[name] = part_from_layout(name, chain, skin.robot, path, layout)
     if not taxel_files:
         return skin
     return SkinModel(skin.robot, parts, f"{skin.source} + " + ", ".join(str(p) for p in taxel_files.values()))
