@@ -372,3 +372,45 @@ def test_the_closing_stage_frees_the_triangles_once_more_from_where_the_refineme
     warm = calibrate(touches, skin, CalibrationOptions(), prior=left_hand_result.calibration,
                      warm=("l_hand", "torso"), split=(left_hand_result.train, left_hand_result.test))
     assert not any(s["name"].startswith("closing: ") for s in warm.report.stages)
+
+
+def test_solves_a_re_pairing_replaces_stop_early_and_a_stages_last_allowed_one_runs_to_the_end(skin, left_hand_sim,
+                                                                                             monkeypatch):
+    """``repair_iterations``: a solve on a pairing that the next re-pairing replaces stops after that many
+    iterations; the stage's last allowed re-pairing, and so a warm update's only one, solves to
+    ``max_iterations``. ``reference_repairings``: a fixed-reference step that the joint refinement follows
+    (it frees the same frames again) re-pairs that often at most; the joint refinement and closing stages,
+    ``max_repairings``."""
+    from nao_skin.calibration import stages
+
+    touches, truth = left_hand_sim
+    solves = []
+    real_solve = stages.solve
+
+    def recorded(*args, **kwargs):
+        result = real_solve(*args, **kwargs)
+        solves.append((args[6].max_iterations, result.iterations))
+        return result
+
+    monkeypatch.setattr(stages, "solve", recorded)
+    options = CalibrationOptions(repair_iterations=1, reference_repairings=2, max_repairings=4, max_iterations=30)
+    result = calibrate(touches, skin, options, truth=truth)
+    caps = [cap for cap, _ in solves]
+    assert set(caps) == {1, 30}, caps
+    assert all(iterations <= cap for cap, iterations in solves)
+    reached = [s for s in result.report.stages
+               if s["repairings"] == (2 if " from " in s["name"] else 4)]
+    assert 1 <= caps.count(30) <= len(reached), (caps, [(s["name"], s["repairings"]) for s in result.report.stages])
+    for s in result.report.stages:
+        assert s["repairings"] <= (2 if " from " in s["name"] else 4), s
+    assert any(s["repairings"] > 2 for s in result.report.stages if " from " not in s["name"])
+
+    # without a joint refinement the fixed-reference steps are where the calibration ends: max_repairings
+    alone = calibrate(touches, skin, CalibrationOptions(joint_refinement=False, reference_repairings=1,
+                                                        max_repairings=4), truth=truth)
+    assert any(s["repairings"] > 1 for s in alone.report.stages), alone.report.stages
+
+    solves.clear()
+    calibrate(touches, skin, options, prior=result.calibration, warm=("l_hand", "torso"),
+              split=(result.train, result.test))
+    assert solves and {cap for cap, _ in solves} == {30}, solves

@@ -168,6 +168,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
     fit.truth_poses = robot_joints(train, skin) if truth is not None else None
     anchor = (anchor or skin.zero_calibration()) if warm else None
     schedule = _schedule(steps, options, warm)
+    refined = any(prefix == JOINT for _, _, prefix in schedule)
     report = CalibrationReport(
         options=_options_dict(options),
         plan=[(prefix if prefix in (JOINT, CLOSING) else "") + step.name
@@ -187,7 +188,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
         for levels in _stage_levels(step, options, prefix):
             report.stages.append(_fit_stage(train, test, skin, step, levels, round_no, prefix, options, fit,
                                             truth, say, measure=not warm, anchor=anchor,
-                                            warm=bool(warm) and warm.issuperset(step.targets)))
+                                            warm=bool(warm) and warm.issuperset(step.targets), refined=refined))
     if options.kinematics != "off":
         report.kinematics = _fit_kinematics(train, test, skin, steps, schedule, start, options, fit, truth, say,
                                             report)
@@ -306,18 +307,21 @@ def _first_guess(train: TouchSet, skin: SkinModel, step: Step, options: Calibrat
 
 def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, levels: set, round_no: int,
                prefix: str, options: CalibrationOptions, fit: _Fit, truth, say, measure: bool = True,
-               anchor: SkinCalibration | None = None, warm: bool = False) -> dict:
+               anchor: SkinCalibration | None = None, warm: bool = False, refined: bool = False) -> dict:
     """One stage: solve, keep it unless it drove the touches apart, gate after a mount fit; its report entry.
 
     ``warm``: every part the stage fits was calibrated by the last update: ``options.warm_repairings``
-    re-pairings at most (a part new to the session gets all ``max_repairings``)."""
+    re-pairings at most (a part new to the session gets all ``max_repairings``). ``refined``: a joint
+    refinement follows, which frees the frames of a fixed-reference step again: such a step's stages
+    re-pair ``options.reference_repairings`` times at most."""
     # a stage is judged on what it fits, as it fits it (closest COP and taxel pairs, at the fabric
     # surfaces): taxel-centre distances grow with the fabric estimate however good the fit
     # (test_calibrate: a stage that drives the touches apart is undone)
     kinds = fitted_kinds(options, levels)
+    limit = (options.warm_repairings if warm else options.reference_repairings if refined and step.references
+             else options.max_repairings)
     stage = run_stage(train, skin, fit.calibration, step, step.targets, levels, options, fit.inliers, say,
-                      fit.fabric, fit.prior_sigma, anchor,
-                      max_repairings=min(options.warm_repairings, options.max_repairings) if warm else None,
+                      fit.fabric, fit.prior_sigma, anchor, max_repairings=min(limit, options.max_repairings),
                       condition=measure)
     # the costs are measured on the pairings the stage made where it started and (when its pairing
     # settled) where it ended, else the touches are paired for them
@@ -388,12 +392,14 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     kfit = _Fit(start.copy(), options.fabric_thickness, initial_prior_sigma(options), fit.inliers.copy(),
                 list(fit.set_aside))
     entries = []
+    refined = any(prefix == JOINT for _, _, prefix in schedule)
     for round_no, st, stage_prefix in schedule:
         prefix = "kinematics, mounts: " + stage_prefix
         if options.initial_guess == "rigid-fit" and round_no == 0 and (st.references or options.reference == "simultaneous"):
             _first_guess(train, skin, st, options, kfit, say, prefix)
         if any("mount" in levels for levels in _stage_levels(st, options, stage_prefix)):
-            entries.append(_fit_stage(train, test, skin, st, {"mount"}, round_no, prefix, options, kfit, truth, say))
+            entries.append(_fit_stage(train, test, skin, st, {"mount"}, round_no, prefix, options, kfit, truth, say,
+                                      refined=refined))
     entries.append(_fit_stage(train, test, skin, step, {"mount", KINEMATICS}, options.rounds, "kinematics: ", options,
                               kfit, truth, say))
     for n in range(1, options.kinematics_passes + 1):
@@ -406,7 +412,7 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
         for round_no, st, prefix in schedule:
             for levels in _stage_levels(st, options, prefix):
                 entries.append(_fit_stage(train, test, skin, st, levels, round_no, f"kinematics pass {n}: " + prefix,
-                                          options, kfit, truth, say))
+                                          options, kfit, truth, say, refined=refined))
         entries.append(_fit_stage(train, test, skin, step, {"mount", KINEMATICS}, options.rounds,
                                   f"kinematics pass {n}: ", options, kfit, truth, say))
         moved = max((abs(v - last.get(k, 0.0)) for k, v in kfit.calibration.kinematics.items()), default=0.0)

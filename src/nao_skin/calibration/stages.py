@@ -98,7 +98,8 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     last_cost = np.inf
     prior_sigma = dict(initial_prior_sigma(options) if prior_sigma is None else prior_sigma)
     pairings = {}
-    for repairings in range(1, (max_repairings or options.max_repairings) + 1):
+    limit = max_repairings or options.max_repairings
+    for repairings in range(1, limit + 1):
         current = layout.to_calibration(x, calib)
         pairing_all = pair_step(touches, skin, current, step, pair_kinds, options.plane_rows())
         if pairing_all is None:
@@ -153,8 +154,8 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
         if not np.any(free):
             break
         weights = _prior_weights(layout, free_parts, options, prior_sigma)
-        result = solve(model, x, free, lower, upper, free_levels, options.solve_options(), prior=centre,
-                       prior_weights=weights)
+        result = solve(model, x, free, lower, upper, free_levels, options.solve_options(last=repairings == limit),
+                       prior=centre, prior_weights=weights)
         iterations += result.iterations
         x = result.x
         # the prior's width from the evidence once every part is free: fitted to a fixed reference,
