@@ -107,8 +107,8 @@ class CalibrationOptions:
     max_iterations: int = option(50, Rule(int, low=1, high=1e4), "solver iterations per solve at most")
     # alternating pairing and solving (as ICP does), a solve need not converge on a pairing the next
     # step replaces: on the real recording (5 splits) 2 iterations end as close as 50 (closest COP
-    # 3.96 / 4.09 against 3.98 / 4.10 mm, taxel 1.71 / 1.69 against 1.69 / 1.68, train / test) for
-    # four fifths of the time (README, Calibration: "Inexact solves")
+    # 3.98 / 4.09 against 3.98 / 4.10 mm, taxel 1.71 / 1.68 against 1.69 / 1.68, train / test) in
+    # about four fifths of the time (README, Calibration: "Inexact solves")
     repair_iterations: int = option(2, Rule(int, low=1, high=1e4),
                                     "solver iterations per solve before a stage's last allowed re-pairing (the"
                                     " pairing changes under it); that last one, and a warm update's, solves to"
