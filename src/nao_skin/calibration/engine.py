@@ -168,7 +168,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
     fit.truth_poses = robot_joints(train, skin) if truth is not None else None
     anchor = (anchor or skin.zero_calibration()) if warm else None
     schedule = _schedule(steps, options, warm)
-    refined = any(prefix == JOINT for _, _, prefix in schedule)
+    refined = _refines(schedule)
     report = CalibrationReport(
         options=_options_dict(options),
         plan=[(prefix if prefix in (JOINT, CLOSING) else "") + step.name
@@ -270,6 +270,11 @@ def _schedule(steps: list, options: CalibrationOptions, warm: frozenset = frozen
 
 
 JOINT, CLOSING = "joint refinement: ", "closing: "      # name prefixes of the schedule's last stages
+
+
+def _refines(schedule: list) -> bool:
+    """Whether the schedule has a joint refinement (its fixed-reference steps are where it starts)."""
+    return any(prefix == JOINT for _, _, prefix in schedule)
 
 
 def _stage_levels(step: Step, options: CalibrationOptions, prefix: str = ""):
@@ -392,7 +397,7 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     kfit = _Fit(start.copy(), options.fabric_thickness, initial_prior_sigma(options), fit.inliers.copy(),
                 list(fit.set_aside))
     entries = []
-    refined = any(prefix == JOINT for _, _, prefix in schedule)
+    refined = _refines(schedule)
     for round_no, st, stage_prefix in schedule:
         prefix = "kinematics, mounts: " + stage_prefix
         if options.initial_guess == "rigid-fit" and round_no == 0 and (st.references or options.reference == "simultaneous"):

@@ -112,7 +112,8 @@ class CalibrationOptions:
     repair_iterations: int = option(2, Rule(int, low=1, high=1e4),
                                     "solver iterations per solve before a stage's last allowed re-pairing (the"
                                     " pairing changes under it); that last one, and a warm update's, solves to"
-                                    " max_iterations")
+                                    " max_iterations (a stage whose pairing settles earlier ends where its last"
+                                    " solve left it, and the next stage goes on from there)")
     gate_mm: float = option(15.0, Rule(float, low=0.0, high=1e4),
                             "mm: touches farther apart than this after the mount fit are set aside (0: off)")
     test_fraction: float = option(0.3, Rule(float, low=0.0, high=1.0, high_open=True,
