@@ -69,7 +69,9 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     the patches and triangles is centred (default: ``calib``, where the stage
     starts); a warm-started update centres it where its session started, or
     each update would count the touches of the one before again. ``max_repairings``: instead of
-    ``options.max_repairings`` (a warm update's ``options.warm_repairings``). ``condition``: report the
+    ``options.max_repairings`` (a warm update's ``options.warm_repairings``, a fixed-reference step's
+    ``options.reference_repairings``); the last of them solves to ``options.max_iterations``, the others
+    stop after ``options.repair_iterations``. ``condition``: report the
     condition number of the final normal equations (a Jacobian and an eigendecomposition more: a live
     update, which reports no stage, skips it).
     """
