@@ -6,6 +6,7 @@ recording and its layouts, and simulated touches written in the thesis' format.
 """
 import argparse
 import json
+import math
 import os
 import re
 import shutil
@@ -23,7 +24,7 @@ from nao_skin.cli import main as cli_main
 from nao_skin.errors import ConfigError, DataError
 from nao_skin.formats.legacy import read_legacy, skin_model_for
 from nao_skin.model.skin import SkinCalibration, load_skin
-from nao_skin.paths import package_dir
+from nao_skin.paths import config_dir, package_dir
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 
@@ -276,6 +277,28 @@ def test_a_layout_is_the_same_whatever_file_holds_it(tmp_path):
         SkinCalibration.load(tmp_path / "c.yaml", real)
 
 
+def test_a_calibration_applies_only_to_the_chain_description_it_was_made_on(tmp_path):
+    """A robot config of the same name with another DH row took a calibration made on the real one."""
+    skin = load_skin()
+    skin.zero_calibration().save(tmp_path / "c.yaml", skin)
+    config = (config_dir() / "nao_h25.yaml").read_text()
+    renamed = config.replace("frame: l_wrist_link", "frame: l_wrist")          # the same arm, another frame name
+    assert renamed != config
+    tilted = config.replace("offset: pi,    frame: l_wrist_link", "offset: 3.15,  frame: l_wrist_link")
+    assert tilted != config
+    for text, name in ((renamed, "renamed"), (tilted, "tilted")):
+        (tmp_path / f"{name}.yaml").write_text(text)
+        other = load_skin(robot_config=tmp_path / f"{name}.yaml")
+        assert other.robot.name == skin.robot.name
+        with pytest.raises(ConfigError, match=r"part 'l_hand' was calibrated on another description of chain 'l_arm'"
+                                              rf" \(sha256 [0-9a-f]{{12}}\) than the robot config's .*{name}.yaml"):
+            SkinCalibration.load(tmp_path / "c.yaml", other)
+    # "pi" written out: the same description
+    (tmp_path / "same.yaml").write_text(config.replace("offset: pi,    frame: l_wrist_link",
+                                                       f"offset: {math.pi!r}, frame: l_wrist_link"))
+    SkinCalibration.load(tmp_path / "c.yaml", load_skin(robot_config=tmp_path / "same.yaml"))
+
+
 def test_an_unknown_part_in_taxels_is_one_line(capsys, tmp_path):
     assert cli_main(["stats", str(RECORDING), "--taxels", f"l_arm={REAL / 'l_hand.taxels.txt'}"]) == 2
     assert "unknown skin part 'l_arm'" in one_line(capsys)
@@ -522,6 +545,9 @@ def test_a_broken_bench_input_never_costs_an_earlier_benchmark(tmp_path, capsys,
     (["--calibration", "notes.txt"], "notes.txt: a calibration needs a 'parts' mapping"),
     (["--calibration", "missing.yaml"], "missing.yaml: cannot read calibration (No such file or directory)"),
     (["--taxels", "l_hand=binary.txt"], "{tmp}/binary.txt: cannot read taxel file (not a text file"),
+    (["--bag", "a\nb"], "bag '{tmp}/a\\nb': holds a control character (a newline, a tab), which a ROS parameter"
+                        " does not carry as it is"),
+    (["--param", "calibrate.out_dir=x\ty"], "calibrate.out_dir 'x\\ty': holds a control character"),
     (["--duration", "-5"], "--duration -5.0: expected seconds >= 0 (0: until Ctrl-C)"),
     (["--duration", "nan"], "--duration nan: expected seconds >= 0 (0: until Ctrl-C)"),
 ])
@@ -534,6 +560,17 @@ def test_record_refuses_what_a_node_would_die_of_before_any_starts(tmp_path, cap
     assert cli_main(argv if "--bag" in args else [*argv, "--bag", "new_bag"]) == 2
     assert one_line(capsys).startswith("nao-skin record: error: " + says.format(tmp=tmp_path))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["binary.txt", "existing", "notes.txt"]
+
+
+def test_a_command_run_from_a_removed_directory_says_so(tmp_path, capsys, monkeypatch):
+    """It said "cannot write the output (No such file or directory)", naming neither bag nor directory."""
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    monkeypatch.chdir(gone)
+    gone.rmdir()
+    assert cli_main(["record", "--print"]) == 2
+    assert one_line(capsys) == ("nao-skin record: error: the current directory no longer exists (removed while this"
+                                " shell was in it); cd to one that does, or give absolute paths")
 
 
 @pytest.mark.parametrize("args, says", [

@@ -78,6 +78,9 @@ def main(argv=None) -> int:
             where = f"{exc.filename}: {os_reason(exc)}"
         elif stdout.failed:
             where = f"cannot write to standard output ({os_reason(exc)})"
+        elif not _cwd_exists():   # a relative path cannot be resolved: the error names no file
+            where = ("the current directory no longer exists (removed while this shell was in it); cd to one"
+                     " that does, or give absolute paths")
         else:
             where = f"cannot write the output ({os_reason(exc)})"
         print(f"nao-skin {args.command}: error: {where}", file=sys.stderr)
@@ -86,6 +89,14 @@ def main(argv=None) -> int:
         signal.signal(signal.SIGTERM, previous_term)
         # a stream that failed once fails again at Python's own flush at exit, with a second message
         sys.stdout = open(os.devnull, "w") if stdout.failed else stdout.stream  # noqa: SIM115 - until exit
+
+
+def _cwd_exists() -> bool:
+    try:
+        os.getcwd()
+    except FileNotFoundError:
+        return False
+    return True
 
 
 class _WatchedStream:

@@ -15,6 +15,7 @@ parameter, or a value of the wrong type, is one ConfigError line.
 """
 from __future__ import annotations
 
+import re
 import shutil
 import sys
 from dataclasses import dataclass, field
@@ -29,6 +30,7 @@ from nao_skin.paths import config_dir, parse_yaml, yaml_value
 from nao_skin.rules import did_you_mean
 
 ROBOTS = ("sim", "nao")
+CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 SKIN_NODES = ("sim_robot", "yarp_skin_bridge", "pairing_recorder", "skin_heatmap", "calibrate")   # read the skin
 PARENT_ENV = "NAO_SKIN_PARENT_PID"     # set by `nao-skin record` for its nodes: they stop when it is gone
 # what stops record, bench-live and a node as Ctrl-C does: a closed terminal (SIGHUP), a kill or timeout (SIGTERM)
@@ -136,10 +138,22 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
         spec = by_name[node]
         spec.overrides.update(typed_overrides(spec, values) if spec.ours else _as_yaml(values))
     for spec in specs:
+        _check_printable(spec)
         if spec.ours:
             _check_together(spec)
     _check_files(bag_path, calibration, by_name["calibrate"].overrides)
     return specs
+
+
+def _check_printable(spec: NodeSpec) -> None:
+    """A text parameter with a control character (a newline, a tab) is refused: on the ``-p`` line ROS reads it
+    as YAML, which folds a newline into a space, so the recorder would write another bag than the one named."""
+    for name, value in spec.overrides.items():
+        for text in value if isinstance(value, list) else [value]:
+            if isinstance(text, str) and CONTROL.search(text):
+                what = "bag" if (spec.name, name) == ("pairing_recorder", "bag_path") else f"{spec.name}.{name}"
+                raise ConfigError(f"{what} {text!r}: holds a control character (a newline, a tab), which a ROS"
+                                  f" parameter does not carry as it is; use printable characters")
 
 
 def _check_together(spec: NodeSpec) -> None:

@@ -1,6 +1,8 @@
 """Robot kinematics as data: DH chains from YAML, forward kinematics batched over N poses."""
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import re
 from dataclasses import dataclass
@@ -284,6 +286,13 @@ class RobotModel:
         if chain is None:
             return np.broadcast_to(np.eye(4), (q.shape[0], 4, 4)).copy()
         return self.fk_frames(chain, q)[:, -1]
+
+    def chain_sha256(self, chain: str) -> str:
+        """SHA-256 of what a skin frame hanging off ``chain`` was calibrated on: the base frame, then each DH
+        row's joint, frame and parameters (12 significant digits: "pi/2" and 1.5707963267949 hash alike)."""
+        ch = self._chain(chain)
+        rows = [[j, f, *(f"{float(v) + 0.0:.12g}" for v in dh)] for j, f, dh in zip(ch.joints, ch.frames, ch.dh)]
+        return hashlib.sha256(json.dumps([self.base_frame, rows]).encode()).hexdigest()
 
     def end_frame(self, chain: str | None) -> str:
         return self.base_frame if chain is None else self._chain(chain).end_frame

@@ -460,6 +460,8 @@ class SkinCalibration:
             mount, *others = part.frames(self.parts.get(name))
             out["parts"][name] = {
                 "chain": part.chain,
+                # the arm or head the frames hang off, as the robot config described it: load() refuses another
+                **({"chain_sha256": skin.robot.chain_sha256(part.chain)} if part.chain else {}),
                 # the layout the corrections belong to: load() refuses another one
                 "layout": {"file": Path(part.layout_file).name, "sha256": part.layout_sha256},
                 "mount": entry(mount),
@@ -528,6 +530,7 @@ class SkinCalibration:
             if "chain" in spec and spec["chain"] != part.chain:   # its frames would hang off another arm
                 raise ConfigError(f"{path}: part '{name}' was calibrated on chain {spec['chain']!r}; the skin config"
                                   f" hangs it off {part.chain!r}")
+            _check_chain(path, name, spec.get("chain_sha256"), part, skin.robot)
             _check_layout(path, name, spec.get("layout"), part)
             corr = calib.parts[name]
             if "mount" in spec:
@@ -597,6 +600,19 @@ def skin_frame_transforms(skin: SkinModel, calib: SkinCalibration) -> list:
     """``[(parent, child, 4x4)]`` of every skin frame of every part: the poses calibration.yaml and the URDF hold."""
     return [(f.parent, f.frame, f.pose)
             for name, part in skin.parts.items() for f in part.frames(calib.parts.get(name))]
+
+
+def _check_chain(path: Path, name: str, recorded, part: SkinPart, robot: RobotModel) -> None:
+    """A calibration applies only to the chain description it was made on: the same config name with other DH
+    rows would put every frame elsewhere without a word (older files, without a record, pass)."""
+    if recorded is None or part.chain is None:
+        return
+    here = robot.chain_sha256(part.chain)
+    if str(recorded) != here:
+        raise ConfigError(f"{path}: part '{name}' was calibrated on another description of chain {part.chain!r}"
+                          f" (sha256 {str(recorded)[:12]}) than the robot config's {robot.source} (sha256"
+                          f" {here[:12]}): its DH rows, joints or frames differ; give the robot config the"
+                          f" calibration was made with")
 
 
 def _check_layout(path: Path, name: str, recorded, part: SkinPart) -> None:
