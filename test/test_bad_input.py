@@ -277,6 +277,16 @@ def test_a_layout_is_the_same_whatever_file_holds_it(tmp_path):
         SkinCalibration.load(tmp_path / "c.yaml", real)
 
 
+def test_a_calibration_hanging_off_another_base_frame_is_refused(tmp_path):
+    skin = load_skin()
+    skin.zero_calibration().save(tmp_path / "c.yaml", skin)
+    text = (tmp_path / "c.yaml").read_text()
+    (tmp_path / "c.yaml").write_text(text.replace("base_frame: torso", "base_frame: head"))
+    with pytest.raises(ConfigError, match="c.yaml: its frames hang off base frame 'head'; the robot config's is"
+                                          " 'torso'"):
+        SkinCalibration.load(tmp_path / "c.yaml", skin)
+
+
 def test_a_calibration_applies_only_to_the_chain_description_it_was_made_on(tmp_path):
     """A robot config of the same name with another DH row took a calibration made on the real one."""
     skin = load_skin()
@@ -472,6 +482,13 @@ def test_layouts_never_replace_a_robots_own_layout_without_force(tmp_path, capsy
     assert cli_main(["layouts", str(linked), "--force"]) == 0
     assert elsewhere.read_text() == "the user's own file\n"
     assert not (linked / "l_hand.txt").is_symlink() and (linked / "l_hand.txt").read_bytes() == own.read_bytes()
+    # a folder under a layout's name: nothing written, not the layouts before it (r_hand.txt had been)
+    blocked = tmp_path / "blocked"
+    (blocked / "l_hand.txt").mkdir(parents=True)
+    assert cli_main(["layouts", str(blocked), "--force"]) == 2
+    assert one_line(capsys) == (f"nao-skin layouts: error: layouts {blocked}: {blocked / 'l_hand.txt'} is a directory,"
+                                f" not a regular file; nothing written; choose another place")
+    assert [p.name for p in blocked.iterdir()] == ["l_hand.txt"]
 
 
 @pytest.mark.parametrize("args, says", [

@@ -17,6 +17,7 @@ from thesis_format import write_thesis_file  # noqa: E402
 
 from nao_skin.calibration.engine import CalibrationOptions, calibrate, plan_steps
 from nao_skin.calibration.report import write_outputs
+from nao_skin.cli import main as cli_main
 from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, load_skin
 from nao_skin.model.taxel_file import read_taxel_file
@@ -126,13 +127,18 @@ def test_outputs_are_written_where_users_apply_them(tmp_path, skin, left_hand_re
     assert "| final |" in (out / "report.md").read_text()
 
 
-def test_too_few_touches_stop_with_one_line_and_write_nothing(tmp_path, skin):
+def test_too_few_touches_stop_with_one_line_and_write_nothing(tmp_path, skin, capsys):
     params = load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 5})
     touches = simulate(skin, params, seed=4).touches
     with pytest.raises(DataError) as err:
         calibrate(touches, skin, CalibrationOptions())
     msg = str(err.value)
     assert "\n" not in msg and "l_hand" in msg and "needs at least" in msg
+    assert not (tmp_path / "out").exists()
+    # the command's line names the recording it read
+    write_thesis_file(tmp_path / "few.txt", touches, skin)
+    assert cli_main(["calibrate", str(tmp_path / "few.txt"), "--out", str(tmp_path / "out"), "--no-plots"]) == 2
+    assert capsys.readouterr().err.strip().startswith(f"nao-skin calibrate: error: {tmp_path / 'few.txt'}: part")
     assert not (tmp_path / "out").exists()
 
 

@@ -102,16 +102,27 @@ def test_stale_or_missing_joints_drop_and_count(skin):
     assert len(run(det, skin, 1.0, hand_and_torso(skin), drop_joint="HeadYaw")) == 1
 
 
-def test_nan_angle_drops_touch(skin):
-    det = EventDetector.for_skin(skin)
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_a_non_finite_angle_drops_the_touch_that_needs_it_and_leaves_the_others(skin, bad):
+    """An infinite HeadYaw in a bag was kept in hand-torso touches: every FK of the head chain then warned."""
     names = skin.robot.joint_names
     q = np.zeros(len(names))
-    q[skin.robot.joint_index["LWristYaw"]] = np.nan
+    q[skin.robot.joint_index["LWristYaw"]] = bad
+    q[skin.robot.joint_index["HeadYaw"]] = bad       # needed by no part of the touch: as if not reported
+    det = EventDetector.for_skin(skin)
     det.add_joint_state(0.0, names, q)
     det.add_skin(0.01, "l_hand", [skin.parts["l_hand"].slots[0]])
     det.add_skin(0.01, "torso", [skin.parts["torso"].slots[0]])
     det.add_joint_state(0.02, names, q)
     assert det.flush() == [] and det.counts["missing joint"] == 1
+    q[skin.robot.joint_index["LWristYaw"]] = 0.0
+    det = EventDetector.for_skin(skin)
+    det.add_joint_state(0.0, names, q)
+    det.add_skin(0.01, "l_hand", [skin.parts["l_hand"].slots[0]])
+    det.add_skin(0.01, "torso", [skin.parts["torso"].slots[0]])
+    det.add_joint_state(0.02, names, q)
+    (touch,) = det.flush()
+    assert np.isnan(touch.joints[skin.robot.joint_index["HeadYaw"]])
 
 
 def test_joints_arriving_late_still_complete_the_touch(skin):

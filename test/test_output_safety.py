@@ -288,15 +288,18 @@ def test_a_readme_the_bench_cannot_write_whole_is_left_as_it_was(tmp_path):
     assert (tmp_path / "bench" / "bench_results.md").is_file()
 
 
-@pytest.mark.parametrize("argv, started", [
+@pytest.mark.parametrize("argv, started, stop", [
     # the bundled 4000 touches: seconds of calibration after its first progress line
     (["calibrate", str(package_dir() / "bags" / "sim_default"), "--out", "cal", "--no-plots", "--force"],
-     "first guess"),
-    (["simulate", "--touches-per-pair", "300", "--out", "cal", "--force"], None),      # ~20 s of simulation
-], ids=["calibrate", "simulate"])
-def test_a_kill_mid_run_keeps_the_earlier_output_and_leaves_nothing_half_written(work, argv, started):
-    """SIGTERM (kill, a job's timeout) as Ctrl-C: one line, exit 143, the earlier output and everything
-    else as it was, no temporary directory left. Python's default for SIGTERM skipped every cleanup."""
+     "first guess", signal.SIGTERM),
+    (["simulate", "--touches-per-pair", "300", "--out", "cal", "--force"], None, signal.SIGTERM),   # ~20 s
+    # the terminal closed (an ssh session dropped): Python's default for SIGHUP skipped every cleanup too
+    (["calibrate", str(package_dir() / "bags" / "sim_default"), "--out", "cal", "--no-plots", "--force"],
+     "first guess", signal.SIGHUP),
+], ids=["calibrate", "simulate", "calibrate-hangup"])
+def test_a_kill_mid_run_keeps_the_earlier_output_and_leaves_nothing_half_written(work, argv, started, stop):
+    """SIGTERM (kill, a job's timeout) or SIGHUP as Ctrl-C: one line, exit 128 + the signal, the earlier
+    output and everything else as it was, no temporary directory left."""
     if argv[0] == "simulate":
         ok(nao_skin("simulate", "--touches-per-pair", "3", "--out", "cal", cwd=work))
     else:
@@ -312,11 +315,11 @@ def test_a_kill_mid_run_keeps_the_earlier_output_and_leaves_nothing_half_written
         else:
             time.sleep(4.0)
         assert proc.poll() is None, "the command ended before the signal: give it more work"
-        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(stop)
     finally:
         err = _ended(proc)
-    assert proc.returncode == 143, (proc.returncode, err[-2000:])
-    assert err.strip().splitlines()[-1] == f"nao-skin {argv[0]}: terminated (SIGTERM)"
+    assert proc.returncode == 128 + stop, (proc.returncode, err[-2000:])
+    assert err.strip().splitlines()[-1] == f"nao-skin {argv[0]}: terminated ({stop.name})"
     assert tree(work) == before
 
 
@@ -588,12 +591,36 @@ def test_a_file_out_replaces_no_device_or_fifo_and_writes_through_a_symlink(tmp_
             assert stat_kind(path) == mode
     target = tmp_path / "kept" / "calibration.yaml"
     target.parent.mkdir()
-    target.write_text("old\n")
+    ok(nao_skin("nominal", "--out", target, cwd=tmp_path))
+    target.write_text(target.read_text().replace("nominal calibration", "an earlier one"))
     link = tmp_path / "link.yaml"
     link.symlink_to(target)
     ok(nao_skin("nominal", "--out", link, cwd=tmp_path))
     assert link.is_symlink() and "nominal calibration" in target.read_text()
     assert sorted(p.name for p in target.parent.iterdir()) == ["calibration.yaml"]     # no temporary left
+
+
+@pytest.mark.parametrize("command", ["nominal", "urdf"])
+def test_a_file_out_replaces_only_what_the_command_wrote(tmp_path, command):
+    """``nominal --out notes.txt`` and ``urdf --out my_robot.urdf`` replaced the user's file without a word."""
+    mine = {"notes.txt": "precious\n", "robot.urdf": "<?xml version='1.0'?><robot name='mine'/>\n"}
+    for name, text in mine.items():
+        (tmp_path / name).write_text(text)
+        run = nao_skin(command, "--out", name, cwd=tmp_path, timeout=120)
+        assert run.returncode == 2 and run.stderr.strip() == (
+            f"nao-skin {command}: error: --out {name}: exists and was not written by this command; nothing is"
+            f" written over somebody's file: choose another name, or remove it first"), run.stderr
+    (tmp_path / "loop_a").symlink_to(tmp_path / "loop_b")
+    (tmp_path / "loop_b").symlink_to(tmp_path / "loop_a")
+    run = nao_skin(command, "--out", "loop_a", cwd=tmp_path, timeout=120)
+    assert run.returncode == 2 and "--out loop_a: is a symbolic link that leads nowhere" in run.stderr, run.stderr
+    assert {name: (tmp_path / name).read_text() for name in mine} == mine
+    assert (tmp_path / "loop_a").is_symlink() and (tmp_path / "loop_b").is_symlink()
+    (tmp_path / "made_by_mktemp").write_text("")          # an empty file holds nothing to lose
+    ok(nao_skin(command, "--out", "made_by_mktemp", cwd=tmp_path, timeout=120))
+    first = (tmp_path / "made_by_mktemp").read_text()
+    ok(nao_skin(command, "--out", "made_by_mktemp", cwd=tmp_path, timeout=120))   # its own earlier output
+    assert (tmp_path / "made_by_mktemp").read_text() == first and first
 
 
 def test_an_input_that_is_no_regular_file_is_one_line_not_a_hang_or_all_memory(work):

@@ -66,9 +66,9 @@ def main(argv=None) -> int:
     except NaoSkinError as exc:
         print(f"nao-skin {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except Terminated:
-        print(f"nao-skin {args.command}: terminated (SIGTERM)", file=sys.stderr)
-        return 128 + signal.SIGTERM
+    except Terminated as exc:
+        print(f"nao-skin {args.command}: terminated ({signal.Signals(exc.signum).name})", file=sys.stderr)
+        return 128 + exc.signum
     except KeyboardInterrupt:
         print(f"nao-skin {args.command}: interrupted", file=sys.stderr)
         return 130
@@ -86,7 +86,8 @@ def main(argv=None) -> int:
         print(f"nao-skin {args.command}: error: {where}", file=sys.stderr)
         return 2
     finally:
-        signal.signal(signal.SIGTERM, previous_term)
+        for signum, handler in previous_term.items():
+            signal.signal(signum, handler)
         # a stream that failed once fails again at Python's own flush at exit, with a second message
         sys.stdout = open(os.devnull, "w") if stdout.failed else stdout.stream  # noqa: SIM115 - until exit
 

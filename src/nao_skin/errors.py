@@ -57,15 +57,24 @@ def end_at_once_on_ctrl_c(prog: str):
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM (``kill``, a session manager, a CI timeout) raised where the program is, as a Ctrl-C is: the
-    same ``except KeyboardInterrupt`` and ``finally`` clauses remove what is half written and keep what was
-    there before. Python's default for SIGTERM ends the process without running them."""
+    """SIGTERM (``kill``, a session manager, a CI timeout) or SIGHUP (the terminal closed) raised where the
+    program is, as a Ctrl-C is: the same ``except KeyboardInterrupt`` and ``finally`` clauses remove what is
+    half written and keep what was there before. Python's default for either ends the process without
+    running them. ``signum``: which one."""
+
+    def __init__(self, signum: int = signal.SIGTERM):
+        super().__init__(signum)
+        self.signum = signum
 
 
-def stop_on_sigterm():
-    """Make SIGTERM raise :class:`Terminated` in the main thread; returns the handler it replaced."""
+TERMINATING = tuple(getattr(signal, s) for s in ("SIGTERM", "SIGHUP") if hasattr(signal, s))
+
+
+def stop_on_sigterm() -> dict:
+    """Make SIGTERM and SIGHUP raise :class:`Terminated` in the main thread; returns ``{signal: the handler it
+    replaced}``."""
 
     def terminated(signum, frame):      # noqa: ARG001 - signal handler signature
-        raise Terminated()
+        raise Terminated(signum)
 
-    return signal.signal(signal.SIGTERM, terminated)
+    return {s: signal.signal(s, terminated) for s in TERMINATING}

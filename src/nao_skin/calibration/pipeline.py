@@ -14,6 +14,7 @@ from nao_skin.calibration.engine import CalibrationResult, FitState, calibrate
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.report import write_outputs
 from nao_skin.calibration.splits import split_spread, spread_text
+from nao_skin.errors import DataError
 from nao_skin.formats.inputs import load_touches
 from nao_skin.formats.outdir import CALIBRATION, check_output_dir
 from nao_skin.model.skin import SkinCalibration, SkinModel
@@ -112,7 +113,10 @@ def calibrate_inputs(inputs: Sequence, skin: SkinModel, options: CalibrationOpti
                      summary: Callable[[str], None] | None = None) -> tuple:
     """Load, deduplicate and calibrate, nothing written: ``(result, touches, load report, duplicates removed)``."""
     loaded = load_inputs(inputs, skin, log, summary)
-    result = calibrate_loaded(loaded, skin, options, prior, truth, log)
+    try:
+        result = calibrate_loaded(loaded, skin, options, prior, truth, log)
+    except DataError as exc:    # what the touches together cannot give: the line names the recordings they came from
+        raise type(exc)(f"{', '.join(map(str, inputs))}: {exc}") from None
     return result, loaded.touches, loaded.load_report, loaded.n_duplicates
 
 

@@ -12,11 +12,13 @@ def wall_seconds(args) -> float:
     return time.perf_counter() - getattr(args, "started", time.perf_counter())
 
 
-def write_output(text: str, out: Path | None, inputs=()) -> None:
+def write_output(text: str, out: Path | None, inputs=(), mark: str = "") -> None:
     """``text`` to ``out`` (its folder made, its path printed), or to stdout when ``out`` is None.
 
-    ``out`` may be an existing file (e.g. config/calibration_nominal.yaml regenerated), but not one of
-    ``inputs``, nor a directory; it is replaced whole or not at all (a temporary sibling renamed over it).
+    ``out`` may be an existing file this command wrote before (e.g. config/calibration_nominal.yaml
+    regenerated): one whose first lines hold ``mark``, as ``text``'s do. Never one of ``inputs``, a
+    directory, a link that leads nowhere, or anybody's own file; it is replaced whole or not at all (a
+    temporary sibling renamed over it).
     """
     from nao_skin.errors import DataError
     from nao_skin.formats.outdir import replace_file
@@ -27,9 +29,15 @@ def write_output(text: str, out: Path | None, inputs=()) -> None:
     out = Path(out)
     if out.is_dir():
         raise DataError(f"--out {out}: is a directory; give a file name")
+    if out.is_symlink() and not out.exists():
+        raise DataError(f"--out {out}: is a symbolic link that leads nowhere (a loop or a missing target);"
+                        f" choose another file")
     for item in inputs:
         if item and Path(item).exists() and out.exists() and os.path.samefile(item, out):
             raise DataError(f"--out {out}: is the input {item}; writing there would replace it, choose another file")
+    if out.is_file() and not _written_here(out, mark):
+        raise DataError(f"--out {out}: exists and was not written by this command; nothing is written over"
+                        f" somebody's file: choose another name, or remove it first")
     for parent in out.absolute().parents:
         if parent.exists():
             if not parent.is_dir():
@@ -41,6 +49,16 @@ def write_output(text: str, out: Path | None, inputs=()) -> None:
     except OSError as exc:
         raise DataError(f"--out {out}: cannot write ({exc.strerror}); choose another place") from None
     print(out)
+
+
+def _written_here(path: Path, mark: str) -> bool:
+    """Whether ``path`` is empty (e.g. made by mktemp) or its first lines hold ``mark`` (unreadable: not ours)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1024)
+    except OSError:
+        return False
+    return not head or (bool(mark) and mark.encode() in head)
 
 
 def config_files(skin) -> list:

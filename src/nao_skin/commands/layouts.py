@@ -19,11 +19,15 @@ def run(args) -> int:
     from nao_skin.errors import DataError, os_reason
     from nao_skin.formats.outdir import replace_file
     from nao_skin.model.layouts import write_default_layouts
+    from nao_skin.paths import not_a_file
 
     if not args.directory.strip():
         raise DataError("layouts '': expected a directory, e.g. config/layouts")
     directory = Path(args.directory)
     for place in (directory, *directory.absolute().parents):
+        if place.is_symlink() and not place.exists():
+            raise DataError(f"layouts {directory}: {place} is a symbolic link that leads nowhere (a loop or a missing"
+                            f" target); choose another place")
         if place.exists():
             if not place.is_dir():
                 raise DataError(f"layouts {directory}: {place} is a file, not a directory; choose another place")
@@ -38,6 +42,11 @@ def run(args) -> int:
         # regenerating config/layouts rewrites the same bytes; another file under a layout's name is someone's own
         differing = [t for f, t in zip(fresh, targets)
                      if (t.exists() or t.is_symlink()) and (not t.is_file() or t.read_bytes() != f.read_bytes())]
+        # checked for every file before any is written: a failure half-way left some layouts replaced
+        blocked = [t for t in targets if not t.is_symlink() and t.exists() and not t.is_file()]
+        if blocked:
+            raise DataError(f"layouts {directory}: {blocked[0]} is {not_a_file(blocked[0].stat().st_mode)}, not a"
+                            f" regular file; nothing written; choose another place")
         if differing and not args.force:
             more = f" and {len(differing) - 1} more" if len(differing) > 1 else ""
             raise DataError(f"layouts {directory}: {differing[0]}{more} differs from the default layout; nothing"

@@ -39,9 +39,10 @@ def nominal_calibration_text(skin_config: Path) -> str:
 def run(args) -> int:
     from nao_skin.paths import default_skin_config
 
-    from nao_skin.model.skin import SkinModel
+    from nao_skin.model.skin import CALIBRATION_HEADER, SkinModel
 
     skin_config = args.skin_config or default_skin_config()
     text = nominal_calibration_text(skin_config)
-    write_output(text, args.out, inputs=[skin_config, *config_files(SkinModel.from_yaml(skin_config))])
+    write_output(text, args.out, inputs=[skin_config, *config_files(SkinModel.from_yaml(skin_config))],
+                 mark=CALIBRATION_HEADER)
     return 0

@@ -21,7 +21,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from nao_skin.model.urdf import check_calibration_origins, expand_xacro
+    from nao_skin.model.urdf import check_calibration_origins, default_xacro, expand_xacro
     from nao_skin.paths import default_skin_config
 
     skin_config = args.skin or default_skin_config()
@@ -31,5 +31,6 @@ def run(args) -> int:
     check_calibration_origins(calibration, skin)
     robot_config = Path(skin.robot.source)
     text = expand_xacro(calibration, robot_config=robot_config if robot_config.is_file() else None)
-    write_output(text, args.out, inputs=[calibration, skin_config, *config_files(skin)])
+    # xacro's banner names the file it expanded: what tells an earlier output from somebody's own URDF
+    write_output(text, args.out, inputs=[calibration, skin_config, *config_files(skin)], mark=default_xacro().name)
     return 0

@@ -159,7 +159,7 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
         try:
             if isinstance(angle, bool):     # float(True) is 1.0 rad: a flag where an angle belongs
                 raise TypeError
-            joints[idx] = np.nan if angle is None else float(angle)
+            joints[idx] = np.nan if angle is None or math.isinf(float(angle)) else float(angle)   # inf: not measured
         except (TypeError, ValueError):
             raise _SkipTouch("bad joint angle", f"{where}: joint '{name}': not a number ({angle!r})") from None
         except OverflowError:           # an integer beyond any float

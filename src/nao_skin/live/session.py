@@ -187,7 +187,8 @@ def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> Non
     """What the nodes read and write first, checked before any starts: one line here instead of a node dying
     after the others are up (a bag is never overwritten; a calibration must fit the skin the nodes read)."""
     from nao_skin.formats.outdir import check_writable
-    from nao_skin.model.skin import SkinCalibration, load_skin
+    from nao_skin.model.skin import load_skin
+    from nao_skin.model.urdf import check_calibration_origins
 
     bag = Path(bag_path)
     if bag.exists() or bag.is_symlink():
@@ -205,8 +206,8 @@ def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> Non
     skin = load_skin(calibrate_params.get("skin_config") or None,
                      parse_taxel_files(calibrate_params.get("taxels") or [], "taxels"))
     calibration = calibrate_params.get("calibration") or calibration
-    if calibration:
-        SkinCalibration.load(calibration, skin)
+    if calibration:    # its corrections go to the nodes, its origins to robot_state_publisher's URDF: they must agree
+        check_calibration_origins(calibration, skin)
 
 
 def node_parameters(spec: NodeSpec) -> dict:

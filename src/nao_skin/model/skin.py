@@ -476,7 +476,7 @@ class SkinCalibration:
         return out
 
     def save(self, path: str | Path, skin: SkinModel, comment: str = "") -> None:
-        header = ("# nao_skin calibration: pose corrections of skin mount, patch and triangle frames.\n"
+        header = (f"{CALIBRATION_HEADER}\n"
                   "# correction: translation (m) and rotation vector (rad) in the frame's own axes,\n"
                   "#   applied after the nominal pose from the layout; origin: resulting pose relative\n"
                   "#   to the parent frame (URDF xyz/rpy), read by urdf/nao_skin.urdf.xacro.\n"
@@ -500,6 +500,9 @@ class SkinCalibration:
         if "robot" in doc and doc["robot"] != skin.robot.name:
             raise ConfigError(f"{path}: made for robot {doc['robot']!r}; the skin config's robot is"
                               f" {skin.robot.name!r} ({skin.robot.source})")
+        if "base_frame" in doc and doc["base_frame"] != skin.robot.base_frame:
+            raise ConfigError(f"{path}: its frames hang off base frame {doc['base_frame']!r}; the robot config's is"
+                              f" {skin.robot.base_frame!r} ({skin.robot.source})")
         _check_contents(path, doc)     # first: a file cut short is said as such, not as its last entry broken
         calib = skin.zero_calibration()
 
@@ -570,6 +573,9 @@ class SkinCalibration:
             if std is not None:
                 calib.kinematics_std[str(name)] = std
         return calib
+
+
+CALIBRATION_HEADER = "# nao_skin calibration: pose corrections of skin mount, patch and triangle frames."
 
 
 def _check_contents(path: Path, doc: dict) -> None:

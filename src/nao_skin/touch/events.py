@@ -148,6 +148,7 @@ class EventDetector:
                                                 f" {len(positions)} positions")
             return []
         values[cols[1]] = positions[cols[0]]
+        values[np.isinf(values)] = np.nan     # no measurement, as a joint not reported (inf made FK warn)
         stamp = float(stamp)
         if not self._joint_stamps or stamp >= self._joint_stamps[-1]:
             self._joint_stamps.append(stamp)
