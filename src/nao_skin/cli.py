@@ -17,7 +17,7 @@ import sys
 import time
 
 from nao_skin import commands
-from nao_skin.errors import NaoSkinError, Terminated, end_at_once_on_ctrl_c, os_reason, stop_on_sigterm
+from nao_skin.errors import NaoSkinError, Terminated, end_at_once_on_ctrl_c, os_reason, stop_on_term_or_hangup
 
 
 class _Parser(argparse.ArgumentParser):
@@ -59,7 +59,7 @@ def main(argv=None) -> int:
         print(f"nao-skin {args.command}: error: standard output is closed; redirect it (e.g. > /dev/null)",
               file=sys.stderr)
         return 2
-    previous_term = stop_on_sigterm()     # a kill stops a command as a Ctrl-C does, its outputs whole or not at all
+    previous_term = stop_on_term_or_hangup()   # as a Ctrl-C does: its outputs whole or not at all
     stdout = sys.stdout = _WatchedStream(sys.stdout)
     try:
         return int(func(args) or 0)

@@ -70,7 +70,7 @@ class Terminated(KeyboardInterrupt):
 TERMINATING = tuple(getattr(signal, s) for s in ("SIGTERM", "SIGHUP") if hasattr(signal, s))
 
 
-def stop_on_sigterm() -> dict:
+def stop_on_term_or_hangup() -> dict:
     """Make SIGTERM and SIGHUP raise :class:`Terminated` in the main thread; returns ``{signal: the handler it
     replaced}``."""
 
