@@ -316,6 +316,9 @@ def test_an_unknown_part_in_taxels_is_one_line(capsys, tmp_path):
     assert "none.txt: no such file" in one_line(capsys)
     assert cli_main(["stats", str(RECORDING), "--taxels", f"l_hand={tmp_path}"]) == 2
     assert f"{tmp_path} is a directory, not a taxel file" in one_line(capsys)
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    assert cli_main(["stats", str(RECORDING), "--taxels", f"l_hand={tmp_path / 'loop'}"]) == 2
+    assert "loop: a symbolic link that leads nowhere (a loop or a missing target)" in one_line(capsys)
     os.mkfifo(tmp_path / "fifo")         # it was "no such file"
     assert cli_main(["stats", str(RECORDING), "--taxels", f"l_hand={tmp_path / 'fifo'}"]) == 2
     assert "fifo: not a regular file" in one_line(capsys)

@@ -680,7 +680,9 @@ def parse_taxel_files(items, where: str = "--taxels") -> dict:
         if Path(path).is_dir():
             raise ConfigError(f"{where} {item!r}: {path} is a directory, not a taxel file")
         if not Path(path).is_file():
-            what = "not a regular file" if Path(path).exists() else "no such file"   # /dev/zero, a FIFO
+            what = ("not a regular file" if Path(path).exists()     # /dev/zero, a FIFO
+                    else "a symbolic link that leads nowhere (a loop or a missing target)" if Path(path).is_symlink()
+                    else "no such file")
             raise ConfigError(f"{where} {item!r}: {path}: {what}")
         files[part] = Path(path)
     return files
