@@ -9,6 +9,9 @@ from pathlib import Path
 MAX_TEXT_BYTES = 1 << 30   # a text input larger than this is not one of ours (a recording of 810 touches: 5 MB)
 
 
+DANGLING_LINK = "a symbolic link that leads nowhere (a loop or a missing target)"   # Path.exists() False, is_symlink()
+
+
 def not_a_file(mode: int) -> str | None:
     """What a path of this ``st_mode`` is when it is not a regular file ("a directory", "a FIFO", ...), else None."""
     import stat

@@ -22,6 +22,7 @@ def write_output(text: str, out: Path | None, inputs=(), mark: str = "") -> None
     """
     from nao_skin.errors import DataError
     from nao_skin.formats.outdir import replace_file
+    from nao_skin.paths import DANGLING_LINK
 
     if out is None:
         sys.stdout.write(text)
@@ -30,8 +31,7 @@ def write_output(text: str, out: Path | None, inputs=(), mark: str = "") -> None
     if out.is_dir():
         raise DataError(f"--out {out}: is a directory; give a file name")
     if out.is_symlink() and not out.exists():
-        raise DataError(f"--out {out}: is a symbolic link that leads nowhere (a loop or a missing target);"
-                        f" choose another file")
+        raise DataError(f"--out {out}: is {DANGLING_LINK}; choose another file")
     for item in inputs:
         if item and Path(item).exists() and out.exists() and os.path.samefile(item, out):
             raise DataError(f"--out {out}: is the input {item}; writing there would replace it, choose another file")

@@ -19,15 +19,14 @@ def run(args) -> int:
     from nao_skin.errors import DataError, os_reason
     from nao_skin.formats.outdir import replace_file
     from nao_skin.model.layouts import write_default_layouts
-    from nao_skin.paths import not_a_file
+    from nao_skin.paths import DANGLING_LINK, not_a_file
 
     if not args.directory.strip():
         raise DataError("layouts '': expected a directory, e.g. config/layouts")
     directory = Path(args.directory)
     for place in (directory, *directory.absolute().parents):
         if place.is_symlink() and not place.exists():
-            raise DataError(f"layouts {directory}: {place} is a symbolic link that leads nowhere (a loop or a missing"
-                            f" target); choose another place")
+            raise DataError(f"layouts {directory}: {place} is {DANGLING_LINK}; choose another place")
         if place.exists():
             if not place.is_dir():
                 raise DataError(f"layouts {directory}: {place} is a file, not a directory; choose another place")

@@ -34,7 +34,7 @@ from nao_skin import se3
 from nao_skin.errors import ConfigError, DataError
 from nao_skin.model.robot import RobotModel
 from nao_skin.model.taxel_file import DEFAULT_SLOTS, SLOTS_PER_TRIANGLE, TaxelFile, read_taxel_file, write_taxel_file
-from nao_skin.paths import read_yaml
+from nao_skin.paths import DANGLING_LINK, read_yaml
 from nao_skin.rules import known_keys
 
 PART_NAMES = ("r_hand", "l_hand", "torso", "head")   # skinManager part names on the Nao
@@ -681,7 +681,7 @@ def parse_taxel_files(items, where: str = "--taxels") -> dict:
             raise ConfigError(f"{where} {item!r}: {path} is a directory, not a taxel file")
         if not Path(path).is_file():
             what = ("not a regular file" if Path(path).exists()     # /dev/zero, a FIFO
-                    else "a symbolic link that leads nowhere (a loop or a missing target)" if Path(path).is_symlink()
+                    else DANGLING_LINK if Path(path).is_symlink()
                     else "no such file")
             raise ConfigError(f"{where} {item!r}: {path}: {what}")
         files[part] = Path(path)
