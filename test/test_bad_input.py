@@ -568,6 +568,11 @@ def test_a_broken_bench_input_never_costs_an_earlier_benchmark(tmp_path, capsys,
     (["--bag", "a\nb"], "bag '{tmp}/a\\nb': holds a control character (a newline, a tab), which a ROS parameter"
                         " does not carry as it is"),
     (["--param", "calibrate.out_dir=x\ty"], "calibrate.out_dir 'x\\ty': holds a control character"),
+    # the recorder wrote one bag while the calibrate node followed another: every live update failed, exit 0
+    (["--param", "pairing_recorder.bag_path=other"], "--param pairing_recorder.bag_path: the session's bag is set"
+                                                      " once, for the recorder and the calibrate node together"),
+    (["--param", "calibrate.recording=other"], "--param calibrate.recording: the session's bag is set once"),
+    (["--param", "calibrate.out_dir="], "--param calibrate.out_dir='': the session's calibration needs a directory"),
     (["--duration", "-5"], "--duration -5.0: expected seconds >= 0 (0: until Ctrl-C)"),
     (["--duration", "nan"], "--duration nan: expected seconds >= 0 (0: until Ctrl-C)"),
 ])

@@ -23,8 +23,9 @@ def angles(names, t):
 
 
 def run(det, skin, t_end, presses, joint_rate=100.0, skin_rate=50.0, joint_gap=None, drop_joint=None,
-        phases=None):
-    """Feed time-ordered messages; ``presses``: part -> function(t) giving active slots at t."""
+        phases=None, mis_stamped=()):
+    """Feed time-ordered messages; ``presses``: part -> function(t) giving active slots at t;
+    ``mis_stamped``: ``(arrival, stamp)`` of joint states that arrive at one time stamped with another."""
     names = list(skin.robot.joint_names)
     if drop_joint:
         names.remove(drop_joint)
@@ -37,10 +38,12 @@ def run(det, skin, t_end, presses, joint_rate=100.0, skin_rate=50.0, joint_gap=N
         phase = (phases or {}).get(part, 0.003 * (k + 1))
         for t in np.arange(phase, t_end, 1.0 / skin_rate):
             msgs.append((t, 1, "skin", part))
+    msgs += [(arrival, 0, "joints", stamp) for arrival, stamp in mis_stamped]
     msgs.sort(key=lambda m: (m[0], m[1]))
     out = []
     for t, _, what, part in msgs:
         if what == "joints":
+            t = t if part is None else part
             out += det.add_joint_state(t, names, angles(skin.robot.joint_names, t)[[skin.robot.joint_index[n] for n in names]])
         else:
             out += det.add_skin(t, part, presses[part](t))
@@ -123,6 +126,40 @@ def test_a_non_finite_angle_drops_the_touch_that_needs_it_and_leaves_the_others(
     det.add_joint_state(0.02, names, q)
     (touch,) = det.flush()
     assert np.isnan(touch.joints[skin.robot.joint_index["HeadYaw"]])
+
+
+def presses_every(skin, period, duration, t_end):
+    hand = skin.parts["l_hand"].slots[:4].tolist()
+    torso = skin.parts["torso"].slots[:3].tolist()
+    on = lambda t: (t % period) < duration and t < t_end   # noqa: E731
+    return {"l_hand": lambda t: hand if on(t) else [], "torso": lambda t: torso if on(t) else []}
+
+
+@pytest.mark.parametrize("first", [False, True])
+def test_one_joint_state_stamped_far_ahead_loses_no_touch(skin, first):
+    """One JointState stamped 1e7 s ahead aged every real one out: the recorder dropped every later touch as
+    'stamp out of order' (13 touches of a session became 1), without a word."""
+    presses = presses_every(skin, 1.0, 0.3, 9.0)
+    plain = run(EventDetector.for_skin(skin), skin, 10.0, presses)
+    assert len(plain) == 9
+    det = EventDetector.for_skin(skin)
+    ahead = [(0.0 if first else 2.505, 1e7 + 2.5), (6.505, 1e7 + 6.5)]
+    recs = run(det, skin, 10.0, presses, mis_stamped=ahead)
+    assert [r.stamp for r in recs] == [r.stamp for r in plain]
+    assert det.counts["joint state stamped ahead"] == 2 and det.counts["stamp out of order"] == 0
+    # a clock that really jumps ahead (a new session's time) is followed, from its second joint state on
+    det = EventDetector.for_skin(skin)
+    names = skin.robot.joint_names
+    out = []
+    for t0 in (0.0, 1e6):
+        for k in range(100):
+            t = t0 + 0.01 * k
+            out += det.add_joint_state(t, names, angles(names, t))
+            if 0.5 <= t - t0 < 0.53:
+                out += det.add_skin(t + 0.001, "l_hand", presses["l_hand"](0.0))
+                out += det.add_skin(t + 0.001, "torso", presses["torso"](0.0))
+    out += det.flush()
+    assert len(out) == 2 and out[1].stamp > 1e6 and det.counts["joint state stamped ahead"] == 0
 
 
 def test_joints_arriving_late_still_complete_the_touch(skin):

@@ -150,14 +150,22 @@ class EventDetector:
         values[cols[1]] = positions[cols[0]]
         values[np.isinf(values)] = np.nan     # no measurement, as a joint not reported (inf made FK warn)
         stamp = float(stamp)
-        if not self._joint_stamps or stamp >= self._joint_stamps[-1]:
-            self._joint_stamps.append(stamp)
+        stamps = self._joint_stamps
+        n = self._confirmed()
+        if n < len(stamps) and stamps[n - 1] <= stamp < stamps[-1] - self.config.joint_history:
+            # the stream goes on where it was: the state that jumped ahead of it was mis-stamped
+            self._drop("joint state stamped ahead", f"joint state at {stamps[-1]:.6f}: {stamps[-1] - stamps[n - 1]:.3f}"
+                                                    f" s ahead of the joint states before and after it; ignored")
+            del stamps[-1], self._joint_values[-1]
+        if not stamps or stamp >= stamps[-1]:
+            stamps.append(stamp)
             self._joint_values.append(values)
         else:                                  # late message: keep the buffer sorted
-            i = bisect.bisect_right(self._joint_stamps, stamp)
-            self._joint_stamps.insert(i, stamp)
+            i = bisect.bisect_right(stamps, stamp)
+            stamps.insert(i, stamp)
             self._joint_values.insert(i, values)
-        horizon = self._joint_stamps[-1] - self.config.joint_history
+        # a state far ahead of the one before waits for the next to confirm it before it ages the others out
+        horizon = stamps[self._confirmed() - 1] - self.config.joint_history
         if self._joint_stamps[0] < horizon:
             cut = bisect.bisect_left(self._joint_stamps, horizon)
             cut = min(cut, len(self._joint_stamps) - 2) if len(self._joint_stamps) > 2 else 0
@@ -165,6 +173,15 @@ class EventDetector:
                 self._trimmed_until = max(self._trimmed_until, self._joint_stamps[cut - 1])
                 del self._joint_stamps[:cut], self._joint_values[:cut]
         return self._resolve_pending(final=False)
+
+    def _confirmed(self) -> int:
+        """How many joint states count: all but the latest when it lies more than ``joint_history`` ahead of
+        the one before (one mis-stamped message would otherwise age out every real one and drop every touch
+        after it as out of order); the next state confirms it or shows it was mis-stamped."""
+        stamps = self._joint_stamps
+        if len(stamps) >= 2 and stamps[-1] - stamps[-2] > self.config.joint_history:
+            return len(stamps) - 1
+        return len(stamps)
 
     def add_contacts(self, stamp: float, part: str, contact_ids: Sequence[int], cops: np.ndarray) -> list:
         """skinManager contacts of one skin sample (the ``/skin/<part>/contacts`` message).
@@ -253,11 +270,12 @@ class EventDetector:
     def _resolve_pending(self, final: bool) -> list:
         out = []
         stamps = self._joint_stamps
+        n = self._confirmed()
         while self._pending:
             cand = self._pending[0]
             t = cand.stamp
-            after = bisect.bisect_left(stamps, t)
-            if after == len(stamps):
+            after = bisect.bisect_left(stamps, t, 0, n)
+            if after == n:
                 if not final:
                     break                          # wait for a joint state at or after t
                 self._pending.popleft()
