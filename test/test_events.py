@@ -162,6 +162,37 @@ def test_one_joint_state_stamped_far_ahead_loses_no_touch(skin, first):
     assert len(out) == 2 and out[1].stamp > 1e6 and det.counts["joint state stamped ahead"] == 0
 
 
+def test_a_skin_sample_stamped_far_back_makes_no_touch_twice(skin):
+    """Torso samples stamped at 100 s amid a session's made the next real sample a new press: 51 touches
+    stored where 13 were pressed."""
+    hand = skin.parts["l_hand"].slots[:4].tolist()
+    torso = skin.parts["torso"].slots[:3].tolist()
+    base = 1000.0
+    det = EventDetector.for_skin(skin)
+    out = []
+    for k in range(200):                      # one press of both parts from 0.2 to 1.8 s, a bad torso sample each 0.1 s
+        t = base + 0.01 * k
+        out += det.add_joint_state(t, skin.robot.joint_names, angles(skin.robot.joint_names, t))
+        if k % 2 == 0:
+            on = 20 <= k < 180
+            out += det.add_skin(t + 0.001, "l_hand", hand if on else [])
+            out += det.add_skin(t + 0.002, "torso", torso if on else [])
+        if k % 10 == 5:
+            out += det.add_skin(100.0, "torso", torso)
+    out += det.flush()
+    assert len(out) == 1 and det.counts["skin stamped behind"] == 20
+    # a skin clock that really goes back (a second session after the first) is followed from its second sample
+    # (the joint states' is not: their history keeps the latest 5 s, so such touches are dropped, and named)
+    for k in range(100):
+        t = 0.01 * k
+        out += det.add_joint_state(t, skin.robot.joint_names, angles(skin.robot.joint_names, t))
+        if k % 2 == 0:
+            out += det.add_skin(t + 0.001, "l_hand", hand if 20 <= k < 60 else [])
+            out += det.add_skin(t + 0.002, "torso", torso if 20 <= k < 60 else [])
+    out += det.flush()
+    assert det.counts["skin stamped behind"] == 22 and det.counts["continued press"] > 10
+
+
 def test_joints_arriving_late_still_complete_the_touch(skin):
     """Skin delivered before the joint state that follows its stamp (different transports)."""
     det = EventDetector.for_skin(skin)
@@ -225,7 +256,8 @@ def test_a_touch_stamped_out_of_order_is_named_and_its_neighbours_kept(skin):
         out += det.add_skin(t, "torso", torso)
     out += det.flush()
     assert sorted(r.stamp for r in out) == sorted(stamps[:6] + stamps[7:])
-    assert det.counts["stamp out of order"] == 1 and det.counts["touches"] == 11
+    # both parts' samples of it lie 20 s behind the parts' latest: ignored there, each named
+    assert det.counts["skin stamped behind"] == 2 and det.counts["touches"] == 11
     assert any("stamps out of order" in n and f"{stamps[6]:.6f}" in n for n in det.notes)
 
 

@@ -115,6 +115,8 @@ class EventDetector:
         self._pending: deque = deque()        # finalised candidates waiting for a later joint state
         self._last_emit: dict = {}            # part combination -> (stamp, pattern, press)
         self._summaries: dict = {}            # (part, stamp) -> contacts summary arriving before its taxels
+        self._behind: dict = {}               # part index -> stamp of the last sample ignored as stamped far back
+        self._part_stamp: dict = {}           # part index -> latest stamp of its samples (released ones too)
         self.counts: Counter = Counter()
         self.notes: list = []
         self.n_pressed = 0                    # skin samples with a taxel on: what a reader says when none paired
@@ -213,9 +215,21 @@ class EventDetector:
                                             f" ({', '.join(self.part_names)})")
             return []
         stamp = float(stamp)
-        out = self._close_open(stamp)
         cfg = self.config
         prev = self._latest.get(p)
+        latest = self._part_stamp.get(p)
+        if latest is not None and stamp < latest - cfg.joint_history:
+            # one sample stamped far back (an unset or foreign clock) must not end the part's press: the next
+            # real one would count as a new press, one more touch each time; a clock that really went back is
+            # followed from its second sample on
+            behind, self._behind[p] = self._behind.get(p), stamp
+            if behind is None or not 0.0 < stamp - behind <= cfg.joint_history:
+                self._drop("skin stamped behind", f"skin sample of '{part}' at {stamp:.6f}: {latest - stamp:.3f} s"
+                                                  f" before the part's latest (stamps out of order?); ignored")
+                return []
+        self._behind.pop(p, None)
+        self._part_stamp[p] = stamp if latest is None or stamp < latest - cfg.joint_history else max(latest, stamp)
+        out = self._close_open(stamp)
         if len(slots) == 0:
             self._latest[p] = None
             return out + self._resolve_pending(final=False)
