@@ -59,6 +59,9 @@ def test_big_endian_padded_rows_and_bad_slots_read_like_a_bag():
     msg.data = msg.data[:-20]
     with pytest.raises(DataError, match="t: malformed point cloud"):
         read_taxels(msg, torso, "t")
+    # no point in rows of a huge stride: empty, not a padded copy of 2 PiB (a MemoryError in every node)
+    msg.width, msg.height, msg.row_step = 0, 2 ** 20, 2 ** 31
+    assert len(read_taxels(msg, torso, "t")[0]) == 0
     absent = np.flatnonzero(~torso.present)[0]
     for slot, says in ((torso.n_slots, "out of range"), (absent, "is not a taxel of the 'torso' layout")):
         bad = messages.cloud_from_array(taxels_array([slots[0], slot], np.zeros((2, 3))), "torso", None)

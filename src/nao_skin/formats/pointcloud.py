@@ -129,7 +129,9 @@ def decode_cloud(msg, where: str) -> np.ndarray:
     try:
         dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
         buf = np.frombuffer(msg.data, dtype=np.uint8)
-        size = (height - 1) * row_step + width * step if width and height else 0
+        if width <= 0 or height <= 0:    # no point, whatever row_step says (it had sized a padded copy)
+            return np.zeros(0, dtype=dtype)
+        size = (height - 1) * row_step + width * step
         if len(buf) < size:
             raise ValueError(f"{len(buf)} bytes for {height} rows of {width} points of {step}")
         if height > 1 and row_step != width * step:
