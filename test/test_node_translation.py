@@ -62,6 +62,10 @@ def test_big_endian_padded_rows_and_bad_slots_read_like_a_bag():
     # no point in rows of a huge stride: empty, not a padded copy of 2 PiB (a MemoryError in every node)
     msg.width, msg.height, msg.row_step = 0, 2 ** 20, 2 ** 31
     assert len(read_taxels(msg, torso, "t")[0]) == 0
+    n = torso.n_slots + 1
+    many = messages.cloud_from_array(taxels_array(np.resize(slots, n), np.zeros((n, 3))), "torso", None)
+    with pytest.raises(BadSlot, match=f"t: {n} points for part 'torso' of {torso.n_slots} slots"):
+        read_taxels(many, torso, "t")
     absent = np.flatnonzero(~torso.present)[0]
     for slot, says in ((torso.n_slots, "out of range"), (absent, "is not a taxel of the 'torso' layout")):
         bad = messages.cloud_from_array(taxels_array([slots[0], slot], np.zeros((2, 3))), "torso", None)

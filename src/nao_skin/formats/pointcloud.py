@@ -172,6 +172,10 @@ def read_taxels(msg, part: SkinPart, where: str) -> tuple:
     Only ``slot`` is required (pressure NaN and contact -1 otherwise); every
     slot must be a taxel of ``part``'s layout, else :class:`BadSlot`.
     """
+    points = int(msg.width) * int(msg.height)
+    if points > part.n_slots:     # each taxel once at most: more is no skin sample (2M points held a recorder 1.7 s)
+        raise BadSlot(f"{where}: {points} points for part '{part.name}' of {part.n_slots} slots; sample skipped",
+                      part.name)
     cloud = decode_cloud(msg, where)
     slots = cloud_field(cloud, "slot", np.int64, where)     # required: raises when the cloud lacks it
     if cloud.dtype["slot"].kind == "f":      # a producer's float field: whole numbers only, else refused
