@@ -132,10 +132,11 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                 spec.overrides["taxels"] = resolved
     by_name = {spec.name: spec for spec in specs}
     for node, values in (overrides or {}).items():
-        for name in set(values) & {"bag_path", "recording"} if node in ("pairing_recorder", "calibrate") else ():
-            # one bag for both: the recorder writing one while the calibrate node followed another lost the session's
-            # calibration, and the bag checks below saw only the one named by --bag
-            raise ConfigError(f"--param {node}.{name}: the session's bag is set once, for the recorder and the"
+        # one bag for both: the recorder writing one while the calibrate node followed another lost the session's
+        # calibration, and the bag checks below saw only the one named by --bag
+        bag_param = {"pairing_recorder": "bag_path", "calibrate": "recording"}.get(node)
+        if bag_param in values:
+            raise ConfigError(f"--param {node}.{bag_param}: the session's bag is set once, for the recorder and the"
                               f" calibrate node together: give --bag (launch: bag:=) instead")
         if node not in by_name:
             raise ConfigError(f"--param {node}.{next(iter(values), '')}: no node '{node}' in this session"
@@ -201,7 +202,7 @@ def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> Non
     check_writable(bag, f"bag {bag}")
     # the session's calibration is written there at its end, replacing what the session itself wrote:
     # anything there before (an earlier `nao-skin calibrate --out` of that name) would be lost
-    if not str(calibrate_params.get("out_dir", "x")).strip():
+    if "out_dir" in calibrate_params and not str(calibrate_params["out_dir"]).strip():
         raise ConfigError("--param calibrate.out_dir='': the session's calibration needs a directory (default:"
                           " <bag>_calibration)")
     out = Path(calibrate_params["out_dir"]).expanduser() if calibrate_params.get("out_dir") else None

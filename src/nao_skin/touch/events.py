@@ -168,12 +168,12 @@ class EventDetector:
             self._joint_values.insert(i, values)
         # a state far ahead of the one before waits for the next to confirm it before it ages the others out
         horizon = stamps[self._confirmed() - 1] - self.config.joint_history
-        if self._joint_stamps[0] < horizon:
-            cut = bisect.bisect_left(self._joint_stamps, horizon)
-            cut = min(cut, len(self._joint_stamps) - 2) if len(self._joint_stamps) > 2 else 0
+        if stamps[0] < horizon:
+            cut = bisect.bisect_left(stamps, horizon)
+            cut = min(cut, len(stamps) - 2) if len(stamps) > 2 else 0
             if cut > 0:
-                self._trimmed_until = max(self._trimmed_until, self._joint_stamps[cut - 1])
-                del self._joint_stamps[:cut], self._joint_values[:cut]
+                self._trimmed_until = max(self._trimmed_until, stamps[cut - 1])
+                del stamps[:cut], self._joint_values[:cut]
         return self._resolve_pending(final=False)
 
     def _confirmed(self) -> int:
@@ -219,9 +219,9 @@ class EventDetector:
         prev = self._latest.get(p)
         latest = self._part_stamp.get(p)
         if latest is not None and stamp < latest - cfg.joint_history:
-            # one sample stamped far back (an unset or foreign clock) must not end the part's press: the next
-            # real one would count as a new press, one more touch each time; a clock that really went back is
-            # followed from its second sample on
+            # one sample stamped far back (an unset or foreign clock; older than the joint states kept, so no
+            # touch anyway) must not end the part's press: the next real one would count as a new press, one
+            # more touch each time; a clock that really went back is followed from its second sample on
             behind, self._behind[p] = self._behind.get(p), stamp
             if behind is None or not 0.0 < stamp - behind <= cfg.joint_history:
                 self._drop("skin stamped behind", f"skin sample of '{part}' at {stamp:.6f}: {latest - stamp:.3f} s"
