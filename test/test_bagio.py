@@ -4,6 +4,8 @@ The real recording is read from /work/shared; bags are written to tmp_path.
 """
 import shutil
 
+import warnings
+
 import numpy as np
 import pytest
 import yaml
@@ -273,11 +275,12 @@ def test_bad_slot_unknown_part_and_nan_joints_are_counted(skin, tmp_path):
 
 
 def test_a_slot_field_of_a_float_type_is_read_when_whole_and_refused_when_not(skin, tmp_path):
-    """A producer that writes uint32 slots under a float32 PointField must not make every slot 0."""
+    """A producer that writes uint32 slots under a float32 PointField must not make every slot 0; a NaN slot is
+    refused like any other that is no whole number, without numpy's cast warning on stderr."""
     from nao_skin.formats.pointcloud import TAXEL_DTYPE, taxels_array, taxels_topic
     float_slot = np.dtype([(n, "<f4" if n == "slot" else TAXEL_DTYPE.fields[n][0]) for n in TAXEL_DTYPE.names])
     hand, torso = skin.parts["l_hand"], skin.parts["torso"]
-    for name, as_float in (("floats", True), ("integer_bits", False)):
+    for name, as_float in (("floats", True), ("integer_bits", False), ("nan", None)):
         with BagWriter(tmp_path / name) as bag:
             for k in range(60):
                 t = k * 10_000_000
@@ -285,14 +288,18 @@ def test_a_slot_field_of_a_float_type_is_read_when_whole_and_refused_when_not(sk
                 for part in (hand, torso):
                     slots = part.slots[:3] if 20 <= k < 40 else part.slots[:0]
                     pts = taxels_array(slots, part.positions[slots], np.full(len(slots), 2.0))
-                    if as_float:                  # slot values written as float32 numbers
+                    if as_float is False:         # uint32 bits under a float32 field
+                        cloud = pts.view(float_slot)
+                    else:                         # slot values written as float32 numbers (or NaN)
                         cloud = np.zeros(len(pts), float_slot)
                         for n in TAXEL_DTYPE.names:
                             cloud[n] = pts[n]
-                    else:                         # uint32 bits under a float32 field
-                        cloud = pts.view(float_slot)
+                        if as_float is None:
+                            cloud["slot"] = np.nan
                     bag._write_cloud(taxels_topic(part.name), t + 3_000_000, part.parent_frame, cloud)
-        touches, report = read_touches(tmp_path / name, skin)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            touches, report = read_touches(tmp_path / name, skin)
         if as_float:
             assert touches.n_touches == 1 and report.n_skipped == 0
             hand_act = touches.act_slot[touches.act_part == touches.part_index("l_hand")]

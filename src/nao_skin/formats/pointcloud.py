@@ -177,9 +177,10 @@ def read_taxels(msg, part: SkinPart, where: str) -> tuple:
         raise BadSlot(f"{where}: {points} points for part '{part.name}' of {part.n_slots} slots; sample skipped",
                       part.name)
     cloud = decode_cloud(msg, where)
-    slots = cloud_field(cloud, "slot", np.int64, where)     # required: raises when the cloud lacks it
-    if cloud.dtype["slot"].kind == "f":      # a producer's float field: whole numbers only, else refused
-        slots = _whole_numbers(cloud["slot"].astype(float), "slot", where)
+    if "slot" in cloud.dtype.names and cloud.dtype["slot"].kind == "f":   # a producer's float field: whole
+        slots = _whole_numbers(cloud["slot"].astype(float), "slot", where)  # numbers only (a NaN cast warns)
+    else:
+        slots = cloud_field(cloud, "slot", np.int64, where)     # required: raises when the cloud lacks it
     bad = (slots < 0) | (slots >= part.n_slots)
     if np.any(bad):
         raise BadSlot(f"{where}: field 'slot': slot {int(slots[bad][0])} out of range 0..{part.n_slots - 1}"
