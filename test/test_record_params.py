@@ -182,8 +182,9 @@ def test_a_node_takes_an_empty_list_and_refuses_arguments_rcl_cannot_parse_in_on
     assert code == 2 and "Traceback" not in bad.stderr()
     assert ("error: the ROS arguments: Couldn't parse parameter override rule: '-p skin_config:={a: 1}'."
             " Error: Unknown YAML event") in bad.stderr().splitlines(), bad.stderr()
-    # a parameters file that is not there, or not YAML: our one line before rcl's two
-    for text in (None, "calibrate: [\n"):
+    # a parameters file that is not there, or not YAML: our one line before rcl's two; a bare value, which
+    # rcl takes without a word (the node ran on its defaults)
+    for text in (None, "calibrate: [\n", "gate_mm 20\n"):
         params = tmp_path / "params.yaml"
         if text is not None:
             params.write_text(text)

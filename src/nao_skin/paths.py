@@ -65,6 +65,20 @@ def read_yaml(path: str | Path, what: str):
         raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
 
 
+def read_ros_params_file(path: str | Path) -> dict:
+    """A ROS parameters file (node names mapped to ``ros__parameters``): rcl ignores a document that is a
+    bare value without a word, so the node would run on its defaults."""
+    from nao_skin.errors import ConfigError
+
+    doc = read_yaml(path, "ROS parameters file")
+    if doc is None:
+        return {}
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{path}: a ROS parameters file maps node names to ros__parameters; this one is a"
+                          f" {type(doc).__name__}")
+    return doc
+
+
 class _DuplicateKey(Exception):
     pass
 

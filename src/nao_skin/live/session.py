@@ -167,7 +167,7 @@ def _check_together(spec: NodeSpec) -> None:
     values it will start with: declared defaults, then its parameter files, then the overrides."""
     import importlib
 
-    from nao_skin.paths import read_yaml
+    from nao_skin.paths import read_ros_params_file
 
     try:
         module = importlib.import_module(f"nao_skin.nodes.{spec.executable}")
@@ -178,9 +178,9 @@ def _check_together(spec: NodeSpec) -> None:
         return
     values = node_parameters(spec)
     for path in spec.params_files:
-        doc = read_yaml(path, "ROS parameters file")
+        doc = read_ros_params_file(path)
         for key in ("/**", spec.name, f"/{spec.name}"):
-            section = doc.get(key) if isinstance(doc, dict) else None
+            section = doc.get(key)
             given = section.get("ros__parameters") if isinstance(section, dict) else None
             if isinstance(given, dict):
                 values.update(given)

@@ -135,13 +135,14 @@ def _checked(changed, numeric: dict, rules: dict, declared: set) -> SetParameter
 
 
 def _check_params_files(args) -> None:
-    """Each ``--params-file`` of the ROS arguments readable YAML (rcl says so in two lines, one a log line)."""
-    from nao_skin.paths import read_yaml
+    """Each ``--params-file`` of the ROS arguments a readable mapping (rcl says so in two lines, one a log line,
+    or, for a bare value, not at all)."""
+    from nao_skin.paths import read_ros_params_file
 
     args = list(args)
     for i, arg in enumerate(args[:-1]):
         if arg == "--params-file":
-            read_yaml(args[i + 1], "ROS parameters file")
+            read_ros_params_file(args[i + 1])
 
 
 def _warn_undeclared(node) -> None:
