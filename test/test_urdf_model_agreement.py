@@ -5,6 +5,7 @@ skin mount/patch/triangle frame, computed by walking the URDF's joints from
 ``torso``, equals the model's pose within 1e-9 m and 1e-9 rad, for the
 nominal calibration and for one with large random corrections.
 """
+import re
 import shutil
 import subprocess
 import sys
@@ -17,13 +18,14 @@ import yaml
 from nao_skin import cli
 from nao_skin.errors import ConfigError
 from nao_skin.model.robot import RobotModel
-from nao_skin.model.skin import SkinModel
+from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.model.urdf import UrdfModel, check_calibration_origins, default_xacro, expand_xacro, rotation_angle
 from nao_skin.paths import config_dir, default_skin_config
 
 TOL_M = 1e-9
 TOL_RAD = 1e-9
 NOMINAL = config_dir() / "calibration_nominal.yaml"
+BAG = Path(__file__).resolve().parents[1] / "bags" / "sim_default" / "touches.bag"
 
 
 @pytest.fixture(scope="module")
@@ -188,9 +190,21 @@ def test_origin_edited_by_hand_is_caught_naming_file_and_frame(skin, tmp_path):
     path.write_text(yaml.safe_dump(doc))
     with pytest.raises(ConfigError) as err:
         check_calibration_origins(path, skin)
-    assert str(err.value).startswith(f"{path}: part 'head' triangle {tid}: origin is 0.002 m / 0 rad off")
+    line = f"{path}: part 'head' triangle {tid}: origin is 0.002 m / 0 rad off the pose its correction gives"
+    assert str(err.value).startswith(line)
     assert cli.main(["urdf", "--calibration", str(path), "--out", str(tmp_path / "x.urdf")]) == 2
     assert not (tmp_path / "x.urdf").exists()
+    # every command that reads a calibration: the model would use the correction, /tf the origin
+    with pytest.raises(ConfigError, match=re.escape(line)):
+        SkinCalibration.load(path, skin)
+    for args in (["stats", str(BAG), "--calibration", str(path)],
+                 ["calibrate", str(BAG), "--prior", str(path), "--out", str(tmp_path / "out")]):
+        assert cli.main(args) == 2
+    assert not (tmp_path / "out").exists()
+    # an entry without an origin is a correction written by hand: taken as it is
+    del doc["parts"]["head"]["triangles"][tid]["origin"]
+    path.write_text(yaml.safe_dump(doc))
+    SkinCalibration.load(path, skin)
 
 
 def test_missing_frame_entry_is_caught(skin, tmp_path):

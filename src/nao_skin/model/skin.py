@@ -572,7 +572,55 @@ class SkinCalibration:
             calib.kinematics[str(name)] = correction
             if std is not None:
                 calib.kinematics_std[str(name)] = std
+        check_origins(path, doc, calib, skin)
         return calib
+
+
+ORIGIN_TOLERANCE = 1e-8   # m and rad; files hold origins rounded to 1e-10
+
+
+def check_origins(path: Path, doc: dict, calib: "SkinCalibration", skin: SkinModel, complete: bool = False) -> None:
+    """Each frame's URDF ``origin`` (xyz/rpy) in a calibration file ``doc`` is the pose its correction gives.
+
+    The xacro, robot_state_publisher and every consumer of ``/tf`` read ``origin``; the Python model reads
+    ``correction``: a hand-edited origin would make the two disagree without a word. An entry without an
+    origin is a hand-written correction and taken as it is, unless ``complete`` (a URDF needs every frame).
+    Raises :class:`ConfigError` naming the file and the frame.
+    """
+    expected = calib.to_dict(skin)
+    for name, part in expected["parts"].items():
+        given = doc["parts"].get(name)
+        if not isinstance(given, dict):
+            if complete:
+                raise ConfigError(f"{path}: no entry for skin part '{name}' (the URDF would lack its frames)")
+            continue
+        entries = [("mount", part["mount"], given.get("mount"))]
+        for kind, key in (("patch", "patches"), ("triangle", "triangles")):
+            have = {int(k): v for k, v in (given.get(key) or {}).items()}
+            entries += [(f"{kind} {i}", e, have.get(int(i))) for i, e in part[key].items()]
+        for label, want, have in entries:
+            where = f"{path}: part '{name}' {label}"
+            if not complete and not (isinstance(have, dict) and "origin" in have):
+                continue
+            if not isinstance(have, dict):
+                raise ConfigError(f"{where}: missing (the URDF would lack frame '{want['frame']}')")
+            if have.get("frame") != want["frame"] or have.get("parent") != want["parent"]:
+                raise ConfigError(f"{where}: frame/parent {have.get('frame')!r}/{have.get('parent')!r},"
+                                  f" expected {want['frame']!r}/{want['parent']!r}")
+            try:
+                xyz = np.array(have["origin"]["xyz"], dtype=float)
+                rpy = np.array(have["origin"]["rpy"], dtype=float)
+            except (KeyError, TypeError, ValueError):
+                raise ConfigError(f"{where}: needs origin.xyz and origin.rpy (3 numbers each)") from None
+            if xyz.shape != (3,) or rpy.shape != (3,):
+                raise ConfigError(f"{where}: needs origin.xyz and origin.rpy (3 numbers each)")
+            d_t = np.abs(xyz - np.array(want["origin"]["xyz"])).max()
+            rel = se3.matrix_from_rpy(rpy).T @ se3.matrix_from_rpy(np.array(want["origin"]["rpy"]))
+            d_r = float(np.linalg.norm(se3.matrix_to_rotvec(rel)))
+            if not (d_t <= ORIGIN_TOLERANCE and d_r <= ORIGIN_TOLERANCE):
+                raise ConfigError(f"{where}: origin is {d_t:.3g} m / {d_r:.3g} rad off the pose its"
+                                  f" correction gives: one of the two was edited (nao-skin reads the correction,"
+                                  f" the URDF and /tf the origin); make them agree")
 
 
 CALIBRATION_HEADER = "# nao_skin calibration: pose corrections of skin mount, patch and triangle frames."

@@ -219,52 +219,22 @@ class UrdfModel:
         return {link: poses[link] for link in links}
 
 
-ORIGIN_TOLERANCE = 1e-8   # m and rad; files hold origins rounded to 1e-10
-
-
 def check_calibration_origins(path: str | Path, skin) -> None:
-    """Check that a calibration file's URDF origins are those its corrections give.
+    """Check that a calibration file holds every frame's URDF origin, each the pose its correction gives.
 
     The xacro reads ``origin`` (xyz/rpy) while the Python model reads
-    ``correction``; a hand-edited or partial file would make the URDF and the
-    model disagree. Raises :class:`ConfigError` naming the file and the frame.
+    ``correction``; loading checks the origins a file gives, a URDF needs them
+    all. Raises :class:`ConfigError` naming the file and the frame.
     """
     import yaml
 
-    from nao_skin.model.skin import SkinCalibration
+    from nao_skin.model.skin import SkinCalibration, check_origins
 
     path = Path(path)
     calib = SkinCalibration.load(path, skin)          # one-line errors for malformed files
     # C loader when available: this runs on every `nao-skin urdf` and the file has ~100 entries
     doc = yaml.load(path.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
-    expected = calib.to_dict(skin)
-    for name, part in expected["parts"].items():
-        given = doc["parts"].get(name)
-        if not isinstance(given, dict):
-            raise ConfigError(f"{path}: no entry for skin part '{name}' (the URDF would lack its frames)")
-        entries = [("mount", part["mount"], given.get("mount"))]
-        for kind, key in (("patch", "patches"), ("triangle", "triangles")):
-            have = {int(k): v for k, v in (given.get(key) or {}).items()}
-            entries += [(f"{kind} {i}", e, have.get(int(i))) for i, e in part[key].items()]
-        for label, want, have in entries:
-            where = f"{path}: part '{name}' {label}"
-            if not isinstance(have, dict):
-                raise ConfigError(f"{where}: missing (the URDF would lack frame '{want['frame']}')")
-            if have.get("frame") != want["frame"] or have.get("parent") != want["parent"]:
-                raise ConfigError(f"{where}: frame/parent {have.get('frame')!r}/{have.get('parent')!r},"
-                                  f" expected {want['frame']!r}/{want['parent']!r}")
-            try:
-                xyz = np.array(have["origin"]["xyz"], dtype=float)
-                rpy = np.array(have["origin"]["rpy"], dtype=float)
-            except (KeyError, TypeError, ValueError):
-                raise ConfigError(f"{where}: needs origin.xyz and origin.rpy (3 numbers each)") from None
-            if xyz.shape != (3,) or rpy.shape != (3,):
-                raise ConfigError(f"{where}: needs origin.xyz and origin.rpy (3 numbers each)")
-            d_t = np.abs(xyz - np.array(want["origin"]["xyz"])).max()
-            d_r = rotation_angle(se3.matrix_from_rpy(rpy), se3.matrix_from_rpy(np.array(want["origin"]["rpy"])))
-            if not (d_t <= ORIGIN_TOLERANCE and d_r <= ORIGIN_TOLERANCE):
-                raise ConfigError(f"{where}: origin is {d_t:.3g} m / {float(d_r):.3g} rad off the pose its"
-                                  f" correction gives (edit corrections, not origins, or re-save the file)")
+    check_origins(path, doc, calib, skin, complete=True)
 
 
 def rotation_angle(rot_a: np.ndarray, rot_b: np.ndarray) -> np.ndarray:
