@@ -32,6 +32,7 @@ from rcl_interfaces.msg import ParameterType  # noqa: E402
 from rcl_interfaces.srv import GetParameters  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
+from nao_skin import cli  # noqa: E402
 from nao_skin.nodes import calibrate as calibrate_node  # noqa: E402
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC  # noqa: E402
 
@@ -129,6 +130,23 @@ def test_the_live_calibrate_node_refuses_its_out_dir_at_start_not_when_the_sessi
     assert (f"error: out_dir {foreign}: is a non-empty directory nao-skin did not write (it holds notes.txt);"
             f" choose a new or empty directory") in proc.stderr().splitlines(), proc.stderr()[-2000:]
     assert [p.name for p in foreign.iterdir()] == ["notes.txt"]
+    # the calibration the session starts from, in the directory its end would replace (on request the node
+    # refused it; live it was replaced)
+    previous = tmp_path / "previous"
+    assert cli.main(["calibrate", str(ROOT / "bags" / "sim_default" / "touches.bag"), "--out", str(previous),
+                     "--no-plots", "--quiet"]) == 0
+    before = (previous / "calibration.yaml").read_bytes()
+    proc = node_process("calibrate", {"live": True, "out_dir": str(previous),
+                                      "calibration": str(previous / "calibration.yaml")},
+                        ros_env(unique_domain_id()), tmp_path, params_file=RECORD_YAML)
+    try:
+        proc.popen.wait(timeout=60)
+    finally:
+        code = proc.stop()
+    assert code == 2 and "Traceback" not in proc.stderr()
+    assert (f"error: out_dir {previous}: contains the input {previous / 'calibration.yaml'}; writing there would"
+            f" replace it, choose another directory") in proc.stderr().splitlines(), proc.stderr()[-2000:]
+    assert (previous / "calibration.yaml").read_bytes() == before
 
 
 def test_a_node_names_what_it_was_given_and_does_not_have(tmp_path):

@@ -121,11 +121,7 @@ class CalibrateNode(Node):
         self.warm_start = WarmStart(self.prior, float(self.p["live_refresh"]))
         self.guidance_pairs = _pairs(self.p["guidance_pairs"], self.skin, "guidance_pairs")
         if self.p["live"]:
-            from nao_skin.formats.outdir import CALIBRATION, check_output_dir
-
-            # where the session's last live calibration goes: refused now, not after an hour at the robot
-            check_output_dir(self.p["out_dir"], CALIBRATION, inputs=[self.p["recording"]], force=True,
-                             label="out_dir")
+            self._check_live_out_dir()    # refused now, not after an hour at the robot
             self.schedule = UpdateSchedule(int(self.p["live_every_touches"]), float(self.p["live_period"]))
             self.settling = Settling(float(self.p["live_settle_mm"]), int(self.p["live_settle_updates"]),
                                      float(self.p["live_flat_percent"]))
@@ -153,6 +149,14 @@ class CalibrateNode(Node):
             return                        # a malformed progress message: the next one will do
         if isinstance(touches, int) and not isinstance(touches, bool) and touches >= 0:
             self._recorded = touches
+
+    def _check_live_out_dir(self) -> None:
+        """Where the session's last live calibration goes: replaced when the session ends (force), never when
+        it holds what the node reads (the recording, the calibration it started from, the skin's files)."""
+        from nao_skin.calibration.pipeline import check_output
+
+        check_output(self.p["out_dir"], [self.p["recording"], self.p["calibration"], self.p["skin_config"],
+                                         *self.skin.source_files()], force=True, label="out_dir")
 
     def _maybe_update(self) -> None:
         now = time.monotonic()
@@ -291,11 +295,9 @@ class CalibrateNode(Node):
             self._worker.join(timeout=10.0)
         if self._last_live is not None:
             from nao_skin.calibration.report import write_outputs
-            from nao_skin.formats.outdir import CALIBRATION, check_output_dir
 
             # a failure here (out_dir refused, the disk full) is the node's one line and exit 2
-            check_output_dir(self.p["out_dir"], CALIBRATION, inputs=[self.p["recording"]], force=True,
-                             label="out_dir")
+            self._check_live_out_dir()
             out = write_outputs(self._last_live, self.skin, self.p["out_dir"], plots=False,
                                 command="calibrate (node, live)")
             self.get_logger().info(f"the last live calibration -> {out}")
