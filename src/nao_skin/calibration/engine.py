@@ -40,11 +40,11 @@ from nao_skin.calibration.first_guess import guess_targets, rigid_mount_guess
 from nao_skin.calibration.layout import KINEMATICS
 from nao_skin.calibration.options import LEVELS, CalibrationOptions
 from nao_skin.calibration.pairing import robot_joints
-from nao_skin.calibration.plan import Step, left_out_pairs, part_rank, plan_steps, touching_pairs
+from nao_skin.calibration.plan import Step, left_out_pairs, plan_steps, touching_pairs
 from nao_skin.calibration.rows import pairing_key
 from nao_skin.calibration.stages import compress_held, fitted_kinds, initial_prior_sigma, run_stage
 from nao_skin.errors import DataError, TooFewTouches
-from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.touch.datasets import split as split_touches
 from nao_skin.touch.touches import TouchSet
 
@@ -393,7 +393,7 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     # kinematic-error, seed 0, true median 1.14 mm after three passes, the fabric 0.14 -> 0.6 mm of a
     # true 1.0 a pass at a time). So a path of its own: the mounts alone (first guesses, the plan at
     # mount level), then the kinematics with every mount, the patches and triangles still at their prior
-    # (0.65 mm after one pass; from the true kinematics the old path ends at 0.60 mm).
+    # (0.65 mm after one pass).
     kfit = _Fit(start.copy(), options.fabric_thickness, initial_prior_sigma(options), fit.inliers.copy(),
                 list(fit.set_aside))
     entries = []

@@ -7,10 +7,9 @@ import numpy as np
 
 from nao_skin.calibration.layout import ParameterLayout
 from nao_skin.calibration.pairing import METRIC_KINDS, METRIC_TAXEL_RULE, PlaneRows, chain_end_poses, metrics
-from nao_skin.calibration.plan import part_rank
 from nao_skin.calibration.residuals import ResidualModel
 from nao_skin.calibration.rows import concat_pairings, pair_parts, pair_step
-from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.touch.touches import TouchSet
 
 

@@ -38,7 +38,7 @@ import numpy as np
 
 from nao_skin import se3
 from nao_skin.errors import DataError
-from nao_skin.model.skin import PART_NAMES, SkinCalibration, SkinModel
+from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.touch.contacts import activations_by_part, cop_weights, segment_mean
 from nao_skin.touch.touches import TouchSet
 
@@ -156,9 +156,7 @@ def _part_order(touches: TouchSet, parts) -> list:
             raise DataError(f"pairing: parts {tuple(parts)!r} must be two different skin parts of the touch set"
                             f" ({', '.join(touches.part_names)})")
         return [(touches.part_names.index(parts[0]), touches.part_names.index(parts[1]))]
-    rank = sorted(range(len(touches.part_names)),
-                  key=lambda i: (PART_NAMES.index(touches.part_names[i]) if touches.part_names[i] in PART_NAMES
-                                 else len(PART_NAMES), touches.part_names[i]))
+    rank = sorted(range(len(touches.part_names)), key=lambda i: (part_rank(touches.part_names[i]), touches.part_names[i]))
     return list(combinations(rank, 2))
 
 

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from nao_skin.errors import TooFewTouches
-from nao_skin.model.skin import PART_NAMES
+from nao_skin.model.skin import part_rank
 from nao_skin.touch.touches import TouchSet
 
 if TYPE_CHECKING:   # only for annotations: calibrate imports this module
@@ -15,11 +15,6 @@ if TYPE_CHECKING:   # only for annotations: calibrate imports this module
 
 HANDS = ("r_hand", "l_hand")
 REFERENCE_BODY = ("torso", "head")   # parts the hands touch; fitted from the calibrated hands
-
-
-def part_rank(name: str) -> int:
-    """Order of parts everywhere: r_hand, l_hand, torso, head, then others."""
-    return PART_NAMES.index(name) if name in PART_NAMES else 99
 
 
 @dataclass

@@ -17,12 +17,12 @@ import numpy as np
 from nao_skin.calibration.engine import CalibrationResult
 from nao_skin.calibration.options import KIND_ROWS, CalibrationOptions
 from nao_skin.calibration.pairing import KIND_NAMES, pair_for_metrics
-from nao_skin.calibration.plan import part_rank, touching_pairs
+from nao_skin.calibration.plan import touching_pairs
 from nao_skin.calibration.rows import concat_pairings, pair_parts
 from nao_skin.calibration.splits import spread_table
 from nao_skin.errors import OutputError, os_reason
 from nao_skin.formats.outdir import CALIBRATION, replace_dir, write_marker
-from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.plain import jsonable
 from nao_skin.touch.touches import TouchSet
 

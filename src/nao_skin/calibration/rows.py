@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 
 from nao_skin.calibration.pairing import KIND_COP, KIND_NORMAL, KIND_TAXEL, Pairing, PlaneRows, pair_touches
-from nao_skin.calibration.plan import Step, part_rank
-from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.calibration.plan import Step
+from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.touch.touches import TouchSet
 
 

@@ -129,7 +129,7 @@ def decode_cloud(msg, where: str) -> np.ndarray:
     try:
         dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
         buf = np.frombuffer(msg.data, dtype=np.uint8)
-        if width <= 0 or height <= 0:    # no point, whatever row_step says (it had sized a padded copy)
+        if width <= 0 or height <= 0:    # no point, whatever row_step says (it must not size a padded copy)
             return np.zeros(0, dtype=dtype)
         size = (height - 1) * row_step + width * step
         if len(buf) < size:

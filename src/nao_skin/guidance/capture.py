@@ -58,10 +58,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nao_skin.calibration.options import CalibrationOptions
-from nao_skin.calibration.plan import HANDS, REFERENCE_BODY, part_rank
+from nao_skin.calibration.plan import HANDS, REFERENCE_BODY
 from nao_skin.calibration.report import paired_activation_counts
 from nao_skin.errors import DataError
-from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.plain import jsonable
 from nao_skin.rules import finite_float
 from nao_skin.sim.params import SimParams

@@ -132,8 +132,8 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                 spec.overrides["taxels"] = resolved
     by_name = {spec.name: spec for spec in specs}
     for node, values in (overrides or {}).items():
-        # one bag for both: the recorder writing one while the calibrate node followed another lost the session's
-        # calibration, and the bag checks below saw only the one named by --bag
+        # one bag for both: the calibrate node follows what the recorder writes, and the checks below (never
+        # overwrite a bag) see the one --bag names
         bag_param = {"pairing_recorder": "bag_path", "calibrate": "recording"}.get(node)
         if bag_param in values:
             raise ConfigError(f"--param {node}.{bag_param}: the session's bag is set once, for the recorder and the"

@@ -165,7 +165,7 @@ class RobotModel:
                 joints.append(joint)
                 frames.append(frame_name(row.get("frame", f"{cname}_dh{i + 1}"), f"{where} frame"))
             chains[str(cname)] = Chain(str(cname), np.array(dh), tuple(joints), tuple(frames))
-        # frames are URDF links and TF frames: one name, one frame (a second one made a URDF with a link twice)
+        # frames are URDF links and TF frames: one name, one frame (a URDF holds each link once)
         base_frame = frame_name(doc.get("base_frame", "torso"), f"{path}: base_frame")
         named = {base_frame: "the base frame"}
         for cname, chain in chains.items():

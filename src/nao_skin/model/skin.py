@@ -41,6 +41,11 @@ PART_NAMES = ("r_hand", "l_hand", "torso", "head")   # skinManager part names on
 DEFAULT_CHAINS = {"r_hand": "r_arm", "l_hand": "l_arm", "torso": None, "head": "head"}
 
 
+def part_rank(name: str) -> int:
+    """Order of parts everywhere: r_hand, l_hand, torso, head, then others."""
+    return PART_NAMES.index(name) if name in PART_NAMES else len(PART_NAMES)
+
+
 def _frame_from(origin: np.ndarray, z_axis: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
     """Right-handed frame at ``origin`` with z along ``z_axis`` and x towards ``x_hint``."""
     z = z_axis / np.linalg.norm(z_axis)

@@ -172,7 +172,8 @@ class CalibrateNode(Node):
         publish it only when it succeeds: a failed update leaves the last good frames on /tf_static.
         Then the guidance: where touches would help most now (also while waiting for a first calibration)."""
         from nao_skin.calibration.pipeline import calibrate_loaded, load_inputs
-        from nao_skin.calibration.plan import pair_counts, part_rank
+        from nao_skin.calibration.plan import pair_counts
+        from nao_skin.model.skin import part_rank
 
         log = self.get_logger()
         t0 = time.perf_counter()

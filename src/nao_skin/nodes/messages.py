@@ -38,10 +38,6 @@ def header_stamp(msg, where: str) -> float:
     return stamp_from_msg(stamp)
 
 
-def stamp_ns(stamp) -> int:
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
-
-
 # ---------------------------------------------------------------------- PointCloud2
 def cloud_from_array(points: np.ndarray, frame_id: str, stamp: Time | None) -> PointCloud2:
     """A dense, unorganised (height 1) PointCloud2 holding the structured array ``points``."""
