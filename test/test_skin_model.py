@@ -188,6 +188,27 @@ def test_calibration_save_load_round_trip(skin, tmp_path):
     assert tri["parent"] == p.patch_frame(p.patch_ids[p.triangle_patch[3]])
 
 
+def test_a_fit_wound_past_pi_is_written_as_the_same_rotation_and_loads_again(skin, tmp_path):
+    """A fit may end with a rotation vector far past pi (the same rotation): its file must load again; a
+    translation no skin frame has (a diverged fit) is not written at all."""
+    calib = skin.zero_calibration()
+    calib.parts["l_hand"].mount = np.array([0.01, 0.02, -0.03, -347.0, -343.3, -197.4])
+    calib.parts["torso"].triangles[2, 3:] = [3.186, 0.0, 0.0]
+    path = tmp_path / "calibration.yaml"
+    calib.save(path, skin)
+    loaded = SkinCalibration.load(path, skin)
+    for name in ("l_hand", "torso"):
+        np.testing.assert_allclose(skin.part(name).taxel_positions(loaded.parts[name])[0],
+                                   skin.part(name).taxel_positions(calib.parts[name])[0], atol=1e-9)
+    assert np.linalg.norm(loaded.parts["l_hand"].mount[3:]) <= np.pi
+    np.testing.assert_allclose(loaded.parts["l_hand"].mount[:3], [0.01, 0.02, -0.03], atol=1e-10)
+    calib.parts["torso"].mount[0] = 11.0
+    with pytest.raises(DataError, match=r"^torso_skin_mount: correction .* is no skin frame's .* the fit diverged;"
+                                        r" nothing written$"):
+        calib.save(tmp_path / "diverged.yaml", skin)
+    assert not (tmp_path / "diverged.yaml").exists()
+
+
 def test_partial_calibration_file_leaves_the_rest_nominal(skin, tmp_path):
     path = tmp_path / "partial.yaml"
     path.write_text(yaml.safe_dump({"parts": {"torso": {"mount": {"correction": {

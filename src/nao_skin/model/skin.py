@@ -446,10 +446,17 @@ class SkinCalibration:
     # ------------------------------------------------------------------ YAML
     def to_dict(self, skin: SkinModel) -> dict:
         def entry(f: SkinFrame) -> dict:
+            # the rotation vector of norm <= pi: a fit may wind one past it (the same rotation), and load()
+            # refuses what no rotation needs; a frame beyond MAX_OFFSET is a diverged fit, not a file to write
+            vector = np.concatenate([f.correction[:3], se3.wrap_rotvec(f.correction[3:])])
+            if not _plausible_pose(vector):
+                raise DataError(f"{f.frame}: correction {np.round(f.correction, 3).tolist()} is no skin frame's"
+                                f" (non-finite, or translated beyond {MAX_OFFSET:g} m): the fit diverged;"
+                                f" nothing written")
             return {
                 "frame": f.frame, "parent": f.parent,
-                "correction": {"translation": [round(float(v), 10) for v in f.correction[:3]],
-                               "rotation_vector": [round(float(v), 10) for v in f.correction[3:]]},
+                "correction": {"translation": [round(float(v), 10) for v in vector[:3]],
+                               "rotation_vector": [round(float(v), 10) for v in vector[3:]]},
                 # calibrated pose relative to the parent frame, in URDF terms (for xacro)
                 "origin": {"xyz": [round(float(v), 10) for v in f.pose[:3, 3]],
                            "rpy": [round(float(v), 10) for v in se3.rpy_from_matrix(f.pose[:3, :3])]},
