@@ -8,6 +8,7 @@ these tests check that the engine does what it says: it finds a hand mount
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -163,6 +164,52 @@ def test_real_recording_through_the_command(tmp_path):
     for split in ("train", "test"):
         assert report["final"][split]["cop_mean_mm"] < 8.0
         assert report["final"][split]["taxel_mean_mm"] < 5.0
+    assert report["warnings"] == [] and "warning" not in run.stderr
+
+
+def test_a_calibration_no_glued_skin_can_have_is_written_but_never_as_a_success_without_a_word(tmp_path):
+    """A robot config with the left shoulder 10 cm off: the fit sets most touches aside and ends centimetres
+    apart; with the gate off it ends a few mm apart by moving patches 6 cm. Written (exit 0), and said."""
+    robot = tmp_path / "nao_h25_shoulder.yaml"
+    text = (ROOT / "config" / "nao_h25.yaml").read_text()
+    line = "d: 0.1,    alpha: -pi/2, offset: 0,     frame: l_shoulder_base"
+    assert line in text
+    robot.write_text(text.replace(line, line.replace("d: 0.1,", "d: 0.2,")))
+    base = [sys.executable, "-m", "nao_skin.cli", "calibrate", str(REAL / "l_hand_torso.legacy.txt"), "--robot",
+            str(robot), "--taxels", f"l_hand={REAL / 'l_hand.taxels.txt'}", "--taxels",
+            f"torso={REAL / 'torso.taxels.txt'}", "--quiet", "--no-plots"]
+    for name, extra, says in (
+            ("gated", [], ["training touches were set aside as farther apart than the gate (15 mm) after the mount"
+                           " fit: the recording does not fit the robot config, the taxel files or the starting"
+                           " calibration", "mm apart, more than the gate (15 mm): the calibration does not explain"
+                                           " the recording"]),
+            ("ungated", ["--gate-mm", "0"], ["part 'torso': patch frames moved beyond glue error (more than 30 mm or"
+                                             " 60 deg)"])):
+        out = tmp_path / name
+        run = subprocess.run([*base, *extra, "--out", str(out)], capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr
+        warnings = [w for w in run.stderr.splitlines() if w.startswith("warning: ")]
+        report = json.loads((out / "report.json").read_text())
+        assert [w.removeprefix("warning: ") for w in warnings] == report["warnings"]
+        for said in says:
+            assert any(said in w for w in report["warnings"]), (said, report["warnings"])
+            assert said in (out / "report.md").read_text()
+        SkinCalibration.load(out / "calibration.yaml", load_skin(robot_config=robot, taxel_files={
+            "l_hand": REAL / "l_hand.taxels.txt", "torso": REAL / "torso.taxels.txt"}))     # written, and loads
+
+
+def test_a_joint_stream_that_never_moved_is_said(skin, left_hand_sim):
+    """Every touch at the same joint angles (a stuck joint stream): the hand is pinned at one spot only."""
+    from nao_skin.calibration.plausibility import implausible
+
+    touches, _ = left_hand_sim
+    still = replace(touches, joints=np.repeat(touches.joints[:1], touches.n_touches, axis=0))
+    calib = skin.zero_calibration()
+    said = implausible(still, skin, calib, ["l_hand", "torso"], 0, 3.0, 15.0)
+    assert said == [f"part 'l_hand': the joints of its chain (l_arm) did not move over its {touches.n_touches}"
+                    f" training touches (every touch one pose: a stuck joint stream?): the touches pin the skin at"
+                    f" one spot only"]
+    assert implausible(touches, skin, calib, ["l_hand", "torso"], 0, 3.0, 15.0) == []
 
 
 def test_command_fails_with_one_line_on_a_bad_input(tmp_path):

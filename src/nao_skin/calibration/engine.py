@@ -41,6 +41,7 @@ from nao_skin.calibration.layout import KINEMATICS
 from nao_skin.calibration.options import LEVELS, CalibrationOptions
 from nao_skin.calibration.pairing import robot_joints
 from nao_skin.calibration.plan import Step, left_out_pairs, plan_steps, touching_pairs
+from nao_skin.calibration.plausibility import implausible
 from nao_skin.calibration.rows import pairing_key
 from nao_skin.calibration.stages import compress_held, fitted_kinds, initial_prior_sigma, run_stage
 from nao_skin.errors import DataError, TooFewTouches
@@ -74,6 +75,7 @@ class CalibrationReport:
     total_seconds: float = 0.0                          # the engine's, from touches to calibration
     input: dict = field(default_factory=dict)           # what was read (set by the pipeline)
     splits: dict = field(default_factory=dict)          # figures over repeated splits (pipeline, splits > 1)
+    warnings: list = field(default_factory=list)        # why the result cannot be the skin's pose (plausibility)
 
     @property
     def n_set_aside(self) -> int:
@@ -199,6 +201,10 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
     # held: what no stage estimated (a triangle held while fitted to one reference and freed by the
     # joint refinement, where both references reach ten activations, was estimated: not listed)
     report.held = sorted(compress_held(sorted(fit.held - fit.estimated)))
+    report.warnings = implausible(train, skin, fit.calibration, report.parts, len(fit.set_aside),
+                                  report.final.get("train", {}).get("cop_mean_mm", float("nan")), options.gate_mm)
+    for line in report.warnings:
+        say(f"warning: {line}")
     report.total_seconds = time.perf_counter() - t_start
     return CalibrationResult(fit.calibration, report, train, test, fit.set_aside)
 

@@ -100,6 +100,7 @@ def markdown_report(report: dict, coverage: dict | None = None) -> str:
     lines = ["# Skin calibration report", "",
              f"Plan: {' → '.join(report['plan'])}", "",
              f"Total time: {report['total_seconds']:.2f} s. Touches set aside: {report['n_set_aside']}.", "",
+             *([f"**Warning: {w}.**" for w in report.get("warnings") or []] + [""] if report.get("warnings") else []),
              "Closest taxel: the closest pair among every activated taxel of the two touching parts; selected"
              " contacts': the closest pair of the two contacts whose COPs are closest (what the solver fits).", "",
              "| stage | set | touches | closest COP mean (mm) | closest taxel mean (mm)"

@@ -101,4 +101,6 @@ def run(args) -> int:
                                summary=lambda msg: print(msg, file=sys.stderr, flush=True))
     print(f"{summary_line(run.result)} -> {run.out_dir} (engine {run.result.report.total_seconds:.2f} s,"
           f" whole command {wall_seconds(args):.1f} s)")
+    for line in run.result.report.warnings:     # written, but not as a success without a word (--quiet too)
+        print(f"warning: {line}", file=sys.stderr, flush=True)
     return 0

@@ -203,7 +203,9 @@ class CalibrateNode(Node):
                           "final": {k: report.final.get(k) for k in ("train", "test")},
                           "displacement_mm": moved, "held": report.held, "left_out": report.left_out,
                           "parts": self.settling.states(self.skin.parts), "seconds": time.perf_counter() - t0,
-                          "from_scratch": not start["warm"]})
+                          "from_scratch": not start["warm"], "warnings": report.warnings})
+            for line in report.warnings:
+                log.warning(f"live update {self.generation}: {line}")
             log.info(f"live update {self.generation}: {touches.n_touches} touches, taxels moved up to"
                      f" {max(moved.values(), default=0.0):.2f} mm")
         except TooFewTouches as exc:      # no pair has touches enough yet: wait for more
@@ -277,8 +279,11 @@ class CalibrateNode(Node):
             final = run.result.report.final
             self._status({"state": "done", "generation": self.generation, "out_dir": str(run.out_dir),
                           "calibration": calibration, "touches": run.n_touches,
-                          "final": {k: final.get(k) for k in ("train", "test") if k in final}})
+                          "final": {k: final.get(k) for k in ("train", "test") if k in final},
+                          "warnings": run.result.report.warnings})
             log.info(f"calibrated from {len(paths)} input(s): {run.n_touches} touches -> {run.out_dir}")
+            for line in run.result.report.warnings:
+                log.warning(line)
         except NaoSkinError as exc:
             log.error(str(exc))
             self._status({"state": "failed", "error": str(exc)})
