@@ -387,3 +387,33 @@ def test_import_and_stats_commands(skin, tmp_path, capsys):
     assert main(["import", str(tmp_path / "nope.txt"), "-o", str(tmp_path / "b2")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "nope.txt" in err
+
+
+def test_a_bag_another_recording_makes_meanwhile_is_one_line_and_left_alone(tmp_path, monkeypatch):
+    """Two sessions started on one bag: the second one's checks pass, then the first makes the directory while
+    the second builds its type store (~0.25 s) or before it opens: rosbags' WriterError was a traceback."""
+    import nao_skin.formats.bag as bag_module
+
+    target = tmp_path / "bag"
+    build = bag_module._typestore
+
+    def other_recording_first():
+        target.mkdir()
+        (target / "theirs.mcap").write_bytes(b"their touches")
+        return build()
+
+    monkeypatch.setattr(bag_module, "_typestore", other_recording_first)
+    with pytest.raises(DataError, match=r"bag: exists already \(made meanwhile by another recording\); a bag is"
+                                        r" never overwritten$"):
+        BagWriter(target, storage="mcap", kind="touches", live=True)
+    monkeypatch.setattr(bag_module, "_typestore", build)
+    late = tmp_path / "late"
+    writer = BagWriter(late, storage="mcap", kind="touches", live=True)
+    late.mkdir()
+    (late / "theirs.mcap").write_bytes(b"their touches")
+    with pytest.raises(DataError, match=r"late: exists already \(made meanwhile by another recording\)"):
+        with writer:
+            pass
+    for directory in (target, late):
+        assert [p.name for p in directory.iterdir()] == ["theirs.mcap"]
+        assert (directory / "theirs.mcap").read_bytes() == b"their touches"

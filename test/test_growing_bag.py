@@ -15,6 +15,7 @@ import shutil
 import numpy as np
 import pytest
 
+from nao_skin.errors import BagMoved
 from nao_skin.formats import bag as bagmod
 from nao_skin.formats.bag import BagWriter, GrowingBag, read_touches
 from nao_skin.model.skin import load_skin
@@ -131,3 +132,46 @@ def test_a_replaced_recording_is_read_from_its_start(played, tmp_path, storage):
         got = follower.read()
         assert_same_read(got, read_touches(path, skin))
         np.testing.assert_array_equal(got[0].stamps, touches.stamps[5:12])
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+@pytest.mark.parametrize("how, when", [("removed", "flush"), ("moved", "flush"), ("replaced", "flush"),
+                                       ("removed", "close"), ("replaced", "close")])
+def test_a_bag_whose_directory_goes_while_recording_is_copied_out_and_what_took_its_name_left_alone(
+        played, tmp_path, storage, how, when):
+    """``rm -rf`` of the bag being recorded went on into a deleted file and ended saying the touches were kept;
+    a directory put in its place got this session's metadata.yaml. Now every touch so far is copied out through
+    the files still open, the bag is abandoned, and the line says where the touches are."""
+    skin, touches = played
+    path = tmp_path / "rec"
+    other = tmp_path / "other"       # another, closed recording that takes the name
+    with BagWriter(other, storage, kind="touches") as bag:
+        write_recorded(bag, skin, touches, np.arange(3))
+    theirs = {f.name: f.read_bytes() for f in other.iterdir()}
+    with pytest.raises(BagMoved) as err:
+        with BagWriter(path, storage, kind="touches", live=True) as bag:
+            write_recorded(bag, skin, touches, np.arange(10))
+            bag.flush()
+            if how == "removed":
+                shutil.rmtree(path)
+            else:
+                path.rename(tmp_path / "elsewhere")
+                if how == "replaced":
+                    shutil.copytree(other, path)
+            write_recorded(bag, skin, touches, np.arange(10, 16))   # sqlite3: raises here
+            if when == "flush":
+                bag.flush()
+                pytest.fail("the flush went on into a directory that is not the bag's")
+    rescued = tmp_path / "rec.rescued"
+    assert str(err.value) == (f"{path}: the bag's directory was removed, moved or replaced while recording; every"
+                              f" touch written so far is copied to {rescued} (nao-skin reads it: nao-skin stats"
+                              f" {rescued}); recording stopped")
+    # sqlite3 takes no more touches once its directory is gone (its journal would be made there)
+    kept = 16 if storage == "mcap" else 10
+    got, _ = read_touches(rescued, skin)
+    assert got.n_touches == kept
+    np.testing.assert_allclose(got.stamps, np.sort(touches.stamps[:kept]), rtol=0, atol=1e-6)
+    if how == "replaced":
+        assert {f.name: f.read_bytes() for f in path.iterdir()} == theirs
+    if how != "removed":              # the moved original holds them too
+        assert read_touches(tmp_path / "elsewhere", skin)[0].n_touches == kept

@@ -24,6 +24,11 @@ class OutputError(NaoSkinError):
     """An output cannot be written (a full disk, no permission, a folder gone): what was written before stays."""
 
 
+class BagMoved(OutputError):
+    """A live bag's directory was removed, moved or replaced while it was written; the message says where
+    its touches are now."""
+
+
 class TooFewTouches(DataError):
     """The touches cannot determine what is asked yet: more touches will (a live update waits for them)."""
 

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nao_skin.errors import DataError, OutputError, one_line, os_reason
+from nao_skin.errors import BagMoved, DataError, OutputError, one_line, os_reason
 from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, encode_cloud,
                                          read_contacts, read_taxels, skin_topic, taxels_array, taxels_topic)
 from nao_skin.formats.salvage import (LOCK_FILE, cut_mcap, provisional_mcap, stored_metadata, unclosed_sqlite,
@@ -55,6 +55,24 @@ def _typestore():
 WRITE_ERRORS = (OSError, sqlite3.Error)
 
 
+def _directory_identity(path: Path) -> tuple:
+    """(device, inode) of a directory or file: the same name may come to hold another one."""
+    import os
+
+    st = os.stat(path)
+    return st.st_dev, st.st_ino
+
+
+def _fd_identity(fd: int) -> tuple | None:
+    import os
+
+    try:
+        st = os.fstat(fd)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
 class BagWriter:
     """Write the nao_skin topics to a new rosbag2 (context manager). Used for touch and stream bags.
 
@@ -66,7 +84,7 @@ class BagWriter:
     """
 
     def __init__(self, path: str | Path, storage: str = "sqlite3", kind: str = "stream", live: bool = False):
-        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 
         plugins = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}
         if storage not in plugins:
@@ -84,24 +102,37 @@ class BagWriter:
         except OSError as exc:
             raise DataError(f"{self.path}: cannot make its folder ({exc.strerror}); choose another place") from None
         self.store = _typestore()
-        self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=plugins[storage])
+        try:    # checked above; another recorder may have made it since (building the type store takes ~0.25 s)
+            self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=plugins[storage])
+        except WriterError:
+            raise DataError(f"{self.path}: exists already (made meanwhile by another recording); a bag is never"
+                            f" overwritten") from None
         self._writer.set_custom_data(BAG_KIND_KEY, kind)
         self._kind = kind
         self._live = live
+        self._place = self._file = None     # (device, inode) of the bag's directory and storage file once open
+        self._abandoned = False
         self._connections: dict = {}
         t = self.store.types
         self._Header, self._Time = t["std_msgs/msg/Header"], t["builtin_interfaces/msg/Time"]
         self._JointState, self._Cloud, self._Field = t[JOINT_STATE], t[POINT_CLOUD], t["sensor_msgs/msg/PointField"]
 
     def __enter__(self) -> "BagWriter":
+        from rosbags.rosbag2 import WriterError
+
         try:
             self._writer.open()
+        except (FileExistsError, WriterError):
+            raise DataError(f"{self.path}: exists already (made meanwhile by another recording); a bag is never"
+                            f" overwritten") from None
         except OSError as exc:
             raise DataError(f"{self.path}: cannot write the bag ({exc.strerror}); choose another place") from None
         try:
             if self._live:          # first: no reader may take the bag for an abandoned one
                 write_lock(self.path)
             self._write_provisional_metadata()
+            self._place = _directory_identity(self.path)
+            self._file = _directory_identity(self._writer.storage.path)     # the storage file's (device, inode)
         except WRITE_ERRORS as exc:
             raise self._cannot_write(exc) from None
         return self
@@ -113,6 +144,58 @@ class BagWriter:
     # records (sqlite3: a commit). A killed recorder leaves a cut mcap file (or
     # a sqlite3 file without listed messages) that read_touches reads up to the
     # last flush, with the right bag kind.
+    def _check_place(self) -> None:
+        """A live bag's directory is still the one it opened: removed (``rm -rf``), moved or replaced, the
+        files it writes are no longer (or no longer only) there. Then everything written so far is copied out
+        through the files still open to ``<bag>.rescued`` and :class:`BagMoved` says so; the bag is abandoned
+        (closing it would write its metadata into whatever now has its name)."""
+        try:
+            now = _directory_identity(self.path)
+        except OSError:
+            now = None
+        if now == self._place:
+            return
+        self._abandoned = True
+        try:
+            rescued = self._rescue()
+        except WRITE_ERRORS as exc:
+            raise BagMoved(f"{self.path}: the bag's directory was removed, moved or replaced while recording,"
+                           f" and its touches could not be copied out ({os_reason(exc) if isinstance(exc, OSError) else exc});"
+                           f" recording stopped") from None
+        raise BagMoved(f"{self.path}: the bag's directory was removed, moved or replaced while recording; every"
+                       f" touch written so far is copied to {rescued} (nao-skin reads it: nao-skin stats {rescued});"
+                       f" recording stopped")
+
+    def _rescue(self) -> Path:
+        """Copy the open storage file, as written so far, to a new ``<bag>.rescued`` directory."""
+        import os
+
+        n = 1
+        while True:
+            target = Path(f"{self.path}.rescued" + (str(n) if n > 1 else ""))
+            if not (target.exists() or target.is_symlink()):
+                break
+            n += 1
+        target.mkdir(parents=True)
+        storage = self._writer.storage
+        if hasattr(storage, "bio"):     # mcap: what is buffered goes to the file first
+            if storage.chunk.bio.tell():
+                storage.close_chunk()
+            storage.bio.flush()
+        # the storage file's bytes through this process's open descriptor of it (opened again for reading:
+        # it may have no name left). sqlite3 (rollback journal) holds its last commit in the file itself.
+        fd = next(int(n) for n in os.listdir("/proc/self/fd") if _fd_identity(int(n)) == self._file)
+        with open(f"/proc/self/fd/{fd}", "rb") as src, open(target / storage.path.name, "wb") as out:
+            shutil.copyfileobj(src, out)
+            out.flush()
+            os.fsync(out.fileno())
+        place, self.path = self.path, target
+        try:
+            self._write_provisional_metadata()
+        finally:
+            self.path = place
+        return target
+
     def _write_provisional_metadata(self) -> None:
         import yaml
 
@@ -128,6 +211,8 @@ class BagWriter:
         """Make everything written so far durable (a later ``kill -9`` loses nothing before this)."""
         import os
 
+        if self._live:      # first: a commit needs the directory (sqlite's journal)
+            self._check_place()
         storage = self._writer.storage
         try:
             if hasattr(storage, "close_chunk"):              # mcap: end the open chunk, write it out
@@ -141,6 +226,11 @@ class BagWriter:
             raise self._cannot_write(exc) from None
 
     def __exit__(self, *exc) -> None:
+        if self._abandoned:         # its directory is not ours any more: leave the files as they are
+            self._close_files()
+            return
+        if self._live and exc[0] is None:
+            self.flush()            # where the touches go, checked once more before metadata is written there
         try:
             self._writer.close()
         except WRITE_ERRORS as err:
@@ -150,8 +240,23 @@ class BagWriter:
         if self._live:          # only now: a reader seeing no lock finds complete metadata
             (self.path / LOCK_FILE).unlink(missing_ok=True)
 
+    def _close_files(self) -> None:
+        """Close the storage's open files without writing anything more (an abandoned bag)."""
+        storage = self._writer.storage
+        for handle in (getattr(storage, "bio", None), getattr(storage, "conn", None)):
+            if handle is not None:
+                try:
+                    handle.close()
+                except WRITE_ERRORS:
+                    pass
+
     def _cannot_write(self, exc: Exception) -> OutputError:
-        """A failed write (a full disk, a file size limit) as one line; sqlite3 says 'disk I/O error'."""
+        """A failed write (a full disk, a file size limit) as one line; sqlite3 says 'disk I/O error'.
+
+        A live bag whose directory went away fails so (sqlite's journal has nowhere to go): that is
+        :class:`BagMoved`, raised from here with the touches copied out."""
+        if self._live and self._place is not None and not self._abandoned:
+            self._check_place()
         return OutputError(f"{self.path}: cannot write the bag ({os_reason(exc) if isinstance(exc, OSError) else exc})")
 
     def _header(self, stamp_ns: int, frame: str):

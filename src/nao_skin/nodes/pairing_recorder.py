@@ -34,7 +34,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 
-from nao_skin.errors import DataError, OutputError
+from nao_skin.errors import BagMoved, DataError, OutputError
 from nao_skin.formats.bag import BagWriter, record_parts
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_topic, read_contacts, read_taxels, taxels_topic
 from nao_skin.live.clocks import SKEW_LIMIT_S, ArrivalLags
@@ -204,6 +204,8 @@ class PairingRecorder(Node):
         record session, rather than let the operator go on touching for nothing.
         """
         self._closed = True
+        if isinstance(exc, BagMoved):     # it says where the touches are now
+            raise OutputError(f"{exc} after {self.n_touches} touches") from None
         raise OutputError(f"{exc} after {self.n_touches} touches; recording stopped. The bag keeps the"
                           f" {self._flushed} touches flushed before (maybe a few more) and nao-skin reads it as it"
                           f" is; free some space, then record on into a new bag") from None
