@@ -376,3 +376,26 @@ def test_the_calibrate_node_takes_the_warm_update_options_from_the_session_confi
     params = {name: value for name, (value, *_) in calibrate_node.PARAMS.items()}
     assert calibrate_node.options_from_params({**params, **session}).warm_repairings == session["warm_repairings"]
     assert calibrate_node.options_from_params({**params, "warm_repairings": 3}).warm_repairings == 3
+
+
+def test_a_node_that_has_ended_keeps_its_exit_code_whatever_stop_signal_follows(tmp_path):
+    """The recorder ends with 2 (its disk is full) while record, stopped by the user a moment later, sends it
+    SIGTERM: arriving during CPython's finalisation, which puts the default action back, the signal ended the
+    process, and record counts a SIGTERM death as a clean stop (exit 0 after a full disk). The window cannot be
+    hit on demand; what closes it can be checked: once the node is done, the stop signals are ignored (a state
+    finalisation leaves alone) and a SIGTERM changes nothing."""
+    script = (
+        "import os, signal, time\n"
+        "from nao_skin.errors import DataError\n"
+        "from nao_skin.nodes.runtime import run_node\n"
+        "def factory():\n"
+        "    raise DataError('cannot write the bag (No space left on device)')\n"
+        "code = run_node(factory, ['node'])\n"
+        "print([signal.getsignal(s) is signal.SIG_IGN for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)])\n"
+        "os.kill(os.getpid(), signal.SIGTERM)\n"
+        "time.sleep(0.2)\n"
+        "raise SystemExit(code)\n")
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
+                         env=ros_env(unique_domain_id()))
+    assert run.stdout.splitlines() == ["[True, True, True]"], run.stderr
+    assert run.returncode == 2 and "error: cannot write the bag (No space left on device)" in run.stderr

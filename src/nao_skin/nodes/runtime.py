@@ -265,4 +265,10 @@ def run_node(factory, args=None) -> int:
                     code = 2
             node.destroy_node()
         rclpy.try_shutdown()
+        # The node is done: a stop signal now has nothing left to stop. Ignored, not reset: CPython's
+        # finalisation puts SIGTERM back to its default, and record's SIGTERM arriving then (it stops the
+        # session just after the recorder said "cannot write the bag") ended the process by the signal,
+        # which record counts as a clean stop: exit 0 after a full disk.
+        for s in STOP_SIGNALS:
+            signal.signal(s, signal.SIG_IGN)
     return code
