@@ -138,3 +138,41 @@ def test_a_failing_update_keeps_the_last_good_frames(tmp_path):
             listener.close()
         code = node.stop() if node is not None else None
     assert code == 0, node.stderr()[-3000:]
+
+
+def test_an_out_dir_another_command_writes_during_the_session_is_left_and_the_session_writes_beside_it(tmp_path):
+    """During a session the operator calibrates the bag so far into <bag>_calibration, the session's out_dir:
+    the session's end replaced it without a word. Now the operator's output stays and the session's goes to
+    <out_dir>.live, said in the log."""
+    from nao_skin.cli import main as cli_main
+    from nao_skin.formats.outdir import MARKER
+
+    skin = load_skin()
+    touches = simulate(skin, {"pairs": [["r_hand", "torso"]], "n_touches": 40}, seed=6).touches
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, touches, skin)
+    out = tmp_path / "touches_calibration"
+    domain = unique_domain_id()
+    listener = node = None
+    try:
+        listener = Listener(domain)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        progress = listener.node.create_publisher(String, PROGRESS_TOPIC, 10)
+        node = node_process("calibrate", {"live": True, "recording": str(bag), "live_every_touches": 1,
+                                          "live_period": 0.5, "out_dir": str(out)}, ros_env(domain), tmp_path)
+        assert listener.spin_until(lambda: progress.get_subscription_count() >= 1 and status, procs=[node])
+        progress.publish(String(data=json.dumps({"touches": touches.n_touches})))
+        assert listener.spin_until(lambda: any(s["state"] == "updated" for s in status), timeout=90, procs=[node])
+        assert cli_main(["calibrate", str(bag), "--out", str(out), "--seed", "7", "--no-plots", "--quiet"]) == 0
+        theirs = {f.relative_to(out): f.read_bytes() for f in out.rglob("*") if f.is_file()}
+    finally:
+        if listener is not None:
+            listener.close()
+        code = node.stop() if node is not None else None
+    assert code == 0, node.stderr()[-3000:]
+    assert {f.relative_to(out): f.read_bytes() for f in out.rglob("*") if f.is_file()} == theirs
+    session = tmp_path / "touches_calibration.live"
+    assert json.loads((session / MARKER).read_text())["command"] == "nao-skin calibrate (node, live)"
+    SkinCalibration.load(session / "calibration.yaml", skin)
+    assert (f"out_dir {out} was written by another command during the session and is left as it is; the session's"
+            f" calibration goes to {session}") in node.stderr()

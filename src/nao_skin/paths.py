@@ -23,6 +23,16 @@ def not_a_file(mode: int) -> str | None:
     return next((text for test, text in kinds if test(mode)), "not a regular file")
 
 
+def identity(path: str | Path) -> tuple | None:
+    """(device, inode) of what ``path`` names now, None when nothing: the same name may come to hold
+    another directory or file (moved, removed, replaced)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
 def read_text(path: str | Path, what: str = "", error: type | None = None, name: str | None = None) -> str:
     """The text of ``path``; one line naming it (``name``, default the path) and ``what`` it was read as when it
     cannot be read or is no text (a bag or another binary file given for a text one), as ``error`` (DataError).

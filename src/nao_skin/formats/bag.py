@@ -32,6 +32,7 @@ from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, con
 from nao_skin.formats.salvage import (LOCK_FILE, cut_mcap, provisional_mcap, stored_metadata, unclosed_sqlite,
                                       write_lock)
 from nao_skin.model.skin import SkinModel
+from nao_skin.paths import identity
 from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST, cluster_contacts, contact_geometry
 from nao_skin.touch.datasets import LoadReport
 from nao_skin.touch.events import (LIVE_CONFIG, TOUCH_BAG_CONFIG, EventConfig, EventDetector, TouchRecord,
@@ -53,14 +54,6 @@ def _typestore():
 # ---------------------------------------------------------------------- writing
 # what a write to a bag raises when the disk is full or a file size limit is reached
 WRITE_ERRORS = (OSError, sqlite3.Error)
-
-
-def _directory_identity(path: Path) -> tuple:
-    """(device, inode) of a directory or file: the same name may come to hold another one."""
-    import os
-
-    st = os.stat(path)
-    return st.st_dev, st.st_ino
 
 
 def _fd_identity(fd: int) -> tuple | None:
@@ -131,8 +124,8 @@ class BagWriter:
             if self._live:          # first: no reader may take the bag for an abandoned one
                 write_lock(self.path)
             self._write_provisional_metadata()
-            self._place = _directory_identity(self.path)
-            self._file = _directory_identity(self._writer.storage.path)     # the storage file's (device, inode)
+            self._place = identity(self.path)
+            self._file = identity(self._writer.storage.path)     # the storage file's (device, inode)
         except WRITE_ERRORS as exc:
             raise self._cannot_write(exc) from None
         return self
@@ -149,11 +142,7 @@ class BagWriter:
         files it writes are no longer (or no longer only) there. Then everything written so far is copied out
         through the files still open to ``<bag>.rescued`` and :class:`BagMoved` says so; the bag is abandoned
         (closing it would write its metadata into whatever now has its name)."""
-        try:
-            now = _directory_identity(self.path)
-        except OSError:
-            now = None
-        if now == self._place:
+        if identity(self.path) == self._place:
             return
         self._abandoned = True
         try:

@@ -22,6 +22,7 @@ Status on ``/nao_skin/calibration/status`` (std_msgs/String, JSON, latched).
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 from pathlib import Path
@@ -41,6 +42,7 @@ from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC
 from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
 from nao_skin.rules import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Rule, SECONDS
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
+from nao_skin.paths import identity
 from nao_skin.plain import jsonable
 
 REQUEST_TOPIC = "/nao_skin/calibrate"
@@ -122,6 +124,7 @@ class CalibrateNode(Node):
         self.guidance_pairs = _pairs(self.p["guidance_pairs"], self.skin, "guidance_pairs")
         if self.p["live"]:
             self._check_live_out_dir()    # refused now, not after an hour at the robot
+            self._out_dir_at_start = identity(self.p["out_dir"])
             self.schedule = UpdateSchedule(int(self.p["live_every_touches"]), float(self.p["live_period"]))
             self.settling = Settling(float(self.p["live_settle_mm"]), int(self.p["live_settle_updates"]),
                                      float(self.p["live_flat_percent"]))
@@ -150,13 +153,14 @@ class CalibrateNode(Node):
         if isinstance(touches, int) and not isinstance(touches, bool) and touches >= 0:
             self._recorded = touches
 
-    def _check_live_out_dir(self) -> None:
+    def _check_live_out_dir(self, out_dir: str | None = None) -> None:
         """Where the session's last live calibration goes: replaced when the session ends (force), never when
         it holds what the node reads (the recording, the calibration it started from, the skin's files)."""
         from nao_skin.calibration.pipeline import check_output
 
-        check_output(self.p["out_dir"], [self.p["recording"], self.p["calibration"], self.p["skin_config"],
-                                         *self.skin.source_files()], force=True, label="out_dir")
+        check_output(out_dir or self.p["out_dir"], [self.p["recording"], self.p["calibration"],
+                                                    self.p["skin_config"], *self.skin.source_files()],
+                     force=True, label="out_dir")
 
     def _maybe_update(self) -> None:
         now = time.monotonic()
@@ -302,10 +306,18 @@ class CalibrateNode(Node):
         if self._last_live is not None:
             from nao_skin.calibration.report import write_outputs
 
+            out_dir = self.p["out_dir"]
+            if identity(out_dir) != self._out_dir_at_start:
+                # another command wrote there during the session (e.g. a calibrate --out of the bag so far):
+                # its output stays, the session's goes beside it
+                out_dir = next(f"{self.p['out_dir']}.live{n if n > 1 else ''}" for n in range(1, 1000)
+                               if not os.path.lexists(f"{self.p['out_dir']}.live{n if n > 1 else ''}"))
+                self.get_logger().warning(f"out_dir {self.p['out_dir']} was written by another command during the"
+                                          f" session and is left as it is; the session's calibration goes to"
+                                          f" {out_dir}")
             # a failure here (out_dir refused, the disk full) is the node's one line and exit 2
-            self._check_live_out_dir()
-            out = write_outputs(self._last_live, self.skin, self.p["out_dir"], plots=False,
-                                command="calibrate (node, live)")
+            self._check_live_out_dir(out_dir)
+            out = write_outputs(self._last_live, self.skin, out_dir, plots=False, command="calibrate (node, live)")
             self.get_logger().info(f"the last live calibration -> {out}")
 
 
