@@ -467,3 +467,17 @@ def test_solves_a_re_pairing_replaces_stop_early_and_a_stages_last_allowed_one_r
     calibrate(touches, skin, options, prior=result.calibration, warm=("l_hand", "torso"),
               split=(result.train, result.test))
     assert solves and {cap for cap, _ in solves} == {30}, solves
+
+
+def test_a_split_or_a_gate_that_leaves_nothing_says_which(skin, left_hand_sim):
+    """Both had ended in lines blaming the recording: 'no touch has two skin parts active together', 'no paired
+    activations left to fit'."""
+    from nao_skin.errors import TooFewTouches
+
+    touches, _ = left_hand_sim
+    with pytest.raises(TooFewTouches, match=rf"^test_fraction 0.996 holds out all {touches.n_touches} touches: none"
+                                            r" is left to calibrate from; lower it$"):
+        calibrate(touches, skin, CalibrationOptions(test_fraction=0.996))
+    with pytest.raises(DataError, match=r": the gate set aside every touch that pairs these parts \(farther apart"
+                                        r" than 0.001 mm after the mount fit\): a gate that tight, or a recording"):
+        calibrate(touches, skin, CalibrationOptions(gate_mm=0.001))

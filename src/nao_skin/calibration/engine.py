@@ -158,6 +158,9 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
     t_start = time.perf_counter()
     _check_parts(touches, skin)
     train, test = _train_test(touches, options, split)
+    if train.n_touches == 0 and touches.n_touches:
+        raise TooFewTouches(f"test_fraction {options.test_fraction:g} holds out all {touches.n_touches} touches:"
+                            f" none is left to calibrate from; lower it")
     steps = plan_steps(train, options)
     _check_enough(train, steps, options)
     start = _start_calibration(prior, skin)

@@ -108,6 +108,11 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
             raise DataError(f"{name}: no touch pairs the parts {', '.join(parts_in)}")
         pairing = select_rows(pairing_all, kinds, inliers)
         if len(pairing.row_touch) == 0:
+            if len(pairing_all.row_touch) and inliers is not None and not np.any(inliers[pairing_all.row_touch]):
+                raise DataError(f"{name}: the gate set aside every touch that pairs these parts (farther apart than"
+                                f" {options.gate_mm:g} mm after the mount fit): a gate that tight, or a recording"
+                                f" that does not fit the robot config, the taxel files or the starting calibration"
+                                f" (--gate-mm 0: no gate)")
             raise DataError(f"{name}: no paired activations left to fit")
         pairing = with_normal_rows(pairing, pairing_all, normal_weight, inliers)
         new_hashes = touch_hashes(pairing, touches.n_touches)
