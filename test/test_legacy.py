@@ -77,6 +77,26 @@ def test_real_file_taxel_info_matches_the_taxel_files(real):
             np.testing.assert_allclose(row, np.r_[tf.positions[int(slot)], tf.normals[int(slot)]], atol=1e-9)
 
 
+def test_a_taxel_file_that_is_not_the_recordings_is_said(real, real_skin, capsys):
+    """skinManager computed each recorded COP from its own taxel file: with that file the COPs lie among
+    their taxels; with another part's file (swapped by mistake) centimetres off, and the calibration would fit
+    taxels that are not where the skin reported its touches."""
+    from nao_skin import cli
+    from nao_skin.formats.inputs import cop_layout_notes
+
+    touches, _ = real
+    assert cop_layout_notes(touches, real_skin, "rec") == []
+    legacy = str(REAL / "l_hand_torso.legacy.txt")
+    swapped = ["--taxels", f"l_hand={REAL / 'torso.taxels.txt'}", "--taxels", f"torso={REAL / 'l_hand.taxels.txt'}"]
+    assert cli.main(["stats", legacy, *swapped]) == 0
+    said = capsys.readouterr()
+    err = said.out + said.err
+    for part, other in (("l_hand", "torso"), ("torso", "l_hand")):
+        assert (f"{legacy}: part '{part}': the recorded contact COPs lie a median") in err
+        assert (f"mm from the taxels they name in {REAL / f'{other}.taxels.txt'} (a few mm with the layout skinManager"
+                f" used): is that this robot's taxel file of this part?") in err
+
+
 def test_real_file_has_25_exact_duplicates(real):
     touches, _ = real
     unique, removed = deduplicate(touches)
