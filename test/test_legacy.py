@@ -11,7 +11,7 @@ from real_data import REAL_DIR as REAL  # noqa: E402
 from nao_skin.errors import DataError
 from nao_skin.formats.legacy import _ast_entries, _json_entries, read_legacy
 from nao_skin.model.taxel_file import read_taxel_file
-from nao_skin.touch.datasets import deduplicate, duplicate_mask, split
+from nao_skin.touch.datasets import deduplicate, duplicate_mask, pose_groups, split
 
 
 @pytest.fixture(scope="module")
@@ -132,6 +132,33 @@ def test_split_is_reproducible_and_disjoint(tmp_path, skin):
     assert train.keys == train2.keys and test.keys == test2.keys
     assert not set(train.keys) & set(test.keys)
     assert split(touches, 0.3, seed=8)[1].keys != test.keys
+
+
+def test_touches_of_one_pose_stay_on_one_side_of_the_split(tmp_path, skin):
+    """A press held still is recorded as several touches (another contact sample each, the same joint angles up
+    to encoder jitter): a random split put some in training and some in the test set, which then measured
+    poses the calibration was fitted to."""
+    data = {}
+    for pose in range(6):          # 6 presses of 4 samples each, angles jittered by < 0.1 deg
+        for k in range(4):
+            data[f"{pose}.{k}"] = touch(hand_slots=(k, k + 1), joints=dict(
+                JOINTS, LShoulderPitch=0.1 * pose + 0.001 * k, LElbowRoll=-1.0 - 0.0005 * k))
+    for i in range(12):            # and 12 touches each at a pose of its own
+        data[f"single.{i}"] = touch(joints=dict(JOINTS, LWristYaw=0.05 * i, LShoulderPitch=1.5))
+    touches, _ = read_legacy(write(tmp_path, data), skin)
+    groups = pose_groups(touches)
+    assert len(set(groups)) == 6 + 12
+    for pose in range(6):
+        assert len({groups[touches.keys.index(f"{pose}.{k}")] for k in range(4)}) == 1
+    for seed in range(20):
+        train, test = split(touches, 0.3, seed, groups)
+        assert sorted(train.keys + test.keys) == sorted(touches.keys)
+        presses = {key.split(".")[0] for key in test.keys if not key.startswith("single")}
+        assert not presses & {key.split(".")[0] for key in train.keys}
+        assert abs(test.n_touches - round(0.3 * touches.n_touches)) <= 2    # whole groups of 4 come that close
+    # each touch a pose of its own: the same split as without groups
+    singles = touches.subset(np.flatnonzero([k.startswith("single") for k in touches.keys]))
+    assert split(singles, 0.3, 5, pose_groups(singles))[1].keys == split(singles, 0.3, 5)[1].keys
 
 
 # ---------------------------------------------------------------------- keys

@@ -46,6 +46,7 @@ from nao_skin.calibration.rows import pairing_key
 from nao_skin.calibration.stages import compress_held, fitted_kinds, initial_prior_sigma, run_stage
 from nao_skin.errors import DataError, TooFewTouches
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
+from nao_skin.touch.datasets import pose_groups
 from nao_skin.touch.datasets import split as split_touches
 from nao_skin.touch.touches import TouchSet
 
@@ -122,7 +123,8 @@ def calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions | 
     """Calibrate the skin parts that the touches connect.
 
     ``split``: ``(train, test)`` touch sets; by default a seeded random 70/30
-    split of ``touches`` (duplicates are expected to be removed before).
+    split of ``touches`` (duplicates are expected to be removed before), the touches of one pose on one
+    side (``options.split_by``).
     ``truth``: a simulator's ground truth, for the true taxel error in the report.
     ``warm``: parts that ``prior`` already calibrated from (most of) these
     touches, as a live update's previous one did: their mounts are in the
@@ -238,7 +240,8 @@ def _check_parts(touches: TouchSet, skin: SkinModel) -> None:
 
 
 def _train_test(touches: TouchSet, options: CalibrationOptions, split: tuple | None) -> tuple:
-    train, test = split if split is not None else split_touches(touches, options.test_fraction, options.seed)
+    train, test = split if split is not None else split_touches(
+        touches, options.test_fraction, options.seed, pose_groups(touches) if options.split_by == "pose" else None)
     if options.max_touches is not None and train.n_touches > options.max_touches:
         rng = np.random.default_rng(options.seed)
         train = train.subset(np.sort(rng.choice(train.n_touches, options.max_touches, replace=False)))

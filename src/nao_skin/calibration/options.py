@@ -121,6 +121,10 @@ class CalibrationOptions:
                                                 " to train on"),
                                   "share of the touches held out for the test figures")
     seed: int = option(0, Rule(int, low=0, high=2 ** 32 - 1), "seed of the train/test split")
+    split_by: str = option("pose", Rule(str, ("pose", "touch")),
+                           "what the train/test split keeps together: pose (touches whose joint angles agree within"
+                           " 0.5 deg, one press sampled several times, on one side: the held-out figure meets no pose"
+                           " it was trained on) or touch (each on its own)")
     max_touches: int | None = option(None, Rule(int, low=1, high=1e8, optional=True),
                                      "use only this many training touches (speed/error sweeps); null: all")
     # touching skins meet at their fabric surfaces, 2 x this apart at the taxel centres

@@ -34,7 +34,8 @@ def split_spread(touches: TouchSet, skin: SkinModel, options: CalibrationOptions
             calibrate(touches, skin, replace(options, seed=seed), prior=prior)
         per_seed.append({split: {f: result.report.final[split].get(f, float("nan")) for f in FIGURES}
                          for split in ("train", "test")})
-    out = {"k": k, "seeds": seeds, "kind": "repeated seeded splits", "test_fraction": options.test_fraction}
+    out = {"k": k, "seeds": seeds, "kind": f"repeated seeded splits by {options.split_by}",
+           "test_fraction": options.test_fraction}
     for split in ("train", "test"):
         out[split] = {}
         for f in FIGURES:

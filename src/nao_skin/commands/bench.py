@@ -152,7 +152,7 @@ def _real_inputs(args, say, skin) -> list:
         touches, _, truth = load_touches([path], skin, log=say)
         touches, n_dup = deduplicate(touches)
         out.append(BenchInput(f"real {Path(path).name} ({touches.n_touches} touches after {n_dup} duplicates,"
-                              f" 70/30 split, seed 0)", touches, skin, truth))
+                              f" 70/30 split by pose, seed 0)", touches, skin, truth))
     return out
 
 
@@ -254,7 +254,7 @@ def run(args) -> int:
             results.setdefault("real_splits", {})[inp.name] = spread
             md += [f"### {inp.name}: over {spread['k']} seeded splits", "",
                    f"The default calibration on the splits of seeds {spread['seeds'][0]}..{spread['seeds'][-1]}"
-                   f" ({int(100 * spread['test_fraction'])} % test each): one split's figure moves with its seed by"
+                   f" ({int(100 * spread['test_fraction'])} % test each, {spread['kind']}): one split's figure moves with its seed by"
                    f" about the spread below.", "", *lines, ""]
             failures += any(line.startswith("Targets") and "NOT met" in line for line in lines)
         legacy = [p for p in args.real if str(p).endswith(".txt")] if "real" in sections else []

@@ -5,6 +5,8 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse
+import scipy.sparse.csgraph
 
 from nao_skin.touch.touches import TouchSet
 
@@ -91,10 +93,47 @@ def deduplicate(touches: TouchSet) -> tuple:
     return touches.subset(~dup), int(dup.sum())
 
 
-def split(touches: TouchSet, test_fraction: float = 0.3, seed: int = 0) -> tuple:
-    """``(train, test)``: a random permutation with ``seed`` (same seed, same split); rows keep their order."""
+POSE_TOLERANCE = np.radians(0.5)    # joint angles this close: one pose (a press sampled again, encoder jitter)
+
+
+def pose_groups(touches: TouchSet, tolerance: float = POSE_TOLERANCE) -> np.ndarray:
+    """A group number per touch: touches whose every joint angle agrees within ``tolerance`` (rad), directly
+    or through others, share one. A press held still is recorded as several touches (another contact
+    sample each); the shared real recording has 324 of its 785 touches at the pose of another one."""
+    n = touches.n_touches
+    if n == 0 or touches.joints.shape[1] == 0:
+        return np.arange(n)
+    q = np.where(np.isfinite(touches.joints), touches.joints, 1e9)    # a joint not reported: its own value
+    # candidates: the touches within ``tolerance`` on the first joint (sorted), then every joint compared
+    order = np.argsort(q[:, 0], kind="stable")
+    first = q[order, 0]
+    ahead = np.searchsorted(first, first + tolerance, side="right") - np.arange(n) - 1
+    i = np.repeat(np.arange(n), ahead)
+    j = i + 1 + np.arange(len(i)) - np.repeat(np.cumsum(ahead) - ahead, ahead)
+    close = np.all(np.abs(q[order[i]] - q[order[j]]) <= tolerance, axis=1)
+    links = scipy.sparse.coo_matrix((np.ones(int(close.sum())), (order[i[close]], order[j[close]])), shape=(n, n))
+    return scipy.sparse.csgraph.connected_components(links, directed=False)[1]
+
+
+def split(touches: TouchSet, test_fraction: float = 0.3, seed: int = 0, groups: np.ndarray | None = None) -> tuple:
+    """``(train, test)``: a random permutation with ``seed`` (same seed, same split); rows keep their order.
+
+    ``groups`` (e.g. :func:`pose_groups`): touches of one group fall on the same side, so the held-out figure
+    never meets a pose it was trained on; the test side holds the share of touches closest to
+    ``test_fraction`` whole groups give. Each touch its own group is the same split as none.
+    """
     if not 0.0 <= test_fraction <= 1.0:
         raise ValueError(f"test_fraction must be within 0..1, got {test_fraction}")
-    perm = np.random.default_rng(seed).permutation(touches.n_touches)
-    n_test = int(round(test_fraction * touches.n_touches))
-    return touches.subset(np.sort(perm[n_test:])), touches.subset(np.sort(perm[:n_test]))
+    n = touches.n_touches
+    n_test = int(round(test_fraction * n))
+    groups = np.arange(n) if groups is None else np.asarray(groups)
+    n_groups = int(groups.max()) + 1 if n else 0
+    perm = np.random.default_rng(seed).permutation(n_groups)
+    taken = np.cumsum(np.bincount(groups, minlength=n_groups)[perm])
+    k = int(np.searchsorted(taken, n_test))         # the first k + 1 groups reach n_test touches
+    if k < n_groups and n_test and taken[k] - n_test > n_test - (taken[k - 1] if k else 0):
+        k -= 1                                        # one group fewer is closer to the share
+    held = np.zeros(n_groups, bool)
+    held[perm[:k + 1] if n_test else []] = True
+    test = held[groups]
+    return touches.subset(np.flatnonzero(~test)), touches.subset(np.flatnonzero(test))
