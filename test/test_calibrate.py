@@ -481,3 +481,21 @@ def test_a_split_or_a_gate_that_leaves_nothing_says_which(skin, left_hand_sim):
     with pytest.raises(DataError, match=r": the gate set aside every touch that pairs these parts \(farther apart"
                                         r" than 0.001 mm after the mount fit\): a gate that tight, or a recording"):
         calibrate(touches, skin, CalibrationOptions(gate_mm=0.001))
+
+
+def test_touches_at_a_few_poses_do_not_pass_for_many(skin, left_hand_sim):
+    """Three presses held still, each recorded ten times (joint angles jittered by encoder noise): thirty
+    touches passed the 'at least 10 touches' rule, the mount was fitted to three spots and reported good.
+    The rule counts poses."""
+    from nao_skin.errors import TooFewTouches
+    from nao_skin.touch.touches import TouchSet
+
+    touches, _ = left_hand_sim
+    rng = np.random.default_rng(0)
+    three = touches.subset(np.arange(3))
+    copies = TouchSet.concatenate([replace(three, joints=three.joints + rng.normal(0, 1e-4, three.joints.shape))
+                                   for _ in range(10)])
+    assert copies.n_touches == 30
+    with pytest.raises(TooFewTouches, match=r"^parts l_hand and torso together: 30 training touches at 3 poses \(a"
+                                            r" press held still is one pose\); a mount needs at least 10 poses"):
+        calibrate(copies, skin, CalibrationOptions(test_fraction=0.0))

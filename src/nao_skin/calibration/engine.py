@@ -40,7 +40,7 @@ from nao_skin.calibration.first_guess import guess_targets, rigid_mount_guess
 from nao_skin.calibration.layout import KINEMATICS
 from nao_skin.calibration.options import LEVELS, CalibrationOptions
 from nao_skin.calibration.pairing import robot_joints
-from nao_skin.calibration.plan import Step, left_out_pairs, plan_steps, touching_pairs
+from nao_skin.calibration.plan import Step, left_out_pairs, plan_steps, too_few, touching_pairs
 from nao_skin.calibration.plausibility import implausible
 from nao_skin.calibration.rows import pairing_key
 from nao_skin.calibration.stages import compress_held, fitted_kinds, initial_prior_sigma, run_stage
@@ -183,9 +183,8 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
         parts=sorted({p for s in steps for p in s.targets}, key=part_rank),
         pairs=sorted(sorted(p, key=part_rank) for p in touching_pairs(train)),
         before={} if warm else _figures(train, test, skin, fit.calibration, steps, truth, fit.truth_poses),
-        left_out=[{"pair": pair, "touches": n,
-                   "reason": f"{n} training touches; a mount needs at least {options.min_mount_touches}"}
-                  for pair, n in left_out_pairs(train, options)])
+        left_out=[{"pair": pair, "touches": n, "poses": k, "reason": too_few(n, k, options.min_mount_touches)}
+                  for pair, n, k in left_out_pairs(train, options)])
     for entry in report.left_out:
         say(f"{entry['pair']}: left out ({entry['reason']})")
     for round_no, step, prefix in schedule:
@@ -520,17 +519,18 @@ def _final_figures(train: TouchSet, test: TouchSet, skin: SkinModel, steps: list
 def _check_enough(train: TouchSet, steps: list, options: CalibrationOptions) -> None:
     """Stop before solving when the touches cannot determine what is asked (one line)."""
     fired = train.parts_of_touch()
+    groups = pose_groups(train)
     for step in steps:
         for target in step.targets:
             others = [p for p in step.targets + step.references if p != target]
             t = train.part_index(target)
             with_ref = fired[:, t] & np.any(fired[:, [train.part_index(o) for o in others]], axis=1)
             n = int(with_ref.sum())
+            poses = len(np.unique(groups[with_ref]))
             need = options.min_mount_touches
-            if n < need:
-                raise TooFewTouches(f"part '{target}': {n} training touches with {'/'.join(others)}; calibrating its"
-                                    f" mount needs at least {need} (about"
-                                    f" {int(np.ceil(need / (1 - options.test_fraction)))} touches before the"
+            if poses < need:
+                raise TooFewTouches(f"part '{target}' with {'/'.join(others)}: {too_few(n, poses, need)} (about"
+                                    f" {int(np.ceil(need / (1 - options.test_fraction)))} before the"
                                     f" {int(options.test_fraction * 100)} % test split)")
 
 def _options_dict(options: CalibrationOptions) -> dict:

@@ -86,7 +86,8 @@ class CalibrationOptions:
     min_triangle_activations: int = option(10, Rule(int, low=1, high=1e6),
                                            "a triangle with fewer paired activations is held (thesis: 10)")
     min_mount_touches: int = option(10, Rule(int, low=1, high=1e6),
-                                    "fewer training touches with a reference: the mount is not determined")
+                                    "training touches with a reference at fewer poses (a press held still is one):"
+                                    " the mount is not determined")
     min_patch_touches: int = option(20, Rule(int, low=1, high=1e6), "patches need about twice the mount's data (thesis)")
     condition_limit: float = option(1e7, Rule(float, low=1.0, low_open=True),
                                     "of the Jacobi-scaled normal equations: weaker directions are held")

@@ -8,6 +8,7 @@ import numpy as np
 
 from nao_skin.errors import TooFewTouches
 from nao_skin.model.skin import part_rank
+from nao_skin.touch.datasets import pose_groups
 from nao_skin.touch.touches import TouchSet
 
 if TYPE_CHECKING:   # only for annotations: calibrate imports this module
@@ -41,35 +42,59 @@ def pair_counts(touches: TouchSet) -> dict:
     return out
 
 
+def pair_poses(touches: TouchSet) -> dict:
+    """``{frozenset(part names): distinct poses}`` of the touches where both fire: what pins a mount. A press
+    held still is recorded as several touches at one pose (:func:`~nao_skin.touch.datasets.pose_groups`);
+    thirty such touches at three poses determine a mount no better than three."""
+    fired = touches.parts_of_touch()
+    groups = pose_groups(touches)
+    names = touches.part_names
+    out = {}
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            both = fired[:, i] & fired[:, j]
+            if np.any(both):
+                out[frozenset((names[i], names[j]))] = len(np.unique(groups[both]))
+    return out
+
+
+def too_few(n_touches: int, n_poses: int, need: int) -> str:
+    """The words for touches that cannot pin a mount: ``need`` poses at least."""
+    at = f" at {n_poses} poses (a press held still is one pose)" if n_poses < n_touches else ""
+    return f"{n_touches} training touches{at}; a mount needs at least {need}{' poses' if at else ''}"
+
+
 def touching_pairs(touches: TouchSet) -> set:
     """Pairs of part names that fire together in at least one touch."""
     return set(pair_counts(touches))
 
 
 def left_out_pairs(touches: TouchSet, options: "CalibrationOptions") -> list:
-    """The pairs too few touches connect to calibrate from (yet): ``[(pair name, touches)]``."""
-    return [("+".join(sorted(p, key=part_rank)), n) for p, n in sorted(pair_counts(touches).items(),
-                                                                      key=lambda kv: sorted(kv[0], key=part_rank))
-            if n < options.min_mount_touches]
+    """The pairs too few poses connect to calibrate from (yet): ``[(pair name, touches, poses)]``."""
+    poses = pair_poses(touches)
+    return [("+".join(sorted(p, key=part_rank)), n, poses[p]) for p, n in sorted(pair_counts(touches).items(),
+                                                                                key=lambda kv: sorted(kv[0], key=part_rank))
+            if poses[p] < options.min_mount_touches]
 
 
 def plan_steps(touches: TouchSet, options: "CalibrationOptions") -> list:
     """The multi-session plan the thesis found best, restricted to the pairs the data supports.
 
-    A pair with fewer than ``min_mount_touches`` touches is left out (its parts
+    A pair with touches at fewer than ``min_mount_touches`` poses is left out (its parts
     stay at their prior unless another pair calibrates them): partial is fine.
     """
     counts = pair_counts(touches)
     if not counts:
         raise TooFewTouches("no touch has two skin parts active together: nothing to calibrate from")
-    pairs = {p for p, n in counts.items() if n >= options.min_mount_touches}
+    poses = pair_poses(touches)
+    pairs = {p for p in counts if poses[p] >= options.min_mount_touches}
     if not pairs:
-        pair, n = max(counts.items(), key=lambda kv: kv[1])
+        pair = max(counts, key=lambda p: (poses[p], counts[p]))
         need = options.min_mount_touches
-        raise TooFewTouches(f"parts {' and '.join(sorted(pair, key=part_rank))}: {n} training touches together;"
-                        f" calibrating a mount needs at least {need} (about"
-                        f" {int(np.ceil(need / (1 - options.test_fraction)))} touches before the"
-                        f" {int(options.test_fraction * 100)} % test split)")
+        raise TooFewTouches(f"parts {' and '.join(sorted(pair, key=part_rank))} together: "
+                            f"{too_few(counts[pair], poses[pair], need)} (about"
+                            f" {int(np.ceil(need / (1 - options.test_fraction)))} before the"
+                            f" {int(options.test_fraction * 100)} % test split)")
     present = sorted({p for pair in pairs for p in pair}, key=part_rank)
     if options.reference == "simultaneous":
         return [Step(tuple(present), ())]
