@@ -26,11 +26,12 @@ import numpy as np
 
 from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.formats.bag import BagWriter, GrowingBag, read_touches, touch_messages, write_touch_bag
+from nao_skin.live.updates import UpdateSchedule
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.touches import TouchSet
 
 LIVE_SIZES = (1000, 4000)
-LIVE_STEP = 25                       # new touches per update: the node's default live_every_touches
+LIVE_STEP = UpdateSchedule.every_touches     # new touches per update, as the calibrate node's default
 LIVE_TARGET_SECONDS = 0.3            # median warm update at 1000 touches (issue 17)
 
 

@@ -64,17 +64,21 @@ PARAMS = {
     "out_dir": ("nao_skin_calibration", "output directory (replaced when a run succeeds)"),
     "plots": (False, "write the report's plots too (slower)"),
     "live": (False, "recalibrate in the background while the recorder stores touches (on in a record session)"),
-    "live_every_touches": (25, "live: an update after this many new touches ...", AT_LEAST_ONE),
-    "live_period": (10.0, "live: ... or this many seconds after the last one, if any touch came since", SECONDS),
-    "live_settle_mm": (0.1, "live: a part is done when its taxels moved less than this (mm) ...", POSITIVE),
-    "live_settle_updates": (3, "live: ... in each of this many updates in a row, ...", AT_LEAST_ONE),
-    "live_flat_percent": (5.0, "live: ... and the held-out closest taxel figure stayed within this % of its mean",
-                          NON_NEGATIVE),
+    # the live defaults are the live module's (UpdateSchedule, Settling, WarmStart): defined once
+    "live_every_touches": (UpdateSchedule.every_touches, "live: an update after this many new touches ...",
+                           AT_LEAST_ONE),
+    "live_period": (UpdateSchedule.period, "live: ... or this many seconds after the last one, if any touch came"
+                                           " since", SECONDS),
+    "live_settle_mm": (Settling.settle_mm, "live: a part is done when its taxels moved less than this (mm) ...",
+                       POSITIVE),
+    "live_settle_updates": (Settling.updates, "live: ... in each of this many updates in a row, ...", AT_LEAST_ONE),
+    "live_flat_percent": (Settling.flat_percent, "live: ... and the held-out closest taxel figure stayed within this"
+                                                 " % of its mean", NON_NEGATIVE),
     "guidance": (True, "live: after each update, publish where touches would help most on /nao_skin/guidance"),
     "guidance_targets": (5, "live: how many targets the guidance names", AT_LEAST_ONE),
     "guidance_pairs": ([""], "live: the pairs the guidance may ask for, as 'hand-part' (e.g. l_hand-torso);"
                              " empty: the four thesis pairs"),
-    "live_refresh": (2.0, "live: an update from scratch (the whole plan) beside the warm one whenever the touches"
+    "live_refresh": (WarmStart.refresh, "live: an update from scratch (the whole plan) beside the warm one whenever the touches"
                           " grew this many times since the last such; the one the held-out touches pair closer"
                           " is published (1: every update from scratch)", Rule(float, low=1.0)),
     "live_max_move_mm": (20.0, "live: an update moving a calibrated part's taxels farther than this (mm) diverged:"
