@@ -56,16 +56,6 @@ def _typestore():
 WRITE_ERRORS = (OSError, sqlite3.Error)
 
 
-def _fd_identity(fd: int) -> tuple | None:
-    import os
-
-    try:
-        st = os.fstat(fd)
-    except OSError:
-        return None
-    return st.st_dev, st.st_ino
-
-
 class BagWriter:
     """Write the nao_skin topics to a new rosbag2 (context manager). Used for touch and stream bags.
 
@@ -159,12 +149,8 @@ class BagWriter:
         """Copy the open storage file, as written so far, to a new ``<bag>.rescued`` directory."""
         import os
 
-        n = 1
-        while True:
-            target = Path(f"{self.path}.rescued" + (str(n) if n > 1 else ""))
-            if not (target.exists() or target.is_symlink()):
-                break
-            n += 1
+        target = next(t for t in (Path(f"{self.path}.rescued" + (str(k) if k > 1 else "")) for k in range(1, 10_000))
+                      if not os.path.lexists(t))
         target.mkdir(parents=True)
         storage = self._writer.storage
         if hasattr(storage, "bio"):     # mcap: what is buffered goes to the file first
@@ -173,19 +159,18 @@ class BagWriter:
             storage.bio.flush()
         # the storage file's bytes through this process's open descriptor of it (opened again for reading:
         # it may have no name left). sqlite3 (rollback journal) holds its last commit in the file itself.
-        fd = next(int(n) for n in os.listdir("/proc/self/fd") if _fd_identity(int(n)) == self._file)
-        with open(f"/proc/self/fd/{fd}", "rb") as src, open(target / storage.path.name, "wb") as out:
+        open_file = next((f"/proc/self/fd/{fd}" for fd in os.listdir("/proc/self/fd")
+                          if identity(f"/proc/self/fd/{fd}") == self._file), None)
+        if open_file is None:
+            raise OSError("its storage file is not open in this process")
+        with open(open_file, "rb") as src, open(target / storage.path.name, "wb") as out:
             shutil.copyfileobj(src, out)
             out.flush()
             os.fsync(out.fileno())
-        place, self.path = self.path, target
-        try:
-            self._write_provisional_metadata()
-        finally:
-            self.path = place
+        self._write_provisional_metadata(target)
         return target
 
-    def _write_provisional_metadata(self) -> None:
+    def _write_provisional_metadata(self, directory: Path | None = None) -> None:
         import yaml
 
         storage = self._writer.storage
@@ -194,7 +179,7 @@ class BagWriter:
                 "starting_time": {"nanoseconds_since_epoch": 0}, "message_count": 0,
                 "topics_with_message_count": [], "compression_format": "", "compression_mode": "",
                 "files": [], "custom_data": {BAG_KIND_KEY: self._kind}, "ros_distro": "rosbags"}
-        (self.path / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}))
+        ((directory or self.path) / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}))
 
     def flush(self) -> None:
         """Make everything written so far durable (a later ``kill -9`` loses nothing before this)."""
