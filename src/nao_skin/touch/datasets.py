@@ -100,6 +100,12 @@ def pose_groups(touches: TouchSet, tolerance: float = POSE_TOLERANCE) -> np.ndar
     """A group number per touch: touches whose every joint angle agrees within ``tolerance`` (rad), directly
     or through others, share one. A press held still is recorded as several touches (another contact
     sample each); the shared real recording has 324 of its 785 touches at the pose of another one."""
+    if tolerance == POSE_TOLERANCE:    # the split and the plan's rules ask for the same: computed once per set
+        return touches.derived(("pose groups",), lambda: _pose_groups(touches, tolerance))
+    return _pose_groups(touches, tolerance)
+
+
+def _pose_groups(touches: TouchSet, tolerance: float) -> np.ndarray:
     n = touches.n_touches
     if n == 0 or touches.joints.shape[1] == 0:
         return np.arange(n)
@@ -112,7 +118,9 @@ def pose_groups(touches: TouchSet, tolerance: float = POSE_TOLERANCE) -> np.ndar
     j = i + 1 + np.arange(len(i)) - np.repeat(np.cumsum(ahead) - ahead, ahead)
     close = np.all(np.abs(q[order[i]] - q[order[j]]) <= tolerance, axis=1)
     links = scipy.sparse.coo_matrix((np.ones(int(close.sum())), (order[i[close]], order[j[close]])), shape=(n, n))
-    return scipy.sparse.csgraph.connected_components(links, directed=False)[1]
+    groups = scipy.sparse.csgraph.connected_components(links, directed=False)[1]
+    groups.setflags(write=False)     # shared by every caller (TouchSet.derived)
+    return groups
 
 
 def split(touches: TouchSet, test_fraction: float = 0.3, seed: int = 0, groups: np.ndarray | None = None) -> tuple:
