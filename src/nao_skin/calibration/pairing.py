@@ -156,7 +156,8 @@ def _part_order(touches: TouchSet, parts) -> list:
             raise DataError(f"pairing: parts {tuple(parts)!r} must be two different skin parts of the touch set"
                             f" ({', '.join(touches.part_names)})")
         return [(touches.part_names.index(parts[0]), touches.part_names.index(parts[1]))]
-    rank = sorted(range(len(touches.part_names)), key=lambda i: (part_rank(touches.part_names[i]), touches.part_names[i]))
+    names = touches.part_names
+    rank = sorted(range(len(names)), key=lambda i: (part_rank(names[i]), names[i]))
     return list(combinations(rank, 2))
 
 

@@ -72,8 +72,8 @@ def touching_pairs(touches: TouchSet) -> set:
 def left_out_pairs(touches: TouchSet, options: "CalibrationOptions") -> list:
     """The pairs too few poses connect to calibrate from (yet): ``[(pair name, touches, poses)]``."""
     poses = pair_poses(touches)
-    return [("+".join(sorted(p, key=part_rank)), n, poses[p]) for p, n in sorted(pair_counts(touches).items(),
-                                                                                key=lambda kv: sorted(kv[0], key=part_rank))
+    counts = sorted(pair_counts(touches).items(), key=lambda kv: sorted(kv[0], key=part_rank))
+    return [("+".join(sorted(p, key=part_rank)), n, poses[p]) for p, n in counts
             if poses[p] < options.min_mount_touches]
 
 

@@ -254,7 +254,8 @@ def run(args) -> int:
             results.setdefault("real_splits", {})[inp.name] = spread
             md += [f"### {inp.name}: over {spread['k']} seeded splits", "",
                    f"The default calibration on the splits of seeds {spread['seeds'][0]}..{spread['seeds'][-1]}"
-                   f" ({int(100 * spread['test_fraction'])} % test each, {spread['kind']}): one split's figure moves with its seed by"
+                   f" ({int(100 * spread['test_fraction'])} % test each, {spread['kind']}): one split's figure moves"
+                   f" with its seed by"
                    f" about the spread below.", "", *lines, ""]
             failures += any(line.startswith("Targets") and "NOT met" in line for line in lines)
         legacy = [p for p in args.real if str(p).endswith(".txt")] if "real" in sections else []

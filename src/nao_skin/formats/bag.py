@@ -138,9 +138,9 @@ class BagWriter:
         try:
             rescued = self._rescue()
         except WRITE_ERRORS as exc:
+            why = os_reason(exc) if isinstance(exc, OSError) else exc
             raise BagMoved(f"{self.path}: the bag's directory was removed, moved or replaced while recording,"
-                           f" and its touches could not be copied out ({os_reason(exc) if isinstance(exc, OSError) else exc});"
-                           f" recording stopped") from None
+                           f" and its touches could not be copied out ({why}); recording stopped") from None
         raise BagMoved(f"{self.path}: the bag's directory was removed, moved or replaced while recording; every"
                        f" touch written so far is copied to {rescued} (nao-skin reads it: nao-skin stats {rescued});"
                        f" recording stopped")

@@ -78,9 +78,10 @@ PARAMS = {
     "guidance_targets": (5, "live: how many targets the guidance names", AT_LEAST_ONE),
     "guidance_pairs": ([""], "live: the pairs the guidance may ask for, as 'hand-part' (e.g. l_hand-torso);"
                              " empty: the four thesis pairs"),
-    "live_refresh": (WarmStart.refresh, "live: an update from scratch (the whole plan) beside the warm one whenever the touches"
-                          " grew this many times since the last such; the one the held-out touches pair closer"
-                          " is published (1: every update from scratch)", Rule(float, low=1.0)),
+    "live_refresh": (WarmStart.refresh, "live: an update from scratch (the whole plan) beside the warm one whenever"
+                                        " the touches grew this many times since the last such; the one the held-out"
+                                        " touches pair closer is published (1: every update from scratch)",
+                     Rule(float, low=1.0)),
     "live_max_move_mm": (20.0, "live: an update moving a calibrated part's taxels farther than this (mm) diverged:"
                                " not published", POSITIVE),
     # engine options (their defaults, help and rules come from CalibrationOptions' table, OPTION_FIELDS)
