@@ -560,6 +560,8 @@ def test_a_broken_bench_input_never_costs_an_earlier_benchmark(tmp_path, capsys,
 
 @pytest.mark.parametrize("args, says", [
     (["--bag", "existing"], "bag {tmp}/existing: exists already; a bag is never overwritten, name a new one"),
+    (["--bag", "existing/inner"], "bag {tmp}/existing/inner: lies inside the bag {tmp}/existing; a bag is never written"
+                                  " into another, choose a place outside it"),
     (["--bag", "notes.txt/bag"], "bag {tmp}/notes.txt/bag: {tmp}/notes.txt is a file, not a directory"),
     (["--bag", "/proc/nao_skin_bag"], "bag /proc/nao_skin_bag: cannot write in /proc (No such file or directory)"),
     (["--calibration", "notes.txt"], "notes.txt: a calibration needs a 'parts' mapping"),
@@ -579,6 +581,7 @@ def test_a_broken_bench_input_never_costs_an_earlier_benchmark(tmp_path, capsys,
 def test_record_refuses_what_a_node_would_die_of_before_any_starts(tmp_path, capsys, monkeypatch, args, says):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "existing").mkdir()
+    (tmp_path / "existing" / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")    # a bag
     (tmp_path / "notes.txt").write_text("mine\n")
     (tmp_path / "binary.txt").write_bytes(b"\xff\xfe")
     argv = ["record", "--print", *args]

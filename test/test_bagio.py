@@ -417,3 +417,33 @@ def test_a_bag_another_recording_makes_meanwhile_is_one_line_and_left_alone(tmp_
     for directory in (target, late):
         assert [p.name for p in directory.iterdir()] == ["theirs.mcap"]
         assert (directory / "theirs.mcap").read_bytes() == b"their touches"
+
+
+def test_a_write_that_fails_for_want_of_space_says_so_and_another_does_not(tmp_path):
+    """The recorder advises freeing space after a full disk; after a refused permission it had said the same."""
+    import errno
+    import sqlite3
+
+    from nao_skin.errors import DiskFull, OutputError
+
+    with BagWriter(tmp_path / "bag", storage="mcap", kind="touches") as bag:
+        for exc, full in ((OSError(errno.ENOSPC, "No space left on device"), True),
+                          (OSError(errno.EFBIG, "File too large"), True),
+                          (sqlite3.OperationalError("database or disk is full"), True),
+                          (PermissionError(errno.EPERM, "Operation not permitted"), False),
+                          (sqlite3.OperationalError("attempt to write a readonly database"), False)):
+            said = bag._cannot_write(exc)
+            assert isinstance(said, OutputError) and isinstance(said, DiskFull) == full, exc
+            assert str(said).startswith(f"{tmp_path / 'bag'}: cannot write the bag (")
+
+
+def test_a_bag_is_never_written_into_another(tmp_path):
+    """``record --bag <bag>/inner`` was accepted: a second recording inside the first one's directory."""
+    outer = tmp_path / "outer"
+    with BagWriter(outer, storage="mcap", kind="touches"):
+        pass
+    before = sorted(p.name for p in outer.iterdir())
+    with pytest.raises(DataError, match=rf"inner: lies inside the bag {outer}; a bag is never written into another,"
+                                        r" choose a place outside it$"):
+        BagWriter(outer / "deeper" / "inner", storage="mcap", kind="touches")
+    assert sorted(p.name for p in outer.iterdir()) == before

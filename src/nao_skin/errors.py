@@ -24,6 +24,10 @@ class OutputError(NaoSkinError):
     """An output cannot be written (a full disk, no permission, a folder gone): what was written before stays."""
 
 
+class DiskFull(OutputError):
+    """The disk, a quota or a file size limit is full: with space freed the same output goes on."""
+
+
 class BagMoved(OutputError):
     """A live bag's directory was removed, moved or replaced while it was written; the message says where
     its touches are now."""

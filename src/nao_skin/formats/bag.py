@@ -19,6 +19,7 @@ reads) with the Jazzy type store.
 from __future__ import annotations
 
 import copy
+import errno
 import shutil
 import sqlite3
 from collections import Counter
@@ -26,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nao_skin.errors import BagMoved, DataError, OutputError, one_line, os_reason
+from nao_skin.errors import BagMoved, DataError, DiskFull, OutputError, one_line, os_reason
 from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, encode_cloud,
                                          read_contacts, read_taxels, skin_topic, taxels_array, taxels_topic)
 from nao_skin.formats.salvage import (LOCK_FILE, cut_mcap, provisional_mcap, stored_metadata, unclosed_sqlite,
@@ -56,6 +57,12 @@ def _typestore():
 WRITE_ERRORS = (OSError, sqlite3.Error)
 
 
+def enclosing_bag(path: str | Path) -> Path | None:
+    """The bag directory ``path`` would lie in (a parent holding a bag's metadata or recording lock), or None."""
+    return next((parent for parent in Path(path).absolute().parents
+                 if (parent / "metadata.yaml").is_file() or (parent / LOCK_FILE).is_file()), None)
+
+
 class BagWriter:
     """Write the nao_skin topics to a new rosbag2 (context manager). Used for touch and stream bags.
 
@@ -75,6 +82,10 @@ class BagWriter:
         self.path = Path(path)
         if self.path.exists() or self.path.is_symlink():
             raise DataError(f"{self.path}: exists already; a bag is never overwritten")
+        outer = enclosing_bag(self.path)
+        if outer is not None:
+            raise DataError(f"{self.path}: lies inside the bag {outer}; a bag is never written into another,"
+                            f" choose a place outside it")
         for parent in self.path.absolute().parents:        # rosbags makes only the bag's own directory
             if parent.exists():
                 if not parent.is_dir():
@@ -231,7 +242,14 @@ class BagWriter:
         :class:`BagMoved`, raised from here with the touches copied out."""
         if self._live and self._place is not None and not self._abandoned:
             self._check_place()
-        return OutputError(f"{self.path}: cannot write the bag ({os_reason(exc) if isinstance(exc, OSError) else exc})")
+        if isinstance(exc, OSError):
+            full = exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+        else:        # sqlite3 names no errno: 'database or disk is full', or 'disk I/O error' on a full disk
+            free = next((shutil.disk_usage(p).free for p in (self.path, *self.path.absolute().parents)
+                         if p.exists()), None)
+            full = "full" in str(exc) or (free is not None and free < 1 << 20)
+        return (DiskFull if full else OutputError)(
+            f"{self.path}: cannot write the bag ({os_reason(exc) if isinstance(exc, OSError) else exc})")
 
     def _header(self, stamp_ns: int, frame: str):
         return self._Header(stamp=self._Time(sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000)),

@@ -192,6 +192,7 @@ def _check_together(spec: NodeSpec) -> None:
 def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> None:
     """What the nodes read and write first, checked before any starts: one line here instead of a node dying
     after the others are up (a bag is never overwritten; a calibration must fit the skin the nodes read)."""
+    from nao_skin.formats.bag import enclosing_bag
     from nao_skin.formats.outdir import check_writable
     from nao_skin.model.skin import load_skin
     from nao_skin.model.urdf import check_calibration_origins
@@ -199,6 +200,10 @@ def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> Non
     bag = Path(bag_path)
     if bag.exists() or bag.is_symlink():
         raise ConfigError(f"bag {bag}: exists already; a bag is never overwritten, name a new one")
+    outer = enclosing_bag(bag)
+    if outer is not None:
+        raise ConfigError(f"bag {bag}: lies inside the bag {outer}; a bag is never written into another, choose a"
+                          f" place outside it")
     check_writable(bag, f"bag {bag}")
     # the session's calibration is written there at its end, replacing what the session itself wrote:
     # anything there before (an earlier `nao-skin calibrate --out` of that name) would be lost

@@ -34,7 +34,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 
-from nao_skin.errors import BagMoved, DataError, OutputError
+from nao_skin.errors import BagMoved, DataError, DiskFull, OutputError
 from nao_skin.formats.bag import BagWriter, record_parts
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_topic, read_contacts, read_taxels, taxels_topic
 from nao_skin.live.clocks import SKEW_LIMIT_S, ArrivalLags
@@ -206,9 +206,10 @@ class PairingRecorder(Node):
         self._closed = True
         if isinstance(exc, BagMoved):     # it says where the touches are now
             raise OutputError(f"{exc} after {self.n_touches} touches") from None
+        then = "free some space, then record on" if isinstance(exc, DiskFull) else "once that is fixed, record on"
         raise OutputError(f"{exc} after {self.n_touches} touches; recording stopped. The bag keeps the"
                           f" {self._flushed} touches flushed before (maybe a few more) and nao-skin reads it as it"
-                          f" is; free some space, then record on into a new bag") from None
+                          f" is; {then} into a new bag") from None
 
     def progress(self) -> dict:
         ms = np.array(self.skin_ms) if self.skin_ms else np.zeros(1)
