@@ -1,5 +1,6 @@
 """The Gaussian prior of patches and triangles, and how the touches widen it (evidence approximation)."""
 import types
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -76,7 +77,7 @@ def test_the_prior_only_widens_and_stays_finite(layout):
     assert evidence_prior_sigma(result, huge, free, weights, layout, PART, {"triangle"}, initial, options) == initial
 
 
-@pytest.mark.slow   # a calibration on the real recording
+@pytest.mark.slow   # calibrations of the real recording, 5 splits each way
 def test_on_the_real_skin_the_touches_widen_the_triangle_prior(real_skin, real):
     """The real recording's triangles sit farther from the layout than bound / 3 says: the evidence
     widens their prior, the report says so, and the held-out touches come closer than with the fixed prior."""
@@ -87,11 +88,12 @@ def test_on_the_real_skin_the_touches_widen_the_triangle_prior(real_skin, real):
     assert fixed.report.prior_sigma == initial
     assert empirical.report.prior_sigma["triangle_translation"] > 1.5 * initial["triangle_translation"]
     assert empirical.report.prior_sigma["triangle_rotation"] > 1.5 * initial["triangle_rotation"]
-    assert (empirical.report.final["test"]["taxel_mean_mm"]
-            < fixed.report.final["test"]["taxel_mean_mm"])
+    # held out by pose, one split decides little (seed 0: 2.64 against 2.42 mm; seeds 1-4 all the other way)
+    assert (held_out_mean(touches, real_skin, CalibrationOptions(), "taxel_mean_mm")
+            < held_out_mean(touches, real_skin, CalibrationOptions(prior_scale="fixed"), "taxel_mean_mm"))
 
 
-@pytest.mark.slow   # two calibrations of the real recording
+@pytest.mark.slow   # calibrations of the real recording, 5 splits each way
 def test_the_thesis_box_binds_on_the_real_skin_and_the_prior_alone_fits_it_closer(real_skin, real):
     """``bounded=true`` keeps every patch and triangle correction inside the thesis' box; the real skin sits
     beyond it, so the default (the prior alone) moves some corrections out of the box and brings the
@@ -111,5 +113,12 @@ def test_the_thesis_box_binds_on_the_real_skin_and_the_prior_alone_fits_it_close
         beyond[name] = n
     assert beyond["boxed"] == 0
     assert beyond["free"] > 0
-    for figure in ("taxel_mean_mm", "cop_mean_mm"):
-        assert free.report.final["test"][figure] < boxed.report.final["test"][figure]
+    for figure in ("taxel_mean_mm", "cop_mean_mm"):     # on the mean over 5 splits by pose, as the bench judges
+        assert (held_out_mean(touches, real_skin, CalibrationOptions(), figure)
+                < held_out_mean(touches, real_skin, boxed_options, figure))
+
+
+def held_out_mean(touches, skin, options, figure: str, splits: int = 5) -> float:
+    """A held-out figure's mean over seeded splits 0..splits-1 (one split moves it by tenths of a mm)."""
+    return float(np.mean([calibrate(touches, skin, replace(options, seed=seed)).report.final["test"][figure]
+                          for seed in range(splits)]))
