@@ -63,16 +63,6 @@ def right_jacobian(rotvec: np.ndarray) -> np.ndarray:
     return np.broadcast_to(np.eye(3), k.shape) - b * k + c * (k @ k)
 
 
-def wrap_rotvec(rotvec: np.ndarray) -> np.ndarray:
-    """The rotation vector of angle in [-pi, pi] (as a vector: norm <= pi) giving the same rotation: the
-    angle less the nearest multiple of 2 pi, about the same axis."""
-    rotvec = np.asarray(rotvec, dtype=float)
-    theta = np.sqrt(np.sum(rotvec * rotvec, axis=-1, keepdims=True))
-    turns = np.round(theta / (2.0 * np.pi))
-    scale = np.where(turns > 0, 1.0 - 2.0 * np.pi * turns / np.where(theta > 0, theta, 1.0), 1.0)
-    return rotvec * scale
-
-
 def matrix_to_rotvec(rot: np.ndarray) -> np.ndarray:
     """Inverse of :func:`rotvec_to_matrix`, batched, stable at 0 and pi."""
     rot = np.asarray(rot, dtype=float)

@@ -33,6 +33,7 @@ def implausible(train: TouchSet, skin: SkinModel, calib: SkinCalibration, parts,
         out.append(f"the touches' closest COP pairs end {train_cop_mm:.1f} mm apart, more than the gate"
                    f" ({gate_mm:g} mm): the calibration does not explain the recording")
     q = robot_joints(train, skin)
+    fired = train.parts_of_touch()
     for name in parts:
         part = skin.parts[name]
         corr = calib.parts[name]
@@ -56,7 +57,7 @@ def implausible(train: TouchSet, skin: SkinModel, calib: SkinCalibration, parts,
         if part.chain is None:
             continue
         joints = [skin.robot.joint_index[j] for j in skin.robot.chain_joint_names(part.chain)]
-        active = _touches_of(train, name)
+        active = np.flatnonzero(fired[:, train.part_index(name)]) if name in train.part_names else np.zeros(0, int)
         angles = q[np.ix_(active, joints)]
         if len(active) > 1 and joints and np.all(np.isfinite(angles)) \
                 and np.all(angles.max(axis=0) - angles.min(axis=0) < STILL_RAD):
@@ -65,9 +66,3 @@ def implausible(train: TouchSet, skin: SkinModel, calib: SkinCalibration, parts,
                        f" touches pin the skin at one spot only")
     return out
 
-
-def _touches_of(touches: TouchSet, part: str) -> np.ndarray:
-    """Indices of the touches in which ``part`` is active."""
-    if part not in touches.part_names:
-        return np.zeros(0, int)
-    return np.unique(touches.contact_touch[touches.contact_part == touches.part_index(part)])

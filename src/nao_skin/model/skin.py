@@ -448,7 +448,11 @@ class SkinCalibration:
         def entry(f: SkinFrame) -> dict:
             # the rotation vector of norm <= pi: a fit may wind one past it (the same rotation), and load()
             # refuses what no rotation needs; a frame beyond MAX_OFFSET is a diverged fit, not a file to write
-            vector = np.concatenate([f.correction[:3], se3.wrap_rotvec(f.correction[3:])])
+            vector = f.correction
+            if np.all(np.isfinite(vector)):
+                from scipy.spatial.transform import Rotation
+
+                vector = np.concatenate([vector[:3], Rotation.from_rotvec(vector[3:]).as_rotvec()])
             if not _plausible_pose(vector):
                 raise DataError(f"{f.frame}: correction {np.round(f.correction, 3).tolist()} is no skin frame's"
                                 f" (non-finite, or translated beyond {MAX_OFFSET:g} m): the fit diverged;"
