@@ -483,6 +483,28 @@ def test_a_split_or_a_gate_that_leaves_nothing_says_which(skin, left_hand_sim):
         calibrate(touches, skin, CalibrationOptions(gate_mm=0.001))
 
 
+def test_a_press_recorded_many_times_does_not_outweigh_the_other_poses(skin, left_hand_sim):
+    """Four presses held still, each recorded 25 times, at joint angles 1 degree off what the encoders said
+    (a pose error the skin cannot absorb). Counted as 100 independent touches they pull both mounts toward
+    the four poses; weighed by pose (the default) the fit ends closer to the truth."""
+    from nao_skin.touch.touches import TouchSet
+
+    touches, truth = left_hand_sim
+    rng = np.random.default_rng(0)
+    held = touches.subset(np.arange(4))
+    off = held.joints + np.radians(1.0)
+    recorded = TouchSet.concatenate([touches.subset(np.arange(4, touches.n_touches))]
+                                    + [replace(held, joints=off + rng.normal(0, 1e-4, off.shape)) for _ in range(25)])
+
+    def true_error(pose_weight):
+        result = calibrate(recorded, skin, CalibrationOptions(pose_weight=pose_weight, test_fraction=0.0), truth=truth)
+        errors = result.report.final["truth_taxel_error_mm"]
+        return errors["l_hand"]["median"] + errors["torso"]["median"]
+
+    assert CalibrationOptions().pose_weight == 0.5
+    assert true_error(0.5) < true_error(0.0) - 0.5
+
+
 def test_touches_at_a_few_poses_do_not_pass_for_many(skin, left_hand_sim):
     """Three presses held still, each recorded ten times (joint angles jittered by encoder noise): thirty
     touches passed the 'at least 10 touches' rule, the mount was fitted to three spots and reported good.

@@ -11,7 +11,7 @@ from real_data import REAL_DIR as REAL  # noqa: E402
 from nao_skin.errors import DataError
 from nao_skin.formats.legacy import _ast_entries, _json_entries, read_legacy
 from nao_skin.model.taxel_file import read_taxel_file
-from nao_skin.touch.datasets import deduplicate, duplicate_mask, pose_groups, split
+from nao_skin.touch.datasets import deduplicate, duplicate_mask, pose_groups, pose_weights, split
 
 
 @pytest.fixture(scope="module")
@@ -159,6 +159,21 @@ def test_touches_of_one_pose_stay_on_one_side_of_the_split(tmp_path, skin):
     # each touch a pose of its own: the same split as without groups
     singles = touches.subset(np.flatnonzero([k.startswith("single") for k in touches.keys]))
     assert split(singles, 0.3, 5, pose_groups(singles))[1].keys == split(singles, 0.3, 5)[1].keys
+
+
+def test_the_samples_of_one_press_weigh_as_fewer_touches(tmp_path, skin):
+    """The calibration weighs each touch n^-pose_weight (n touches at its pose), scaled to weigh as many
+    touches in all; a set where every touch has a pose of its own is left as it is."""
+    data = {f"press.{k}": touch(hand_slots=(k,), joints=dict(JOINTS, LElbowRoll=-1.0 - 0.0005 * k)) for k in range(4)}
+    data.update({f"single.{i}": touch(joints=dict(JOINTS, LWristYaw=0.05 * i, LShoulderPitch=1.5)) for i in range(4)})
+    touches, _ = read_legacy(write(tmp_path, data), skin)
+    weights = pose_weights(touches, 0.5)
+    press = np.array([key.startswith("press") for key in touches.keys])
+    assert np.allclose(weights[press] / weights[~press], 0.5)     # 4 ** -0.5
+    assert np.isclose(weights.mean(), 1.0)
+    assert np.allclose(pose_weights(touches, 1.0)[press].sum(), pose_weights(touches, 1.0)[~press][0])
+    assert pose_weights(touches, 0.0) is None
+    assert pose_weights(touches.subset(np.flatnonzero(~press)), 0.5) is None
 
 
 # ---------------------------------------------------------------------- keys

@@ -1,6 +1,8 @@
 """Pairing for the solver: each part pair paired on its own touches, rows selected, re-pairing tracked."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from nao_skin.calibration.pairing import KIND_COP, KIND_NORMAL, KIND_TAXEL, Pairing, PlaneRows, pair_touches
@@ -54,6 +56,14 @@ def with_normal_rows(selected: Pairing, pairing: Pairing, weight: float, inliers
                      term_slot=src.term_slot, term_weight=weight * np.abs(src.term_weight),
                      distance=np.full(len(src.row_touch), np.nan))
     return concat_pairings([selected, normal])
+
+
+def weighted_by_touch(pairing: Pairing, touch_weight: np.ndarray | None) -> Pairing:
+    """``pairing`` with each row's terms times its touch's weight (None: as it is)."""
+    if touch_weight is None:
+        return pairing
+    return dataclasses.replace(pairing, term_weight=pairing.term_weight
+                               * touch_weight[pairing.row_touch[pairing.term_row]])
 
 
 def _pair_subset(touches: TouchSet, pa: str, pb: str):

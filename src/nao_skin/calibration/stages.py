@@ -13,10 +13,12 @@ from nao_skin.calibration.layout import COMPONENTS, KINEMATICS, ParameterLayout
 from nao_skin.calibration.options import KIND_ROWS
 from nao_skin.calibration.pairing import KIND_NAMES, Pairing, chain_end_poses
 from nao_skin.calibration.residuals import ResidualModel, condition_number, gram
-from nao_skin.calibration.rows import pair_step, pairing_key, select_rows, touch_hashes, with_normal_rows
+from nao_skin.calibration.rows import (pair_step, pairing_key, select_rows, touch_hashes, weighted_by_touch,
+                                      with_normal_rows)
 from nao_skin.calibration.solver import solve
 from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.touch.datasets import pose_weights
 from nao_skin.touch.touches import TouchSet
 
 if TYPE_CHECKING:   # only for annotations: calibrate imports this module
@@ -101,6 +103,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     prior_sigma = dict(initial_prior_sigma(options) if prior_sigma is None else prior_sigma)
     pairings = {}
     limit = max_repairings or options.max_repairings
+    touch_weight = pose_weights(touches, options.pose_weight)
     for repairings in range(1, limit + 1):
         current = layout.to_calibration(x, calib)
         pairing_all = pair_step(touches, skin, current, step, pair_kinds, options.plane_rows())
@@ -114,7 +117,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
                                 f" that does not fit the robot config, the taxel files or the starting calibration"
                                 f" (--gate-mm 0: no gate)")
             raise DataError(f"{name}: no paired activations left to fit")
-        pairing = with_normal_rows(pairing, pairing_all, normal_weight, inliers)
+        pairing = weighted_by_touch(with_normal_rows(pairing, pairing_all, normal_weight, inliers), touch_weight)
         new_hashes = touch_hashes(pairing, touches.n_touches)
         settled = hashes is not None and np.mean(np.abs(new_hashes - hashes) > 1e-9) < options.repair_tolerance
         if repairings == 1 or settled:   # where the stage starts and ends: what its cost is measured on

@@ -123,6 +123,23 @@ def _pose_groups(touches: TouchSet, tolerance: float) -> np.ndarray:
     return groups
 
 
+def pose_weights(touches: TouchSet, exponent: float) -> np.ndarray | None:
+    """A weight per touch, ``n ** -exponent`` with ``n`` the touches at its pose (:func:`pose_groups`),
+    scaled to a mean of 1 so the touches weigh as much in all as before; None when every weight is 1.
+
+    The samples of one held press share its pose error and its contact: counted as independent they
+    pull the fit toward the poses held longest. 0 weighs every touch alike, 1 every pose alike.
+    """
+    if exponent == 0 or touches.n_touches == 0:
+        return None
+    groups = pose_groups(touches)
+    size = np.bincount(groups)[groups]
+    if np.all(size == 1):
+        return None
+    weight = size.astype(float) ** -exponent
+    return weight / weight.mean()
+
+
 def split(touches: TouchSet, test_fraction: float = 0.3, seed: int = 0, groups: np.ndarray | None = None) -> tuple:
     """``(train, test)``: a random permutation with ``seed`` (same seed, same split); rows keep their order.
 
