@@ -62,7 +62,7 @@ def test_real_layouts_have_the_documented_taxel_counts():
 
 def test_a_thermal_pad_or_an_empty_row_needs_no_normal(tmp_path):
     path = tmp_path / "pads.txt"
-    rows = [f"0.01 0.02 0.03 0 0 1"] * 12
+    rows = ["0.01 0.02 0.03 0 0 1"] * 12
     rows[6] = "0.01 0.02 0.03 0 0 0"          # a thermal pad's position without a normal
     rows[7] = "0 0 0 0 0 0"                    # no taxel
     path.write_text("\n".join(rows) + "\n")
@@ -88,7 +88,7 @@ GOOD = "0.01 0.02 0.03 0 0 1"
 @pytest.mark.parametrize("text, line, problem", [
     (f"{GOOD}\n{GOOD}\n0.01 0.02 0.03 0 0\n", 3, "expected 6 numbers 'x y z nx ny nz', got 5"),
     (f"{GOOD}\n0.01 0.02 zero 0 0 1\n", 2, "not a number in '0.01 0.02 zero 0 0 1'"),
-    (f"nan 0.02 0.03 0 0 1\n", 1, "non-finite value in 'nan 0.02 0.03 0 0 1'"),
+    ("nan 0.02 0.03 0 0 1\n", 1, "non-finite value in 'nan 0.02 0.03 0 0 1'"),
     (header_file([GOOD, GOOD, "1 2 3 4 5 6 7"]), 7, "expected 6 numbers 'x y z nx ny nz', got 7"),
     (f"{GOOD}\n1e300 0.02 0.03 0 0 1\n", 2, "a value beyond 10 in '1e300 0.02 0.03 0 0 1'; positions are metres"
      " in the part's frame and normals unit vectors"),

@@ -267,12 +267,10 @@ def table(rows: list, setup: CaptureSetup) -> str:
 
 def plot(rows: list, setup: CaptureSetup, path) -> None:
     """Worst part's true taxel error (median and p95) against touches, both strategies: seeds thin, median thick."""
-    import matplotlib
+    from matplotlib.figure import Figure   # no pyplot: no backend or global figure state
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    fig = Figure(figsize=(12, 4.5))
+    axes = fig.subplots(1, 2)
     colours = {"random": "tab:gray", "guided": "tab:blue", "oracle": "tab:green"}
     for ax, key, goal in ((axes[0], "worst_median_mm", setup.median_mm), (axes[1], "worst_p95_mm", setup.p95_mm)):
         for st in STRATEGIES:
@@ -300,7 +298,6 @@ def plot(rows: list, setup: CaptureSetup, path) -> None:
                  " targets)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def setup_dict(setup: CaptureSetup) -> dict:

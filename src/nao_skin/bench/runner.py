@@ -681,13 +681,11 @@ def outlier_listing(rows: list, preset: str = "outliers-20") -> str:
 # ------------------------------------------------------------------------------ plot
 def plot_speed_vs_error(rows: list, path) -> None:
     """Seconds (log x) against error, one point per strategy, one panel per input."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure   # no pyplot: no backend or global figure state
 
     inputs = list(dict.fromkeys(r["input"] for r in rows))
-    fig, axes = plt.subplots(1, max(1, len(inputs)), figsize=(7.5 * max(1, len(inputs)), 6), squeeze=False)
+    fig = Figure(figsize=(7.5 * max(1, len(inputs)), 6))
+    axes = fig.subplots(1, max(1, len(inputs)), squeeze=False)
     for ax, name in zip(axes[0], inputs):
         rs = [r for r in rows if r["input"] == name and r["status"] == "ok" and r["seconds_all"]]
         sim = any("true_median_mm" in r for r in rs)
@@ -711,7 +709,6 @@ def plot_speed_vs_error(rows: list, path) -> None:
         ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def legacy_read_times(path, skin: SkinModel, repeat: int = 3) -> dict:

@@ -160,15 +160,13 @@ def _pair_distances(touches, skin, calib, pairs):
 
 
 def _plots(result: CalibrationResult, skin: SkinModel, prior: SkinCalibration, out: Path, calibrated: list):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure   # no pyplot: no backend or global figure state
 
     pairs = [tuple(p) for p in result.report.pairs]
 
     # 1. error distributions before/after
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig = Figure(figsize=(11, 4))
+    axes = fig.subplots(1, 2)
     for ax, (split, touches) in zip(axes, (("train", result.train), ("test", result.test))):
         for label, calib, color in (("before", prior, "tab:gray"), ("after", result.calibration, "tab:blue")):
             p = _pair_distances(touches, skin, calib, pairs)
@@ -185,12 +183,12 @@ def _plots(result: CalibrationResult, skin: SkinModel, prior: SkinCalibration, o
         ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "errors_before_after.png", dpi=110)
-    plt.close(fig)
 
     # 2. per-triangle closest-taxel error after calibration
     p = _pair_distances(result.train, skin, result.calibration, pairs)
     if p is not None:
-        fig, axes = plt.subplots(len(calibrated), 1, figsize=(11, 2.6 * len(calibrated)), squeeze=False)
+        fig = Figure(figsize=(11, 2.6 * len(calibrated)))
+        axes = fig.subplots(len(calibrated), 1, squeeze=False)
         rows = np.flatnonzero(p.row_kind == 1)
         for ax, name in zip(axes[:, 0], calibrated):
             pidx = result.train.part_index(name)
@@ -209,10 +207,9 @@ def _plots(result: CalibrationResult, skin: SkinModel, prior: SkinCalibration, o
         axes[-1, 0].set_xlabel("triangle")
         fig.tight_layout()
         fig.savefig(out / "triangle_errors.png", dpi=110)
-        plt.close(fig)
 
     # 3. the skin before and after, in each part's own frame
-    fig = plt.figure(figsize=(5 * len(calibrated), 4.5))
+    fig = Figure(figsize=(5 * len(calibrated), 4.5))
     for i, name in enumerate(calibrated):
         ax = fig.add_subplot(1, len(calibrated), i + 1, projection="3d")
         part = skin.parts[name]
@@ -225,7 +222,6 @@ def _plots(result: CalibrationResult, skin: SkinModel, prior: SkinCalibration, o
         ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "skin_before_after.png", dpi=110)
-    plt.close(fig)
 
 
 # ---------------------------------------------------------------------------- coverage
@@ -312,15 +308,14 @@ def coverage_lines(coverage: dict) -> list:
 def plot_coverage(coverage: dict, skin: SkinModel, calib: SkinCalibration, path: Path) -> None:
     """Per calibrated part, its taxels on the layout (projected on their best-fit plane) coloured by the
     paired activations of their triangle (grey: none), held triangles crossed in red."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+    from matplotlib.figure import Figure   # no pyplot: no backend or global figure state
 
     names = list(coverage)
     if not names:
         return
-    fig, axes = plt.subplots(1, len(names), figsize=(4.6 * len(names), 4.4), squeeze=False)
+    fig = Figure(figsize=(4.6 * len(names), 4.4))
+    axes = fig.subplots(1, len(names), squeeze=False)
     vmax = max(max(c["activations"], default=1) for c in coverage.values()) or 1
     for ax, name in zip(axes[0], names):
         sp = skin.parts[name]
@@ -334,7 +329,7 @@ def plot_coverage(coverage: dict, skin: SkinModel, calib: SkinCalibration, path:
         acts = np.array(c["activations"])[sp.slot_triangle[slots]]
         ax.scatter(*xy[acts == 0].T, s=6, c="0.7", label="no paired activation")
         sc = ax.scatter(*xy[acts > 0].T, s=6, c=acts[acts > 0], cmap="viridis",
-                        norm=matplotlib.colors.LogNorm(vmin=1, vmax=max(vmax, 2)))
+                        norm=LogNorm(vmin=1, vmax=max(vmax, 2)))
         held = set(c["held_triangles"]) | {int(t.split()[0]) for t in c["partly_held_triangles"]}
         rows = sp.slot_triangle[slots]
         for tid in held:
@@ -354,4 +349,3 @@ def plot_coverage(coverage: dict, skin: SkinModel, calib: SkinCalibration, path:
     axes[0, 0].legend(fontsize=6, loc="lower left")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
