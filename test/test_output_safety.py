@@ -337,13 +337,13 @@ def _ended(proc: subprocess.Popen) -> str:
 def _children(pid: int) -> list:
     """pids of the live processes whose parent is ``pid`` (read from /proc)."""
     out = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
+    for stat_file in Path("/proc").glob("[0-9]*/stat"):
         try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
+            fields = stat_file.read_text().rsplit(")", 1)[1].split()
         except (OSError, IndexError):
             continue
         if int(fields[1]) == pid and fields[0] != "Z":
-            out.append(int(stat.parent.name))
+            out.append(int(stat_file.parent.name))
     return out
 
 
@@ -661,3 +661,40 @@ def test_a_stop_signal_during_the_swap_waits_until_it_is_done(tmp_path, monkeypa
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cal"]
     assert (old / "calibration.yaml").read_text() == "new"
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_an_output_is_on_the_disk_before_it_replaces_the_earlier_one(tmp_path, monkeypatch):
+    """A power cut just after the rename that swaps an output in had left, on the disk, the new names
+    without their data: empty files where the earlier calibration was. Every file of the new output is
+    fsync'd before any rename, the folder after it, and only then the earlier output removed. (A spy on
+    the real ``os.fsync``: a power cut cannot run here.)"""
+    from nao_skin.formats import outdir
+
+    old, new = tmp_path / "cal", tmp_path / ".cal.new"
+    for d, text in ((old, "old"), (new, "new")):
+        (d / "taxels").mkdir(parents=True)
+        (d / "calibration.yaml").write_text(text)
+        (d / "taxels" / "l_hand.txt").write_text(text)
+        outdir.write_marker(d, "calibrate", outdir.CALIBRATION)
+    events = []
+    fsync, replace, rmtree = os.fsync, os.replace, shutil.rmtree
+    monkeypatch.setattr(outdir.os, "fsync", lambda fd: (events.append(("fsync", os.readlink(f"/proc/self/fd/{fd}"))),
+                                                        fsync(fd)))
+    monkeypatch.setattr(outdir.os, "replace", lambda a, b: (events.append(("replace", str(a), str(b))),
+                                                            replace(a, b)))
+    monkeypatch.setattr(outdir.shutil, "rmtree", lambda p, **kw: (events.append(("rmtree", str(p))), rmtree(p, **kw)))
+    outdir.replace_dir(new, old)
+    assert (old / "calibration.yaml").read_text() == "new"
+    first_rename = next(i for i, e in enumerate(events) if e[0] == "replace")
+    synced_before = {e[1] for e in events[:first_rename] if e[0] == "fsync"}
+    assert {str(new), *(str(new / p) for p in ("calibration.yaml", "taxels", "taxels/l_hand.txt", outdir.MARKER))} \
+        <= synced_before, events
+    swapped_in = events.index(("replace", str(new), str(old)))
+    removed = next(i for i, e in enumerate(events) if e[0] == "rmtree")
+    assert ("fsync", str(tmp_path)) in events[swapped_in:removed], events
+    # a single file written whole the same way: its data, then its folder
+    events.clear()
+    outdir.replace_file(tmp_path / "note.yaml", "a: 1\n")
+    renamed = next(i for i, e in enumerate(events) if e[0] == "replace")
+    assert events[renamed - 1][0] == "fsync" and events[renamed - 1][1].endswith(".tmp")
+    assert events[renamed + 1:] == [("fsync", str(tmp_path))]

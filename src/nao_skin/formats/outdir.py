@@ -181,11 +181,47 @@ def replace_file(path: str | Path, data: str | bytes) -> None:
                        "wb" if isinstance(data, bytes) else "w") as f:
             made = True
             f.write(data)
+            f.flush()
+            _sync(f.fileno())
         os.replace(temporary, path)
+        sync_path(path.parent)
     except BaseException:
         if made:
             temporary.unlink(missing_ok=True)
         raise
+
+
+def _sync(fd: int) -> None:
+    """``os.fsync``, where the file system takes it (some FUSE and pipe-like files do not: nothing to do)."""
+    try:
+        os.fsync(fd)
+    except OSError as exc:
+        if exc.errno not in (errno.EINVAL, errno.ENOTSUP, errno.EBADF):
+            raise
+
+
+def sync_path(path: str | Path) -> None:
+    """Put a file's data, or a directory's entries, on the disk (``fsync``); one we may not open for reading
+    (a directory without read permission) is left to the system."""
+    try:
+        fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if os.path.isdir(path) else 0))
+    except PermissionError:
+        return
+    try:
+        _sync(fd)
+    finally:
+        os.close(fd)
+
+
+def _sync_tree(root: Path) -> None:
+    """Every regular file and directory under ``root`` (and ``root``) on the disk: a rename that publishes
+    them must never reach the disk before they do (after a power cut, an empty file where the earlier
+    output was)."""
+    for folder, dirs, files in os.walk(root):
+        for name in files:
+            if stat.S_ISREG(os.lstat(os.path.join(folder, name)).st_mode):
+                sync_path(os.path.join(folder, name))
+        sync_path(folder)
 
 
 def replace_dir(new: str | Path, out: str | Path, label: str = "output directory") -> Path:
@@ -206,8 +242,10 @@ def replace_dir(new: str | Path, out: str | Path, label: str = "output directory
     # the temporary directory is private (0700): the output gets the mode of the directory it replaces,
     # or the one a plain mkdir gives
     os.chmod(new, stat.S_IMODE(out.stat().st_mode) if out.is_dir() else 0o777 & ~_umask())
+    _sync_tree(new)       # the new output whole on the disk before any rename: the earlier one stays till then
     if not out.exists():
         os.replace(new, out)
+        sync_path(out.parent)
         return out
     with _stops_deferred():
         aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
@@ -222,6 +260,7 @@ def replace_dir(new: str | Path, out: str | Path, label: str = "output directory
             os.replace(aside / out.name, out)
             aside.rmdir()
             raise
+        sync_path(out.parent)   # the swap on the disk before the earlier output goes
         shutil.rmtree(aside, ignore_errors=True)
     return out
 
