@@ -6,6 +6,7 @@ these tests check that the engine does what it says: it finds a hand mount
 (all or nothing), and bad input stops it with one line.
 """
 import json
+import re
 import subprocess
 import sys
 from dataclasses import replace
@@ -13,15 +14,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from real_data import REAL_DIR as REAL  # noqa: E402
 from thesis_format import write_thesis_file  # noqa: E402
 
 from nao_skin.calibration.engine import CalibrationOptions, calibrate, plan_steps
 from nao_skin.calibration.report import write_outputs
 from nao_skin.cli import main as cli_main
-from nao_skin.errors import DataError
+from nao_skin.errors import ConfigError, DataError
 from nao_skin.model.skin import SkinCalibration, load_skin
 from nao_skin.model.taxel_file import read_taxel_file
+from nao_skin.paths import default_skin_config
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 from nao_skin.touch.datasets import deduplicate
@@ -53,10 +56,66 @@ def test_plan_follows_the_thesis(skin):
     """Hands from the torso first, then torso and head from the calibrated hands."""
     params = load_params("default", {"n_touches": 12})
     touches = simulate(skin, params, seed=1).touches
-    steps = [s.name for s in plan_steps(touches, CalibrationOptions())]
+    steps = [s.name for s in plan_steps(touches, CalibrationOptions(), skin.self_touch)]
     assert steps == ["r_hand from torso", "l_hand from torso", "torso from r_hand+l_hand", "head from r_hand+l_hand"]
-    simultaneous = plan_steps(touches, CalibrationOptions(reference="simultaneous"))
+    simultaneous = plan_steps(touches, CalibrationOptions(reference="simultaneous"), skin.self_touch)
     assert [s.targets for s in simultaneous] == [("r_hand", "l_hand", "torso", "head")]
+
+
+def _renamed_skin(tmp_path, names: dict, self_touch: dict | None):
+    """The default skin config's parts ``names`` (config name -> new name) as a config file of their own."""
+    config = Path(default_skin_config())
+    doc = yaml.safe_load(config.read_text())
+    parts = {new: {**doc["parts"][old], "taxel_file": str(config.parent / doc["parts"][old]["taxel_file"])}
+             for old, new in names.items()}
+    out = {"robot": str(config.parent / doc["robot"]), "parts": parts}
+    if self_touch is not None:
+        out["self_touch"] = self_touch
+    path = tmp_path / f"{'_'.join(names.values())}.yaml"
+    path.write_text(yaml.safe_dump(out, sort_keys=False))
+    return load_skin(path)
+
+
+def test_another_robot_with_the_same_skin_is_a_new_config(tmp_path):
+    """Which parts touch and which are touched is the skin config's (``self_touch``), not the code's: the
+    Nao's left hand and torso named otherwise simulate and calibrate to the same numbers, plan and all (parts
+    the code does not know come after r_hand, l_hand, torso and head, by name: left_hand before trunk, as
+    l_hand before torso)."""
+    runs = []
+    for names in ({"l_hand": "l_hand", "torso": "torso"}, {"l_hand": "left_hand", "torso": "trunk"}):
+        skin = _renamed_skin(tmp_path, names, {"touching": [names["l_hand"]], "touched": [names["torso"]]})
+        sim = simulate(skin, {"pairs": [[names["l_hand"], names["torso"]]], "n_touches": 120}, seed=3)
+        touches, _ = deduplicate(sim.touches)
+        result = calibrate(touches, skin, CalibrationOptions(max_repairings=3), truth=sim.truth)
+        runs.append((result, names))
+    (nao, _), (renamed, names) = runs
+    assert [s["name"] for s in renamed.report.stages][:4] == [
+        "left_hand from trunk: mount", "left_hand from trunk: patch", "left_hand from trunk: triangle",
+        "trunk from left_hand: mount"]
+    assert [s["name"].replace("left_hand", "l_hand").replace("trunk", "torso") for s in renamed.report.stages] \
+        == [s["name"] for s in nao.report.stages]
+    assert np.allclose(renamed.calibration.parts["left_hand"].mount, nao.calibration.parts["l_hand"].mount, atol=1e-9)
+    assert np.isclose(renamed.report.final["truth_taxel_error_mm"]["all"]["median"],
+                      nao.report.final["truth_taxel_error_mm"]["all"]["median"])
+    # roles the config does not give: the simulator says what it can make touch
+    skin = _renamed_skin(tmp_path, {"l_hand": "left_hand", "torso": "trunk"}, None)
+    with pytest.raises(ConfigError, match=r"^the simulator cannot make left_hand-trunk touch \(it presses a touching"
+                                          r" part, r_hand or l_hand, on a touched one, torso or head: the skin"
+                                          r" config's self_touch\)$"):
+        simulate(skin, {"pairs": [["left_hand", "trunk"]], "n_touches": 10}, seed=0)
+
+
+@pytest.mark.parametrize("self_touch, says", [
+    ({"touching": ["l_hand"]}, r"self_touch: expected \{touching: \[parts\], touched: \[parts\]\}"),
+    ({"touching": ["l_hand"], "touched": []}, r"self_touch: touched must be a non-empty list of part names, got \[\]"),
+    ({"touching": ["l_hand"], "touched": ["chest"]}, r"self_touch: touched: chest is not a part of this config"
+                                                     r" \(its parts: l_hand, torso\)$"),
+    ({"touching": ["l_hand", "l_hand"], "touched": ["torso"]}, r"self_touch: touching: a part is listed twice"),
+    ({"touching": ["l_hand", "torso"], "touched": ["torso"]}, r"self_touch: torso both touching and touched"),
+])
+def test_a_self_touch_the_config_cannot_mean_is_one_line_naming_the_file(tmp_path, self_touch, says):
+    with pytest.raises(ConfigError, match=r"^" + re.escape(str(tmp_path)) + r"/l_hand_torso\.yaml: " + says):
+        _renamed_skin(tmp_path, {"l_hand": "l_hand", "torso": "torso"}, self_touch)
 
 
 def test_finds_a_160_degree_hand_mount_without_a_manual_guess(skin, left_hand_result, left_hand_sim):

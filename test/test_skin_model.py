@@ -413,7 +413,7 @@ BAD_MOUNT = "xyz and rotvec must be 3 finite numbers each, metres (at most 10) a
      "part 'head': unknown key 'chian' (did you mean 'chain'?); it takes chain, taxel_file, slots, patches, mount"),
     (lambda d: d["parts"]["head"].update(mount={"xyz": [0, 0, 0], "rpy": [0, 0, 1]}),
      "part 'head': mount: unknown key 'rpy'; it takes xyz, rotvec"),
-    (lambda d: d.update(robots="x.yaml"), "unknown key 'robots' (did you mean 'robot'?); it takes robot, parts"),
+    (lambda d: d.update(robots="x.yaml"), "unknown key 'robots' (did you mean 'robot'?); it takes robot, parts, self_touch"),
     (lambda d: d["parts"]["torso"]["patches"][0].append(40), "part 'torso' patch 0: triangle 40 is not in 0..31"),
     (lambda d: d["parts"]["torso"]["patches"][0].remove(3),
      "part 'torso': triangles [3] have taxels in the layout but are in no patch"),

@@ -163,7 +163,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
     if train.n_touches == 0 and touches.n_touches:
         raise TooFewTouches(f"test_fraction {options.test_fraction:g} holds out all {touches.n_touches} touches:"
                             f" none is left to calibrate from; lower it")
-    steps = plan_steps(train, options)
+    steps = plan_steps(train, options, skin.self_touch)
     _check_enough(train, steps, options)
     start = _start_calibration(prior, skin)
     warm = frozenset(warm)
@@ -309,7 +309,7 @@ def _first_guess(train: TouchSet, skin: SkinModel, step: Step, options: Calibrat
                  prefix: str) -> None:
     """Closed-form first guess of each mount that has a reference to be fitted to, kept if it pairs closer."""
     t0 = time.perf_counter()
-    for target, refs in guess_targets(step):
+    for target, refs in guess_targets(step, skin.self_touch):
         guess_step = Step((target,), refs)
         before = closest_cop_cost(train, skin, fit.calibration, guess_step, fit.inliers)
         if before * 1000.0 < options.gate_mm / 2:

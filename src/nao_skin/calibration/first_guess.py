@@ -10,21 +10,21 @@ import numpy as np
 
 from nao_skin import se3
 from nao_skin.calibration.pairing import Pairing, chain_end_poses
-from nao_skin.calibration.plan import HANDS, REFERENCE_BODY, Step
+from nao_skin.calibration.plan import Step
 from nao_skin.calibration.rows import pair_step, select_rows
 from nao_skin.errors import DataError
-from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.model.skin import SelfTouch, SkinCalibration, SkinModel
 from nao_skin.touch.contacts import segment_mean
 from nao_skin.touch.touches import TouchSet
 
 
-def guess_targets(step: Step) -> list:
+def guess_targets(step: Step, roles: SelfTouch) -> list:
     """(target, references) for the closed-form mount fit: a fixed step's targets, or in a
-    simultaneous step each hand against the body parts it touches."""
+    simultaneous step each touching part (``roles``) against the touched parts."""
     if step.references:
         return [(t, step.references) for t in step.targets]
-    bodies = tuple(p for p in step.targets if p in REFERENCE_BODY)
-    return [(h, bodies) for h in step.targets if h in HANDS and bodies]
+    bodies = tuple(p for p in step.targets if p in roles.touched)
+    return [(h, bodies) for h in step.targets if h in roles.touching and bodies]
 
 # Surface normals enter the rigid fit with this weight (m^2 per touch, i.e. like points spread
 # over ~10 mm): negligible against contacts spread over a part, decisive about the axis that

@@ -157,7 +157,7 @@ def _part_order(touches: TouchSet, parts) -> list:
                             f" ({', '.join(touches.part_names)})")
         return [(touches.part_names.index(parts[0]), touches.part_names.index(parts[1]))]
     names = touches.part_names
-    rank = sorted(range(len(names)), key=lambda i: (part_rank(names[i]), names[i]))
+    rank = sorted(range(len(names)), key=lambda i: part_rank(names[i]))
     return list(combinations(rank, 2))
 
 

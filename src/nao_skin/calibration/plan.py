@@ -7,16 +7,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from nao_skin.errors import TooFewTouches
-from nao_skin.model.skin import part_rank
+from nao_skin.model.skin import SelfTouch, part_rank
 from nao_skin.touch.datasets import pose_groups
 from nao_skin.touch.touches import TouchSet
 
 if TYPE_CHECKING:   # only for annotations: calibrate imports this module
     from nao_skin.calibration.options import CalibrationOptions
-
-HANDS = ("r_hand", "l_hand")
-REFERENCE_BODY = ("torso", "head")   # parts the hands touch; fitted from the calibrated hands
-
 
 @dataclass
 class Step:
@@ -77,10 +73,11 @@ def left_out_pairs(touches: TouchSet, options: "CalibrationOptions") -> list:
             if poses[p] < options.min_mount_touches]
 
 
-def plan_steps(touches: TouchSet, options: "CalibrationOptions") -> list:
+def plan_steps(touches: TouchSet, options: "CalibrationOptions", roles: SelfTouch) -> list:
     """The multi-session plan the thesis found best, restricted to the pairs the data supports.
 
-    A pair with touches at fewer than ``min_mount_touches`` poses is left out (its parts
+    ``roles`` (the skin's :class:`~nao_skin.model.skin.SelfTouch`): which parts touch and which are
+    touched. A pair with touches at fewer than ``min_mount_touches`` poses is left out (its parts
     stay at their prior unless another pair calibrates them): partial is fine.
     """
     counts = pair_counts(touches)
@@ -100,14 +97,14 @@ def plan_steps(touches: TouchSet, options: "CalibrationOptions") -> list:
         return [Step(tuple(present), ())]
     steps = []
     calibrated = set()
-    for hand in HANDS:                      # hands from the torso (or, lacking it, from the head)
-        for body in REFERENCE_BODY:
+    for hand in roles.touching:             # hands from the torso (or, lacking it, from the head)
+        for body in roles.touched:
             if frozenset((hand, body)) in pairs:
                 steps.append(Step((hand,), (body,)))
                 calibrated.add(hand)
                 break
-    for body in REFERENCE_BODY:             # then torso and head from the calibrated hands
-        refs = tuple(h for h in HANDS if h in calibrated and frozenset((h, body)) in pairs)
+    for body in roles.touched:              # then torso and head from the calibrated hands
+        refs = tuple(h for h in roles.touching if h in calibrated and frozenset((h, body)) in pairs)
         if refs and not any(s.targets == (body,) for s in steps):
             steps.append(Step((body,), refs))
     for pair in sorted(pairs, key=lambda p: sorted(map(part_rank, p))):   # anything else (e.g. two hands):

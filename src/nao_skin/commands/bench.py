@@ -78,12 +78,13 @@ def _pairs(text: str, option: str, simulated: bool = False):
     if len(set(pairs)) < len(pairs):        # each pair's runs would count twice in the tables
         raise DataError(f"{option} {text!r}: a pair is given twice")
     if simulated:             # every simulated case would fail, one row at a time
-        from nao_skin.sim.params import HANDS, TARGETS
+        from nao_skin.errors import ConfigError
+        from nao_skin.sim.params import check_pairs
 
-        for hand, part in pairs:
-            if hand not in HANDS or part not in TARGETS:
-                raise DataError(f"{option} {text!r}: the simulator cannot make {hand}-{part} touch (a hand,"
-                                f" {' or '.join(HANDS)}, pressed on {' or '.join(TARGETS)})")
+        try:
+            check_pairs(pairs, load_skin())
+        except ConfigError as exc:
+            raise DataError(f"{option} {text!r}: {exc}") from None
     return pairs
 
 

@@ -58,7 +58,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nao_skin.calibration.options import CalibrationOptions
-from nao_skin.calibration.plan import HANDS, REFERENCE_BODY
 from nao_skin.calibration.report import paired_activation_counts
 from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
@@ -68,7 +67,6 @@ from nao_skin.sim.params import SimParams
 from nao_skin.sim.poses import Spots, choose_spots, idle_joints, solve_poses
 from nao_skin.touch.touches import TouchSet
 
-DEFAULT_PAIRS = tuple((h, b) for h in HANDS for b in REFERENCE_BODY)
 TIER_NEW, TIER_HELD, TIER_WEAK = 3, 2, 1
 DEFICIT_SPAN = 0.99     # a tier's scores stay below the next tier's
 # the pose search of a suggestion: fewer restarts than the simulator, it runs after every live update
@@ -209,7 +207,7 @@ def _state(state):
 
 
 def guidance(touches: TouchSet, skin: SkinModel, state=None, options: CalibrationOptions | None = None, *,
-             held=None, calibrated_parts=None, max_targets: int = 8, seed: int = 0, pairs=DEFAULT_PAIRS,
+             held=None, calibrated_parts=None, max_targets: int = 8, seed: int = 0, pairs=None,
              poses: bool = True, pose_params: SimParams | None = None, candidates: int | None = 48) -> Guidance:
     """Where to press next; see the module docstring for the counting and the ranking rule.
 
@@ -226,7 +224,8 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
     calib, rep_held, rep_parts, fabric = _state(state)
     calib = calib or skin.zero_calibration()
     held_map = parse_held(held if held is not None else rep_held)
-    pairs = [(h, b) for h, b in pairs if h in skin.parts and b in skin.parts]
+    pairs = [(h, b) for h, b in (skin.self_touch.pairs() if pairs is None else pairs)
+             if h in skin.parts and b in skin.parts]
     parts = sorted({p for pair in pairs for p in pair}, key=part_rank)
     if calibrated_parts is not None:
         rep_parts = set(calibrated_parts)
@@ -307,7 +306,7 @@ def _target(d: dict, skin: SkinModel, counts: dict, needed: int, pair_n: dict, p
     sp = skin.parts[name]
     if d["forced"]:
         hand, touched = d["forced"]
-    elif name in HANDS:
+    elif any(h == name for h, _ in pairs):
         options = [b for h, b in pairs if h == name]
         hand, touched = name, min(options, key=lambda b: (pair_n[f"{name}-{b}"], part_rank(b)))
     else:
@@ -322,7 +321,7 @@ def _alternatives(t: Target, pairs) -> list:
     own = (t.hand, t.touched)
     if t.reason.startswith("pair "):
         return [own]
-    if t.part in HANDS:
+    if any(h == t.part for h, _ in pairs):
         alt = [(t.part, b) for h, b in pairs if h == t.part]
     else:
         alt = [(h, t.part) for h, b in pairs if b == t.part]

@@ -41,9 +41,29 @@ PART_NAMES = ("r_hand", "l_hand", "torso", "head")   # skinManager part names on
 DEFAULT_CHAINS = {"r_hand": "r_arm", "l_hand": "l_arm", "torso": None, "head": "head"}
 
 
-def part_rank(name: str) -> int:
-    """Order of parts everywhere: r_hand, l_hand, torso, head, then others."""
-    return PART_NAMES.index(name) if name in PART_NAMES else len(PART_NAMES)
+@dataclass(frozen=True)
+class SelfTouch:
+    """Which skin parts touch (an arm's end) and which they touch: a skin config's ``self_touch``.
+
+    Each in the order the calibration plan takes them (thesis 2.5): each touching part first, fitted to
+    the first touched part it presses, then each touched part, fitted to the calibrated touching parts.
+    """
+
+    touching: tuple
+    touched: tuple
+
+    def pairs(self) -> tuple:
+        """Every ``(touching, touched)`` pair."""
+        return tuple((a, b) for a in self.touching for b in self.touched)
+
+
+NAO_SELF_TOUCH = SelfTouch(("r_hand", "l_hand"), ("torso", "head"))   # a skin config without self_touch
+
+
+def part_rank(name: str) -> tuple:
+    """Order of parts everywhere: r_hand, l_hand, torso, head, then others by name (a total order: what
+    follows it, a plan's steps or a joint stage's parameters, never hangs on a set's order)."""
+    return (PART_NAMES.index(name) if name in PART_NAMES else len(PART_NAMES), name)
 
 
 def _frame_from(origin: np.ndarray, z_axis: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
@@ -328,7 +348,7 @@ def _plausible_pose(vector: np.ndarray) -> bool:
 
 
 PART_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
-SKIN_CONFIG_KEYS = ("robot", "parts")
+SKIN_CONFIG_KEYS = ("robot", "parts", "self_touch")
 MAX_PATCH_NUMBER = 65535   # patch numbers are labels (frame names), skinManager's are small
 
 PART_KEYS = ("chain", "taxel_file", "slots", "patches", "mount")
@@ -337,10 +357,12 @@ PART_KEYS = ("chain", "taxel_file", "slots", "patches", "mount")
 class SkinModel:
     """The robot plus its skin parts: taxel positions in the base frame for batches of poses."""
 
-    def __init__(self, robot: RobotModel, parts: Mapping[str, SkinPart], source: str = "<memory>"):
+    def __init__(self, robot: RobotModel, parts: Mapping[str, SkinPart], source: str = "<memory>",
+                 self_touch: SelfTouch = NAO_SELF_TOUCH):
         self.robot = robot
         self.parts = dict(parts)
         self.source = source
+        self.self_touch = self_touch
         # the last skin on a corrected robot (with_kinematics): the same corrections give the same
         # object, so what touch sets derive from it (forward kinematics) is computed once
         self._corrected: tuple = ((), self)
@@ -381,7 +403,9 @@ class SkinModel:
                 mount = se3.pose_matrix(_mount_vector(spec["mount"], f"{where}: mount"))
             parts[str(name)] = build_part(str(name), chain, robot.end_frame(chain), taxels, patches,
                                           str(path), mount, str(taxel_path))
-        return cls(robot, parts, str(path))
+        self_touch = (_self_touch(doc["self_touch"], parts, f"{path}: self_touch") if "self_touch" in doc
+                      else NAO_SELF_TOUCH)
+        return cls(robot, parts, str(path), self_touch)
 
     def source_files(self) -> list:
         """The files this model was read from: the skin config, the robot config and every part's layout
@@ -402,7 +426,8 @@ class SkinModel:
         if not key:
             return self
         if self._corrected[0] != key:
-            self._corrected = (key, SkinModel(self.robot.corrected(dict(key)), self.parts, self.source))
+            self._corrected = (key, SkinModel(self.robot.corrected(dict(key)), self.parts, self.source,
+                                              self.self_touch))
         return self._corrected[1]
 
     def zero_calibration(self) -> "SkinCalibration":
@@ -712,6 +737,29 @@ def _covers(patch_table: Mapping[int, list], layout: TaxelFile) -> bool:
     return used <= listed and all(isinstance(t, int) and 0 <= t < n_tri for t in listed)
 
 
+def _self_touch(spec, parts: Mapping, where: str) -> SelfTouch:
+    """A skin config's ``self_touch``: ``{touching: [parts], touched: [parts]}``, parts of that config."""
+    if not isinstance(spec, dict) or set(spec) != {"touching", "touched"}:
+        raise ConfigError(f"{where}: expected {{touching: [parts], touched: [parts]}}, e.g. touching: [r_hand,"
+                          f" l_hand] and touched: [torso, head]")
+    roles = {}
+    for role in ("touching", "touched"):
+        names = spec[role]
+        if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+            raise ConfigError(f"{where}: {role} must be a non-empty list of part names, got {names!r}")
+        unknown = [n for n in names if n not in parts]
+        if unknown:
+            raise ConfigError(f"{where}: {role}: {', '.join(unknown)} {'is' if len(unknown) == 1 else 'are'} not"
+                              f" a part of this config (its parts: {', '.join(parts)})")
+        if len(set(names)) < len(names):
+            raise ConfigError(f"{where}: {role}: a part is listed twice, got {names}")
+        roles[role] = tuple(names)
+    both = set(roles["touching"]) & set(roles["touched"])
+    if both:
+        raise ConfigError(f"{where}: {', '.join(sorted(both))} both touching and touched")
+    return SelfTouch(**roles)
+
+
 def parse_pairs(items, parts=None, where: str = "pair") -> tuple:
     """``'hand-part'`` strings (e.g. ``'l_hand-torso'``) as ``(hand, part)`` tuples; empty strings are skipped.
 
@@ -786,4 +834,5 @@ def load_skin(skin_config: str | Path | None = None, taxel_files: Mapping[str, s
             parts[name] = part_from_layout(name, chain, skin.robot, path, layout)
     if not taxel_files:
         return skin
-    return SkinModel(skin.robot, parts, f"{skin.source} + " + ", ".join(str(p) for p in taxel_files.values()))
+    return SkinModel(skin.robot, parts, f"{skin.source} + " + ", ".join(str(p) for p in taxel_files.values()),
+                     skin.self_touch)

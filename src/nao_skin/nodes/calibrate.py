@@ -77,7 +77,7 @@ PARAMS = {
     "guidance": (True, "live: after each update, publish where touches would help most on /nao_skin/guidance"),
     "guidance_targets": (5, "live: how many targets the guidance names", AT_LEAST_ONE),
     "guidance_pairs": ([""], "live: the pairs the guidance may ask for, as 'hand-part' (e.g. l_hand-torso);"
-                             " empty: the four thesis pairs"),
+                             " empty: the skin config's self_touch pairs"),
     "live_refresh": (WarmStart.refresh, "live: an update from scratch (the whole plan) beside the warm one whenever"
                                         " the touches grew this many times since the last such; the one the held-out"
                                         " touches pair closer is published (1: every update from scratch)",
@@ -100,10 +100,9 @@ def options_from_params(params: dict) -> CalibrationOptions:
 
 
 def _pairs(items, skin, name: str) -> tuple:
-    """'hand-part' strings to (hand, part) pairs of the skin's parts; none given: the four thesis pairs."""
-    from nao_skin.guidance.capture import DEFAULT_PAIRS
-
-    return parse_pairs(items, skin.parts, f"parameter {name}:") or DEFAULT_PAIRS
+    """'hand-part' strings to (hand, part) pairs of the skin's parts; none given: the skin config's
+    self-touch pairs (the four thesis pairs on the Nao)."""
+    return parse_pairs(items, skin.parts, f"parameter {name}:") or skin.self_touch.pairs()
 
 
 class CalibrateNode(Node):

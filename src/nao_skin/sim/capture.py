@@ -37,7 +37,7 @@ import numpy as np
 from nao_skin import se3
 from nao_skin.errors import ConfigError
 from nao_skin.model.skin import SkinModel
-from nao_skin.sim.params import SimParams, make_params, pair_list
+from nao_skin.sim.params import SimParams, check_pairs, make_params, pair_list
 from nao_skin.sim.poses import PoseSet, Spots, choose_spots, idle_joints, solve_poses
 from nao_skin.sim.simulate import _assemble, _keep_firing, _pair_activations
 from nao_skin.sim.truth import draw_truth
@@ -65,10 +65,7 @@ class CaptureSim:
         self.skin = skin
         self.params = make_params(params or {}) if not isinstance(params, SimParams) else make_params(params)
         self.pairs = pair_list(self.params)
-        for hand, target in self.pairs:
-            for part in (hand, target):
-                if part not in skin.parts:
-                    raise ConfigError(f"capture pair {hand}-{target}: skin part '{part}' is not in {skin.source}")
+        check_pairs(self.pairs, skin)
         self.seed = int(seed)
         # the truth exactly as simulate() draws it for this seed and these parameters
         streams = np.random.SeedSequence(self.seed).spawn(2 + 2 * len(self.pairs))

@@ -13,11 +13,9 @@ from pathlib import Path
 from typing import Mapping
 
 from nao_skin.errors import ConfigError
-from nao_skin.model.skin import MAX_JOINT_CORRECTION, MAX_LINK_CORRECTION
+from nao_skin.model.skin import MAX_JOINT_CORRECTION, MAX_LINK_CORRECTION, SkinModel
 from nao_skin.rules import known_keys
 
-HANDS = ("r_hand", "l_hand")
-TARGETS = ("torso", "head")   # what a hand can press in this simulator (thesis' four pairs)
 
 
 @dataclass
@@ -242,13 +240,25 @@ def validate(p: SimParams, where: str = "simulation parameters") -> None:
             pair = pair.replace("-", " ").split()
         if not isinstance(pair, (list, tuple)) or len(pair) != 2 or not all(isinstance(x, str) for x in pair):
             raise ConfigError(f"{where}: pair {pair!r} must be two skin part names, e.g. [l_hand, torso]")
-        hand, target = pair
-        if hand not in HANDS or target not in TARGETS:
-            raise ConfigError(f"{where}: pair {hand}-{target} cannot touch in this simulator"
-                              f" (it models a hand, {' or '.join(HANDS)}, pressed on {' or '.join(TARGETS)})")
+        hand, target = pair     # which parts can touch is the skin config's (simulate checks)
         if (hand, target) in seen:
             raise ConfigError(f"{where}: pair {hand}-{target} is listed twice")
         seen.add((hand, target))
+
+
+def check_pairs(pairs, skin: SkinModel) -> None:
+    """Each ``(hand, target)`` of ``pairs`` two parts of ``skin``, a touching part pressed on a touched
+    one of its config's ``self_touch`` (what this simulator models)."""
+    roles = skin.self_touch
+    for hand, target in pairs:
+        for part in (hand, target):
+            if part not in skin.parts:
+                raise ConfigError(f"simulation pair {hand}-{target}: skin part '{part}' is not in {skin.source}"
+                                  f" (configured: {', '.join(skin.parts)})")
+        if hand not in roles.touching or target not in roles.touched:
+            raise ConfigError(f"the simulator cannot make {hand}-{target} touch (it presses a touching part,"
+                              f" {' or '.join(roles.touching)}, on a touched one, {' or '.join(roles.touched)}:"
+                              f" the skin config's self_touch)")
 
 
 def pair_list(p: SimParams) -> list:

@@ -19,9 +19,9 @@ import numpy as np
 import yaml
 
 from nao_skin.errors import ConfigError, OutputError, os_reason
-from nao_skin.model.skin import PART_NAMES, SkinCalibration, SkinModel
+from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.sim import contact as sim_contact
-from nao_skin.sim.params import SimParams, make_params, pair_list
+from nao_skin.sim.params import SimParams, check_pairs, make_params, pair_list
 from nao_skin.sim.poses import find_poses
 from nao_skin.sim.truth import draw_kinematics, draw_truth
 from nao_skin.touch.contacts import cluster_labels
@@ -47,11 +47,7 @@ def simulate(skin: SkinModel, params: SimParams | dict | None, seed: int) -> Sim
     """Simulate ``params.n_touches`` self-touches for each pair; see the module docstring."""
     p = make_params(params or {}) if not isinstance(params, SimParams) else make_params(params)
     pairs = pair_list(p)
-    for hand, target in pairs:
-        for part in (hand, target):
-            if part not in skin.parts:
-                raise ConfigError(f"simulation pair {hand}-{target}: skin part '{part}' is not in"
-                                  f" {skin.source} (configured: {', '.join(skin.parts)})")
+    check_pairs(pairs, skin)
     # independent streams: the truth does not change when touch counts or pairs change
     streams = np.random.SeedSequence(int(seed)).spawn(2 + 2 * len(pairs))
     rng_truth, rng_record = (np.random.default_rng(s) for s in streams[:2])
@@ -166,7 +162,7 @@ def _pair_activations(skin, truth, hand, target, poses, p: SimParams, rng):
 def _assemble(skin: SkinModel, per_pair, p: SimParams, rng) -> TouchSet:
     """All pairs in recording order, with duplicates, stamps, noisy joints and contacts."""
     used = {part for hand, target, _, _ in per_pair for part in (hand, target)}
-    part_names = tuple([n for n in PART_NAMES if n in used] + sorted(used - set(PART_NAMES)))
+    part_names = tuple(n for n in skin.parts if n in used)     # the skin config's order: names are data
     robot = skin.robot
     pair_of, q_true, contact, normal, gap = [], [], [], [], []
     act = []

@@ -5,7 +5,7 @@ import numpy as np
 
 from nao_skin import se3
 from nao_skin.model.skin import PartCorrection, SkinCalibration, SkinModel
-from nao_skin.sim.params import HANDS, SimParams
+from nao_skin.sim.params import SimParams
 
 
 def random_vectors(rng: np.random.Generator, n: int, magnitude: float) -> np.ndarray:
@@ -51,7 +51,7 @@ def draw_truth(skin: SkinModel, parts, p: SimParams, rng: np.random.Generator) -
     calib = skin.zero_calibration()
     for name in parts:
         part = skin.parts[name]
-        if name in HANDS:
+        if name in skin.self_touch.touching:
             mount = hand_mount_truth(skin, name, p, rng)
         else:
             mount = np.r_[random_vectors(rng, 1, p.body_mount_translation)[0],
