@@ -376,6 +376,9 @@ def test_the_calibrate_node_takes_the_warm_update_options_from_the_session_confi
     params = {name: value for name, (value, *_) in calibrate_node.PARAMS.items()}
     assert calibrate_node.options_from_params({**params, **session}).warm_repairings == session["warm_repairings"]
     assert calibrate_node.options_from_params({**params, "warm_repairings": 3}).warm_repairings == 3
+    # and how a press held still is weighed (a lab may compare its live figures without the pose weights)
+    assert calibrate_node.options_from_params({**params, **session}).pose_weight == session["pose_weight"] == 0.5
+    assert calibrate_node.options_from_params({**params, "pose_weight": 0.0}).pose_weight == 0.0
 
 
 def test_a_node_that_has_ended_keeps_its_exit_code_whatever_stop_signal_follows(tmp_path):

@@ -53,7 +53,8 @@ LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=Relia
 
 # the calibration options a node parameter sets, by the option's own name
 NODE_OPTIONS = ("strategy", "reference", "pairs", "bounded", "loss", "jacobian", "initial_guess", "gate_mm",
-                "prior_scale", "estimate_fabric", "fabric_thickness", "test_fraction", "seed", "warm_repairings")
+                "pose_weight", "prior_scale", "estimate_fabric", "fabric_thickness", "test_fraction", "seed",
+                "warm_repairings")
 
 PARAMS = {
     **SKIN_PARAMS,
