@@ -17,7 +17,6 @@ from nao_skin.model.skin import MAX_JOINT_CORRECTION, MAX_LINK_CORRECTION, SkinM
 from nao_skin.rules import known_keys
 
 
-
 @dataclass
 class SimParams:
     # ------------------------------------------------------------ scene
