@@ -184,7 +184,7 @@ def replace_file(path: str | Path, data: str | bytes) -> None:
             f.flush()
             _sync(f.fileno())
         os.replace(temporary, path)
-        sync_path(path.parent)
+        _sync_path(path.parent)
     except BaseException:
         if made:
             temporary.unlink(missing_ok=True)
@@ -200,7 +200,7 @@ def _sync(fd: int) -> None:
             raise
 
 
-def sync_path(path: str | Path) -> None:
+def _sync_path(path: str | Path) -> None:
     """Put a file's data, or a directory's entries, on the disk (``fsync``); one we may not open for reading
     (a directory without read permission) is left to the system."""
     try:
@@ -217,11 +217,11 @@ def _sync_tree(root: Path) -> None:
     """Every regular file and directory under ``root`` (and ``root``) on the disk: a rename that publishes
     them must never reach the disk before they do (after a power cut, an empty file where the earlier
     output was)."""
-    for folder, dirs, files in os.walk(root):
+    for folder, _, files in os.walk(root):
         for name in files:
             if stat.S_ISREG(os.lstat(os.path.join(folder, name)).st_mode):
-                sync_path(os.path.join(folder, name))
-        sync_path(folder)
+                _sync_path(os.path.join(folder, name))
+        _sync_path(folder)
 
 
 def replace_dir(new: str | Path, out: str | Path, label: str = "output directory") -> Path:
@@ -245,7 +245,7 @@ def replace_dir(new: str | Path, out: str | Path, label: str = "output directory
     _sync_tree(new)       # the new output whole on the disk before any rename: the earlier one stays till then
     if not out.exists():
         os.replace(new, out)
-        sync_path(out.parent)
+        _sync_path(out.parent)
         return out
     with _stops_deferred():
         aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
@@ -260,7 +260,7 @@ def replace_dir(new: str | Path, out: str | Path, label: str = "output directory
             os.replace(aside / out.name, out)
             aside.rmdir()
             raise
-        sync_path(out.parent)   # the swap on the disk before the earlier output goes
+        _sync_path(out.parent)   # the swap on the disk before the earlier output goes
         shutil.rmtree(aside, ignore_errors=True)
     return out
 
