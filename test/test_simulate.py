@@ -321,6 +321,16 @@ def test_a_pair_the_skin_config_does_not_make_touch_fails_in_one_line(skin, pair
         simulate(skin, {"pairs": [pair], "n_touches": 10}, seed=0)
 
 
+def test_a_params_file_whose_pair_cannot_touch_is_named_and_nothing_written(tmp_path, capsys):
+    params = tmp_path / "sim.yaml"
+    params.write_text("defaults:\n  pairs: [[torso, head]]\npresets: {}\n")
+    assert cli_main(["simulate", "--params", str(params), "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"nao-skin simulate: error: {params}: preset 'default': the simulator cannot make torso-head touch (it"
+        f" presses a touching part, r_hand or l_hand, on a touched one, torso or head: the skin config's self_touch)")
+    assert not (tmp_path / "out").exists()
+
+
 def test_unknown_preset_and_missing_part_fail_in_one_line(skin, capsys, tmp_path):
     with pytest.raises(ConfigError, match="unknown preset 'nope'.*cad-rotation"):
         load_params("nope")

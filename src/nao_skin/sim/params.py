@@ -245,17 +245,18 @@ def validate(p: SimParams, where: str = "simulation parameters") -> None:
         seen.add((hand, target))
 
 
-def check_pairs(pairs, skin: SkinModel) -> None:
+def check_pairs(pairs, skin: SkinModel, where: str | None = None) -> None:
     """Each ``(hand, target)`` of ``pairs`` two parts of ``skin``, a touching part pressed on a touched
-    one of its config's ``self_touch`` (what this simulator models)."""
+    one of its config's ``self_touch`` (what this simulator models); ``where``: the parameters' source."""
     roles = skin.self_touch
+    at = f"{where}: " if where else ""
     for hand, target in pairs:
         for part in (hand, target):
             if part not in skin.parts:
-                raise ConfigError(f"simulation pair {hand}-{target}: skin part '{part}' is not in {skin.source}"
+                raise ConfigError(f"{at}simulation pair {hand}-{target}: skin part '{part}' is not in {skin.source}"
                                   f" (configured: {', '.join(skin.parts)})")
         if hand not in roles.touching or target not in roles.touched:
-            raise ConfigError(f"the simulator cannot make {hand}-{target} touch (it presses a touching part,"
+            raise ConfigError(f"{at}the simulator cannot make {hand}-{target} touch (it presses a touching part,"
                               f" {' or '.join(roles.touching)}, on a touched one, {' or '.join(roles.touched)}:"
                               f" the skin config's self_touch)")
 
