@@ -1,6 +1,6 @@
 """Record self-touch: ``ros2 launch nao_skin record.launch.py [robot:=sim|nao] [nao_ip:=...] [rviz:=true]``.
 
-Starts (the same set as ``nao-skin record``, from nao_skin.live.session):
+Starts (the same set as ``nao-skin record``, from nao_skin.session.record):
 
 * robot:=sim (default): sim_robot, the simulated robot on the live topics;
   robot:=nao: naoqi_bridge (unless naoqi:=false, e.g. naoqi_driver2 already
@@ -40,7 +40,7 @@ ARGUMENTS = {
 
 
 def _nodes(context):
-    from nao_skin.live.session import check_needs, record_session, robot_description
+    from nao_skin.session.record import check_needs, record_session, robot_description
 
     arg = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
     specs = record_session(arg["robot"], nao_ip=arg["nao_ip"], naoqi=arg["naoqi"].lower() == "true",

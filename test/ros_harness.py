@@ -21,7 +21,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from nao_skin.live.session import param_text
+from nao_skin.session.record import param_text
 
 ROOT = Path(__file__).resolve().parents[1]
 WAIT_S = 20.0                      # generous upper bound for a 2-core CI machine; polls end much earlier

@@ -695,7 +695,7 @@ def test_the_recording_model_of_the_tests_is_the_commands_model():
 
 
 def test_nodes_build_the_skin_as_the_commands_do():
-    from nao_skin.nodes.runtime import skin_from_params
+    from nao_skin.session.params import skin_from_params
 
     skin = skin_from_params({"skin_config": "", "taxels": ["", f"l_hand={REAL / 'l_hand.taxels.txt'}"]})
     same = load_skin(taxel_files={"l_hand": REAL / "l_hand.taxels.txt"})

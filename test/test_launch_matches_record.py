@@ -15,7 +15,7 @@ import pytest
 import yaml
 from ros_harness import ROOT  # noqa: E402
 
-from nao_skin.live.session import command_line, record_session, robot_description
+from nao_skin.session.record import command_line, record_session, robot_description
 
 
 class _LaunchConfiguration:

@@ -100,3 +100,35 @@ def test_a_request_while_busy_leaves_the_running_state_latched(tmp_path, small_b
             listener.close()
         code = node.stop() if node is not None else None
     assert code == 0, node.stderr()[-3000:]
+
+
+def test_a_request_during_a_live_update_keeps_the_update_state_latched(tmp_path):
+    """A request refused while a live update ran replaced the latched status with a bare
+    {"ignored_requests": 1}: no state, no generation. The node runs in the test's process here, its update lock
+    held as a live update holds it, so the request surely meets it running."""
+    from rclpy.parameter import Parameter
+
+    from nao_skin.nodes.calibrate import CalibrateNode
+
+    listener = node = None
+    try:
+        listener = Listener(unique_domain_id())
+        node = CalibrateNode(context=listener.context,
+                             parameter_overrides=[Parameter("out_dir", value=str(tmp_path / "cal"))])
+        listener.executor.add_node(node)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        request = listener.node.create_publisher(String, REQUEST_TOPIC, 10)
+        assert listener.spin_until(lambda: request.get_subscription_count() >= 1 and status)
+        update = {"state": "updated", "live": True, "generation": 3, "touches": 120}
+        assert node._busy.acquire(blocking=False)          # what a live update holds while it runs
+        node._status(update)
+        for n in (1, 2):
+            request.publish(String(data=str(tmp_path / "touches")))
+            assert listener.spin_until(lambda: status[-1].get("ignored_requests") == n), status[-1]
+            assert status[-1] == {**update, "ignored_requests": n}
+        assert not (tmp_path / "cal").exists()
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if listener is not None:
+            listener.close()

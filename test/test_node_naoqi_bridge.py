@@ -20,7 +20,7 @@ qi = pytest.importorskip("qi")
 from ros_harness import Listener, node_process, ros_env, unique_domain_id  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
-from nao_skin.nodes.naoqi_bridge import DEFAULT_JOINTS  # noqa: E402
+from nao_skin.session.params import DEFAULT_JOINTS  # noqa: E402
 
 pytestmark = pytest.mark.middleware   # a libqi session served to the naoqi_bridge node, over DDS
 

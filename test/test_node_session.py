@@ -1,7 +1,7 @@
 """The record session's description: parameter files match the nodes, one publisher per frame.
 
 ``launch/record.launch.py`` and ``nao-skin record`` both start what
-:func:`nao_skin.live.session.record_session` lists; here its parameter files
+:func:`nao_skin.session.record.record_session` lists; here its parameter files
 are checked against the parameters each node declares (no typo goes
 unnoticed, every parameter is commented), and the URDF given to
 robot_state_publisher is checked to share no frame with the calibrate node
@@ -10,7 +10,6 @@ while still being the parent of every skin mount.
 from __future__ import annotations
 
 import array
-import importlib
 import re
 import xml.etree.ElementTree as ET
 
@@ -18,21 +17,15 @@ import pytest
 import yaml
 from ros_harness import ROOT
 
-from nao_skin.live.session import command_line, record_session, robot_description
+from nao_skin.session.record import command_line, record_session, robot_description
 from nao_skin.model.skin import load_skin, skin_frame_transforms
+from nao_skin.session.params import NODE_PARAMS, per_part_params
 
 pytest.importorskip("rclpy")
 
-NODE_MODULES = {"sim_robot": "sim_robot", "pairing_recorder": "pairing_recorder", "skin_heatmap": "skin_heatmap",
-                "calibrate": "calibrate", "naoqi_bridge": "naoqi_bridge", "yarp_skin_bridge": "yarp_skin_bridge"}
-
-
-def declared(node: str, parts) -> set:
-    module = importlib.import_module(f"nao_skin.nodes.{NODE_MODULES[node]}")
-    names = set(module.PARAMS)
-    if node == "yarp_skin_bridge":          # declared per configured skin part
-        names |= {f"part_ids.{p}" for p in parts} | {f"compensated_ports.{p}" for p in parts}
-    return names
+def declared(node: str, parts) -> dict:
+    """``{name: default}`` of what the node declares, per-part families (``part_ids.l_hand``) included."""
+    return {name: default for name, (default, *_) in {**NODE_PARAMS[node], **per_part_params(node, parts)}.items()}
 
 
 def flatten(d: dict, prefix: str = "") -> set:
@@ -59,14 +52,17 @@ def test_params_files_match_the_nodes(config):
     doc = yaml.safe_load(path.read_text())
     for node, body in doc.items():
         given = flatten(body["ros__parameters"])
-        assert given == declared(node, parts), f"{config}: {node}"
+        defaults = declared(node, parts)
+        assert given == set(defaults), f"{config}: {node}"
         # a value the file repeats is the node's own default: a copy that drifted (skin_tolerance 0.03 against
-        # the node's 0.015) started every record session off what the node documents
-        params = importlib.import_module(f"nao_skin.nodes.{NODE_MODULES[node]}").PARAMS
-        for name, value in body["ros__parameters"].items():
-            if name in params:
-                want = SESSION_CHOICES.get((config, node, name), params[name][0])
-                assert value == want, f"{config}: {node}.{name}: {value!r}, the node's default is {params[name][0]!r}"
+        # the node's 0.015) started every record session off what the node documents; the skinManager part
+        # ids (part_ids.<part>) too
+        for name in given:
+            value = body["ros__parameters"]
+            for key in name.split("."):
+                value = value[key]
+            want = SESSION_CHOICES.get((config, node, name), defaults[name])
+            assert value == want, f"{config}: {node}.{name}: {value!r}, the node's default is {defaults[name]!r}"
     # every parameter line carries a comment saying what it is
     for lineno, line in enumerate(path.read_text().splitlines(), 1):
         m = re.match(r"^\s{4,}(\w+):\s*(\S.*)$", line)
@@ -114,16 +110,15 @@ def test_every_default_keeps_its_own_rule_and_a_later_change_is_held_to_it():
 
     from nao_skin.nodes.runtime import declare
 
-    for node in NODE_MODULES.values():      # a default outside its own rule would stop every session
-        for name, (default, _, *rule) in importlib.import_module(f"nao_skin.nodes.{node}").PARAMS.items():
+    for node, params in NODE_PARAMS.items():      # a default outside its own rule would stop every session
+        for name, (default, _, *rule) in params.items():
             if rule:
                 rule[0].check(f"{node}.{name}", default)
     context = Context()
     rclpy.init(context=context, domain_id=0)
     try:
-        module = importlib.import_module("nao_skin.nodes.skin_heatmap")
         node = Node("rule_check", context=context, start_parameter_services=False)
-        values = declare(node, {"rate": module.PARAMS["rate"]})
+        values = declare(node, {"rate": NODE_PARAMS["skin_heatmap"]["rate"]})
         assert values == {"rate": 10.0}
         (refused,) = node.set_parameters([Parameter("rate", Parameter.Type.DOUBLE, 0.0)])
         assert not refused.successful and refused.reason == "parameter rate:=0.0: expected a number in [1e-05, 1000]"
@@ -133,7 +128,7 @@ def test_every_default_keeps_its_own_rule_and_a_later_change_is_held_to_it():
         assert not valid.successful and node.get_parameter("rate").value == 10.0
         assert valid.reason.startswith("'rate' is read when the node starts: restart the node with -p rate:=")
         # a double array arrives as array.array: judged by its values
-        declare(node, {"legend_origin": module.PARAMS["legend_origin"]})
+        declare(node, {"legend_origin": NODE_PARAMS["skin_heatmap"]["legend_origin"]})
         for values, rule_ok in (([1.0, 2.0, 3.0], True), ([1.0, 2.0], False)):
             (result,) = node.set_parameters([Parameter("legend_origin", Parameter.Type.DOUBLE_ARRAY,
                                                        array.array("d", values))])

@@ -33,7 +33,7 @@ from rcl_interfaces.srv import GetParameters  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
 from nao_skin import cli  # noqa: E402
-from nao_skin.nodes import calibrate as calibrate_node  # noqa: E402
+from nao_skin.session.params import CALIBRATE, options_from_params  # noqa: E402
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC  # noqa: E402
 
 pytestmark = pytest.mark.middleware   # runs nao-skin record and its nodes over DDS
@@ -231,7 +231,7 @@ def test_record_refuses_unknown_or_mistyped_parameters(tmp_path):
     bag = tmp_path / "touches"
     line = one_error_line(nao_skin(["record", "--print", "--bag", str(bag), "--param", "calibrate.gate_mmm=3"]))
     assert "calibrate.gate_mmm" in line and "did you mean 'gate_mm'?" in line
-    assert line.split("its parameters: ")[1].split(", ") == list(calibrate_node.PARAMS)
+    assert line.split("its parameters: ")[1].split(", ") == list(CALIBRATE)
 
     line = one_error_line(nao_skin(["record", "--print", "--bag", str(bag), "--param", "calib.gate_mm=3"]))
     assert "no node 'calib'" in line
@@ -301,6 +301,29 @@ def test_record_refuses_what_its_nodes_would_fail_on_before_any_starts(tmp_path)
         line = one_error_line(nao_skin(["record", "--bag", str(other), "--param", item]))
         assert expected in line, line
         assert not other.exists()
+
+
+def test_record_refuses_a_guided_start_the_simulated_robot_would_refuse(tmp_path):
+    """guided_start 0 passed record's checks, and sim_robot then died on it after the other nodes were up."""
+    line = one_error_line(nao_skin(["record", "--print", "--guided", "--bag", str(tmp_path / "b"),
+                                    "--param", "sim_robot.guided_start=0"]))
+    assert "--param sim_robot.guided_start=0" in line, line
+
+
+def test_record_checks_the_parameters_where_rclpy_is_not_installed(tmp_path):
+    """The nodes' parameters are plain data (nao_skin.session.params): `record --print` with an override
+    checked them by importing the node modules, which import rclpy, and ended in a traceback without it."""
+    blocked = ("import sys; sys.modules['rclpy'] = None; from nao_skin.cli import main; sys.exit(main(sys.argv[1:]))")
+    base = [sys.executable, "-c", blocked, "record", "--print", "--bag", str(tmp_path / "b")]
+    env = ros_env(unique_domain_id())
+    run = subprocess.run([*base, "--param", "calibrate.gate_mm=20", "--param", "sim_robot.seed=3"], env=env,
+                         cwd=str(ROOT), capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert "gate_mm:=20.0" in run.stdout and "seed:=3" in run.stdout, run.stdout
+    run = subprocess.run([*base, "--param", "sim_robot.touch_period=0.1", "--param", "sim_robot.press_duration=0.3"],
+                         env=env, cwd=str(ROOT), capture_output=True, text=True, timeout=120)
+    assert "Traceback" not in run.stderr
+    assert "touch_period" in one_error_line(run)
 
 
 def test_record_for_the_nao_without_yarp_says_what_to_install(tmp_path):
@@ -373,12 +396,12 @@ def test_record_removes_its_temporary_directory(tmp_path):
 def test_the_calibrate_node_takes_the_warm_update_options_from_the_session_config():
     """record.yaml's warm_repairings reaches the engine: an operator can let each live update re-pair more."""
     session = yaml.safe_load(RECORD_YAML.read_text())["calibrate"]["ros__parameters"]
-    params = {name: value for name, (value, *_) in calibrate_node.PARAMS.items()}
-    assert calibrate_node.options_from_params({**params, **session}).warm_repairings == session["warm_repairings"]
-    assert calibrate_node.options_from_params({**params, "warm_repairings": 3}).warm_repairings == 3
+    params = {name: value for name, (value, *_) in CALIBRATE.items()}
+    assert options_from_params({**params, **session}).warm_repairings == session["warm_repairings"]
+    assert options_from_params({**params, "warm_repairings": 3}).warm_repairings == 3
     # and how a press held still is weighed (a lab may compare its live figures without the pose weights)
-    assert calibrate_node.options_from_params({**params, **session}).pose_weight == session["pose_weight"] == 0.5
-    assert calibrate_node.options_from_params({**params, "pose_weight": 0.0}).pose_weight == 0.0
+    assert options_from_params({**params, **session}).pose_weight == session["pose_weight"] == 0.5
+    assert options_from_params({**params, "pose_weight": 0.0}).pose_weight == 0.0
 
 
 def test_a_node_that_has_ended_keeps_its_exit_code_whatever_stop_signal_follows(tmp_path):

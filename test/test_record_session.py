@@ -29,7 +29,7 @@ pytest.importorskip("rclpy")
 from std_msgs.msg import String  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
 
-from nao_skin.nodes.sim_robot import sim_overrides  # noqa: E402
+from nao_skin.session.params import sim_overrides  # noqa: E402
 
 pytestmark = pytest.mark.middleware   # runs nao-skin record and its nodes over DDS
 

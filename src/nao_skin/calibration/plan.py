@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from nao_skin.errors import TooFewTouches
-from nao_skin.model.skin import SelfTouch, part_rank
+from nao_skin.model.skin import SelfTouch, pair_label, part_rank
 from nao_skin.touch.datasets import pose_groups
 from nao_skin.touch.touches import TouchSet
 
@@ -69,7 +69,7 @@ def left_out_pairs(touches: TouchSet, options: "CalibrationOptions") -> list:
     """The pairs too few poses connect to calibrate from (yet): ``[(pair name, touches, poses)]``."""
     poses = pair_poses(touches)
     counts = sorted(pair_counts(touches).items(), key=lambda kv: sorted(kv[0], key=part_rank))
-    return [("+".join(sorted(p, key=part_rank)), n, poses[p]) for p, n in counts
+    return [(pair_label(p), n, poses[p]) for p, n in counts
             if poses[p] < options.min_mount_touches]
 
 

@@ -106,7 +106,7 @@ def _measure(args, work: Path) -> int:
     from visualization_msgs.msg import MarkerArray
 
     from nao_skin.commands.record import die_with_parent
-    from nao_skin.live.session import PARENT_ENV, STOP_SIGNALS
+    from nao_skin.session.record import PARENT_ENV, STOP_SIGNALS
     from nao_skin.model.skin import load_skin
     from nao_skin.paths import config_dir
 

@@ -1,7 +1,7 @@
 """``nao-skin record``: the record session of ``launch/record.launch.py`` without ``ros2 launch``.
 
 Starts the same nodes with the same parameter files and overrides
-(:func:`nao_skin.live.session.record_session`) as child processes, stops
+(:func:`nao_skin.session.record.record_session`) as child processes, stops
 them on SIGINT/SIGTERM/SIGHUP (the recorder then writes and closes its bag),
 when one of them fails, or after ``--duration`` seconds. External
 executables (robot_state_publisher, rviz2) are started when installed and
@@ -9,7 +9,7 @@ skipped with a note otherwise.
 
 The nodes never outlive this process: on Linux each gets SIGTERM from the
 kernel when it dies, however it dies (``kill -9`` included), and each of our
-nodes also watches its parent (:data:`~nao_skin.live.session.PARENT_ENV`).
+nodes also watches its parent (:data:`~nao_skin.session.record.PARENT_ENV`).
 Overrides and the Python modules a node needs are checked before anything
 starts. Generated parameter files live in a temporary directory removed at
 the end unless ``--keep-temp``.
@@ -73,7 +73,7 @@ def run(args) -> int:
     import math
 
     from nao_skin.errors import ConfigError
-    from nao_skin.live.session import STOP_SIGNALS, check_needs, record_session
+    from nao_skin.session.record import STOP_SIGNALS, check_needs, record_session
 
     if not (args.duration >= 0 and math.isfinite(args.duration)):     # NaN, -5, inf would all mean 'forever'
         raise ConfigError(f"--duration {args.duration}: expected seconds >= 0 (0: until Ctrl-C)")
@@ -103,7 +103,7 @@ def run(args) -> int:
 
 
 def _session(specs, work: Path, args, stop: dict) -> int:
-    from nao_skin.live.session import PARENT_ENV, command_line
+    from nao_skin.session.record import PARENT_ENV, command_line
 
     commands = []
     for spec in specs:

@@ -186,16 +186,18 @@ def activated_taxels(values, threshold: float, where: str, n_slots: int) -> tupl
     return slots, v[slots]
 
 
-def part_id_map(mapping: Mapping, known_parts, where: str) -> dict:
-    """Validate a ``{skinDynLib id: part name}`` mapping from configuration."""
-    out = {}
-    for key, name in dict(mapping).items():
-        try:
-            pid = int(key)
-        except (TypeError, ValueError):
-            raise ConfigError(f"{where}: skin part id {key!r} is not an integer") from None
-        if name not in known_parts:
-            raise ConfigError(f"{where}: skin part id {pid} maps to '{name}', not a configured part"
-                              f" ({', '.join(known_parts)})")
+def parts_by_id(ids_of_parts: Mapping, where: str) -> dict:
+    """``{skinDynLib id: part name}`` from configuration's ``{part name: id}`` (-1: the part is not bridged).
+
+    One id feeds one part: two parts on one id would leave one of them without a word.
+    """
+    out: dict = {}
+    for name, pid in dict(ids_of_parts).items():
+        if isinstance(pid, bool) or not isinstance(pid, int):
+            raise ConfigError(f"{where}.{name}: skin part id {pid!r} is not an integer")
+        if pid < 0:
+            continue
+        if pid in out:
+            raise ConfigError(f"{where}: {out[pid]} and {name} both have skinPart id {pid}")
         out[pid] = str(name)
     return out

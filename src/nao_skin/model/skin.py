@@ -66,6 +66,11 @@ def part_rank(name: str) -> tuple:
     return (PART_NAMES.index(name) if name in PART_NAMES else len(PART_NAMES), name)
 
 
+def pair_label(parts) -> str:
+    """The name of a set of touching parts in reports and status messages: 'r_hand+torso' (:func:`part_rank` order)."""
+    return "+".join(sorted(parts, key=part_rank))
+
+
 def _frame_from(origin: np.ndarray, z_axis: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
     """Right-handed frame at ``origin`` with z along ``z_axis`` and x towards ``x_hint``."""
     z = z_axis / np.linalg.norm(z_axis)

@@ -32,17 +32,16 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
-from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
 from nao_skin.errors import DataError, NaoSkinError, TooFewTouches, one_line
 from nao_skin.formats.bag import GrowingBag
 from nao_skin.formats.inputs import find_bag
 from nao_skin.live.updates import Settling, UpdateSchedule, WarmStart, rejection, taxel_displacement_mm
-from nao_skin.model.skin import SkinCalibration, parse_pairs, skin_frame_transforms
+from nao_skin.model.skin import SkinCalibration, pair_label, parse_pairs, skin_frame_transforms
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC
-from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
-from nao_skin.rules import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Rule, SECONDS
+from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
 from nao_skin.paths import identity
+from nao_skin.session.params import CALIBRATE, options_from_params, skin_from_params
 from nao_skin.plain import jsonable
 
 REQUEST_TOPIC = "/nao_skin/calibrate"
@@ -50,55 +49,6 @@ STATUS_TOPIC = "/nao_skin/calibration/status"
 GUIDANCE_TOPIC = "/nao_skin/guidance"
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-# the calibration options a node parameter sets, by the option's own name
-NODE_OPTIONS = ("strategy", "reference", "pairs", "bounded", "loss", "jacobian", "initial_guess", "gate_mm",
-                "pose_weight", "prior_scale", "estimate_fabric", "fabric_thickness", "test_fraction", "seed",
-                "warm_repairings")
-
-PARAMS = {
-    **SKIN_PARAMS,
-    "calibration": ("", "calibration published at start and used as prior (empty: nominal skin)"),
-    "inputs": ([""], "bags (or legacy .txt) to calibrate from; empty entries are ignored"),
-    "recording": ("", "the recorder's bag: calibrated on an empty request when 'inputs' is empty"),
-    "calibrate_on_start": (False, "run on 'inputs' right after start (ros2 run ... calibrate)"),
-    "out_dir": ("nao_skin_calibration", "output directory (replaced when a run succeeds)"),
-    "plots": (False, "write the report's plots too (slower)"),
-    "live": (False, "recalibrate in the background while the recorder stores touches (on in a record session)"),
-    # the live defaults are the live module's (UpdateSchedule, Settling, WarmStart): defined once
-    "live_every_touches": (UpdateSchedule.every_touches, "live: an update after this many new touches ...",
-                           AT_LEAST_ONE),
-    "live_period": (UpdateSchedule.period, "live: ... or this many seconds after the last one, if any touch came"
-                                           " since", SECONDS),
-    "live_settle_mm": (Settling.settle_mm, "live: a part is done when its taxels moved less than this (mm) ...",
-                       POSITIVE),
-    "live_settle_updates": (Settling.updates, "live: ... in each of this many updates in a row, ...", AT_LEAST_ONE),
-    "live_flat_percent": (Settling.flat_percent, "live: ... and the held-out closest taxel figure stayed within this"
-                                                 " % of its mean", NON_NEGATIVE),
-    "guidance": (True, "live: after each update, publish where touches would help most on /nao_skin/guidance"),
-    "guidance_targets": (5, "live: how many targets the guidance names", AT_LEAST_ONE),
-    "guidance_pairs": ([""], "live: the pairs the guidance may ask for, as 'hand-part' (e.g. l_hand-torso);"
-                             " empty: the skin config's self_touch pairs"),
-    "live_refresh": (WarmStart.refresh, "live: an update from scratch (the whole plan) beside the warm one whenever"
-                                        " the touches grew this many times since the last such; the one the held-out"
-                                        " touches pair closer is published (1: every update from scratch)",
-                     Rule(float, low=1.0)),
-    "live_max_move_mm": (20.0, "live: an update moving a calibrated part's taxels farther than this (mm) diverged:"
-                               " not published", POSITIVE),
-    # engine options (their defaults, help and rules come from CalibrationOptions' table, OPTION_FIELDS)
-    **{name: (OPTION_FIELDS[name].default, OPTION_FIELDS[name].metadata["help"], OPTION_FIELDS[name].metadata["rule"])
-       for name in NODE_OPTIONS},
-}
-
-
-def options_from_params(params: dict) -> CalibrationOptions:
-    """The engine options of the node's parameters, each checked by its rule (ints for floats are fine)."""
-    options = CalibrationOptions()
-    for name in NODE_OPTIONS:
-        options.set(name, params[name], where=f"parameter {name}:={params[name]!r}")
-    options.validate()
-    return options
-
 
 def _pairs(items, skin, name: str) -> tuple:
     """'hand-part' strings to (hand, part) pairs of the skin's parts; none given: the skin config's
@@ -109,7 +59,7 @@ def _pairs(items, skin, name: str) -> tuple:
 class CalibrateNode(Node):
     def __init__(self, **kwargs):
         super().__init__("calibrate", **kwargs)
-        self.p = declare(self, PARAMS)
+        self.p = declare(self, CALIBRATE)
         self.options = options_from_params(self.p)      # a wrong value stops the node at start, in one line
         self.skin = skin_from_params(self.p)
         self.prior = (SkinCalibration.load(self.p["calibration"], self.skin) if self.p["calibration"]
@@ -120,7 +70,8 @@ class CalibrateNode(Node):
         self.generation = 0
         self._busy = threading.Lock()
         self._worker = None
-        self._running: dict = {}          # the latched status of the calibration under way
+        self._latched: dict = {}          # the status last published (latched)
+        self._ignored = 0                 # requests refused while one calibration or update was running
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
         self._last_live = None            # the last accepted live update's result: written when the session ends
@@ -182,7 +133,6 @@ class CalibrateNode(Node):
         Then the guidance: where touches would help most now (also while waiting for a first calibration)."""
         from nao_skin.calibration.pipeline import calibrate_loaded, load_inputs
         from nao_skin.calibration.plan import pair_counts
-        from nao_skin.model.skin import part_rank
 
         log = self.get_logger()
         t0 = time.perf_counter()
@@ -208,7 +158,7 @@ class CalibrateNode(Node):
             self.publish_calibration(result.calibration, "live update", quiet=True)
             self._status({"state": "updated", "live": True, "generation": self.generation,
                           "touches": touches.n_touches,
-                          "pairs": {"+".join(sorted(p, key=part_rank)): n for p, n in pair_counts(touches).items()},
+                          "pairs": {pair_label(p): n for p, n in pair_counts(touches).items()},
                           "final": {k: report.final.get(k) for k in ("train", "test")},
                           "displacement_mm": moved, "held": report.held, "left_out": report.left_out,
                           "parts": self.settling.states(self.skin.parts), "seconds": time.perf_counter() - t0,
@@ -246,6 +196,7 @@ class CalibrateNode(Node):
                                                          sort_keys=True)))
 
     def _status(self, info: dict) -> None:
+        self._latched = info
         # plain JSON (NaN as null, numpy as Python); anything else, e.g. a path, as its text
         self.status_pub.publish(String(data=json.dumps(jsonable(info), sort_keys=True, default=str)))
 
@@ -260,13 +211,15 @@ class CalibrateNode(Node):
             self._status({"state": "failed", "error": "no input: set 'inputs' or 'recording', or name bags"})
             return
         if not self._busy.acquire(blocking=False):
-            # the latched state stays the running calibration's; the refusal is counted in it and logged
-            self._running["ignored_requests"] = self._running.get("ignored_requests", 0) + 1
-            self._status(self._running)
-            self.get_logger().warning(f"a calibration is already running; request for {' '.join(paths)} ignored")
+            # the latched state stays the one of what is running (a calibration, a live update); the refusal
+            # is counted in it and logged
+            self._ignored += 1
+            self._status({**self._latched, "ignored_requests": self._ignored})
+            self.get_logger().warning(f"a calibration or live update is running; request for {' '.join(paths)}"
+                                      f" ignored")
             return
-        self._running = {"state": "running", "inputs": paths}
-        self._status(self._running)
+        self._ignored = 0
+        self._status({"state": "running", "inputs": paths})
         self._worker = threading.Thread(target=self._run, args=(paths,), daemon=True, name="calibrate")
         self._worker.start()
 
@@ -301,7 +254,6 @@ class CalibrateNode(Node):
             log.error(f"calibration failed: {line}")
             self._status({"state": "failed", "error": f"internal error: {line}"})
         finally:
-            self._running = {}
             self._busy.release()
 
     def close(self) -> None:

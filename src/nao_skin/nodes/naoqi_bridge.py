@@ -16,35 +16,14 @@ import time
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from nao_skin.errors import ConfigError, one_line
+from nao_skin.errors import one_line
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC
 from nao_skin.live.reconnect import Backoff
 from nao_skin.nodes.messages import joint_state_msg
 from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.rules import HOST, PORT, RATE, SECONDS, finite_float
+from nao_skin.rules import finite_float
+from nao_skin.session.params import NAOQI_BRIDGE, check_naoqi_bridge
 
-DEFAULT_JOINTS = ["HeadYaw", "HeadPitch",
-                  "LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll", "LWristYaw",
-                  "RShoulderPitch", "RShoulderRoll", "RElbowYaw", "RElbowRoll", "RWristYaw"]
-
-PARAMS = {
-    "nao_ip": ("127.0.0.1", "IP address or host name of the robot running NAOqi", HOST),
-    "nao_port": (9559, "NAOqi port", PORT),
-    "rate": (50.0, "joint angle reads per second (Hz)", RATE),
-    "joint_names": (DEFAULT_JOINTS, "NAOqi joint names to read and publish"),
-    "use_sensors": (True, "getAngles' useSensors: sensed (true) or commanded (false) angles"),
-    "reconnect_min": (0.5, "first reconnection delay after the robot vanished (s)", SECONDS),
-    "reconnect_max": (5.0, "longest reconnection delay (s)", SECONDS),
-    "read_timeout": (2.0, "s a getAngles call may take before the robot counts as gone (then: reconnect)", SECONDS),
-}
-
-
-
-def check_params(p: dict, where: str = "") -> None:
-    """What no single parameter's rule can say (``nao-skin record`` checks it before any node starts)."""
-    if p["reconnect_min"] > p["reconnect_max"]:
-        raise ConfigError(f"{where + ': ' if where else ''}parameters reconnect_min:={p['reconnect_min']} and"
-                          f" reconnect_max:={p['reconnect_max']}: the first delay is longer than the longest")
 
 class ReadTimeout(Exception):
     """getAngles did not answer in time (a hung robot or network): the link counts as gone."""
@@ -92,13 +71,13 @@ class MotionLink:
 class NaoqiBridge(Node):
     def __init__(self, **kwargs):
         super().__init__("naoqi_bridge", **kwargs)
-        p = declare(self, PARAMS)
+        p = declare(self, NAOQI_BRIDGE)
         self.names = list(p["joint_names"])
         self.use_sensors = bool(p["use_sensors"])
         self.period = 1.0 / float(p["rate"])
         self.url = f"tcp://{p['nao_ip']}:{int(p['nao_port'])}"
         self.link = MotionLink(self.url)
-        check_params(p)
+        check_naoqi_bridge(p)
         self.backoff = Backoff(f"NAOqi at {self.url}", p["reconnect_min"], p["reconnect_max"])
         self.publisher = self.create_publisher(JointState, JOINT_STATES_TOPIC, 10)
         self.read_timeout = float(p["read_timeout"])

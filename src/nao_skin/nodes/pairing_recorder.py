@@ -39,36 +39,18 @@ from nao_skin.formats.bag import BagWriter, record_parts
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_topic, read_contacts, read_taxels, taxels_topic
 from nao_skin.live.clocks import SKEW_LIMIT_S, ArrivalLags
 from nao_skin.live.heatmap import ActivationCounts
+from nao_skin.model.skin import pair_label
 from nao_skin.nodes.messages import header_stamp, joint_state_arrays
-from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
-from nao_skin.rules import NON_NEGATIVE, Rule, SECONDS
+from nao_skin.nodes.runtime import declare, run_node
+from nao_skin.session.params import PAIRING_RECORDER, skin_from_params
 from nao_skin.touch.events import EventConfig, EventDetector
 
 PROGRESS_TOPIC = "/nao_skin/recorder/progress"
 MAX_LOGGED_ERRORS = 5
-_D = EventConfig()
-
-PARAMS = {
-    **SKIN_PARAMS,
-    "bag_path": ("", "touch bag to create (a new directory; empty: ./nao_skin_touches_<date>_<time>)"),
-    "storage": ("mcap", "bag storage: mcap (survives kill -9 up to the last flush) or sqlite3",
-                Rule(str, ("mcap", "sqlite3"))),
-    "flush_period": (1.0, "seconds between flushes of the bag to disk", SECONDS),
-    "progress_period": (1.0, "seconds between progress messages", SECONDS),
-    "skin_tolerance": (_D.skin_tolerance, "s: skin samples of different parts this close are one moment",
-                       NON_NEGATIVE),
-    "joint_tolerance": (_D.joint_tolerance, "s: bracketing joint states must be this close to the touch",
-                        NON_NEGATIVE),
-    "min_interval": (_D.min_interval, "s: during one continuous press, at most one touch per interval",
-                     NON_NEGATIVE),
-    "release_gap": (_D.release_gap, "s: a part silent this long counts as released", NON_NEGATIVE),
-}
-
-
 class PairingRecorder(Node):
     def __init__(self, **kwargs):
         super().__init__("pairing_recorder", **kwargs)
-        p = declare(self, PARAMS)
+        p = declare(self, PAIRING_RECORDER)
         self.skin = skin_from_params(p)
         config = EventConfig(skin_tolerance=p["skin_tolerance"], joint_tolerance=p["joint_tolerance"],
                              min_interval=p["min_interval"], release_gap=p["release_gap"])
@@ -183,7 +165,7 @@ class PairingRecorder(Node):
                 self._cannot_write(exc)
             for part, taxels, _ in parts:
                 self.touched.update(part.name, taxels["slot"])
-            self.pairs["+".join(sorted((part.name for part, _, _ in parts), key=self.parts.index))] += 1
+            self.pairs[pair_label(part.name for part, _, _ in parts)] += 1
             self.n_touches += 1
             self._dirty = True
 

@@ -5,7 +5,7 @@ initialises rclpy (``--ros-args`` from the command line, so ``ros2 run``,
 ``ros2 launch`` and ``nao-skin record`` pass parameters the same way), spins
 until SIGINT, SIGTERM or SIGHUP (terminal closed), then calls the node's
 ``close()`` so that buffered data is written before the process ends. A node
-started by ``nao-skin record`` (:data:`~nao_skin.live.session.PARENT_ENV`
+started by ``nao-skin record`` (:data:`~nao_skin.session.record.PARENT_ENV`
 set) stops the same way when record is gone, however record ended.
 """
 from __future__ import annotations
@@ -26,18 +26,10 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from nao_skin.errors import ConfigError, DataError, NaoSkinError
-from nao_skin.live.session import PARENT_ENV, STOP_SIGNALS
+from nao_skin.session.record import PARENT_ENV, STOP_SIGNALS
 from nao_skin.rules import did_you_mean
 
 MAX_LOGGED_FAILURES = 5   # callback errors of one kind logged one by one (then every 100th)
-
-# every node that reads the skin builds it the way the commands do (model.skin.load_skin)
-SKIN_PARAMS = {
-    "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
-    "taxels": ([""], "skinManager taxel files replacing a part's layout, PART=FILE each (e.g. the robot's own);"
-                     " empty entries are ignored"),
-}
-
 
 def declare(node, params: dict) -> dict:
     """Declare ``{name: (default, description[, rule])}`` and return ``{name: value}``.
@@ -88,13 +80,6 @@ def declare(node, params: dict) -> dict:
                 raise ConfigError(str(exc)) from None
     node.add_on_set_parameters_callback(lambda changed: _checked(changed, numeric, rules, set(params)))
     return out
-
-
-def skin_from_params(params: dict):
-    """The skin model of a node's ``skin_config`` and ``taxels`` parameters (:data:`SKIN_PARAMS`)."""
-    from nao_skin.model.skin import load_skin, parse_taxel_files
-
-    return load_skin(params["skin_config"] or None, parse_taxel_files(params["taxels"], "parameter taxels"))
 
 
 def _is_float(default) -> bool:

@@ -29,64 +29,25 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 
-from nao_skin.errors import ConfigError, DataError
+from nao_skin.errors import DataError
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_array, contacts_topic, taxels_array, taxels_topic
 from nao_skin.guidance.capture import targets_from_json
-from nao_skin.live.playback import Playback, check_timing
-from nao_skin.model.skin import parse_pairs
+from nao_skin.live.playback import Playback
 from nao_skin.nodes.calibrate import GUIDANCE_TOPIC, LATCHED
 from nao_skin.nodes.messages import cloud_from_array, joint_state_msg
-from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
-from nao_skin.rules import AT_LEAST_ONE, RATE, SECONDS, SECONDS_OR_ZERO, WHOLE
+from nao_skin.nodes.runtime import declare, run_node
+from nao_skin.session.params import SIM_ROBOT, check_sim_robot, sim_overrides, skin_from_params
 from nao_skin.sim.capture import Aim, CaptureSim
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 
 STATUS_TOPIC = "/sim_robot/status"
 
-PARAMS = {
-    **SKIN_PARAMS,
-    "preset": ("default", "simulation preset of config/simulation.yaml"),
-    "seed": (1, "simulator seed: the same seed plays the same touches", WHOLE),
-    "touches_per_pair": (20, "accepted touches per self-touch pair", AT_LEAST_ONE),
-    "pairs": ([""], "pairs to play as 'hand-part' (e.g. l_hand-torso); empty: the preset's pairs"),
-    "joint_rate": (100.0, "joint state rate (Hz)", RATE),
-    "skin_rate": (50.0, "skin message rate per part (Hz), like skinManager's period", RATE),
-    "touch_period": (1.0, "seconds between the starts of two presses", SECONDS),
-    "press_duration": (0.3, "seconds each press lasts", SECONDS),
-    "hold": (0.1, "seconds the arm holds still before and after a press", SECONDS_OR_ZERO),
-    "loop": (False, "start again after the last touch"),
-    "wait_for_subscribers": (0, "start only when each skin taxels topic has this many subscribers (0: at once)",
-                             WHOLE),
-    "wait_timeout": (20.0, "longest wait for subscribers (s), then play anyway", SECONDS_OR_ZERO),
-    "guided": (False, "follow /nao_skin/guidance: the next touches aim at its top targets"),
-    "guided_start": (20, "guided: random touches before the first batch aimed at the guidance", WHOLE),
-    "guided_batch": (5, "guided: touches per batch aimed at the guidance's top targets", AT_LEAST_ONE),
-}
-
-
-def check_params(p: dict, where: str = "sim_robot") -> None:
-    """What no single parameter's rule can say: presses that do not overlap, a preset and pairs the
-    simulator knows for this skin (``nao-skin record`` checks it before any node starts, the node again at
-    its start)."""
-    check_timing(p["touch_period"], p["press_duration"], p["hold"], where)
-    load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], skin_from_params(p).parts))
-
-
-def sim_overrides(touches_per_pair: int, pairs, parts=None) -> dict:
-    """Simulator parameter overrides from the node's parameters (also used by tests to recompute)."""
-    out = {"n_touches": int(touches_per_pair)}
-    pairs = parse_pairs(pairs, parts, where="parameter pairs:")
-    if pairs:
-        out["pairs"] = [list(p) for p in pairs]
-    return out
-
-
 class SimRobot(Node):
     def __init__(self, **kwargs):
         super().__init__("sim_robot", **kwargs)
-        p = declare(self, PARAMS)
-        check_params(p)
+        p = declare(self, SIM_ROBOT)
+        check_sim_robot(p)
         self.skin = skin_from_params(p)
         params = load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], self.skin.parts))
         self.timing = (p["touch_period"], p["press_duration"], p["hold"])
@@ -96,8 +57,6 @@ class SimRobot(Node):
             self.capture = CaptureSim(self.skin, params, int(p["seed"]))
             self.total = int(p["touches_per_pair"]) * len(self.capture.pairs)
             self.batch = (int(p["guided_start"]), int(p["guided_batch"]))
-            if self.batch[0] < 1 or self.batch[1] < 1:
-                raise ConfigError(f"guided_start {self.batch[0]} / guided_batch {self.batch[1]}: both must be >= 1")
             self.playback = Playback(self.capture.random(self.batch[0]), self.skin, *self.timing)
             self.create_subscription(String, GUIDANCE_TOPIC, self._on_guidance, LATCHED)
             self.get_logger().info(f"guided: {self.batch[0]} random touches, then batches of {self.batch[1]} aimed"

@@ -35,8 +35,8 @@ from nao_skin.guidance.capture import targets_from_json
 from nao_skin.live.heatmap import (GUIDANCE_COLOUR, SCALE_LEVELS, ActivationCounts, palette, triangle_outline,
                                    triangle_slots)
 from nao_skin.nodes.calibrate import GUIDANCE_TOPIC, LATCHED, STATUS_TOPIC
-from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
-from nao_skin.rules import POSITIVE, RATE, Rule
+from nao_skin.nodes.runtime import declare, run_node
+from nao_skin.session.params import SKIN_HEATMAP, skin_from_params
 
 TOPIC = "/nao_skin/heatmap"
 GUIDANCE_MARKERS_TOPIC = "/nao_skin/guidance/markers"
@@ -44,19 +44,10 @@ STATE_COLOURS = {"collecting": (0.6, 0.6, 0.6, 1.0), "converging": (1.0, 0.8, 0.
 LEGEND_NS = "legend"
 LEGEND_HEIGHT = 0.12      # m: height of the colour bar
 
-PARAMS = {
-    **SKIN_PARAMS,
-    "rate": (10.0, "marker updates per second (Hz)", RATE),
-    "taxel_diameter": (0.005, "sphere diameter of a taxel (m)", POSITIVE),
-    "legend_origin": ([0.0, -0.25, 0.15], "where the colour bar starts, in the base frame (m)",
-                      Rule(tuple, length=3)),
-}
-
-
 class SkinHeatmap(Node):
     def __init__(self, **kwargs):
         super().__init__("skin_heatmap", **kwargs)
-        p = declare(self, PARAMS)
+        p = declare(self, SKIN_HEATMAP)
         self.skin = skin_from_params(p)
         self.counts = ActivationCounts({n: part.n_slots for n, part in self.skin.parts.items()})
         self.palette = [ColorRGBA(r=float(c[0]), g=float(c[1]), b=float(c[2]), a=float(c[3])) for c in palette()]

@@ -33,54 +33,29 @@ from std_msgs.msg import String
 
 from nao_skin.errors import ConfigError, DataError
 from nao_skin.formats.pointcloud import contacts_array, contacts_topic, taxels_array, taxels_topic
-from nao_skin.formats.skinmanager import activated_taxels, parse_skin_events, part_id_map
+from nao_skin.formats.skinmanager import activated_taxels, parse_skin_events, parts_by_id
 from nao_skin.live.reconnect import Backoff
-from nao_skin.live.session import YARP_HINT
 from nao_skin.nodes.messages import cloud_from_array, stamp_to_msg
-from nao_skin.nodes.runtime import SKIN_PARAMS, declare, run_node, skin_from_params
-from nao_skin.rules import SECONDS, YARP_PORT, Rule
+from nao_skin.nodes.runtime import declare, run_node
+from nao_skin.session.params import YARP_SKIN_BRIDGE, per_part_params, skin_from_params
+from nao_skin.session.record import YARP_HINT
 
-# iCub skinDynLib SkinPart ids; the Nao build put the head on the unused right forearm id (thesis §3.1.1).
-DEFAULT_PART_IDS = {"l_hand": 1, "r_hand": 4, "torso": 7, "head": 5}
 MAX_LOGGED_ERRORS = 5
 STATUS_TOPIC = "/skin/bridge_status"
-
-PARAMS = {
-    **SKIN_PARAMS,
-    "events_port": ("/skinManager/skin_events:o", "skinManager's skin events (skinContactList) output port",
-                    YARP_PORT),
-    "local_prefix": ("/nao_skin/skin_bridge", "prefix of the YARP ports this bridge opens", YARP_PORT),
-    "compensated_threshold": (0.0, "a compensated taxel value above this counts as activated (0-255 scale)",
-                              Rule(float, low=0.0, high=255.0)),
-    "stamp": ("envelope", "what stamps the messages: envelope (the time skinManager wrote, on its host's clock) or"
-                          " receive (this machine's clock when the bridge reads: when skinManager's host clock"
-                          " differs from the one stamping /joint_states)", Rule(str, ("envelope", "receive"))),
-    "reconnect_period": (1.0, "seconds between checks that the YARP connections still exist", SECONDS),
-    "status_period": (1.0, "seconds between /skin/bridge_status messages", SECONDS),
-}
 
 
 class YarpSkinBridge(Node):
     def __init__(self, **kwargs):
         super().__init__("yarp_skin_bridge", **kwargs)
-        p = declare(self, PARAMS)
+        p = declare(self, YARP_SKIN_BRIDGE)
         self.skin = skin_from_params(p)
         self._receive_stamps = p["stamp"] == "receive"
         parts = list(self.skin.parts)
-        ids = declare(self, {f"part_ids.{n}": (DEFAULT_PART_IDS.get(n, -1),
-                                               f"skinManager skinPart id of '{n}' (-1: not bridged)")
-                             for n in parts})
-        comp = declare(self, {f"compensated_ports.{n}": ("", f"compensated taxel port of '{n}' (empty: none)")
-                              for n in parts})
-        named: dict = {}
-        for key, pid in ids.items():
-            if pid >= 0:
-                named.setdefault(pid, []).append(key.split(".", 1)[1])
-        for pid, names in named.items():
-            if len(names) > 1:    # one skinPart id feeds one part: the others would be dropped without a word
-                raise ConfigError(f"parameter part_ids: {' and '.join(names)} both have skinPart id {pid}")
-        self.part_of_id = part_id_map({pid: names[0] for pid, names in named.items()}, parts, "parameter part_ids")
-        self.comp_port_of = {k.split(".", 1)[1]: v for k, v in comp.items() if v}
+        per_part = declare(self, per_part_params("yarp_skin_bridge", parts))
+        ids = {key.split(".", 1)[1]: v for key, v in per_part.items() if key.startswith("part_ids.")}
+        self.part_of_id = parts_by_id(ids, "parameter part_ids")
+        self.comp_port_of = {key.split(".", 1)[1]: v for key, v in per_part.items()
+                             if key.startswith("compensated_ports.") and v}
         self.threshold = float(p["compensated_threshold"])
         self.bridged = sorted(set(self.part_of_id.values()) | set(self.comp_port_of), key=parts.index)
         self.taxel_pub = {n: self.create_publisher(PointCloud2, taxels_topic(n), 50) for n in self.bridged}

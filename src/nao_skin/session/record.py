@@ -26,8 +26,9 @@ from nao_skin.errors import ConfigError, NaoSkinError
 from nao_skin.formats.outdir import STOP_SIGNALS  # noqa: F401 - the nodes' and record's stop signals
 from nao_skin.model.skin import parse_taxel_files
 from nao_skin.model.urdf import expand_xacro
-from nao_skin.paths import config_dir, parse_yaml, yaml_value
+from nao_skin.paths import config_dir, parse_yaml, read_ros_params_file, read_yaml, yaml_value
 from nao_skin.rules import did_you_mean
+from nao_skin.session.params import CHECKS, NODE_PARAMS, PER_PART_NODES, per_part_params
 
 ROBOTS = ("sim", "nao")
 CONTROL = re.compile(r"[\x00-\x1f\x7f]")
@@ -48,10 +49,6 @@ def check_needs(specs) -> None:
                 importlib.import_module(module)
             except ImportError as exc:
                 raise ConfigError(f"{hint} (import {module}: {' '.join(str(exc).split())})") from None
-
-
-# parameters a node declares per configured skin part, ``<family>.<part>``: family -> a default of the right type
-PER_PART_PARAMS = {"yarp_skin_bridge": {"part_ids": -1, "compensated_ports": ""}}
 
 
 @dataclass
@@ -163,17 +160,9 @@ def _check_printable(spec: NodeSpec) -> None:
 
 
 def _check_together(spec: NodeSpec) -> None:
-    """The node's own check of its parameters taken together (its module's ``check_params``, if any) on the
+    """The node's own check of its parameters taken together (:data:`~nao_skin.session.params.CHECKS`) on the
     values it will start with: declared defaults, then its parameter files, then the overrides."""
-    import importlib
-
-    from nao_skin.paths import read_ros_params_file
-
-    try:
-        module = importlib.import_module(f"nao_skin.nodes.{spec.executable}")
-    except ImportError:       # no rclpy here (`record --print`): the node checks them itself when it starts
-        return
-    check = getattr(module, "check_params", None)
+    check = CHECKS.get(spec.executable)
     if check is None:
         return
     values = node_parameters(spec)
@@ -231,20 +220,16 @@ def node_parameters(spec: NodeSpec) -> dict:
 
 def _declared(spec: NodeSpec) -> dict:
     """``{name: (default, rule or None)}`` of every parameter one of our nodes declares."""
-    import importlib
-
-    from nao_skin.paths import read_yaml
-
     params = {name: (default, rule[0] if rule else None) for name, (default, _, *rule)
-              in importlib.import_module(f"nao_skin.nodes.{spec.executable}").PARAMS.items()}
-    families = PER_PART_PARAMS.get(spec.executable, {})
-    if families:
+              in NODE_PARAMS[spec.executable].items()}
+    if spec.executable in PER_PART_NODES:
         skin_config = spec.overrides.get("skin_config") or str(config_dir() / "nao_skin.yaml")
         doc = read_yaml(skin_config, "skin config")
         parts = doc.get("parts") if isinstance(doc, dict) else None
         if not isinstance(parts, dict):
             raise ConfigError(f"{skin_config}: a skin config needs a 'parts' mapping")
-        params.update({f"{family}.{part}": (default, None) for family, default in families.items() for part in parts})
+        params.update({name: (default, None) for name, (default, _)
+                       in per_part_params(spec.executable, parts).items()})
     return params
 
 

@@ -1,0 +1,1 @@
+"""A record session: which nodes it runs, with which parameters, checked before any starts."""

@@ -1,0 +1,209 @@
+"""The parameters each of our nodes declares, and the checks no single parameter's rule can make.
+
+``{name: (default, description[, rule])}`` per node executable (:data:`NODE_PARAMS`):
+the nodes declare them (:func:`nao_skin.nodes.runtime.declare`), and ``nao-skin
+record`` and the launch file check a session's parameter files and overrides
+against them before any node starts (:mod:`nao_skin.session.record`). No ROS
+import here: ``nao-skin record --print`` runs where rclpy is not installed.
+Defaults that belong to the engine, the live updates or the event detector are
+theirs (``CalibrationOptions``, ``UpdateSchedule``, ``Settling``, ``WarmStart``,
+``EventConfig``), read from there.
+"""
+from __future__ import annotations
+
+from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
+from nao_skin.errors import ConfigError
+from nao_skin.live.playback import check_timing
+from nao_skin.live.updates import Settling, UpdateSchedule, WarmStart
+from nao_skin.model.skin import SkinModel, load_skin, parse_pairs, parse_taxel_files
+from nao_skin.rules import (AT_LEAST_ONE, HOST, NON_NEGATIVE, PORT, POSITIVE, RATE, SECONDS, SECONDS_OR_ZERO, WHOLE,
+                            YARP_PORT, Rule)
+from nao_skin.sim.params import load_params
+from nao_skin.touch.events import EventConfig
+
+# every node that reads the skin builds it the way the commands do (model.skin.load_skin)
+SKIN_PARAMS = {
+    "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
+    "taxels": ([""], "skinManager taxel files replacing a part's layout, PART=FILE each (e.g. the robot's own);"
+                     " empty entries are ignored"),
+}
+
+# the calibration options a calibrate node parameter sets, by the option's own name
+NODE_OPTIONS = ("strategy", "reference", "pairs", "bounded", "loss", "jacobian", "initial_guess", "gate_mm",
+                "pose_weight", "prior_scale", "estimate_fabric", "fabric_thickness", "test_fraction", "seed",
+                "warm_repairings")
+
+DEFAULT_JOINTS = ["HeadYaw", "HeadPitch",
+                  "LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll", "LWristYaw",
+                  "RShoulderPitch", "RShoulderRoll", "RElbowYaw", "RElbowRoll", "RWristYaw"]
+
+# iCub skinDynLib SkinPart ids; the Nao build put the head on the unused right forearm id (thesis §3.1.1).
+DEFAULT_PART_IDS = {"l_hand": 1, "r_hand": 4, "torso": 7, "head": 5}
+
+EVENTS = EventConfig()
+
+CALIBRATE = {
+    **SKIN_PARAMS,
+    "calibration": ("", "calibration published at start and used as prior (empty: nominal skin)"),
+    "inputs": ([""], "bags (or legacy .txt) to calibrate from; empty entries are ignored"),
+    "recording": ("", "the recorder's bag: calibrated on an empty request when 'inputs' is empty"),
+    "calibrate_on_start": (False, "run on 'inputs' right after start (ros2 run ... calibrate)"),
+    "out_dir": ("nao_skin_calibration", "output directory (replaced when a run succeeds)"),
+    "plots": (False, "write the report's plots too (slower)"),
+    "live": (False, "recalibrate in the background while the recorder stores touches (on in a record session)"),
+    # the live defaults are the live module's (UpdateSchedule, Settling, WarmStart): defined once
+    "live_every_touches": (UpdateSchedule.every_touches, "live: an update after this many new touches ...",
+                           AT_LEAST_ONE),
+    "live_period": (UpdateSchedule.period, "live: ... or this many seconds after the last one, if any touch came"
+                                           " since", SECONDS),
+    "live_settle_mm": (Settling.settle_mm, "live: a part is done when its taxels moved less than this (mm) ...",
+                       POSITIVE),
+    "live_settle_updates": (Settling.updates, "live: ... in each of this many updates in a row, ...", AT_LEAST_ONE),
+    "live_flat_percent": (Settling.flat_percent, "live: ... and the held-out closest taxel figure stayed within this"
+                                                 " % of its mean", NON_NEGATIVE),
+    "guidance": (True, "live: after each update, publish where touches would help most on /nao_skin/guidance"),
+    "guidance_targets": (5, "live: how many targets the guidance names", AT_LEAST_ONE),
+    "guidance_pairs": ([""], "live: the pairs the guidance may ask for, as 'hand-part' (e.g. l_hand-torso);"
+                             " empty: the skin config's self_touch pairs"),
+    "live_refresh": (WarmStart.refresh, "live: an update from scratch (the whole plan) beside the warm one whenever"
+                                        " the touches grew this many times since the last such; the one the held-out"
+                                        " touches pair closer is published (1: every update from scratch)",
+                     Rule(float, low=1.0)),
+    "live_max_move_mm": (20.0, "live: an update moving a calibrated part's taxels farther than this (mm) diverged:"
+                               " not published", POSITIVE),
+    # engine options (their defaults, help and rules come from CalibrationOptions' table, OPTION_FIELDS)
+    **{name: (OPTION_FIELDS[name].default, OPTION_FIELDS[name].metadata["help"], OPTION_FIELDS[name].metadata["rule"])
+       for name in NODE_OPTIONS},
+}
+
+
+NAOQI_BRIDGE = {
+    "nao_ip": ("127.0.0.1", "IP address or host name of the robot running NAOqi", HOST),
+    "nao_port": (9559, "NAOqi port", PORT),
+    "rate": (50.0, "joint angle reads per second (Hz)", RATE),
+    "joint_names": (DEFAULT_JOINTS, "NAOqi joint names to read and publish"),
+    "use_sensors": (True, "getAngles' useSensors: sensed (true) or commanded (false) angles"),
+    "reconnect_min": (0.5, "first reconnection delay after the robot vanished (s)", SECONDS),
+    "reconnect_max": (5.0, "longest reconnection delay (s)", SECONDS),
+    "read_timeout": (2.0, "s a getAngles call may take before the robot counts as gone (then: reconnect)", SECONDS),
+}
+
+
+PAIRING_RECORDER = {
+    **SKIN_PARAMS,
+    "bag_path": ("", "touch bag to create (a new directory; empty: ./nao_skin_touches_<date>_<time>)"),
+    "storage": ("mcap", "bag storage: mcap (survives kill -9 up to the last flush) or sqlite3",
+                Rule(str, ("mcap", "sqlite3"))),
+    "flush_period": (1.0, "seconds between flushes of the bag to disk", SECONDS),
+    "progress_period": (1.0, "seconds between progress messages", SECONDS),
+    "skin_tolerance": (EVENTS.skin_tolerance, "s: skin samples of different parts this close are one moment",
+                       NON_NEGATIVE),
+    "joint_tolerance": (EVENTS.joint_tolerance, "s: bracketing joint states must be this close to the touch",
+                        NON_NEGATIVE),
+    "min_interval": (EVENTS.min_interval, "s: during one continuous press, at most one touch per interval",
+                     NON_NEGATIVE),
+    "release_gap": (EVENTS.release_gap, "s: a part silent this long counts as released", NON_NEGATIVE),
+}
+
+
+SIM_ROBOT = {
+    **SKIN_PARAMS,
+    "preset": ("default", "simulation preset of config/simulation.yaml"),
+    "seed": (1, "simulator seed: the same seed plays the same touches", WHOLE),
+    "touches_per_pair": (20, "accepted touches per self-touch pair", AT_LEAST_ONE),
+    "pairs": ([""], "pairs to play as 'hand-part' (e.g. l_hand-torso); empty: the preset's pairs"),
+    "joint_rate": (100.0, "joint state rate (Hz)", RATE),
+    "skin_rate": (50.0, "skin message rate per part (Hz), like skinManager's period", RATE),
+    "touch_period": (1.0, "seconds between the starts of two presses", SECONDS),
+    "press_duration": (0.3, "seconds each press lasts", SECONDS),
+    "hold": (0.1, "seconds the arm holds still before and after a press", SECONDS_OR_ZERO),
+    "loop": (False, "start again after the last touch"),
+    "wait_for_subscribers": (0, "start only when each skin taxels topic has this many subscribers (0: at once)",
+                             WHOLE),
+    "wait_timeout": (20.0, "longest wait for subscribers (s), then play anyway", SECONDS_OR_ZERO),
+    "guided": (False, "follow /nao_skin/guidance: the next touches aim at its top targets"),
+    "guided_start": (20, "guided: random touches before the first batch aimed at the guidance",
+                     AT_LEAST_ONE),
+    "guided_batch": (5, "guided: touches per batch aimed at the guidance's top targets", AT_LEAST_ONE),
+}
+
+
+SKIN_HEATMAP = {
+    **SKIN_PARAMS,
+    "rate": (10.0, "marker updates per second (Hz)", RATE),
+    "taxel_diameter": (0.005, "sphere diameter of a taxel (m)", POSITIVE),
+    "legend_origin": ([0.0, -0.25, 0.15], "where the colour bar starts, in the base frame (m)",
+                      Rule(tuple, length=3)),
+}
+
+
+YARP_SKIN_BRIDGE = {
+    **SKIN_PARAMS,
+    "events_port": ("/skinManager/skin_events:o", "skinManager's skin events (skinContactList) output port",
+                    YARP_PORT),
+    "local_prefix": ("/nao_skin/skin_bridge", "prefix of the YARP ports this bridge opens", YARP_PORT),
+    "compensated_threshold": (0.0, "a compensated taxel value above this counts as activated (0-255 scale)",
+                              Rule(float, low=0.0, high=255.0)),
+    "stamp": ("envelope", "what stamps the messages: envelope (the time skinManager wrote, on its host's clock) or"
+                          " receive (this machine's clock when the bridge reads: when skinManager's host clock"
+                          " differs from the one stamping /joint_states)", Rule(str, ("envelope", "receive"))),
+    "reconnect_period": (1.0, "seconds between checks that the YARP connections still exist", SECONDS),
+    "status_period": (1.0, "seconds between /skin/bridge_status messages", SECONDS),
+}
+
+
+NODE_PARAMS = {"calibrate": CALIBRATE, "naoqi_bridge": NAOQI_BRIDGE, "pairing_recorder": PAIRING_RECORDER,
+               "sim_robot": SIM_ROBOT, "skin_heatmap": SKIN_HEATMAP, "yarp_skin_bridge": YARP_SKIN_BRIDGE}
+
+
+# nodes that declare parameters per configured skin part (:func:`per_part_params`)
+PER_PART_NODES = ("yarp_skin_bridge",)
+
+
+def per_part_params(executable: str, parts) -> dict:
+    """``{<family>.<part>: (default, description)}``: what a node declares for each configured skin part."""
+    if executable not in PER_PART_NODES:
+        return {}
+    return {**{f"part_ids.{n}": (DEFAULT_PART_IDS.get(n, -1), f"skinManager skinPart id of '{n}' (-1: not bridged)")
+               for n in parts},
+            **{f"compensated_ports.{n}": ("", f"compensated taxel port of '{n}' (empty: none)") for n in parts}}
+
+
+def skin_from_params(params: dict) -> SkinModel:
+    """The skin model of a node's ``skin_config`` and ``taxels`` parameters (:data:`SKIN_PARAMS`)."""
+    return load_skin(params["skin_config"] or None, parse_taxel_files(params["taxels"], "parameter taxels"))
+
+
+def options_from_params(params: dict) -> CalibrationOptions:
+    """The engine options of the calibrate node's parameters, each checked by its rule (ints for floats are fine)."""
+    options = CalibrationOptions()
+    for name in NODE_OPTIONS:
+        options.set(name, params[name], where=f"parameter {name}:={params[name]!r}")
+    options.validate()
+    return options
+
+
+def sim_overrides(touches_per_pair: int, pairs, parts=None) -> dict:
+    """Simulator parameter overrides from sim_robot's parameters (also used by tests to recompute)."""
+    out = {"n_touches": int(touches_per_pair)}
+    pairs = parse_pairs(pairs, parts, where="parameter pairs:")
+    if pairs:
+        out["pairs"] = [list(p) for p in pairs]
+    return out
+
+
+def check_naoqi_bridge(p: dict, where: str = "") -> None:
+    if p["reconnect_min"] > p["reconnect_max"]:
+        raise ConfigError(f"{where + ': ' if where else ''}parameters reconnect_min:={p['reconnect_min']} and"
+                          f" reconnect_max:={p['reconnect_max']}: the first delay is longer than the longest")
+
+
+def check_sim_robot(p: dict, where: str = "sim_robot") -> None:
+    """Presses that do not overlap, a preset and pairs the simulator knows for this skin."""
+    check_timing(p["touch_period"], p["press_duration"], p["hold"], where)
+    load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], skin_from_params(p).parts))
+
+
+# what no single parameter's rule can say: checked by `nao-skin record` before any node starts, by the node
+# again at its start
+CHECKS = {"naoqi_bridge": check_naoqi_bridge, "sim_robot": check_sim_robot}
