@@ -175,3 +175,43 @@ def test_a_refresh_stands_alone_when_the_warm_update_fails(skin, session):
 
     result, arguments = updates.update(60, run)
     assert not arguments["warm"] and result.report.stages[0]["name"] == "r_hand from torso: mount"
+
+
+def test_a_live_session_updates_waits_and_fails_without_raising(skin, session, tmp_path):
+    """LiveCalibration, what the calibrate node runs as touches arrive, on a real bag: too few touches is
+    `waiting`, then an update from scratch, then warm ones; a diverged update is `failed` and the last
+    accepted calibration stays; a recording that is not there is one line, never an exception."""
+    from nao_skin.formats.bag import write_touch_bag
+    from nao_skin.session.live import LiveCalibration
+
+    touches, _, _ = session
+    few, bag = tmp_path / "few", tmp_path / "touches"
+    write_touch_bag(few, touches.subset(np.arange(8)), skin, storage="mcap")
+    write_touch_bag(bag, touches, skin, storage="mcap")
+
+    def live(recording, max_move_mm=20.0):
+        return LiveCalibration(skin, CalibrationOptions(), recording, skin.zero_calibration(), 2.0, Settling(),
+                               max_move_mm)
+
+    waiting = live(few).update()
+    assert waiting.status["state"] == "waiting" and waiting.accepted is None and waiting.touches.n_touches == 8
+    assert set(waiting.status["parts"].values()) == {"collecting"}
+
+    session_live = live(bag)
+    first = session_live.update()
+    assert first.status["state"] == "updated" and first.status["from_scratch"], first.status
+    assert first.accepted is session_live.last and first.status["touches"] == touches.n_touches
+    assert set(first.status["pairs"]) == {"r_hand+torso", "l_hand+torso"}
+    assert sum(first.status["pairs"].values()) == touches.n_touches
+    second = session_live.update()
+    assert second.status["state"] == "updated" and not second.status["from_scratch"]
+    assert set(second.status["parts"]) == set(skin.parts)
+    accepted = session_live.last
+    session_live.max_move_mm = 1e-9       # any move of a part calibrated before is now a divergence
+    third = session_live.update()
+    assert third.status["state"] == "failed" and "diverged" in third.status["error"], third.status
+    assert third.accepted is None and session_live.last is accepted and third.touches is not None
+
+    gone = live(tmp_path / "nowhere").update()
+    assert gone.status["state"] == "failed" and "nowhere" in gone.status["error"] and gone.touches is None
+    assert "\n" not in gone.status["error"]

@@ -25,22 +25,20 @@ import json
 import os
 import threading
 import time
-from pathlib import Path
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
-from nao_skin.errors import DataError, NaoSkinError, TooFewTouches, one_line
-from nao_skin.formats.bag import GrowingBag
-from nao_skin.formats.inputs import find_bag
-from nao_skin.live.updates import Settling, UpdateSchedule, WarmStart, rejection, taxel_displacement_mm
-from nao_skin.model.skin import SkinCalibration, pair_label, parse_pairs, skin_frame_transforms
+from nao_skin.errors import NaoSkinError, one_line
+from nao_skin.live.updates import Settling, UpdateSchedule
+from nao_skin.model.skin import SkinCalibration, parse_pairs, skin_frame_transforms
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
 from nao_skin.paths import identity
+from nao_skin.session.live import LiveCalibration
 from nao_skin.session.params import CALIBRATE, options_from_params, skin_from_params
 from nao_skin.plain import jsonable
 
@@ -74,16 +72,16 @@ class CalibrateNode(Node):
         self._ignored = 0                 # requests refused while one calibration or update was running
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
-        self._last_live = None            # the last accepted live update's result: written when the session ends
-        self._followed: dict = {}         # the recording, read incrementally by the live updates
-        self.warm_start = WarmStart(self.prior, float(self.p["live_refresh"]))
         self.guidance_pairs = _pairs(self.p["guidance_pairs"], self.skin, "guidance_pairs")
         if self.p["live"]:
             self._check_live_out_dir()    # refused now, not after an hour at the robot
             self._out_dir_at_start = identity(self.p["out_dir"])
             self.schedule = UpdateSchedule(int(self.p["live_every_touches"]), float(self.p["live_period"]))
-            self.settling = Settling(float(self.p["live_settle_mm"]), int(self.p["live_settle_updates"]),
-                                     float(self.p["live_flat_percent"]))
+            self.live = LiveCalibration(self.skin, self.options, self.p["recording"], self.prior,
+                                        float(self.p["live_refresh"]),
+                                        Settling(float(self.p["live_settle_mm"]), int(self.p["live_settle_updates"]),
+                                                 float(self.p["live_flat_percent"])),
+                                        float(self.p["live_max_move_mm"]))
             self._recorded = 0            # touches the recorder reported so far
             self.create_subscription(String, PROGRESS_TOPIC, self._on_progress, 10)
             self.create_timer(0.5, self._maybe_update)
@@ -128,61 +126,31 @@ class CalibrateNode(Node):
         self._worker.start()
 
     def _live_update(self) -> None:
-        """Recalibrate on every touch recorded so far, warm-started from the last accepted calibration;
-        publish it only when it succeeds: a failed update leaves the last good frames on /tf_static.
-        Then the guidance: where touches would help most now (also while waiting for a first calibration)."""
-        from nao_skin.calibration.pipeline import calibrate_loaded, load_inputs
-        from nao_skin.calibration.plan import pair_counts
-
+        """One live update (:class:`~nao_skin.session.live.LiveCalibration`): published only when it succeeds,
+        a failed one leaves the last good frames on /tf_static. Then the guidance: where touches would help
+        most now (also while waiting for a first calibration)."""
         log = self.get_logger()
-        t0 = time.perf_counter()
-        loaded = None
         try:
-            recording = self.p["recording"]
-            if recording not in self._followed:      # the recorder has created it by the first touch
-                self._followed = {recording: GrowingBag(find_bag(Path(recording)), self.skin)}
-            loaded = load_inputs([recording], self.skin, log=log.debug, summary=log.debug, followed=self._followed)
-            touches = loaded.touches
-            result, start = self.warm_start.update(
-                touches.n_touches, lambda args: calibrate_loaded(loaded, self.skin, self.options, log=log.debug, **args))
-            report = result.report
-            before = self.warm_start.last or self.warm_start.start
-            moved = taxel_displacement_mm(self.skin, before, result.calibration, report.parts)
-            why = rejection(self.skin, result.calibration, moved, self.warm_start.parts,
-                            float(self.p["live_max_move_mm"]))
-            if why is not None:
-                raise DataError(f"update over {touches.n_touches} touches not published: {why}")
-            self.settling.add(moved, report.final.get("test", {}).get("taxel_mean_mm", float("nan")))
-            self.warm_start.accepted(result, touches.n_touches, start)
-            self._last_live = result
-            self.publish_calibration(result.calibration, "live update", quiet=True)
-            self._status({"state": "updated", "live": True, "generation": self.generation,
-                          "touches": touches.n_touches,
-                          "pairs": {pair_label(p): n for p, n in pair_counts(touches).items()},
-                          "final": {k: report.final.get(k) for k in ("train", "test")},
-                          "displacement_mm": moved, "held": report.held, "left_out": report.left_out,
-                          "parts": self.settling.states(self.skin.parts), "seconds": time.perf_counter() - t0,
-                          "from_scratch": not start["warm"], "warnings": report.warnings})
-            for line in report.warnings:
-                log.warning(f"live update {self.generation}: {line}")
-            log.info(f"live update {self.generation}: {touches.n_touches} touches, taxels moved up to"
-                     f" {max(moved.values(), default=0.0):.2f} mm")
-        except TooFewTouches as exc:      # no pair has touches enough yet: wait for more
-            self._status({"state": "waiting", "live": True, "error": str(exc), "generation": self.generation,
-                          "parts": self.settling.states(self.skin.parts)})
-        except NaoSkinError as exc:       # unreadable recording, diverged update: the last good frames stay
-            log.error(f"live update failed: {exc}")
-            self._status({"state": "failed", "live": True, "error": str(exc), "generation": self.generation,
-                          "parts": self.settling.states(self.skin.parts)})
-        except Exception as exc:  # noqa: BLE001 - a failed update keeps the last good calibration published
-            log.error(f"live update failed: {one_line(exc)}")
-            self._status({"state": "failed", "live": True, "error": one_line(exc), "generation": self.generation,
-                          "parts": self.settling.states(self.skin.parts)})
-        try:
-            if loaded is not None and self.p["guidance"]:
-                self._publish_guidance(loaded.touches)
-        except Exception as exc:  # noqa: BLE001 - guidance is advice: its failure never stops the session
-            log.warning(f"guidance not updated: {one_line(exc)}")
+            out = self.live.update(log=log.debug)
+            try:
+                if out.accepted is not None:
+                    self.publish_calibration(out.accepted.calibration, "live update", quiet=True)
+                    for line in out.accepted.report.warnings:
+                        log.warning(f"live update {self.generation}: {line}")
+                    log.info(f"live update {self.generation}: {out.status['touches']} touches, taxels moved up to"
+                             f" {max(out.status['displacement_mm'].values(), default=0.0):.2f} mm")
+                elif out.status["state"] == "failed":
+                    log.error(f"live update failed: {out.status['error']}")
+                self._status({**out.status, "live": True, "generation": self.generation})
+            except Exception as exc:  # noqa: BLE001 - the status must not stay at the last update's
+                log.error(f"live update not published: {one_line(exc)}")
+                self._status({"state": "failed", "live": True, "error": one_line(exc), "generation": self.generation,
+                              "parts": self.live.parts_state()})
+            try:
+                if out.touches is not None and self.p["guidance"]:
+                    self._publish_guidance(out.touches)
+            except Exception as exc:  # noqa: BLE001 - guidance is advice: its failure never stops the session
+                log.warning(f"guidance not updated: {one_line(exc)}")
         finally:
             self._busy.release()
 
@@ -190,7 +158,7 @@ class CalibrateNode(Node):
         """Where to touch next under the last accepted calibration (nominal before the first), latched JSON."""
         from nao_skin.guidance.capture import guidance
 
-        advice = guidance(touches, self.skin, self._last_live, self.options, pairs=self.guidance_pairs,
+        advice = guidance(touches, self.skin, self.live.last, self.options, pairs=self.guidance_pairs,
                           max_targets=int(self.p["guidance_targets"]), seed=self.generation)
         self.guidance_pub.publish(String(data=json.dumps({"generation": self.generation, **advice.to_dict()},
                                                          sort_keys=True)))
@@ -260,7 +228,7 @@ class CalibrateNode(Node):
         """End of the session: the last accepted live calibration is written where users apply it."""
         if self._worker is not None:
             self._worker.join(timeout=10.0)
-        if self._last_live is not None:
+        if self.p["live"] and self.live.last is not None:
             from nao_skin.calibration.report import write_outputs
 
             out_dir = self.p["out_dir"]
@@ -274,7 +242,7 @@ class CalibrateNode(Node):
                                           f" {out_dir}")
             # a failure here (out_dir refused, the disk full) is the node's one line and exit 2
             self._check_live_out_dir(out_dir)
-            out = write_outputs(self._last_live, self.skin, out_dir, plots=False, command="calibrate (node, live)")
+            out = write_outputs(self.live.last, self.skin, out_dir, plots=False, command="calibrate (node, live)")
             self.get_logger().info(f"the last live calibration -> {out}")
 
 
