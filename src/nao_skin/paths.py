@@ -33,6 +33,16 @@ def identity(path: str | Path) -> tuple | None:
     return st.st_dev, st.st_ino
 
 
+def free_sibling(path: str | Path, suffix: str) -> str:
+    """``<path><suffix>``, or ``<path><suffix>2``, 3, ...: the first that names nothing yet (a place beside
+    ``path`` for what must not replace anything)."""
+    for n in range(1, 100_000):
+        candidate = f"{path}{suffix}{n if n > 1 else ''}"
+        if not os.path.lexists(candidate):
+            return candidate
+    raise FileExistsError(f"{path}{suffix}: every name up to {path}{suffix}99999 is taken")
+
+
 def read_text(path: str | Path, what: str = "", error: type | None = None, name: str | None = None) -> str:
     """The text of ``path``; one line naming it (``name``, default the path) and ``what`` it was read as when it
     cannot be read or is no text (a bag or another binary file given for a text one), as ``error`` (DataError).

@@ -38,6 +38,7 @@ from typing import Callable
 
 import numpy as np
 
+from nao_skin.bench import TARGET_MM
 from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.calibration.evaluation import truth_error
 from nao_skin.errors import NaoSkinError, one_line
@@ -57,8 +58,8 @@ class CaptureSetup:
     start: int = 60                 # random touches before the first calibration (15 per pair)
     batch: int = 20                 # touches per batch
     cap: int = 1500                 # give up at this many touches
-    median_mm: float = 0.5          # every part's true taxel error median at most
-    p95_mm: float = 1.5             # and p95 at most
+    median_mm: float = TARGET_MM["median"]   # every part's true taxel error median at most
+    p95_mm: float = TARGET_MM["p95"]         # and p95 at most
     max_targets: int = 8            # guided: aims cycle over this many top targets
     warm_start: bool = True         # update as the live calibrate node does (live.updates.WarmStart); False: from
                                     # nominal each time

@@ -93,9 +93,8 @@ class FitState:
     """What a calibration learnt besides the frames that a warm update goes on from: the prior std per group
     of patch and triangle components (:data:`~.stages.PRIOR_GROUPS`), as the touches widened it.
 
-    Not the fabric estimate: a warm update that also started from it (not from ``fabric_thickness``) did
-    no better on the real recording (closest COP 4.44 against 4.47 mm, 5 splits, 3 warm passes) and worse
-    over simulated live sessions (0.62 against 0.55 mm worst part median at 1000 touches, seed 0)."""
+    Not the fabric estimate: each update estimates it again from ``fabric_thickness``, so an early
+    estimate from few touches does not carry into the next updates."""
 
     prior_sigma: dict
 
@@ -400,11 +399,9 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     step = Step(tuple(sorted({p for s in steps for p in s.targets + s.references}, key=part_rank)), ())
     test_before = _held_out_surface_mm(test, skin, fit, step)
     # The skin-only plan is no starting point: its patches and triangles have absorbed what the kinematics
-    # get wrong, and a kinematic stage after it only takes back what the mounts cannot (simulator, preset
-    # kinematic-error, seed 0, true median 1.14 mm after three passes, the fabric 0.14 -> 0.6 mm of a
-    # true 1.0 a pass at a time). So a path of its own: the mounts alone (first guesses, the plan at
-    # mount level), then the kinematics with every mount, the patches and triangles still at their prior
-    # (0.65 mm after one pass).
+    # get wrong, and a kinematic stage after it only takes back what the mounts cannot (README,
+    # Kinematics). So a path of its own: the mounts alone (first guesses, the plan at mount level), then
+    # the kinematics with every mount, the patches and triangles still at their prior.
     kfit = _Fit(start.copy(), options.fabric_thickness, initial_prior_sigma(options), fit.inliers.copy(),
                 list(fit.set_aside))
     entries = []

@@ -47,10 +47,9 @@ class CalibrationOptions:
                            "sequential (mount, then patches, then triangles) or all-at-once")
     reference: str = option("fixed", Rule(str, ("fixed", "simultaneous")),
                             "fixed (one part is the reference while the other is fitted) or simultaneous")
-    # the thesis boxes patch and triangle corrections in; on the real recording the box binds (5 splits:
-    # closest COP 4.54 -> 4.32 mm, taxel 2.04 -> 1.86 mm on train without it) where on the simulator it
-    # hardly binds (hard cases, 7 presets x 20 seeds: the same true error but planar-poses, 1.25 -> 1.30 mm
-    # median over the seeds), so the prior alone holds them by default
+    # the thesis boxes patch and triangle corrections in; on the real recording the box binds and costs
+    # accuracy, on the simulator it hardly binds, so the prior alone holds them by default (README,
+    # Calibration: the prior comparison)
     bounded: bool = option(False, Rule(bool), "bound patch and triangle corrections to patch_bounds and"
                                               " triangle_bounds (thesis); off: the Gaussian prior alone")
     patch_bounds: tuple = option((0.003, np.pi / 30), Rule(tuple, low=1e-6, high=10.0, length=2),
@@ -62,7 +61,7 @@ class CalibrationOptions:
     pairs: str = option("both", Rule(str, _PAIRS), "paired points in the residuals of patch and triangle stages")
     mount_pairs: str = option("cop", Rule(str, _PAIRS), "paired points of the mount stages (robust while far off)")
     # "cop+plane" is not the default: the simulator's flat triangles meet exactly at the fabric, which
-    # flatters point-to-plane rows; on the real recording they stay 2.4x longer (README, Calibration)
+    # flatters point-to-plane rows; the real skin's do not (README, Calibration: "Point-to-plane rows")
     plane_weight: str = option("touch", Rule(str, PLANE_WEIGHTS),
                                "weight of the point-to-plane rows (pairs with 'plane'): equal (1 each), touch"
                                " (a touch's rows weigh as one row) or pressure (as touch, by each taxel's share of"
@@ -92,24 +91,21 @@ class CalibrationOptions:
     condition_limit: float = option(1e7, Rule(float, low=1.0, low_open=True),
                                     "of the Jacobi-scaled normal equations: weaker directions are held")
     max_repairings: int = option(8, Rule(int, low=1, high=1000), "re-pairings of the touches per stage at most")
-    # a fixed-reference step is where the joint refinement starts, not where the calibration ends: real
-    # recording (5 splits) and simulator hard cases as close as with 8, in less time (README, Calibration:
-    # "Inexact solves")
+    # a fixed-reference step is where the joint refinement starts, not where the calibration ends: it need
+    # not settle its pairing (README, Calibration: "Inexact solves")
     reference_repairings: int = option(3, Rule(int, low=1, high=1000),
                                        "re-pairings per stage at most in a fixed-reference step that a joint"
                                        " refinement follows (it frees the same frames again); at most"
                                        " max_repairings")
-    # a warm update is one step of the pairing's fixed-point iteration, the next update the next step:
-    # over a live session (README, Live calibration) 1 ends as close to the truth as 8, in 2/3 of the time
+    # a warm update is one step of the pairing's fixed-point iteration, the next update the next step
+    # (README, Live calibration)
     warm_repairings: int = option(1, Rule(int, low=1, high=1000),
                                   "re-pairings per stage at most in a live update warm-started from the last one")
     repair_tolerance: float = option(0.01, Rule(float, low=0.0, high=1.0),
                                      "stop re-pairing when fewer touches than this share change pairs")
     max_iterations: int = option(50, Rule(int, low=1, high=1e4), "solver iterations per solve at most")
     # alternating pairing and solving (as ICP does), a solve need not converge on a pairing the next
-    # step replaces: on the real recording (5 splits) 2 iterations end as close as 50 (closest COP
-    # 3.98 / 4.09 against 3.98 / 4.10 mm, taxel 1.71 / 1.68 against 1.69 / 1.68, train / test) in
-    # about four fifths of the time (README, Calibration: "Inexact solves")
+    # step replaces (README, Calibration: "Inexact solves")
     repair_iterations: int = option(2, Rule(int, low=1, high=1e4),
                                     "solver iterations per solve before a stage's last allowed re-pairing (the"
                                     " pairing changes under it); that last one, and a warm update's, solves to"
@@ -126,10 +122,8 @@ class CalibrationOptions:
                            "what the train/test split keeps together: pose (touches whose joint angles agree within"
                            " 0.5 deg, one press sampled several times, on one side: the held-out figure meets no pose"
                            " it was trained on) or touch (each on its own)")
-    # the shared real recording samples one held press up to 29 times (785 touches at 249 poses): weighing
-    # each by n^-0.5 brings the held-out closest COP from 5.00 to 4.73 mm (10 splits by pose, better on 9),
-    # the closest taxel stays 2.16 / 2.17 mm; the simulator, a pose per touch, is unchanged (README,
-    # Calibration: "Presses held still")
+    # a recording samples one press held still many times: counted as independent touches, the presses
+    # held longest would pull the fit toward themselves (README, Calibration: "Presses held still")
     pose_weight: float = option(0.5, Rule(float, low=0.0, high=1.0),
                                 "each training touch weighs n^-pose_weight, n the touches at its pose (joint"
                                 " angles within 0.5 deg: one press sampled several times): 0 every touch alike,"
@@ -148,16 +142,14 @@ class CalibrationOptions:
                               " approximation) or fixed (bound / prior_strength)")
     residual_sigma: float = option(0.002, Rule(float, low=0.0, low_open=True, high=1.0),
                                    "m: noise per coordinate of a paired-point difference")
-    # model only what the scene determines: on the simulator's default glue errors the triangle level buys
-    # 7 % of the true error for a third of the time, on the real recording 0.4 mm of the held-out figures
-    # (README, Calibration: "Levels")
+    # model only what the scene determines: a lab whose touches do not reach the triangles drops that
+    # level (README, Calibration: "Levels")
     levels: tuple = option(LEVELS, _LEVELS_RULE, "what the stages free, of mount, patch and triangle (the others"
                                                  " stay where they start)")
     joint_levels: tuple = option(LEVELS, _LEVELS_RULE, "what the joint refinement frees (of levels)")
     # the triangles once more from where the joint refinement left them, their prior centred there with the
-    # widths the touches gave it: real recording, 5 splits, closest COP 4.32 / 4.34 -> 3.98 / 4.10 mm and
-    # taxel 1.86 / 1.81 -> 1.69 / 1.68 mm (train / test) for about a quarter more time; the simulator's
-    # true error no worse (README, Calibration: "Closing stage")
+    # widths the touches gave it: the triangles were fitted while the patches still moved (README,
+    # Calibration: "Closing stage")
     closing_levels: tuple = option(("triangle",), _LEVELS_RULE,
                                    "after the joint refinement, these levels (of levels) once more, one stage each,"
                                    " starting where it ended ([]: none; a live update, warm, runs none)")
@@ -171,9 +163,8 @@ class CalibrationOptions:
                              " determine, with every mount free: auto (kept only when the test split's closest"
                              " taxel distance at the fabric surfaces improves by kinematics_min_gain), on (kept"
                              " whatever the figures) or off")
-    # extra unknowns always buy a little on the test split too, measured at the fabric surfaces (simulator,
-    # default preset seed 0: -4 % while the true error rose 0.53 -> 0.76 mm), where a kinematic error the
-    # config lacks buys much more (preset kinematic-error seed 0: -33 %): auto asks for 10 %
+    # extra unknowns always buy a little on the test split too, even where they make the skin worse; a
+    # kinematic error the config lacks buys much more (README, Kinematics): auto asks for a clear gain
     kinematics_passes: int = option(3, Rule(int, low=0, high=100),
                                     "after the kinematic stage: passes of the skin plan on the corrected robot,"
                                     " each followed by the kinematic stage again, until they settle")

@@ -169,8 +169,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
         iterations += result.iterations
         x = result.x
         # the prior's width from the evidence once every part is free: fitted to a fixed reference,
-        # a part's spread would include that reference's error (re-estimating in the sequential
-        # stages too ended at the same calibration on the real recording, with 10 % more iterations)
+        # a part's spread would include that reference's error
         if options.prior_scale == "empirical" and not step.references:
             prior_sigma = evidence_prior_sigma(result, x, free, weights, layout, free_parts, levels,
                                                prior_sigma, options)

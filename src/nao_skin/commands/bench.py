@@ -214,7 +214,7 @@ def run(args) -> int:
     out = Path(args.out)
     cleared: list = []
 
-    def ready() -> Path:
+    def cleared_output() -> Path:
         """``out``, emptied of an earlier output when the first new result is ready to be written (section by
         section below, so a later failure keeps the earlier tables): a run stopped before that keeps it."""
         if not cleared:
@@ -247,7 +247,7 @@ def run(args) -> int:
         md += ["", "Targets (default row):", ""] + ["- " + line for line in bench.target_lines(rows)]
         for inp in inputs:
             md += ["", f"### {inp.name}", "", bench.speed_table(rows, inp.name)]
-        bench.plot_speed_vs_error(rows, ready() / "speed_vs_error.png")
+        bench.plot_speed_vs_error(rows, cleared_output() / "speed_vs_error.png")
         md += ["", "![speed against error](speed_vs_error.png)", ""]
         for inp in (i for i in inputs if i.truth is None):
             say(f"{inp.name}: the default calibration over {bench.REAL_SPLITS} seeded splits")
@@ -272,7 +272,7 @@ def run(args) -> int:
                           f" {t['fast_s']:.3f} s (x{t['exact_s'] / t['fast_s']:.0f}); same touches and skip reasons:"
                           f" {'yes' if t['same_touches'] else 'NO'}")
             md.append("")
-        _write(ready(), md, results, listing)      # kept even if a later section fails
+        _write(cleared_output(), md, results, listing)      # kept even if a later section fails
         failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in t for t in bench.target_lines(rows))
 
     if "hard" in sections:
@@ -314,7 +314,7 @@ def run(args) -> int:
         md += ["## One live update", "", live.__doc__.split("\n\n", 1)[1].replace("\n", " ").strip(), "",
                f"Input: {inp.name}; {live.LIVE_STEP} new touches per update, {live_repeat} subsets per size.", "",
                *live.update_table(timings), "", f"- {target}", ""]
-        _write(ready(), md, results, listing)
+        _write(cleared_output(), md, results, listing)
         failures += "NOT met" in target
 
     if "kinematics" in sections:
@@ -335,11 +335,11 @@ def run(args) -> int:
                f" robot), else in the chain-end frame. Seconds: the engine's.", "",
                "Goals:", "", *("- " + line for line in goals), "", bench.kinematics_tables(rows), ""]
         failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in line for line in goals)
-        _write(ready(), md, results, listing)
+        _write(cleared_output(), md, results, listing)
 
     results["seconds"] = time.perf_counter() - t_start
     md.append(f"Benchmark wall time: {results['seconds']:.0f} s.")
-    text = _write(ready(), md, results, listing)
+    text = _write(cleared_output(), md, results, listing)
     print(text.replace(LISTING, f"(in {out / 'bench_results.md'})"))
     print(f"-> {out / 'bench_results.md'}, {out / 'speed_vs_error.png'}" if inputs else f"-> {out / 'bench_results.md'}")
     if args.readme:

@@ -41,7 +41,7 @@ def run(args) -> int:
         # regenerating config/layouts rewrites the same bytes; another file under a layout's name is someone's own
         differing = [t for f, t in zip(fresh, targets)
                      if (t.exists() or t.is_symlink()) and (not t.is_file() or t.read_bytes() != f.read_bytes())]
-        # checked for every file before any is written: a failure half-way left some layouts replaced
+        # checked for every file before any is written: a failure half-way would leave some layouts replaced
         blocked = [t for t in targets if not t.is_symlink() and t.exists() and not t.is_file()]
         if blocked:
             raise DataError(f"layouts {directory}: {blocked[0]} is {not_a_file(blocked[0].stat().st_mode)}, not a"

@@ -33,7 +33,7 @@ from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, con
 from nao_skin.formats.salvage import (LOCK_FILE, cut_mcap, provisional_mcap, stored_metadata, unclosed_sqlite,
                                       write_lock)
 from nao_skin.model.skin import SkinModel
-from nao_skin.paths import identity
+from nao_skin.paths import free_sibling, identity
 from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST, cluster_contacts, contact_geometry
 from nao_skin.touch.datasets import LoadReport
 from nao_skin.touch.events import (LIVE_CONFIG, TOUCH_BAG_CONFIG, EventConfig, EventDetector, TouchRecord,
@@ -138,7 +138,7 @@ class BagWriter:
     # records (sqlite3: a commit). A killed recorder leaves a cut mcap file (or
     # a sqlite3 file without listed messages) that read_touches reads up to the
     # last flush, with the right bag kind.
-    def _check_place(self) -> None:
+    def _rescue_if_moved(self) -> None:
         """A live bag's directory is still the one it opened: removed (``rm -rf``), moved or replaced, the
         files it writes are no longer (or no longer only) there. Then everything written so far is copied out
         through the files still open to ``<bag>.rescued`` and :class:`BagMoved` says so; the bag is abandoned
@@ -160,8 +160,7 @@ class BagWriter:
         """Copy the open storage file, as written so far, to a new ``<bag>.rescued`` directory."""
         import os
 
-        target = next(t for t in (Path(f"{self.path}.rescued" + (str(k) if k > 1 else "")) for k in range(1, 10_000))
-                      if not os.path.lexists(t))
+        target = Path(free_sibling(self.path, ".rescued"))
         target.mkdir(parents=True)
         storage = self._writer.storage
         if hasattr(storage, "bio"):     # mcap: what is buffered goes to the file first
@@ -197,7 +196,7 @@ class BagWriter:
         import os
 
         if self._live:      # first: a commit needs the directory (sqlite's journal)
-            self._check_place()
+            self._rescue_if_moved()
         storage = self._writer.storage
         try:
             if hasattr(storage, "close_chunk"):              # mcap: end the open chunk, write it out
@@ -241,7 +240,7 @@ class BagWriter:
         A live bag whose directory went away fails so (sqlite's journal has nowhere to go): that is
         :class:`BagMoved`, raised from here with the touches copied out."""
         if self._live and self._place is not None and not self._abandoned:
-            self._check_place()
+            self._rescue_if_moved()
         if isinstance(exc, OSError):
             full = exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
         else:        # sqlite3 names no errno: 'database or disk is full', or 'disk I/O error' on a full disk
@@ -326,6 +325,13 @@ def _stamp_ns(stamp: float, where: str) -> int:
         raise DataError(f"{where}: stamp {float(stamp)!r} is not a time between 0 and {LAST_STAMP:.0f} s"
                         f" (a ROS message header holds int32 seconds: up to January 2038)")
     return int(round(float(stamp) * 1e9))
+
+
+def default_bag_name(now=None) -> str:
+    """Where a recording goes when nobody named it: ``nao_skin_touches_<date>_<time>`` (a new directory)."""
+    from datetime import datetime
+
+    return f"nao_skin_touches_{(now or datetime.now()):%Y%m%d_%H%M%S}"
 
 
 def write_touch_bag(path: str | Path, touches: TouchSet, skin: SkinModel, storage: str = "sqlite3") -> None:

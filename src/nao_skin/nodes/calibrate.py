@@ -22,7 +22,6 @@ Status on ``/nao_skin/calibration/status`` (std_msgs/String, JSON, latched).
 from __future__ import annotations
 
 import json
-import os
 import threading
 import time
 
@@ -37,7 +36,7 @@ from nao_skin.model.skin import SkinCalibration, parse_pairs, skin_frame_transfo
 from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
-from nao_skin.paths import identity
+from nao_skin.paths import free_sibling, identity
 from nao_skin.session.live import LiveCalibration
 from nao_skin.session.params import CALIBRATE, options_from_params, skin_from_params
 from nao_skin.plain import jsonable
@@ -235,8 +234,7 @@ class CalibrateNode(Node):
             if identity(out_dir) != self._out_dir_at_start:
                 # another command wrote there during the session (e.g. a calibrate --out of the bag so far):
                 # its output stays, the session's goes beside it
-                out_dir = next(f"{self.p['out_dir']}.live{n if n > 1 else ''}" for n in range(1, 1000)
-                               if not os.path.lexists(f"{self.p['out_dir']}.live{n if n > 1 else ''}"))
+                out_dir = free_sibling(self.p["out_dir"], ".live")
                 self.get_logger().warning(f"out_dir {self.p['out_dir']} was written by another command during the"
                                           f" session and is left as it is; the session's calibration goes to"
                                           f" {out_dir}")

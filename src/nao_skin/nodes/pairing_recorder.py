@@ -25,7 +25,6 @@ import json
 import os
 import time
 from collections import Counter, deque
-from datetime import datetime
 from pathlib import Path
 from typing import NoReturn
 
@@ -35,7 +34,7 @@ from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 
 from nao_skin.errors import BagMoved, DataError, DiskFull, OutputError
-from nao_skin.formats.bag import BagWriter, record_parts
+from nao_skin.formats.bag import BagWriter, default_bag_name, record_parts
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_topic, read_contacts, read_taxels, taxels_topic
 from nao_skin.live.clocks import SKEW_LIMIT_S, ArrivalLags
 from nao_skin.live.heatmap import ActivationCounts
@@ -57,7 +56,7 @@ class PairingRecorder(Node):
         self.detector = EventDetector.for_skin(self.skin, config)
         self.parts = list(self.skin.parts)
         self.joint_names = list(self.skin.robot.joint_names)
-        path = p["bag_path"] or f"nao_skin_touches_{datetime.now():%Y%m%d_%H%M%S}"
+        path = p["bag_path"] or default_bag_name()
         self.bag_path = Path(path).expanduser().resolve()
         self.bag = BagWriter(self.bag_path, p["storage"], kind="touches", live=True)
         self.bag.__enter__()

@@ -19,7 +19,6 @@ import re
 import shutil
 import sys
 from dataclasses import dataclass, field
-from datetime import datetime
 from pathlib import Path
 
 from nao_skin.errors import ConfigError, NaoSkinError
@@ -94,7 +93,9 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                 raise ConfigError(str(exc)) from None
     cfg = config_dir()
     # one name for the recorder and the calibrate node (which calibrates on that bag on request)
-    bag_path = str(Path(bag_path or f"nao_skin_touches_{datetime.now():%Y%m%d_%H%M%S}").expanduser().resolve())
+    from nao_skin.formats.bag import default_bag_name
+
+    bag_path = str(Path(bag_path or default_bag_name()).expanduser().resolve())
     record_yaml, bridges_yaml = cfg / "record.yaml", cfg / "bridges.yaml"
     specs = []
     if guided and robot != "sim":

@@ -15,6 +15,7 @@ from typing import Mapping
 from nao_skin.errors import ConfigError
 from nao_skin.model.skin import MAX_JOINT_CORRECTION, MAX_LINK_CORRECTION, SkinModel
 from nao_skin.rules import known_keys
+from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST
 
 
 @dataclass
@@ -55,7 +56,7 @@ class SimParams:
     pressure_spots: list = field(default_factory=lambda: [2, 7])             # spots per touch (inclusive)
     spot_size: list = field(default_factory=lambda: [0.007, 0.013])          # radius of one spot (m)
     press_reach: list = field(default_factory=lambda: [0.002, 0.005])       # fires up to this beyond the gap (m)
-    cluster_distance: float = 0.012           # taxels closer than this form one contact (skinManager maxNeighborDist)
+    cluster_distance: float = DEFAULT_MAX_NEIGHBOR_DIST   # taxels closer than this form one contact
     # ------------------------------------------------------------ noise and defects (scaled by noise_scale)
     noise_scale: float = 1.0                  # multiplies every noise and defect rate below
     joint_noise: float = 0.003                # encoder + backlash while the arm is held (rad, std)
