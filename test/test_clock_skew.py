@@ -24,7 +24,7 @@ from std_msgs.msg import String  # noqa: E402
 
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, taxels_array, taxels_topic  # noqa: E402
 from nao_skin.nodes.messages import cloud_from_array, joint_state_msg, stamp_to_msg  # noqa: E402
-from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC  # noqa: E402
+from nao_skin.nodes.topics import PROGRESS_TOPIC  # noqa: E402
 
 BEHIND_S = 3.0
 

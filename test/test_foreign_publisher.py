@@ -19,7 +19,7 @@ from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
 from nao_skin.formats.pointcloud import taxels_topic  # noqa: E402
-from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC  # noqa: E402
+from nao_skin.nodes.topics import PROGRESS_TOPIC  # noqa: E402
 
 pytestmark = pytest.mark.middleware
 

@@ -23,8 +23,7 @@ from std_msgs.msg import String  # noqa: E402
 from test_record_session import record_cmd  # noqa: E402
 from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
-from nao_skin.nodes.calibrate import GUIDANCE_TOPIC, LATCHED, STATUS_TOPIC  # noqa: E402
-from nao_skin.nodes.skin_heatmap import GUIDANCE_MARKERS_TOPIC  # noqa: E402
+from nao_skin.nodes.topics import GUIDANCE_MARKERS_TOPIC, GUIDANCE_TOPIC, LATCHED, STATUS_TOPIC  # noqa: E402
 
 pytestmark = [pytest.mark.middleware, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[1]

@@ -25,10 +25,7 @@ from tf2_msgs.msg import TFMessage  # noqa: E402
 
 from nao_skin.formats.bag import write_touch_bag  # noqa: E402
 from nao_skin.model.skin import SkinCalibration, load_skin  # noqa: E402
-from nao_skin.nodes.calibrate import LATCHED, STATUS_TOPIC  # noqa: E402
-from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC  # noqa: E402
-from nao_skin.nodes.sim_robot import STATUS_TOPIC as SIM_STATUS_TOPIC  # noqa: E402
-from nao_skin.nodes.static_tf import TF_STATIC_QOS, TF_STATIC_TOPIC  # noqa: E402
+from nao_skin.nodes.topics import LATCHED, PROGRESS_TOPIC, SIM_STATUS_TOPIC, STATUS_TOPIC, TF_STATIC_TOPIC  # noqa: E402
 from nao_skin.sim.simulate import simulate  # noqa: E402
 
 pytestmark = [pytest.mark.middleware, pytest.mark.slow]
@@ -69,7 +66,7 @@ def test_updates_arrive_while_touches_are_recorded(tmp_path):
         assert all(set(s["displacement_mm"]) <= {"r_hand", "l_hand", "torso"} for s in live)
         assert any(s["left_out"] for s in live) or live[0]["parts"]["l_hand"] == "collecting"
         # a late joiner gets exactly one TFMessage: the latest update
-        joiner = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=TF_STATIC_QOS)
+        joiner = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=LATCHED)
         assert listener.spin_until(lambda: joiner, procs=[session])
         listener.spin_for(0.5)
         assert len(joiner) == 1
@@ -100,7 +97,7 @@ def test_a_failing_update_keeps_the_last_good_frames(tmp_path):
     try:
         listener = Listener(domain)
         status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
-        frames = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=TF_STATIC_QOS)
+        frames = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=LATCHED)
         progress = listener.node.create_publisher(String, PROGRESS_TOPIC, 10)
         node = node_process("calibrate", {"live": True, "recording": str(bag), "live_every_touches": 1,
                                           "live_period": 0.5, "out_dir": str(tmp_path / "live_calibration")},
@@ -124,7 +121,7 @@ def test_a_failing_update_keeps_the_last_good_frames(tmp_path):
         listener.spin_for(0.5)
         assert "\n" not in failed["error"] and str(bag) in failed["error"], failed
         assert failed["generation"] == good["generation"]
-        joiner = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=TF_STATIC_QOS)
+        joiner = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=LATCHED)
         assert listener.spin_until(lambda: joiner, procs=[node])
         assert frames[-1] is published                                  # nothing published since
         assert joiner[0].transforms == published.transforms          # the last good frames, untouched

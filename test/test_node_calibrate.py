@@ -23,8 +23,7 @@ from nao_skin.formats.bag import write_touch_bag  # noqa: E402
 from nao_skin.model.skin import SkinCalibration  # noqa: E402
 from nao_skin.model.skin import load_skin  # noqa: E402
 from nao_skin.model.skin import skin_frame_transforms  # noqa: E402
-from nao_skin.nodes.calibrate import LATCHED, REQUEST_TOPIC, STATUS_TOPIC  # noqa: E402
-from nao_skin.nodes.static_tf import TF_STATIC_QOS, TF_STATIC_TOPIC  # noqa: E402
+from nao_skin.nodes.topics import LATCHED, REQUEST_TOPIC, STATUS_TOPIC, TF_STATIC_TOPIC  # noqa: E402
 from nao_skin.sim.simulate import simulate  # noqa: E402
 
 pytestmark = pytest.mark.middleware   # runs the calibrate node over DDS
@@ -54,7 +53,7 @@ def assert_frames(msg: TFMessage, skin, calib: SkinCalibration):
 
 
 def late_joiner(listener: Listener) -> list:
-    return listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=TF_STATIC_QOS)
+    return listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=LATCHED)
 
 
 def test_late_joiners_get_exactly_the_latest_calibration(tmp_path):

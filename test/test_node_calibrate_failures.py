@@ -18,7 +18,7 @@ from std_msgs.msg import String  # noqa: E402
 
 from nao_skin.formats.bag import write_touch_bag  # noqa: E402
 from nao_skin.model.skin import load_skin  # noqa: E402
-from nao_skin.nodes.calibrate import LATCHED, REQUEST_TOPIC, STATUS_TOPIC  # noqa: E402
+from nao_skin.nodes.topics import LATCHED, REQUEST_TOPIC, STATUS_TOPIC  # noqa: E402
 from nao_skin.sim.simulate import simulate  # noqa: E402
 
 pytestmark = pytest.mark.middleware   # runs the calibrate node over DDS

@@ -546,7 +546,7 @@ def test_calibrate_node_refuses_an_out_dir_holding_its_input(work):
     from ros_harness import Listener, node_process, ros_env, unique_domain_id
     from std_msgs.msg import String
 
-    from nao_skin.nodes.calibrate import LATCHED, STATUS_TOPIC
+    from nao_skin.nodes.topics import LATCHED, STATUS_TOPIC
 
     bag = work / "session" / "touches.bag"
     (work / "logs").mkdir()

@@ -34,7 +34,7 @@ from std_msgs.msg import String  # noqa: E402
 
 from nao_skin import cli  # noqa: E402
 from nao_skin.session.params import CALIBRATE, options_from_params  # noqa: E402
-from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC  # noqa: E402
+from nao_skin.nodes.topics import PROGRESS_TOPIC  # noqa: E402
 
 pytestmark = pytest.mark.middleware   # runs nao-skin record and its nodes over DDS
 
@@ -153,7 +153,7 @@ def test_a_node_names_what_it_was_given_and_does_not_have(tmp_path):
     """ROS ignores an override the node does not declare: a typo, or a mapping where a value belongs."""
     from visualization_msgs.msg import MarkerArray
 
-    from nao_skin.nodes.skin_heatmap import TOPIC
+    from nao_skin.nodes.topics import HEATMAP_TOPIC
 
     env = ros_env(unique_domain_id())
     params = tmp_path / "heatmap.yaml"
@@ -162,7 +162,7 @@ def test_a_node_names_what_it_was_given_and_does_not_have(tmp_path):
     listener = None
     try:
         listener = Listener(int(env["ROS_DOMAIN_ID"]))
-        heat = listener.subscribe(MarkerArray, TOPIC)
+        heat = listener.subscribe(MarkerArray, HEATMAP_TOPIC)
         assert listener.spin_until(lambda: heat, procs=[node]), node.stderr()[-2000:]
     finally:
         if listener is not None:
@@ -176,7 +176,7 @@ def test_a_node_names_what_it_was_given_and_does_not_have(tmp_path):
 def test_a_node_takes_an_empty_list_and_refuses_arguments_rcl_cannot_parse_in_one_line(tmp_path):
     from visualization_msgs.msg import MarkerArray
 
-    from nao_skin.nodes.skin_heatmap import TOPIC
+    from nao_skin.nodes.topics import HEATMAP_TOPIC
 
     env = ros_env(unique_domain_id())
     # '-p taxels:=[]': rcl gives an empty list no type; it means no layout file, as [''] does
@@ -184,7 +184,7 @@ def test_a_node_takes_an_empty_list_and_refuses_arguments_rcl_cannot_parse_in_on
     listener = None
     try:
         listener = Listener(int(env["ROS_DOMAIN_ID"]))
-        heat = listener.subscribe(MarkerArray, TOPIC)
+        heat = listener.subscribe(MarkerArray, HEATMAP_TOPIC)
         assert listener.spin_until(lambda: heat, procs=[node]), node.stderr()[-2000:]   # up and drawing
     finally:
         if listener is not None:

@@ -42,7 +42,7 @@ from nao_skin.model.skin import load_skin
 pytest.importorskip("rclpy")
 from std_msgs.msg import String  # noqa: E402
 
-from nao_skin.nodes.pairing_recorder import PROGRESS_TOPIC  # noqa: E402
+from nao_skin.nodes.topics import PROGRESS_TOPIC  # noqa: E402
 
 pytestmark = pytest.mark.middleware   # runs nao-skin record and its nodes over DDS
 

@@ -20,8 +20,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from tf2_msgs.msg import TFMessage
 
-from nao_skin.nodes.static_tf import (TF_STATIC_QOS, TF_STATIC_TOPIC, latched_tf_static_publisher,
-                                      rotation_to_quaternion, to_transform_stamped)
+from nao_skin.nodes.static_tf import latched_tf_static_publisher, rotation_to_quaternion, to_transform_stamped
+from nao_skin.nodes.topics import LATCHED, TF_STATIC_TOPIC
 
 WAIT_S = 10.0
 
@@ -101,7 +101,7 @@ def ros(monkeypatch):
 def subscribe(ros, name):
     node, executor = ros.node(name)
     received = []
-    node.create_subscription(TFMessage, TF_STATIC_TOPIC, received.append, TF_STATIC_QOS)
+    node.create_subscription(TFMessage, TF_STATIC_TOPIC, received.append, LATCHED)
     return executor, received
 
 
@@ -161,7 +161,7 @@ def test_rotation_to_quaternion_roundtrip():
 def test_tf_static_late_joiner_gets_latched_message(ros):
     pub_node, _ = ros.node('nao_skin_tf_static_pub')
     pub = latched_tf_static_publisher(pub_node)
-    assert pub.qos_profile.durability == TF_STATIC_QOS.durability
+    assert pub.qos_profile.durability == LATCHED.durability
     stamp = pub_node.get_clock().now().to_msg()
 
     first = TFMessage(transforms=[

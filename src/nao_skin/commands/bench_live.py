@@ -100,12 +100,13 @@ def _measure(args, work: Path) -> int:
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import JointState, PointCloud2
     from std_msgs.msg import String
     from visualization_msgs.msg import MarkerArray
 
     from nao_skin.commands.record import die_with_parent
+    from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, taxels_topic
+    from nao_skin.nodes.topics import HEATMAP_TOPIC, LATCHED, PROGRESS_TOPIC, STATUS_TOPIC
     from nao_skin.session.record import PARENT_ENV, STOP_SIGNALS
     from nao_skin.model.skin import load_skin
     from nao_skin.paths import config_dir
@@ -119,37 +120,46 @@ def _measure(args, work: Path) -> int:
                       "press_duration": min(0.3, args.touch_period / 2), "hold": 0.05, "wait_for_subscribers": 2},
         "pairing_recorder": {"bag_path": str(work / "touches")},
         "skin_heatmap": {},
-        "calibrate": {"live": True, "recording": str(Path(args.update_input or work / "touches").resolve()), "live_every_touches": args.update_every,
-                      "live_period": 1.0, "out_dir": str(work / "touches_calibration")},
+        "calibrate": {"live": True, "recording": str(Path(args.update_input or work / "touches").resolve()),
+                      "live_every_touches": args.update_every, "live_period": 1.0,
+                      "out_dir": str(work / "touches_calibration")},
     }
     if args.no_calibrate:
         del nodes["calibrate"]
     procs = []
-    os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     ctx = Context()
     # Ctrl-C only sets a flag the loops below check: rclpy's own handler would shut the context down and let the
-    # window run on, and a KeyboardInterrupt raised inside rclpy's C++ calls comes out as a RuntimeError
-    rclpy.init(context=ctx, domain_id=domain, signal_handler_options=rclpy.SignalHandlerOptions.NO)
+    # window run on, and a KeyboardInterrupt raised inside rclpy's C++ calls comes out as a RuntimeError.
+    # The probe's participant is found on this host only, as the nodes' are (rcl reads it at init)
+    discovery = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE")
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    try:
+        rclpy.init(context=ctx, domain_id=domain, signal_handler_options=rclpy.SignalHandlerOptions.NO)
+    finally:
+        if discovery is None:
+            os.environ.pop("ROS_AUTOMATIC_DISCOVERY_RANGE")
+        else:
+            os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = discovery
     node = Node("bench_live", context=ctx)
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(node)
     counts = {"joints": 0, "skin": 0, "heat": 0}
     progress, heat_stamps, heat_taxels = [], [], []
-    node.create_subscription(JointState, "/joint_states", lambda m: counts.__setitem__("joints", counts["joints"] + 1), 200)
-    node.create_subscription(PointCloud2, "/skin/torso/taxels", lambda m: counts.__setitem__("skin", counts["skin"] + 1), 200)
-    node.create_subscription(String, "/nao_skin/recorder/progress", lambda m: progress.append(json.loads(m.data)), 10)
+    node.create_subscription(JointState, JOINT_STATES_TOPIC,
+                             lambda m: counts.__setitem__("joints", counts["joints"] + 1), 200)
+    node.create_subscription(PointCloud2, taxels_topic("torso"),
+                             lambda m: counts.__setitem__("skin", counts["skin"] + 1), 200)
+    node.create_subscription(String, PROGRESS_TOPIC, lambda m: progress.append(json.loads(m.data)), 10)
     updates = []        # (when, status) of each live update
-    latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    node.create_subscription(String, "/nao_skin/calibration/status",
-                             lambda m: updates.append((time.monotonic(), json.loads(m.data))), latched)
+    node.create_subscription(String, STATUS_TOPIC, lambda m: updates.append((time.monotonic(), json.loads(m.data))),
+                             LATCHED)
 
     def on_heat(m):
         heat_stamps.append(time.monotonic())
         heat_taxels.append(sum(len(x.points) for x in m.markers if x.ns in skin_parts))
 
     skin_parts = set(load_skin().parts)
-    node.create_subscription(MarkerArray, "/nao_skin/heatmap", on_heat, 10)
+    node.create_subscription(MarkerArray, HEATMAP_TOPIC, on_heat, 10)
     interrupted = threading.Event()
     # SIGTERM (a timeout, a CI job cancelled) and SIGHUP stop the run as Ctrl-C does: the nodes are stopped and
     # the temporary directory removed; a kill -9 of this process reaches them as in record (parent death)

@@ -41,10 +41,10 @@ from nao_skin.live.heatmap import ActivationCounts
 from nao_skin.model.skin import pair_label
 from nao_skin.nodes.messages import header_stamp, joint_state_arrays
 from nao_skin.nodes.runtime import declare, run_node
+from nao_skin.nodes.topics import PROGRESS_TOPIC
 from nao_skin.session.params import PAIRING_RECORDER, skin_from_params
 from nao_skin.touch.events import EventConfig, EventDetector
 
-PROGRESS_TOPIC = "/nao_skin/recorder/progress"
 MAX_LOGGED_ERRORS = 5
 class PairingRecorder(Node):
     def __init__(self, **kwargs):

@@ -33,15 +33,14 @@ from nao_skin.errors import DataError
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_array, contacts_topic, taxels_array, taxels_topic
 from nao_skin.guidance.capture import targets_from_json
 from nao_skin.live.playback import Playback
-from nao_skin.nodes.calibrate import GUIDANCE_TOPIC, LATCHED
 from nao_skin.nodes.messages import cloud_from_array, joint_state_msg
 from nao_skin.nodes.runtime import declare, run_node
+from nao_skin.nodes.topics import GUIDANCE_TOPIC, LATCHED, SIM_STATUS_TOPIC
 from nao_skin.session.params import SIM_ROBOT, check_sim_robot, sim_overrides, skin_from_params
 from nao_skin.sim.capture import Aim, CaptureSim
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 
-STATUS_TOPIC = "/sim_robot/status"
 
 class SimRobot(Node):
     def __init__(self, **kwargs):
@@ -74,7 +73,7 @@ class SimRobot(Node):
         self.joint_pub = self.create_publisher(JointState, JOINT_STATES_TOPIC, 100)
         self.taxel_pub = {n: self.create_publisher(PointCloud2, taxels_topic(n), 100) for n in self.parts}
         self.contact_pub = {n: self.create_publisher(PointCloud2, contacts_topic(n), 100) for n in self.parts}
-        self.status_pub = self.create_publisher(String, STATUS_TOPIC, 10)
+        self.status_pub = self.create_publisher(String, SIM_STATUS_TOPIC, 10)
         self.wait_for = int(p["wait_for_subscribers"])
         self.wait_timeout = float(p["wait_timeout"])
         self.played = 0

@@ -34,12 +34,10 @@ from nao_skin.formats.pointcloud import read_taxels, taxels_topic
 from nao_skin.guidance.capture import targets_from_json
 from nao_skin.live.heatmap import (GUIDANCE_COLOUR, SCALE_LEVELS, ActivationCounts, palette, triangle_outline,
                                    triangle_slots)
-from nao_skin.nodes.calibrate import GUIDANCE_TOPIC, LATCHED, STATUS_TOPIC
 from nao_skin.nodes.runtime import declare, run_node
+from nao_skin.nodes.topics import GUIDANCE_MARKERS_TOPIC, GUIDANCE_TOPIC, HEATMAP_TOPIC, LATCHED, STATUS_TOPIC
 from nao_skin.session.params import SKIN_HEATMAP, skin_from_params
 
-TOPIC = "/nao_skin/heatmap"
-GUIDANCE_MARKERS_TOPIC = "/nao_skin/guidance/markers"
 STATE_COLOURS = {"collecting": (0.6, 0.6, 0.6, 1.0), "converging": (1.0, 0.8, 0.2, 1.0), "done": (0.2, 1.0, 0.4, 1.0)}
 LEGEND_NS = "legend"
 LEGEND_HEIGHT = 0.12      # m: height of the colour bar
@@ -66,7 +64,7 @@ class SkinHeatmap(Node):
                 m.points = [Point(x=float(v[0]), y=float(v[1]), z=float(v[2])) for v in part.taxel_local[slots]]
                 self.markers.append((name, slots, m))
         self.legend = self._legend(np.asarray(p["legend_origin"], float), d)
-        self.publisher = self.create_publisher(MarkerArray, TOPIC, 10)
+        self.publisher = self.create_publisher(MarkerArray, HEATMAP_TOPIC, 10)
         for n in self.skin.parts:
             self.create_subscription(PointCloud2, taxels_topic(n), lambda m, n=n: self._on_taxels(n, m), 200)
         self.errors = 0

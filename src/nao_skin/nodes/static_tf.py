@@ -18,27 +18,16 @@ TFMessage.
 import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import TransformStamped
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from tf2_msgs.msg import TFMessage
 
 from nao_skin import se3
 from nao_skin.nodes.messages import stamp_to_msg
-
-TF_STATIC_TOPIC = '/tf_static'
-
-#: QoS of ``/tf_static`` (same as tf2_ros' StaticTransformBroadcaster):
-#: late-joining subscribers with the same QoS get the last message.
-TF_STATIC_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+from nao_skin.nodes.topics import LATCHED, TF_STATIC_TOPIC
 
 
 def latched_tf_static_publisher(node, topic=TF_STATIC_TOPIC):
     """Create a latched ``tf2_msgs/TFMessage`` publisher on ``/tf_static``."""
-    return node.create_publisher(TFMessage, topic, TF_STATIC_QOS)
+    return node.create_publisher(TFMessage, topic, LATCHED)
 
 
 def rotation_to_quaternion(rot):

@@ -37,11 +37,11 @@ from nao_skin.formats.skinmanager import activated_taxels, parse_skin_events, pa
 from nao_skin.live.reconnect import Backoff
 from nao_skin.nodes.messages import cloud_from_array, stamp_to_msg
 from nao_skin.nodes.runtime import declare, run_node
+from nao_skin.nodes.topics import BRIDGE_STATUS_TOPIC
 from nao_skin.session.params import YARP_SKIN_BRIDGE, per_part_params, skin_from_params
 from nao_skin.session.record import YARP_HINT
 
 MAX_LOGGED_ERRORS = 5
-STATUS_TOPIC = "/skin/bridge_status"
 
 
 class YarpSkinBridge(Node):
@@ -60,7 +60,7 @@ class YarpSkinBridge(Node):
         self.bridged = sorted(set(self.part_of_id.values()) | set(self.comp_port_of), key=parts.index)
         self.taxel_pub = {n: self.create_publisher(PointCloud2, taxels_topic(n), 50) for n in self.bridged}
         self.contact_pub = {n: self.create_publisher(PointCloud2, contacts_topic(n), 50) for n in self.bridged}
-        self.status_pub = self.create_publisher(String, STATUS_TOPIC, 10)
+        self.status_pub = self.create_publisher(String, BRIDGE_STATUS_TOPIC, 10)
         self.counts: Counter = Counter()
         self._logged_errors = 0
         self._stop = threading.Event()
