@@ -621,6 +621,23 @@ def test_a_file_out_replaces_only_what_the_command_wrote(tmp_path, command):
     first = (tmp_path / "made_by_mktemp").read_text()
     ok(nao_skin(command, "--out", "made_by_mktemp", cwd=tmp_path, timeout=120))   # its own earlier output
     assert (tmp_path / "made_by_mktemp").read_text() == first and first
+    # a calibration from touches holds the calibration header (and names the xacro): it is no output of these,
+    # and the other command's output is not this one's
+    other = "urdf" if command == "nominal" else "nominal"
+    ok(nao_skin(other, "--out", "other_output", cwd=tmp_path, timeout=120))
+    (tmp_path / "calibrated.yaml").write_text((package_dir() / "config" / "calibration_nominal.yaml").read_text().replace(
+        "nominal calibration (all corrections zero) of nao_skin.yaml; regenerate with: nao-skin nominal --out"
+        " <this file>", "parts calibrated from touches: l_hand, torso"))
+    for name in ("calibrated.yaml", "other_output"):
+        before = (tmp_path / name).read_text()
+        run = nao_skin(command, "--out", name, cwd=tmp_path, timeout=120)
+        assert run.returncode == 2 and f"--out {name}: exists and was not written by this command" in run.stderr, \
+            run.stderr
+        assert (tmp_path / name).read_text() == before
+    # a name ending in a slash is a directory to be: no file of that name is written
+    run = nao_skin(command, "--out", "new_dir/", cwd=tmp_path, timeout=120)
+    assert run.returncode == 2 and run.stderr.strip().endswith("--out new_dir/: names a directory; give a file name")
+    assert not (tmp_path / "new_dir").exists()
 
 
 def test_an_input_that_is_no_regular_file_is_one_line_not_a_hang_or_all_memory(work):

@@ -12,13 +12,14 @@ def wall_seconds(args) -> float:
     return time.perf_counter() - getattr(args, "started", time.perf_counter())
 
 
-def write_output(text: str, out: Path | None, inputs=(), mark: str = "") -> None:
+def write_output(text: str, out: str | Path | None, inputs=(), mark: tuple = ()) -> None:
     """``text`` to ``out`` (its folder made, its path printed), or to stdout when ``out`` is None.
 
     ``out`` may be an existing file this command wrote before (e.g. config/calibration_nominal.yaml
-    regenerated): one whose first lines hold ``mark``, as ``text``'s do. Never one of ``inputs``, a
-    directory, a link that leads nowhere, or anybody's own file; it is replaced whole or not at all (a
-    temporary sibling renamed over it).
+    regenerated): one whose first lines hold every text of ``mark``, as ``text``'s do (what this command
+    writes and no other: a calibration of ``nao-skin calibrate`` is no nominal calibration). Never one of
+    ``inputs``, a directory, a link that leads nowhere, or anybody's own file; it is replaced whole or not
+    at all (a temporary sibling renamed over it).
     """
     from nao_skin.errors import DataError
     from nao_skin.formats.outdir import replace_file
@@ -27,6 +28,8 @@ def write_output(text: str, out: Path | None, inputs=(), mark: str = "") -> None
     if out is None:
         sys.stdout.write(text)
         return
+    if str(out).endswith(("/", os.sep)):
+        raise DataError(f"--out {out}: names a directory; give a file name")
     out = Path(out)
     if out.is_dir():
         raise DataError(f"--out {out}: is a directory; give a file name")
@@ -51,14 +54,15 @@ def write_output(text: str, out: Path | None, inputs=(), mark: str = "") -> None
     print(out)
 
 
-def _written_here(path: Path, mark: str) -> bool:
-    """Whether ``path`` is empty (e.g. made by mktemp) or its first lines hold ``mark`` (unreadable: not ours)."""
+def _written_here(path: Path, mark: tuple) -> bool:
+    """Whether ``path`` is empty (e.g. made by mktemp) or its first lines hold every text of ``mark``
+    (unreadable: not ours)."""
     try:
         with open(path, "rb") as f:
             head = f.read(1024)
     except OSError:
         return False
-    return not head or (bool(mark) and mark.encode() in head)
+    return not head or (bool(mark) and all(m.encode() in head for m in mark))
 
 
 def config_files(skin) -> list:

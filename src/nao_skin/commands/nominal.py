@@ -15,10 +15,13 @@ NAME = "nominal"
 HELP = "write the nominal (zero-correction) calibration YAML of a skin config"
 
 
+REGENERATE = "regenerate with: nao-skin nominal"
+
+
 def add_arguments(parser) -> None:
     parser.add_argument("--skin-config", type=Path, default=None,
                         help="skin config YAML (default: the package's config/nao_skin.yaml)")
-    parser.add_argument("--out", type=Path, default=None,
+    parser.add_argument("--out", default=None,
                         help="output calibration YAML (default: stdout)")
 
 
@@ -28,8 +31,7 @@ def nominal_calibration_text(skin_config: Path) -> str:
 
     skin = SkinModel.from_yaml(skin_config)
     # The comment names the config by file name only, so the text does not depend on the checkout's path.
-    comment = (f"nominal calibration (all corrections zero) of {Path(skin_config).name};"
-               f" regenerate with: nao-skin nominal --out <this file>")
+    comment = f"nominal calibration (all corrections zero) of {Path(skin_config).name}; {REGENERATE} --out <this file>"
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "calibration.yaml"
         skin.zero_calibration().save(path, skin, comment=comment)
@@ -43,6 +45,7 @@ def run(args) -> int:
 
     skin_config = args.skin_config or default_skin_config()
     text = nominal_calibration_text(skin_config)
+    # what this command writes and no other: a calibration from touches holds the same header
     write_output(text, args.out, inputs=[skin_config, *config_files(SkinModel.from_yaml(skin_config))],
-                 mark=CALIBRATION_HEADER)
+                 mark=(CALIBRATION_HEADER, REGENERATE))
     return 0
