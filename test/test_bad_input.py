@@ -12,6 +12,7 @@ import re
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -322,6 +323,37 @@ def test_an_unknown_part_in_taxels_is_one_line(capsys, tmp_path):
     os.mkfifo(tmp_path / "fifo")         # it was "no such file"
     assert cli_main(["stats", str(RECORDING), "--taxels", f"l_hand={tmp_path / 'fifo'}"]) == 2
     assert "fifo: not a regular file" in one_line(capsys)
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_a_bag_whose_storage_file_is_no_regular_file_is_one_line(tmp_path, capsys, skin, storage):
+    """A bag's storage file that is a FIFO waited for a writer for ever (SIGTERM did not stop it), one that is
+    /dev/zero grew to 23 GB; a huge storage file read from itself (its bag does not open) ended in a
+    MemoryError traceback."""
+    from nao_skin.formats.bag import write_touch_bag
+    from nao_skin.sim.simulate import simulate
+
+    bag = tmp_path / "bag"
+    write_touch_bag(bag, simulate(skin, {"n_touches": 3}, seed=2).touches, skin, storage=storage)
+    (file,) = [p for p in bag.iterdir() if p.suffix in (".mcap", ".db3")]
+    kept = tmp_path / "kept"
+    file.rename(kept)
+    os.mkfifo(tmp_path / "fifo")
+    for target, kind in ((tmp_path / "fifo", "a FIFO"), (Path("/dev/zero"), "a character device")):
+        file.symlink_to(target)
+        assert cli_main(["stats", str(bag)]) == 2
+        assert one_line(capsys) == (f"nao-skin stats: error: {file}: cannot read the bag's storage (it is {kind},"
+                                    f" not a regular file)")
+        file.unlink()
+    os.mkfifo(tmp_path / "alone.mcap")
+    assert cli_main(["stats", str(tmp_path / "alone.mcap")]) == 2
+    assert "alone.mcap: cannot read the bag's storage (it is a FIFO, not a regular file)" in one_line(capsys)
+    if storage == "mcap":       # read from the file itself when its bag does not open: at most 1 GiB of it
+        kept.rename(file)
+        with open(file, "r+b") as f:
+            f.truncate((1 << 30) + 1)     # sparse: no gigabyte written
+        assert cli_main(["stats", str(bag)]) == 2
+        assert "is larger than 1 GiB and its bag does not open" in one_line(capsys)
 
 
 def test_stats_reads_a_simulator_output_directory(tmp_path, capsys):

@@ -30,8 +30,8 @@ import numpy as np
 from nao_skin.errors import BagMoved, DataError, DiskFull, OutputError, one_line, os_reason
 from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, encode_cloud,
                                          read_contacts, read_taxels, skin_topic, taxels_array, taxels_topic)
-from nao_skin.formats.salvage import (LOCK_FILE, cut_mcap, provisional_mcap, stored_metadata, unclosed_sqlite,
-                                      write_lock)
+from nao_skin.formats.salvage import (LOCK_FILE, check_storage_files, cut_mcap, provisional_mcap, stored_metadata,
+                                      unclosed_sqlite, write_lock)
 from nao_skin.model.skin import SkinModel
 from nao_skin.paths import free_sibling, identity
 from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST, cluster_contacts, contact_geometry
@@ -483,6 +483,7 @@ class GrowingBag:
         """``(TouchSet, LoadReport)`` of everything the bag holds now."""
         from rosbags.rosbag2 import Reader
 
+        check_storage_files(self.path)
         # metadata.yaml lists the messages only once the bag is closed: read an unclosed sqlite3 file itself
         bag = unclosed_sqlite(self.path) or provisional_mcap(self.path)
         if bag is None:

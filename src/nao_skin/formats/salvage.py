@@ -14,12 +14,33 @@ the lines the load report needs; the bag reader feeds the messages.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from nao_skin.errors import DataError, one_line
+from nao_skin.paths import DANGLING_LINK, not_a_file
 
 LOCK_FILE = "recording.lock"          # in a live bag's directory while its writer has it open
+STORAGE_SUFFIXES = (".mcap", ".db3")
+# a storage file read whole into memory (an mcap whose bag does not open): a touch bag of 4000 touches is 12 MB
+MAX_SALVAGE_BYTES = 1 << 30
+
+
+def check_storage_files(path: Path) -> None:
+    """Every storage file of a bag (the bag's own file, or the .mcap and .db3 files in its directory) is a
+    regular file: a FIFO would wait for a writer forever, ``/dev/zero`` never ends."""
+    path = Path(path)
+    files = [path] if not path.is_dir() else sorted(p for p in path.iterdir() if p.suffix in STORAGE_SUFFIXES)
+    for file in files:
+        try:
+            kind = not_a_file(file.stat().st_mode)
+        except FileNotFoundError:
+            kind = DANGLING_LINK if file.is_symlink() else None
+        except OSError as exc:
+            raise DataError(f"{file}: cannot read ({exc.strerror})") from None
+        if kind:
+            raise DataError(f"{file}: cannot read the bag's storage (it is {kind}, not a regular file)")
 
 
 # ---------------------------------------------------------------------- the lock of a live recording
@@ -402,6 +423,11 @@ class _CutMcap(UnclosedBag):
         offset, before = (cursor[0], cursor[1]) if cursor is not None else (0, b"")
         try:
             with open(self.file, "rb") as f:
+                size = os.fstat(f.fileno()).st_size
+                if size > MAX_SALVAGE_BYTES:
+                    why = one_line(self.open_error) if self.open_error else "never closed"
+                    raise DataError(f"{self.path}: {self.file.name} is larger than {MAX_SALVAGE_BYTES >> 30} GiB"
+                                    f" and its bag does not open ({why}): too large to read from the file itself")
                 f.seek(offset - len(before))
                 buf = f.read()
         except OSError as exc:
