@@ -29,6 +29,7 @@ from nao_skin.paths import package_dir
 pytestmark = pytest.mark.slow   # every test runs the nao-skin CLI as processes (~1-15 s each)
 
 BENCH_CHEAP = ["bench", "--quick", "--only", "hard", "--seeds", "1", "--presets", "ideal"]   # ~1 s of work
+BENCH_KINEMATICS_CHEAP = ["bench", "--quick", "--only", "kinematics", "--seeds", "1", "--presets", "ideal"]  # ~10 s
 
 
 def nao_skin(*argv, cwd, env=None, timeout=600) -> subprocess.CompletedProcess:
@@ -273,9 +274,10 @@ def test_a_readme_the_bench_cannot_write_whole_is_left_as_it_was(tmp_path):
     it cut short. The run's own results, far smaller, are written."""
     readme = tmp_path / "README.md"
     readme.write_text("# my robot\n\n<!-- BENCH:START -->\nold results\n<!-- BENCH:END -->\n"
+                      "<!-- BENCH:KINEMATICS:START -->\nold kinematics\n<!-- BENCH:KINEMATICS:END -->\n"
                       + "notes of the lab, line after line\n" * 6000)           # ~200 kB
     before = readme.read_bytes()
-    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", *BENCH_CHEAP, "--out", "bench", "--readme",
+    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", *BENCH_KINEMATICS_CHEAP, "--out", "bench", "--readme",
                           "README.md"], cwd=tmp_path, capture_output=True, text=True, timeout=600,
                          preexec_fn=file_size_limit(100_000))
     assert run.returncode == 2, (run.returncode, run.stderr[-2000:])
@@ -286,6 +288,25 @@ def test_a_readme_the_bench_cannot_write_whole_is_left_as_it_was(tmp_path):
     assert readme.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["README.md", "bench"]     # no temporary left
     assert (tmp_path / "bench" / "bench_results.md").is_file()
+
+
+def test_a_bench_that_does_not_run_every_section_of_a_readme_block_leaves_the_readme(tmp_path):
+    """``bench --quick --only real --readme README.md`` replaced the whole results block with its one section:
+    the speed table, the hard cases and the live update were gone (84 lines); a kinematics run with no block
+    of its own went there too; and the plot beside the README replaced a file of that name."""
+    readme = tmp_path / "README.md"
+    readme.write_text("# my robot\n\n<!-- BENCH:START -->\nspeed, real, hard cases, live\n<!-- BENCH:END -->\n")
+    (tmp_path / "README-speed-vs-error.png").write_text("my own picture\n")
+    (tmp_path / "touches.txt").write_text("not read: the README is checked first\n")
+    before = tree(tmp_path)
+    for argv, says in ((BENCH_CHEAP, "this run has no live, real, speed, whose figures would be lost"),
+                       (BENCH_KINEMATICS_CHEAP, "this run has no hard, live, real, speed"),
+                       (["bench", "--quick", "--seeds", "1"], "this run has no real (no --real)"),
+                       (["bench", "--quick", "--seeds", "1", "--real", "touches.txt"],
+                        "README-speed-vs-error.png exists and is no plot of an earlier bench")):
+        err = refused(tmp_path, [*argv, "--out", "bench", "--readme", "README.md"], says)
+        assert err.startswith("nao-skin bench: error: --readme README.md: "), err
+    assert tree(tmp_path) == before
 
 
 @pytest.mark.parametrize("argv, started, stop", [

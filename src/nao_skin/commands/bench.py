@@ -113,6 +113,35 @@ def readme_text(readme: Path) -> str:
     return text
 
 
+def _check_readme_run(readme: Path, sections: set, real: bool) -> None:
+    """What ``--readme`` may replace: a block only with every section it holds (the main block: speed, real,
+    hard, live; the kinematics block, when the README has one: kinematics), and the plot beside it only when
+    an earlier bench wrote it; else one line before the run (a partial run dropped the other sections)."""
+    from nao_skin.errors import DataError
+    from nao_skin.paths import not_a_file
+
+    text = readme_text(readme)
+    main = sections & set(DEFAULT_SECTIONS)
+    # the kinematics go to a block of their own when the README has one, else into the main block
+    writes_main = bool(main) or ("kinematics" in sections and README_KIN_START not in text)
+    missing = sorted(set(DEFAULT_SECTIONS) - main) + ([] if real or "real" not in main else ["real (no --real)"])
+    if writes_main and missing:
+        raise DataError(f"--readme {readme}: its results section holds every section ({', '.join(DEFAULT_SECTIONS)});"
+                        f" this run has no {', '.join(missing)}, whose figures would be lost: run them all, or"
+                        f" leave out --readme")
+    plot = readme.parent / README_PLOT
+    if writes_main and (plot.exists() or plot.is_symlink()):
+        kind = not_a_file(plot.stat().st_mode) if plot.exists() else "a symbolic link that leads nowhere"
+        if kind or b"Matplotlib" not in _head(plot):
+            raise DataError(f"--readme {readme}: {plot} exists and is no plot of an earlier bench; nothing is written"
+                            f" over somebody's file: move it first")
+
+
+def _head(path: Path) -> bytes:
+    with open(path, "rb") as f:
+        return f.read(256)
+
+
 def _sim_input(args, quick: bool, say, keep: int | None = None):
     import numpy as np
 
@@ -204,7 +233,7 @@ def run(args) -> int:
     if ("real" in sections and args.real) or args.skin or args.taxels:
         real_skin = skin_from_args(args)     # read even when no section uses it: a broken one is one line now
     if args.readme:
-        readme_text(Path(args.readme))
+        _check_readme_run(Path(args.readme), sections, bool(args.real))
     # read before an earlier output is cleared: a recording that turns out broken must not cost it
     inputs = []
     if "speed" in sections:
