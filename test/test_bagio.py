@@ -187,6 +187,25 @@ def test_a_storage_file_that_ends_early_without_an_error_says_what_is_lost(real,
     assert line.startswith(f"{bag}: ") and "of the " in line and "messages its metadata lists could be read" in line
 
 
+def test_a_topic_the_storage_file_does_not_hold_is_named_not_called_a_truncated_bag(real, real_skin, tmp_path):
+    """metadata.yaml lists the torso's topics, the storage file (edited, or another recording's) holds none of
+    their messages: every one was counted as a "truncated bag", which it is not."""
+    import sqlite3
+
+    bag = tmp_path / "bag"
+    write_touch_bag(bag, real.subset(np.arange(20)), real_skin, storage="sqlite3")
+    (db,) = bag.glob("*.db3")
+    with sqlite3.connect(db) as con:
+        ids = [row[0] for row in con.execute("SELECT id FROM topics WHERE name LIKE '/skin/torso/%'")]
+        assert len(ids) == 2
+        con.execute(f"DELETE FROM messages WHERE topic_id IN ({','.join(map(str, ids))})")
+    _, report = read_touches(bag, real_skin)
+    assert "truncated bag" not in report.skipped
+    assert report.skipped["topic not in storage"] == 40
+    lines = [m for m in report.messages if "the storage file holds none of them" in m]
+    assert sorted(line.split(": ")[1].split(" (")[0] for line in lines) == ["/skin/torso/contacts", "/skin/torso/taxels"]
+
+
 def test_a_topic_of_another_message_type_is_said_not_dropped_silently(real, real_skin, tmp_path):
     bag = tmp_path / "bag"
     write_touch_bag(bag, real.subset(np.arange(40)), real_skin)

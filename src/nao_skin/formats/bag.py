@@ -444,6 +444,21 @@ def _skip_bad(report: LoadReport, exc: DataError) -> None:
     report.skip(getattr(exc, "reason", "bad message"), str(exc), part=getattr(exc, "part", None))
 
 
+def _skip_unread(report: LoadReport, path: Path, wanted: list, read: Counter) -> None:
+    """What metadata.yaml lists and the storage file did not give: a topic it does not hold at all (its
+    storage lists other topics), or a file that ends early without an error (an mcap whose chunk is broken)."""
+    absent = [conn for conn in wanted if conn.msgcount and not read[conn.id]]
+    for conn in absent:
+        report.skip("topic not in storage", f"{path}: {conn.topic} ({conn.msgtype}): metadata.yaml lists"
+                                            f" {conn.msgcount} messages, the storage file holds none of them",
+                    count=conn.msgcount)
+    present = [conn for conn in wanted if conn not in absent]
+    listed, got = sum(conn.msgcount for conn in present), sum(read[conn.id] for conn in present)
+    if got < listed:
+        report.skip("truncated bag", f"{path}: {got} of the {listed} messages its metadata lists could be read; the"
+                                     f" storage file is damaged, the rest is lost", count=listed - got)
+
+
 def read_touches(path: str | Path, skin: SkinModel, config: EventConfig | None = None,
                  max_neighbor_dist: float = DEFAULT_MAX_NEIGHBOR_DIST, cluster: bool = True) -> tuple:
     """Touches of a touch bag or a stream bag: ``(TouchSet, LoadReport)``.
@@ -542,20 +557,16 @@ class GrowingBag:
                 else:
                     wanted.append(conn)
             _skip_unknown_parts(report, self.path, unknown, self.skin)
+            read: Counter = Counter()       # messages read per connection
             try:
                 for conn, _, raw in reader.messages(connections=wanted):
+                    read[conn.id] += 1
                     feed.add([(conn.topic, conn.msgtype, raw)])
             except Exception as exc:  # noqa: BLE001 - a broken file raises whatever its storage library raises
                 report.skip("truncated bag", f"{self.path}: unreadable after {feed.n_msgs} messages"
                                              f" ({one_line(exc)}); the rest of the bag is lost")
             else:
-                # a damaged storage file can also end early without an error (an mcap whose chunk is
-                # broken): the metadata's counts say what is missing
-                listed = sum(conn.msgcount for conn in wanted)
-                if feed.n_msgs < listed:
-                    report.skip("truncated bag", f"{self.path}: {feed.n_msgs} of the {listed} messages its metadata"
-                                                 f" lists could be read; the storage file is damaged, the rest is"
-                                                 f" lost", count=listed - feed.n_msgs)
+                _skip_unread(report, self.path, wanted, read)
             feed.records += feed.detector.flush()
         finally:
             try:
