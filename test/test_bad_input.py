@@ -276,6 +276,16 @@ def test_a_layout_is_the_same_whatever_file_holds_it(tmp_path):
     real = load_skin(taxel_files={"torso": REAL / "torso.taxels.txt"})
     with pytest.raises(ConfigError, match="part 'torso' was calibrated on the layout torso.txt"):
         SkinCalibration.load(tmp_path / "c.yaml", real)
+    # a layout record that is no record: the check it is there for was skipped without a word
+    import yaml
+
+    doc = yaml.safe_load((tmp_path / "c.yaml").read_text())
+    for broken in ("x", {"file": "torso.txt"}, {"file": "torso.txt", "sha256": 7}):
+        doc["parts"]["torso"]["layout"] = broken
+        (tmp_path / "bad.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+        with pytest.raises(ConfigError, match=r"bad.yaml: part 'torso': 'layout' must be a mapping with 'file' and"
+                                              r" 'sha256'"):
+            SkinCalibration.load(tmp_path / "bad.yaml", skin)
 
 
 def test_a_calibration_hanging_off_another_base_frame_is_refused(tmp_path):

@@ -71,11 +71,23 @@ def test_a_thermal_pad_or_an_empty_row_needs_no_normal(tmp_path):
 
 def test_short_file_pads_missing_slots_with_zeros(tmp_path):
     path = tmp_path / "short.txt"
-    path.write_text("0.01 0.02 0.03 0 0 1\n\n# a comment line\n0.04 0.05 0.06 0 0 1  // trailing comment\n")
+    path.write_text("0.01 0.02 0.03 0 0 1\n\n# a comment line\n0.04 0.05 0.06 0 0 1  // trailing comment\n"
+                    + "0 0 0 0 0 0\n" * 10)               # one triangle, two of its taxels there
     taxels = read_taxel_file(path)
     assert taxels.positions.shape == (384, 3)
     np.testing.assert_array_equal(taxels.positions[:2], [[0.01, 0.02, 0.03], [0.04, 0.05, 0.06]])
     assert taxels.present.sum() == 2
+
+
+def test_a_file_that_ends_inside_a_triangle_is_refused(tmp_path):
+    """A taxel file cut short (200 of its 384 rows, a copy interrupted) was read as a smaller skin: 38 of 60
+    touches were then skipped as taxels the layout does not have, the cause unsaid."""
+    whole = (REAL / "l_hand.taxels.txt").read_text().splitlines(keepends=True)
+    path = tmp_path / "cut.txt"
+    path.write_text("".join(whole[:200]))
+    with pytest.raises(DataError, match=r"cut.txt: 200 taxel rows, which ends inside triangle 16 \(12 rows per"
+                                        r" triangle\): is the file cut short\?"):
+        read_taxel_file(path)
 
 
 def header_file(rows):

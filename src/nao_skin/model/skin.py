@@ -717,8 +717,11 @@ def _check_chain(path: Path, name: str, recorded, part: SkinPart, robot: RobotMo
 
 def _check_layout(path: Path, name: str, recorded, part: SkinPart) -> None:
     """A calibration applies only to the layout it was made with (older files, without a record, pass)."""
-    if not isinstance(recorded, dict) or "sha256" not in recorded:
+    if recorded is None:
         return
+    if not isinstance(recorded, dict) or not isinstance(recorded.get("sha256"), str):
+        raise ConfigError(f"{path}: part '{name}': 'layout' must be a mapping with 'file' and 'sha256' (the taxel"
+                          f" file the part was calibrated on), got {recorded!r}")
     if str(recorded["sha256"]) != part.layout_sha256:
         raise ConfigError(f"{path}: part '{name}' was calibrated on the layout {recorded.get('file', '?')}"
                           f" (sha256 {str(recorded['sha256'])[:12]}), not on {Path(part.layout_file).name}"

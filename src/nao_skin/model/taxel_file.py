@@ -96,6 +96,10 @@ def read_taxel_file(path: str | Path, n_slots: int = DEFAULT_SLOTS) -> TaxelFile
         raise DataError(f"{path}: no taxel rows found")
     if len(rows) > n_slots:
         raise DataError(f"{path}: {len(rows)} taxel rows, more than the {n_slots} slots of a skin part")
+    if len(rows) % SLOTS_PER_TRIANGLE:
+        # rows beyond a file's end are slots without a taxel, but a triangle is written whole or not at all
+        raise DataError(f"{path}: {len(rows)} taxel rows, which ends inside triangle {len(rows) // SLOTS_PER_TRIANGLE}"
+                        f" ({SLOTS_PER_TRIANGLE} rows per triangle): is the file cut short?")
     data = np.zeros((n_slots, 6))
     data[: len(rows)] = rows
     return TaxelFile(data[:, :3].copy(), data[:, 3:].copy(), name=header.get("name", path.stem), header=header)
