@@ -297,7 +297,10 @@ def test_record_refuses_what_its_nodes_would_fail_on_before_any_starts(tmp_path)
     for item, expected in (("sim_robot.preset=nosuch", "unknown preset 'nosuch'"),
                            ("sim_robot.pairs=[l_hand-nose]", "'l_hand-nose': expected HAND-PART"),
                            (f"calibrate.calibration={tmp_path / 'none.yaml'}", "none.yaml: cannot read calibration"),
-                           ("calibrate.out_dir=/dev/null", "calibration output /dev/null: exists already")):
+                           ("calibrate.out_dir=/dev/null", "calibration output /dev/null: exists already"),
+                           # a node's own layout that is not there: the recorder died after the others were up
+                           (f"pairing_recorder.taxels=[l_hand={tmp_path / 'nope.txt'}]",
+                            "node pairing_recorder (parameters from")):
         line = one_error_line(nao_skin(["record", "--bag", str(other), "--param", item]))
         assert expected in line, line
         assert not other.exists()

@@ -27,7 +27,7 @@ from nao_skin.model.skin import parse_taxel_files
 from nao_skin.model.urdf import expand_xacro
 from nao_skin.paths import config_dir, parse_yaml, read_ros_params_file, read_yaml, yaml_value
 from nao_skin.rules import did_you_mean
-from nao_skin.session.params import CHECKS, NODE_PARAMS, PER_PART_NODES, per_part_params
+from nao_skin.session.params import CHECKS, NODE_PARAMS, PER_PART_NODES, per_part_params, skin_from_params
 
 ROBOTS = ("sim", "nao")
 CONTROL = re.compile(r"[\x00-\x1f\x7f]")
@@ -162,9 +162,11 @@ def _check_printable(spec: NodeSpec) -> None:
 
 def _check_together(spec: NodeSpec) -> None:
     """The node's own check of its parameters taken together (:data:`~nao_skin.session.params.CHECKS`) on the
-    values it will start with: declared defaults, then its parameter files, then the overrides."""
+    values it will start with: declared defaults, then its parameter files, then the overrides; and the skin
+    it reads, when the session gives it one of its own (``--param NODE.taxels=...``)."""
     check = CHECKS.get(spec.executable)
-    if check is None:
+    reads_own_skin = spec.name in SKIN_NODES and {"skin_config", "taxels"} & set(spec.overrides)
+    if check is None and not reads_own_skin:
         return
     values = node_parameters(spec)
     for path in spec.params_files:
@@ -175,8 +177,14 @@ def _check_together(spec: NodeSpec) -> None:
             if isinstance(given, dict):
                 values.update(given)
     values.update(spec.overrides)
-    check(values, f"node {spec.name} (parameters from {', '.join(map(str, spec.params_files)) or 'its defaults'}"
-                  f" and --param)")
+    where = f"node {spec.name} (parameters from {', '.join(map(str, spec.params_files)) or 'its defaults'} and --param)"
+    if reads_own_skin:
+        try:
+            skin_from_params(values)
+        except NaoSkinError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+    if check is not None:
+        check(values, where)
 
 
 def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> None:
