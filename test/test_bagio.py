@@ -6,6 +6,8 @@ import shutil
 
 import warnings
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import yaml
@@ -204,6 +206,28 @@ def test_a_topic_the_storage_file_does_not_hold_is_named_not_called_a_truncated_
     assert report.skipped["topic not in storage"] == 40
     lines = [m for m in report.messages if "the storage file holds none of them" in m]
     assert sorted(line.split(": ")[1].split(" (")[0] for line in lines) == ["/skin/torso/contacts", "/skin/torso/taxels"]
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+@pytest.mark.parametrize("edit", ["version: 99", "a storage file it does not have", "storage_identifier: foo"])
+def test_a_metadata_yaml_that_reads_but_does_not_open_costs_nothing(real, real_skin, tmp_path, storage, edit):
+    """A metadata.yaml of another version, or naming a storage file or plugin the bag does not have: an mcap
+    bag was read from its file, a sqlite3 one refused ("Rosbag2 version 99 not supported")."""
+    bag = tmp_path / "bag"
+    write_touch_bag(bag, real.subset(np.arange(30)), real_skin, storage=storage)
+    whole, _ = read_touches(bag, real_skin)
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())
+    info = meta["rosbag2_bagfile_information"]
+    if edit == "version: 99":
+        info["version"] = 99
+    elif edit == "storage_identifier: foo":
+        info["storage_identifier"] = "foo"
+    else:
+        info["relative_file_paths"] = ["other" + Path(info["relative_file_paths"][0]).suffix]
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+    back, report = read_touches(bag, real_skin)
+    assert back.n_touches == whole.n_touches == 30 and not report.skipped, report.lines()
+    assert any("nothing lost" in note for note in report.notes), report.notes
 
 
 def test_a_topic_of_another_message_type_is_said_not_dropped_silently(real, real_skin, tmp_path):

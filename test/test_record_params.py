@@ -386,13 +386,14 @@ def test_record_removes_its_temporary_directory(tmp_path):
     assert code == 0, session.stderr()[-3000:]
     assert record_temp_dirs(tmp) == []
 
-    # a node that refuses a parameter at start ends the session with its one line and exit 2, as every
-    # other mistake: the directory is removed too
+    # a parameter a node would refuse at start ends the session with one line naming the node and exit 2, as
+    # every other mistake, before any node starts (it was the node's own line among the others' logs): the
+    # directory is removed too
     missing = tmp_path / "no_such_taxels.txt"
     run = nao_skin(["record", "--bag", str(tmp_path / "b2"), "--param", f"pairing_recorder.taxels=[l_hand={missing}]"],
                    env=env)
-    assert run.returncode == 2 and "pairing_recorder exited with code 2" in run.stderr, run.stderr
-    assert f"{missing}: no such file" in run.stderr and "Traceback" not in run.stderr
+    assert run.returncode == 2 and "node pairing_recorder" in one_error_line(run), run.stderr
+    assert f"{missing}: no such file" in run.stderr and not (tmp_path / "b2").exists()
     assert record_temp_dirs(tmp) == []
 
 

@@ -30,8 +30,8 @@ import numpy as np
 from nao_skin.errors import BagMoved, DataError, DiskFull, OutputError, one_line, os_reason
 from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, encode_cloud,
                                          read_contacts, read_taxels, skin_topic, taxels_array, taxels_topic)
-from nao_skin.formats.salvage import (LOCK_FILE, check_storage_files, cut_mcap, provisional_mcap, stored_metadata,
-                                      unclosed_sqlite, write_lock)
+from nao_skin.formats.salvage import (LOCK_FILE, check_storage_files, cut_mcap, cut_sqlite, provisional_mcap,
+                                      stored_metadata, unclosed_sqlite, write_lock)
 from nao_skin.model.skin import SkinModel
 from nao_skin.paths import free_sibling, identity
 from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST, cluster_contacts, contact_geometry
@@ -506,7 +506,7 @@ class GrowingBag:
                 reader = Reader(self.path)
                 reader.open()
             except Exception as exc:  # noqa: BLE001 - rosbags, sqlite and yaml all raise their own types
-                bag = cut_mcap(self.path, exc)
+                bag = cut_mcap(self.path, exc) or cut_sqlite(self.path, exc)
                 if bag is None:
                     raise DataError(f"{self.path}: cannot open as a rosbag2 ({one_line(exc)})") from None
             else:

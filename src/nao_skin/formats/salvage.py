@@ -232,6 +232,17 @@ def unclosed_sqlite(path: Path) -> UnclosedBag | None:
                            " (the recorder did not close the bag; anything after its last commit is lost)")
 
 
+def cut_sqlite(path: Path, open_error: Exception) -> UnclosedBag | None:
+    """The bag's one sqlite3 file, read directly when its metadata.yaml reads but does not open (another
+    version, a storage file or plugin it does not have): as an mcap bag's is (:func:`cut_mcap`). None when
+    the folder holds no single sqlite3 file."""
+    files = sorted(path.glob("*.db3")) if path.is_dir() else []
+    if len(files) != 1:
+        return None
+    why = f"its metadata.yaml does not open ({one_line(open_error)})"
+    return _UnclosedSqlite(path, _only_storage(path, files[0], why), "no metadata", why)
+
+
 def _lists_no_messages(path: Path) -> bool:
     """The bag directory's (readable) metadata.yaml lists no messages: BagWriter's provisional one, written
     at open, lists neither files nor topics; the real one, written on close, both."""

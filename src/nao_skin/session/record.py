@@ -141,10 +141,12 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                               f" (robot {robot}: {', '.join(by_name)})")
         spec = by_name[node]
         spec.overrides.update(typed_overrides(spec, values) if spec.ours else _as_yaml(values))
+    # a node given a skin of its own (--param NODE.taxels=...): the session's (--taxels) is checked with the files
+    own_skin = {node for node, values in (overrides or {}).items() if {"skin_config", "taxels"} & set(values)}
     for spec in specs:
         _check_printable(spec)
         if spec.ours:
-            _check_together(spec)
+            _check_together(spec, spec.name in own_skin)
     _check_files(bag_path, calibration, by_name["calibrate"].overrides)
     return specs
 
@@ -160,12 +162,12 @@ def _check_printable(spec: NodeSpec) -> None:
                                   f" parameter does not carry as it is; use printable characters")
 
 
-def _check_together(spec: NodeSpec) -> None:
+def _check_together(spec: NodeSpec, own_skin: bool = False) -> None:
     """The node's own check of its parameters taken together (:data:`~nao_skin.session.params.CHECKS`) on the
-    values it will start with: declared defaults, then its parameter files, then the overrides; and the skin
-    it reads, when the session gives it one of its own (``--param NODE.taxels=...``)."""
+    values it will start with: declared defaults, then its parameter files, then the overrides; and, with
+    ``own_skin``, the skin it reads (``--param NODE.taxels=...``)."""
     check = CHECKS.get(spec.executable)
-    reads_own_skin = spec.name in SKIN_NODES and {"skin_config", "taxels"} & set(spec.overrides)
+    reads_own_skin = own_skin and spec.name in SKIN_NODES
     if check is None and not reads_own_skin:
         return
     values = node_parameters(spec)
