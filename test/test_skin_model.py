@@ -416,6 +416,9 @@ BAD_MOUNT = "xyz and rotvec must be 3 finite numbers each, metres (at most 10) a
     (lambda d: d.update(robots="x.yaml"),
      "unknown key 'robots' (did you mean 'robot'?); it takes robot, parts, self_touch"),
     (lambda d: d["parts"]["torso"]["patches"][0].append(40), "part 'torso' patch 0: triangle 40 is not in 0..31"),
+    # YAML's true is Python's 1: it was "triangle 1 is listed in patch 0 and in patch 0"
+    (lambda d: d["parts"]["torso"]["patches"][0].__setitem__(0, True),
+     "part 'torso' patch 0: triangle True is not in 0..31"),
     (lambda d: d["parts"]["torso"]["patches"][0].remove(3),
      "part 'torso': triangles [3] have taxels in the layout but are in no patch"),
     (lambda d: d.pop("parts"), "a skin config needs a 'parts' mapping with at least one part"),

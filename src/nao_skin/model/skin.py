@@ -243,7 +243,7 @@ def build_part(name: str, chain: str | None, parent_frame: str, taxels: TaxelFil
         if not isinstance(tris, (list, tuple)):
             raise ConfigError(f"{source}: part '{name}' patch {pid}: expected a list of triangle numbers")
         for t in tris:
-            if not isinstance(t, int) or not 0 <= t < n_tri_slots:
+            if isinstance(t, bool) or not isinstance(t, int) or not 0 <= t < n_tri_slots:
                 raise ConfigError(f"{source}: part '{name}' patch {pid}: triangle {t!r} is not in 0..{n_tri_slots - 1}")
             if t in owner:
                 raise ConfigError(f"{source}: part '{name}': triangle {t} is listed in patch {owner[t]} and in patch {pid}")
