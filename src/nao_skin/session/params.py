@@ -40,7 +40,7 @@ DEFAULT_JOINTS = ["HeadYaw", "HeadPitch",
 # iCub skinDynLib SkinPart ids; the Nao build put the head on the unused right forearm id (thesis §3.1.1).
 DEFAULT_PART_IDS = {"l_hand": 1, "r_hand": 4, "torso": 7, "head": 5}
 
-EVENTS = EventConfig()
+_EVENTS = EventConfig()       # the event detector's defaults: the recorder's parameters start from them
 
 CALIBRATE = {
     **SKIN_PARAMS,
@@ -96,13 +96,13 @@ PAIRING_RECORDER = {
                 Rule(str, ("mcap", "sqlite3"))),
     "flush_period": (1.0, "seconds between flushes of the bag to disk", SECONDS),
     "progress_period": (1.0, "seconds between progress messages", SECONDS),
-    "skin_tolerance": (EVENTS.skin_tolerance, "s: skin samples of different parts this close are one moment",
+    "skin_tolerance": (_EVENTS.skin_tolerance, "s: skin samples of different parts this close are one moment",
                        NON_NEGATIVE),
-    "joint_tolerance": (EVENTS.joint_tolerance, "s: bracketing joint states must be this close to the touch",
+    "joint_tolerance": (_EVENTS.joint_tolerance, "s: bracketing joint states must be this close to the touch",
                         NON_NEGATIVE),
-    "min_interval": (EVENTS.min_interval, "s: during one continuous press, at most one touch per interval",
+    "min_interval": (_EVENTS.min_interval, "s: during one continuous press, at most one touch per interval",
                      NON_NEGATIVE),
-    "release_gap": (EVENTS.release_gap, "s: a part silent this long counts as released", NON_NEGATIVE),
+    "release_gap": (_EVENTS.release_gap, "s: a part silent this long counts as released", NON_NEGATIVE),
 }
 
 
