@@ -26,9 +26,9 @@ from nao_skin.errors import DataError  # noqa: E402
 from nao_skin.formats.bag import read_touches  # noqa: E402
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, taxels_array, taxels_topic  # noqa: E402
 from nao_skin.guidance.capture import targets_from_json  # noqa: E402
+from nao_skin.nodes.messages import cloud_from_array, joint_state_msg, stamp_to_msg  # noqa: E402
 from nao_skin.nodes.topics import (GUIDANCE_MARKERS_TOPIC, GUIDANCE_TOPIC, LATCHED, PROGRESS_TOPIC,  # noqa: E402
                                    STATUS_TOPIC)
-from nao_skin.nodes.messages import cloud_from_array, joint_state_msg, stamp_to_msg  # noqa: E402
 
 GOOD = {"part": "torso", "triangle_id": 3, "hand": "l_hand", "touched": "torso", "reason": "held",
         "hand_triangle_id": None, "touched_triangle_id": 3, "pose": {"LShoulderPitch": 0.5}}

@@ -17,9 +17,9 @@ import pytest
 import yaml
 from ros_harness import ROOT
 
-from nao_skin.session.record import command_line, record_session, robot_description
 from nao_skin.model.skin import load_skin, skin_frame_transforms
 from nao_skin.session.params import NODE_PARAMS, per_part_params
+from nao_skin.session.record import command_line, record_session, robot_description
 
 pytest.importorskip("rclpy")
 

@@ -33,8 +33,8 @@ from rcl_interfaces.srv import GetParameters  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
 from nao_skin import cli  # noqa: E402
-from nao_skin.session.params import CALIBRATE, options_from_params  # noqa: E402
 from nao_skin.nodes.topics import PROGRESS_TOPIC  # noqa: E402
+from nao_skin.session.params import CALIBRATE, options_from_params  # noqa: E402
 
 pytestmark = pytest.mark.middleware   # runs nao-skin record and its nodes over DDS
 

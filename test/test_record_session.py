@@ -22,14 +22,13 @@ from ros_harness import ROOT, Listener, Proc, node_process, ros_env, unique_doma
 from nao_skin.formats.bag import read_touches  # noqa: E402
 from nao_skin.live.heatmap import ActivationCounts, palette, triangle_slots  # noqa: E402
 from nao_skin.model.skin import load_skin  # noqa: E402
+from nao_skin.session.params import sim_overrides  # noqa: E402
 from nao_skin.sim.params import load_params  # noqa: E402
 from nao_skin.sim.simulate import simulate  # noqa: E402
 
 pytest.importorskip("rclpy")
 from std_msgs.msg import String  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
-
-from nao_skin.session.params import sim_overrides  # noqa: E402
 
 pytestmark = pytest.mark.middleware   # runs nao-skin record and its nodes over DDS
 

@@ -33,12 +33,12 @@ from nao_skin.errors import NaoSkinError, one_line
 from nao_skin.live.updates import Settling, UpdateSchedule
 from nao_skin.model.skin import SkinCalibration, parse_pairs, skin_frame_transforms
 from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.nodes.topics import GUIDANCE_TOPIC, LATCHED, PROGRESS_TOPIC, REQUEST_TOPIC, STATUS_TOPIC
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
+from nao_skin.nodes.topics import GUIDANCE_TOPIC, LATCHED, PROGRESS_TOPIC, REQUEST_TOPIC, STATUS_TOPIC
 from nao_skin.paths import free_sibling, identity
+from nao_skin.plain import jsonable
 from nao_skin.session.live import LiveCalibration
 from nao_skin.session.params import CALIBRATE, options_from_params, skin_from_params
-from nao_skin.plain import jsonable
 
 
 def _pairs(items, skin, name: str) -> tuple:
