@@ -10,8 +10,9 @@ calibration on /tf_static, replaced by each new calibration), while
 robot_state_publisher gets the URDF with ``skin_frames:=false``.
 
 Parameter overrides are checked against what each of our nodes declares
-(its module's ``PARAMS``) before anything starts: an unknown node or
-parameter, or a value of the wrong type, is one ConfigError line.
+(:data:`nao_skin.session.params.NODE_PARAMS`) before anything starts: an
+unknown node or parameter, or a value of the wrong type, is one ConfigError
+line.
 """
 from __future__ import annotations
 
