@@ -226,7 +226,8 @@ def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> Non
 
 
 def node_parameters(spec: NodeSpec) -> dict:
-    """``{name: default}`` of every parameter one of our nodes declares (:data:`~nao_skin.session.params.NODE_PARAMS`, and per part)."""
+    """``{name: default}`` of every parameter one of our nodes declares
+    (:data:`~nao_skin.session.params.NODE_PARAMS`, and those per skin part)."""
     return {name: default for name, (default, _) in _declared(spec).items()}
 
 
