@@ -206,6 +206,15 @@ def test_a_topic_the_storage_file_does_not_hold_is_named_not_called_a_truncated_
     assert report.skipped["topic not in storage"] == 40
     lines = [m for m in report.messages if "the storage file holds none of them" in m]
     assert sorted(line.split(": ")[1].split(" (")[0] for line in lines) == ["/skin/torso/contacts", "/skin/torso/taxels"]
+    # where another topic is cut short too, the file is damaged: what it lacks is lost to that, not absent
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())
+    info = meta["rosbag2_bagfile_information"]
+    joints = next(t for t in info["topics_with_message_count"] if t["topic_metadata"]["name"] == "/joint_states")
+    joints["message_count"] += 5
+    info["message_count"] += 5
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+    _, report = read_touches(bag, real_skin)
+    assert dict(report.skipped) == {"truncated bag": 45}, report.lines()
 
 
 @pytest.mark.parametrize("storage", ["sqlite3", "mcap"])

@@ -175,3 +175,41 @@ def test_a_bag_whose_directory_goes_while_recording_is_copied_out_and_what_took_
         assert {f.name: f.read_bytes() for f in path.iterdir()} == theirs
     if how != "removed":              # the moved original holds them too
         assert read_touches(tmp_path / "elsewhere", skin)[0].n_touches == kept
+
+
+def test_the_salvage_limit_counts_what_a_read_reads_and_reads_nothing_whole_beyond_it(played, tmp_path,
+                                                                                       monkeypatch):
+    """An mcap file read from itself is refused when more than MAX_SALVAGE_BYTES would be read at once (a
+    damaged multi-GB file: a MemoryError before). A live recording's follower reads only what is new: it
+    went on past the limit, which first counted the whole file; and the file's own metadata was looked for
+    by reading the whole file before the limit was checked. The limit is made small here."""
+    from nao_skin.errors import DataError
+    from nao_skin.formats import salvage
+
+    skin, touches = played
+    path = tmp_path / "rec"
+    follower = GrowingBag(path, skin)
+    with BagWriter(path, "mcap", kind="touches", live=True) as bag:
+        write_recorded(bag, skin, touches, np.arange(8))
+        bag.flush()
+        (file,) = path.glob("*.mcap")
+        monkeypatch.setattr(salvage, "MAX_SALVAGE_BYTES", file.stat().st_size + 10)
+        assert follower.read()[0].n_touches == 8
+        for start in (8, 16, 24):            # the file grows past the limit, each read stays under it
+            write_recorded(bag, skin, touches, np.arange(start, start + 8))
+            bag.flush()
+            assert follower.read()[0].n_touches == start + 8
+        assert file.stat().st_size > salvage.MAX_SALVAGE_BYTES
+        # read whole, the same file is over the limit: one line, and not a byte of it read whole first
+        (tmp_path / "alone").mkdir()
+        alone = tmp_path / "alone" / "rec_0.mcap"
+        shutil.copy(file, alone)
+        real_read_bytes = type(alone).read_bytes
+
+        def guarded(self):
+            assert self.name != alone.name, "read whole past the limit"
+            return real_read_bytes(self)
+
+        monkeypatch.setattr(type(alone), "read_bytes", guarded)
+        with pytest.raises(DataError, match="rec_0.mcap is larger than 0 GiB and its bag does not open"):
+            read_touches(tmp_path / "alone", skin)

@@ -445,15 +445,17 @@ def _skip_bad(report: LoadReport, exc: DataError) -> None:
 
 
 def _skip_unread(report: LoadReport, path: Path, wanted: list, read: Counter) -> None:
-    """What metadata.yaml lists and the storage file did not give: a topic it does not hold at all (its
-    storage lists other topics), or a file that ends early without an error (an mcap whose chunk is broken)."""
+    """What metadata.yaml lists and the storage file did not give: a file that ends early without an error
+    (an mcap whose chunk is broken), or, when every other topic is there whole, a topic the file does not
+    hold at all (its storage lists other topics)."""
+    listed, got = sum(conn.msgcount for conn in wanted), sum(read[conn.id] for conn in wanted)
     absent = [conn for conn in wanted if conn.msgcount and not read[conn.id]]
-    for conn in absent:
-        report.skip("topic not in storage", f"{path}: {conn.topic} ({conn.msgtype}): metadata.yaml lists"
-                                            f" {conn.msgcount} messages, the storage file holds none of them",
-                    count=conn.msgcount)
-    present = [conn for conn in wanted if conn not in absent]
-    listed, got = sum(conn.msgcount for conn in present), sum(read[conn.id] for conn in present)
+    if absent and all(read[conn.id] >= conn.msgcount for conn in wanted if conn not in absent):
+        for conn in absent:
+            report.skip("topic not in storage", f"{path}: {conn.topic} ({conn.msgtype}): metadata.yaml lists"
+                                                f" {conn.msgcount} messages, the storage file holds none of them",
+                        count=conn.msgcount)
+        return
     if got < listed:
         report.skip("truncated bag", f"{path}: {got} of the {listed} messages its metadata lists could be read; the"
                                      f" storage file is damaged, the rest is lost", count=listed - got)

@@ -306,8 +306,11 @@ def _sqlite_stored(file: Path) -> str | None:
 
 
 def _mcap_stored(file: Path) -> str | None:
-    """``serialized_metadata`` of the last ``rosbag2`` Metadata record (opcode 0x0C) in the file."""
+    """``serialized_metadata`` of the last ``rosbag2`` Metadata record (opcode 0x0C) in the file (None above
+    :data:`MAX_SALVAGE_BYTES`: it is read whole)."""
     try:
+        if file.stat().st_size > MAX_SALVAGE_BYTES:
+            return None
         buf = file.read_bytes()
     except OSError:
         return None
@@ -434,8 +437,8 @@ class _CutMcap(UnclosedBag):
         offset, before = (cursor[0], cursor[1]) if cursor is not None else (0, b"")
         try:
             with open(self.file, "rb") as f:
-                size = os.fstat(f.fileno()).st_size
-                if size > MAX_SALVAGE_BYTES:
+                # what is read: the bytes after the last read's end (a live recording's new ones), or all of them
+                if os.fstat(f.fileno()).st_size - (offset - len(before)) > MAX_SALVAGE_BYTES:
                     why = one_line(self.open_error) if self.open_error else "never closed"
                     raise DataError(f"{self.path}: {self.file.name} is larger than {MAX_SALVAGE_BYTES >> 30} GiB"
                                     f" and its bag does not open ({why}): too large to read from the file itself")

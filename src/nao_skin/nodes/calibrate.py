@@ -115,6 +115,7 @@ class CalibrateNode(Node):
                 or not self._busy.acquire(blocking=False):     # a calibration is running: the next tick
             return
         self.schedule.started(self._recorded, now)
+        self._ignored = 0                 # counted per calibration or update
         self._worker = threading.Thread(target=self._live_update, daemon=True, name="live calibration")
         self._worker.start()
 
