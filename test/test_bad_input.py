@@ -505,6 +505,23 @@ def test_a_file_output_never_replaces_an_input_and_needs_a_writable_place(tmp_pa
     assert sorted(p.name for p in (tmp_path / "new").iterdir()) == ["out.yaml"]     # no temporary left over
 
 
+def test_layouts_that_cannot_be_written_leave_no_folder_behind(tmp_path, capsys, monkeypatch):
+    """A full disk while the layouts are written (here a stand-in: the write raises ENOSPC, as on a full
+    tmpfs) left the folders the run had made, empty."""
+    import errno
+
+    from nao_skin.formats import outdir
+
+    def full(path, data):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(outdir, "replace_file", full)
+    (tmp_path / "mine").mkdir()
+    assert cli_main(["layouts", str(tmp_path / "mine" / "new" / "layouts")]) == 2
+    assert one_line(capsys).endswith("cannot write (No space left on device); choose another place")
+    assert list((tmp_path / "mine").iterdir()) == []        # the user's folder stays, what the run made is gone
+
+
 def test_layouts_never_replace_a_robots_own_layout_without_force(tmp_path, capsys):
     own = tmp_path / "layouts" / "l_hand.txt"
     own.parent.mkdir()

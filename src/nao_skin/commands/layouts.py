@@ -50,6 +50,7 @@ def run(args) -> int:
             more = f" and {len(differing) - 1} more" if len(differing) > 1 else ""
             raise DataError(f"layouts {directory}: {differing[0]}{more} differs from the default layout; nothing"
                             f" written (pass --force to replace it, or choose another directory)")
+        made = [place for place in (directory, *directory.absolute().parents) if not place.exists()]
         try:
             directory.mkdir(parents=True, exist_ok=True)
             for f, target in zip(fresh, targets):
@@ -57,6 +58,11 @@ def run(args) -> int:
                     target.unlink()
                 replace_file(target, f.read_bytes())    # whole or not at all: a full disk keeps the old one
         except OSError as exc:
+            for place in made:            # the folders this run made, when nothing is left in them
+                try:
+                    place.rmdir()
+                except OSError:
+                    break
             raise DataError(f"layouts {directory}: cannot write ({exc.strerror}); choose another place") from None
     for target in targets:
         print(target)
