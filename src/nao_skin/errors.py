@@ -77,6 +77,8 @@ class Terminated(KeyboardInterrupt):
 
 
 TERMINATING = tuple(getattr(signal, s) for s in ("SIGTERM", "SIGHUP") if hasattr(signal, s))
+# what stops a command, record or a node: Ctrl-C, kill, the terminal closed
+STOP_SIGNALS = (signal.SIGINT, *TERMINATING)
 
 
 def stop_on_term_or_hangup() -> dict:

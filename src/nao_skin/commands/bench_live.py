@@ -105,9 +105,10 @@ def _measure(args, work: Path) -> int:
     from visualization_msgs.msg import MarkerArray
 
     from nao_skin.commands.record import die_with_parent
+    from nao_skin.errors import STOP_SIGNALS
     from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, taxels_topic
     from nao_skin.nodes.topics import HEATMAP_TOPIC, LATCHED, PROGRESS_TOPIC, STATUS_TOPIC
-    from nao_skin.session.record import PARENT_ENV, STOP_SIGNALS
+    from nao_skin.session.record import PARENT_ENV
     from nao_skin.model.skin import load_skin
     from nao_skin.paths import config_dir
 

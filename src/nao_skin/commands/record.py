@@ -73,7 +73,8 @@ def run(args) -> int:
     import math
 
     from nao_skin.errors import ConfigError
-    from nao_skin.session.record import STOP_SIGNALS, check_needs, record_session
+    from nao_skin.errors import STOP_SIGNALS
+    from nao_skin.session.record import check_needs, record_session
 
     if not (args.duration >= 0 and math.isfinite(args.duration)):     # NaN, -5, inf would all mean 'forever'
         raise ConfigError(f"--duration {args.duration}: expected seconds >= 0 (0: until Ctrl-C)")

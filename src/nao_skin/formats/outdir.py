@@ -24,7 +24,7 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from nao_skin.errors import DataError
+from nao_skin.errors import STOP_SIGNALS, DataError
 
 MARKER = ".nao_skin_output"
 FORMAT = "nao_skin/output/1"
@@ -264,9 +264,6 @@ def replace_dir(new: str | Path, out: str | Path, label: str = "output directory
         shutil.rmtree(aside, ignore_errors=True)
     return out
 
-
-# what stops a command or a node: Ctrl-C, kill, the terminal closed
-STOP_SIGNALS = tuple(getattr(signal, s) for s in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, s))
 
 
 @contextmanager

@@ -25,9 +25,9 @@ from rclpy.exceptions import InvalidParameterTypeException, ParameterUninitializ
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
-from nao_skin.errors import ConfigError, DataError, NaoSkinError
+from nao_skin.errors import STOP_SIGNALS, ConfigError, DataError, NaoSkinError
 from nao_skin.rules import did_you_mean
-from nao_skin.session.record import PARENT_ENV, STOP_SIGNALS
+from nao_skin.session.record import PARENT_ENV
 
 MAX_LOGGED_FAILURES = 5   # callback errors of one kind logged one by one (then every 100th)
 

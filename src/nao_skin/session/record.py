@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from nao_skin.errors import ConfigError, NaoSkinError
-from nao_skin.formats.outdir import STOP_SIGNALS  # noqa: F401 - the nodes' and record's stop signals
 from nao_skin.model.skin import parse_taxel_files
 from nao_skin.model.urdf import expand_xacro
 from nao_skin.paths import config_dir, parse_yaml, read_ros_params_file, read_yaml, yaml_value
