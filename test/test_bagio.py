@@ -169,6 +169,16 @@ def test_a_closed_bag_without_a_usable_metadata_yaml_is_read_whole_as_a_touch_ba
             assert "(not rosbag2 metadata: no 'rosbag2_bagfile_information' mapping)" in note[0]
 
 
+def list_more_joint_states(bag, n: int) -> None:
+    """The bag's metadata.yaml lists ``n`` more /joint_states messages than its storage file holds."""
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())
+    info = meta["rosbag2_bagfile_information"]
+    joints = next(t for t in info["topics_with_message_count"] if t["topic_metadata"]["name"] == "/joint_states")
+    joints["message_count"] += n
+    info["message_count"] += n
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+
+
 @pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
 def test_a_storage_file_that_ends_early_without_an_error_says_what_is_lost(real, real_skin, tmp_path, storage):
     """A damaged mcap chunk can end the messages early without the reader raising: 47 of 83 touches were read
@@ -176,12 +186,7 @@ def test_a_storage_file_that_ends_early_without_an_error_says_what_is_lost(real,
     storage file holds)."""
     bag = tmp_path / "bag"
     write_touch_bag(bag, real.subset(np.arange(40)), real_skin, storage=storage)
-    meta = yaml.safe_load((bag / "metadata.yaml").read_text())
-    info = meta["rosbag2_bagfile_information"]
-    joints = next(t for t in info["topics_with_message_count"] if t["topic_metadata"]["name"] == "/joint_states")
-    joints["message_count"] += 50
-    info["message_count"] += 50
-    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+    list_more_joint_states(bag, 50)
     back, report = read_touches(bag, real_skin)
     assert back.n_touches == 40
     assert report.skipped["truncated bag"] == 50
@@ -207,12 +212,7 @@ def test_a_topic_the_storage_file_does_not_hold_is_named_not_called_a_truncated_
     lines = [m for m in report.messages if "the storage file holds none of them" in m]
     assert sorted(line.split(": ")[1].split(" (")[0] for line in lines) == ["/skin/torso/contacts", "/skin/torso/taxels"]
     # where another topic is cut short too, the file is damaged: what it lacks is lost to that, not absent
-    meta = yaml.safe_load((bag / "metadata.yaml").read_text())
-    info = meta["rosbag2_bagfile_information"]
-    joints = next(t for t in info["topics_with_message_count"] if t["topic_metadata"]["name"] == "/joint_states")
-    joints["message_count"] += 5
-    info["message_count"] += 5
-    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+    list_more_joint_states(bag, 5)
     _, report = read_touches(bag, real_skin)
     assert dict(report.skipped) == {"truncated bag": 45}, report.lines()
 
