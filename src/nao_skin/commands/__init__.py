@@ -38,7 +38,7 @@ def write_output(text: str, out: str | Path | None, inputs=(), mark: tuple = ())
     for item in inputs:
         if item and Path(item).exists() and out.exists() and os.path.samefile(item, out):
             raise DataError(f"--out {out}: is the input {item}; writing there would replace it, choose another file")
-    if out.is_file() and not _written_here(out, mark):
+    if out.is_file() and not written_here(out, mark):
         raise DataError(f"--out {out}: exists and was not written by this command; nothing is written over"
                         f" somebody's file: choose another name, or remove it first")
     for parent in out.absolute().parents:
@@ -54,7 +54,7 @@ def write_output(text: str, out: str | Path | None, inputs=(), mark: tuple = ())
     print(out)
 
 
-def _written_here(path: Path, mark: tuple) -> bool:
+def written_here(path: Path, mark: tuple) -> bool:
     """Whether ``path`` is empty (e.g. made by mktemp) or its first lines hold every text of ``mark``
     (unreadable: not ours)."""
     try:

@@ -12,7 +12,7 @@ import sys
 import time
 from pathlib import Path
 
-from nao_skin.commands import add_output_arguments
+from nao_skin.commands import add_output_arguments, written_here
 
 NAME = "bench"
 HELP = "benchmark calibration strategies (seconds against error) and the simulator's hard cases"
@@ -132,14 +132,9 @@ def _check_readme_run(readme: Path, sections: set, real: bool) -> None:
     plot = readme.parent / README_PLOT
     if writes_main and (plot.exists() or plot.is_symlink()):
         kind = not_a_file(plot.stat().st_mode) if plot.exists() else "a symbolic link that leads nowhere"
-        if kind or b"Matplotlib" not in _head(plot):
+        if kind or not written_here(plot, ("Matplotlib",)):     # the tag matplotlib writes into a PNG
             raise DataError(f"--readme {readme}: {plot} exists and is no plot of an earlier bench; nothing is written"
                             f" over somebody's file: move it first")
-
-
-def _head(path: Path) -> bytes:
-    with open(path, "rb") as f:
-        return f.read(256)
 
 
 def _sim_input(args, quick: bool, say, keep: int | None = None):
