@@ -63,7 +63,7 @@ from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.plain import jsonable
 from nao_skin.rules import finite_float
-from nao_skin.sim.params import SimParams
+from nao_skin.sim.params import SimParams, make_params
 from nao_skin.sim.poses import Spots, choose_spots, idle_joints, solve_poses
 from nao_skin.touch.touches import TouchSet
 
@@ -286,7 +286,7 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
     targets = [_target(d, skin, counts, needed, pair_n, pairs) for d in cands]
     notes = []
     if poses and targets:
-        p = pose_params or SimParams(**GUIDANCE_POSE)
+        p = pose_params or make_params(GUIDANCE_POSE)
         if fabric is not None:
             p = dataclasses.replace(p, fabric_thickness=fabric)
         _solve(targets, skin, calib, counts, p, rng, pairs)

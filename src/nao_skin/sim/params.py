@@ -1,14 +1,14 @@
 """Parameters of the self-touch simulator, as data: defaults, presets, validation.
 
-``config/simulation.yaml`` holds a ``defaults:`` mapping (every field of
-:class:`SimParams`) and ``presets:`` that override a few fields each. Lengths
+``config/simulation.yaml`` holds a ``defaults:`` mapping (the value of every field of
+:class:`SimParams`, defined there only) and ``presets:`` that override a few fields each. Lengths
 are metres, angles radians unless the field name says ``_deg``.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
 
@@ -18,54 +18,57 @@ from nao_skin.rules import known_keys
 from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST
 
 
-@dataclass
+@dataclass(kw_only=True)
 class SimParams:
+    """Every parameter of one simulation. The values live in one place, the ``defaults:`` of
+    ``config/simulation.yaml`` (:func:`make_params` fills from there what a caller leaves out), except
+    the contact distance, which is skinManager's own default."""
+
     # ------------------------------------------------------------ scene
-    pairs: list = field(default_factory=lambda: [["r_hand", "torso"], ["l_hand", "torso"],
-                                                  ["r_hand", "head"], ["l_hand", "head"]])
-    n_touches: int = 200                      # accepted touches per pair
-    start_stamp: float = 1_700_000_000.0      # first touch stamp (s); fixed so outputs are reproducible
-    touch_interval: list = field(default_factory=lambda: [1.5, 4.0])   # s between touches, uniform
+    pairs: list                           # [hand, touched part]: the hand is pressed on the part
+    n_touches: int                        # accepted touches per pair
+    start_stamp: float                    # first touch stamp (s); fixed so outputs are reproducible
+    touch_interval: list                  # s between touches, uniform
     # ------------------------------------------------------------ true skin placement (ground truth)
-    hand_mount_rotation_deg: float = 160.0    # about the forearm axis (real hands: ~160 deg off the CAD)
-    hand_mount_axis_tilt_deg: float = 5.0     # tilt of that rotation axis away from the forearm axis
-    hand_mount_shift: float = 0.015           # along the forearm axis (m), random sign
-    hand_mount_radial: float = 0.002          # across the forearm axis (m), random direction
-    hand_mount_offset: list = field(default_factory=lambda: [0.0, 0.0, 0.0])  # fixed extra shift, mount axes (m)
-    body_mount_translation: float = 0.003     # torso / head mount (m)
-    body_mount_rotation: float = 0.035        # torso / head mount (rad, ~2 deg)
-    patch_translation: float = 0.003          # per patch (m)
-    patch_rotation: float = 0.05              # per patch (rad, ~3 deg)
-    triangle_translation: float = 0.0004      # per triangle (m)
-    triangle_rotation: float = 0.05           # per triangle (rad)
+    hand_mount_rotation_deg: float        # about the forearm axis (real hands: ~160 deg off the CAD)
+    hand_mount_axis_tilt_deg: float       # tilt of that rotation axis away from the forearm axis
+    hand_mount_shift: float               # along the forearm axis (m), random sign
+    hand_mount_radial: float              # across the forearm axis (m), random direction
+    hand_mount_offset: list               # fixed extra shift, mount axes (m)
+    body_mount_translation: float         # torso / head mount (m)
+    body_mount_rotation: float            # torso / head mount (rad, ~2 deg)
+    patch_translation: float              # per patch (m)
+    patch_rotation: float                 # per patch (rad, ~3 deg)
+    triangle_translation: float           # per triangle (m)
+    triangle_rotation: float              # per triangle (rad)
     # ------------------------------------------------------------ true robot (ground truth): how its kinematics
     # differ from the robot config the recording is read with; it poses and fires, the joints record as before
-    joint_offset_deg: float = 0.0             # each arm and head joint truly sits off by up to this, uniform, random sign
-    link_errors: dict = field(default_factory=dict)   # named link (robot config `links`) -> m added to its length
+    joint_offset_deg: float               # each arm and head joint truly sits off by up to this, uniform, random sign
+    link_errors: dict                     # named link (robot config `links`) -> m added to its length
     # ------------------------------------------------------------ pose search
-    pose_restarts: int = 8                    # random starts per target spot
-    pose_iterations: int = 60                 # Levenberg-Marquardt iterations
-    pose_tolerance: float = 0.0005            # accepted spot-to-spot position error (m)
-    normal_tolerance_deg: float = 8.0         # accepted deviation from opposed normals
-    penetration_tolerance: float = 0.003      # how far another hand taxel may sit behind the target surface (m)
-    spot_radius: float = 0.007                # chosen contact spot: random point this close to a triangle centre (m)
-    planar_band: float = 0.0                  # > 0: contact spots only in a band this wide (m) -> poses in a plane
+    pose_restarts: int                    # random starts per target spot
+    pose_iterations: int                  # Levenberg-Marquardt iterations
+    pose_tolerance: float                 # accepted spot-to-spot position error (m)
+    normal_tolerance_deg: float           # accepted deviation from opposed normals
+    penetration_tolerance: float          # how far another hand taxel may sit behind the target surface (m)
+    spot_radius: float                    # chosen contact spot: random point this close to a triangle centre (m)
+    planar_band: float                    # > 0: contact spots only in a band this wide (m) -> poses in a plane
     # ------------------------------------------------------------ contact and activation
-    fabric_thickness: float = 0.001           # fabric over the taxels, each side (m): taxels never coincide
-    footprint_radius: list = field(default_factory=lambda: [0.015, 0.035])   # pressure spots spread (m)
-    pressure_spots: list = field(default_factory=lambda: [2, 7])             # spots per touch (inclusive)
-    spot_size: list = field(default_factory=lambda: [0.007, 0.013])          # radius of one spot (m)
-    press_reach: list = field(default_factory=lambda: [0.002, 0.005])       # fires up to this beyond the gap (m)
+    fabric_thickness: float               # fabric over the taxels, each side (m): taxels never coincide
+    footprint_radius: list                # pressure spots spread (m)
+    pressure_spots: list                  # spots per touch (inclusive)
+    spot_size: list                       # radius of one spot (m)
+    press_reach: list                     # fires up to this beyond the gap (m)
     cluster_distance: float = DEFAULT_MAX_NEIGHBOR_DIST   # taxels closer than this form one contact
     # ------------------------------------------------------------ noise and defects (scaled by noise_scale)
-    noise_scale: float = 1.0                  # multiplies every noise and defect rate below
-    joint_noise: float = 0.003                # encoder + backlash while the arm is held (rad, std)
-    fabric_jitter: float = 0.0002             # fabric thickness variation (m, std)
-    missed_taxel: float = 0.005               # probability a firing taxel is not reported
-    spurious_taxel: float = 0.02              # probability per touch of one stray taxel activation
-    duplicate: float = 0.03                   # probability a touch is recorded twice
-    experimenter_hand: float = 0.10           # hand touches where the experimenter also presses the robot's hand
-    non_self_contact: float = 0.02            # touches whose activations no self-contact explains
+    noise_scale: float                    # multiplies every noise and defect rate below
+    joint_noise: float                    # encoder + backlash while the arm is held (rad, std)
+    fabric_jitter: float                  # fabric thickness variation (m, std)
+    missed_taxel: float                   # probability a firing taxel is not reported
+    spurious_taxel: float                 # probability per touch of one stray taxel activation
+    duplicate: float                      # probability a touch is recorded twice
+    experimenter_hand: float              # hand touches where the experimenter also presses the robot's hand
+    non_self_contact: float               # touches whose activations no self-contact explains
 
     # ------------------------------------------------------------------ derived
     def scaled(self, name: str) -> float:
@@ -141,7 +144,8 @@ def preset_names(path: str | Path | None = None) -> list:
 
 def load_params(preset: str = "default", overrides: Mapping | None = None,
                 path: str | Path | None = None) -> SimParams:
-    """Defaults of the file, then the preset's fields, then ``overrides``; validated."""
+    """The file's defaults, then the preset's fields, then ``overrides``; validated (what the file leaves
+    out, the bundled file's defaults give: :func:`make_params`)."""
     path = Path(path) if path else default_params_file()
     doc = _read_doc(path)
     presets = doc.get("presets") or {}
@@ -155,14 +159,21 @@ def load_params(preset: str = "default", overrides: Mapping | None = None,
 
 
 def make_params(values: Mapping | SimParams, where: str = "simulation parameters") -> SimParams:
-    """A validated :class:`SimParams` from a mapping of field overrides (or a SimParams)."""
+    """A validated :class:`SimParams`: the bundled ``config/simulation.yaml`` defaults, then ``values``
+    (a mapping of field overrides, or a SimParams)."""
     if isinstance(values, SimParams):
         values = values.to_dict()
-    known = {f.name for f in dataclasses.fields(SimParams)}
-    unknown = sorted(set(values) - known)
+    fields = dataclasses.fields(SimParams)
+    unknown = sorted(set(values) - {f.name for f in fields})
     if unknown:
         raise ConfigError(f"{where}: unknown field(s) {', '.join(unknown)}")
-    params = SimParams(**{k: v for k, v in values.items()})
+    bundled = default_params_file()
+    values = {**(_read_doc(bundled).get("defaults") or {}), **values}
+    missing = [f.name for f in fields if f.name not in values and f.default is dataclasses.MISSING]
+    if missing:
+        raise ConfigError(f"{bundled}: 'defaults' lacks {', '.join(missing)} (every simulation parameter has its"
+                          f" value there)")
+    params = SimParams(**values)
     validate(params, where)
     return params
 
