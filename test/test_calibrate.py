@@ -505,7 +505,9 @@ def test_solves_a_re_pairing_replaces_stop_early_and_a_stages_last_allowed_one_r
         return result
 
     monkeypatch.setattr(stages, "solve", recorded)
-    options = CalibrationOptions(repair_iterations=1, reference_repairings=2, max_repairings=4, max_iterations=30)
+    # closest taxel rows in every stage: their pairing takes more re-pairings to settle than COP rows'
+    options = CalibrationOptions(repair_iterations=1, reference_repairings=2, max_repairings=4, max_iterations=30,
+                                 pairs="both")
     result = calibrate(touches, skin, options, truth=truth)
     caps = [cap for cap, _ in solves]
     assert set(caps) == {1, 30}, caps

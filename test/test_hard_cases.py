@@ -196,7 +196,7 @@ def test_speed_matrix_rows_plot_and_a_failing_strategy(skin, tmp_path):
     sim = simulate(skin, load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 60}), 2)
     touches, _ = deduplicate(sim.touches)
     inp = bench.BenchInput("sim", touches, skin, sim.truth)
-    variants = [bench.Variant("default"), bench.Variant("COP pairs only", {"pairs": "cop"}),
+    variants = [bench.Variant("default"), bench.Variant("COP pairs only", {"closing_pairs": "cop"}),
                 bench.Variant("bogus", {"loss": "cauchy-of-nowhere"}), bench.Variant("FD", {"jacobian": "2-point"},
                                                                                    single_run=True)]
     lines = []

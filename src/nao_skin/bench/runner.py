@@ -84,14 +84,17 @@ def strategy_variants(sweep=TOUCH_SWEEP) -> list:
     """The default, one knob changed per row, then the touch-count sweep."""
     d = CalibrationOptions()
     rows = [
-        Variant(f"default ({d.strategy}, {d.reference} reference, {d.pairs} pairs, "
+        Variant(f"default ({d.strategy}, {d.reference} reference, {d.pairs} pairs, closing {d.closing_pairs}, "
                 f"{'bounded' if d.bounded else 'free'}, {d.loss}, {d.jacobian} J)"),
         Variant("all at once (mount+patch+triangle together)", {"strategy": "all-at-once"}),
         Variant("simultaneous (no reference part)", {"reference": "simultaneous"}),
-        Variant("COP pairs only", {"pairs": "cop"}),
-        Variant("taxel pairs only", {"pairs": "taxel"}),
-        Variant("point-to-plane rows instead of closest taxel pairs (cop+plane)", {"pairs": "cop+plane"}),
-        Variant("point-to-plane rows beside closest taxel pairs (both+plane)", {"pairs": "both+plane"}),
+        Variant("COP pairs only (the closing stage too)", {"closing_pairs": "cop"}),
+        Variant("COP and closest taxel pairs in every stage (pairs=both)", {"pairs": "both"}),
+        Variant("taxel pairs only", {"pairs": "taxel", "closing_pairs": "taxel"}),
+        Variant("point-to-plane rows instead of closest taxel pairs (cop+plane)",
+                {"pairs": "cop+plane", "closing_pairs": "cop+plane"}),
+        Variant("point-to-plane rows beside closest taxel pairs (both+plane)",
+                {"pairs": "both+plane", "closing_pairs": "both+plane"}),
         Variant("bounded (the thesis' box on patch and triangle corrections)", {"bounded": True}),
         Variant("wider prior (starts at the bound: prior_strength=1)", {"prior_strength": 1.0}),
         Variant("fixed prior (bound/3, not widened by the touches)", {"prior_scale": "fixed"}),

@@ -190,10 +190,12 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
         if options.initial_guess == "rigid-fit" and round_no == 0 and not warm.issuperset(step.targets) \
                 and (step.references or options.reference == "simultaneous"):
             _first_guess(train, skin, step, options, fit, say, prefix)
+        warm_step = bool(warm) and warm.issuperset(step.targets)
         for levels in _stage_levels(step, options, prefix):
-            report.stages.append(_fit_stage(train, test, skin, step, levels, round_no, prefix, options, fit,
+            report.stages.append(_fit_stage(train, test, skin, step, levels, round_no, prefix,
+                                            _stage_options(options, prefix, warm_step), fit,
                                             truth, say, measure=not warm, anchor=anchor,
-                                            warm=bool(warm) and warm.issuperset(step.targets), refined=refined))
+                                            warm=warm_step, refined=refined))
     if options.kinematics != "off":
         report.kinematics = _fit_kinematics(train, test, skin, steps, schedule, start, options, fit, truth, say,
                                             report)
@@ -302,6 +304,12 @@ def _stage_levels(step: Step, options: CalibrationOptions, prefix: str = ""):
             levels = levels & set(options.joint_levels)
         if levels:
             yield levels
+
+
+def _stage_options(options: CalibrationOptions, prefix: str, warm: bool = False) -> CalibrationOptions:
+    """The options of the stages of one schedule entry. A closing stage, and a warm one (its frames estimated
+    by an earlier update), starts with the frames nearly in place: it pairs as ``closing_pairs`` says."""
+    return options.in_place() if prefix == CLOSING or warm else options
 
 
 def _first_guess(train: TouchSet, skin: SkinModel, step: Step, options: CalibrationOptions, fit: _Fit, say,
@@ -425,7 +433,7 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
         for round_no, st, prefix in schedule:
             for levels in _stage_levels(st, options, prefix):
                 entries.append(_fit_stage(train, test, skin, st, levels, round_no, f"kinematics pass {n}: " + prefix,
-                                          options, kfit, truth, say, refined=refined))
+                                          _stage_options(options, prefix), kfit, truth, say, refined=refined))
         entries.append(_fit_stage(train, test, skin, step, {"mount", KINEMATICS}, options.rounds,
                                   f"kinematics pass {n}: ", options, kfit, truth, say))
         moved = max((abs(v - last.get(k, 0.0)) for k, v in kfit.calibration.kinematics.items()), default=0.0)

@@ -6,7 +6,7 @@ and the checks before any data is read all come from this one table
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -58,7 +58,14 @@ class CalibrationOptions:
     triangle_bounds: tuple = option((0.0005, np.pi / 40), Rule(tuple, low=1e-6, high=10.0, length=2),
                                     "|translation| m, |rotation| rad per component of a triangle correction: the box"
                                     " of bounded, the prior's scale (bound / prior_strength) either way")
-    pairs: str = option("both", Rule(str, _PAIRS), "paired points in the residuals of patch and triangle stages")
+    # a closest taxel pair carries the two taxel lattices' offset (1.3-1.6 mm even at the true skin) and,
+    # while the frames are still off, wrong neighbours; a COP row averages a contact's taxels. So COP rows
+    # estimate the frames, and the stages that start where they are nearly right (the closing stage, a live
+    # update's warm stages) add the taxel pairs (README, Calibration: "Which rows")
+    pairs: str = option("cop", Rule(str, _PAIRS), "paired points in the residuals of patch and triangle stages"
+                                                  " (closing and warm stages: closing_pairs)")
+    closing_pairs: str = option("both", Rule(str, _PAIRS), "paired points in the residuals of the closing stage"
+                                                           " and of a live update's warm stages")
     mount_pairs: str = option("cop", Rule(str, _PAIRS), "paired points of the mount stages (robust while far off)")
     # "cop+plane" is not the default: the simulator's flat triangles meet exactly at the fabric, which
     # flatters point-to-plane rows; the real skin's do not (README, Calibration: "Point-to-plane rows")
@@ -181,6 +188,11 @@ class CalibrationOptions:
 
     def plane_rows(self) -> PlaneRows:
         return PlaneRows(self.plane_weight, self.plane_scale)
+
+    def in_place(self) -> "CalibrationOptions":
+        """The options of a stage that starts with the frames nearly in place (the closing stage, a warm
+        stage, a linearisation at the truth): its rows are ``closing_pairs``."""
+        return replace(self, pairs=self.closing_pairs)
 
     def set(self, name: str, value, where: str | None = None) -> None:
         """Set option ``name`` to ``value`` (an int where a float is asked is fine), checked by its rule."""
