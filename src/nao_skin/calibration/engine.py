@@ -404,6 +404,9 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     closer by ``kinematics_min_gain``; otherwise the calibration is the skin-only one, unchanged, and
     every kinematic unknown is listed as held with the figures. ``on`` keeps it whatever the figures.
     """
+    # every stage of this path fits the rows of closing_pairs: its figures (README, Kinematics) are measured
+    # so, and the COP rows first are not measured with kinematic unknowns
+    options = options.in_place()
     step = Step(tuple(sorted({p for s in steps for p in s.targets + s.references}, key=part_rank)), ())
     test_before = _held_out_surface_mm(test, skin, fit, step)
     # The skin-only plan is no starting point: its patches and triangles have absorbed what the kinematics
@@ -433,7 +436,7 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
         for round_no, st, prefix in schedule:
             for levels in _stage_levels(st, options, prefix):
                 entries.append(_fit_stage(train, test, skin, st, levels, round_no, f"kinematics pass {n}: " + prefix,
-                                          _stage_options(options, prefix), kfit, truth, say, refined=refined))
+                                          options, kfit, truth, say, refined=refined))
         entries.append(_fit_stage(train, test, skin, step, {"mount", KINEMATICS}, options.rounds,
                                   f"kinematics pass {n}: ", options, kfit, truth, say))
         moved = max((abs(v - last.get(k, 0.0)) for k, v in kfit.calibration.kinematics.items()), default=0.0)
