@@ -354,6 +354,7 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
                    else fitted_pair_cost(train, skin, fit.calibration, step, fit.inliers, kinds, fit.fabric, started,
                                      options.plane_rows()))
     entry = stage.report(prefix + stage.name)
+    entry["rows"] = list(kinds)
     if KINEMATICS in levels:
         entry["kinematics_held"] = list(stage.kinematics_held)
     fit.held |= stage.held_components
