@@ -96,7 +96,8 @@ class LinearisedCapture:
 
 def linearise(skin: SkinModel, touches: TouchSet, truth: SkinCalibration, fabric: float,
               options: CalibrationOptions | None = None) -> LinearisedCapture:
-    """The pool ``touches`` paired at the truth as the joint refinement pairs them, linearised there."""
+    """The pool ``touches`` paired at the truth as the closing stage pairs them (``closing_pairs``), linearised
+    there."""
     options = (options or CalibrationOptions()).in_place()
     parts = tuple(p for p in skin.parts if p in touches.part_names)
     layout = ParameterLayout(skin, parts, ())

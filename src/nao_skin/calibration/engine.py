@@ -306,7 +306,7 @@ def _stage_levels(step: Step, options: CalibrationOptions, prefix: str = ""):
             yield levels
 
 
-def _stage_options(options: CalibrationOptions, prefix: str, warm: bool = False) -> CalibrationOptions:
+def _stage_options(options: CalibrationOptions, prefix: str, warm: bool) -> CalibrationOptions:
     """The options of the stages of one schedule entry. A closing stage, and a warm one (its frames estimated
     by an earlier update), starts with the frames nearly in place: it pairs as ``closing_pairs`` says."""
     return options.in_place() if prefix == CLOSING or warm else options
