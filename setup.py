@@ -55,13 +55,13 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'nao-skin = nao_skin.cli:main',
-            'calibrate = nao_skin.nodes.entry:calibrate',
-            'naoqi_bridge = nao_skin.nodes.entry:naoqi_bridge',
-            'yarp_skin_bridge = nao_skin.nodes.entry:yarp_skin_bridge',
-            'sim_robot = nao_skin.nodes.entry:sim_robot',
-            'pairing_recorder = nao_skin.nodes.entry:pairing_recorder',
-            'skin_heatmap = nao_skin.nodes.entry:skin_heatmap',
+            'nao-skin = nao_skin.entry:nao_skin',
+            'calibrate = nao_skin.entry:calibrate',
+            'naoqi_bridge = nao_skin.entry:naoqi_bridge',
+            'yarp_skin_bridge = nao_skin.entry:yarp_skin_bridge',
+            'sim_robot = nao_skin.entry:sim_robot',
+            'pairing_recorder = nao_skin.entry:pairing_recorder',
+            'skin_heatmap = nao_skin.entry:skin_heatmap',
         ],
     },
 )

@@ -14,6 +14,8 @@
    ends with exit 2, and the bag keeps every touch flushed before.
 6. A Ctrl-C while a console script (a node as ``ros2 run`` starts it, or
    ``nao-skin``) still imports: one line, exit 130, no traceback.
+7. Ctrl-C again and again while ``nao-skin`` exits after its work: its
+   exit code and output stay as they were.
 
 Node processes are found by the pids record prints on stderr and checked
 by their command line in /proc, so no other test's process is matched.
@@ -293,3 +295,29 @@ def test_a_ctrl_c_while_a_console_script_imports_ends_in_one_line(tmp_path, argv
     assert code in (0, 130), (code, err[-2000:])
     if code == 130:
         assert err.strip().splitlines()[-1] == f"{argv[0]}: interrupted while starting"
+
+
+@pytest.mark.parametrize("argv", [["nao-skin", "record", "--help"], ["nao-skin", "stats", "--help"]],
+                         ids=["record", "stats"])
+def test_a_ctrl_c_as_a_console_script_ends_changes_nothing(tmp_path, argv):
+    """Ctrl-C pressed again and again while ``nao-skin`` finishes: its output has been written, so the
+    exit code stays the command's and nothing but its output is printed. CPython's own exit puts SIGINT
+    back to its default before the process ends; a Ctrl-C then ended it by the signal (exit -2, what
+    the command had printed still in its buffer)."""
+    script = Path(sys.executable).parent / argv[0]
+    env = {**ros_env(unique_domain_id()), "PYTHONUNBUFFERED": "1"}    # the help text is in the file at once
+    proc = Proc([str(script), *argv[1:]], env, tmp_path, argv[0])
+    try:
+        deadline = time.monotonic() + 60
+        while "usage:" not in proc.stdout() and proc.alive() and time.monotonic() < deadline:
+            time.sleep(0.001)
+        while proc.alive():                 # from the help text on, until the process is gone
+            proc.popen.send_signal(signal.SIGINT)
+            time.sleep(0.002)
+        code = proc.popen.wait(timeout=30)
+    finally:
+        proc.stop()
+    err = proc.stderr()
+    assert "Traceback" not in err, err[-2000:]
+    assert code in (0, 130), (code, err[-2000:])
+    assert proc.stdout().startswith("usage: nao-skin"), proc.stdout()[:200]

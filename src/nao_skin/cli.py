@@ -17,7 +17,8 @@ import sys
 import time
 
 from nao_skin import commands
-from nao_skin.errors import NaoSkinError, Terminated, end_at_once_on_ctrl_c, os_reason, stop_on_term_or_hangup
+from nao_skin.errors import (NaoSkinError, Terminated, end_at_once_on_ctrl_c, ignore_stop_signals, os_reason,
+                             stop_on_term_or_hangup)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -126,5 +127,13 @@ class _WatchedStream:
         return getattr(self.stream, name)
 
 
+def console() -> int:
+    """``nao-skin`` as its own process (the console script, ``python -m nao_skin.cli``): :func:`main`, then
+    a Ctrl-C while Python exits leaves the command's exit code as it is."""
+    code = main()
+    ignore_stop_signals()
+    return code
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(console())

@@ -49,7 +49,9 @@ def one_line(exc: BaseException, limit: int = 300) -> str:
 
 def end_at_once_on_ctrl_c(prog: str):
     """Until the program installs its own SIGINT handling, a Ctrl-C ends the process at once with one line
-    (``<prog>: interrupted while starting``) and exit code 130. Returns the handler it replaced.
+    (``<prog>: interrupted while starting``) and exit code 130. Returns the handler to put back once
+    started: the one it replaced, or, when it replaces its own (a console script installs it before
+    importing the module whose ``main`` installs it again), the one that was there before the first.
 
     Starting means importing rclpy, numpy and scipy, a second or more. Python's own KeyboardInterrupt
     would surface there as a traceback from inside an import, or, inside a C extension's, as an
@@ -62,7 +64,10 @@ def end_at_once_on_ctrl_c(prog: str):
         os.write(2, line)
         os._exit(130)
 
-    return signal.signal(signal.SIGINT, interrupted)
+    previous = signal.getsignal(signal.SIGINT)
+    interrupted.started_handler = getattr(previous, "started_handler", previous)
+    signal.signal(signal.SIGINT, interrupted)
+    return interrupted.started_handler
 
 
 class Terminated(KeyboardInterrupt):
@@ -89,3 +94,12 @@ def stop_on_term_or_hangup() -> dict:
         raise Terminated(signum)
 
     return {s: signal.signal(s, terminated) for s in TERMINATING}
+
+
+def ignore_stop_signals() -> None:
+    """The program's work is done and written: a stop signal has nothing left to stop. Ignored, not left
+    to Python: CPython's exit puts every handler it installed back to the default before the process
+    ends, and a Ctrl-C or ``kill`` arriving then ended it by the signal (exit -2 or -15, no line), which
+    a caller counts as interrupted (and output still buffered was lost)."""
+    for s in STOP_SIGNALS:
+        signal.signal(s, signal.SIG_IGN)

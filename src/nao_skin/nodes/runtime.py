@@ -25,7 +25,7 @@ from rclpy.exceptions import InvalidParameterTypeException, ParameterUninitializ
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
-from nao_skin.errors import STOP_SIGNALS, ConfigError, DataError, NaoSkinError
+from nao_skin.errors import STOP_SIGNALS, ConfigError, DataError, NaoSkinError, ignore_stop_signals
 from nao_skin.rules import did_you_mean
 from nao_skin.session.record import PARENT_ENV
 
@@ -250,10 +250,8 @@ def run_node(factory, args=None) -> int:
                     code = 2
             node.destroy_node()
         rclpy.try_shutdown()
-        # The node is done: a stop signal now has nothing left to stop. Ignored, not reset: CPython's
-        # finalisation puts SIGTERM back to its default, and record's SIGTERM arriving then (it stops the
-        # session just after the recorder said "cannot write the bag") ended the process by the signal,
-        # which record counts as a clean stop: exit 0 after a full disk.
-        for s in STOP_SIGNALS:
-            signal.signal(s, signal.SIG_IGN)
+        # record's SIGTERM arriving during Python's exit (it stops the session just after the recorder
+        # said "cannot write the bag") ended the process by the signal, which record counts as a clean
+        # stop: exit 0 after a full disk
+        ignore_stop_signals()
     return code

@@ -1,0 +1,47 @@
+"""The console scripts: ``nao-skin`` and the nodes as ``ros2 run nao_skin <node>`` starts them (pip puts
+them in the venv's bin, colcon in ``lib/nao_skin``). Each installs
+:func:`~nao_skin.errors.end_at_once_on_ctrl_c` before it imports anything of its own, so a Ctrl-C while
+rclpy and scipy import is one line, never a traceback, and ignores the stop signals once its program has
+returned. (``nao-skin record`` starts its nodes in their own sessions, so a terminal's Ctrl-C never
+reaches them.)
+"""
+from __future__ import annotations
+
+import importlib
+
+from nao_skin.errors import end_at_once_on_ctrl_c, ignore_stop_signals
+
+
+def _run(prog: str, module: str, function: str = "main") -> int:
+    end_at_once_on_ctrl_c(prog)           # the program's own stop handling replaces it once it runs
+    code = getattr(importlib.import_module(module), function)()
+    ignore_stop_signals()
+    return code
+
+
+def nao_skin() -> int:
+    return _run("nao-skin", "nao_skin.cli", "console")
+
+
+def calibrate() -> int:
+    return _run("calibrate", "nao_skin.nodes.calibrate")
+
+
+def naoqi_bridge() -> int:
+    return _run("naoqi_bridge", "nao_skin.nodes.naoqi_bridge")
+
+
+def yarp_skin_bridge() -> int:
+    return _run("yarp_skin_bridge", "nao_skin.nodes.yarp_skin_bridge")
+
+
+def sim_robot() -> int:
+    return _run("sim_robot", "nao_skin.nodes.sim_robot")
+
+
+def pairing_recorder() -> int:
+    return _run("pairing_recorder", "nao_skin.nodes.pairing_recorder")
+
+
+def skin_heatmap() -> int:
+    return _run("skin_heatmap", "nao_skin.nodes.skin_heatmap")
