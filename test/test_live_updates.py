@@ -207,7 +207,7 @@ def test_a_live_session_updates_waits_and_fails_without_raising(skin, session, t
     assert second.status["state"] == "updated" and not second.status["from_scratch"]
     assert set(second.status["parts"]) == set(skin.parts)
     accepted = session_live.last
-    session_live.max_move_mm = 1e-9       # any move of a part calibrated before is now a divergence
+    session_live.updates.max_move_mm = 1e-9       # any move of a part calibrated before is now a divergence
     third = session_live.update()
     assert third.status["state"] == "failed" and "diverged" in third.status["error"], third.status
     assert third.accepted is None and session_live.last is accepted and third.touches is not None

@@ -5,11 +5,14 @@ true skin drawn once) is captured twice from scratch, with the same loop:
 
 1. a small random start (``start`` touches spread evenly over the pairs);
 2. calibrate (deduplicated touches, default options) as the live calibrate
-   node updates (:class:`~nao_skin.live.updates.WarmStart`: warm-started from
-   the last calibration, from scratch whenever the touches doubled);
+   node updates (:class:`~nao_skin.live.updates.LiveUpdates` with the node's
+   defaults: warm-started from the last accepted calibration, from scratch
+   whenever the touches doubled, a diverged update refused; each part's
+   state, collecting / converging / done, as the node's status says it);
 3. stop when EVERY part's true taxel error (``truth_error``: every present
    taxel's distance from its true position, chain-end frame) has median <=
-   ``median_mm`` and p95 <= ``p95_mm``, or the touches reach ``cap``;
+   ``median_mm`` and p95 <= ``p95_mm`` (with ``until_done``: and the status
+   calls every part done), or the touches reach ``cap``;
 4. else record the next batch of ``batch`` touches and go to 2:
 
    * **random** -- :meth:`CaptureSim.random`: uniform over the pairs and over
@@ -43,7 +46,7 @@ from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.calibration.evaluation import truth_error
 from nao_skin.errors import NaoSkinError, one_line
 from nao_skin.guidance.capture import guidance
-from nao_skin.live.updates import WarmStart
+from nao_skin.live.updates import LiveUpdates, UpdateSchedule
 from nao_skin.model.skin import SkinModel
 from nao_skin.sim.capture import Aim, CaptureSim
 from nao_skin.touch.datasets import deduplicate
@@ -56,11 +59,13 @@ ORACLE_POWER = 4        # the oracle's batch share of a pair: (its worse part's 
 @dataclass
 class CaptureSetup:
     start: int = 60                 # random touches before the first calibration (15 per pair)
-    batch: int = 20                 # touches per batch
+    batch: int = UpdateSchedule.every_touches   # touches per batch: one live update's, as the node's default
     cap: int = 1500                 # give up at this many touches
     median_mm: float = TARGET_MM["median"]   # every part's true taxel error median at most
     p95_mm: float = TARGET_MM["p95"]         # and p95 at most
     max_targets: int = 8            # guided: aims cycle over this many top targets
+    until_done: bool = False        # after the target, go on until the live status calls every part done (or
+                                    # the cap): how far from the truth "done" is
     warm_start: bool = True         # update as the live calibrate node does (live.updates.WarmStart); False: from
                                     # nominal each time
     sim: dict = field(default_factory=dict)     # simulator parameter overrides (e.g. pairs)
@@ -92,30 +97,32 @@ def run_capture(skin: SkinModel, seed: int, strategy: str, setup: CaptureSetup |
     t0 = time.perf_counter()
     batches = [cap.random(setup.start)]
     calib, result = None, None
-    updates = WarmStart(skin.zero_calibration())
-    trace, needed, failures, guide_s = [], None, 0, []
+    live = LiveUpdates(skin, skin.zero_calibration())     # the calibrate node's defaults
+    trace, needed, failures, guide_s, done = [], None, 0, [], None
     while True:
         touches, _ = deduplicate(TouchSet.concatenate(batches))
         try:
             if setup.warm_start:
-                result, start = updates.update(touches.n_touches,
-                                               lambda args: calibrate(touches, skin, options, truth=cap.truth, **args))
+                result, _, _ = live.update(touches.n_touches,
+                                           lambda args: calibrate(touches, skin, options, truth=cap.truth, **args))
             else:
                 result = calibrate(touches, skin, options, truth=cap.truth)
             calib = result.calibration
-            if setup.warm_start:
-                updates.accepted(result, touches.n_touches, start)
-        except NaoSkinError as exc:      # too few touches of a pair yet: the next batch brings more
+        except NaoSkinError as exc:      # too few touches of a pair yet, or diverged: the last calibration stays
             failures += 1
             say(f"seed {seed} {strategy} at {touches.n_touches}: {one_line(exc)}")
         err = truth_error(skin, calib, cap.truth, parts) if calib is not None else {}
         worst_med = max((err[p]["median"] for p in parts if p in err), default=float("nan"))
         worst_p95 = max((err[p]["p95"] for p in parts if p in err), default=float("nan"))
+        states = live.states(parts) if setup.warm_start else None
         trace.append({"touches": touches.n_touches, "worst_median_mm": worst_med, "worst_p95_mm": worst_p95,
                       "per_part": {p: err[p] for p in parts if p in err},
-                      "held": len(result.report.held) if result is not None else None})
-        if calib is not None and _met(err, parts, setup):
+                      "held": len(result.report.held) if result is not None else None, "states": states})
+        if done is None and states and set(states.values()) == {"done"}:
+            done = trace[-1]
+        if needed is None and calib is not None and _met(err, parts, setup):
             needed = touches.n_touches
+        if needed is not None and (done is not None or not setup.until_done):
             break
         if touches.n_touches >= setup.cap:
             break
@@ -146,6 +153,10 @@ def run_capture(skin: SkinModel, seed: int, strategy: str, setup: CaptureSetup |
     return {"seed": seed, "strategy": strategy, "needed": needed, "touches": final["touches"],
             "worst_median_mm": final["worst_median_mm"], "worst_p95_mm": final["worst_p95_mm"],
             "missed_aims": cap.missed, "calibration_failures": failures, "seconds": time.perf_counter() - t0,
+            # when the live status first called every part done, and how far from the truth they were then
+            "done_at": done["touches"] if done else None,
+            "done_worst_median_mm": done["worst_median_mm"] if done else None,
+            "done_worst_p95_mm": done["worst_p95_mm"] if done else None,
             "guidance_ms_median": 1000 * float(np.median(guide_s)) if guide_s else None, "trace": trace}
 
 
@@ -213,9 +224,30 @@ def summary(rows: list, setup: CaptureSetup) -> dict:
             ratios.append(rn / gn)
     out["ratio_random_over_guided"] = {"median": float(np.median(ratios)) if ratios else None,
                                        "min": float(np.min(ratios)) if ratios else None}
+    if setup.until_done:
+        out["done"] = _done_summary(rows, setup)
     g = out.get("guided", {"max": None, "reached": 0, "runs": 0})
     out["goal"] = {"guided_max_le_250": bool(g["max"] is not None and g["max"] <= 250 and g["reached"] == g["runs"]),
                    "at_least_2x_fewer": bool(ratios and np.median(ratios) >= 2.0)}
+    return out
+
+
+def _done_summary(rows: list, setup: CaptureSetup) -> dict:
+    """Per strategy: when the live status first called every part done, and the worst part's true error then."""
+    out = {}
+    for st in STRATEGIES:
+        runs = [r for r in rows if r["strategy"] == st and not r.get("error")]
+        done = [r for r in runs if r.get("done_at") is not None]
+        if not runs:
+            continue
+        med = np.array([r["done_worst_median_mm"] for r in done], float)
+        p95 = np.array([r["done_worst_p95_mm"] for r in done], float)
+        out[st] = {"runs": len(runs), "done": len(done),
+                   "touches_median": float(np.median([r["done_at"] for r in done])) if done else None,
+                   "worst_median_mm_median": float(np.median(med)) if done else None,
+                   "worst_median_mm_max": float(med.max()) if done else None,
+                   "worst_p95_mm_max": float(p95.max()) if done else None,
+                   "within_target": int(np.sum((med <= setup.median_mm) & (p95 <= setup.p95_mm)))}
     return out
 
 
@@ -258,6 +290,15 @@ def table(rows: list, setup: CaptureSetup) -> str:
     if "guided" in sm and "random" in sm:
         lines.append(f"Goal (issue): guided <= 250 touches in all: {'met' if goal['guided_max_le_250'] else 'NOT met'};"
                      f" at least 2x fewer than random: {'met' if goal['at_least_2x_fewer'] else 'NOT met'}.")
+    for st, d in sm.get("done", {}).items():
+        if d["done"]:
+            lines.append(f"Live status 'done' for every part ({st}): {d['done']}/{d['runs']} runs, at"
+                         f" {d['touches_median']:.0f} touches (median); the worst part's true error then: median"
+                         f" {d['worst_median_mm_median']:.2f} mm (highest {d['worst_median_mm_max']:.2f}), p95 at most"
+                         f" {d['worst_p95_mm_max']:.2f} mm; within the target in {d['within_target']}/{d['done']}.")
+        else:
+            lines.append(f"Live status 'done' for every part ({st}): in none of {d['runs']} runs by {setup.cap}"
+                         f" touches.")
     if "oracle" in sm and "random" in sm:
         o = [_needed(rows, st, setup) for st in ("random", "oracle")]
         ratios = [a / b for a, b in zip(*o)]

@@ -29,12 +29,16 @@ def add_arguments(parser) -> None:
     parser.add_argument("--quick", action="store_true",
                         help="smoke run: 2 seeds, cap 400 touches, target median 1.0 mm / p95 2.0 mm")
     parser.add_argument("--start", type=int, help="random touches before the first calibration (default 60)")
-    parser.add_argument("--batch", type=int, help="touches per batch (default 20)")
+    parser.add_argument("--batch", type=int, help="touches per batch (default 25, the calibrate node's"
+                                                  " live_every_touches)")
     parser.add_argument("--cap", type=int, help="give up at this many touches (default 1500)")
     parser.add_argument("--median-mm", type=float, help="every part's true taxel error median at most (default 0.5)")
     parser.add_argument("--p95-mm", type=float, help="every part's true taxel error p95 at most (default 1.5)")
     parser.add_argument("--cold", action="store_true",
                         help="calibrate from nominal after every batch (default: warm-started from the last one)")
+    parser.add_argument("--until-done", action="store_true",
+                        help="after the target, go on until the live status calls every part done (or the cap):"
+                             " when 'done' comes and how far from the truth the parts are then")
     parser.add_argument("--strategies", default="random,guided,oracle",
                         help="comma-separated, of random, guided, oracle (default: all three; oracle splits random"
                              " touches over the pairs by the true error: an upper bound, not a capture policy)")
@@ -69,7 +73,10 @@ def run(args) -> int:
     if setup.start > setup.cap:
         raise DataError(f"--start {setup.start}: more random touches than the cap of {setup.cap}")
     if args.cold:
+        if args.until_done:
+            raise DataError("--until-done: the live status follows warm-started updates; not with --cold")
         setup = replace(setup, warm_start=False)
+    setup = replace(setup, until_done=args.until_done)
     options = CalibrationOptions()
     given = set_items(options, args.set)
     options.validate()

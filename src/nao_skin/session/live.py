@@ -3,12 +3,11 @@
 The calibrate node runs :meth:`LiveCalibration.update` in the background
 whenever :class:`~nao_skin.live.updates.UpdateSchedule` says one is due, and
 only publishes what it returns. An update reads what the recorder wrote since
-the last one (a :class:`~nao_skin.formats.bag.GrowingBag`), calibrates warm
-from the last accepted update (:class:`~nao_skin.live.updates.WarmStart`),
-refuses a result that diverged (:func:`~nao_skin.live.updates.rejection`) and
-tells per part whether more touches still move it
-(:class:`~nao_skin.live.updates.Settling`). A failed update changes nothing:
-the last accepted calibration stays the one to publish and write.
+the last one (a :class:`~nao_skin.formats.bag.GrowingBag`) and hands the
+calibration to :class:`~nao_skin.live.updates.LiveUpdates`, as the capture
+benchmark does: warm from the last accepted update, refused when it diverged,
+and per part whether more touches still move it. A failed update changes
+nothing: the last accepted calibration stays the one to publish and write.
 """
 from __future__ import annotations
 
@@ -21,10 +20,10 @@ from nao_skin.calibration.engine import CalibrationResult
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.pipeline import calibrate_loaded, load_inputs
 from nao_skin.calibration.plan import pair_counts
-from nao_skin.errors import DataError, NaoSkinError, TooFewTouches, one_line
+from nao_skin.errors import NaoSkinError, TooFewTouches, one_line
 from nao_skin.formats.bag import GrowingBag
 from nao_skin.formats.inputs import find_bag
-from nao_skin.live.updates import Settling, WarmStart, rejection, taxel_displacement_mm
+from nao_skin.live.updates import LiveUpdates, Settling
 from nao_skin.model.skin import SkinCalibration, SkinModel, pair_label
 from nao_skin.touch.touches import TouchSet
 
@@ -50,15 +49,13 @@ class LiveCalibration:
     def __init__(self, skin: SkinModel, options: CalibrationOptions, recording: str | Path,
                  start: SkinCalibration, refresh: float, settling: Settling, max_move_mm: float):
         self.skin, self.options, self.recording = skin, options, str(recording)
-        self.warm_start = WarmStart(start, refresh)
-        self.settling = settling
-        self.max_move_mm = float(max_move_mm)
+        self.updates = LiveUpdates(skin, start, refresh, settling, max_move_mm)
         self.last: CalibrationResult | None = None     # the last accepted update's result
         self._followed: dict = {}                       # the recording, read incrementally
 
     def parts_state(self) -> dict:
         """``{part: collecting | converging | done}``."""
-        return self.settling.states(self.skin.parts)
+        return self.updates.states(self.skin.parts)
 
     def update(self, log: Callable[[str], None] | None = None) -> LiveOutcome:
         """Recalibrate on every touch recorded so far; never raises (a failure is a ``failed`` status)."""
@@ -70,16 +67,9 @@ class LiveCalibration:
                 self._followed = {self.recording: GrowingBag(find_bag(Path(self.recording)), self.skin)}
             loaded = load_inputs([self.recording], self.skin, log=log, summary=log, followed=self._followed)
             touches = loaded.touches
-            result, start = self.warm_start.update(
+            result, moved, start = self.updates.update(
                 touches.n_touches, lambda args: calibrate_loaded(loaded, self.skin, self.options, log=log, **args))
             report = result.report
-            before = self.warm_start.last or self.warm_start.start
-            moved = taxel_displacement_mm(self.skin, before, result.calibration, report.parts)
-            why = rejection(self.skin, result.calibration, moved, self.warm_start.parts, self.max_move_mm)
-            if why is not None:
-                raise DataError(f"update over {touches.n_touches} touches not published: {why}")
-            self.settling.add(moved, report.final.get("test", {}).get("taxel_mean_mm", float("nan")))
-            self.warm_start.accepted(result, touches.n_touches, start)
             self.last = result
             return LiveOutcome({"state": "updated", "touches": touches.n_touches,
                                 "pairs": {pair_label(p): n for p, n in pair_counts(touches).items()},

@@ -7,14 +7,14 @@ against them before any node starts (:mod:`nao_skin.session.record`). No ROS
 import here: ``nao-skin record --print`` runs where rclpy is not installed.
 Defaults that belong to the engine, the live updates or the event detector are
 theirs (``CalibrationOptions``, ``UpdateSchedule``, ``Settling``, ``WarmStart``,
-``EventConfig``), read from there.
+``LiveUpdates``, ``EventConfig``), read from there.
 """
 from __future__ import annotations
 
 from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
 from nao_skin.errors import ConfigError
 from nao_skin.live.playback import check_timing
-from nao_skin.live.updates import Settling, UpdateSchedule, WarmStart
+from nao_skin.live.updates import LiveUpdates, Settling, UpdateSchedule, WarmStart
 from nao_skin.model.skin import SkinModel, load_skin, parse_pairs, parse_taxel_files
 from nao_skin.rules import (AT_LEAST_ONE, HOST, NON_NEGATIVE, PORT, POSITIVE, RATE, SECONDS, SECONDS_OR_ZERO, WHOLE,
                             YARP_PORT, Rule)
@@ -51,7 +51,7 @@ CALIBRATE = {
     "out_dir": ("nao_skin_calibration", "output directory (replaced when a run succeeds)"),
     "plots": (False, "write the report's plots too (slower)"),
     "live": (False, "recalibrate in the background while the recorder stores touches (on in a record session)"),
-    # the live defaults are the live module's (UpdateSchedule, Settling, WarmStart): defined once
+    # the live defaults are the live module's (UpdateSchedule, Settling, WarmStart, LiveUpdates): defined once
     "live_every_touches": (UpdateSchedule.every_touches, "live: an update after this many new touches ...",
                            AT_LEAST_ONE),
     "live_period": (UpdateSchedule.period, "live: ... or this many seconds after the last one, if any touch came"
@@ -69,7 +69,7 @@ CALIBRATE = {
                                         " the touches grew this many times since the last such; the one the held-out"
                                         " touches pair closer is published (1: every update from scratch)",
                      Rule(float, low=1.0)),
-    "live_max_move_mm": (20.0, "live: an update moving a calibrated part's taxels farther than this (mm) diverged:"
+    "live_max_move_mm": (LiveUpdates.MAX_MOVE_MM, "live: an update moving a calibrated part's taxels farther than this (mm) diverged:"
                                " not published", POSITIVE),
     # engine options (their defaults, help and rules come from CalibrationOptions' table, OPTION_FIELDS)
     **{name: (OPTION_FIELDS[name].default, OPTION_FIELDS[name].metadata["help"], OPTION_FIELDS[name].metadata["rule"])
