@@ -170,3 +170,19 @@ def test_guided_capture_leaves_fewer_triangles_held_than_random(skin):
     guided = run_capture(skin, 0, "guided", setup)
     assert random["touches"] == guided["touches"] == 160
     assert guided["trace"][-1]["held"] < random["trace"][-1]["held"], (guided["trace"], random["trace"])
+
+
+def test_the_capture_benchmark_follows_the_live_status_and_goes_on_until_done_only_when_asked(skin):
+    """The benchmark replays the calibrate node's updates: each trace entry carries the parts' live states.
+    With ``until_done`` a run met at its start goes on (the touches needed stay those of the first crossing)
+    until every part is done or the cap: here the cap, as the first update moved every frame from nominal
+    and "done" needs three settled updates."""
+    loose = dict(start=60, batch=25, cap=110, median_mm=50.0, p95_mm=100.0, sim={"pairs": PAIRS})
+    stops = run_capture(skin, 0, "random", CaptureSetup(**loose))
+    goes_on = run_capture(skin, 0, "random", CaptureSetup(**loose, until_done=True))
+    assert stops["needed"] == goes_on["needed"] == stops["touches"] == 60
+    assert goes_on["touches"] == 110 and [t["touches"] for t in goes_on["trace"]] == [60, 85, 110]
+    assert goes_on["done_at"] is None and goes_on["done_worst_median_mm"] is None
+    states = [t["states"] for t in goes_on["trace"]]
+    assert all(set(s) == {"l_hand", "r_hand", "torso"} for s in states)
+    assert states[0] == {"l_hand": "converging", "r_hand": "converging", "torso": "converging"}, states
