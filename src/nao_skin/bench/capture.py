@@ -18,10 +18,11 @@ true skin drawn once) is captured twice from scratch, with the same loop:
    * **random** -- :meth:`CaptureSim.random`: uniform over the pairs and over
      each part's reachable triangles, no guidance;
    * **guided** -- :func:`nao_skin.guidance.capture.guidance` on the touches and
-     the last calibration; one aimed touch per target, cycling over the top
-     ``max_targets`` reachable targets until the batch is full
-     (:meth:`CaptureSim.aimed`); aims the true robot cannot reach are topped up
-     with random touches, so every batch has the same size;
+     the last calibration; one aimed touch at each of its top ``max_targets``
+     targets that a pose reaches (:meth:`CaptureSim.aimed`), as the simulated
+     robot follows the guidance (``nodes.sim_robot``); the rest of the batch,
+     and the aims the true robot cannot reach, random touches, so every batch
+     has the same size;
    * **oracle** -- random touches, the batch split over the pairs by how far
      each pair's worse part is from the target under the TRUE error (share
      ``max(median / median_mm, p95 / p95_mm) ** 4``): what no capture at the
@@ -63,7 +64,7 @@ class CaptureSetup:
     cap: int = 1500                 # give up at this many touches
     median_mm: float = TARGET_MM["median"]   # every part's true taxel error median at most
     p95_mm: float = TARGET_MM["p95"]         # and p95 at most
-    max_targets: int = 8            # guided: aims cycle over this many top targets
+    max_targets: int = 8            # guided: one aim at each of this many top targets per batch
     until_done: bool = False        # after the target, go on until the live status calls every part done (or
                                     # the cap): how far from the truth "done" is
     warm_start: bool = True         # update as the live calibrate node does (live.updates.WarmStart); False: from
@@ -138,10 +139,9 @@ def run_capture(skin: SkinModel, seed: int, strategy: str, setup: CaptureSetup |
         g = guidance(touches, skin, result, options, max_targets=setup.max_targets, seed=seed * 1000 + len(batches),
                      pairs=cap.pairs)
         guide_s.append(time.perf_counter() - tg)
-        aims_from = [t for t in g.targets if t.pose is not None] or g.targets
-        aims_from = [t for t in aims_from if t.hand_triangle_id is not None and (t.hand, t.touched) in cap.pairs]
-        aims = [Aim(t.hand, t.touched, t.hand_triangle_id, t.touched_triangle_id)
-                for t in (aims_from[i % len(aims_from)] for i in range(n))] if aims_from else []
+        # as the simulated robot follows the guidance (nodes.sim_robot): each target a pose reaches, once
+        aims = [Aim(t.hand, t.touched, t.hand_triangle_id, t.touched_triangle_id) for t in g.targets
+                if t.pose is not None and t.hand_triangle_id is not None and (t.hand, t.touched) in cap.pairs][:n]
         got = cap.aimed(aims) if aims else None
         short = n
         if got is not None and got.n_touches:

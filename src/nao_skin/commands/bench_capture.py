@@ -112,8 +112,9 @@ def run(args) -> int:
           f" {setup.median_mm:g} mm and p95 <= {setup.p95_mm:g} mm; random start of {setup.start} touches, then"
           f" batches of {setup.batch}, recalibrated after each"
           f" ({_HOW[setup.warm_start]}), cap"
-          f" {setup.cap}. Random: uniform over the pairs and each part's reachable triangles. Guided: aimed at the"
-          f" guidance's top {setup.max_targets} targets (misses topped up with random touches). Oracle: random"
+          f" {setup.cap}. Random: uniform over the pairs and each part's reachable triangles. Guided: one touch aimed"
+          f" at each of the guidance's top {setup.max_targets} targets a pose reaches, as the simulated robot"
+          f" follows it; the rest of the batch and the missed aims random. Oracle: random"
           f" touches, each batch split over the pairs by how far each pair's worse part is from the target under"
           f" the true error (share ~ distance ** {bench.ORACLE_POWER}): what perfect knowledge of where the"
           f" error is would buy by sending touches there; no capture at the robot has that knowledge.", "",
