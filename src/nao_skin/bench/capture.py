@@ -47,7 +47,7 @@ from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.calibration.evaluation import truth_error
 from nao_skin.errors import NaoSkinError, one_line
 from nao_skin.guidance.capture import guidance
-from nao_skin.live.updates import LiveUpdates, UpdateSchedule
+from nao_skin.live.updates import LiveUpdates, Settling, UpdateSchedule
 from nao_skin.model.skin import SkinModel
 from nao_skin.sim.capture import Aim, CaptureSim
 from nao_skin.touch.datasets import deduplicate
@@ -67,6 +67,7 @@ class CaptureSetup:
     max_targets: int = 8            # guided: one aim at each of this many top targets per batch
     until_done: bool = False        # after the target, go on until the live status calls every part done (or
                                     # the cap): how far from the truth "done" is
+    settle_mm: float = Settling.settle_mm   # the status's "done" threshold (the node's live_settle_mm)
     warm_start: bool = True         # update as the live calibrate node does (live.updates.WarmStart); False: from
                                     # nominal each time
     sim: dict = field(default_factory=dict)     # simulator parameter overrides (e.g. pairs)
@@ -98,7 +99,7 @@ def run_capture(skin: SkinModel, seed: int, strategy: str, setup: CaptureSetup |
     t0 = time.perf_counter()
     batches = [cap.random(setup.start)]
     calib, result = None, None
-    live = LiveUpdates(skin, skin.zero_calibration())     # the calibrate node's defaults
+    live = LiveUpdates(skin, skin.zero_calibration(), settling=Settling(settle_mm=setup.settle_mm))
     trace, needed, failures, guide_s, done = [], None, 0, [], None
     while True:
         touches, _ = deduplicate(TouchSet.concatenate(batches))
