@@ -20,7 +20,7 @@ def _run(prog: str, module: str, function: str = "main") -> int:
 
 
 def nao_skin() -> int:
-    return _run("nao-skin", "nao_skin.cli", "console")
+    return _run("nao-skin", "nao_skin.cli")
 
 
 def calibrate() -> int:
