@@ -141,11 +141,12 @@ class Settling:
     """Per part: the displacement of each update it was calibrated in; its state from the last few.
 
     ``settle_mm`` is measured, not a wish: an update re-pairs the touches, so even at 1500 touches a part's
-    largest taxel moves 0.15–0.3 mm from one update of 25 new touches to the next. At 0.1 mm no part of 20
-    simulated sessions (random capture, seeds 0–19, an ad hoc replay) was ever done. At 0.3 mm every part
-    was in 17 of them, at about 1260 touches, the worst part's true taxel error median then 0.49 mm
-    (highest 0.58): ``nao-skin bench-capture --until-done --seeds 20``. Fewer new touches per update (a
-    slow operator, every ``period`` seconds) move the taxels less, so "done" comes sooner there."""
+    largest taxel moves 0.15–0.3 mm from one update of 25 new touches to the next. At 0.1 mm every part was
+    done in none of 20 simulated sessions by 1500 touches (random capture, ``nao-skin bench-capture
+    --until-done --settle-mm 0.1 --strategies random --seeds 20``). At 0.3 mm it was in 17 of them, at
+    about 1260 touches, the worst part's true taxel error median then 0.49 mm (highest 0.58): the same
+    without ``--settle-mm``. Fewer new touches per update (a slow operator, every ``period`` seconds)
+    move the taxels less, so "done" comes sooner there."""
 
     settle_mm: float = 0.3
     updates: int = 3
