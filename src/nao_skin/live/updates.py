@@ -198,11 +198,6 @@ class LiveUpdates:
         self.settling = Settling() if settling is None else settling
         self.max_move_mm = float(max_move_mm)
 
-    @property
-    def calibration(self) -> SkinCalibration | None:
-        """The last accepted update's calibration (None before the first)."""
-        return self.warm_start.last
-
     def states(self, parts) -> dict:
         """``{part: collecting | converging | done}``."""
         return self.settling.states(parts)
