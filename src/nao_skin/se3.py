@@ -156,6 +156,33 @@ def rotate_vectors(mat: np.ndarray, vectors: np.ndarray) -> np.ndarray:
     return np.einsum("...ij,...j->...i", np.asarray(mat, dtype=float)[..., :3, :3], vectors)
 
 
+def split_coordinates(mat: np.ndarray) -> tuple:
+    """``(R, t)`` of ``(n, 4, 4)`` transforms stored coordinate first, ``(3, 3, n)`` and ``(3, n)``: the
+    layout :func:`transform_coordinates` reads."""
+    mat = np.asarray(mat, dtype=float)
+    return (np.ascontiguousarray(mat[:, :3, :3].transpose(1, 2, 0)),
+            np.ascontiguousarray(mat[:, :3, 3].T))
+
+
+def transform_coordinates(rot: np.ndarray, points: np.ndarray, trans: np.ndarray | None = None) -> np.ndarray:
+    """``R_k p_k + t_k`` for n points stored coordinate first: ``rot`` (3, 3, n), ``points`` and ``trans``
+    (3, n), the result (3, n); without ``trans`` a rotation of vectors.
+
+    The same as :func:`transform_points` on ``(n, 4, 4)`` and ``(n, 3)``, as nine products of contiguous
+    rows: about twice as fast as the einsum where the calibration transforms every term of every touch.
+    """
+    out = np.empty_like(points) if trans is None else np.array(trans, dtype=float)
+    for i in range(3):
+        row = rot[i, 0] * points[0]
+        row += rot[i, 1] * points[1]
+        row += rot[i, 2] * points[2]
+        if trans is None:
+            out[i] = row
+        else:
+            out[i] += row
+    return out
+
+
 def rpy_from_matrix(rot: np.ndarray) -> np.ndarray:
     """URDF roll-pitch-yaw (fixed axes X, Y, Z: R = Rz(y) Ry(p) Rx(r)).
 

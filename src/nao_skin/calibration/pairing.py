@@ -143,9 +143,22 @@ def _segment_max(values: np.ndarray, segment: np.ndarray, n_segments: int) -> np
     return out
 
 
-def _members(owner: np.ndarray, wanted: np.ndarray) -> tuple:
-    """Rows whose ``owner`` is in ``wanted``: ``(position in wanted, row)``, grouped by ``wanted``."""
-    return _cross_pairs(np.asarray(wanted), owner)
+def _contact_activations(touches: TouchSet, contacts: np.ndarray) -> tuple:
+    """The activations of ``contacts``: ``(position in contacts, activation)``, grouped by ``contacts``
+    (as :func:`_cross_pairs` of the contacts and ``act_contact``, with each contact's activations found
+    once per touch set instead of searched at every pairing)."""
+    def segments():
+        owner = touches.act_contact
+        order = (np.arange(len(owner)) if np.all(owner[1:] >= owner[:-1])
+                 else np.argsort(owner, kind="stable"))
+        count = np.bincount(owner, minlength=len(touches.contact_touch))
+        return order, np.cumsum(count) - count, count
+    order, first, count = touches.derived(("contact activations",), segments)
+    contacts = np.asarray(contacts)
+    count = count[contacts]
+    ia = np.repeat(np.arange(len(contacts)), count)
+    offset = np.arange(len(ia)) - np.repeat(np.cumsum(count) - count, count)
+    return ia, order[np.repeat(first[contacts], count) + offset]
 
 
 def _part_order(touches: TouchSet, parts) -> list:
@@ -188,17 +201,31 @@ def chain_end_poses(touches: TouchSet, skin: SkinModel, part: str) -> np.ndarray
     return touches.derived(("fk", chain), lambda: skin.robot.fk(chain, robot_joints(touches, skin)), (skin.robot,))
 
 
-def _activation_chains(touches: TouchSet, skin: SkinModel, p: int, name: str, sel: np.ndarray) -> tuple:
-    """``(R, t)`` of the chain end of every activation ``sel`` of part ``p``, contiguous for einsum."""
+def _activation_chains(touches: TouchSet, skin: SkinModel) -> tuple:
+    """``(R, t)`` of the chain end of every activation, coordinate first: ``R[i, j]`` and ``t[i]`` are
+    contiguous rows over the activations (:func:`se3.transform_coordinates`)."""
     def gather():
-        chain = chain_end_poses(touches, skin, name)[touches.act_touch[sel]]
-        return np.ascontiguousarray(chain[:, :3, :3]), np.ascontiguousarray(chain[:, :3, 3])
-    return touches.derived(("activation chains", p), gather, (skin,))
+        rot = np.full((3, 3, len(touches.act_slot)), np.nan)
+        trans = np.full((3, len(touches.act_slot)), np.nan)
+        for name, sel in zip(touches.part_names, activations_by_part(touches)):   # <= 4 parts
+            if len(sel):
+                rot[:, :, sel], trans[:, sel] = se3.split_coordinates(
+                    chain_end_poses(touches, skin, name)[touches.act_touch[sel]])
+        return rot, trans
+    return touches.derived(("activation chains",), gather, (skin,))
 
 
-def _activation_slots(touches: TouchSet, p: int, sel: np.ndarray) -> np.ndarray:
-    """The taxel slot of every activation ``sel`` of part ``p``."""
-    return touches.derived(("activation slots", p), lambda: touches.act_slot[sel])
+def _slot_rows(touches: TouchSet, skin: SkinModel) -> tuple:
+    """``(parts, rows)``: the parts that fire, and the row of every activation's slot in their slot tables
+    placed one after the other (``parts`` order)."""
+    def rows():
+        parts = [name for name, sel in zip(touches.part_names, activations_by_part(touches)) if len(sel)]
+        first = np.cumsum([0] + [skin.part(name).n_slots for name in parts])
+        offset = np.zeros(len(touches.part_names), int)
+        for k, name in enumerate(parts):
+            offset[touches.part_names.index(name)] = first[k]
+        return parts, offset[touches.act_part] + touches.act_slot
+    return touches.derived(("activation slot rows",), rows, (skin,))
 
 
 def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,
@@ -206,33 +233,36 @@ def activation_positions(touches: TouchSet, skin: SkinModel, calib: SkinCalibrat
     """(A, 3) calibrated position of every activated taxel in the base frame (one FK per part; each
     part's slots placed once under ``calib``, then gathered per activation).
 
-    ``placed``: the slots' chain-end positions per part under ``calib``, filled as parts are placed:
-    one dict shared by the calls that pair several part pairs under one calibration.
+    ``placed``: the slots' chain-end positions per part under ``calib`` ((3, slots), coordinate first),
+    filled as parts are placed: one dict shared by the calls that pair several part pairs under one
+    calibration.
     """
     robot_skin = skin.with_kinematics(calib)   # the robot the calibration's kinematic corrections describe
     placed = {} if placed is None else placed
-    out = np.full((len(touches.act_slot), 3), np.nan)
-    for p, (name, sel) in enumerate(zip(touches.part_names, activations_by_part(touches))):   # <= 4 parts
-        if len(sel) == 0:
-            continue
+    parts, rows = _slot_rows(touches, skin)
+    for name in parts:
         if name not in placed:
-            placed[name], _ = skin.part(name).taxel_positions(calib.parts.get(name) if calib is not None else None)
-        rot, trans = _activation_chains(touches, robot_skin, p, name, sel)
-        out[sel] = np.einsum("aij,aj->ai", rot, placed[name][_activation_slots(touches, p, sel)]) + trans
-    return out
+            positions = skin.part(name).taxel_positions(calib.parts.get(name) if calib is not None else None,
+                                                        normals=False)
+            placed[name] = np.ascontiguousarray(positions.T)
+    if not parts:
+        return np.zeros((0, 3))
+    rot, trans = _activation_chains(touches, robot_skin)
+    local = np.concatenate([placed[name] for name in parts], axis=1)
+    # stored coordinate first (the transpose is a view): the pairing gathers one coordinate at a time
+    return se3.transform_coordinates(rot, np.stack([np.take(row, rows) for row in local]), trans).T
 
 
 def activation_normals(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None) -> np.ndarray:
     """(A, 3) calibrated base-frame normal of every activated taxel (as :func:`activation_positions`)."""
     robot_skin = skin.with_kinematics(calib)
-    out = np.full((len(touches.act_slot), 3), np.nan)
-    for p, (name, sel) in enumerate(zip(touches.part_names, activations_by_part(touches))):   # <= 4 parts
-        if len(sel) == 0:
-            continue
-        _, normals = skin.part(name).taxel_positions(calib.parts.get(name) if calib is not None else None)
-        rot, _ = _activation_chains(touches, robot_skin, p, name, sel)
-        out[sel] = np.einsum("aij,aj->ai", rot, normals[_activation_slots(touches, p, sel)])
-    return out
+    parts, rows = _slot_rows(touches, skin)
+    if not parts:
+        return np.zeros((0, 3))
+    rot, _ = _activation_chains(touches, robot_skin)
+    local = np.concatenate([skin.part(name).taxel_positions(calib.parts.get(name) if calib is not None else None)[1]
+                            for name in parts]).T
+    return se3.transform_coordinates(rot, np.stack([np.take(row, rows) for row in local])).T
 
 
 # ---------------------------------------------------------------------- pairing
@@ -305,8 +335,8 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
         n_g = len(sel_a)
         order_key = np.full(n_g, pair_no)
         # taxels of the selected contacts, grouped by group number
-        ga, act_a = _members(touches.act_contact, sel_a)
-        gb, act_b = _members(touches.act_contact, sel_b)
+        ga, act_a = _contact_activations(touches, sel_a)
+        gb, act_b = _contact_activations(touches, sel_b)
 
         if KIND_COP in want:
             add(group_touch, KIND_COP, pa, pb, dcop, order_key * 10,
@@ -382,7 +412,7 @@ def _closest_in_touch(touches, coords, cop, cA, cB, dcop, radius, group, bound, 
     cop_coords = np.ascontiguousarray(cop.T)
 
     def side(own, other):
-        k, act = _members(touches.act_contact, own)
+        k, act = _contact_activations(touches, own)
         far = other[k]
         keep = _gathered_distances(coords, act, cop_coords, far) - radius[far] <= slack[k]
         return k[keep], act[keep]

@@ -28,6 +28,7 @@ forward kinematics over the touches.
 from __future__ import annotations
 
 import numpy as np
+import scipy.linalg.blas
 import scipy.sparse
 
 from nao_skin import se3
@@ -40,10 +41,22 @@ KINEMATIC_STEP = 1e-6       # rad or m: forward-difference step of a kinematic c
 
 
 def gram(j, w=None) -> np.ndarray:
-    """Dense ``J^T diag(w) J`` for a dense or sparse Jacobian."""
-    jw = j if w is None else (j.multiply(w[:, None]).tocsr() if scipy.sparse.issparse(j) else j * w[:, None])
-    h = j.T @ jw
-    return h.toarray() if scipy.sparse.issparse(h) else h
+    """Dense ``J^T diag(w) J`` for a dense or sparse Jacobian (``w >= 0``).
+
+    Dense: a symmetric rank-k update of ``sqrt(w) J`` (BLAS ``syrk``) computes one triangle, half the
+    products of ``J^T (w J)``; the gram is the solver's largest cost on the real recording.
+    """
+    if scipy.sparse.issparse(j):
+        h = j.T @ (j if w is None else j.multiply(w[:, None]).tocsr())
+        return h.toarray() if scipy.sparse.issparse(h) else h
+    a = np.asarray(j, dtype=float) if w is None else j * np.sqrt(w)[:, None]
+    if a.shape[0] == 0 or a.shape[1] == 0:
+        return np.zeros((a.shape[1], a.shape[1]))
+    # a.T is a Fortran-ordered view of the C-ordered rows: syrk reads it in place
+    h = scipy.linalg.blas.dsyrk(1.0, a.T, trans=0, lower=0)
+    lower = np.tril_indices(len(h), -1)
+    h[lower] = h.T[lower]
+    return h
 
 
 def jt_dot(j, v: np.ndarray) -> np.ndarray:
@@ -138,25 +151,32 @@ class ResidualModel:
 
     # ------------------------------------------------------------------ evaluation
     def _group_positions(self, g: int, calib: SkinCalibration) -> np.ndarray:
-        """Base-frame position of each term's taxel of group ``g`` (its normal, for terms of normal rows)."""
+        """(3, terms) base-frame position of each term's taxel of group ``g`` (its normal, for terms of
+        normal rows), coordinate first."""
         sel, name, part, fk, slots, tri, _ = self.groups[g]
         _, _, tri_pose = part.frame_poses(calib.parts[name])
         # chain-end position of every slot of the part once (<= 384), then gathered per term
         frames = tri_pose[part.slot_triangle]
-        local = se3.transform_points(frames, part.taxel_local + self.fabric * part.normal_local)[slots]
-        if not self.has_dirs:
-            return se3.transform_points(fk, local)
-        dirs = self._dir_terms[g]
-        local[dirs] = se3.rotate_vectors(frames, part.normal_local)[slots[dirs]]
-        return se3.rotate_vectors(fk, local) + self._chain_offsets(g)
+        local = se3.transform_points(frames, part.taxel_local + self.fabric * part.normal_local)
+        if self.has_dirs:
+            local = local[slots]
+            dirs = self._dir_terms[g]
+            local[dirs] = se3.rotate_vectors(frames, part.normal_local)[slots[dirs]]
+            local = np.ascontiguousarray(local.T)
+        else:
+            local = np.ascontiguousarray(local.T)[:, slots]
+        rot, trans = self._chain_coordinates(g)
+        return se3.transform_coordinates(rot, local, trans)
 
-    def _chain_offsets(self, g: int) -> np.ndarray:
-        """The chain-end translation of each term of group ``g``, zero for directions (fixed with the chain ends)."""
-        key = (g, "chain offsets", "A")
+    def _chain_coordinates(self, g: int) -> tuple:
+        """The chain-end rotation and translation of each term of group ``g``, coordinate first
+        (:func:`se3.split_coordinates`); the translation is zero for directions. Fixed with the chain ends."""
+        key = (g, "chain coordinates", "A")
         hit = self._per_pairing.get(key)
         if hit is None:
-            fk = self.groups[g][3]
-            hit = self._per_pairing[key] = np.where(self.term_is_dir[self.groups[g][0]][:, None], 0.0, fk[:, :3, 3])
+            rot, trans = se3.split_coordinates(self.groups[g][3])
+            trans[:, self.term_is_dir[self.groups[g][0]]] = 0.0
+            hit = self._per_pairing[key] = (rot, trans)
         return hit
 
     def positions(self, calib: SkinCalibration) -> np.ndarray:
@@ -164,7 +184,7 @@ class ResidualModel:
         self._use_kinematics(calib)
         out = np.empty((len(self.term_row), 3))
         for g, group in enumerate(self.groups):
-            out[group[0]] = self._group_positions(g, calib)
+            out[group[0]] = self._group_positions(g, calib).T
         return out
 
     def residuals(self, calib: SkinCalibration, fabric: float | None = None) -> np.ndarray:
@@ -178,17 +198,17 @@ class ResidualModel:
             for g, group in enumerate(self.groups):
                 if not self._is_variable(group[1]):
                     sel = group[0]
-                    x = self._group_positions(g, calib) * self.term_weight[sel][:, None]
+                    x = self._group_positions(g, calib) * self.term_weight[sel]
                     for d in range(3):
-                        self._constant[:, d] += np.bincount(self.term_row[sel], weights=x[:, d], minlength=self.n_rows)
+                        self._constant[:, d] += np.bincount(self.term_row[sel], weights=x[d], minlength=self.n_rows)
             self._constant_done = True
         out = self._constant.copy()
         for g, group in enumerate(self.groups):
             if self._is_variable(group[1]):
                 sel = group[0]
-                x = self._group_positions(g, calib) * self.term_weight[sel][:, None]
+                x = self._group_positions(g, calib) * self.term_weight[sel]
                 for d in range(3):
-                    out[:, d] += np.bincount(self.term_row[sel], weights=x[:, d], minlength=self.n_rows)
+                    out[:, d] += np.bincount(self.term_row[sel], weights=x[d], minlength=self.n_rows)
         return self._project(out)
 
     def _project(self, rows: np.ndarray) -> np.ndarray:

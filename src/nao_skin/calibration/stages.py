@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 
 from nao_skin.calibration.layout import COMPONENTS, KINEMATICS, ParameterLayout
 from nao_skin.calibration.options import KIND_ROWS
@@ -373,7 +374,7 @@ def evidence_prior_sigma(result, x: np.ndarray, free: np.ndarray, weights: np.nd
         return prior_sigma
     cols = np.flatnonzero(free)
     try:
-        inv_diag = np.diag(np.linalg.inv(result.normal_matrix))
+        inv_diag = inverse_diagonal(result.normal_matrix)
     except np.linalg.LinAlgError:
         return prior_sigma
     if not np.all(np.isfinite(inv_diag)):
@@ -393,6 +394,18 @@ def evidence_prior_sigma(result, x: np.ndarray, free: np.ndarray, weights: np.nd
         sigma = np.sqrt(float(np.sum(x[cols[idx]] ** 2)) / determined)
         out[group] = float(np.clip(sigma, floor[group], 3.0 * bound))
     return out
+
+def inverse_diagonal(h: np.ndarray) -> np.ndarray:
+    """``diag(h^-1)`` of a symmetric positive definite ``h``: the column sums of ``L^-1`` squared, ``L`` its
+    Cholesky factor (a third of the work of an LU inverse; it runs after every solve of a joint stage).
+    A matrix that is not positive definite falls back to the LU inverse (LinAlgError if singular)."""
+    factor, info = scipy.linalg.lapack.dpotrf(h, lower=1, clean=1)
+    if info == 0:
+        inv_factor, info = scipy.linalg.lapack.dtrtri(factor, lower=1)
+    if info != 0:
+        return np.diag(np.linalg.inv(h)).copy()
+    return np.einsum("ij,ij->j", inv_factor, inv_factor)
+
 
 def free_mask(layout, parts, levels):
     mask = np.zeros(layout.size, bool)

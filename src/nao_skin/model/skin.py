@@ -208,14 +208,17 @@ class SkinPart:
                              self.triangle_frame(tid), corr.triangles[i], tris[i])
                    for i, tid in enumerate(self.triangle_ids)])
 
-    def taxel_positions(self, corr: PartCorrection | None = None):
-        """Calibrated ``(positions, normals)`` of every slot in the chain-end frame (NaN where no taxel)."""
+    def taxel_positions(self, corr: PartCorrection | None = None, normals: bool = True):
+        """Calibrated ``(positions, normals)`` of every slot in the chain-end frame (NaN where no taxel);
+        with ``normals=False`` the positions alone (the pairing's hot path needs no normals)."""
         _, _, tri = self.frame_poses(corr)
         pos = np.full((self.n_slots, 3), np.nan)
-        nor = np.full((self.n_slots, 3), np.nan)
         idx = self.slots
         frames = tri[self.slot_triangle[idx]]
         pos[idx] = se3.transform_points(frames, self.taxel_local[idx])
+        if not normals:
+            return pos
+        nor = np.full((self.n_slots, 3), np.nan)
         nor[idx] = se3.rotate_vectors(frames, self.normal_local[idx])
         return pos, nor
 
