@@ -566,23 +566,36 @@ def test_a_split_or_a_gate_that_leaves_nothing_says_which(skin, left_hand_sim):
 def test_a_press_recorded_many_times_does_not_outweigh_the_other_poses(skin, left_hand_sim):
     """Four presses held still, each recorded 25 times, at joint angles 1 degree off what the encoders said
     (a pose error the skin cannot absorb). Counted as 100 independent touches they pull both mounts toward
-    the four poses; weighed by pose (the default) the fit ends closer to the truth."""
+    the four poses; weighed by pose (the default) the fit ends closer to the truth.
+
+    Judged over three simulated recordings: with a pose error the skin cannot absorb the fit has more than
+    one place to end, and in one recording which one it reaches turns on rounding alone (seed 3: weighted
+    4.33 against unweighted 3.83 mm with scipy's Rodrigues formula, 3.34 against 4.34 with the numpy formula
+    it replaced); seeds 4 and 5 gain 4.3 and 1.3 mm."""
     from nao_skin.touch.touches import TouchSet
 
-    touches, truth = left_hand_sim
-    rng = np.random.default_rng(0)
-    held = touches.subset(np.arange(4))
-    off = held.joints + np.radians(1.0)
-    recorded = TouchSet.concatenate([touches.subset(np.arange(4, touches.n_touches))]
-                                    + [replace(held, joints=off + rng.normal(0, 1e-4, off.shape)) for _ in range(25)])
-
-    def true_error(pose_weight):
+    def true_error(recorded, truth, pose_weight):
         result = calibrate(recorded, skin, CalibrationOptions(pose_weight=pose_weight, test_fraction=0.0), truth=truth)
         errors = result.report.final["truth_taxel_error_mm"]
         return errors["l_hand"]["median"] + errors["torso"]["median"]
 
     assert CalibrationOptions().pose_weight == 0.5
-    assert true_error(0.5) < true_error(0.0) - 0.5
+    gains = []
+    for seed in (3, 4, 5):
+        if seed == 3:
+            touches, truth = left_hand_sim
+        else:
+            result = simulate(skin, load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 120}),
+                              seed=seed)
+            touches, truth = deduplicate(result.touches)[0], result.truth
+        rng = np.random.default_rng(0)
+        held = touches.subset(np.arange(4))
+        off = held.joints + np.radians(1.0)
+        recorded = TouchSet.concatenate([touches.subset(np.arange(4, touches.n_touches))]
+                                        + [replace(held, joints=off + rng.normal(0, 1e-4, off.shape))
+                                           for _ in range(25)])
+        gains.append(true_error(recorded, truth, 0.0) - true_error(recorded, truth, 0.5))
+    assert np.mean(gains) >= 0.5 and sum(g > 0 for g in gains) >= 2, gains
 
 
 def test_touches_at_a_few_poses_do_not_pass_for_many(skin, left_hand_sim):
