@@ -570,8 +570,8 @@ def test_a_press_recorded_many_times_does_not_outweigh_the_other_poses(skin, lef
 
     Judged over three simulated recordings: with a pose error the skin cannot absorb the fit has more than
     one place to end, and in one recording which one it reaches turns on rounding alone (seed 3: weighted
-    4.33 against unweighted 3.83 mm with scipy's Rodrigues formula, 3.34 against 4.34 with the numpy formula
-    it replaced); seeds 4 and 5 gain 4.3 and 1.3 mm."""
+    3.34 against unweighted 4.34 mm with our Rodrigues formula, 4.33 against 3.83 with scipy's); with either,
+    seeds 4 and 5 gain 1.0-4.3 mm."""
     from nao_skin.touch.touches import TouchSet
 
     def true_error(recorded, truth, pose_weight):
