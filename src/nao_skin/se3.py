@@ -158,10 +158,9 @@ def rotate_vectors(mat: np.ndarray, vectors: np.ndarray) -> np.ndarray:
 
 def split_coordinates(mat: np.ndarray) -> tuple:
     """``(R, t)`` of ``(n, 4, 4)`` transforms stored coordinate first, ``(3, 3, n)`` and ``(3, n)``: the
-    layout :func:`transform_coordinates` reads."""
+    layout :func:`transform_coordinates` reads. Always new arrays (never views of ``mat``)."""
     mat = np.asarray(mat, dtype=float)
-    return (np.ascontiguousarray(mat[:, :3, :3].transpose(1, 2, 0)),
-            np.ascontiguousarray(mat[:, :3, 3].T))
+    return np.array(mat[:, :3, :3].transpose(1, 2, 0), order="C"), np.array(mat[:, :3, 3].T, order="C")
 
 
 def transform_coordinates(rot: np.ndarray, points: np.ndarray, trans: np.ndarray | None = None) -> np.ndarray:

@@ -395,6 +395,7 @@ def evidence_prior_sigma(result, x: np.ndarray, free: np.ndarray, weights: np.nd
         out[group] = float(np.clip(sigma, floor[group], 3.0 * bound))
     return out
 
+
 def inverse_diagonal(h: np.ndarray) -> np.ndarray:
     """``diag(h^-1)`` of a symmetric positive definite ``h``: the column sums of ``L^-1`` squared, ``L`` its
     Cholesky factor (a third of the work of an LU inverse; it runs after every solve of a joint stage).
