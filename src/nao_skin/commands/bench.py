@@ -269,6 +269,10 @@ def run(args) -> int:
         for inp in inputs:
             md.append("- " + bench.headline(rows, inp.name))
         md += ["", "Targets (default row):", ""] + ["- " + line for line in bench.target_lines(rows)]
+        goals = bench.speed_goal_lines(rows)
+        if goals:
+            md += ["", "Speed goal of the accuracy issue (default row, median of the runs; not counted as a"
+                       " failure):", ""] + ["- " + line for line in goals]
         for inp in inputs:
             md += ["", f"### {inp.name}", "", bench.speed_table(rows, inp.name)]
         bench.plot_speed_vs_error(rows, cleared_output() / "speed_vs_error.png")
