@@ -97,10 +97,14 @@ def _cross_pairs(group_a: np.ndarray, group_b: np.ndarray) -> tuple:
         order_b = np.argsort(group_b, kind="stable")
         sorted_b = group_b[order_b]
     start = np.searchsorted(sorted_b, group_a, side="left")
-    count = np.searchsorted(sorted_b, group_a, side="right") - start
-    ia = np.repeat(np.arange(len(group_a)), count)
-    offset = np.arange(len(ia)) - np.repeat(np.cumsum(count) - count, count)
-    return ia, order_b[np.repeat(start, count) + offset]
+    return _runs(order_b, start, np.searchsorted(sorted_b, group_a, side="right") - start)
+
+
+def _runs(order: np.ndarray, start: np.ndarray, count: np.ndarray) -> tuple:
+    """``(k, order[start[k] + i])`` for every ``k`` and ``i < count[k]``: the rows of runs in a sorted order."""
+    k = np.repeat(np.arange(len(start)), count)
+    offset = np.arange(len(k)) - np.repeat(np.cumsum(count) - count, count)
+    return k, order[np.repeat(start, count) + offset]
 
 
 def _argmin_per_group(group: np.ndarray, key: np.ndarray) -> np.ndarray:
@@ -155,10 +159,7 @@ def _contact_activations(touches: TouchSet, contacts: np.ndarray) -> tuple:
         return order, np.cumsum(count) - count, count
     order, first, count = touches.derived(("contact activations",), segments)
     contacts = np.asarray(contacts)
-    count = count[contacts]
-    ia = np.repeat(np.arange(len(contacts)), count)
-    offset = np.arange(len(ia)) - np.repeat(np.cumsum(count) - count, count)
-    return ia, order[np.repeat(first[contacts], count) + offset]
+    return _runs(order, first[contacts], count[contacts])
 
 
 def _part_order(touches: TouchSet, parts) -> list:
