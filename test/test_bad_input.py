@@ -97,6 +97,17 @@ def test_a_wrong_option_is_one_line_before_any_data_is_read(tmp_path, capsys, ar
     assert not (tmp_path / "out").exists()
 
 
+def test_no_command_is_a_usage_mistake_and_help_is_not(capsys):
+    """``nao-skin`` alone says what is missing, as argparse says any other mistake; ``--help`` is no mistake."""
+    assert cli_main([]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err.splitlines()[0].startswith("usage: nao-skin")
+    assert captured.err.splitlines()[-1] == "nao-skin: error: a command is required (nao-skin --help lists them)"
+    assert cli_main(["--help"]) == 0
+    assert "calibrate" in capsys.readouterr().out
+
+
 def test_a_number_in_exponent_notation_is_a_number(tmp_path, capsys):
     """YAML 1.1 reads '1e-3' as a string: '--set f_scale=1e-3' was refused as "expected a number"."""
     broken = tmp_path / "broken.txt"

@@ -53,9 +53,10 @@ def main(argv=None) -> int:
         signal.signal(signal.SIGINT, previous)          # a command stops on KeyboardInterrupt
     args.started = started
     func = getattr(args, "func", None)
-    if func is None:
-        parser.print_help()
-        return 0 if args.command is None else 2
+    if func is None:     # no command is a usage mistake, said as argparse says its own
+        parser.print_usage(sys.stderr)
+        print("nao-skin: error: a command is required (nao-skin --help lists them)", file=sys.stderr)
+        return 2
     if sys.stdout is None:      # started with it closed (>&-): what a command prints would be lost unseen
         print(f"nao-skin {args.command}: error: standard output is closed; redirect it (e.g. > /dev/null)",
               file=sys.stderr)
