@@ -75,10 +75,17 @@ def test_guidance_changes_after_its_targets_are_touched(skin, captured):
     result2 = calibrate(joined, skin, prior=result.calibration, truth=cap.truth)
     g2 = guidance(joined, skin, result2, max_targets=200, poses=False, pairs=pairs)
     rank2 = {(t.part, t.triangle_id): i for i, t in enumerate(g2.targets)}
-    for i, key in enumerate(top):
+    held2 = {(t.part, t.triangle_id) for t in g2.targets if t.reason == "held"}
+    freed = 0
+    for key in top:
         cov = g2.coverage[key[0]]
-        assert cov.activations[cov.triangle_ids.index(key[1])] > before[key]     # the touches landed there
-        assert key not in rank2 or rank2[key] > i      # dropped out, or fell in rank
+        now = cov.activations[cov.triangle_ids.index(key[1])]
+        assert now > before[key]     # the touches landed there
+        if now >= cov.needed:        # enough to estimate it: no longer a held target
+            assert key not in held2
+            freed += 1
+        # one still short stays held, and ranks the higher the closer it is to being freed
+    assert freed >= 1
     assert [k for k in rank2][:len(top)] != top
 
 
@@ -161,15 +168,40 @@ def test_report_coverage_table_lists_held_triangles(skin, captured):
     assert markdown_report(result.report.to_dict()) == markdown_report(result.report.to_dict(), None)
 
 
-def test_guided_capture_leaves_fewer_triangles_held_than_random(skin):
-    """What the guidance is for: after the same touches, fewer frames held for lack of activations. (Reaching
-    an accuracy target sooner it does not, measured: ``nao-skin bench-capture``; the random capture's spread
-    of poses serves the mounts and patches better.)"""
-    setup = CaptureSetup(start=40, batch=20, cap=160, median_mm=0.0, p95_mm=0.0, sim={"pairs": PAIRS})
-    random = run_capture(skin, 0, "random", setup)
-    guided = run_capture(skin, 0, "guided", setup)
-    assert random["touches"] == guided["touches"] == 160
-    assert guided["trace"][-1]["held"] < random["trace"][-1]["held"], (guided["trace"], random["trace"])
+def _activated(touches: TouchSet, part: str, triangle_row: int) -> np.ndarray:
+    """(touches,) whether ``part``'s triangle at ``triangle_row`` has an activated taxel in each touch."""
+    on = (touches.contact_part[touches.act_contact] == touches.part_index(part)) & \
+        (touches.act_slot // 12 == triangle_row)
+    hit = np.zeros(touches.n_touches, bool)
+    hit[touches.contact_touch[touches.act_contact[on]]] = True
+    return hit
+
+
+def test_an_aimed_touch_fires_its_target_far_more_often_than_a_random_touch(skin, captured):
+    """What following the guidance does: each aimed touch presses the triangle it was sent to. (That it
+    frees held triangles sooner or reaches an accuracy target in fewer touches than random capture, it
+    does not, measured: README, Guided capture; ``nao-skin bench-capture``.)"""
+    _, touches, result = captured
+    g = guidance(touches, skin, result, max_targets=8, seed=3, pairs=[tuple(p) for p in PAIRS])
+    targets = [t for t in g.targets if t.pose is not None and t.hand_triangle_id is not None]
+    assert len(targets) >= 4
+    sim = CaptureSim(skin, {"pairs": PAIRS}, 6)
+    aimed = sim.aimed([Aim(t.hand, t.touched, t.hand_triangle_id, t.touched_triangle_id) for t in targets
+                       for _ in range(3)])
+    random = sim.random(200)
+    fired, by_chance = [], []
+    for t in targets:
+        row = _row(skin.parts[t.part], t.triangle_id)
+        label = aimed.labels["target_triangle_row" if t.part == t.touched else "hand_triangle_row"]
+        fired_parts = aimed.parts_of_touch()
+        sent = ((np.asarray(label) == row) & fired_parts[:, aimed.part_index(t.hand)]
+                & fired_parts[:, aimed.part_index(t.touched)])
+        fired.extend(_activated(aimed, t.part, row)[sent])
+        by_chance.append(_activated(random, t.part, row).mean())
+    assert len(fired) >= len(targets)     # aimed touches that fired both parts: one a target at least, on average
+    # measured over simulator seeds 6-11: 0.62-0.75 of the aimed touches against 0.09-0.12 of the random
+    # ones (a press between two triangles can fire the neighbour alone)
+    assert np.mean(fired) >= 0.5 and np.mean(by_chance) <= 0.2, (np.mean(fired), np.mean(by_chance))
 
 
 def test_the_capture_benchmark_follows_the_live_status_and_goes_on_until_done_only_when_asked(skin):

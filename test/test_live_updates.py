@@ -36,7 +36,12 @@ def test_a_warm_update_skips_what_the_prior_settled_and_lands_as_close(skin, ses
     # a self-contact explains
     assert warm.report.before == {} and "train" not in warm.report.stages[0]
     assert all(s["condition"] is None for s in warm.report.stages)
-    assert all(s["condition"] >= 1.0 for s in cold.report.stages), [s["condition"] for s in cold.report.stages]
+    # a stage that estimates nothing has no conditioning: here a fixed-reference step's triangles, each with
+    # too few activations against the one reference (the fabric waits for the joint refinement)
+    assert all(s["condition"] >= 1.0 if s["condition"] is not None else
+               " from " in s["name"] and s["name"].endswith(": triangle") and s["iterations"] == 0
+               for s in cold.report.stages), [(s["name"], s["condition"]) for s in cold.report.stages]
+    assert cold.report.stages[-1]["condition"] >= 1.0
     assert {"train", "test"} <= set(warm.report.final) and "test_accepted" not in warm.report.final
     assert "test_accepted" in cold.report.final
     cold_err = cold.report.final["truth_taxel_error_mm"]["all"]["median"]

@@ -179,7 +179,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
         last_cost = result.cost
     calib_out = layout.to_calibration(x, calib)
     cond = (condition_number(model, calib_out, free_levels, np.flatnonzero(free))
-            if condition and model is not None else None)
+            if condition and model is not None and free is not None and np.any(free) else None)
     kinematics_held = [h.split("/", 1)[1] for h in held_names if h.startswith(f"{KINEMATICS}/")]
     for kname in kinematics_held:   # held at nominal: not a correction of the calibration
         calib_out.kinematics.pop(kname, None)
