@@ -97,6 +97,45 @@ def test_a_wrong_option_is_one_line_before_any_data_is_read(tmp_path, capsys, ar
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("argv, says", [
+    (["calibrate", "in.txt", "--out", "o1", "--out", "o2"],
+     "nao-skin calibrate: error: argument --out: given twice (--out o1 and --out o2); give it once"),
+    (["calibrate", "in.txt", "--out", "o", "--strategy", "sequential", "--strategy", "all-at-once"],
+     "argument --strategy: given twice (--strategy sequential and --strategy all-at-once); give it once"),
+    (["stats", "in.txt", "--skin", "a.yaml", "--skin", "b.yaml"], "argument --skin: given twice"),
+    (["stats", "in.txt", "--skin", ""], "nao-skin stats: error: argument --skin: an empty value"),
+    (["calibrate", "in.txt", "--out", "o", "--prior", " "], "argument --prior: an empty value"),
+    (["stats", ""], "nao-skin stats: error: argument input: an empty value"),
+    (["stats", "a.txt", "b.txt"], "nao-skin stats: error: unrecognized arguments: b.txt (see nao-skin stats --help)"),
+], ids=["out-twice", "strategy-twice", "skin-twice", "empty-skin", "blank-prior", "empty-input", "extra-input"])
+def test_an_option_given_twice_or_empty_is_a_mistake_not_the_last_or_the_default(tmp_path, capsys, monkeypatch,
+                                                                                argv, says):
+    """``--out a --out b`` wrote b alone, ``--skin ""`` read the default skin config, both with exit 0; an
+    input too many was said as the top command's mistake."""
+    monkeypatch.chdir(tmp_path)
+    assert cli_main(argv) == 2
+    assert says in one_line(capsys)
+    assert not any(tmp_path.iterdir())
+
+
+def test_an_input_without_a_usable_touch_is_one_line_with_its_summary(tmp_path, capsys, thesis_touches, skin):
+    """calibrate printed the input's summary and then the error holding it again; import's error gave no
+    reason at all."""
+    touches = thesis_touches.subset(np.arange(thesis_touches.n_touches))
+    touches.joints[:, touches.joint_names.index("LShoulderPitch")] = np.inf
+    path = tmp_path / "no_angles.txt"
+    write_thesis_file(path, touches, skin)
+    summary = f"{path}: 0 touches loaded of {touches.n_touches} touches read; skipped: {touches.n_touches} bad joint angle"
+    assert cli_main(["calibrate", str(path), "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 2
+    assert one_line(capsys) == f"nao-skin calibrate: error: {path}: no usable touch in the input ({summary})"
+    assert cli_main(["import", str(path), "-o", str(tmp_path / "bag")]) == 2
+    captured = capsys.readouterr()
+    assert captured.err.strip().splitlines()[-1] == (f"nao-skin import: error: {path}: no usable touch, nothing"
+                                                     f" written ({summary})")
+    assert summary not in captured.out and "joint 'LShoulderPitch' is not a finite angle" in captured.out
+    assert not (tmp_path / "out").exists() and not (tmp_path / "bag").exists()
+
+
 def test_no_command_is_a_usage_mistake_and_help_is_not(capsys):
     """``nao-skin`` alone says what is missing, as argparse says any other mistake; ``--help`` is no mistake."""
     assert cli_main([]) == 2
@@ -212,12 +251,16 @@ def test_a_note_given_to_the_summary_is_not_logged_again(tmp_path, skin, thesis_
 
 def test_an_absurd_angle_is_named_in_a_short_line(tmp_path, capsys, skin, thesis_touches):
     touches = thesis_touches.subset(np.arange(thesis_touches.n_touches))
-    touches.joints[1, touches.joint_names.index("LElbowRoll")] = 1e300      # finite, so kept as measured
+    touches.joints[1, touches.joint_names.index("LElbowRoll")] = 1e300      # finite, but no joint's angle
+    touches.joints[2, touches.joint_names.index("LElbowRoll")] = -1.6       # past the limit: kept as measured
     path = tmp_path / "absurd.txt"
     write_thesis_file(path, touches, skin)
     assert cli_main(["stats", str(path), "--json"]) == 0
-    note = [line for line in capsys.readouterr().err.splitlines() if "outside the robot config's limits" in line]
-    assert len(note) == 1 and "LElbowRoll = 1e+300 rad" in note[0] and len(note[0]) < 400, note
+    err = capsys.readouterr().err.splitlines()
+    skipped = [line for line in err if "joint 'LElbowRoll' = 1e+300 rad, beyond two turns" in line]
+    assert len(skipped) == 1 and len(skipped[0]) < 400, err
+    note = [line for line in err if "outside the robot config's limits" in line]
+    assert len(note) == 1 and "LElbowRoll = -1.6 rad" in note[0] and len(note[0]) < 400, note
 
 
 # ------------------------------------------------------------------------------ one skin model
@@ -523,7 +566,7 @@ def test_layouts_that_cannot_be_written_leave_no_folder_behind(tmp_path, capsys,
 
     from nao_skin.formats import outdir
 
-    def full(path, data):
+    def full(path, data, read_only_too=False):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
 
     monkeypatch.setattr(outdir, "replace_file", full)
@@ -565,14 +608,14 @@ def test_layouts_never_replace_a_robots_own_layout_without_force(tmp_path, capsy
 
 
 @pytest.mark.parametrize("args, says", [
-    (["--presets", ""], "--presets '': expected preset names, comma separated"),
+    (["--presets", ""], "argument --presets: an empty value; give one, or leave the option out for its default"),
     (["--hard-pairs", "l_hand-torso,l_hand-torso"], "--hard-pairs 'l_hand-torso,l_hand-torso': a pair is given twice"),
     # '' and ',' had meant every pair; a pair the simulator cannot make touch had failed every case, row by row
-    (["--hard-pairs", ""], "--hard-pairs '': expected HAND-PART pairs, comma separated (e.g. l_hand-torso), or 'all'"),
+    (["--hard-pairs", ""], "argument --hard-pairs: an empty value"),
     (["--hard-pairs", ","], "--hard-pairs ',': expected HAND-PART pairs"),
     (["--hard-pairs", "torso-head"], "--hard-pairs 'torso-head': the simulator cannot make torso-head touch"),
     (["--hard-pairs", "l_hand-elbow"], "--hard-pairs 'l_hand-elbow': expected HAND-PART of two skin parts"),
-    (["--only", "speed", "--sim-pairs", ""], "--sim-pairs '': expected HAND-PART pairs"),
+    (["--only", "speed", "--sim-pairs", ""], "argument --sim-pairs: an empty value"),
     (["--only", "speed", "--sim-pairs", "foo-bar"], "--sim-pairs 'foo-bar': expected HAND-PART of two skin parts"),
     (["--hard-touches", "-3"], "--hard-touches -3: expected a whole number in 1..100000"),
     (["--hard-touches", str(10 ** 12)], "--hard-touches 1000000000000: expected a whole number in 1..100000"),
@@ -737,7 +780,7 @@ def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):
     assert any("--taxels torso=FILE" in line for line in run.stderr.splitlines()), run.stderr
 
 
-@pytest.mark.parametrize("parts", ["l_hand,knee", "l_hand,l_hand", "l_hand,", ""])
+@pytest.mark.parametrize("parts", ["l_hand,knee", "l_hand,l_hand", "l_hand,", " ,"])
 def test_unknown_parts_are_refused_by_stats_pairs(capsys, tmp_path, parts):
     broken = tmp_path / "broken.txt"                # told before the touches are read
     broken.write_text("{'0': [{0: {'cop': [0, 0,")

@@ -78,6 +78,17 @@ def test_bag_metadata_is_jazzy_readable_and_self_describing(real, real_skin, tmp
                 assert "LShoulderPitch" in msg.name
 
 
+def test_a_bag_kind_this_version_does_not_know_is_refused_not_read_as_a_stream(real, real_skin, tmp_path):
+    """A metadata.yaml naming another kind was read as a stream bag: 80 touches of 81, without a word."""
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, real.subset(np.arange(5)), real_skin)
+    meta = bag / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("nao_skin.bag_kind: touches", "nao_skin.bag_kind: banana"))
+    with pytest.raises(DataError, match=r"its metadata names the bag kind 'banana' \(nao_skin.bag_kind\); this"
+                                        r" version reads touches and stream$"):
+        read_touches(bag, real_skin)
+
+
 def test_truncated_bags(real, real_skin, tmp_path):
     touches = real.subset(np.arange(300))
     for storage, suffix in (("mcap", ".mcap"), ("sqlite3", ".db3")):

@@ -282,6 +282,24 @@ def test_integers_beyond_any_float_or_int64_skip_their_touch(tmp_path, skin):
     assert "touch '4': joint 'LElbowRoll' is not a finite angle (10000000000000000000..., 401 digits)" in text
 
 
+def test_a_key_with_an_underscore_is_a_name_not_a_number(tmp_path, skin):
+    """Python's float() reads '1_0' as 10: the touch was dropped as the key '10' given twice."""
+    touches, report = read_legacy(write(tmp_path, {"10": touch(), "1_0": touch()}), skin)
+    assert touches.keys == ["10", "1_0"] and not report.skipped
+    assert touches.stamps[0] == 10.0 and touches.stamps[1] == 1.0     # a name: its place in the file
+
+
+@pytest.mark.parametrize("angle", [1e300, -6282.0, 13.0])
+def test_an_angle_beyond_two_turns_skips_its_touch(tmp_path, skin, angle):
+    """1e300 rad in every touch was calibrated (exit 0), the only word a note on joint limits: no joint of an
+    arm or a head turns that far, so it is no angle but a broken value."""
+    path = write(tmp_path, {"0": touch(), "1": touch(joints=dict(JOINTS, LElbowRoll=angle))})
+    touches, report = read_legacy(path, skin)
+    assert touches.keys == ["0"] and report.skipped == {"bad joint angle": 1}
+    assert (f"touch '1': joint 'LElbowRoll' = {angle:.4g} rad, beyond two turns (|angle| <= 12.57 rad)"
+            in " | ".join(report.messages))
+
+
 @pytest.mark.parametrize("text, problem", [
     ("", "empty file; a legacy dataset is one dict literal {key: [skinContacts, joints]}"),
     ("  \n\n", "empty file; a legacy dataset is one dict literal {key: [skinContacts, joints]}"),

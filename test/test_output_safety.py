@@ -621,6 +621,21 @@ def test_a_file_out_replaces_no_device_or_fifo_and_writes_through_a_symlink(tmp_
     assert sorted(p.name for p in target.parent.iterdir()) == ["calibration.yaml"]     # no temporary left
 
 
+def test_a_file_out_keeps_an_earlier_outputs_permissions_and_leaves_a_read_only_one(tmp_path):
+    """``urdf --out`` renamed a new file over a read-only earlier one (mode 0444 became 0644): the rename asks
+    no permission of the file, so a user's way of keeping it was lost."""
+    out = tmp_path / "robot.urdf"
+    ok(nao_skin("urdf", "--out", out, cwd=tmp_path))
+    out.chmod(0o640)
+    ok(nao_skin("urdf", "--out", out, cwd=tmp_path))
+    assert stat.S_IMODE(out.stat().st_mode) == 0o640
+    out.chmod(0o444)
+    before = out.read_bytes()
+    refused(tmp_path, ["urdf", "--out", out], f"--out {out}: cannot write (it is read-only; make it writable to"
+                                              f" replace it)")
+    assert out.read_bytes() == before and stat.S_IMODE(out.stat().st_mode) == 0o444
+
+
 @pytest.mark.parametrize("command", ["nominal", "urdf"])
 def test_a_file_out_replaces_only_what_the_command_wrote(tmp_path, command):
     """``nominal --out notes.txt`` and ``urdf --out my_robot.urdf`` replaced the user's file without a word."""

@@ -365,7 +365,13 @@ def test_parameters_no_touch_can_be_simulated_with_are_one_line(skin, overrides)
     # a robot config given for the parameters was simulated with the built-in defaults, exit 0
     ("joints: {HeadYaw: [-2, 2]}\nchains: {}\n", "expected 'defaults:' and 'presets:' mappings"),
     ("defaults: {}\npresetz: {x: {}}\n", "unknown key 'presetz' (did you mean 'presets'?); it takes defaults, presets"),
-], ids=["defaults-list", "presets-list", "preset-list", "another-config", "unknown-key"])
+    # a field misspelt in a preset that does not run, or under a preset 'default' that never runs, was not read
+    ("defaults: {}\npresets: {x: {}, y: {bogus: 1}}\n", "preset 'y': unknown field(s) bogus"),
+    ("defaults: {}\npresets: {x: {}, default: {n_touches: 3}}\n",
+     "preset 'default': the defaults are 'defaults:'; put its fields there"),
+    ("defaults: {n_touchez: 3}\npresets: {x: {}}\n", "defaults: unknown field(s) n_touchez"),
+], ids=["defaults-list", "presets-list", "preset-list", "another-config", "unknown-key", "other-preset-field",
+        "preset-default", "defaults-field"])
 def test_a_parameters_file_of_the_wrong_shape_is_one_line(tmp_path, text, says):
     path = tmp_path / "simulation.yaml"
     path.write_text(text)

@@ -21,8 +21,40 @@ from nao_skin.errors import (NaoSkinError, Terminated, end_at_once_on_ctrl_c, ig
                              stop_on_term_or_hangup)
 
 
+class _StoreOnce(argparse.Action):
+    """argparse's ``store``, but an option given twice is a mistake (the last would win unseen: two
+    ``--out`` write one of them) and so is an empty value (a path of ``""`` would be read as not given,
+    or as the current directory)."""
+
+    GIVEN = "_options_given"     # kept on the namespace while parsing, removed by :func:`main`
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        name = option_string or self.metavar or self.dest
+        for value in values if isinstance(values, list) else [values]:
+            if isinstance(value, str) and not value.strip():
+                parser.error(f"argument {name}: an empty value" + ("; give one, or leave the option out for its"
+                                                                   " default" if option_string else ""))
+        if option_string is not None:
+            given = namespace.__dict__.setdefault(self.GIVEN, {})
+            if self.dest in given:
+                parser.error(f"argument {option_string}: given twice ({given[self.dest]}"
+                             f" {_shown(getattr(namespace, self.dest))} and {option_string} {_shown(values)});"
+                             f" give it once")
+            given[self.dest] = option_string
+        setattr(namespace, self.dest, values)
+
+
+def _shown(value) -> str:
+    return " ".join(map(str, value)) if isinstance(value, list) else str(value)
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse, but a mistake on the command line is one line (and exit 2), as every other mistake."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.register("action", None, _StoreOnce)
+        self.register("action", "store", _StoreOnce)
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
@@ -46,11 +78,16 @@ def main(argv=None) -> int:
     previous = end_at_once_on_ctrl_c("nao-skin")     # while the commands' modules import
     try:
         parser = build_parser()
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
     except SystemExit as exc:            # --help, or a mistake already said in one line
         return int(exc.code or 0)
     finally:
         signal.signal(signal.SIGINT, previous)          # a command stops on KeyboardInterrupt
+    vars(args).pop(_StoreOnce.GIVEN, None)
+    if extra:    # said by the command's own parser, whose help lists what it takes
+        prog = f"nao-skin {args.command}" if args.command else "nao-skin"
+        print(f"{prog}: error: unrecognized arguments: {' '.join(extra)} (see {prog} --help)", file=sys.stderr)
+        return 2
     args.started = started
     func = getattr(args, "func", None)
     if func is None:     # no command is a usage mistake, said as argparse says its own

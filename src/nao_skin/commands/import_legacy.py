@@ -1,6 +1,8 @@
 """``nao-skin import LEGACY -o BAG --taxels l_hand=FILE --taxels torso=FILE``: a thesis dataset to a touch bag."""
 from __future__ import annotations
 
+import sys
+
 from nao_skin.commands import add_skin_arguments, skin_from_args
 
 NAME = "import"
@@ -19,17 +21,20 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from nao_skin.errors import DataError
     from nao_skin.formats.bag import write_touch_bag
-    from nao_skin.formats.inputs import check_inputs
+    from nao_skin.formats.inputs import check_inputs, layout_hints
     from nao_skin.formats.legacy import read_legacy
     from nao_skin.touch.datasets import deduplicate
 
     check_inputs([args.legacy])
     skin = skin_from_args(args)
     touches, report = read_legacy(args.legacy, skin)
-    for line in report.lines():
+    lines = report.lines()
+    for line in lines if touches.n_touches else lines[1:]:     # else the error below carries the summary
         print(line)
+    for hint in layout_hints(touches, report, skin):     # e.g. the recording's own taxel files to pass
+        print(hint, file=sys.stderr)
     if touches.n_touches == 0:
-        raise DataError(f"{args.legacy}: no usable touch, nothing written")
+        raise DataError(f"{args.legacy}: no usable touch, nothing written ({report.summary()})")
     if args.dedup:
         touches, removed = deduplicate(touches)
         print(f"exact duplicates removed: {removed}")

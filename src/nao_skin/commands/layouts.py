@@ -54,9 +54,12 @@ def run(args) -> int:
         try:
             directory.mkdir(parents=True, exist_ok=True)
             for f, target in zip(fresh, targets):
+                if target not in differing and target.exists():
+                    continue              # the same bytes already (a read-only copy stays as it is)
                 if target.is_symlink():   # --force replaces the link, never the file it points to elsewhere
                     target.unlink()
-                replace_file(target, f.read_bytes())    # whole or not at all: a full disk keeps the old one
+                # whole or not at all: a full disk keeps the old one; what differs is replaced on --force alone
+                replace_file(target, f.read_bytes(), read_only_too=True)
         except OSError as exc:
             for place in made:            # the folders this run made, when nothing is left in them
                 try:

@@ -387,7 +387,15 @@ def touch_messages(touches: TouchSet, skin: SkinModel, where: str | Path = "touc
 
 
 # ---------------------------------------------------------------------- reading
-def _event_config(kind: str) -> EventConfig:
+BAG_KINDS = ("touches", "stream")
+
+
+def _event_config(kind: str, path: Path) -> EventConfig:
+    """How the bag's events are read: a kind this version does not know is refused, never read as a stream
+    (a touch bag read so loses the touches whose messages share a stamp)."""
+    if kind not in BAG_KINDS:
+        raise DataError(f"{path}: its metadata names the bag kind {kind!r} ({BAG_KIND_KEY}); this version reads"
+                        f" {' and '.join(BAG_KINDS)}")
     return TOUCH_BAG_CONFIG if kind == "touches" else LIVE_CONFIG
 
 
@@ -516,7 +524,8 @@ class GrowingBag:
                 return self._read_closed(reader)
         tail = bag.since(self._cursor)
         if self._feed is None or tail.restarted:
-            config = self.config or _event_config(bag.custom_data.get(BAG_KIND_KEY) or _provisional_kind(self.path))
+            config = self.config or _event_config(bag.custom_data.get(BAG_KIND_KEY) or _provisional_kind(self.path),
+                                                   self.path)
             self._feed = _Feed(self.path, self.skin, config, LoadReport(str(self.path)))
             self._touches = None
         self._cursor = tail.cursor
@@ -548,7 +557,8 @@ class GrowingBag:
     def _read_closed(self, reader) -> tuple:
         report = LoadReport(str(self.path))
         try:
-            feed = _Feed(self.path, self.skin, self.config or _event_config(_bag_kind(reader, self.path)), report)
+            feed = _Feed(self.path, self.skin, self.config or _event_config(_bag_kind(reader, self.path), self.path),
+                         report)
             wanted, unknown = [], {}
             for conn in reader.connections:
                 if not _is_read(conn.topic, conn.msgtype):

@@ -97,10 +97,13 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
             if note:
                 rep.notes.append(note)
         lines = rep.lines(limit=5)
-        log(lines[0])
+        # an input alone that gave no touch: the error below carries its summary line
+        said_by_error = len(paths) == 1 and touches.n_touches == 0
+        if not said_by_error:
+            log(lines[0])
         summarised = rep.notes if summary is not log else []
         if summary is not log:
-            for line in ([lines[0]] if rep.n_skipped else []) + rep.notes:
+            for line in ([lines[0]] if rep.n_skipped and not said_by_error else []) + rep.notes:
                 summary(line)
         for line in lines[1:]:
             if line not in summarised:      # said once, on the summary's stream

@@ -20,7 +20,7 @@ from typing import Mapping
 import numpy as np
 
 from nao_skin.errors import DataError
-from nao_skin.model.robot import RobotModel
+from nao_skin.model.robot import MAX_JOINT_LIMIT, RobotModel
 from nao_skin.model.skin import DEFAULT_CHAINS, SkinModel, part_from_layout
 from nao_skin.model.taxel_file import MAX_COORDINATE
 from nao_skin.paths import read_text
@@ -65,23 +65,27 @@ def _vector3(value, where: str) -> np.ndarray:
     return out
 
 
-def _numeric(key) -> bool:
-    """Whether the key is a time (or an index) rather than a name: its stamp is ``float(key)``."""
-    if isinstance(key, bool):
-        return False
+def _key_number(key) -> float | None:
+    """The key as a time (or an index), or None when it is a name. Python's ``float`` reads '1_0' as 10, which
+    would make it the key '10' twice; 'nan' or a 400-digit number is no time either (an import would refuse
+    it as a bag stamp)."""
+    if isinstance(key, bool) or (isinstance(key, str) and "_" in key):
+        return None
     try:
-        return math.isfinite(float(key))
+        number = float(key)
     except (TypeError, ValueError, OverflowError):
-        return False
+        return None
+    return number if math.isfinite(number) else None
+
+
+def _numeric(key) -> bool:
+    """Whether the key is a time (or an index) rather than a name: its stamp is the number."""
+    return _key_number(key) is not None
 
 
 def _stamp_of(key, row: int) -> float:
-    try:
-        stamp = float(key)
-    except (TypeError, ValueError, OverflowError):
-        return float(row)
-    # 'nan' or a 400-digit number is no time either (an import would refuse it as a bag stamp): file order
-    return stamp if math.isfinite(stamp) else float(row)      # neither an index nor a timestamp: file order
+    number = _key_number(key)
+    return float(row) if number is None else number      # neither an index nor a timestamp: file order
 
 
 class _Touch:
@@ -165,6 +169,9 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
         except OverflowError:           # an integer beyond any float
             raise _SkipTouch("bad joint angle", f"{where}: joint '{name}' is not a finite angle"
                              f" ({str(angle)[:20]}..., {len(str(angle))} digits)") from None
+        if abs(joints[idx]) > MAX_JOINT_LIMIT:    # no joint of an arm or a head turns that far: not an angle
+            raise _SkipTouch("bad joint angle", f"{where}: joint '{name}' = {float(angle):.4g} rad, beyond two"
+                             f" turns (|angle| <= {MAX_JOINT_LIMIT:.2f} rad)")
     robot = skin.robot
     for p in sorted({c[0] for c in contacts}):
         part = skin.parts[list(part_index)[p]]

@@ -163,23 +163,30 @@ def _check_replaceable(out: Path, name: str) -> None:
                             f" ({exc.strerror}); make it writable or choose another directory") from None
 
 
-def replace_file(path: str | Path, data: str | bytes) -> None:
-    """Write ``path`` whole or not at all: a temporary sibling (mode 0o666 less the umask, as a plain write
-    gives) renamed over it, so a failed write (a full disk, a signal) leaves the earlier file as it was.
+def replace_file(path: str | Path, data: str | bytes, read_only_too: bool = False) -> None:
+    """Write ``path`` whole or not at all: a temporary sibling (mode 0o666 less the umask, or the mode of the
+    file it replaces, as a plain write gives) renamed over it, so a failed write (a full disk, a signal) leaves the earlier file as it was.
     Raises the ``OSError``; the temporary file is gone then. A symlink's target is written, as a plain write
-    would; anything else that is not a regular file (``/dev/null``, a FIFO) is refused, never replaced."""
+    would; anything else that is not a regular file (``/dev/null``, a FIFO) is refused, never replaced, and so
+    is a read-only file unless ``read_only_too`` (a ``--force``)."""
     from nao_skin.paths import not_a_file
 
     path = Path(os.path.realpath(path))
-    kind = not_a_file(path.stat().st_mode) if path.exists() else None
+    mode = path.stat().st_mode if path.exists() else None
+    kind = not_a_file(mode) if mode is not None else None
     if kind:
         raise OSError(errno.EEXIST, f"it is {kind}, not a regular file")
+    if mode is not None and not mode & 0o222 and not read_only_too:
+        # somebody made it read-only, which a rename would not ask about (nor, for root, a plain write)
+        raise OSError(errno.EACCES, "it is read-only; make it writable to replace it")
     temporary, made = path.with_name(f".{path.name}.{os.getpid()}.tmp"), False
     try:
         # O_EXCL: never another file under that name
         with os.fdopen(os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666),
                        "wb" if isinstance(data, bytes) else "w") as f:
             made = True
+            if mode is not None:    # the file it replaces keeps its permissions, as a plain write keeps them
+                os.chmod(f.fileno(), stat.S_IMODE(mode))
             f.write(data)
             f.flush()
             _sync(f.fileno())

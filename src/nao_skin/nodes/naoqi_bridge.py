@@ -19,6 +19,7 @@ from sensor_msgs.msg import JointState
 from nao_skin.errors import one_line
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC
 from nao_skin.live.reconnect import Backoff
+from nao_skin.model.robot import MAX_JOINT_LIMIT
 from nao_skin.nodes.messages import joint_state_msg
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.rules import finite_float
@@ -158,8 +159,9 @@ class NaoqiBridge(Node):
         if len(values) != len(self.names):
             return "length", f"{len(values)} values for {len(self.names)} joints"
         for name, v in zip(self.names, values):
-            if finite_float(v) is None:
-                return "angle", f"{v!r} for {name}, not a finite angle"
+            angle = finite_float(v)
+            if angle is None or abs(angle) > MAX_JOINT_LIMIT:
+                return "angle", f"{v!r} for {name}, not a joint angle (finite, within two turns)"
         return None
 
     def _bad_read(self, kind: str, reason: str) -> None:

@@ -131,9 +131,19 @@ def _read_doc(path: Path) -> dict:
         raise ConfigError(f"{path}: expected 'defaults:' and 'presets:' mappings")
     # another config given here (a robot's: 'joints', 'chains') simulated with the built-in defaults
     known_keys(doc, PARAMS_FILE_KEYS, str(path))
+    names = {f.name for f in dataclasses.fields(SimParams)}
     for name, fields in (doc.get("presets") or {}).items():
         if not isinstance(fields or {}, dict):
             raise ConfigError(f"{path}: preset '{name}': expected a mapping of parameter: value")
+        if name == "default":    # the preset 'default' is the file's defaults: this one would never be read
+            raise ConfigError(f"{path}: preset 'default': the defaults are 'defaults:'; put its fields there")
+        # a misspelt field of any preset is said whichever preset runs, not only when that one does
+        unknown = sorted(set(fields or {}) - names)
+        if unknown:
+            raise ConfigError(f"{path}: preset '{name}': unknown field(s) {', '.join(map(str, unknown))}")
+    unknown = sorted(set(doc.get("defaults") or {}) - names)
+    if unknown:
+        raise ConfigError(f"{path}: defaults: unknown field(s) {', '.join(map(str, unknown))}")
     return doc
 
 

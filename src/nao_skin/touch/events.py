@@ -38,6 +38,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from nao_skin.model.robot import MAX_JOINT_LIMIT
 from nao_skin.touch.touches import TouchSet
 
 MAX_NOTES = 50            # one-line drop explanations kept (counts are always complete)
@@ -150,7 +151,9 @@ class EventDetector:
                                                 f" {len(positions)} positions")
             return []
         values[cols[1]] = positions[cols[0]]
-        values[np.isinf(values)] = np.nan     # no measurement, as a joint not reported (inf made FK warn)
+        # no measurement, as a joint not reported: inf (it made FK warn), and what no joint reaches (beyond
+        # two turns: a broken encoder word, not an angle)
+        values[np.abs(values) > MAX_JOINT_LIMIT] = np.nan
         stamp = float(stamp)
         stamps = self._joint_stamps
         n = self._confirmed()
