@@ -680,6 +680,9 @@ def test_a_broken_bench_input_never_costs_an_earlier_benchmark(tmp_path, capsys,
     (["--bag", "notes.txt/bag"], "bag {tmp}/notes.txt/bag: {tmp}/notes.txt is a file, not a directory"),
     (["--bag", "/proc/nao_skin_bag"], "bag /proc/nao_skin_bag: cannot write in /proc (No such file or directory)"),
     (["--calibration", "notes.txt"], "notes.txt: a calibration needs a 'parts' mapping"),
+    # both have 'robot:' and 'parts:': it was refused as made for robot 'nao_h25.yaml'
+    (["--calibration", str(package_dir() / "config" / "nao_skin.yaml")],
+     f"{package_dir() / 'config' / 'nao_skin.yaml'}: is a skin config (it has 'self_touch:'), not a calibration"),
     (["--calibration", "missing.yaml"], "missing.yaml: cannot read calibration (No such file or directory)"),
     (["--taxels", "l_hand=binary.txt"], "{tmp}/binary.txt: cannot read taxel file (not a text file"),
     (["--bag", "a\nb"], "bag '{tmp}/a\\nb': holds a control character (a newline, a tab), which a ROS parameter"

@@ -28,7 +28,7 @@ Levenberg-Marquardt loop), :mod:`.evaluation` (metrics), :mod:`.report`
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from typing import Callable, Iterable
 
 import numpy as np
@@ -230,6 +230,7 @@ class _Fit:
     # the last stage's figures and what they measured: the final figures when nothing changed since
     last_measured: tuple = (None, None, None, None)     # (calibration, part pairs, train, test)
     truth_poses: np.ndarray | None = None               # joint angles the true taxel error is measured at
+    fabric_stands_in: bool = False                      # the fabric so far was fitted to a fixed reference
 
 
 def _check_parts(touches: TouchSet, skin: SkinModel) -> None:
@@ -340,12 +341,13 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
     # a stage is judged on what it fits, as it fits it (closest COP and taxel pairs, at the fabric
     # surfaces): taxel-centre distances grow with the fabric estimate however good the fit
     # (test_calibrate: a stage that drives the touches apart is undone)
-    if refined and step.references and options.estimate_fabric:
-        # The fabric is a property of the whole skin: fitted against a reference that is not calibrated yet,
-        # it takes up that reference's error, and the joint refinement starting there does not give it all
-        # back (simulator, seed 0, 65 touches per pair: 2.6 mm for the true 1 mm after the fixed-reference
-        # steps, 1.2 mm at the end; README, Calibration). The stages that free every part estimate it.
-        options = replace(options, estimate_fabric=False)
+    if fit.fabric_stands_in and not step.references:
+        # Fitted against a reference that is not calibrated yet, the fabric estimate takes up that reference's
+        # offset along its normals too, which helps those stages; but it is no fabric, and the joint
+        # refinement, starting there, did not give it all back (simulator, seed 0, 65 touches per pair: 2.6 mm
+        # for the true 1 mm after the fixed-reference steps, 1.2 mm at the end). The stages that free every
+        # part start the fabric over from the configured thickness (README, Calibration, item 7).
+        fit.fabric, fit.fabric_stands_in = options.fabric_thickness, False
     kinds = fitted_kinds(options, levels)
     limit = (options.warm_repairings if warm else options.reference_repairings if refined and step.references
              else options.max_repairings)
@@ -373,6 +375,7 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
         say(f"{entry['name']}: {entry['reverted']}")
     else:
         fit.fabric = stage.fabric_thickness_mm / 1000.0
+        fit.fabric_stands_in |= bool(refined and step.references)
         fit.prior_sigma = stage.prior_sigma
         fit.calibration = stage.calibration
         fit.estimated |= stage.estimated_components

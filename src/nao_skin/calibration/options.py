@@ -140,9 +140,9 @@ class CalibrationOptions:
     # touching skins meet at their fabric surfaces, 2 x this apart at the taxel centres
     fabric_thickness: float = option(0.001, Rule(float, low=0.0, high=0.01), "m of fabric over the taxels of each part")
     estimate_fabric: bool = option(True, Rule(bool),
-                                   "estimate the (pressed) fabric thickness from the touches, within fabric_bounds, in the"
-                                   " stages that free every part they pair (with a joint refinement after them,"
-                                   " fixed-reference steps keep the estimate so far)")
+                                   "estimate the (pressed) fabric thickness from the touches, within fabric_bounds (the"
+                                   " joint refinement starts it over from fabric_thickness: against a fixed"
+                                   " reference it stands in for that reference's error too)")
     fabric_bounds: tuple = option((0.0, 0.003), Rule(tuple, low=0.0, high=0.01, length=2), "m: lowest and highest fabric")
     prior_strength: float = option(3.0, Rule(float, low=0.0, high=1e6),
                                    "patch/triangle prior std starts at bound / this (0: no prior)")

@@ -543,6 +543,8 @@ class SkinCalibration:
         doc = read_yaml(path, "calibration")
         if not isinstance(doc, dict) or not isinstance(doc.get("parts"), dict):
             raise ConfigError(f"{path}: a calibration needs a 'parts' mapping")
+        if "format" not in doc and "self_touch" in doc:    # both have 'robot' and 'parts': say which it is
+            raise ConfigError(f"{path}: is a skin config (it has 'self_touch:'), not a calibration")
         if doc.get("format", CALIBRATION_FORMAT) != CALIBRATION_FORMAT:     # older files have none
             raise ConfigError(f"{path}: format {doc['format']!r}, not {CALIBRATION_FORMAT}: another kind of file"
                               f" or a newer nao_skin's")
