@@ -125,7 +125,8 @@ def test_an_input_without_a_usable_touch_is_one_line_with_its_summary(tmp_path, 
     touches.joints[:, touches.joint_names.index("LShoulderPitch")] = np.inf
     path = tmp_path / "no_angles.txt"
     write_thesis_file(path, touches, skin)
-    summary = f"{path}: 0 touches loaded of {touches.n_touches} touches read; skipped: {touches.n_touches} bad joint angle"
+    n = touches.n_touches
+    summary = f"{path}: 0 touches loaded of {n} touches read; skipped: {n} bad joint angle"
     assert cli_main(["calibrate", str(path), "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 2
     assert one_line(capsys) == f"nao-skin calibrate: error: {path}: no usable touch in the input ({summary})"
     assert cli_main(["import", str(path), "-o", str(tmp_path / "bag")]) == 2

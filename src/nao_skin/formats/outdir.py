@@ -165,7 +165,8 @@ def _check_replaceable(out: Path, name: str) -> None:
 
 def replace_file(path: str | Path, data: str | bytes, read_only_too: bool = False) -> None:
     """Write ``path`` whole or not at all: a temporary sibling (mode 0o666 less the umask, or the mode of the
-    file it replaces, as a plain write gives) renamed over it, so a failed write (a full disk, a signal) leaves the earlier file as it was.
+    file it replaces, as a plain write gives) renamed over it, so a failed write (a full disk, a signal)
+    leaves the earlier file as it was.
     Raises the ``OSError``; the temporary file is gone then. A symlink's target is written, as a plain write
     would; anything else that is not a regular file (``/dev/null``, a FIFO) is refused, never replaced, and so
     is a read-only file unless ``read_only_too`` (a ``--force``)."""
