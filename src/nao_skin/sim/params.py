@@ -131,25 +131,26 @@ def _read_doc(path: Path) -> dict:
         raise ConfigError(f"{path}: expected 'defaults:' and 'presets:' mappings")
     # another config given here (a robot's: 'joints', 'chains') simulated with the built-in defaults
     known_keys(doc, PARAMS_FILE_KEYS, str(path))
-    names = {f.name for f in dataclasses.fields(SimParams)}
     for name, fields in (doc.get("presets") or {}).items():
         if not isinstance(fields or {}, dict):
             raise ConfigError(f"{path}: preset '{name}': expected a mapping of parameter: value")
         if name == "default":    # the preset 'default' is the file's defaults: this one would never be read
             raise ConfigError(f"{path}: preset 'default': the defaults are 'defaults:'; put its fields there")
         # a misspelt field of any preset is said whichever preset runs, not only when that one does
-        unknown = sorted(set(fields or {}) - names)
-        if unknown:
-            raise ConfigError(f"{path}: preset '{name}': unknown field(s) {', '.join(map(str, unknown))}")
-    unknown = sorted(set(doc.get("defaults") or {}) - names)
-    if unknown:
-        raise ConfigError(f"{path}: defaults: unknown field(s) {', '.join(map(str, unknown))}")
+        _check_fields(fields or {}, f"{path}: preset '{name}'")
+    _check_fields(doc.get("defaults") or {}, f"{path}: defaults")
     return doc
+
+
+def _check_fields(values: Mapping, where: str) -> None:
+    unknown = sorted(map(str, set(values) - {f.name for f in dataclasses.fields(SimParams)}))
+    if unknown:
+        raise ConfigError(f"{where}: unknown field(s) {', '.join(unknown)}")
 
 
 def preset_names(path: str | Path | None = None) -> list:
     doc = _read_doc(Path(path) if path else default_params_file())
-    return ["default"] + [n for n in (doc.get("presets") or {}) if n != "default"]
+    return ["default", *(doc.get("presets") or {})]     # a preset named 'default' is refused on reading
 
 
 def load_params(preset: str = "default", overrides: Mapping | None = None,
@@ -174,9 +175,7 @@ def make_params(values: Mapping | SimParams, where: str = "simulation parameters
     if isinstance(values, SimParams):
         values = values.to_dict()
     fields = dataclasses.fields(SimParams)
-    unknown = sorted(set(values) - {f.name for f in fields})
-    if unknown:
-        raise ConfigError(f"{where}: unknown field(s) {', '.join(unknown)}")
+    _check_fields(values, where)
     bundled = default_params_file()
     values = {**(_read_doc(bundled).get("defaults") or {}), **values}
     missing = [f.name for f in fields if f.name not in values and f.default is dataclasses.MISSING]
