@@ -118,6 +118,21 @@ def test_an_option_given_twice_or_empty_is_a_mistake_not_the_last_or_the_default
     assert not any(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize("argv, says", [
+    (["stats", "bad\x1b[31mname.txt"], "nao-skin stats: error: bad\\x1b[31mname.txt: "),
+    (["stats", "a.txt", "\x1b[2J"], "unrecognized arguments: \\x1b[2J (see nao-skin stats --help)"),
+    (["calibrate", "a.txt", "--out", "o", "--strategy", "\x07\x9b"], "argument --strategy: invalid choice: '\\x07\\x9b'"),
+], ids=["input", "extra", "choice"])
+def test_a_control_character_in_an_input_is_shown_escaped_not_sent_to_the_terminal(tmp_path, capsys, monkeypatch,
+                                                                                  argv, says):
+    """A file name with an escape sequence was echoed raw in the error line: the terminal recoloured or
+    cleared itself instead of showing which input was wrong."""
+    monkeypatch.chdir(tmp_path)
+    assert cli_main(argv) == 2
+    line = one_line(capsys)
+    assert says in line
+    assert not any(ch in line for ch in "\x1b\x07\x9b")
+
 def test_an_input_without_a_usable_touch_is_one_line_with_its_summary(tmp_path, capsys, thesis_touches, skin):
     """calibrate printed the input's summary and then the error holding it again; import's error gave no
     reason at all."""

@@ -18,7 +18,7 @@ import time
 
 from nao_skin import commands
 from nao_skin.errors import (NaoSkinError, Terminated, end_at_once_on_ctrl_c, ignore_stop_signals, os_reason,
-                             stop_on_term_or_hangup)
+                             printable, stop_on_term_or_hangup)
 
 
 class _StoreOnce(argparse.Action):
@@ -57,7 +57,7 @@ class _Parser(argparse.ArgumentParser):
         self.register("action", "store", _StoreOnce)
 
     def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: error: {printable(message)} (see {self.prog} --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -86,7 +86,8 @@ def main(argv=None) -> int:
     vars(args).pop(_StoreOnce.GIVEN, None)
     if extra:    # said by the command's own parser, whose help lists what it takes
         prog = f"nao-skin {args.command}" if args.command else "nao-skin"
-        print(f"{prog}: error: unrecognized arguments: {' '.join(extra)} (see {prog} --help)", file=sys.stderr)
+        extra = printable(" ".join(extra))
+        print(f"{prog}: error: unrecognized arguments: {extra} (see {prog} --help)", file=sys.stderr)
         return 2
     args.started = started
     func = getattr(args, "func", None)
@@ -122,7 +123,7 @@ def main(argv=None) -> int:
                      " that does, or give absolute paths")
         else:
             where = f"cannot write the output ({os_reason(exc)})"
-        print(f"nao-skin {args.command}: error: {where}", file=sys.stderr)
+        print(f"nao-skin {args.command}: error: {printable(where)}", file=sys.stderr)
         return 2
     finally:
         for signum, handler in previous_term.items():

@@ -3,13 +3,22 @@ from __future__ import annotations
 
 import os
 import signal
+import unicodedata
 
 
 class NaoSkinError(ValueError):
     """Bad input: the message is one line that names the file/touch/field and the problem."""
 
     def __init__(self, message: str):
-        super().__init__(" ".join(str(message).split()))
+        super().__init__(printable(" ".join(str(message).split())))
+
+
+def printable(text: str) -> str:
+    """``text`` with its control characters (an escape sequence in a file name, a byte that is not UTF-8)
+    written as Python writes them in a string literal, so that a line naming an input shows that input
+    and cannot move the cursor, recolour or clear the terminal it is read on."""
+    return "".join(ch.encode("unicode_escape", "backslashreplace").decode("ascii")
+                   if unicodedata.category(ch) in ("Cc", "Cs") else ch for ch in text)
 
 
 class ConfigError(NaoSkinError):
