@@ -856,6 +856,21 @@ def test_a_key_given_twice_in_a_config_is_one_line_naming_both_lines(tmp_path, c
     assert read_yaml(merged, "test")["this"] == {"a": 3, "b": 2}
 
 
+def test_a_robot_config_without_a_chain_says_which_chain_is_missing(tmp_path, capsys):
+    """A robot file without the left arm had said its elbow-offset link was malformed; then, with the link
+    gone too, the skin's left hand names the chain the robot lacks."""
+    robot = (package_dir() / "config" / "nao_h25.yaml").read_text()
+    no_arm = robot[:robot.index("  l_arm:")] + robot[robot.index("  r_arm:"):]
+    path = tmp_path / "robot.yaml"
+    path.write_text(no_arm)
+    assert cli_main(["stats", str(RECORDING), "--robot", str(path), *REAL_TAXELS]) == 2
+    assert one_line(capsys) == (f"nao-skin stats: error: {path}: link 'LElbowOffsetY' is on chain 'l_arm', which"
+                                f" the file does not describe (chains: head, r_arm)")
+    path.write_text("\n".join(line for line in no_arm.splitlines() if not line.startswith("  LElbowOffsetY:")))
+    assert cli_main(["stats", str(RECORDING), "--robot", str(path), *REAL_TAXELS]) == 2
+    assert "part 'l_hand': unknown chain 'l_arm' (robot has head, r_arm)" in one_line(capsys)
+
+
 def test_standard_output_on_a_full_disk_is_one_line():
     """``nao-skin stats ... > file`` on a full disk: the failed write has no file name to say, so the line
     says it was the output; exit 2, no traceback."""

@@ -107,7 +107,10 @@ class RobotModel:
         self.source = source
         self.links = dict(links or {})
         for lname, link in self.links.items():
-            if link.chain not in self.chains or not 0 <= link.row < len(self.chains[link.chain].joints) \
+            if link.chain not in self.chains:
+                raise ConfigError(f"{source}: link '{lname}' is on chain '{link.chain}', which the file does not"
+                                  f" describe (chains: {', '.join(self.chains) or 'none'})")
+            if not 0 <= link.row < len(self.chains[link.chain].joints) \
                     or link.param not in DH_PARAMS or lname in self.joint_index:
                 raise ConfigError(f"{source}: link '{lname}' must name a chain, a row of it and a DH parameter"
                                   f" ({' or '.join(DH_PARAMS)}), and not be a joint name")
