@@ -808,6 +808,9 @@ def run_kinematic_case(skin: SkinModel, preset: str, seed: int, setup: HardCaseS
                        part_true_mm={p: {"median": err[p]["median"], "p95": err[p]["p95"]} for p in rep.parts})
             kin = rep.kinematics or {}
             row["accepted"] = bool(kin.get("accepted", False))
+            held_out = kin.get("test_taxel_surface_mm", {})
+            row["held_out_gain"] = held_out.get("gain", float("nan"))        # what auto decides on
+            row["held_out_gain_low"] = held_out.get("gain_low", float("nan"))
             row["held"] = [h["name"] for h in kin.get("held", [])]
             # recovered against the truth: joints in degrees, links in mm (the truth's, 0 when it has none)
             row["recovered"] = {
@@ -886,6 +889,7 @@ def kinematics_summary(rows: list) -> list:
                                             default=float("nan"))} for p in parts},
              "seconds": _median([r["seconds"] for r in ok]),
              "accepted": sum(r.get("accepted", False) for r in ok),
+             "gain_low_range": _range([r.get("held_out_gain_low", math.nan) for r in ok]),
              "max_offset_error_deg": max((r["max_offset_error_deg"] for r in ok
                                           if not math.isnan(r.get("max_offset_error_deg", math.nan))),
                                          default=float("nan")),
@@ -906,6 +910,11 @@ def kinematics_summary(rows: list) -> list:
 
 def _median(values: list) -> float:
     return float(np.median(values)) if values else float("nan")
+
+
+def _range(values: list) -> list:
+    finite = [v for v in values if not math.isnan(v)]
+    return [min(finite), max(finite)] if finite else [float("nan"), float("nan")]
 
 
 def kinematics_goal_lines(rows: list) -> list:
@@ -952,14 +961,17 @@ def kinematics_tables(rows: list) -> str:
     parts = list(dict.fromkeys(p for s in summary for p in s["parts"]))
     head = ["preset", "kinematics", "runs", "failed", "true median mm (median / worst)", "worst p95 mm"]
     head += [f"{p} median / worst p95 mm" for p in parts]
-    head += ["seconds (median)", "kept (auto)", "max change vs off mm", "worst joint offset error deg"]
+    head += ["seconds (median)", "kept (auto)", "held-out gain, 95 % bound (auto) %", "max change vs off mm",
+             "worst joint offset error deg"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for s in summary:
         cells = [s["preset"], s["mode"], str(s["runs"]), str(s["failed"]),
                  f"{_f(s['median_mm'], 3)} / {_f(s['worst_median_mm'], 3)}", _f(s["worst_p95_mm"], 3)]
         cells += [f"{_f(s['parts'][p]['median'], 3)} / {_f(s['parts'][p]['worst_p95'], 3)}" if p in s["parts"] else "-"
                   for p in parts]
+        low = s["gain_low_range"]
         cells += [_f(s["seconds"]), f"{s['accepted']}/{s['runs'] - s['failed']}" if s["mode"] == "auto" else "-",
+                  f"{_f(100 * low[0], 1)} to {_f(100 * low[1], 1)}" if s["mode"] == "auto" else "-",
                   _f(s["max_change_mm"], 3) if s["mode"] != "off" else "-", _f(s["max_offset_error_deg"])]
         lines.append("| " + " | ".join(cells) + " |")
     rec = [r for r in rows if r["mode"] == "on" and r["status"] == "ok" and r.get("recovered")

@@ -34,8 +34,9 @@ from typing import Callable, Iterable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from nao_skin.calibration.evaluation import (closest_cop_cost, evaluate, explained, fitted_pair_cost, gate_touches,
-                                             plan_pairs, truth_error)
+from nao_skin.calibration.evaluation import (closest_cop_cost, evaluate, explained, fitted_pair_cost,
+                                             fitted_touch_distances, gate_touches, paired_gain, plan_pairs,
+                                             truth_error)
 from nao_skin.calibration.first_guess import guess_targets, rigid_mount_guess
 from nao_skin.calibration.layout import KINEMATICS
 from nao_skin.calibration.options import LEVELS, CalibrationOptions
@@ -400,6 +401,12 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
 
 
 KINEMATICS_SETTLED = 2e-4   # rad / m: no kinematic correction moved more in a pass (0.01 deg, 0.2 mm)
+# auto asks the held-out gain to reach kinematics_min_gain at this one-sided confidence (1.645: 95 %): a
+# test split's gain has a spread, and extra unknowns always buy a little (simulator, 20 seeds per preset:
+# on presets whose robot is the config the gain reached 11 % on a seed of 30 test touches and 10.4 % on one
+# of planar poses, while their true error grew; bounds 3.4 % and 8.1 %. The kinematic preset: 22-39 %,
+# bound 18-32 %)
+KINEMATICS_GAIN_Z = 1.645
 
 
 def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: list, schedule: list,
@@ -452,21 +459,22 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
         moved = max((abs(v - last.get(k, 0.0)) for k, v in kfit.calibration.kinematics.items()), default=0.0)
         if moved < KINEMATICS_SETTLED:
             break
-    test_after = _held_out_surface_mm(test, skin, kfit, step)
+    held_out = paired_gain(test_before, _held_out_surface_mm(test, skin, kfit, step), KINEMATICS_GAIN_Z)
     candidates = skin.robot.kinematic_names(sorted({skin.parts[p].chain for p in step.targets} - {None}))
-    out = {"mode": options.kinematics, "test_taxel_surface_mm": {"before": test_before, "after": test_after}}
-    if options.kinematics == "auto" and not test_after <= (1.0 - options.kinematics_min_gain) * test_before:
+    out = {"mode": options.kinematics, "test_taxel_surface_mm": held_out}
+    if options.kinematics == "auto" and not held_out["gain_low"] >= options.kinematics_min_gain:
+        asked = f"{100 * options.kinematics_min_gain:.0f} %"
+        figures = (f"{held_out['before']:.3f} mm without, {held_out['after']:.3f} mm with the kinematic unknowns,"
+                   f" {_percent(held_out['gain'])} closer, at least {_percent(held_out['gain_low'])} at 95 %"
+                   f" confidence over {held_out['touches']} touches")
         report.stages.extend(dict(e, reverted=f"kinematics={options.kinematics}: the test split's closest taxel"
-                                              f" distance (fabric surfaces) did not improve by {100 * options.kinematics_min_gain:.0f} %")
+                                              f" distance (fabric surfaces) is not {asked} closer at 95 % confidence")
                              for e in entries)
         out["accepted"] = False
         out["held"] = [{"name": n, "reason": f"kinematics={options.kinematics}: test closest taxel pairs (fabric"
-                                             f" surfaces) {test_before:.3f} mm"
-                                             f" without, {test_after:.3f} mm with the kinematic unknowns (kept from a"
-                                             f" {100 * options.kinematics_min_gain:.0f} % gain)"} for n in candidates]
+                                             f" surfaces) {figures}; kept from {asked}"} for n in candidates]
         out["corrections"] = {}
-        say(f"kinematics: not kept (test closest taxel, fabric surfaces {test_before:.3f} -> {test_after:.3f} mm,"
-            f" less than {100 * options.kinematics_min_gain:.0f} % gain)")
+        say(f"kinematics: not kept (test closest taxel, fabric surfaces {figures}; kept from {asked})")
         return out
     vars(fit).update(vars(kfit))
     report.stages.extend(entries)
@@ -481,9 +489,14 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     return out
 
 
-def _held_out_surface_mm(test: TouchSet, skin: SkinModel, fit: _Fit, step: Step) -> float:
-    """The held-out figure that decides on the kinematic unknowns: the test split's closest taxel pairs, mm,
-    at the fabric surfaces of ``fit``'s own fabric estimate (each touch capped at 50 mm).
+def _percent(share: float) -> str:
+    return f"{100 * share:.1f} %" if np.isfinite(share) else "not measured"
+
+
+def _held_out_surface_mm(test: TouchSet, skin: SkinModel, fit: _Fit, step: Step) -> np.ndarray:
+    """The held-out figure that decides on the kinematic unknowns, per test touch: its closest taxel
+    pairs' mean distance, mm, at the fabric surfaces of ``fit``'s own fabric estimate (each pair capped at
+    50 mm; NaN: no pair).
 
     Not the taxel-centre distance: a calibration that squeezes its fabric estimate pulls the centres
     together however wrong its robot (simulator, kinematic-error seed 0, skin only: fabric 0.0 mm,
@@ -491,8 +504,7 @@ def _held_out_surface_mm(test: TouchSet, skin: SkinModel, fit: _Fit, step: Step)
     fabric surfaces 3.56 against 2.36 mm). At the surfaces the kinematics buy 33 % there and 4 % on
     the default preset, where the config's robot is the true one.
     """
-    inliers = np.ones(test.n_touches, bool)
-    return 1000.0 * fitted_pair_cost(test, skin, fit.calibration, step, inliers, ("taxel",), fit.fabric)
+    return 1000.0 * fitted_touch_distances(test, skin, fit.calibration, step, ("taxel",), fit.fabric)
 
 
 def _gate(train: TouchSet, skin: SkinModel, step: Step, prefix: str, options: CalibrationOptions, fit: _Fit,

@@ -91,19 +91,56 @@ def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float, 
     Taxel-centre distances alone grow when the fabric estimate grows, however good the fit.
     ``pairing``: that pairing, when a stage already made it (:attr:`StageResult.pairings`).
     """
+    fitted = _fitted_distances(touches, skin, calib, step, kinds, fabric, pairing, plane)
+    if fitted is None:
+        return np.inf
+    dist, pairing = fitted
+    means = [float(np.mean(dist[rows]))
+             for rows in ((pairing.row_kind == k) & inliers[pairing.row_touch] for k in np.unique(pairing.row_kind))
+             if np.any(rows)]
+    return float(np.mean(means)) if means else np.inf
+
+
+def fitted_touch_distances(touches, skin, calib, step, kinds, fabric: float) -> np.ndarray:
+    """Per touch, the mean of its capped distances (m) as :func:`fitted_pair_cost` measures them; NaN
+    where a touch has no pair."""
+    fitted = _fitted_distances(touches, skin, calib, step, kinds, fabric)
+    if fitted is None:
+        return np.full(touches.n_touches, np.nan)
+    dist, pairing = fitted
+    rows = np.bincount(pairing.row_touch, minlength=touches.n_touches)
+    total = np.bincount(pairing.row_touch, dist, minlength=touches.n_touches)
+    return np.divide(total, rows, out=np.full(touches.n_touches, np.nan), where=rows > 0)
+
+
+def _fitted_distances(touches, skin, calib, step, kinds, fabric, pairing=None, plane: PlaneRows = PlaneRows()):
+    """``(distance per row capped at 50 mm, pairing)``, or None when nothing pairs."""
     if pairing is None:
         pairing = pair_step(touches, skin, calib, step, kinds, plane)
     if pairing is None or len(pairing.row_touch) == 0:
-        return np.inf
+        return None
     parts = tuple(p for p in step.targets + step.references if p in touches.part_names)
     skin = skin.with_kinematics(calib)
     model = ResidualModel(skin, partial(chain_end_poses, touches, skin), pairing, touches.part_names,
                           ParameterLayout(skin, parts), calib, fabric=fabric)
-    dist = np.linalg.norm(model.residuals(calib), axis=1)
-    means = [float(np.mean(np.minimum(dist[rows], 0.05)))
-             for rows in ((pairing.row_kind == k) & inliers[pairing.row_touch] for k in np.unique(pairing.row_kind))
-             if np.any(rows)]
-    return float(np.mean(means)) if means else np.inf
+    return np.minimum(np.linalg.norm(model.residuals(calib), axis=1), 0.05), pairing
+
+
+def paired_gain(before: np.ndarray, after: np.ndarray, z: float) -> dict:
+    """How much closer ``after`` brings the same items than ``before`` (per-item figures, NaN: not
+    measured; items measured both times count): the means, the share gained, ``1 - mean(after) /
+    mean(before)``, and that share less ``z`` standard errors of the paired differences, a one-sided
+    lower confidence bound (``z`` 1.645: 95 %)."""
+    both = np.isfinite(before) & np.isfinite(after)
+    b, a = before[both], after[both]
+    n = len(b)
+    if n < 2 or not b.mean() > 0:
+        return {"before": float(np.mean(b)) if n else np.nan, "after": float(np.mean(a)) if n else np.nan,
+                "gain": np.nan, "gain_low": np.nan, "touches": n}
+    d = b - a
+    gain = d.mean() / b.mean()
+    return {"before": float(b.mean()), "after": float(a.mean()), "gain": float(gain),
+            "gain_low": float(gain - z * d.std(ddof=1) / np.sqrt(n) / b.mean()), "touches": n}
 
 
 def explained(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: list, gate_mm: float) -> np.ndarray:

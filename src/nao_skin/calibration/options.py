@@ -170,8 +170,8 @@ class CalibrationOptions:
     kinematics: str = option("off", Rule(str, ("off", "on", "auto")),
                              "also estimate the arm and head joint-angle offsets and link lengths the touches"
                              " determine, with every mount free: auto (kept only when the test split's closest"
-                             " taxel distance at the fabric surfaces improves by kinematics_min_gain), on (kept"
-                             " whatever the figures) or off")
+                             " taxel distance at the fabric surfaces improves by kinematics_min_gain at 95 %"
+                             " confidence), on (kept whatever the figures) or off")
     # extra unknowns always buy a little on the test split too, even where they make the skin worse; a
     # kinematic error the config lacks buys much more (README, Kinematics): auto asks for a clear gain
     kinematics_passes: int = option(3, Rule(int, low=0, high=100),
@@ -179,7 +179,8 @@ class CalibrationOptions:
                                     " each followed by the kinematic stage again, until they settle")
     kinematics_min_gain: float = option(0.1, Rule(float, low=0.0, high=1.0, high_open=True),
                                         "kinematics=auto keeps the kinematic unknowns when they lower the test"
-                                        " split's closest taxel mean at the fabric surfaces by at least this share")
+                                        " split's closest taxel mean at the fabric surfaces by at least this share"
+                                        " (a one-sided 95 % lower bound over the test touches)")
 
     def solve_options(self, last: bool = True) -> SolveOptions:
         """The options of one solve: ``last`` the stage's last allowed re-pairing (else at most

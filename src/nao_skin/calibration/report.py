@@ -74,6 +74,10 @@ def _fmt(v) -> str:
     return "–" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.2f}"
 
 
+def _percent(share):
+    return None if share is None else 100.0 * share
+
+
 def kinematics_section(kin: dict) -> list:
     """report.md lines of the kinematic corrections: value and std per joint offset (deg) and link (mm),
     what was held and why; none when the calibration left the kinematics alone (kinematics=off)."""
@@ -82,7 +86,9 @@ def kinematics_section(kin: dict) -> list:
     test = kin.get("test_taxel_surface_mm", {})
     lines = ["", f"## Kinematics (kinematics={kin['mode']}: {'kept' if kin.get('accepted') else 'not kept'})", "",
              f"Test split's closest taxel mean at the fabric surfaces: {_fmt(test.get('before'))} mm with the skin"
-             f" alone, {_fmt(test.get('after'))} mm with the kinematic unknowns.", ""]
+             f" alone, {_fmt(test.get('after'))} mm with the kinematic unknowns over {test.get('touches', '–')}"
+             f" touches: {_fmt(_percent(test.get('gain')))} % closer, at least {_fmt(_percent(test.get('gain_low')))} %"
+             f" at 95 % confidence.", ""]
     if kin.get("corrections"):
         lines += ["| joint / link | correction | std | unit |", "|---|---|---|---|"]
         for name, c in kin["corrections"].items():
