@@ -266,6 +266,24 @@ def test_auto_keeps_the_skin_only_calibration_when_the_test_split_gains_too_litt
     assert any("reverted" in s for s in auto.report.stages if s["name"].startswith("kinematics"))
 
 
+@pytest.mark.slow   # four short calibrations with the kinematic path
+def test_splits_say_on_which_the_kinematics_were_kept(real, real_skin):
+    """--splits K with kinematics=auto: each split decides on its own test touches; the spread says on how
+    many it kept the kinematics and with which gain, and report.md lists them."""
+    from nao_skin.calibration.report import markdown_report
+    from nao_skin.calibration.splits import split_spread
+
+    options = CalibrationOptions(max_iterations=5, max_repairings=2, kinematics="auto", kinematics_min_gain=0.0)
+    first = calibrate(real, real_skin, options)
+    spread = first.report.splits = split_spread(real, real_skin, options, 2, first=first)
+    per_split = [s["kinematics"] for s in spread["per_seed"]]
+    assert spread["kinematics_kept"] == sum(k["accepted"] for k in per_split)
+    assert all(k["accepted"] == (k["gain_low"] >= 0.0) and k["gain_low"] < k["gain"] for k in per_split)
+    md = markdown_report(first.report.to_dict())
+    assert f"Kinematics kept on {spread['kinematics_kept']} of 2 splits; each split's held-out gain" in md
+    assert "kinematics_kept" not in split_spread(real, real_skin, replace(options, kinematics="off"), 1)
+
+
 def test_the_held_out_gain_counts_only_with_its_spread():
     """The same mean gain is a gain at 95 % confidence over many touches that agree, not over few that
     scatter; a touch measured once (NaN) does not count."""

@@ -13,7 +13,7 @@ from typing import Callable, Sequence
 from nao_skin.calibration.engine import CalibrationResult, FitState, calibrate
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.report import write_outputs
-from nao_skin.calibration.splits import split_spread, spread_text
+from nao_skin.calibration.splits import kinematics_kept_text, split_spread, spread_text
 from nao_skin.errors import DataError
 from nao_skin.formats.inputs import load_touches
 from nao_skin.formats.outdir import CALIBRATION, check_output_dir
@@ -148,4 +148,6 @@ def summary_line(result: CalibrationResult) -> str:
     if spread:
         line += (f"; over {spread['k']} splits (mean ± std): closest COP {spread_text(spread, 'cop_mean_mm')} mm,"
                  f" closest taxel {spread_text(spread, 'taxel_mean_mm')} mm")
+        if kinematics_kept_text(spread):
+            line += f", {kinematics_kept_text(spread)}"
     return line

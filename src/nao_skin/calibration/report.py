@@ -19,7 +19,7 @@ from nao_skin.calibration.options import KIND_ROWS, CalibrationOptions
 from nao_skin.calibration.pairing import KIND_NAMES, pair_for_metrics
 from nao_skin.calibration.plan import touching_pairs
 from nao_skin.calibration.rows import concat_pairings, pair_parts
-from nao_skin.calibration.splits import spread_table
+from nao_skin.calibration.splits import kinematics_kept_text, spread_table
 from nao_skin.errors import OutputError, os_reason
 from nao_skin.formats.outdir import CALIBRATION, replace_dir, write_marker
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
@@ -134,6 +134,11 @@ def markdown_report(report: dict, coverage: dict | None = None) -> str:
     if spread:
         lines += ["", f"## Over {spread['k']} {spread['kind']} (seeds {spread['seeds'][0]}..{spread['seeds'][-1]},"
                       f" {int(100 * spread['test_fraction'])} % test)", "", *spread_table(spread)]
+        if kinematics_kept_text(spread):
+            gains = ", ".join(f"{100 * s['kinematics']['gain']:.1f} % ({100 * s['kinematics']['gain_low']:.1f} %)"
+                              for s in spread["per_seed"])
+            lines += ["", f"{kinematics_kept_text(spread).capitalize()} splits; each split's held-out gain with"
+                          f" them (its 95 % bound): {gains}."]
     lines += ["", "## What the touches say about the skin", "",
               f"- fabric over the taxels (each skin): {_fmt(report.get('fabric_thickness_mm'))} mm"]
     sigma = report.get("prior_sigma") or {}

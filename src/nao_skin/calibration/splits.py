@@ -32,10 +32,18 @@ def split_spread(touches: TouchSet, skin: SkinModel, options: CalibrationOptions
     for seed in seeds:
         result = first if first is not None and seed == options.seed else \
             calibrate(touches, skin, replace(options, seed=seed), prior=prior)
-        per_seed.append({split: {f: result.report.final[split].get(f, float("nan")) for f in FIGURES}
-                         for split in ("train", "test")})
+        entry = {split: {f: result.report.final[split].get(f, float("nan")) for f in FIGURES}
+                 for split in ("train", "test")}
+        kin = result.report.kinematics
+        if kin:    # kinematics=auto decides on each split's own test touches
+            entry["kinematics"] = {"accepted": bool(kin.get("accepted")),
+                                   **{f: kin.get("test_taxel_surface_mm", {}).get(f, float("nan"))
+                                      for f in ("gain", "gain_low")}}
+        per_seed.append(entry)
     out = {"k": k, "seeds": seeds, "kind": f"repeated seeded splits by {options.split_by}",
            "test_fraction": options.test_fraction}
+    if any("kinematics" in s for s in per_seed):
+        out["kinematics_kept"] = sum(s.get("kinematics", {}).get("accepted", False) for s in per_seed)
     for split in ("train", "test"):
         out[split] = {}
         for f in FIGURES:
@@ -44,6 +52,11 @@ def split_spread(touches: TouchSet, skin: SkinModel, options: CalibrationOptions
                              "min": float(np.min(v)), "max": float(np.max(v))}
     out["per_seed"] = per_seed
     return out
+
+
+def kinematics_kept_text(spread: dict) -> str:
+    """``kinematics kept on 1 of 5`` when the splits calibrated with the kinematic path, else ''."""
+    return f"kinematics kept on {spread['kinematics_kept']} of {spread['k']}" if "kinematics_kept" in spread else ""
 
 
 def spread_text(spread: dict, figure: str) -> str:
