@@ -751,3 +751,33 @@ def test_an_output_is_on_the_disk_before_it_replaces_the_earlier_one(tmp_path, m
     renamed = next(i for i, e in enumerate(events) if e[0] == "replace")
     assert events[renamed - 1][0] == "fsync" and events[renamed - 1][1].endswith(".tmp")
     assert events[renamed + 1:] == [("fsync", str(tmp_path))]
+
+
+def test_a_ctrl_c_in_a_program_s_clean_up_or_after_it_returned_is_no_traceback(tmp_path):
+    """A program run as its own process (the console scripts, ``python -m nao_skin.cli``): the first Ctrl-C
+    raises where the program is; a second one during its clean-up, or one as it returns, had raised again
+    where nothing caught it (a traceback; CI saw one while ``nao-skin stats --help`` exited). Here the
+    program sends itself the signals at those two moments, so neither depends on timing."""
+    script = tmp_path / "program.py"
+    script.write_text(
+        "import os, signal, sys\n"
+        "from nao_skin.errors import InterruptOnce, run_program\n"
+        "def cleans_up():\n"
+        "    try:\n"
+        "        os.kill(os.getpid(), signal.SIGINT)\n"       # the Ctrl-C: a KeyboardInterrupt here
+        "        print('not reached')\n"
+        "    finally:\n"
+        "        os.kill(os.getpid(), signal.SIGINT)\n"       # again, while it cleans up: ignored
+        "        print('cleaned up', flush=True)\n"
+        "def finishes():\n"
+        "    print('written', flush=True)\n"
+        "    return 0\n"
+        "interrupt = InterruptOnce()\n"
+        "signal.signal(signal.SIGINT, interrupt)\n"
+        "code = run_program('prog', cleans_up if sys.argv[1] == 'clean-up' else finishes, interrupt)\n"
+        "os.kill(os.getpid(), signal.SIGINT)\n"               # as Python exits: ignored
+        "sys.exit(code)\n")
+    cleaned = subprocess.run([sys.executable, str(script), "clean-up"], capture_output=True, text=True, timeout=60)
+    assert (cleaned.returncode, cleaned.stdout, cleaned.stderr) == (130, "cleaned up\n", "prog: interrupted\n")
+    finished = subprocess.run([sys.executable, str(script), "finish"], capture_output=True, text=True, timeout=60)
+    assert (finished.returncode, finished.stdout, finished.stderr) == (0, "written\n", "")

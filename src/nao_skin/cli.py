@@ -17,8 +17,8 @@ import sys
 import time
 
 from nao_skin import commands
-from nao_skin.errors import (NaoSkinError, Terminated, end_at_once_on_ctrl_c, ignore_stop_signals, os_reason,
-                             printable, stop_on_term_or_hangup)
+from nao_skin.errors import (InterruptOnce, NaoSkinError, Terminated, end_at_once_on_ctrl_c, os_reason, printable,
+                             run_program, stop_on_term_or_hangup)
 
 
 class _StoreOnce(argparse.Action):
@@ -167,11 +167,12 @@ class _WatchedStream:
 
 
 def console() -> int:
-    """``nao-skin`` as its own process (the console script, ``python -m nao_skin.cli``): :func:`main`, then
-    a Ctrl-C while Python exits leaves the command's exit code as it is."""
-    code = main()
-    ignore_stop_signals()
-    return code
+    """``nao-skin`` as its own process (``python -m nao_skin.cli``; the console script is
+    :func:`nao_skin.entry.nao_skin`): :func:`main`, then a Ctrl-C while Python exits leaves the command's
+    exit code as it is."""
+    interrupt = InterruptOnce()
+    signal.signal(signal.SIGINT, interrupt)
+    return run_program("nao-skin", main, interrupt)
 
 
 if __name__ == "__main__":

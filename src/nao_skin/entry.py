@@ -9,14 +9,16 @@ from __future__ import annotations
 
 import importlib
 
-from nao_skin.errors import end_at_once_on_ctrl_c, ignore_stop_signals
+import signal
+
+from nao_skin.errors import InterruptOnce, end_at_once_on_ctrl_c, run_program
 
 
 def _run(prog: str, module: str, function: str = "main") -> int:
-    end_at_once_on_ctrl_c(prog)           # the program's own stop handling replaces it once it runs
-    code = getattr(importlib.import_module(module), function)()
-    ignore_stop_signals()
-    return code
+    interrupt = InterruptOnce()
+    signal.signal(signal.SIGINT, interrupt)     # what the program's own stop handling puts back
+    end_at_once_on_ctrl_c(prog)           # until the program's own stop handling replaces it
+    return run_program(prog, lambda: getattr(importlib.import_module(module), function)(), interrupt)
 
 
 def nao_skin() -> int:

@@ -4,6 +4,7 @@ from __future__ import annotations
 import os
 import signal
 import unicodedata
+from collections.abc import Callable
 
 
 class NaoSkinError(ValueError):
@@ -77,6 +78,44 @@ def end_at_once_on_ctrl_c(prog: str):
     interrupted.started_handler = getattr(previous, "started_handler", previous)
     signal.signal(signal.SIGINT, interrupted)
     return interrupted.started_handler
+
+
+class InterruptOnce:
+    """The SIGINT handler of a program run as its own process, which its own stop handling puts back once
+    started: the first Ctrl-C raises KeyboardInterrupt where the program is, so its ``except`` and
+    ``finally`` clauses remove what is half written; a later one is ignored, so it cannot break into that
+    clean-up or into the line saying so; and none raises once :meth:`finish` is called. Python's own
+    handler raises at every Ctrl-C, also between the program's return and the end of the process, where
+    nothing catches it (a traceback)."""
+
+    def __init__(self):
+        self.armed = True
+
+    def __call__(self, signum, frame):      # noqa: ARG002 - signal handler signature
+        if self.armed:
+            self.armed = False
+            raise KeyboardInterrupt
+
+    def finish(self) -> None:
+        self.armed = False
+
+
+def run_program(prog: str, main: Callable[[], int], interrupt: InterruptOnce) -> int:
+    """``main()``'s exit code, run as the whole process with ``interrupt`` (installed by the caller) as its
+    SIGINT handler; the stop signals ignored once it returns. A stop its own handling did not catch (it
+    came before the program started its own, or as it returned, its outputs written) is one line."""
+    try:
+        code = main()
+        interrupt.finish()
+    except Terminated as exc:
+        interrupt.finish()
+        os.write(2, f"{prog}: terminated ({signal.Signals(exc.signum).name})\n".encode())
+        code = 128 + exc.signum
+    except KeyboardInterrupt:     # it disarmed itself raising this: no second one comes
+        os.write(2, f"{prog}: interrupted\n".encode())
+        code = 130
+    ignore_stop_signals()
+    return code
 
 
 class Terminated(KeyboardInterrupt):
