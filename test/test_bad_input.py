@@ -856,6 +856,35 @@ def test_a_key_given_twice_in_a_config_is_one_line_naming_both_lines(tmp_path, c
     assert read_yaml(merged, "test")["this"] == {"a": 3, "b": 2}
 
 
+@pytest.mark.parametrize("argv", [["nominal", "--skin-config", "deep.yaml"], ["urdf", "--calibration", "deep.yaml"],
+                                  ["simulate", "--params", "deep.yaml", "--out", "o"],
+                                  ["stats", str(RECORDING), "--robot", "deep.yaml", *REAL_TAXELS],
+                                  ["nominal", "--skin-config", "block.yaml"]],
+                         ids=["skin", "calibration", "params", "robot", "block"])
+def test_yaml_nested_without_end_is_one_line_not_a_crash(tmp_path, capsys, monkeypatch, argv):
+    """50000 levels of '[' ended the process by a segfault in libyaml's parser (exit 139, no line); the
+    same in block style (indentation) would too."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "deep.yaml").write_text("[" * 50000 + "]" * 50000 + "\n")
+    (tmp_path / "block.yaml").write_text("".join("  " * i + "a:\n" for i in range(300)) + "  " * 300 + "b: 1\n")
+    assert cli_main(argv) == 2
+    name = next(a for a in argv if a.endswith(".yaml"))
+    assert one_line(capsys) == f"nao-skin {argv[0]}: error: {name}: not valid YAML (nested deeper than 100 levels)"
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_bag_whose_metadata_nests_without_end_is_read_from_its_storage_file(tmp_path, capsys):
+    """A metadata.yaml of 500 nested '[' raised RecursionError from the YAML parser (a traceback, exit 1); it
+    is unreadable metadata, which a closed bag's storage file holds a copy of."""
+    bag = tmp_path / "touches.bag"
+    shutil.copytree(package_dir() / "bags" / "sim_default" / "touches.bag", bag)
+    (bag / "metadata.yaml").write_text("[" * 500 + "]" * 500 + "\n")
+    assert cli_main(["stats", str(bag), "--json"]) == 0
+    out = capsys.readouterr()
+    assert "its metadata.yaml is unreadable (not YAML: nested deeper than 100 levels)" in out.out + out.err
+    assert "nothing lost" in out.out + out.err
+
+
 def test_a_robot_config_without_a_chain_says_which_chain_is_missing(tmp_path, capsys):
     """A robot file without the left arm had said its elbow-offset link was malformed; then, with the link
     gone too, the skin's left hand names the chain the robot lacks."""

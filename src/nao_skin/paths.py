@@ -78,7 +78,7 @@ def read_yaml(path: str | Path, what: str):
     path = Path(path)
     text = read_text(path, what, ConfigError)
     try:
-        return yaml.load(text, Loader=_unique_key_loader())
+        return parse_yaml(text)
     except _DuplicateKey as exc:
         raise ConfigError(f"{path}: {exc}; give it once") from None
     except yaml.YAMLError as exc:
@@ -134,14 +134,45 @@ _EXPONENT_FLOAT = re.compile(r"^[-+]?([0-9]+(\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+
 
 
 def parse_yaml(text: str):
-    """YAML text read as the config files are (:func:`read_yaml`); ``yaml.YAMLError`` when it is not YAML
-    or a mapping gives a key twice."""
+    """YAML text read as the config files are (:func:`read_yaml`); ``yaml.YAMLError`` when it is not YAML,
+    nests deeper than :data:`MAX_YAML_DEPTH` or a mapping gives a key twice."""
     import yaml
 
+    check_yaml_depth(text)
     try:
         return yaml.load(text, Loader=_unique_key_loader())
     except _DuplicateKey as exc:
         raise yaml.YAMLError(str(exc)) from None
+
+
+def safe_load(text: str):
+    """``yaml.safe_load`` (the C loader when built) of text nobody vouches for (a bag's metadata), with
+    the depth check of :func:`parse_yaml`; ``yaml.YAMLError`` when it is not YAML."""
+    import yaml
+
+    check_yaml_depth(text)
+    return yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+
+
+# Deeper nesting than any config of this project: libyaml's C parser recurses without a limit (50000 levels
+# of '[' end the process by a segfault) and PyYAML's own in Python (500 raise RecursionError)
+MAX_YAML_DEPTH = 100
+
+
+def check_yaml_depth(text: str) -> None:
+    """``yaml.YAMLError`` when ``text`` nests flow collections (``[``, ``{``) or block ones (indentation,
+    ``- - -``) deeper than :data:`MAX_YAML_DEPTH`; brackets inside quoted strings count too."""
+    import yaml
+
+    depth = deepest = 0
+    if text.count("[") + text.count("{") > MAX_YAML_DEPTH:
+        for bracket in re.findall(r"[\[\]{}]", text):
+            depth = depth + 1 if bracket in "[{" else max(depth - 1, 0)
+            deepest = max(deepest, depth)
+    if deepest > MAX_YAML_DEPTH or re.search(rf"^(?:[ \t]|-[ \t]){{{2 * MAX_YAML_DEPTH},}}", text, re.MULTILINE):
+        error = yaml.YAMLError(f"nested deeper than {MAX_YAML_DEPTH} levels")
+        error.problem = str(error)
+        raise error
 
 
 def yaml_value(text: str):

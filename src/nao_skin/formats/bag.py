@@ -33,7 +33,7 @@ from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, con
 from nao_skin.formats.salvage import (LOCK_FILE, check_storage_files, cut_mcap, cut_sqlite, provisional_mcap,
                                       stored_metadata, unclosed_sqlite, write_lock)
 from nao_skin.model.skin import SkinModel
-from nao_skin.paths import free_sibling, identity
+from nao_skin.paths import free_sibling, identity, safe_load
 from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST, cluster_contacts, contact_geometry
 from nao_skin.touch.datasets import LoadReport
 from nao_skin.touch.events import (LIVE_CONFIG, TOUCH_BAG_CONFIG, EventConfig, EventDetector, TouchRecord,
@@ -412,11 +412,9 @@ def _bag_kind(reader, path: Path) -> str:
 def _provisional_kind(path: Path) -> str:
     """The kind an unclosed bag's provisional metadata.yaml names (beside the storage file, when that is
     what ``path`` names); a stream when it names none."""
-    import yaml
-
     try:
         meta = (path if path.is_dir() else path.parent) / "metadata.yaml"
-        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+        info = safe_load(meta.read_text())["rosbag2_bagfile_information"]
         return str((info.get("custom_data") or {}).get(BAG_KIND_KEY, "stream"))
     except Exception:  # noqa: BLE001 - no or unreadable metadata: nothing says it is a touch bag
         return "stream"

@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from nao_skin.errors import DataError, one_line
-from nao_skin.paths import DANGLING_LINK, not_a_file
+from nao_skin.paths import DANGLING_LINK, not_a_file, safe_load
 
 LOCK_FILE = "recording.lock"          # in a live bag's directory while its writer has it open
 STORAGE_SUFFIXES = (".mcap", ".db3")
@@ -246,9 +246,7 @@ def cut_sqlite(path: Path, open_error: Exception) -> UnclosedBag | None:
 def _lists_no_messages(path: Path) -> bool:
     """The bag directory's (readable) metadata.yaml lists no messages: BagWriter's provisional one, written
     at open, lists neither files nor topics; the real one, written on close, both."""
-    import yaml
-
-    info = yaml.safe_load((path / "metadata.yaml").read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+    info = safe_load((path / "metadata.yaml").read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
     return isinstance(info, dict) and not (info.get("files") or info.get("topics_with_message_count"))
 
 
@@ -261,7 +259,7 @@ def metadata_yaml_problem(path: Path) -> str | None:
     if not meta.exists():
         return "it has no metadata.yaml"
     try:
-        info = yaml.safe_load(meta.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        info = safe_load(meta.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
         info.get("files")
     except OSError as exc:
         problem = exc.strerror or one_line(exc)
@@ -285,7 +283,7 @@ def stored_metadata(file: Path) -> dict | None:
 
     text = _sqlite_stored(file) if file.suffix == ".db3" else _mcap_stored(file) if file.suffix == ".mcap" else None
     try:
-        info = yaml.safe_load(text) if text else None
+        info = safe_load(text) if text else None
     except yaml.YAMLError:
         return None
     if isinstance(info, dict) and isinstance(info.get("rosbag2_bagfile_information"), dict):

@@ -16,7 +16,7 @@ import numpy as np
 
 from nao_skin import se3
 from nao_skin.errors import ConfigError, DataError
-from nao_skin.paths import urdf_dir
+from nao_skin.paths import safe_load, urdf_dir
 
 XACRO_NAME = "nao_skin.urdf.xacro"
 _MOVING = ("revolute", "continuous", "prismatic")
@@ -226,14 +226,12 @@ def check_calibration_origins(path: str | Path, skin) -> None:
     ``correction``; loading checks the origins a file gives, a URDF needs them
     all. Raises :class:`ConfigError` naming the file and the frame.
     """
-    import yaml
-
     from nao_skin.model.skin import SkinCalibration, check_origins
 
     path = Path(path)
     calib = SkinCalibration.load(path, skin)          # one-line errors for malformed files
     # C loader when available: this runs on every `nao-skin urdf` and the file has ~100 entries
-    doc = yaml.load(path.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+    doc = safe_load(path.read_text())
     check_origins(path, doc, calib, skin, complete=True)
 
 
