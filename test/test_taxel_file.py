@@ -9,7 +9,7 @@ import pytest
 from real_data import REAL_DIR as REAL  # noqa: E402
 
 from nao_skin.errors import DataError
-from nao_skin.model.taxel_file import SLOTS_PER_TRIANGLE, read_taxel_file, write_taxel_file
+from nao_skin.model.taxel_file import MAX_TAXEL_FILE_BYTES, SLOTS_PER_TRIANGLE, read_taxel_file, write_taxel_file
 from nao_skin.paths import config_dir
 
 REAL_FILES = [REAL / "l_hand.taxels.txt", REAL / "torso.taxels.txt"]
@@ -124,14 +124,27 @@ def test_malformed_row_names_file_and_line(tmp_path, text, line, problem):
 @pytest.mark.parametrize("text, problem", [
     ("", "no taxel rows found"),
     ("# only a comment\n", "no taxel rows found"),
-    (f"{GOOD}\n" * 385, "385 taxel rows, more than the 384 slots of a skin part"),
+    (f"{GOOD}\n" * 385, ":385: taxel row 385, more than the 384 slots of a skin part"),
+    # read no further than that: 1.5 million rows had been parsed first (14 s, 0.7 GB)
+    (f"{GOOD}\n" * 200_000, ":385: taxel row 385, more than the 384 slots of a skin part"),
 ])
 def test_malformed_file_names_file_and_problem(tmp_path, text, problem):
     path = tmp_path / "bad_taxels.txt"
     path.write_text(text)
     with pytest.raises(DataError) as err:
         read_taxel_file(path)
-    assert str(err.value) == f"{path}: {problem}"
+    assert str(err.value) == f"{path}{problem if problem.startswith(':') else ': ' + problem}"
+
+
+def test_a_taxel_file_larger_than_any_layout_is_not_read(tmp_path):
+    """A file of hundreds of megabytes (a recording given as a layout) was read whole first (4 GB of memory
+    at 15 million rows); no layout comes near the limit."""
+    path = tmp_path / "l_hand.taxels.txt"
+    with open(path, "wb") as f:
+        f.truncate(MAX_TAXEL_FILE_BYTES + 1)
+    with pytest.raises(DataError) as err:
+        read_taxel_file(path)
+    assert str(err.value) == f"{path}: cannot read taxel file (larger than 16 MiB: is it the right file?)"
 
 
 def test_a_binary_file_is_one_line(tmp_path):

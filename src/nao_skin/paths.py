@@ -43,10 +43,11 @@ def free_sibling(path: str | Path, suffix: str) -> str:
     raise FileExistsError(f"{path}{suffix}: every name up to {path}{suffix}99999 is taken")
 
 
-def read_text(path: str | Path, what: str = "", error: type | None = None, name: str | None = None) -> str:
+def read_text(path: str | Path, what: str = "", error: type | None = None, name: str | None = None,
+              limit: int = MAX_TEXT_BYTES) -> str:
     """The text of ``path``; one line naming it (``name``, default the path) and ``what`` it was read as when it
     cannot be read or is no text (a bag or another binary file given for a text one), as ``error`` (DataError).
-    Only a regular file is read, and at most :data:`MAX_TEXT_BYTES`: ``/dev/zero`` never ends, a FIFO waits."""
+    Only a regular file is read, and at most ``limit`` bytes: ``/dev/zero`` never ends, a FIFO waits."""
     from nao_skin.errors import DataError
 
     error = error or DataError
@@ -57,9 +58,10 @@ def read_text(path: str | Path, what: str = "", error: type | None = None, name:
         if kind:
             raise error(f"{name}: cannot read{what} (it is {kind}, not a regular file)")
         with open(path, "rb") as f:
-            data = f.read(MAX_TEXT_BYTES + 1)
-        if len(data) > MAX_TEXT_BYTES:
-            raise error(f"{name}: cannot read{what} (larger than {MAX_TEXT_BYTES >> 30} GiB: is it the right file?)")
+            data = f.read(limit + 1)
+        if len(data) > limit:
+            size = f"{limit >> 30} GiB" if limit >= 1 << 30 else f"{limit >> 20} MiB"
+            raise error(f"{name}: cannot read{what} (larger than {size}: is it the right file?)")
         # UTF-8 whatever the locale; a byte-order mark (as Windows editors write it) is not part of the text
         return data.decode("utf-8-sig")
     except OSError as exc:

@@ -33,6 +33,7 @@ DEFAULT_SLOTS = 384
 # and squared distances of values near 1e300 overflow to inf in every later step.
 MAX_COORDINATE = 10.0
 NORMAL_TOLERANCE = 0.01     # of a taxel normal's length: files give them to 3 decimals or better
+MAX_TAXEL_FILE_BYTES = 16 << 20   # 384 rows are some 30 kB; a skinManager file with its other sections, a little more
 
 
 @dataclass
@@ -53,7 +54,7 @@ class TaxelFile:
 def read_taxel_file(path: str | Path, n_slots: int = DEFAULT_SLOTS) -> TaxelFile:
     """Read either form; rows beyond the file are zero (no taxel)."""
     path = Path(path)
-    text = read_text(path, "taxel file")
+    text = read_text(path, "taxel file", limit=MAX_TAXEL_FILE_BYTES)
     lines = text.splitlines()
     header: dict = {}
     start = 0
@@ -92,10 +93,10 @@ def read_taxel_file(path: str | Path, n_slots: int = DEFAULT_SLOTS) -> TaxelFile
             raise DataError(f"{path}:{lineno}: the normal of slot {len(rows)} has length {length:.4g} in"
                             f" {stripped!r}; normals are unit vectors")
         rows.append(values)
+        if len(rows) > n_slots:
+            raise DataError(f"{path}:{lineno}: taxel row {len(rows)}, more than the {n_slots} slots of a skin part")
     if not rows:
         raise DataError(f"{path}: no taxel rows found")
-    if len(rows) > n_slots:
-        raise DataError(f"{path}: {len(rows)} taxel rows, more than the {n_slots} slots of a skin part")
     if len(rows) % SLOTS_PER_TRIANGLE:
         # rows beyond a file's end are slots without a taxel, but a triangle is written whole or not at all
         raise DataError(f"{path}: {len(rows)} taxel rows, which ends inside triangle {len(rows) // SLOTS_PER_TRIANGLE}"
