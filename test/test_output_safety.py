@@ -472,6 +472,40 @@ def test_bench_replaces_its_own_output_with_force_only(tmp_path):
     refused(tmp_path, [*BENCH_CHEAP, "--out", "b", "--force"], "b/notes.md", "even with --force")
 
 
+def test_a_bench_stopped_before_its_end_leaves_the_earlier_output_and_its_sections_beside_it(tmp_path):
+    """A bench stopped after its first section had replaced an earlier whole output (--force) with that
+    section alone, marked as a finished output: the later sections' results were gone and nothing said the
+    new one was incomplete."""
+    ok(nao_skin(*BENCH_CHEAP, "--out", "b", cwd=tmp_path))
+    earlier = tree(tmp_path / "b")
+    proc = subprocess.Popen([sys.executable, "-m", "nao_skin.cli", *BENCH_KINEMATICS_CHEAP, "--only", "hard",
+                             "--out", "b", "--force"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    partial = tmp_path / "b.incomplete"
+    try:
+        deadline = time.monotonic() + 120
+        while not (partial / "bench_results.json").exists() and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.05)
+        time.sleep(0.5)                # the hard cases written, the kinematics section at work
+        proc.send_signal(signal.SIGTERM)
+    finally:
+        out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143 and err.strip().splitlines() == ["nao-skin bench: terminated (SIGTERM)"], err
+    assert out.strip().splitlines()[-1] == f"the sections finished so far: {partial} (incomplete; b is as it was)"
+    assert tree(tmp_path / "b") == earlier
+    text = (partial / "bench_results.md").read_text()
+    assert "**Incomplete: the run was stopped or failed" in text and "## Hard cases" in text
+    assert "## Kinematics" not in text
+    assert json.loads((partial / "bench_results.json").read_text())["complete"] is False
+    assert json.loads((partial / MARKER).read_text())["kind"] == "benchmark"
+    # a whole run replaces the earlier output and leaves no incomplete one of its own
+    ok(nao_skin(*BENCH_CHEAP, "--out", "b", "--force", cwd=tmp_path))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b", "b.incomplete"]
+    assert json.loads((tmp_path / "b" / "bench_results.json").read_text())["complete"] is True
+    assert "Incomplete" not in (tmp_path / "b" / "bench_results.md").read_text()
+
+
 # ------------------------------------------------------------------------------ demo
 def test_demo_twice_in_a_row_replaces_its_own_output(tmp_path):
     """`make demo` twice: the defaults (bundled recording -> out/demo), the second run replaces the first."""

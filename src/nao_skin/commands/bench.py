@@ -3,11 +3,14 @@
 Writes ``bench_results.md`` (the tables), ``speed_vs_error.png`` and
 ``bench_results.json`` (every row) into ``--out`` and prints the tables.
 ``--out`` must be new, empty, or an earlier bench's output (then with
-``--force``); see :mod:`nao_skin.outdir`.
+``--force``); see :mod:`nao_skin.outdir`. The sections are written as each is
+done into ``OUT.incomplete`` beside it, which becomes ``--out`` when the run is
+whole: a run stopped or failed leaves ``--out`` as it was.
 """
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -186,9 +189,9 @@ def run(args) -> int:
     from nao_skin.commands import skin_from_args
     from nao_skin.errors import DataError
     from nao_skin.formats.inputs import check_inputs
-    from nao_skin.formats.outdir import BENCHMARK, check_output_dir, clear_for_writing
+    from nao_skin.formats.outdir import BENCHMARK, check_output_dir, clear_for_writing, replace_dir
     from nao_skin.model.skin import load_skin
-    from nao_skin.paths import package_dir
+    from nao_skin.paths import free_sibling, package_dir
 
     say = lambda msg: print(msg, flush=True)  # noqa: E731
     sections = set(args.only or DEFAULT_SECTIONS)
@@ -236,146 +239,156 @@ def run(args) -> int:
     if "real" in sections and args.real:
         inputs += _real_inputs(args, say, real_skin)
     out = Path(args.out)
-    cleared: list = []
+    staging: list = []
 
-    def cleared_output() -> Path:
-        """``out``, emptied of an earlier output when the first new result is ready to be written (section by
-        section below, so a later failure keeps the earlier tables): a run stopped before that keeps it."""
-        if not cleared:
-            cleared.append(clear_for_writing(out, NAME, BENCHMARK, OUTPUTS))
-        return out
+    def results_dir() -> Path:
+        """Where the sections are written as each is done: ``OUT.incomplete`` beside ``out``, made when the
+        first result is ready. It replaces ``out`` once the run is whole; a run stopped or failed before
+        leaves ``out`` as it was and the sections finished in ``OUT.incomplete``, marked so."""
+        if not staging:
+            staging.append(clear_for_writing(free_sibling(out, ".incomplete"), NAME, BENCHMARK, OUTPUTS))
+        return staging[0]
 
-    t_start = time.perf_counter()
-    # with --force, the quoted command also runs again where its earlier output is
-    argv = sys.argv[2:] + ([] if "--force" in sys.argv[2:] else ["--force"])
-    md = [f"# nao-skin bench{' (quick)' if args.quick else ''}", "",
-          f"Command: `nao-skin bench {' '.join(argv)}`", ""]
-    results: dict = {"quick": args.quick, "repeat": repeat, "seeds": seeds}
-    failures = 0
-    listing = ""
+    try:
+        t_start = time.perf_counter()
+        # with --force, the quoted command also runs again where its earlier output is
+        argv = sys.argv[2:] + ([] if "--force" in sys.argv[2:] else ["--force"])
+        md = [f"# nao-skin bench{' (quick)' if args.quick else ''}", "",
+              f"Command: `nao-skin bench {' '.join(argv)}`", ""]
+        results: dict = {"quick": args.quick, "repeat": repeat, "seeds": seeds}
+        failures = 0
+        listing = ""
 
-    if inputs:
-        variants = bench.strategy_variants(sweep)
-        say(f"speed against error: {len(variants)} strategies x {len(inputs)} inputs x {repeat} repetitions"
-            f" (interleaved; the finite-difference row runs once)")
-        rows = bench.speed_matrix(inputs, variants, repeat, say)
-        results["speed"] = rows
-        md += ["## Speed against error", "",
-               f"Each strategy changes one option of the default; times are the median of {repeat} interleaved"
-               f" run(s) on this machine, in one process; the finite-difference row runs once (slow). Errors:"
-               f" simulated input: distance of every calibrated taxel from its true position; real input: mean"
-               f" closest pair per touch, all touches (explained: touches within the gate).", ""]
-        md += ["Headline (default against finite differences, same problem):", ""]
-        for inp in inputs:
-            md.append("- " + bench.headline(rows, inp.name))
-        md += ["", "Targets (default row):", ""] + ["- " + line for line in bench.target_lines(rows)]
-        goals = bench.speed_goal_lines(rows)
-        if goals:
-            md += ["", "Speed goal of the accuracy issue (default row, median of the runs; not counted as a"
-                       " failure):", ""] + ["- " + line for line in goals]
-        for inp in inputs:
-            md += ["", f"### {inp.name}", "", bench.speed_table(rows, inp.name)]
-        bench.plot_speed_vs_error(rows, cleared_output() / "speed_vs_error.png")
-        md += ["", "![speed against error](speed_vs_error.png)", ""]
-        for inp in (i for i in inputs if i.truth is None):
-            say(f"{inp.name}: the default calibration over {bench.REAL_SPLITS} seeded splits")
-            spread, lines = bench.real_split_lines(inp)
-            results.setdefault("real_splits", {})[inp.name] = spread
-            md += [f"### {inp.name}: over {spread['k']} seeded splits", "",
-                   f"The default calibration on the splits of seeds {spread['seeds'][0]}..{spread['seeds'][-1]}"
-                   f" ({int(100 * spread['test_fraction'])} % test each, {spread['kind']}): one split's figure moves"
-                   f" with its seed by"
-                   f" about the spread below.", "", *lines, ""]
-            failures += any(line.startswith("Targets") and "NOT met" in line for line in lines)
-        legacy = [p for p in args.real if str(p).endswith(".txt")] if "real" in sections else []
-        if legacy:
-            md += ["### Reading the thesis' text format", "",
-                   f"Whole read, every touch parsed and checked (median of {repeat} interleaved runs): the exact"
-                   f" reader (Python's ast, any file Python's literal syntax takes) against the fast one (the C JSON"
-                   f" decoder, for the recorder's plain output; any other file falls back to the exact reader).", ""]
-            for path in legacy:
-                t = bench.legacy_read_times(path, inputs[-1].skin, repeat)
-                results.setdefault("legacy_read", {})[str(path)] = t
-                md.append(f"- {Path(path).name} ({t['touches']} touches loaded): exact {t['exact_s']:.2f} s, fast"
-                          f" {t['fast_s']:.3f} s (x{t['exact_s'] / t['fast_s']:.0f}); same touches and skip reasons:"
-                          f" {'yes' if t['same_touches'] else 'NO'}")
-            md.append("")
-        _write(cleared_output(), md, results, listing)      # kept even if a later section fails
-        failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in t for t in bench.target_lines(rows))
+        if inputs:
+            variants = bench.strategy_variants(sweep)
+            say(f"speed against error: {len(variants)} strategies x {len(inputs)} inputs x {repeat} repetitions"
+                f" (interleaved; the finite-difference row runs once)")
+            rows = bench.speed_matrix(inputs, variants, repeat, say)
+            results["speed"] = rows
+            md += ["## Speed against error", "",
+                   f"Each strategy changes one option of the default; times are the median of {repeat} interleaved"
+                   f" run(s) on this machine, in one process; the finite-difference row runs once (slow). Errors:"
+                   f" simulated input: distance of every calibrated taxel from its true position; real input: mean"
+                   f" closest pair per touch, all touches (explained: touches within the gate).", ""]
+            md += ["Headline (default against finite differences, same problem):", ""]
+            for inp in inputs:
+                md.append("- " + bench.headline(rows, inp.name))
+            md += ["", "Targets (default row):", ""] + ["- " + line for line in bench.target_lines(rows)]
+            goals = bench.speed_goal_lines(rows)
+            if goals:
+                md += ["", "Speed goal of the accuracy issue (default row, median of the runs; not counted as a"
+                           " failure):", ""] + ["- " + line for line in goals]
+            for inp in inputs:
+                md += ["", f"### {inp.name}", "", bench.speed_table(rows, inp.name)]
+            bench.plot_speed_vs_error(rows, results_dir() / "speed_vs_error.png")
+            md += ["", "![speed against error](speed_vs_error.png)", ""]
+            for inp in (i for i in inputs if i.truth is None):
+                say(f"{inp.name}: the default calibration over {bench.REAL_SPLITS} seeded splits")
+                spread, lines = bench.real_split_lines(inp)
+                results.setdefault("real_splits", {})[inp.name] = spread
+                md += [f"### {inp.name}: over {spread['k']} seeded splits", "",
+                       f"The default calibration on the splits of seeds {spread['seeds'][0]}..{spread['seeds'][-1]}"
+                       f" ({int(100 * spread['test_fraction'])} % test each, {spread['kind']}): one split's figure moves"
+                       f" with its seed by"
+                       f" about the spread below.", "", *lines, ""]
+                failures += any(line.startswith("Targets") and "NOT met" in line for line in lines)
+            legacy = [p for p in args.real if str(p).endswith(".txt")] if "real" in sections else []
+            if legacy:
+                md += ["### Reading the thesis' text format", "",
+                       f"Whole read, every touch parsed and checked (median of {repeat} interleaved runs): the exact"
+                       f" reader (Python's ast, any file Python's literal syntax takes) against the fast one (the C JSON"
+                       f" decoder, for the recorder's plain output; any other file falls back to the exact reader).", ""]
+                for path in legacy:
+                    t = bench.legacy_read_times(path, inputs[-1].skin, repeat)
+                    results.setdefault("legacy_read", {})[str(path)] = t
+                    md.append(f"- {Path(path).name} ({t['touches']} touches loaded): exact {t['exact_s']:.2f} s, fast"
+                              f" {t['fast_s']:.3f} s (x{t['exact_s'] / t['fast_s']:.0f}); same touches and skip reasons:"
+                              f" {'yes' if t['same_touches'] else 'NO'}")
+                md.append("")
+            _write(results_dir(), md, results, listing)      # kept even if a later section fails
+            failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in t for t in bench.target_lines(rows))
 
-    if "hard" in sections:
-        setup = bench.HardCaseSetup(pairs=_pairs(hard_pairs, "--hard-pairs"),
-                                    n_touches=args.hard_touches or (QUICK["hard_touches"] if args.quick else None))
-        scene = (", ".join(f"{a}-{b}" for a, b in setup.pairs) if setup.pairs else "all four thesis pairs")
-        say(f"hard cases: {len(presets)} presets x {seeds} seeds on {scene}")
-        rows = bench.hard_case_matrix(load_skin(), presets, range(seeds), setup, max(1, args.jobs), say)
-        results["hard"] = rows
-        md += ["## Hard cases", "",
-               f"Simulated in memory ({scene}, touches per pair: "
-               f"{setup.n_touches or 'the preset default'}), {seeds} seeds each, deduplicated, calibrated with the"
-               f" default options. Converged: final true median taxel error <= {bench.CONVERGED_MM:g} mm over the"
-               f" calibrated parts. Condition: Jacobi-scaled normal equations of the last stage. Injected outliers:"
-               f" touches labelled '{bench.INJECTED_OUTLIER_LABEL}' in the training split (the experimenter's hand"
-               f" and stray taxels leave the true contact in the touch). Held frames: what no stage estimated (a triangle"
-               f" with < 10 paired activations in every stage, a patch or mount direction the touches do not"
-               f" excite). Own correction worse than nominal: a held frame's taxels, every other frame at the truth,"
-               f" end farther from the truth with the frame's correction than with its held components at nominal"
-               f" (the frame was moved where the data says nothing). Absolute: the held frames' taxels under the"
-               f" whole calibration against the nominal skin, mean over runs, and how many frames end farther"
-               f" (information: they ride on their patch and mount, which the data determined).", "", bench.hard_case_tables(rows), "",
-               "Touches set aside in the outlier case (keys):", "", LISTING, ""]
-        listing = bench.outlier_listing(rows) or "(none run)"
-        summary = bench.hard_case_summary(rows)
-        results["hard_summary"] = summary
-        failures += sum(r["status"] != "ok" for r in rows) + sum(s["met"] != "yes" for s in summary)
+        if "hard" in sections:
+            setup = bench.HardCaseSetup(pairs=_pairs(hard_pairs, "--hard-pairs"),
+                                        n_touches=args.hard_touches or (QUICK["hard_touches"] if args.quick else None))
+            scene = (", ".join(f"{a}-{b}" for a, b in setup.pairs) if setup.pairs else "all four thesis pairs")
+            say(f"hard cases: {len(presets)} presets x {seeds} seeds on {scene}")
+            rows = bench.hard_case_matrix(load_skin(), presets, range(seeds), setup, max(1, args.jobs), say)
+            results["hard"] = rows
+            md += ["## Hard cases", "",
+                   f"Simulated in memory ({scene}, touches per pair: "
+                   f"{setup.n_touches or 'the preset default'}), {seeds} seeds each, deduplicated, calibrated with the"
+                   f" default options. Converged: final true median taxel error <= {bench.CONVERGED_MM:g} mm over the"
+                   f" calibrated parts. Condition: Jacobi-scaled normal equations of the last stage. Injected outliers:"
+                   f" touches labelled '{bench.INJECTED_OUTLIER_LABEL}' in the training split (the experimenter's hand"
+                   f" and stray taxels leave the true contact in the touch). Held frames: what no stage estimated (a triangle"
+                   f" with < 10 paired activations in every stage, a patch or mount direction the touches do not"
+                   f" excite). Own correction worse than nominal: a held frame's taxels, every other frame at the truth,"
+                   f" end farther from the truth with the frame's correction than with its held components at nominal"
+                   f" (the frame was moved where the data says nothing). Absolute: the held frames' taxels under the"
+                   f" whole calibration against the nominal skin, mean over runs, and how many frames end farther"
+                   f" (information: they ride on their patch and mount, which the data determined).", "", bench.hard_case_tables(rows), "",
+                   "Touches set aside in the outlier case (keys):", "", LISTING, ""]
+            listing = bench.outlier_listing(rows) or "(none run)"
+            summary = bench.hard_case_summary(rows)
+            results["hard_summary"] = summary
+            _write(results_dir(), md, results, listing)
+            failures += sum(r["status"] != "ok" for r in rows) + sum(s["met"] != "yes" for s in summary)
 
-    if "live" in sections:
-        from nao_skin.bench import live
+        if "live" in sections:
+            from nao_skin.bench import live
 
-        sizes = QUICK["live_sizes"] if args.quick else live.LIVE_SIZES
-        live_repeat = QUICK["live_repeat"] if args.quick else max(repeat, 5)
-        inp = _sim_input(args, quick=False, say=say, keep=0)
-        say(f"live update: {', '.join(map(str, sizes))} touches x {live_repeat} random subsets")
-        timings = live.update_timings(inp.touches, inp.skin, inp.truth, sizes, repeat=live_repeat, say=say)
-        results["live"] = [vars(t) for t in timings]
-        target = live.update_target_line(timings)
-        md += ["## One live update", "", live.__doc__.split("\n\n", 1)[1].replace("\n", " ").strip(), "",
-               f"Input: {inp.name}; {live.LIVE_STEP} new touches per update, {live_repeat} subsets per size.", "",
-               *live.update_table(timings), "", f"- {target}", ""]
-        _write(cleared_output(), md, results, listing)
-        failures += "NOT met" in target
+            sizes = QUICK["live_sizes"] if args.quick else live.LIVE_SIZES
+            live_repeat = QUICK["live_repeat"] if args.quick else max(repeat, 5)
+            inp = _sim_input(args, quick=False, say=say, keep=0)
+            say(f"live update: {', '.join(map(str, sizes))} touches x {live_repeat} random subsets")
+            timings = live.update_timings(inp.touches, inp.skin, inp.truth, sizes, repeat=live_repeat, say=say)
+            results["live"] = [vars(t) for t in timings]
+            target = live.update_target_line(timings)
+            md += ["## One live update", "", live.__doc__.split("\n\n", 1)[1].replace("\n", " ").strip(), "",
+                   f"Input: {inp.name}; {live.LIVE_STEP} new touches per update, {live_repeat} subsets per size.", "",
+                   *live.update_table(timings), "", f"- {target}", ""]
+            _write(results_dir(), md, results, listing)
+            failures += "NOT met" in target
 
-    if "kinematics" in sections:
-        setup = bench.HardCaseSetup(pairs=_pairs(hard_pairs, "--hard-pairs"),
-                                    n_touches=args.hard_touches or (QUICK["hard_touches"] if args.quick else None))
-        scene = (", ".join(f"{a}-{b}" for a, b in setup.pairs) if setup.pairs else "all four thesis pairs")
-        say(f"kinematics: {len(kin_presets)} presets x {seeds} seeds x {len(bench.KINEMATIC_MODES)} modes on {scene}")
-        rows = bench.kinematics_matrix(load_skin(), kin_presets, range(seeds), setup, max(1, args.jobs), say)
-        results["kinematics"] = rows
-        results["kinematics_summary"] = bench.kinematics_summary(rows)
-        goals = bench.kinematics_goal_lines(rows)
-        md += ["## Kinematics", "",
-               f"Each preset and seed simulated once ({scene}, touches per pair: "
-               f"{setup.n_touches or 'the preset default'}), calibrated with kinematics off, on and auto"
-               f" (calibration option `kinematics`). True taxel error: every taxel of the calibrated parts; where"
-               f" the calibration or the truth corrects the kinematics, in the torso frame at the training"
-               f" touches' poses (calibrated skin on the calibrated robot against the true skin on the true"
-               f" robot), else in the chain-end frame. Seconds: the engine's. Held-out gain: how much closer"
-               f" the kinematic path brings the test split's closest taxel pairs (fabric surfaces); auto keeps it"
-               f" when that gain's one-sided 95 % bound over the test touches reaches kinematics_min_gain.", "",
-               "Goals:", "", *("- " + line for line in goals), "", bench.kinematics_tables(rows), ""]
-        failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in line for line in goals)
-        _write(cleared_output(), md, results, listing)
+        if "kinematics" in sections:
+            setup = bench.HardCaseSetup(pairs=_pairs(hard_pairs, "--hard-pairs"),
+                                        n_touches=args.hard_touches or (QUICK["hard_touches"] if args.quick else None))
+            scene = (", ".join(f"{a}-{b}" for a, b in setup.pairs) if setup.pairs else "all four thesis pairs")
+            say(f"kinematics: {len(kin_presets)} presets x {seeds} seeds x {len(bench.KINEMATIC_MODES)} modes on {scene}")
+            rows = bench.kinematics_matrix(load_skin(), kin_presets, range(seeds), setup, max(1, args.jobs), say)
+            results["kinematics"] = rows
+            results["kinematics_summary"] = bench.kinematics_summary(rows)
+            goals = bench.kinematics_goal_lines(rows)
+            md += ["## Kinematics", "",
+                   f"Each preset and seed simulated once ({scene}, touches per pair: "
+                   f"{setup.n_touches or 'the preset default'}), calibrated with kinematics off, on and auto"
+                   f" (calibration option `kinematics`). True taxel error: every taxel of the calibrated parts; where"
+                   f" the calibration or the truth corrects the kinematics, in the torso frame at the training"
+                   f" touches' poses (calibrated skin on the calibrated robot against the true skin on the true"
+                   f" robot), else in the chain-end frame. Seconds: the engine's. Held-out gain: how much closer"
+                   f" the kinematic path brings the test split's closest taxel pairs (fabric surfaces); auto keeps it"
+                   f" when that gain's one-sided 95 % bound over the test touches reaches kinematics_min_gain.", "",
+                   "Goals:", "", *("- " + line for line in goals), "", bench.kinematics_tables(rows), ""]
+            failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in line for line in goals)
+            _write(results_dir(), md, results, listing)
 
-    results["seconds"] = time.perf_counter() - t_start
-    md.append(f"Benchmark wall time: {results['seconds']:.0f} s.")
-    text = _write(cleared_output(), md, results, listing)
-    print(text.replace(LISTING, f"(in {out / 'bench_results.md'})"))
-    print(f"-> {out / 'bench_results.md'}, {out / 'speed_vs_error.png'}" if inputs else f"-> {out / 'bench_results.md'}")
-    if args.readme:
-        update_readme(Path(args.readme), out)
-        print(f"-> {args.readme} (results section and plot)")
-    return 1 if (args.strict and failures) else 0
+        results["seconds"] = time.perf_counter() - t_start
+        md.append(f"Benchmark wall time: {results['seconds']:.0f} s.")
+        text = _write(results_dir(), md, results, listing, complete=True)
+        replace_dir(results_dir(), out)
+        print(text.replace(LISTING, f"(in {out / 'bench_results.md'})"))
+        print(f"-> {out / 'bench_results.md'}, {out / 'speed_vs_error.png'}" if inputs else f"-> {out / 'bench_results.md'}")
+        if args.readme:
+            update_readme(Path(args.readme), out)
+            print(f"-> {args.readme} (results section and plot)")
+        return 1 if (args.strict and failures) else 0
+    except BaseException:
+        if staging and any((staging[0] / name).exists() for name in OUTPUTS):
+            say(f"the sections finished so far: {staging[0]} (incomplete; {out} is as it was)")
+        elif staging:
+            shutil.rmtree(staging[0], ignore_errors=True)
+        raise
 
 
 README_START, README_END = "<!-- BENCH:START -->", "<!-- BENCH:END -->"
@@ -434,11 +447,17 @@ def update_readme(readme: Path, out: Path) -> None:
                           f" what was not replaced is unchanged, the results are in {out}") from None
 
 
-def _write(out: Path, md: list, results: dict, listing: str) -> str:
+INCOMPLETE = ("**Incomplete: the run was stopped or failed before its end (or is still running); the sections"
+              " below are those it finished.**")
+
+
+def _write(out: Path, md: list, results: dict, listing: str, complete: bool = False) -> str:
     from nao_skin.plain import jsonable
 
     text = "\n".join(md) + "\n"
-    (out / "bench_results.md").write_text(text.replace(LISTING, listing))
-    (out / "bench_results.json").write_text(json.dumps(jsonable(results, skip_keys=("trace",)), indent=1) + "\n")
+    marked = text if complete else text.replace("\n\n", f"\n\n{INCOMPLETE}\n\n", 1)
+    (out / "bench_results.md").write_text(marked.replace(LISTING, listing))
+    (out / "bench_results.json").write_text(json.dumps(jsonable(dict(results, complete=complete),
+                                                                skip_keys=("trace",)), indent=1) + "\n")
     return text
 
