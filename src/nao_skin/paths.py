@@ -80,7 +80,7 @@ def read_yaml(path: str | Path, what: str):
     path = Path(path)
     text = read_text(path, what, ConfigError)
     try:
-        return parse_yaml(text)
+        return _load_unique_keys(text)
     except _DuplicateKey as exc:
         raise ConfigError(f"{path}: {exc}; give it once") from None
     except yaml.YAMLError as exc:
@@ -140,11 +140,17 @@ def parse_yaml(text: str):
     nests deeper than :data:`MAX_YAML_DEPTH` or a mapping gives a key twice."""
     import yaml
 
-    check_yaml_depth(text)
     try:
-        return yaml.load(text, Loader=_unique_key_loader())
+        return _load_unique_keys(text)
     except _DuplicateKey as exc:
         raise yaml.YAMLError(str(exc)) from None
+
+
+def _load_unique_keys(text: str):
+    import yaml
+
+    check_yaml_depth(text)
+    return yaml.load(text, Loader=_unique_key_loader())
 
 
 def safe_load(text: str):

@@ -309,9 +309,7 @@ def run(args) -> int:
             failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in t for t in bench.target_lines(rows))
 
         if "hard" in sections:
-            setup = bench.HardCaseSetup(pairs=_pairs(hard_pairs, "--hard-pairs"),
-                                        n_touches=args.hard_touches or (QUICK["hard_touches"] if args.quick else None))
-            scene = (", ".join(f"{a}-{b}" for a, b in setup.pairs) if setup.pairs else "all four thesis pairs")
+            setup, scene = _hard_setup(args, hard_pairs)
             say(f"hard cases: {len(presets)} presets x {seeds} seeds on {scene}")
             rows = bench.hard_case_matrix(load_skin(), presets, range(seeds), setup, max(1, args.jobs), say)
             results["hard"] = rows
@@ -352,9 +350,7 @@ def run(args) -> int:
             failures += "NOT met" in target
 
         if "kinematics" in sections:
-            setup = bench.HardCaseSetup(pairs=_pairs(hard_pairs, "--hard-pairs"),
-                                        n_touches=args.hard_touches or (QUICK["hard_touches"] if args.quick else None))
-            scene = (", ".join(f"{a}-{b}" for a, b in setup.pairs) if setup.pairs else "all four thesis pairs")
+            setup, scene = _hard_setup(args, hard_pairs)
             say(f"kinematics: {len(kin_presets)} presets x {seeds} seeds x {len(bench.KINEMATIC_MODES)} modes on {scene}")
             rows = bench.kinematics_matrix(load_skin(), kin_presets, range(seeds), setup, max(1, args.jobs), say)
             results["kinematics"] = rows
@@ -445,6 +441,15 @@ def update_readme(readme: Path, out: Path) -> None:
     except OSError as exc:
         raise OutputError(f"--readme {readme}: cannot write it or its plot {plot.name} ({os_reason(exc)});"
                           f" what was not replaced is unchanged, the results are in {out}") from None
+
+
+def _hard_setup(args, hard_pairs: str) -> tuple:
+    """The simulated scene of the hard cases and the kinematics, and its words for the tables."""
+    from nao_skin.bench.runner import HardCaseSetup
+
+    setup = HardCaseSetup(pairs=_pairs(hard_pairs, "--hard-pairs"),
+                          n_touches=args.hard_touches or (QUICK["hard_touches"] if args.quick else None))
+    return setup, (", ".join(f"{a}-{b}" for a, b in setup.pairs) if setup.pairs else "all four thesis pairs")
 
 
 INCOMPLETE = ("**Incomplete: the run was stopped or failed before its end (or is still running); the sections"
