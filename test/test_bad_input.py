@@ -900,6 +900,21 @@ def test_a_robot_config_without_a_chain_says_which_chain_is_missing(tmp_path, ca
     assert "part 'l_hand': unknown chain 'l_arm' (robot has head, r_arm)" in one_line(capsys)
 
 
+@pytest.mark.parametrize("stdout", ["buffered", "unbuffered"])
+@pytest.mark.parametrize("argv", [["--help"], ["stats", "--help"]], ids=["top", "command"])
+def test_help_on_a_full_disk_is_one_line_not_exit_0(argv, stdout):
+    """argparse drops a failed write of its help text: ``nao-skin --help > /dev/full`` printed nothing and
+    exited 0 (PYTHONUNBUFFERED), or exited 120 with Python's own message at exit."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    if stdout == "unbuffered":
+        env["PYTHONUNBUFFERED"] = "1"
+    with open("/dev/full", "w") as full:
+        run = subprocess.run([sys.executable, "-m", "nao_skin.cli", *argv], stdout=full, stderr=subprocess.PIPE,
+                             text=True, timeout=300, env=env)
+    assert (run.returncode, run.stderr) == (2, "nao-skin: error: cannot write to standard output"
+                                               " (No space left on device)\n")
+
+
 def test_standard_output_on_a_full_disk_is_one_line():
     """``nao-skin stats ... > file`` on a full disk: the failed write has no file name to say, so the line
     says it was the output; exit 2, no traceback."""

@@ -59,6 +59,15 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {printable(message)} (see {self.prog} --help)\n")
 
+    def _print_message(self, message, file=None):
+        # argparse drops a failed write: --help > /dev/full had printed nothing and exited 0. Standard
+        # output's failure is said (on standard error); standard error's has nowhere to be said.
+        if message and file is sys.stdout:
+            file.write(message)
+            file.flush()
+        else:
+            super()._print_message(message, file)
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="nao-skin", description="Self-touch calibration of the Nao's artificial skin.")
@@ -81,6 +90,11 @@ def main(argv=None) -> int:
         args, extra = parser.parse_known_args(argv)
     except SystemExit as exc:            # --help, or a mistake already said in one line
         return int(exc.code or 0)
+    except OSError as exc:               # the help text not written (_Parser._print_message)
+        print(f"nao-skin: error: cannot write to standard output ({os_reason(exc)})", file=sys.stderr)
+        # what it still buffers fails again at Python's own flush at exit, with a second message
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - until exit
+        return 2
     finally:
         signal.signal(signal.SIGINT, previous)          # a command stops on KeyboardInterrupt
     vars(args).pop(_StoreOnce.GIVEN, None)
