@@ -790,7 +790,7 @@ def test_an_output_is_on_the_disk_before_it_replaces_the_earlier_one(tmp_path, m
 def test_a_ctrl_c_in_a_program_s_clean_up_or_after_it_returned_is_no_traceback(tmp_path):
     """A program run as its own process (the console scripts, ``python -m nao_skin.cli``): the first Ctrl-C
     raises where the program is; a second one during its clean-up, or one as it returns, had raised again
-    where nothing caught it (a traceback; CI saw one while ``nao-skin stats --help`` exited). Here the
+    where nothing caught it (a traceback; CI saw one as ``nao-skin record --help`` exited). Here the
     program sends itself the signals at those two moments, so neither depends on timing."""
     script = tmp_path / "program.py"
     script.write_text(
