@@ -795,8 +795,11 @@ def test_a_ctrl_c_in_a_program_s_clean_up_or_after_it_returned_is_no_traceback(t
     script = tmp_path / "program.py"
     script.write_text(
         "import os, signal, sys\n"
-        "from nao_skin.errors import InterruptOnce, run_program\n"
+        "from nao_skin.errors import end_at_once_on_ctrl_c, run_program\n"
+        "def started():\n"                                   # as cli.main does once it has parsed its arguments
+        "    signal.signal(signal.SIGINT, end_at_once_on_ctrl_c('prog'))\n"
         "def cleans_up():\n"
+        "    started()\n"
         "    try:\n"
         "        os.kill(os.getpid(), signal.SIGINT)\n"       # the Ctrl-C: a KeyboardInterrupt here
         "        print('not reached')\n"
@@ -804,11 +807,10 @@ def test_a_ctrl_c_in_a_program_s_clean_up_or_after_it_returned_is_no_traceback(t
         "        os.kill(os.getpid(), signal.SIGINT)\n"       # again, while it cleans up: ignored
         "        print('cleaned up', flush=True)\n"
         "def finishes():\n"
+        "    started()\n"
         "    print('written', flush=True)\n"
         "    return 0\n"
-        "interrupt = InterruptOnce()\n"
-        "signal.signal(signal.SIGINT, interrupt)\n"
-        "code = run_program('prog', cleans_up if sys.argv[1] == 'clean-up' else finishes, interrupt)\n"
+        "code = run_program('prog', cleans_up if sys.argv[1] == 'clean-up' else finishes)\n"
         "os.kill(os.getpid(), signal.SIGINT)\n"               # as Python exits: ignored
         "sys.exit(code)\n")
     cleaned = subprocess.run([sys.executable, str(script), "clean-up"], capture_output=True, text=True, timeout=60)

@@ -17,8 +17,8 @@ import sys
 import time
 
 from nao_skin import commands
-from nao_skin.errors import (InterruptOnce, NaoSkinError, Terminated, end_at_once_on_ctrl_c, os_reason, printable,
-                             run_program, stop_on_term_or_hangup)
+from nao_skin.errors import (NaoSkinError, Terminated, end_at_once_on_ctrl_c, os_reason, printable, run_program,
+                             stop_on_term_or_hangup)
 
 
 class _StoreOnce(argparse.Action):
@@ -184,9 +184,7 @@ def console() -> int:
     """``nao-skin`` as its own process (``python -m nao_skin.cli``; the console script is
     :func:`nao_skin.entry.nao_skin`): :func:`main`, then a Ctrl-C while Python exits leaves the command's
     exit code as it is."""
-    interrupt = InterruptOnce()
-    signal.signal(signal.SIGINT, interrupt)
-    return run_program("nao-skin", main, interrupt)
+    return run_program("nao-skin", main)
 
 
 if __name__ == "__main__":

@@ -9,16 +9,12 @@ from __future__ import annotations
 
 import importlib
 
-import signal
-
-from nao_skin.errors import InterruptOnce, end_at_once_on_ctrl_c, run_program
+from nao_skin.errors import run_program
 
 
 def _run(prog: str, module: str, function: str = "main") -> int:
-    interrupt = InterruptOnce()
-    signal.signal(signal.SIGINT, interrupt)     # what the program's own stop handling puts back
-    end_at_once_on_ctrl_c(prog)           # until the program's own stop handling replaces it
-    return run_program(prog, lambda: getattr(importlib.import_module(module), function)(), interrupt)
+    # the module imported inside: a Ctrl-C while rclpy and scipy import ends it at once
+    return run_program(prog, lambda: getattr(importlib.import_module(module), function)())
 
 
 def nao_skin() -> int:

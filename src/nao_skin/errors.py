@@ -100,10 +100,14 @@ class InterruptOnce:
         self.armed = False
 
 
-def run_program(prog: str, main: Callable[[], int], interrupt: InterruptOnce) -> int:
-    """``main()``'s exit code, run as the whole process with ``interrupt`` (installed by the caller) as its
-    SIGINT handler; the stop signals ignored once it returns. A stop its own handling did not catch (it
-    came before the program started its own, or as it returned, its outputs written) is one line."""
+def run_program(prog: str, main: Callable[[], int]) -> int:
+    """``main()``'s exit code, run as the whole process: Ctrl-C ends it at once while it starts
+    (:func:`end_at_once_on_ctrl_c`, until ``main`` puts back the handler that returns), then raises once
+    (:class:`InterruptOnce`); the stop signals are ignored once it returns. A stop its own handling did not
+    catch (it came before the program started its own, or as it returned, its outputs written) is one line."""
+    interrupt = InterruptOnce()
+    signal.signal(signal.SIGINT, interrupt)
+    end_at_once_on_ctrl_c(prog)
     try:
         code = main()
         interrupt.finish()
