@@ -373,7 +373,7 @@ def test_a_right_hand_head_recording_in_the_thesis_format(tmp_path, skin):
 def test_figures_over_seeded_splits_through_the_pipeline(tmp_path, skin, left_hand_sim):
     """--splits K: the same calibration on K seeded splits; the first is the one written, and the report
     gives each figure's mean and spread over the K (README and bench report real figures this way)."""
-    from nao_skin.bench.runner import BenchInput, real_split_lines
+    from nao_skin.bench.speed import BenchInput, real_split_lines
     from nao_skin.calibration.pipeline import calibrate_recordings, summary_line
     from nao_skin.formats.bag import write_touch_bag
 

@@ -1,6 +1,6 @@
 """Small versions of the benchmark's hard cases, and the benchmark's own robustness.
 
-Each hard case runs the way ``nao-skin bench`` runs it (:func:`nao_skin.bench.run_hard_case`):
+Each hard case runs the way ``nao-skin bench`` runs it (:func:`nao_skin.hard.run_hard_case`):
 the simulator draws a Nao whose skin truly sits off its nominal layout (the
 robot's body is the only simulated thing), the touches are deduplicated and
 calibrated by the real engine, and the result is checked against the ground
@@ -16,7 +16,7 @@ import math
 import numpy as np
 import pytest
 
-from nao_skin.bench import runner as bench
+from nao_skin.bench import hard, speed
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.cli import main as cli_main
 from nao_skin.model.skin import load_skin
@@ -26,7 +26,7 @@ from nao_skin.touch.datasets import deduplicate
 
 pytestmark = pytest.mark.slow   # the module's fixture calibrates every hard case (~15 s together)
 
-SMALL = bench.HardCaseSetup(pairs=None, n_touches=100)   # four pairs x 100 touches, seed 0
+SMALL = hard.HardCaseSetup(pairs=None, n_touches=100)   # four pairs x 100 touches, seed 0
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +41,7 @@ def case(skin):
 
     def get(preset):
         if preset not in runs:
-            runs[preset] = bench.run_hard_case(skin, preset, 0, SMALL)
+            runs[preset] = hard.run_hard_case(skin, preset, 0, SMALL)
         return runs[preset]
 
     return get
@@ -65,7 +65,7 @@ def _assert_determined_frames_free(row):
 def test_default_converges(case):
     row = _ok(case("default"))
     assert row["converged"], f"true median {row['true_median_mm']:.3f} mm"
-    assert row["true_median_mm"] <= bench.CONVERGED_MM
+    assert row["true_median_mm"] <= hard.CONVERGED_MM
     _assert_determined_frames_free(row)
 
 
@@ -89,7 +89,7 @@ def test_outliers_20_converges_and_sets_aside_the_injected_outliers(case):
     row = _ok(case("outliers-20"))
     assert row["converged"], f"true median {row['true_median_mm']:.3f} mm"
     assert row["injected"] >= 10        # the preset did inject (one touch in five per pair)
-    assert row["recall"] >= bench.OUTLIER_RECALL_TARGET, (row["injected_set_aside"], row["injected"])
+    assert row["recall"] >= hard.OUTLIER_RECALL_TARGET, (row["injected_set_aside"], row["injected"])
     # the report names them: keys of touches of the recording
     assert len(row["set_aside"]) == row["n_set_aside"] >= row["injected_set_aside"]
     assert all(isinstance(k, str) and k for k in row["set_aside"])
@@ -103,7 +103,7 @@ def test_outlier_recall_counts_keys_of_the_training_split(skin):
     from nao_skin.calibration.engine import calibrate
 
     result = calibrate(touches, skin, CalibrationOptions(), truth=sim.truth)
-    stats = bench._outlier_recall(result)
+    stats = hard._outlier_recall(result)
     injected = {str(k) for k, o in zip(result.train.keys, result.train.labels["non_self_contact"]) if o}
     aside = {s["touch"] for s in result.set_aside}
     assert stats["injected"] == len(injected) > 0
@@ -133,8 +133,8 @@ def test_held_frames_are_the_ones_no_stage_estimated(case, skin):
     """A frame listed as held keeps its correction in the held directions (the listing is honest)."""
     for preset in ("few-touches", "planar-poses"):
         row = _ok(case(preset))
-        assert set(row["held_corrections"]) == {f"{p}/{f}" for p, f in bench.held_frames(row["held"])}
-        for part, frame, comps in bench.held_components(row["held"]):
+        assert set(row["held_corrections"]) == {f"{p}/{f}" for p, f in hard.held_frames(row["held"])}
+        for part, frame, comps in hard.held_components(row["held"]):
             corr = np.array(row["held_corrections"][f"{part}/{frame}"])
             if frame != "mount":   # a mount's prior is the closed-form first guess, not zero
                 assert np.all(corr[comps] == 0.0), (preset, part, frame, corr)
@@ -142,9 +142,9 @@ def test_held_frames_are_the_ones_no_stage_estimated(case, skin):
 
 def test_noisy_degrades_gracefully(case):
     noisy, default = _ok(case("noisy")), _ok(case("default"))
-    assert noisy["true_median_mm"] <= bench.NOISY_RATIO_LIMIT * default["true_median_mm"], \
+    assert noisy["true_median_mm"] <= hard.NOISY_RATIO_LIMIT * default["true_median_mm"], \
         (noisy["true_median_mm"], default["true_median_mm"])
-    assert noisy["true_median_mm"] <= bench.NOISY_RATIO_LIMIT * bench.CONVERGED_MM
+    assert noisy["true_median_mm"] <= hard.NOISY_RATIO_LIMIT * hard.CONVERGED_MM
 
 
 # ------------------------------------------------------------------------------ checks of the checks
@@ -162,11 +162,11 @@ def test_held_frame_check_judges_each_frame_on_its_own_correction(skin):
     calib.parts["torso"].patches[p, 1] = 0.001            # the patch of held triangle 6 moved 1 mm
     held = [f"torso/triangle_{tri_id(3)}", f"torso/triangle_{tri_id(4)} (rx)", f"torso/triangle_{tri_id(5)} (rx)",
             f"torso/triangle_{tri_id(6)}"]
-    bad = bench.held_frame_check(skin, calib, truth, held)
+    bad = hard.held_frame_check(skin, calib, truth, held)
     frames = [v["frame"] for v in bad]
     assert frames == [held[0], held[2].split(" ")[0]]
     assert bad[0]["final_mm"] == pytest.approx(2.0, abs=1e-6) and bad[0]["nominal_mm"] == pytest.approx(0.0, abs=1e-9)
-    drift = bench.held_frame_drift(skin, calib, truth, held)
+    drift = hard.held_frame_drift(skin, calib, truth, held)
     assert drift["frames"] == 4 and drift["worse"] == 4   # all four taxel sets moved off the (nominal) truth
     assert drift["nominal_mean_mm"] == pytest.approx(0.0, abs=1e-9)
 
@@ -174,7 +174,7 @@ def test_held_frame_check_judges_each_frame_on_its_own_correction(skin):
 def test_untouched_triangles_are_the_ones_without_activations(skin):
     sim = simulate(skin, load_params("ideal", {"pairs": [["l_hand", "torso"]], "n_touches": 8}), 1)
     t = sim.touches
-    untouched = bench.untouched_triangles(t, skin, ["l_hand", "torso"])
+    untouched = hard.untouched_triangles(t, skin, ["l_hand", "torso"])
     part = skin.parts["torso"]
     hit = set(part.slot_triangle[t.act_slot[t.act_part == t.part_index("torso")]].tolist())
     expect = [f"torso/triangle_{int(tid)}" for i, tid in enumerate(part.triangle_ids) if i not in hit]
@@ -183,24 +183,24 @@ def test_untouched_triangles_are_the_ones_without_activations(skin):
 
 
 def test_a_failing_case_is_a_row_not_a_crash(skin):
-    row = bench.run_hard_case(skin, "default", 0, bench.HardCaseSetup(pairs=[("l_hand", "l_hand")], n_touches=5))
+    row = hard.run_hard_case(skin, "default", 0, hard.HardCaseSetup(pairs=[("l_hand", "l_hand")], n_touches=5))
     assert row["status"].startswith("FAILED: ConfigError")
     assert "\n" not in row["status"]
-    table = bench.hard_case_tables([row])
+    table = hard.hard_case_tables([row])
     assert "FAILED: ConfigError" in table
-    summary = bench.hard_case_summary([row])
+    summary = hard.hard_case_summary([row])
     assert summary[0]["failed"] == 1 and summary[0]["met"].startswith("NO")
 
 
 def test_speed_matrix_rows_plot_and_a_failing_strategy(skin, tmp_path):
     sim = simulate(skin, load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 60}), 2)
     touches, _ = deduplicate(sim.touches)
-    inp = bench.BenchInput("sim", touches, skin, sim.truth)
-    variants = [bench.Variant("default"), bench.Variant("COP pairs only", {"closing_pairs": "cop"}),
-                bench.Variant("bogus", {"loss": "cauchy-of-nowhere"}), bench.Variant("FD", {"jacobian": "2-point"},
+    inp = speed.BenchInput("sim", touches, skin, sim.truth)
+    variants = [speed.Variant("default"), speed.Variant("COP pairs only", {"closing_pairs": "cop"}),
+                speed.Variant("bogus", {"loss": "cauchy-of-nowhere"}), speed.Variant("FD", {"jacobian": "2-point"},
                                                                                    single_run=True)]
     lines = []
-    rows = bench.speed_matrix([inp], variants, repeat=2, say=lines.append)
+    rows = speed.speed_matrix([inp], variants, repeat=2, say=lines.append)
     by = {r["strategy"]: r for r in rows}
     assert by["default"]["status"] == "ok" and by["default"]["runs"] == 2
     assert by["FD"]["runs"] == 1
@@ -211,10 +211,10 @@ def test_speed_matrix_rows_plot_and_a_failing_strategy(skin, tmp_path):
     assert by["FD"]["true_median_mm"] == pytest.approx(by["default"]["true_median_mm"], rel=0.05)
     # a progress line per run: two repetitions of two, the failing one and the slow one once each
     assert len(lines) == 2 * 2 + 1 + 1
-    table = bench.speed_table(rows, "sim")
+    table = speed.speed_table(rows, "sim")
     assert table.count("\n") == 1 + len(variants) and "FAILED: DataError" in table
-    assert "finite differences" in bench.headline(rows, "sim")
-    bench.plot_speed_vs_error(rows, tmp_path / "p.png")
+    assert "finite differences" in speed.headline(rows, "sim")
+    speed.plot_speed_vs_error(rows, tmp_path / "p.png")
     assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -237,7 +237,7 @@ def test_bench_command_rejects_an_unknown_preset_in_one_line(tmp_path, capsys):
 
 
 def test_touch_sweep_variants_set_max_touches():
-    names = {v.name: v for v in bench.strategy_variants((50, 100))}
+    names = {v.name: v for v in speed.strategy_variants((50, 100))}
     assert names["50 training touches"].options().max_touches == 50
     default = next(v for n, v in names.items() if n.startswith("default"))
     assert default.options() == CalibrationOptions()
@@ -260,20 +260,20 @@ def test_target_lines_name_each_miss():
             "train_taxel_mm": 2.0, "test_taxel_mm": float("nan"), "train_contact_taxel_mm": 2.1,
             "test_contact_taxel_mm": 2.3}
     failed = {"input": "bad", "knobs": {}, "status": "FAILED: DataError: x"}
-    lines = bench.target_lines([sim, real, failed])
+    lines = speed.target_lines([sim, real, failed])
     assert lines[0].endswith("NOT met: torso median 0.70 > 0.5 mm; torso p95 1.60 > 1.5 mm")
     assert "test closest COP 5.60 > 5.5 mm" in lines[1] and "test closest taxel nan > 2.2 mm" in lines[1]
     assert "train closest" not in lines[1] and "3.00 s > 2 s" in lines[1]
     # the solver's own pair is said beside the target, never counted in it
     assert lines[1].endswith("(the selected contacts' closest taxel pair: 2.10 / 2.30 mm, not within 2.2 mm)")
     real.update(test_taxel_mm=2.1, test_cop_mm=5.0, seconds=1.5)
-    assert bench.target_lines([real])[0].endswith(": met (the selected contacts' closest taxel pair: 2.10 / 2.30 mm,"
+    assert speed.target_lines([real])[0].endswith(": met (the selected contacts' closest taxel pair: 2.10 / 2.30 mm,"
                                                    " not within 2.2 mm)")
     assert lines[2] == "bad: default row FAILED: DataError: x"
     sim["part_true_mm"]["torso"] = {"median": 0.3, "p95": 1.2}
-    assert bench.target_lines([sim])[0].endswith(": met")
+    assert speed.target_lines([sim])[0].endswith(": met")
     # the accuracy issue's 1 s: said for the real inputs' default rows only, never counted as a miss
-    assert bench.speed_goal_lines([sim, real, failed]) == ["real: the default calibration <= 1 s: NOT met: 1.50 s > 1 s"]
+    assert speed.speed_goal_lines([sim, real, failed]) == ["real: the default calibration <= 1 s: NOT met: 1.50 s > 1 s"]
     real.update(seconds=0.9)
-    assert bench.speed_goal_lines([real]) == ["real: the default calibration <= 1 s: met (0.90 s)"]
-    assert all("NOT met" not in line for line in bench.target_lines([real]))
+    assert speed.speed_goal_lines([real]) == ["real: the default calibration <= 1 s: met (0.90 s)"]
+    assert all("NOT met" not in line for line in speed.target_lines([real]))

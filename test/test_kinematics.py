@@ -306,7 +306,7 @@ def test_auto_does_not_keep_kinematics_on_a_gain_the_test_split_cannot_vouch_for
     """Few touches (the bench's few-touches preset, seed 16; 30 test touches), a robot that is the config:
     the kinematic path brought the test split 11 % closer, past the 10 % asked, and auto kept it while the
     true error grew from 0.97 to 1.25 mm. Over 30 touches that gain is not 10 % at 95 % confidence."""
-    from nao_skin.bench.runner import HardCaseSetup, simulate_case
+    from nao_skin.bench.hard import HardCaseSetup, simulate_case
 
     setup = HardCaseSetup()
     sim, touches, _ = simulate_case(skin, "few-touches", 16, setup)
@@ -320,7 +320,7 @@ def test_auto_does_not_keep_kinematics_on_a_gain_the_test_split_cannot_vouch_for
 
 def test_bench_kinematics_rows_say_which_goals_are_met():
     """The bench's summary and goal lines from rows (no calibration run here)."""
-    from nao_skin.bench.runner import kinematics_goal_lines, kinematics_summary, kinematics_tables, offset_errors
+    from nao_skin.bench.kinematics import kinematics_goal_lines, kinematics_summary, kinematics_tables, offset_errors
 
     def row(preset, seed, mode, hand, torso, offset_err=float("nan")):
         parts = {"l_hand": {"median": hand, "p95": 2 * hand}, "torso": {"median": torso, "p95": 2 * torso}}

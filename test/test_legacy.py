@@ -378,7 +378,7 @@ def test_a_broken_file_still_names_its_line_through_the_exact_reader(tmp_path, s
 
 
 def test_the_bench_compares_both_readers_on_the_same_file(tmp_path, skin):
-    from nao_skin.bench.runner import legacy_read_times
+    from nao_skin.bench.speed import legacy_read_times
 
     path = write(tmp_path, {"0": touch(), "1": touch(hand_slots=(0, 384)), "2": touch()})
     t = legacy_read_times(path, skin, repeat=1)

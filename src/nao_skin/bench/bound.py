@@ -148,7 +148,7 @@ def random_touches_for(error: float, random_errors: dict) -> float:
 
 def bound_rows(skin: SkinModel, seed: int, pool_per_pair: int, sizes, batch: int, draws: int = 2) -> list:
     """One seed: the simulated pool, then per size the random draws' and the greedy choice's predicted error."""
-    from nao_skin.bench.runner import HardCaseSetup, simulate_case
+    from nao_skin.bench.hard import HardCaseSetup, simulate_case
 
     sim, touches, _ = simulate_case(skin, "default", seed, HardCaseSetup(n_touches=pool_per_pair))
     lin = linearise(skin, touches, sim.truth, sim.params.fabric_thickness)

@@ -143,7 +143,7 @@ def _check_readme_run(readme: Path, sections: set, real: bool) -> None:
 def _sim_input(args, quick: bool, say, keep: int | None = None):
     import numpy as np
 
-    from nao_skin.bench.runner import BenchInput, restrict_pairs
+    from nao_skin.bench.speed import BenchInput, restrict_pairs
     from nao_skin.errors import DataError
     from nao_skin.formats.inputs import load_touches
     from nao_skin.model.skin import load_skin
@@ -171,7 +171,7 @@ def _sim_input(args, quick: bool, say, keep: int | None = None):
 
 
 def _real_inputs(args, say, skin) -> list:
-    from nao_skin.bench.runner import BenchInput
+    from nao_skin.bench.speed import BenchInput
     from nao_skin.formats.inputs import load_touches
     from nao_skin.touch.datasets import deduplicate
 
@@ -185,7 +185,7 @@ def _real_inputs(args, say, skin) -> list:
 
 
 def run(args) -> int:
-    from nao_skin.bench import runner as bench
+    from nao_skin.bench import hard, kinematics, speed
     from nao_skin.commands import skin_from_args
     from nao_skin.errors import DataError
     from nao_skin.formats.inputs import check_inputs
@@ -199,15 +199,15 @@ def run(args) -> int:
         raise DataError("--only real needs at least one --real PATH")
     repeat = args.repeat if args.repeat is not None else (QUICK["repeat"] if args.quick else 3)
     seeds = args.seeds if args.seeds is not None else (QUICK["seeds"] if args.quick else 20)
-    sweep = QUICK["sweep"] if args.quick else bench.TOUCH_SWEEP
+    sweep = QUICK["sweep"] if args.quick else speed.TOUCH_SWEEP
     if repeat < 1 or seeds < 1:
         raise DataError(f"--repeat {repeat} / --seeds {seeds}: both must be at least 1")
     _check_counts(args)
     named = [p.strip() for p in args.presets.split(",") if p.strip()] if args.presets is not None else None
     if named is not None and not named:        # '' would otherwise mean every preset: the longest run there is
         raise DataError(f"--presets {args.presets!r}: expected preset names, comma separated")
-    presets = named or list(bench.HARD_PRESETS)
-    kin_presets = named or list(bench.KINEMATIC_PRESETS)
+    presets = named or list(hard.HARD_PRESETS)
+    kin_presets = named or list(kinematics.KINEMATIC_PRESETS)
     hard_pairs = QUICK["hard_pairs"] if args.quick and args.hard_pairs == "all" else args.hard_pairs
     if sections & {"hard", "kinematics"}:   # mistakes in the arguments are told before the output dir is touched
         from nao_skin.sim.params import preset_names
@@ -260,10 +260,10 @@ def run(args) -> int:
         listing = ""
 
         if inputs:
-            variants = bench.strategy_variants(sweep)
+            variants = speed.strategy_variants(sweep)
             say(f"speed against error: {len(variants)} strategies x {len(inputs)} inputs x {repeat} repetitions"
                 f" (interleaved; the finite-difference row runs once)")
-            rows = bench.speed_matrix(inputs, variants, repeat, say)
+            rows = speed.speed_matrix(inputs, variants, repeat, say)
             results["speed"] = rows
             md += ["## Speed against error", "",
                    f"Each strategy changes one option of the default; times are the median of {repeat} interleaved"
@@ -272,19 +272,19 @@ def run(args) -> int:
                    f" closest pair per touch, all touches (explained: touches within the gate).", ""]
             md += ["Headline (default against finite differences, same problem):", ""]
             for inp in inputs:
-                md.append("- " + bench.headline(rows, inp.name))
-            md += ["", "Targets (default row):", ""] + ["- " + line for line in bench.target_lines(rows)]
-            goals = bench.speed_goal_lines(rows)
+                md.append("- " + speed.headline(rows, inp.name))
+            md += ["", "Targets (default row):", ""] + ["- " + line for line in speed.target_lines(rows)]
+            goals = speed.speed_goal_lines(rows)
             if goals:
                 md += ["", "Speed goal of the accuracy issue (default row, median of the runs; not counted as a"
                            " failure):", ""] + ["- " + line for line in goals]
             for inp in inputs:
-                md += ["", f"### {inp.name}", "", bench.speed_table(rows, inp.name)]
-            bench.plot_speed_vs_error(rows, results_dir() / "speed_vs_error.png")
+                md += ["", f"### {inp.name}", "", speed.speed_table(rows, inp.name)]
+            speed.plot_speed_vs_error(rows, results_dir() / "speed_vs_error.png")
             md += ["", "![speed against error](speed_vs_error.png)", ""]
             for inp in (i for i in inputs if i.truth is None):
-                say(f"{inp.name}: the default calibration over {bench.REAL_SPLITS} seeded splits")
-                spread, lines = bench.real_split_lines(inp)
+                say(f"{inp.name}: the default calibration over {speed.REAL_SPLITS} seeded splits")
+                spread, lines = speed.real_split_lines(inp)
                 results.setdefault("real_splits", {})[inp.name] = spread
                 md += [f"### {inp.name}: over {spread['k']} seeded splits", "",
                        f"The default calibration on the splits of seeds {spread['seeds'][0]}..{spread['seeds'][-1]}"
@@ -299,36 +299,36 @@ def run(args) -> int:
                        f" reader (Python's ast, any file Python's literal syntax takes) against the fast one (the C JSON"
                        f" decoder, for the recorder's plain output; any other file falls back to the exact reader).", ""]
                 for path in legacy:
-                    t = bench.legacy_read_times(path, inputs[-1].skin, repeat)
+                    t = speed.legacy_read_times(path, inputs[-1].skin, repeat)
                     results.setdefault("legacy_read", {})[str(path)] = t
                     md.append(f"- {Path(path).name} ({t['touches']} touches loaded): exact {t['exact_s']:.2f} s, fast"
                               f" {t['fast_s']:.3f} s (x{t['exact_s'] / t['fast_s']:.0f}); same touches and skip reasons:"
                               f" {'yes' if t['same_touches'] else 'NO'}")
                 md.append("")
             _write(results_dir(), md, results, listing)      # kept even if a later section fails
-            failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in t for t in bench.target_lines(rows))
+            failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in t for t in speed.target_lines(rows))
 
         if "hard" in sections:
             setup, scene = _hard_setup(args, hard_pairs)
             say(f"hard cases: {len(presets)} presets x {seeds} seeds on {scene}")
-            rows = bench.hard_case_matrix(load_skin(), presets, range(seeds), setup, max(1, args.jobs), say)
+            rows = hard.hard_case_matrix(load_skin(), presets, range(seeds), setup, max(1, args.jobs), say)
             results["hard"] = rows
             md += ["## Hard cases", "",
                    f"Simulated in memory ({scene}, touches per pair: "
                    f"{setup.n_touches or 'the preset default'}), {seeds} seeds each, deduplicated, calibrated with the"
-                   f" default options. Converged: final true median taxel error <= {bench.CONVERGED_MM:g} mm over the"
+                   f" default options. Converged: final true median taxel error <= {hard.CONVERGED_MM:g} mm over the"
                    f" calibrated parts. Condition: Jacobi-scaled normal equations of the last stage. Injected outliers:"
-                   f" touches labelled '{bench.INJECTED_OUTLIER_LABEL}' in the training split (the experimenter's hand"
+                   f" touches labelled '{hard.INJECTED_OUTLIER_LABEL}' in the training split (the experimenter's hand"
                    f" and stray taxels leave the true contact in the touch). Held frames: what no stage estimated (a triangle"
                    f" with < 10 paired activations in every stage, a patch or mount direction the touches do not"
                    f" excite). Own correction worse than nominal: a held frame's taxels, every other frame at the truth,"
                    f" end farther from the truth with the frame's correction than with its held components at nominal"
                    f" (the frame was moved where the data says nothing). Absolute: the held frames' taxels under the"
                    f" whole calibration against the nominal skin, mean over runs, and how many frames end farther"
-                   f" (information: they ride on their patch and mount, which the data determined).", "", bench.hard_case_tables(rows), "",
+                   f" (information: they ride on their patch and mount, which the data determined).", "", hard.hard_case_tables(rows), "",
                    "Touches set aside in the outlier case (keys):", "", LISTING, ""]
-            listing = bench.outlier_listing(rows) or "(none run)"
-            summary = bench.hard_case_summary(rows)
+            listing = hard.outlier_listing(rows) or "(none run)"
+            summary = hard.hard_case_summary(rows)
             results["hard_summary"] = summary
             _write(results_dir(), md, results, listing)
             failures += sum(r["status"] != "ok" for r in rows) + sum(s["met"] != "yes" for s in summary)
@@ -351,11 +351,11 @@ def run(args) -> int:
 
         if "kinematics" in sections:
             setup, scene = _hard_setup(args, hard_pairs)
-            say(f"kinematics: {len(kin_presets)} presets x {seeds} seeds x {len(bench.KINEMATIC_MODES)} modes on {scene}")
-            rows = bench.kinematics_matrix(load_skin(), kin_presets, range(seeds), setup, max(1, args.jobs), say)
+            say(f"kinematics: {len(kin_presets)} presets x {seeds} seeds x {len(kinematics.KINEMATIC_MODES)} modes on {scene}")
+            rows = kinematics.kinematics_matrix(load_skin(), kin_presets, range(seeds), setup, max(1, args.jobs), say)
             results["kinematics"] = rows
-            results["kinematics_summary"] = bench.kinematics_summary(rows)
-            goals = bench.kinematics_goal_lines(rows)
+            results["kinematics_summary"] = kinematics.kinematics_summary(rows)
+            goals = kinematics.kinematics_goal_lines(rows)
             md += ["## Kinematics", "",
                    f"Each preset and seed simulated once ({scene}, touches per pair: "
                    f"{setup.n_touches or 'the preset default'}), calibrated with kinematics off, on and auto"
@@ -365,7 +365,7 @@ def run(args) -> int:
                    f" robot), else in the chain-end frame. Seconds: the engine's. Held-out gain: how much closer"
                    f" the kinematic path brings the test split's closest taxel pairs (fabric surfaces); auto keeps it"
                    f" when that gain's one-sided 95 % bound over the test touches reaches kinematics_min_gain.", "",
-                   "Goals:", "", *("- " + line for line in goals), "", bench.kinematics_tables(rows), ""]
+                   "Goals:", "", *("- " + line for line in goals), "", kinematics.kinematics_tables(rows), ""]
             failures += sum(r["status"] != "ok" for r in rows) + sum("NOT met" in line for line in goals)
             _write(results_dir(), md, results, listing)
 
@@ -445,7 +445,7 @@ def update_readme(readme: Path, out: Path) -> None:
 
 def _hard_setup(args, hard_pairs: str) -> tuple:
     """The simulated scene of the hard cases and the kinematics, and its words for the tables."""
-    from nao_skin.bench.runner import HardCaseSetup
+    from nao_skin.bench.hard import HardCaseSetup
 
     setup = HardCaseSetup(pairs=_pairs(hard_pairs, "--hard-pairs"),
                           n_touches=args.hard_touches or (QUICK["hard_touches"] if args.quick else None))
