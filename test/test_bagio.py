@@ -14,7 +14,7 @@ import yaml
 
 from nao_skin.calibration.pairing import metrics, pair_touches
 from nao_skin.errors import DataError
-from nao_skin.formats.bag import BagWriter, read_touches, write_touch_bag
+from nao_skin.formats.bag import BagWriter, read_touches, touch_messages, write_touch_bag
 from nao_skin.touch.events import LIVE_CONFIG
 
 
@@ -109,6 +109,20 @@ def test_truncated_bags(real, real_skin, tmp_path):
             with pytest.raises(DataError) as err:
                 read_touches(bag, real_skin)
             assert str(bag) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_an_mcap_cut_after_its_messages_loses_nothing_and_says_so(real, real_skin, tmp_path):
+    """Cut in its footer (a copy that stopped 40 bytes short): every message metadata.yaml lists is read, and
+    the report had said "the rest is lost"."""
+    touches = real.subset(np.arange(60))
+    bag = tmp_path / "mcap"
+    write_touch_bag(bag, touches, real_skin, storage="mcap")
+    data = next(bag.glob("*.mcap"))
+    data.write_bytes(data.read_bytes()[:-40])
+    back, report = read_touches(bag, real_skin)
+    assert back.n_touches == 60 and not report.skipped
+    assert any(f"{data.name} is damaged after its messages" in n and "read all 300 messages its metadata.yaml"
+               " lists, 60 touches, nothing lost" in n for n in report.notes), report.notes
 
 
 def test_an_mcap_with_a_damaged_record_is_read_up_to_it(real, real_skin, tmp_path):
@@ -415,6 +429,55 @@ def test_not_a_bag_and_no_overwrite(skin, tmp_path):
     with pytest.raises(DataError, match="exists already"):
         stream_bag(tmp_path / "s", skin)
     shutil.rmtree(tmp_path / "s")
+
+
+def test_touches_written_at_one_stamp_are_said_not_read_as_one_touch_of_every_part(real, real_skin, tmp_path):
+    """A touch bag whose stamps were never set (all 0) was read as one touch in which every part touched every
+    other, with no word of the rest; a touch at stamp 0 alone is a time (a thesis file's index key 0)."""
+    touches = real.subset(np.arange(6))
+    messages = list(touch_messages(touches, real_skin))
+    bag = tmp_path / "shared"
+    with BagWriter(bag, kind="touches") as writer:
+        for n, (_, *rest) in enumerate(messages):
+            writer.write_touch(0 if n < 3 else (5 + n) * 10 ** 9, *rest)     # the first three at stamp 0
+    back, report = read_touches(bag, real_skin)
+    assert back.n_touches == 3 and back.stamps.tolist() == [8.0, 9.0, 10.0]
+    assert report.skipped == {"touches at one stamp": 3}
+    assert any("3 touches were written at 1 stamps shared with another touch (the first at 0.000000000 s)" in m
+               and "were its stamps unset or rewritten?" in m for m in report.messages)
+    zero = tmp_path / "zero"
+    write_touch_bag(zero, touches.subset(np.arange(2)), real_skin)    # keys '0' and '1': stamps 0 and 1 s
+    back, report = read_touches(zero, real_skin)
+    assert back.stamps.tolist() == [0.0, 1.0] and not report.skipped
+
+
+def test_two_touches_that_would_share_a_stamp_are_not_written(real, real_skin, tmp_path):
+    """'a' (a name: its row, 0) and '0', or keys apart by less than a nanosecond, would be one touch in the bag:
+    the import said it wrote them all."""
+    touches = real.subset(np.arange(3))
+    touches.keys = ["a", "0", "2"]
+    touches.stamps = np.array([0.0, 0.0, 2.0])
+    with pytest.raises(DataError) as err:
+        write_touch_bag(tmp_path / "bag", touches, real_skin, label="touches.bag")
+    assert str(err.value) == ("touches.bag: touches 'a' and '0' would be written at one stamp (0.000000000 s) and"
+                              " read back as one touch; nothing written")
+    assert not (tmp_path / "bag").exists()
+
+
+@pytest.mark.parametrize("sec, nanosec, zero, says", [
+    (0, 0, False, "header stamp 0.000000000 s is not set"),
+    (-1, 0, True, "header stamp -1.000000000 s is before 1970"),
+    (5, 2_000_000_000, True, "header stamp 5.2000000000 s is no time (nanosec 2000000000 is not below 1e9)"),
+])
+def test_a_header_stamp_that_is_no_time_is_said(sec, nanosec, zero, says):
+    from types import SimpleNamespace
+
+    from nao_skin.formats.pointcloud import NoTime, header_seconds
+
+    with pytest.raises(NoTime) as err:
+        header_seconds(SimpleNamespace(sec=sec, nanosec=nanosec), "bag: topic '/joint_states'", zero=zero)
+    assert str(err.value) == f"bag: topic '/joint_states': {says}: the message cannot be placed in time"
+    assert header_seconds(SimpleNamespace(sec=0, nanosec=0), "bag") == 0.0          # in a bag, 0 is a time
 
 
 # ---------------------------------------------------------------------- commands: import, stats

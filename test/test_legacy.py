@@ -282,6 +282,34 @@ def test_integers_beyond_any_float_or_int64_skip_their_touch(tmp_path, skin):
     assert "touch '4': joint 'LElbowRoll' is not a finite angle (10000000000000000000..., 401 digits)" in text
 
 
+@pytest.mark.parametrize("exact", [False, True], ids=["fast", "exact"])
+def test_a_contact_id_or_slot_no_integer_holds_skips_only_its_touch(tmp_path, skin, exact):
+    """One contact id of 10**20 (beyond int64) or inf, or one slot key inf, ended the whole load of the
+    recording in a traceback (OverflowError)."""
+    huge_id, inf_id, inf_slot, bool_slot, half_slot = touch(), touch(), touch(), touch(), touch()
+    huge_id[0][10 ** 20] = huge_id[0].pop(0)
+    inf_id[0][float("inf")] = inf_id[0].pop(0)
+    inf_slot[0][0]["taxelInfo"][float("inf")] = [0.0] * 6
+    bool_slot[0][0]["taxelInfo"] = {True: [0.0] * 6}          # was read as slot 1
+    half_slot[0][0]["taxelInfo"] = {1.5: [0.0] * 6}           # was read as slot 1
+    path = write(tmp_path, {"0": huge_id, "1": inf_id, "2": inf_slot, "3": bool_slot, "4": half_slot, "5": touch()})
+    touches, report = read_legacy(path, skin, exact=exact)
+    assert touches.keys == ["0", "1", "5"] and report.skipped == {"bad taxel slot": 3}
+    hand = touches.contact_part == touches.part_index("l_hand")
+    assert touches.contact_id[hand & (touches.contact_touch < 2)].tolist() == [-1, -1]   # no usable id: none
+    text = " | ".join(report.messages)
+    assert "touch '2': contact 0: field 'taxelInfo': slot inf out of range 0..383 of part 'l_hand'" in text
+    assert "touch '3': contact 0: field 'taxelInfo': slot True is not an integer" in text
+    assert "touch '4': contact 0: field 'taxelInfo': slot 1.5 is not an integer" in text
+
+
+def test_an_angle_written_as_text_skips_its_touch(tmp_path, skin):
+    touches, report = read_legacy(write(tmp_path, {"0": touch(joints=dict(JOINTS, LElbowRoll="-1.0")),
+                                                   "1": touch()}), skin)
+    assert touches.keys == ["1"] and report.skipped == {"bad joint angle": 1}
+    assert "touch '0': joint 'LElbowRoll': not a number ('-1.0')" in report.messages[0]
+
+
 def test_a_key_with_an_underscore_is_a_name_not_a_number(tmp_path, skin):
     """Python's float() reads '1_0' as 10: the touch was dropped as the key '10' given twice."""
     touches, report = read_legacy(write(tmp_path, {"10": touch(), "1_0": touch()}), skin)

@@ -344,6 +344,23 @@ def test_a_kill_mid_run_keeps_the_earlier_output_and_leaves_nothing_half_written
     assert tree(work) == before
 
 
+def test_what_a_run_killed_outright_left_is_removed_by_the_next_run_and_nothing_else(work):
+    """SIGKILL (or a power cut) skips every clean-up: the run's staging directory beside --out stayed, a hidden
+    copy of a whole simulated recording each time. The next run to that --out removes those whose process
+    is gone; a live process's, the aside copy of a swap and the user's own files stay."""
+    dead = subprocess.Popen(["true"])
+    dead.wait()                        # a pid no process has now
+    left = work / f".cal.{dead.pid}.abcd_123"
+    (left / "touches.bag").mkdir(parents=True)
+    (left / "touches.bag" / "touches.bag_0.db3").write_bytes(b"\0" * 4096)
+    kept = [work / ".cal.1.zzzz9999", work / ".cal.old.abcdefgh", work / ".cal.notes"]
+    for path in kept:
+        path.mkdir()
+    ok(nao_skin("simulate", "--touches-per-pair", "3", "--out", "cal", cwd=work))
+    assert not left.exists() and all(path.is_dir() for path in kept)
+    assert sorted(p.name for p in work.glob(".cal*")) == sorted(p.name for p in kept)
+
+
 def _ended(proc: subprocess.Popen) -> str:
     """The process's standard error once it has ended (killed if it has not within 2 minutes: a test's
     failure, never a process left behind)."""

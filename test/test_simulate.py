@@ -305,6 +305,8 @@ def test_every_default_is_defined_once_in_the_yaml():
     ({"joint_offset_deg": 800}, ["'joint_offset_deg' 800 is more than 20.0 deg"]),
     ({"link_errors": {"LElbowOffsetY": 9.0}}, ["'link_errors' beyond 0.1 m"]),
     ({"start_stamp": float("nan")}, ["'start_stamp' must be seconds since 1970", "got nan"]),
+    # a Python warning 'divide by zero' on stderr, and a recording
+    ({"press_reach": [0, 0]}, ["'press_reach' must start above 0 m (a compliant fabric), got [0, 0]"]),
 ])
 def test_bad_parameters_fail_in_one_line(overrides, words):
     with pytest.raises(ConfigError) as exc:
@@ -378,6 +380,17 @@ def test_a_parameters_file_of_the_wrong_shape_is_one_line(tmp_path, text, says):
     with pytest.raises(ConfigError) as exc:
         load_params("x", path=path)
     assert str(exc.value) == f"{path}: {says}"
+
+
+def test_a_preset_named_by_a_number_is_found_by_that_number(tmp_path):
+    """YAML reads `5:` as the number 5: '--preset 5' said "unknown preset '5' (known: default, 5)"."""
+    path = tmp_path / "simulation.yaml"
+    path.write_text("defaults: {}\npresets: {5: {n_touches: 7}}\n")
+    assert load_params("5", path=path).n_touches == 7
+    path.write_text("defaults: {}\npresets: {5: {}, '5': {}}\n")
+    with pytest.raises(ConfigError) as exc:
+        load_params("5", path=path)
+    assert str(exc.value) == f"{path}: preset '5' is given twice"
 
 
 def test_dataclass_fields_are_documented_in_the_yaml():

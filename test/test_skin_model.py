@@ -247,9 +247,21 @@ BAD_CORRECTION = ("part 'head' mount: correction must be 3 + 3 finite numbers, m
     ({"torso": {"triangles": {"x": {}}}}, "part 'torso' triangle 'x': expected a whole number"),
     ({"r_hand": {"chain": "l_arm"}}, "part 'r_hand' was calibrated on chain 'l_arm'; the skin config hangs it off"
                                      " 'r_arm'"),
+    # str.lstrip('-').isdigit() passed these and int() then raised a traceback
+    ({"torso": {"patches": {"--0": {}}}}, "part 'torso' patch '--0': expected a whole number"),
+    ({"torso": {"triangles": {"\u00b2": {}}}}, "part 'torso' triangle '\u00b2': expected a whole number"),
+    # one triangle under two spellings: the later one was taken without a word
+    ({"torso": {"triangles": {0: {}, "0": {}}}}, "part 'torso' triangle 0 is given twice (as 0 and '0')"),
+    # an integer beyond any float: OverflowError, a traceback
+    ({"head": {"mount": {"correction": {"translation": [10 ** 400, 0, 0], "rotation_vector": [0, 0, 0]}}}},
+     BAD_CORRECTION),
+    # 2 + 4 numbers are 6 numbers, but not a translation and a rotation
+    ({"head": {"mount": {"correction": {"translation": [0, 0], "rotation_vector": [0, 0, 0, 0]}}}},
+     BAD_CORRECTION),
 ], ids=["unknown-part", "unknown-patch", "unknown-triangle", "two-numbers", "nan", "huge-translation",
         "huge-rotation", "no-rotation", "bool-translation", "part-none", "part-number", "patches-list", "patch-word", "patch-half",
-        "triangle-word", "other-chain"])
+        "triangle-word", "other-chain", "patch-dashes", "triangle-superscript", "triangle-twice", "int-beyond-float",
+        "two-plus-four"])
 def test_malformed_calibration_fails_naming_file_and_entry(skin, tmp_path, parts, problem):
     path = tmp_path / "calibration.yaml"
     path.write_text(yaml.safe_dump({"parts": parts}).replace("'.nan'", ".nan"))
@@ -432,6 +444,9 @@ BAD_MOUNT = "xyz and rotvec must be 3 finite numbers each, metres (at most 10) a
     (lambda d: d["parts"]["head"].update(patches=[0, 1]),
      "part 'head': 'patches' must map patch numbers to lists of triangles"),
     (lambda d: d["parts"]["head"].update(patches={"a": [0]}), "part 'head': patch 'a': expected a whole number"),
+    (lambda d: d["parts"]["head"].update(patches={"--1": [0]}), "part 'head': patch '--1': expected a whole number"),
+    (lambda d: d["parts"]["head"].update(patches={0: [0], "0": [1]}),
+     "part 'head': patch 0 is given twice (as 0 and '0')"),
     (lambda d: d["parts"]["head"].update(mount=5), "part 'head': mount: expected {xyz: [x, y, z], rotvec: [rx, ry, rz]}"),
     (lambda d: d["parts"]["head"].update(mount={"xyz": [0, 0]}), "part 'head': mount: " + BAD_MOUNT),
     (lambda d: d["parts"]["head"].update(mount={"xyz": [float("nan"), 0, 0]}), "part 'head': mount: " + BAD_MOUNT),

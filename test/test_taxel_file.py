@@ -111,8 +111,12 @@ GOOD = "0.01 0.02 0.03 0 0 1"
      " normals are unit vectors"),
     (f"{GOOD}\n0.01 0.02 0.03 0 0 0\n", 2, "the normal of slot 1 has length 0 in '0.01 0.02 0.03 0 0 0';"
      " normals are unit vectors"),
+    # Python's float() takes digit separators: no taxel file has them
+    (f"{GOOD}\n0.073_54096 0.02 0.03 0 0 1\n", 2, "not a number in '0.073_54096 0.02 0.03 0 0 1'"),
+    # its rows had been read as none ("no taxel rows found")
+    ("[calibration]\n[calibration]\n" + f"{GOOD}\n" * 12, 2, "a second [calibration] section"),
 ], ids=["five-numbers", "not-a-number", "nan", "header-form-line-number", "huge", "millimetres", "long-normal",
-        "zero-normal"])
+        "zero-normal", "digit-separator", "calibration-twice"])
 def test_malformed_row_names_file_and_line(tmp_path, text, line, problem):
     path = tmp_path / "bad_taxels.txt"
     path.write_text(text)

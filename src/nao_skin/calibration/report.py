@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +20,7 @@ from nao_skin.calibration.plan import touching_pairs
 from nao_skin.calibration.rows import concat_pairings, pair_parts
 from nao_skin.calibration.splits import kinematics_kept_text, spread_table
 from nao_skin.errors import OutputError, os_reason
-from nao_skin.formats.outdir import CALIBRATION, replace_dir, write_marker
+from nao_skin.formats.outdir import CALIBRATION, replace_dir, staging_dir, write_marker
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.plain import jsonable
 from nao_skin.touch.touches import TouchSet
@@ -39,8 +38,7 @@ def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Pat
     """
     given, out_dir = Path(out_dir), Path(os.path.realpath(out_dir))
     try:
-        out_dir.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+        tmp = staging_dir(out_dir)
     except OSError as exc:
         raise OutputError(f"{given}: cannot write the calibration there ({os_reason(exc)})") from None
     try:

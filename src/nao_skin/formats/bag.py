@@ -29,7 +29,8 @@ import numpy as np
 
 from nao_skin.errors import BagMoved, DataError, DiskFull, OutputError, one_line, os_reason
 from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, encode_cloud,
-                                         read_contacts, read_taxels, skin_topic, taxels_array, taxels_topic)
+                                         header_seconds, read_contacts, read_taxels, skin_topic, taxels_array,
+                                         taxels_topic)
 from nao_skin.formats.salvage import (LOCK_FILE, check_storage_files, cut_mcap, cut_sqlite, provisional_mcap,
                                       stored_metadata, unclosed_sqlite, write_lock)
 from nao_skin.model.skin import SkinModel
@@ -334,16 +335,26 @@ def default_bag_name(now=None) -> str:
     return f"nao_skin_touches_{(now or datetime.now()):%Y%m%d_%H%M%S}"
 
 
-def write_touch_bag(path: str | Path, touches: TouchSet, skin: SkinModel, storage: str = "sqlite3") -> None:
+def write_touch_bag(path: str | Path, touches: TouchSet, skin: SkinModel, storage: str = "sqlite3",
+                    label: str | Path | None = None) -> None:
     """Write a touch bag: per touch (in stamp order) one JointState and the touching parts' skin messages.
 
     Taxel positions are those of the nominal layout (what a skin driver sends);
     a contacts message lists the recorded skinManager contacts (id >= 0) with
     their recorded COP, the layout's geometric centre and normal, and the mean
-    activation pressure; force and moment are not kept in a TouchSet (NaN).
+    activation pressure; force and moment are not kept in a TouchSet (NaN). ``label``: the bag's name in
+    messages (where ``path`` is a staging directory the user never sees).
     """
-    for t in range(touches.n_touches):      # a bad stamp is refused before anything is written
-        _stamp_ns(touches.stamps[t], f"{path}: touch {touches.keys[t]!r}")
+    label = path if label is None else label
+    first: dict = {}                        # a bad stamp is refused before anything is written
+    for t in range(touches.n_touches):
+        stamp_ns = _stamp_ns(touches.stamps[t], f"{label}: touch {touches.keys[t]!r}")
+        if stamp_ns in first:
+            # a touch bag tells touches apart by their stamp: the reader would take the two as one touch
+            raise DataError(f"{label}: touches {touches.keys[first[stamp_ns]]!r} and {touches.keys[t]!r} would be"
+                            f" written at one stamp ({stamp_ns // 1_000_000_000}.{stamp_ns % 1_000_000_000:09d} s)"
+                            f" and read back as one touch; nothing written")
+        first[stamp_ns] = t
     writer = BagWriter(path, storage, kind="touches")      # refuses an existing path: what is there now is ours
     try:
         with writer as bag:
@@ -538,7 +549,7 @@ class GrowingBag:
         lost = bag.lost(now.n_msgs, ends)
         if lost is not None:
             report.skip(*lost)
-        touches = self._finish(now, extra, self._touches)
+        touches = now.apart(self._finish(now, extra, self._touches))
         now.account(touches)
         note = bag.note(now.n_msgs, touches.n_touches)
         if note is not None:
@@ -583,7 +594,7 @@ class GrowingBag:
                 reader.close()
             except Exception:  # noqa: BLE001 - closing a broken bag must not hide what was read
                 pass
-        touches = self._finish(feed, feed.records, None)
+        touches = feed.apart(self._finish(feed, feed.records, None))
         feed.account(touches)
         return touches, report
 
@@ -598,6 +609,7 @@ class _Feed:
         self.records: list = []
         self.n_msgs = 0
         self.unknown = Counter()        # messages of topics whose part the skin does not have
+        self.joint_states = Counter()   # stamp -> joint states at it (exact stamps: one per touch)
 
     def add(self, messages) -> str:
         """Feed ``(topic, msgtype, data)`` up to a ``(None, why, None)``; returns how they end."""
@@ -611,7 +623,8 @@ class _Feed:
                 continue
             self.n_msgs += 1
             try:
-                self.records += _feed(self.detector, self.store, topic, msgtype, data, self.skin, self.path)
+                self.records += _feed(self.detector, self.store, topic, msgtype, data, self.skin, self.path,
+                                      self.joint_states)
             except DataError as exc:
                 _skip_bad(self.report, exc)
         return "ends cleanly"
@@ -621,7 +634,26 @@ class _Feed:
         other = copy.copy(self)
         other.detector, other.report = copy.deepcopy(self.detector), copy.deepcopy(self.report)
         other.records, other.unknown = list(self.records), Counter(self.unknown)
+        other.joint_states = Counter(self.joint_states)
         return other
+
+    def apart(self, touches: TouchSet) -> TouchSet:
+        """``touches`` without those whose stamp more than one touch of a touch bag was written at.
+
+        Read with exact stamps (a touch bag), every touch is one joint state and its skin messages at one
+        stamp, so touches sharing a stamp are read as one touch of all their parts together: a bag whose
+        stamps were never set (all 0) would be one touch of every part pair. Those are skipped and said.
+        """
+        shared = sorted(s for s, n in self.joint_states.items() if n > 1)
+        if not shared or self.detector.config.skin_tolerance > 0:
+            return touches
+        lost = sum(self.joint_states[s] for s in shared)
+        self.report.skip("touches at one stamp", f"{self.path}: {lost} touches were written at {len(shared)}"
+                                                 f" stamps shared with another touch (the first at {shared[0]:.9f}"
+                                                 f" s): a touch bag tells its touches apart by their stamps, so"
+                                                 f" they cannot be read (were its stamps unset or rewritten?)",
+                         count=lost)
+        return touches.subset(~np.isin(touches.stamps, shared))
 
     def account(self, touches: TouchSet) -> None:
         """The load report of these messages, ``touches`` being what they gave."""
@@ -645,15 +677,18 @@ class _Feed:
         self.report.unit = "messages"
 
 
-def _feed(detector: EventDetector, store, topic: str, msgtype: str, raw, skin: SkinModel, path: Path) -> list:
-    """Decode one message and hand it to the detector; DataError names bag, topic and stamp."""
+def _feed(detector: EventDetector, store, topic: str, msgtype: str, raw, skin: SkinModel, path: Path,
+          joint_states: Counter) -> list:
+    """Decode one message and hand it to the detector (a joint state counted at its stamp in
+    ``joint_states``); DataError names bag, topic and stamp."""
     try:
         msg = store.deserialize_cdr(raw, msgtype)
     except Exception as exc:  # noqa: BLE001 - CDR decoding raises assorted errors on bad bytes
         raise DataError(f"{path}: topic '{topic}': undecodable {msgtype} ({one_line(exc)})") from None
-    stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+    stamp = header_seconds(msg.header.stamp, f"{path}: topic '{topic}'")
     where = f"{path}: topic '{topic}' at {stamp:.9f}"
     if topic == JOINT_STATES_TOPIC:
+        joint_states[stamp] += 1
         return detector.add_joint_state(stamp, msg.name, msg.position)
     part, what = skin_topic(topic)
     if what == "contacts":

@@ -40,6 +40,9 @@ def skin_model_for(taxel_files: Mapping[str, str | Path], robot: RobotModel,
     return SkinModel(robot, parts, source=", ".join(str(p) for p in taxel_files.values()))
 
 
+_INTEGER = re.compile(r"-?[0-9]+")    # ASCII digits: str.isdigit() and int() also take "²" or "١"
+
+
 class _SkipTouch(DataError):
     """A touch that cannot be used; ``reason`` is the short key it is counted under."""
 
@@ -97,12 +100,22 @@ class _Touch:
         self.key, self.stamp, self.joints, self.contacts = key, stamp, joints, contacts
 
 
-def _is_int(text) -> bool:
-    try:
-        int(text)
-    except (TypeError, ValueError):
-        return False
-    return True
+def _slot_number(key, checked: bool = True):
+    """A slot or contact id given as a dict key: an int, or a string of ASCII digits (the JSON path quotes
+    number keys). Unchecked, None for anything else and infinity for a number beyond any integer; checked,
+    TypeError / ValueError / OverflowError as ``int()`` raises them (a bool, a float such as 1.5 or 1e400,
+    '²' are no slot)."""
+    if isinstance(key, int) and not isinstance(key, bool):
+        return key
+    if isinstance(key, str) and _INTEGER.fullmatch(key.strip()):
+        return int(key)
+    if isinstance(key, float) and not math.isfinite(key):
+        if checked:
+            raise OverflowError(key)
+        return math.inf
+    if checked:
+        raise ValueError(key)
+    return None
 
 
 def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapping[str, int],
@@ -126,12 +139,12 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
             raise _SkipTouch("empty contact", f"{cwhere}: field 'taxelInfo': no activated taxel listed")
         sp = skin.parts[part]
         try:
-            slots = np.fromiter((int(s) for s in info), dtype=int, count=len(info))
+            slots = np.fromiter((_slot_number(s) for s in info), dtype=int, count=len(info))
         except (TypeError, ValueError):
-            bad = next(s for s in info if not _is_int(s))
+            bad = next(s for s in info if _slot_number(s, checked=False) is None)
             raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {bad!r} is not an integer") from None
-        except OverflowError:           # an integer beyond int64: out of range like any other
-            bad = next(s for s in info if abs(int(s)) >= 2 ** 63)
+        except OverflowError:           # beyond int64 (or infinite): out of range like any other
+            bad = next(s for s in info if abs(_slot_number(s, checked=False)) >= 2 ** 63)
             raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {bad} out of range"
                              f" 0..{len(sp.present) - 1} of part '{part}'", part) from None
         outside = (slots < 0) | (slots >= len(sp.present))
@@ -148,10 +161,8 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
         except (TypeError, ValueError, OverflowError):
             raise _SkipTouch("malformed field", f"{cwhere}: field 'averagePressure': not a number ({pressure!r})") from None
         cop = _vector3(contact.get("cop"), f"{cwhere}: field 'cop'")
-        try:
-            contact_id = int(cid)
-        except (TypeError, ValueError):
-            contact_id = -1
+        contact_id = _slot_number(cid, checked=False)      # skinManager's contactId, -1: none usable
+        contact_id = contact_id if contact_id is not None and 0 <= contact_id < 2 ** 31 else -1
         contacts.append((part_index[part], contact_id, cop, slots, pressure))
     if not contacts:
         raise _SkipTouch("empty contact", f"{where}: no skin contact")
@@ -161,7 +172,7 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
         if idx is None:
             continue                     # a joint the model does not use (e.g. legs)
         try:
-            if isinstance(angle, bool):     # float(True) is 1.0 rad: a flag where an angle belongs
+            if isinstance(angle, (bool, str)):     # float(True) is 1.0 rad, float('0.5') a text read as one
                 raise TypeError
             joints[idx] = np.nan if angle is None or math.isinf(float(angle)) else float(angle)   # inf: not measured
         except (TypeError, ValueError):

@@ -15,6 +15,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 import shutil
 import signal
 import stat
@@ -295,6 +296,45 @@ def _stops_deferred():
             signal.raise_signal(s)
 
 
+def staging_dir(out: str | Path) -> Path:
+    """A new private directory beside ``out`` to write an output into before :func:`replace_dir` moves it
+    there, named ``.<out>.<pid>.<random>``.
+
+    A run killed outright (SIGKILL, a power cut) leaves its staging directory behind, where no one looks:
+    each call first removes those of ``out`` whose process is gone. Only staging directories are: their
+    name says whose they were, and they never held anything but the unfinished output of that run.
+    """
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale_staging(out)
+    return Path(tempfile.mkdtemp(prefix=f".{out.name}.{os.getpid()}.", dir=out.parent))
+
+
+def _remove_stale_staging(out: Path) -> None:
+    name = re.compile(rf"\.{re.escape(out.name)}\.([0-9]{{1,10}})\.[a-z0-9_]{{8}}")
+    try:
+        siblings = list(os.scandir(out.parent))
+    except OSError:
+        return
+    for entry in siblings:
+        match = name.fullmatch(entry.name)
+        if match and entry.is_dir(follow_symlinks=False) and not _alive(int(match.group(1))):
+            shutil.rmtree(entry.path, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (another user's too); a pid no process can have is not."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except (ProcessLookupError, OverflowError):
+        return False
+    except OSError:       # PermissionError: it runs, as another user
+        return True
+    return True
+
+
 def clear_for_writing(out: str | Path, command: str, kind: str, entries, label: str = "output directory") -> Path:
     """Make ``out`` an empty marked directory for a command that writes into it piece by piece.
 
@@ -303,8 +343,7 @@ def clear_for_writing(out: str | Path, command: str, kind: str, entries, label: 
     as :func:`replace_dir`.
     """
     out = Path(os.path.realpath(out))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fresh = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    fresh = staging_dir(out)
     try:
         write_marker(fresh, command, kind, entries=entries)
         replace_dir(fresh, out, label)

@@ -156,6 +156,28 @@ def cloud_field(cloud: np.ndarray, name: str, dtype, where: str, default=None) -
 
 
 # ---------------------------------------------------------------------- what a reader takes from the skin topics
+class NoTime(DataError):
+    """A message whose header stamp is no time; the message is skipped."""
+
+    reason = "no header stamp"        # what a load report counts it under
+
+
+def header_seconds(stamp, where: str, zero: bool = True) -> float:
+    """A header's ``builtin_interfaces/Time`` in seconds; :class:`NoTime` for one that is no time: before
+    1970, with nanoseconds beyond a second, or unset (0) unless ``zero`` allows it.
+
+    A touch takes its stamp from the skin and its arm pose from the joint states at that stamp, so a
+    live message without a real stamp cannot be placed: an unset one would end the press it falls into.
+    In a bag, 0 can be a time (a thesis file's first touch, its key the index 0, imported).
+    """
+    sec, nanosec = int(stamp.sec), int(stamp.nanosec)
+    if sec < 0 or (sec == 0 and nanosec == 0 and not zero) or not 0 <= nanosec < 1_000_000_000:
+        what = ("not set" if sec == 0 and nanosec == 0 else "before 1970" if sec < 0
+                else f"no time (nanosec {nanosec} is not below 1e9)")
+        raise NoTime(f"{where}: header stamp {sec}.{nanosec:09d} s is {what}: the message cannot be placed in time")
+    return sec + nanosec * 1e-9
+
+
 class BadSlot(DataError):
     """A taxels message naming a slot its part's layout lacks; the sample is skipped."""
 

@@ -250,6 +250,17 @@ def _lists_no_messages(path: Path) -> bool:
     return isinstance(info, dict) and not (info.get("files") or info.get("topics_with_message_count"))
 
 
+def listed_message_count(path: Path) -> int | None:
+    """How many messages the bag directory's metadata.yaml lists (a closed bag's); None when it lists none or
+    does not read."""
+    try:
+        info = safe_load((path / "metadata.yaml").read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        count = info["message_count"]
+    except Exception:  # noqa: BLE001 - unreadable in any way: no count to go by
+        return None
+    return count if isinstance(count, int) and not isinstance(count, bool) and count > 0 else None
+
+
 def metadata_yaml_problem(path: Path) -> str | None:
     """What is wrong with the bag directory's metadata.yaml, in words ("it has no metadata.yaml", "its
     metadata.yaml is unreadable (not YAML from line 2: ...)"); None when it reads as rosbag2 metadata."""
@@ -464,10 +475,22 @@ class _CutMcap(UnclosedBag):
         (a recorder that died after its writer closed the file, while writing metadata.yaml, lost nothing)."""
         return self.whole and (self.lock is None or self.lock.state == "died")
 
+    def _read_all_listed(self, n_msgs: int) -> bool:
+        """Every message metadata.yaml lists was read and no recorder holds the bag: the file is damaged only
+        after them (its summary and index, which the messages do not need)."""
+        if self.lock is not None or self.whole:
+            return False
+        listed = listed_message_count(self.path)
+        return listed is not None and 0 < listed <= n_msgs
+
     def lost(self, n_msgs: int, ends: str) -> tuple | None:
-        return None if self._closed_whole() else super().lost(n_msgs, ends)
+        return None if self._closed_whole() or self._read_all_listed(n_msgs) else super().lost(n_msgs, ends)
 
     def note(self, n_msgs: int, n_touches: int) -> str | None:
+        if self._read_all_listed(n_msgs):
+            damage = one_line(self.open_error) if self.open_error is not None else self.why
+            return (f"{self.path}: {self.file.name} is damaged after its messages ({damage}); read all {n_msgs}"
+                    f" messages its metadata.yaml lists, {n_touches} touches, nothing lost")
         if self._closed_whole():
             why = (self.why or (self.path.is_dir() and metadata_yaml_problem(self.path))
                    or f"the bag does not open ({one_line(self.open_error)})")

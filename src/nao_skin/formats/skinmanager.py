@@ -176,7 +176,7 @@ def activated_taxels(values, threshold: float, where: str, n_slots: int) -> tupl
     """Compensated taxel vector (one value per slot, 0-255 or 0/100 binarised) to (slots, values) above threshold."""
     try:
         v = np.asarray(values, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise DataError(f"{where}: compensated taxel values must be numbers") from None
     if len(v) > n_slots:
         raise DataError(f"{where}: {len(v)} taxel values, more than the part's {n_slots} slots")

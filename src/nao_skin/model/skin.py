@@ -324,14 +324,33 @@ def _slot_count(value, where: str) -> int:
     return value
 
 
+# ASCII digits, as many as an int64 holds (str.isdigit() and int() also take '²'; int() refuses 5000 digits)
+WHOLE_NUMBER = re.compile(r"-?[0-9]{1,18}")
+
+
 def _whole_number(key, where: str, high: int | None = None) -> int:
     """A patch or triangle number as YAML gives it (an int, or a string of one): not 0.5, not 'abc'; with
     ``high``, in 0..high (a patch number names frames: not -3, not 10**23)."""
-    if isinstance(key, bool) or not isinstance(key, (int, str)) or not str(key).strip().lstrip("-").isdigit():
-        raise ConfigError(f"{where} {key!r}: expected a whole number")
+    if isinstance(key, bool) or not isinstance(key, (int, str)) or (
+            isinstance(key, str) and not WHOLE_NUMBER.fullmatch(key.strip())):
+        digits = isinstance(key, str) and re.fullmatch(r"-?[0-9]+", key.strip()) is not None   # too many of them
+        raise ConfigError(f"{where} {key!r}: expected a whole number"
+                          + (f" in 0..{high}" if digits and high is not None else ""))
     if high is not None and not 0 <= int(key) <= high:
         raise ConfigError(f"{where} {key!r}: expected a whole number in 0..{high}")
     return int(key)
+
+
+def _numbered(mapping: Mapping, where: str, high: int | None = None) -> dict:
+    """``mapping`` keyed by whole numbers (:func:`_whole_number`); one number given twice (as 3 and '3', or
+    '03') is refused, as any key given twice is."""
+    out, given = {}, {}
+    for key, value in mapping.items():
+        number = _whole_number(key, where, high)
+        if number in out:
+            raise ConfigError(f"{where} {number} is given twice (as {given[number]!r} and {key!r})")
+        out[number], given[number] = value, key
+    return out
 
 
 def _mount_vector(mount, where: str) -> np.ndarray:
@@ -405,7 +424,7 @@ class SkinModel:
             if patches is not None:
                 if not isinstance(patches, dict):
                     raise ConfigError(f"{where}: 'patches' must map patch numbers to lists of triangles")
-                patches = {_whole_number(k, f"{where}: patch", MAX_PATCH_NUMBER): v for k, v in patches.items()}
+                patches = _numbered(patches, f"{where}: patch", MAX_PATCH_NUMBER)
             mount = None
             if "mount" in spec:
                 mount = se3.pose_matrix(_mount_vector(spec["mount"], f"{where}: mount"))
@@ -560,11 +579,14 @@ class SkinCalibration:
         def vec(entry, where):
             try:
                 c = entry["correction"]
-                values = list(c["translation"]) + list(c["rotation_vector"])
+                translation, rotation = list(c["translation"]), list(c["rotation_vector"])
+                values = translation + rotation
                 v = np.array(values, dtype=float)
             except (KeyError, TypeError, ValueError):
                 raise ConfigError(f"{path}: {where}: needs correction.translation and correction.rotation_vector") from None
-            if any(isinstance(x, bool) for x in values) or not _plausible_pose(v):   # true is no 1 m
+            except OverflowError:      # an integer beyond any float
+                v = np.full(6, np.nan)
+            if len(translation) != 3 or any(isinstance(x, bool) for x in values) or not _plausible_pose(v):   # true is no 1 m
                 raise ConfigError(f"{path}: {where}: correction must be 3 + 3 finite numbers, metres (at most"
                                   f" {MAX_OFFSET:g}) and radians (at most {MAX_ROTATION:g})")
             return v
@@ -590,14 +612,13 @@ class SkinCalibration:
             if "mount" in spec:
                 corr.mount = vec(spec["mount"], f"part '{name}' mount")
             rows = {int(p): i for i, p in enumerate(part.patch_ids)}
-            for key, entry in entries(spec, "patches", f"part '{name}'").items():
-                pid = _whole_number(key, f"{path}: part '{name}' patch")
+            for pid, entry in _numbered(entries(spec, "patches", f"part '{name}'"), f"{path}: part '{name}' patch").items():
                 if pid not in rows:
                     raise ConfigError(f"{path}: part '{name}' has no patch {pid}")
                 corr.patches[rows[pid]] = vec(entry, f"part '{name}' patch {pid}")
             rows = {int(t): i for i, t in enumerate(part.triangle_ids)}
-            for key, entry in entries(spec, "triangles", f"part '{name}'").items():
-                tid = _whole_number(key, f"{path}: part '{name}' triangle")
+            for tid, entry in _numbered(entries(spec, "triangles", f"part '{name}'"),
+                                        f"{path}: part '{name}' triangle").items():
                 if tid not in rows:
                     raise ConfigError(f"{path}: part '{name}' has no triangle {tid}")
                 corr.triangles[rows[tid]] = vec(entry, f"part '{name}' triangle {tid}")
@@ -661,7 +682,7 @@ def check_origins(path: Path, doc: dict, calib: "SkinCalibration", skin: SkinMod
             try:
                 xyz = np.array(have["origin"]["xyz"], dtype=float)
                 rpy = np.array(have["origin"]["rpy"], dtype=float)
-            except (KeyError, TypeError, ValueError):
+            except (KeyError, TypeError, ValueError, OverflowError):
                 raise ConfigError(f"{where}: needs origin.xyz and origin.rpy (3 numbers each)") from None
             if xyz.shape != (3,) or rpy.shape != (3,):
                 raise ConfigError(f"{where}: needs origin.xyz and origin.rpy (3 numbers each)")

@@ -73,11 +73,15 @@ def read_taxel_file(path: str | Path, n_slots: int = DEFAULT_SLOTS) -> TaxelFile
         if not stripped:
             continue
         if stripped.startswith("["):
+            if stripped.lower() == "[calibration]":    # its rows would be read as none at all
+                raise DataError(f"{path}:{lineno}: a second [calibration] section")
             break  # next section of a skinManager file
         parts = stripped.split()
         if len(parts) != 6:
             raise DataError(f"{path}:{lineno}: expected 6 numbers 'x y z nx ny nz', got {len(parts)}")
         try:
+            if "_" in stripped:           # Python's float() reads 0.073_54 as 0.07354: no number of this format
+                raise ValueError(stripped)
             values = [float(v) for v in parts]
         except ValueError:
             raise DataError(f"{path}:{lineno}: not a number in {stripped!r}") from None

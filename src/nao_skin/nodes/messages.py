@@ -11,7 +11,7 @@ from builtin_interfaces.msg import Time
 from sensor_msgs.msg import JointState, PointCloud2, PointField
 
 from nao_skin.errors import DataError
-from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, encode_cloud
+from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, encode_cloud, header_seconds
 
 
 # ---------------------------------------------------------------------- time
@@ -26,16 +26,8 @@ def stamp_from_msg(stamp) -> float:
 
 
 def header_stamp(msg, where: str) -> float:
-    """The message's header stamp in seconds; DataError for one that is no time: unset (0) or before 1970.
-
-    A touch takes its stamp from the skin and its arm pose from the joint states at that stamp, so a
-    message without a real stamp cannot be placed: an unset one would end the press it falls into.
-    """
-    stamp = msg.header.stamp
-    if stamp.sec < 0 or (stamp.sec == 0 and stamp.nanosec == 0):
-        raise DataError(f"{where}: header stamp {stamp_from_msg(stamp):.9f} s is"
-                        f" {'not set' if stamp.sec == 0 else 'before 1970'}: the message cannot be placed in time")
-    return stamp_from_msg(stamp)
+    """The message's header stamp in seconds; DataError for one that is no time or unset (:func:`header_seconds`)."""
+    return header_seconds(msg.header.stamp, where, zero=False)
 
 
 # ---------------------------------------------------------------------- PointCloud2

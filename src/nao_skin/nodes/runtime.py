@@ -157,7 +157,7 @@ def _parent_gone():
     the fallback where the kernel's parent-death signal is not available.
     """
     text = os.environ.get(PARENT_ENV, "")
-    if not text.isdigit():
+    if not (text.isascii() and text.isdigit()):
         return None
     parent, ppid = int(text), os.getppid()
 

@@ -131,7 +131,13 @@ def _read_doc(path: Path) -> dict:
         raise ConfigError(f"{path}: expected 'defaults:' and 'presets:' mappings")
     # another config given here (a robot's: 'joints', 'chains') simulated with the built-in defaults
     known_keys(doc, PARAMS_FILE_KEYS, str(path))
-    for name, fields in (doc.get("presets") or {}).items():
+    presets = {}
+    for name, fields in (doc.get("presets") or {}).items():   # named on the command line: by their text
+        if str(name) in presets:
+            raise ConfigError(f"{path}: preset '{name}' is given twice")
+        presets[str(name)] = fields
+    doc = dict(doc, presets=presets)
+    for name, fields in presets.items():
         if not isinstance(fields or {}, dict):
             raise ConfigError(f"{path}: preset '{name}': expected a mapping of parameter: value")
         if name == "default":    # the preset 'default' is the file's defaults: this one would never be read
@@ -228,6 +234,8 @@ def validate(p: SimParams, where: str = "simulation parameters") -> None:
     if number("joint_offset_deg") > MAX_JOINT_OFFSET_DEG:
         raise ConfigError(f"{where}: 'joint_offset_deg' {p.joint_offset_deg} is more than {MAX_JOINT_OFFSET_DEG} deg"
                           f" (a calibration file takes joint offsets up to {math.degrees(MAX_JOINT_CORRECTION):.1f})")
+    if p.press_reach[0] <= 0:      # a taxel's depth is its slack over the reach: 0 divides by it
+        raise ConfigError(f"{where}: 'press_reach' must start above 0 m (a compliant fabric), got {p.press_reach!r}")
     if p.pressure_spots[0] < 1:
         raise ConfigError(f"{where}: 'pressure_spots' must start at 1 or more, got {p.pressure_spots!r}")
     for name in ("n_touches", "pose_restarts", "pose_iterations"):

@@ -256,14 +256,12 @@ def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, prese
     """
     import os
     import shutil
-    import tempfile
 
-    from nao_skin.formats.outdir import RECORDING, replace_dir, write_marker
+    from nao_skin.formats.outdir import RECORDING, replace_dir, staging_dir, write_marker
 
     out = Path(out_dir)
     final = Path(os.path.realpath(out))
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", dir=final.parent))
+    tmp = staging_dir(final)
     written = []
     try:
         truth_path = tmp / "truth_calibration.yaml"
@@ -288,7 +286,7 @@ def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, prese
             from nao_skin.formats.bag import write_touch_bag  # the bag writer of the capture pipeline
 
             bag = tmp / "touches.bag"
-            write_touch_bag(bag, result.touches, skin, storage=storage)
+            write_touch_bag(bag, result.touches, skin, storage=storage, label=out / "touches.bag")
             written.append(bag)
         # no time in the marker: the same seed gives the same bytes, marker included
         write_marker(tmp, "simulate", RECORDING, stamp=False)
