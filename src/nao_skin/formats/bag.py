@@ -609,7 +609,9 @@ class _Feed:
         self.records: list = []
         self.n_msgs = 0
         self.unknown = Counter()        # messages of topics whose part the skin does not have
-        self.joint_states = Counter()   # stamp -> joint states at it (exact stamps: one per touch)
+        # exact stamps (a touch bag): stamp -> joint states at it, one per touch (a stream's are not counted:
+        # a recording of hours holds millions)
+        self.joint_states = Counter() if config.skin_tolerance == 0 else None
 
     def add(self, messages) -> str:
         """Feed ``(topic, msgtype, data)`` up to a ``(None, why, None)``; returns how they end."""
@@ -634,7 +636,7 @@ class _Feed:
         other = copy.copy(self)
         other.detector, other.report = copy.deepcopy(self.detector), copy.deepcopy(self.report)
         other.records, other.unknown = list(self.records), Counter(self.unknown)
-        other.joint_states = Counter(self.joint_states)
+        other.joint_states = None if self.joint_states is None else Counter(self.joint_states)
         return other
 
     def apart(self, touches: TouchSet) -> TouchSet:
@@ -644,8 +646,8 @@ class _Feed:
         stamp, so touches sharing a stamp are read as one touch of all their parts together: a bag whose
         stamps were never set (all 0) would be one touch of every part pair. Those are skipped and said.
         """
-        shared = sorted(s for s, n in self.joint_states.items() if n > 1)
-        if not shared or self.detector.config.skin_tolerance > 0:
+        shared = sorted(s for s, n in (self.joint_states or {}).items() if n > 1)
+        if not shared:
             return touches
         lost = sum(self.joint_states[s] for s in shared)
         self.report.skip("touches at one stamp", f"{self.path}: {lost} touches were written at {len(shared)}"
@@ -678,9 +680,9 @@ class _Feed:
 
 
 def _feed(detector: EventDetector, store, topic: str, msgtype: str, raw, skin: SkinModel, path: Path,
-          joint_states: Counter) -> list:
+          joint_states: Counter | None) -> list:
     """Decode one message and hand it to the detector (a joint state counted at its stamp in
-    ``joint_states``); DataError names bag, topic and stamp."""
+    ``joint_states``, when given); DataError names bag, topic and stamp."""
     try:
         msg = store.deserialize_cdr(raw, msgtype)
     except Exception as exc:  # noqa: BLE001 - CDR decoding raises assorted errors on bad bytes
@@ -688,7 +690,8 @@ def _feed(detector: EventDetector, store, topic: str, msgtype: str, raw, skin: S
     stamp = header_seconds(msg.header.stamp, f"{path}: topic '{topic}'")
     where = f"{path}: topic '{topic}' at {stamp:.9f}"
     if topic == JOINT_STATES_TOPIC:
-        joint_states[stamp] += 1
+        if joint_states is not None:
+            joint_states[stamp] += 1
         return detector.add_joint_state(stamp, msg.name, msg.position)
     part, what = skin_topic(topic)
     if what == "contacts":
