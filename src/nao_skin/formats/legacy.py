@@ -100,21 +100,16 @@ class _Touch:
         self.key, self.stamp, self.joints, self.contacts = key, stamp, joints, contacts
 
 
-def _slot_number(key, checked: bool = True):
+def _key_integer(key) -> int | float | None:
     """A slot or contact id given as a dict key: an int, or a string of ASCII digits (the JSON path quotes
-    number keys). Unchecked, None for anything else and infinity for a number beyond any integer; checked,
-    TypeError / ValueError / OverflowError as ``int()`` raises them (a bool, a float such as 1.5 or 1e400,
-    '²' are no slot)."""
+    number keys); ``inf`` for an infinite float (no int holds it); None for anything else (a bool, 1.5,
+    '²': no slot, though ``int()`` takes them)."""
     if isinstance(key, int) and not isinstance(key, bool):
         return key
     if isinstance(key, str) and _INTEGER.fullmatch(key.strip()):
         return int(key)
     if isinstance(key, float) and not math.isfinite(key):
-        if checked:
-            raise OverflowError(key)
         return math.inf
-    if checked:
-        raise ValueError(key)
     return None
 
 
@@ -138,15 +133,14 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
         if not isinstance(info, dict) or not info:
             raise _SkipTouch("empty contact", f"{cwhere}: field 'taxelInfo': no activated taxel listed")
         sp = skin.parts[part]
-        try:
-            slots = np.fromiter((_slot_number(s) for s in info), dtype=int, count=len(info))
-        except (TypeError, ValueError):
-            bad = next(s for s in info if _slot_number(s, checked=False) is None)
-            raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {bad!r} is not an integer") from None
-        except OverflowError:           # beyond int64 (or infinite): out of range like any other
-            bad = next(s for s in info if abs(_slot_number(s, checked=False)) >= 2 ** 63)
-            raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {bad} out of range"
-                             f" 0..{len(sp.present) - 1} of part '{part}'", part) from None
+        numbers = [_key_integer(s) for s in info]
+        for s, number in zip(info, numbers):
+            if number is None:
+                raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {s!r} is not an integer")
+            if abs(number) >= 2 ** 63:      # beyond int64 (or infinite): out of range like any other
+                raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {s} out of range"
+                                 f" 0..{len(sp.present) - 1} of part '{part}'", part)
+        slots = np.array(numbers, dtype=int)
         outside = (slots < 0) | (slots >= len(sp.present))
         if outside.any():
             raise _SkipTouch("bad taxel slot", f"{cwhere}: field 'taxelInfo': slot {slots[outside][0]} out of range"
@@ -161,7 +155,7 @@ def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapp
         except (TypeError, ValueError, OverflowError):
             raise _SkipTouch("malformed field", f"{cwhere}: field 'averagePressure': not a number ({pressure!r})") from None
         cop = _vector3(contact.get("cop"), f"{cwhere}: field 'cop'")
-        contact_id = _slot_number(cid, checked=False)      # skinManager's contactId, -1: none usable
+        contact_id = _key_integer(cid)      # skinManager's contactId, -1: none usable
         contact_id = contact_id if contact_id is not None and 0 <= contact_id < 2 ** 31 else -1
         contacts.append((part_index[part], contact_id, cop, slots, pressure))
     if not contacts:
