@@ -50,10 +50,13 @@ def test_bench_bound_writes_its_table_and_refuses_sizes_beyond_the_pool(tmp_path
                    " touches, comma-separated"]
     assert not (tmp_path / "b2").exists()
     # a typo's empty entry, and a batch beyond the smallest size, were taken and ran
-    for args, says in ((["--sizes", "20,,40"], "--sizes '20,,40': expected whole numbers"),
-                       (["--sizes", "20,40", "--batch", "100000"],
-                        "--batch 100000: expected a whole number from 1 to the smallest size, 20")):
-        assert cli_main(["bench-bound", "--pool", "20", *args, "--out", str(tmp_path / "b3")]) == 2
+    for args, says in ((["--pool", "20", "--sizes", "20,,40"], "--sizes '20,,40': expected whole numbers"),
+                       (["--pool", "20", "--sizes", "20,40", "--batch", "100000"],
+                        "--batch 100000: expected a whole number from 1 to the smallest size, 20"),
+                       # said as the simulation parameters' fault, after a progress line
+                       (["--pool", "1000000000", "--sizes", "40"],
+                        "--pool 1000000000: expected at most 100000 touches per pair")):
+        assert cli_main(["bench-bound", *args, "--out", str(tmp_path / "b3")]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and says in err[0], err
     assert not (tmp_path / "b3").exists()

@@ -98,6 +98,10 @@ def test_nodes_skip_malformed_messages_and_stay_up(tmp_path):
         assert code == 0 and "Traceback" not in node.stderr(), f"{node.name} {code}: {node.stderr()[-2000:]}"
         # each message is judged by the node itself, not left to the last resort of run_node
         assert "a callback failed" not in node.stderr(), f"{node.name}: {node.stderr()[-2000:]}"
+    # and said (a malformed status or progress had been dropped without a word)
+    heatmap, _, calibrate = nodes
+    assert f"skipped a malformed {STATUS_TOPIC} message ('{{'" in heatmap.stderr(), heatmap.stderr()[-2000:]
+    assert f"skipped a malformed {PROGRESS_TOPIC} message ('[]'" in calibrate.stderr(), calibrate.stderr()[-2000:]
 
 
 def _press(skin, part: str, n: int = 4):

@@ -4,11 +4,13 @@
 * whatever breaks in the worker (here: ``out_dir`` below a regular file, an
   OSError, not a NaoSkinError) ends in a latched `failed` status naming it, and
   the node still calibrates the next request;
-* a request while a calibration runs leaves the latched state `running`.
+* a request while a calibration runs leaves the latched state `running`;
+* a node stopped during a calibration says it is not written.
 """
 from __future__ import annotations
 
 import json
+import shutil
 
 import pytest
 
@@ -132,3 +134,42 @@ def test_a_request_during_a_live_update_keeps_the_update_state_latched(tmp_path)
             node.destroy_node()
         if listener is not None:
             listener.close()
+
+
+def test_a_node_stopped_during_a_calibration_says_it_is_not_written(tmp_path):
+    """Stopped then, the node waited 10 s and ended with exit 0 and not a word: the calibration asked for was
+    simply never there. The request names its bag as a JSON list: the path holds a space, which the words of a
+    request cannot carry."""
+    from nao_skin.paths import package_dir
+
+    bag = tmp_path / "sp ace" / "touches.bag"
+    bag.parent.mkdir()
+    shutil.copytree(package_dir() / "bags" / "sim_default" / "touches.bag", bag)
+    domain = unique_domain_id()
+    listener = node = None
+    try:
+        listener = Listener(domain)
+        node = node_process("calibrate", {"out_dir": str(tmp_path / "cal"), "jacobian": "2-point", "plots": True},
+                            ros_env(domain), tmp_path)       # 4000 touches, finite differences: half a minute
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        request = listener.node.create_publisher(String, REQUEST_TOPIC, 10)
+        assert listener.spin_until(lambda: request.get_subscription_count() >= 1 and status, procs=[node])
+        request.publish(String(data=json.dumps([str(bag)])))
+        assert listener.spin_until(lambda: status[-1]["state"] == "running", procs=[node]), status[-1]
+        assert status[-1]["inputs"] == [str(bag)]
+        assert listener.spin_until(lambda: "touches after removing" in node.stderr(), timeout=60, procs=[node])
+    finally:
+        if listener is not None:
+            listener.close()
+        code = node.stop(timeout=30.0) if node is not None else None
+    assert code == 0, node.stderr()[-3000:]
+    assert f"stopped during the calibration of {bag}: it is not written" in node.stderr(), node.stderr()[-3000:]
+    assert not (tmp_path / "cal").exists()
+
+
+def test_a_request_names_its_bags_by_their_words_or_as_a_json_list():
+    from nao_skin.nodes.calibrate import request_paths
+
+    assert request_paths("") == [] and request_paths("  a.bag  b ") == ["a.bag", "b"]
+    assert request_paths('["/x/sp ace/é bag", ""]') == ["/x/sp ace/é bag"]
+    assert request_paths('["a", 5]') == ['["a",', "5]"]          # no list of paths: its words, refused as inputs

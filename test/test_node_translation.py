@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from nao_skin.errors import DataError, NaoSkinError
-from nao_skin.formats.pointcloud import BadSlot, decode_cloud, read_taxels, taxels_array, xyz
+from nao_skin.formats.pointcloud import (BadSlot, contacts_array, decode_cloud, read_contacts, read_taxels,
+                                         taxels_array, xyz)
 from nao_skin.formats.skinmanager import activated_taxels, format_skin_events, parse_bottle_text, parse_skin_events
 from nao_skin.live.heatmap import (NEVER_INDEX, PRESSED_INDEX, SCALE_LEVELS, ActivationCounts, colour_index, palette,
                                    triangle_slots)
@@ -66,6 +67,12 @@ def test_big_endian_padded_rows_and_bad_slots_read_like_a_bag():
     many = messages.cloud_from_array(taxels_array(np.resize(slots, n), np.zeros((n, 3))), "torso", None)
     with pytest.raises(BadSlot, match=f"t: {n} points for part 'torso' of {torso.n_slots} slots"):
         read_taxels(many, torso, "t")
+    # nor more contacts than slots: 2M contacts held the recorder 0.8 s a message, and its touches were lost
+    contacts = messages.cloud_from_array(contacts_array(np.arange(n), np.zeros((n, 3))), "torso", None)
+    with pytest.raises(DataError, match=f"t: {n} contacts for part 'torso' of {torso.n_slots} slots"):
+        read_contacts(contacts, torso, "t")
+    contacts = messages.cloud_from_array(contacts_array(np.arange(3), np.ones((3, 3))), "torso", None)
+    np.testing.assert_array_equal(read_contacts(contacts, torso, "t")[0], [0, 1, 2])
     absent = np.flatnonzero(~torso.present)[0]
     for slot, says in ((torso.n_slots, "out of range"), (absent, "is not a taxel of the 'torso' layout")):
         bad = messages.cloud_from_array(taxels_array([slots[0], slot], np.zeros((2, 3))), "torso", None)

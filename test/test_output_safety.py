@@ -834,3 +834,26 @@ def test_a_ctrl_c_in_a_program_s_clean_up_or_after_it_returned_is_no_traceback(t
     assert (cleaned.returncode, cleaned.stdout, cleaned.stderr) == (130, "cleaned up\n", "prog: interrupted\n")
     finished = subprocess.run([sys.executable, str(script), "finish"], capture_output=True, text=True, timeout=60)
     assert (finished.returncode, finished.stdout, finished.stderr) == (0, "written\n", "")
+
+
+def test_a_bench_never_replaces_another_bench_s_output_even_with_force(tmp_path):
+    """bench-capture --force deleted the tables of an earlier `nao-skin bench` (hours of work for minutes of
+    another), and back: the three benches marked their outputs alike. An output an earlier version of the
+    same command marked so is still its own."""
+    from nao_skin.errors import DataError
+    from nao_skin.formats.outdir import BENCHMARK, CAPTURE_BENCHMARK, check_output_dir, write_marker
+
+    bench = tmp_path / "bench"
+    bench.mkdir()
+    (bench / "bench_results.md").write_text("hours of figures\n")
+    write_marker(bench, "bench", BENCHMARK)
+    with pytest.raises(DataError) as err:
+        check_output_dir(bench, CAPTURE_BENCHMARK, force=True)
+    assert "holds a benchmark written by nao-skin bench, not a capture benchmark" in str(err.value)
+    earlier = tmp_path / "capture"
+    earlier.mkdir()
+    (earlier / "capture.md").write_text("an earlier capture bench\n")
+    write_marker(earlier, "bench-capture", BENCHMARK)            # as versions before 2026-11-27 marked it
+    assert check_output_dir(earlier, CAPTURE_BENCHMARK, force=True) == earlier
+    with pytest.raises(DataError):
+        check_output_dir(earlier, BENCHMARK, force=True)

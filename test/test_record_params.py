@@ -300,7 +300,17 @@ def test_record_refuses_what_its_nodes_would_fail_on_before_any_starts(tmp_path)
                            ("calibrate.out_dir=/dev/null", "calibration output /dev/null: exists already"),
                            # a node's own layout that is not there: the recorder died after the others were up
                            (f"pairing_recorder.taxels=[l_hand={tmp_path / 'nope.txt'}]",
-                            "node pairing_recorder (parameters from")):
+                            "node pairing_recorder (parameters from"),
+                           # the calibrate node died on these at its start, and the empty bag took the name
+                           ("calibrate.guidance_pairs=[x]", "parameter guidance_pairs: 'x': expected HAND-PART"),
+                           # said as config/simulation.yaml's fault
+                           ("sim_robot.pairs=[l_hand-torso,l_hand-torso]",
+                            "parameter pairs: 'l_hand-torso' is given twice"),
+                           (f"calibrate.out_dir={other}", f"calibration output {other}: is the bag {other}"),
+                           (f"calibrate.out_dir={other / 'cal'}", f"calibration output {other / 'cal'}: lies inside"
+                                                                   f" the bag {other}"),
+                           (f"calibrate.out_dir={tmp_path / 'new'}/..", f"calibration output {tmp_path / 'new'}/..:"
+                                                                         f" holds the bag {other}")):
         line = one_error_line(nao_skin(["record", "--bag", str(other), "--param", item]))
         assert expected in line, line
         assert not other.exists()

@@ -78,8 +78,6 @@ def _pairs(text: str, option: str, simulated: bool = False):
     pairs = list(parse_pairs(text.split(","), sorted(load_skin().parts), where=option))
     if not pairs:             # '' or ',' would otherwise mean every pair: not what was typed
         raise DataError(f"{option} {text!r}: expected HAND-PART pairs, comma separated (e.g. l_hand-torso), or 'all'")
-    if len(set(pairs)) < len(pairs):        # each pair's runs would count twice in the tables
-        raise DataError(f"{option} {text!r}: a pair is given twice")
     if simulated:             # every simulated case would fail, one row at a time
         from nao_skin.errors import ConfigError
         from nao_skin.sim.params import check_pairs

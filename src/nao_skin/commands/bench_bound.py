@@ -46,18 +46,22 @@ def _sizes(text: str, pool: int) -> list:
 def run(args) -> int:
     from nao_skin.bench.bound import bound_rows
     from nao_skin.errors import DataError
-    from nao_skin.formats.outdir import BENCHMARK, check_output_dir, clear_for_writing
+    from nao_skin.formats.outdir import BOUND_BENCHMARK, check_output_dir, clear_for_writing
     from nao_skin.model.skin import load_skin
     from nao_skin.plain import jsonable
+
+    from nao_skin.sim.params import MAX_TOUCHES_PER_PAIR
 
     for name, low in (("seeds", 1), ("pool", 10), ("batch", 1)):
         if getattr(args, name) < low:
             raise DataError(f"--{name} {getattr(args, name)}: expected a whole number >= {low}")
+    if args.pool > MAX_TOUCHES_PER_PAIR:     # the simulator's limit, said of the option that asked for it
+        raise DataError(f"--pool {args.pool}: expected at most {MAX_TOUCHES_PER_PAIR} touches per pair")
     skin = load_skin()
     sizes = _sizes(args.sizes, 4 * args.pool)
     if args.batch > sizes[0]:     # the greedy choice adds this many at a time: beyond a size it never stops at it
         raise DataError(f"--batch {args.batch}: expected a whole number from 1 to the smallest size, {sizes[0]}")
-    check_output_dir(args.out, BENCHMARK, force=args.force)
+    check_output_dir(args.out, BOUND_BENCHMARK, force=args.force)
     out = Path(args.out)
     t0 = time.perf_counter()
     rows = []
@@ -83,7 +87,7 @@ def run(args) -> int:
           f"Random / greedy touches for the same predicted error: {min(ratios):.2f}-{max(ratios):.2f}"
           f" (median {float(sorted(ratios)[len(ratios) // 2]):.2f}).", "", f"Wall time: {seconds:.0f} s.", ""]
     text = "\n".join(md)
-    clear_for_writing(out, NAME, BENCHMARK, OUTPUTS)       # an earlier output goes only now, when the new is ready
+    clear_for_writing(out, NAME, BOUND_BENCHMARK, OUTPUTS)       # an earlier output goes only now, when the new is ready
     (out / "bound_results.md").write_text(text)
     (out / "bound_results.json").write_text(json.dumps(jsonable({"rows": rows, "seconds": seconds}), indent=1) + "\n")
     print(text)

@@ -62,7 +62,7 @@ def run(args) -> int:
     from nao_skin.bench.pool import MAX_JOBS
     from nao_skin.calibration.options import CalibrationOptions, set_items
     from nao_skin.errors import DataError
-    from nao_skin.formats.outdir import BENCHMARK, check_output_dir, clear_for_writing
+    from nao_skin.formats.outdir import CAPTURE_BENCHMARK, check_output_dir, clear_for_writing
     from nao_skin.model.skin import load_skin
     from nao_skin.plain import jsonable
 
@@ -96,7 +96,7 @@ def run(args) -> int:
         raise DataError(f"--first-seed {args.first_seed}: expected a whole number >= 0")
     if not 1 <= args.jobs <= MAX_JOBS:
         raise DataError(f"--jobs {args.jobs}: expected a whole number from 1 to {MAX_JOBS}")
-    check_output_dir(args.out, BENCHMARK, force=args.force)
+    check_output_dir(args.out, CAPTURE_BENCHMARK, force=args.force)
     out = Path(args.out)
     say = lambda msg: print(msg, flush=True)  # noqa: E731
     t0 = time.perf_counter()
@@ -105,7 +105,7 @@ def run(args) -> int:
         f" cap {setup.cap}, target median <= {setup.median_mm:g} mm and p95 <= {setup.p95_mm:g} mm in every part")
     rows = bench.capture_matrix(load_skin(), seed_list, setup, max(1, args.jobs), say, strategies)
     # an earlier output goes only now: a run stopped before keeps it
-    clear_for_writing(out, NAME, BENCHMARK, OUTPUTS)
+    clear_for_writing(out, NAME, CAPTURE_BENCHMARK, OUTPUTS)
     bench.plot(rows, setup, out / "capture.png")
     argv = sys.argv[2:] + ([] if "--force" in sys.argv[2:] else ["--force"])
     seconds = time.perf_counter() - t0

@@ -57,17 +57,28 @@ def add_arguments(parser) -> None:
 DOMAINS = range(0, 233)
 
 
+MAX_SECONDS = 86400.0    # a window of a day at most (a node's periods are capped there too)
+
+
+def sim_robot_overrides(args) -> dict:
+    """The simulated robot's parameters of the run: presses every ``--touch-period`` s."""
+    return {"loop": True, "touches_per_pair": 60, "touch_period": args.touch_period,
+            "press_duration": min(0.3, args.touch_period / 2), "hold": 0.05, "wait_for_subscribers": 2}
+
+
 def check_arguments(args) -> None:
     """Each number in its range, the update input a recording that gives touches, before any node starts (a NaN
     window never ends)."""
-    import math
-
     from nao_skin.errors import DataError
     from nao_skin.formats.inputs import check_inputs
 
+    from nao_skin.live.playback import check_timing
+
     for flag, value in (("--seconds", args.seconds), ("--touch-period", args.touch_period)):
-        if not 0 < value < math.inf:
-            raise DataError(f"{flag} {value}: expected a finite number of seconds above 0")
+        if not 0 < value <= MAX_SECONDS:
+            raise DataError(f"{flag} {value}: expected seconds above 0, at most {MAX_SECONDS:g}")
+    robot = sim_robot_overrides(args)
+    check_timing(robot["touch_period"], robot["press_duration"], robot["hold"], "--touch-period")
     if args.update_every < 1:
         raise DataError(f"--update-every {args.update_every}: expected a whole number >= 1")
     if args.domain not in DOMAINS:
@@ -80,6 +91,15 @@ def check_arguments(args) -> None:
         from nao_skin.model.skin import load_skin
 
         load_inputs([args.update_input], load_skin(), log=lambda msg: None)
+
+
+def _last_line(path: Path) -> str:
+    """The last line a node wrote to its error log (its one-line reason), or that it wrote none."""
+    try:
+        lines = [line for line in path.read_text(errors="replace").splitlines() if line.strip()]
+    except OSError:
+        lines = []
+    return lines[-1].strip() if lines else "no message"
 
 
 def run(args) -> int:
@@ -117,8 +137,7 @@ def _measure(args, work: Path) -> int:
                PYTHONUNBUFFERED="1")
     params = str(config_dir() / "record.yaml")
     nodes = {
-        "sim_robot": {"loop": True, "touches_per_pair": 60, "touch_period": args.touch_period,
-                      "press_duration": min(0.3, args.touch_period / 2), "hold": 0.05, "wait_for_subscribers": 2},
+        "sim_robot": sim_robot_overrides(args),
         "pairing_recorder": {"bag_path": str(work / "touches")},
         "skin_heatmap": {},
         "calibrate": {"live": True, "recording": str(Path(args.update_input or work / "touches").resolve()),
@@ -181,10 +200,15 @@ def _measure(args, work: Path) -> int:
             executor.spin_once(timeout_sec=0.05)
         if interrupted.is_set():
             raise KeyboardInterrupt
-        if not progress:
+        ended = [(name, p.returncode) for name, p in zip(nodes, procs) if p.poll() is not None]
+        if ended or not progress or not progress[-1]["touches"]:
+            # a node that stopped (a parameter it refused) leaves a window of zeros: no figure to print
             where = f"see {work}" if args.keep_temp else "run again with --keep-temp to keep the nodes' logs"
-            print(f"bench-live: the recorder never reported progress; {where}", file=sys.stderr)
-            return 1
+            name, code = ended[0] if ended else (None, None)
+            why = (f"node {name} ended (exit code {code}): {_last_line(work / f'{name}.err')}" if ended else
+                   "the recorder never reported progress" if not progress else "no touch was recorded in 60 s")
+            print(f"bench-live: {why}; {where}", file=sys.stderr)
+            return 2
         start_counts = dict(counts)
         start_heat = len(heat_stamps)
         start_progress_n = progress[-1]["skin_message_ms"]["n"]

@@ -695,6 +695,6 @@ def _feed(detector: EventDetector, store, topic: str, msgtype: str, raw, skin: S
         return detector.add_joint_state(stamp, msg.name, msg.position)
     part, what = skin_topic(topic)
     if what == "contacts":
-        return detector.add_contacts(stamp, part, *read_contacts(msg, where))
+        return detector.add_contacts(stamp, part, *read_contacts(msg, skin.parts[part], where))
     slots, pressures, contacts = read_taxels(msg, skin.parts[part], where)
     return detector.add_skin(stamp, part, slots.tolist(), pressures.tolist(), contacts.tolist())

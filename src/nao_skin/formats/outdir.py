@@ -33,6 +33,12 @@ FORMAT = "nao_skin/output/1"
 RECORDING = "recording"          # nao-skin simulate
 CALIBRATION = "calibration"      # nao-skin calibrate, demo, the calibrate node
 BENCHMARK = "benchmark"          # nao-skin bench
+CAPTURE_BENCHMARK = "capture benchmark"   # nao-skin bench-capture
+BOUND_BENCHMARK = "bound benchmark"       # nao-skin bench-bound
+# until 2026-11-27 the three benches all marked their outputs "benchmark", so --force let each replace the
+# others' (hours of a bench for minutes of another): such a marker is read as the kind its command writes now
+_EARLIER_KINDS = {("benchmark", "nao-skin bench-capture"): CAPTURE_BENCHMARK,
+                  ("benchmark", "nao-skin bench-bound"): BOUND_BENCHMARK}
 
 
 def write_marker(directory: str | Path, command: str, kind: str, entries=None, stamp: bool = True) -> Path:
@@ -65,6 +71,7 @@ def read_marker(directory: str | Path) -> dict | None:
     if (not isinstance(info, dict) or info.get("format") != FORMAT or not isinstance(info.get("entries"), list)
             or not isinstance(info.get("kind"), str)):
         return None
+    info["kind"] = _EARLIER_KINDS.get((info["kind"], info.get("command")), info["kind"])
     return info
 
 

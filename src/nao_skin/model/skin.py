@@ -808,6 +808,8 @@ def parse_pairs(items, parts=None, where: str = "pair") -> tuple:
         if not sep or not hand or not part or hand == part or (parts is not None and not {hand, part} <= set(parts)):
             of = f" of two skin parts ({', '.join(parts)})" if parts is not None else " of two skin parts"
             raise ConfigError(f"{where} {item!r}: expected HAND-PART{of}, e.g. l_hand-torso")
+        if (hand, part) in out:
+            raise ConfigError(f"{where} {item!r} is given twice")
         out.append((hand, part))
     return tuple(out)
 

@@ -31,20 +31,15 @@ from tf2_msgs.msg import TFMessage
 
 from nao_skin.errors import NaoSkinError, one_line
 from nao_skin.live.updates import Settling, UpdateSchedule
-from nao_skin.model.skin import SkinCalibration, parse_pairs, skin_frame_transforms
+from nao_skin.model.skin import SkinCalibration, skin_frame_transforms
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
-from nao_skin.nodes.topics import GUIDANCE_TOPIC, LATCHED, PROGRESS_TOPIC, REQUEST_TOPIC, STATUS_TOPIC
+from nao_skin.nodes.topics import (GUIDANCE_TOPIC, LATCHED, MAX_SKIPPED_SAID, PROGRESS_TOPIC, REQUEST_TOPIC,
+                                   STATUS_TOPIC)
 from nao_skin.paths import free_sibling, identity
 from nao_skin.plain import jsonable
 from nao_skin.session.live import LiveCalibration
-from nao_skin.session.params import CALIBRATE, options_from_params, skin_from_params
-
-
-def _pairs(items, skin, name: str) -> tuple:
-    """'hand-part' strings to (hand, part) pairs of the skin's parts; none given: the skin config's
-    self-touch pairs (the four thesis pairs on the Nao)."""
-    return parse_pairs(items, skin.parts, f"parameter {name}:") or skin.self_touch.pairs()
+from nao_skin.session.params import CALIBRATE, guidance_pairs, options_from_params, skin_from_params
 
 
 class CalibrateNode(Node):
@@ -61,11 +56,12 @@ class CalibrateNode(Node):
         self.generation = 0
         self._busy = threading.Lock()
         self._worker = None
+        self._requested_out = None        # out_dir as the last requested calibration left it
         self._latched: dict = {}          # the status last published (latched)
         self._ignored = 0                 # requests refused while one calibration or update was running
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
-        self.guidance_pairs = _pairs(self.p["guidance_pairs"], self.skin, "guidance_pairs")
+        self.guidance_pairs = guidance_pairs(self.p, self.skin)
         if self.p["live"]:
             self._check_live_out_dir()    # refused now, not after an hour at the robot
             self._out_dir_at_start = identity(self.p["out_dir"])
@@ -76,6 +72,7 @@ class CalibrateNode(Node):
                                                  float(self.p["live_flat_percent"])),
                                         float(self.p["live_max_move_mm"]))
             self._recorded = 0            # touches the recorder reported so far
+            self._malformed = 0           # progress messages skipped
             self.create_subscription(String, PROGRESS_TOPIC, self._on_progress, 10)
             self.create_timer(0.5, self._maybe_update)
         inputs = [i for i in self.p["inputs"] if i]
@@ -96,9 +93,14 @@ class CalibrateNode(Node):
         try:
             touches = json.loads(msg.data).get("touches", 0)
         except (ValueError, AttributeError, RecursionError):
-            return                        # a malformed progress message: the next one will do
+            touches = None
         if isinstance(touches, int) and not isinstance(touches, bool) and touches >= 0:
             self._recorded = touches
+            return
+        self._malformed += 1              # the next one will do; said, as any message skipped is
+        if self._malformed <= MAX_SKIPPED_SAID:
+            self.get_logger().warning(f"skipped a malformed {PROGRESS_TOPIC} message ({msg.data[:80]!r}: expected"
+                                      f" JSON with a 'touches' count)")
 
     def _check_live_out_dir(self, out_dir: str | None = None) -> None:
         """Where the session's last live calibration goes: replaced when the session ends (force), never when
@@ -163,14 +165,16 @@ class CalibrateNode(Node):
         self.status_pub.publish(String(data=json.dumps(jsonable(info), sort_keys=True, default=str)))
 
     def _on_request(self, msg: String) -> None:
-        paths = msg.data.split()
+        paths = request_paths(msg.data)
         if not paths:
             paths = [i for i in self.p["inputs"] if i] or ([self.p["recording"]] if self.p["recording"] else [])
         self._start(paths)
 
     def _start(self, paths: list) -> None:
         if not paths:
-            self._status({"state": "failed", "error": "no input: set 'inputs' or 'recording', or name bags"})
+            error = "no input: set 'inputs' or 'recording', or name bags"
+            self.get_logger().error(f"calibration request refused: {error}")
+            self._status({"state": "failed", "error": error})
             return
         if not self._busy.acquire(blocking=False):
             # the latched state stays the one of what is running (a calibration, a live update); the refusal
@@ -182,7 +186,8 @@ class CalibrateNode(Node):
             return
         self._ignored = 0
         self._status({"state": "running", "inputs": paths})
-        self._worker = threading.Thread(target=self._run, args=(paths,), daemon=True, name="calibrate")
+        self._worker = threading.Thread(target=self._run, args=(paths,), daemon=True,
+                                        name=f"calibration of {' '.join(paths)}")
         self._worker.start()
 
     def _run(self, paths: list) -> None:
@@ -198,6 +203,7 @@ class CalibrateNode(Node):
                                        protected=[p["skin_config"], p["calibration"]],
                                        command="calibrate (node)", log=log.info, summary=log.warning)
             self.prior = run.result.calibration
+            self._requested_out = identity(run.out_dir)     # this session's own, not another command's
             calibration = str(run.out_dir / "calibration.yaml")
             self.publish_calibration(run.result.calibration, calibration)
             final = run.result.report.final
@@ -222,21 +228,41 @@ class CalibrateNode(Node):
         """End of the session: the last accepted live calibration is written where users apply it."""
         if self._worker is not None:
             self._worker.join(timeout=10.0)
+            if self._worker.is_alive():   # a daemon thread: it ends with the process, its output unwritten
+                self.get_logger().warning(f"stopped during the {self._worker.name}: it is not written (a staging"
+                                          f" directory it left beside out_dir is removed by the next calibration"
+                                          f" written there)")
         if self.p["live"] and self.live.last is not None:
             from nao_skin.calibration.report import write_outputs
 
             out_dir = self.p["out_dir"]
-            if identity(out_dir) != self._out_dir_at_start:
-                # another command wrote there during the session (e.g. a calibrate --out of the bag so far):
-                # its output stays, the session's goes beside it
+            now = identity(out_dir)
+            if now != self._out_dir_at_start:
+                # written during the session, by a calibration requested of this node (other bags, maybe) or
+                # by another command (e.g. a calibrate --out of the bag so far): it stays, the session's last
+                # live calibration goes beside it
                 out_dir = free_sibling(self.p["out_dir"], ".live")
-                self.get_logger().warning(f"out_dir {self.p['out_dir']} was written by another command during the"
-                                          f" session and is left as it is; the session's calibration goes to"
-                                          f" {out_dir}")
+                by = ("the calibration requested on " + REQUEST_TOPIC if now == self._requested_out
+                      else "another command")
+                self.get_logger().warning(f"out_dir {self.p['out_dir']} was written by {by} during the session and"
+                                          f" is left as it is; the session's last live calibration goes to {out_dir}")
             # a failure here (out_dir refused, the disk full) is the node's one line and exit 2
             self._check_live_out_dir(out_dir)
             out = write_outputs(self.live.last, self.skin, out_dir, plots=False, command="calibrate (node, live)")
             self.get_logger().info(f"the last live calibration -> {out}")
+
+
+def request_paths(text: str) -> list:
+    """The inputs a request on /nao_skin/calibrate names: a JSON list of paths (one may hold a space), else the
+    words of the text; none: the node's own."""
+    if text.lstrip().startswith("["):
+        try:
+            paths = json.loads(text)
+        except (ValueError, RecursionError):
+            paths = None
+        if isinstance(paths, list) and all(isinstance(p, str) for p in paths):
+            return [p for p in paths if p]
+    return text.split()
 
 
 def main(args=None) -> int:

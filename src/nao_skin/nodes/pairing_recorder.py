@@ -106,7 +106,7 @@ class PairingRecorder(Node):
         t0 = time.perf_counter()
         try:
             stamp = header_stamp(msg, contacts_topic(part))
-            contact_ids, cops = read_contacts(msg, contacts_topic(part))
+            contact_ids, cops = read_contacts(msg, self.skin.parts[part], contacts_topic(part))
         except DataError as exc:
             return self._bad(exc)
         self.detector.add_contacts(stamp, part, contact_ids, cops)

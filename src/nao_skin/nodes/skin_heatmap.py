@@ -35,7 +35,8 @@ from nao_skin.guidance.capture import targets_from_json
 from nao_skin.live.heatmap import (GUIDANCE_COLOUR, SCALE_LEVELS, ActivationCounts, palette, triangle_outline,
                                    triangle_slots)
 from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.nodes.topics import GUIDANCE_MARKERS_TOPIC, GUIDANCE_TOPIC, HEATMAP_TOPIC, LATCHED, STATUS_TOPIC
+from nao_skin.nodes.topics import (GUIDANCE_MARKERS_TOPIC, GUIDANCE_TOPIC, HEATMAP_TOPIC, LATCHED, MAX_SKIPPED_SAID,
+                                   STATUS_TOPIC)
 from nao_skin.session.params import SKIN_HEATMAP, skin_from_params
 
 STATE_COLOURS = {"collecting": (0.6, 0.6, 0.6, 1.0), "converging": (1.0, 0.8, 0.2, 1.0), "done": (0.2, 1.0, 0.4, 1.0)}
@@ -81,7 +82,7 @@ class SkinHeatmap(Node):
             slots, _, _ = read_taxels(msg, self.skin.parts[part], taxels_topic(part))
         except DataError as exc:
             self.errors += 1
-            if self.errors <= 5:
+            if self.errors <= MAX_SKIPPED_SAID:
                 self.get_logger().warning(f"skipped: {exc}")
             return
         self.counts.update(part, slots)
@@ -98,10 +99,17 @@ class SkinHeatmap(Node):
 
     def _on_status(self, msg: String) -> None:
         try:
-            states = json.loads(msg.data).get("parts")
-        except (ValueError, TypeError, AttributeError, RecursionError):
-            return
+            status = json.loads(msg.data)
+        except (ValueError, TypeError, RecursionError):
+            status = None
+        if isinstance(status, dict) and "parts" not in status:
+            return                        # a status of no live update (a calibration published): no states
+        states = status.get("parts") if isinstance(status, dict) else None
         if not isinstance(states, dict):
+            self.errors += 1
+            if self.errors <= MAX_SKIPPED_SAID:
+                self.get_logger().warning(f"skipped a malformed {STATUS_TOPIC} message ({msg.data[:80]!r}: expected"
+                                          f" JSON with a 'parts' mapping)")
             return
         states = {k: v for k, v in states.items() if k in self.skin.parts and isinstance(v, str)}
         if states != self.states:

@@ -14,6 +14,8 @@ PROGRESS_TOPIC = "/nao_skin/recorder/progress"         # std_msgs/String JSON
 SIM_STATUS_TOPIC = "/sim_robot/status"                 # std_msgs/String JSON
 BRIDGE_STATUS_TOPIC = "/skin/bridge_status"            # std_msgs/String JSON
 TF_STATIC_TOPIC = "/tf_static"                         # tf2_msgs/TFMessage, latched
+# a node says the first of the malformed messages it skips on a topic, not every one of a stream of them
+MAX_SKIPPED_SAID = 5
 
 #: a latched topic (as tf2_ros' StaticTransformBroadcaster publishes /tf_static): a subscriber with the
 #: same QoS, joining at any time, gets the last message

@@ -12,7 +12,7 @@ theirs (``CalibrationOptions``, ``UpdateSchedule``, ``Settling``, ``WarmStart``,
 from __future__ import annotations
 
 from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
-from nao_skin.errors import ConfigError
+from nao_skin.errors import ConfigError, NaoSkinError
 from nao_skin.live.playback import check_timing
 from nao_skin.live.updates import LiveUpdates, Settling, UpdateSchedule, WarmStart
 from nao_skin.model.skin import SkinModel, load_skin, parse_pairs, parse_taxel_files
@@ -204,6 +204,20 @@ def check_sim_robot(p: dict, where: str = "sim_robot") -> None:
     load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], skin_from_params(p).parts))
 
 
+def guidance_pairs(p: dict, skin: SkinModel) -> tuple:
+    """The calibrate node's ``guidance_pairs``: 'hand-part' strings to (hand, part) pairs of the skin's parts;
+    none given: the skin config's self-touch pairs (the four thesis pairs on the Nao)."""
+    return parse_pairs(p["guidance_pairs"], skin.parts, "parameter guidance_pairs:") or skin.self_touch.pairs()
+
+
+def check_calibrate(p: dict, where: str = "calibrate") -> None:
+    """Guidance pairs of the skin the node reads."""
+    try:
+        guidance_pairs(p, skin_from_params(p))
+    except NaoSkinError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+
+
 # what no single parameter's rule can say: checked by `nao-skin record` before any node starts, by the node
 # again at its start
-CHECKS = {"naoqi_bridge": check_naoqi_bridge, "sim_robot": check_sim_robot}
+CHECKS = {"calibrate": check_calibrate, "naoqi_bridge": check_naoqi_bridge, "sim_robot": check_sim_robot}

@@ -16,6 +16,7 @@ line.
 """
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import sys
@@ -212,6 +213,12 @@ def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> Non
                           " <bag>_calibration)")
     out = Path(calibrate_params["out_dir"]).expanduser() if calibrate_params.get("out_dir") else None
     if out is not None:
+        # the node refuses an out_dir that is, lies in or holds what it reads: said here, before the bag is made
+        o, b = Path(os.path.abspath(out)), Path(os.path.abspath(bag))
+        relation = "is" if o == b else "lies inside" if b in o.parents else "holds" if o in b.parents else None
+        if relation:
+            raise ConfigError(f"calibration output {out}: {relation} the bag {bag}; the calibration is written"
+                              f" beside the recording, not in it: choose another --param calibrate.out_dir")
         if out.exists() or out.is_symlink():
             raise ConfigError(f"calibration output {out}: exists already; the session writes its calibration there"
                               f" and replaces nothing it did not write: name another bag, or --param"
