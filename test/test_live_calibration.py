@@ -172,4 +172,4 @@ def test_an_out_dir_another_command_writes_during_the_session_is_left_and_the_se
     assert json.loads((session / MARKER).read_text())["command"] == "nao-skin calibrate (node, live)"
     SkinCalibration.load(session / "calibration.yaml", skin)
     assert (f"out_dir {out} was written by another command during the session and is left as it is; the session's"
-            f" calibration goes to {session}") in node.stderr()
+            f" last live calibration goes to {session}") in node.stderr()
