@@ -71,7 +71,6 @@ def check_arguments(args) -> None:
     window never ends)."""
     from nao_skin.errors import DataError
     from nao_skin.formats.inputs import check_inputs
-
     from nao_skin.live.playback import check_timing
 
     for flag, value in (("--seconds", args.seconds), ("--touch-period", args.touch_period)):

@@ -21,7 +21,7 @@ import numpy as np
 
 from nao_skin.errors import DataError
 from nao_skin.model.robot import MAX_JOINT_LIMIT, RobotModel
-from nao_skin.model.skin import DEFAULT_CHAINS, SkinModel, part_from_layout
+from nao_skin.model.skin import DEFAULT_CHAINS, INTEGER_TEXT, SkinModel, part_from_layout
 from nao_skin.model.taxel_file import MAX_COORDINATE
 from nao_skin.paths import read_text
 from nao_skin.touch.datasets import LoadReport
@@ -38,9 +38,6 @@ def skin_model_for(taxel_files: Mapping[str, str | Path], robot: RobotModel,
             raise DataError(f"{path}: skin part '{name}' has no known chain (give one for it)")
         parts[name] = part_from_layout(name, chains[name], robot, path)
     return SkinModel(robot, parts, source=", ".join(str(p) for p in taxel_files.values()))
-
-
-_INTEGER = re.compile(r"-?[0-9]+")    # ASCII digits: str.isdigit() and int() also take "²" or "١"
 
 
 class _SkipTouch(DataError):
@@ -106,7 +103,7 @@ def _key_integer(key) -> int | float | None:
     '²': no slot, though ``int()`` takes them)."""
     if isinstance(key, int) and not isinstance(key, bool):
         return key
-    if isinstance(key, str) and _INTEGER.fullmatch(key.strip()):
+    if isinstance(key, str) and INTEGER_TEXT.fullmatch(key.strip()):
         return int(key)
     if isinstance(key, float) and not math.isfinite(key):
         return math.inf

@@ -330,15 +330,13 @@ def _remove_stale_staging(out: Path) -> None:
 
 
 def _alive(pid: int) -> bool:
-    """Whether process ``pid`` runs (another user's too); a pid no process can have is not."""
-    if pid == os.getpid():
-        return True
+    """Whether process ``pid`` runs (another user's too: PermissionError); a pid no process can have is not."""
     try:
         os.kill(pid, 0)
     except (ProcessLookupError, OverflowError):
         return False
-    except OSError:       # PermissionError: it runs, as another user
-        return True
+    except OSError:
+        pass
     return True
 
 

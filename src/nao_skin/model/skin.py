@@ -324,7 +324,9 @@ def _slot_count(value, where: str) -> int:
     return value
 
 
-# ASCII digits, as many as an int64 holds (str.isdigit() and int() also take '²'; int() refuses 5000 digits)
+# a whole number written in ASCII digits (str.isdigit() and int() also take '²' or '١'); as a patch or
+# triangle number, no more digits than an int64 holds (int() refuses 5000)
+INTEGER_TEXT = re.compile(r"-?[0-9]+")
 WHOLE_NUMBER = re.compile(r"-?[0-9]{1,18}")
 
 
@@ -333,7 +335,7 @@ def _whole_number(key, where: str, high: int | None = None) -> int:
     ``high``, in 0..high (a patch number names frames: not -3, not 10**23)."""
     if isinstance(key, bool) or not isinstance(key, (int, str)) or (
             isinstance(key, str) and not WHOLE_NUMBER.fullmatch(key.strip())):
-        digits = isinstance(key, str) and re.fullmatch(r"-?[0-9]+", key.strip()) is not None   # too many of them
+        digits = isinstance(key, str) and INTEGER_TEXT.fullmatch(key.strip()) is not None   # too many of them
         raise ConfigError(f"{where} {key!r}: expected a whole number"
                           + (f" in 0..{high}" if digits and high is not None else ""))
     if high is not None and not 0 <= int(key) <= high:
