@@ -27,3 +27,21 @@ def test_the_check_sees_a_broken_layer(tmp_path):
                       "    nao_skin.calibration\n")
     run = lint_imports(config)
     assert run.returncode != 0 and "BROKEN" in run.stdout
+
+
+def test_the_core_finds_an_installed_share_directory_through_the_ament_index(tmp_path, monkeypatch):
+    """What ament_index_python would answer, read without a ROS import: the first prefix whose index lists the
+    package wins; a prefix without the marker (a share dir of the same name alone) does not count."""
+    from nao_skin.paths import installed_share_dir
+
+    unlisted, first, second = tmp_path / "unlisted", tmp_path / "first", tmp_path / "second"
+    (unlisted / "share" / "nao_skin").mkdir(parents=True)
+    for prefix in (first, second):
+        index = prefix / "share" / "ament_index" / "resource_index" / "packages"
+        index.mkdir(parents=True)
+        (index / "nao_skin").write_text("")
+    monkeypatch.setenv("AMENT_PREFIX_PATH", f"{unlisted}::{first}:{second}")
+    assert installed_share_dir("nao_skin") == first / "share" / "nao_skin"
+    assert installed_share_dir("other") is None
+    monkeypatch.delenv("AMENT_PREFIX_PATH")
+    assert installed_share_dir("nao_skin") is None

@@ -187,6 +187,21 @@ def test_every_option_has_a_rule_and_help_and_takes_an_integer_for_a_float():
             assert isinstance(getattr(options, name), float) and getattr(options, name) == whole, name
 
 
+def test_options_read_back_from_a_report_are_the_options_and_checked_by_the_same_rules():
+    """One way from a mapping to options (a report's, a node's parameters, a bench's overrides): JSON lists come
+    back as the tuples they were, and a value out of range names its input."""
+    import json
+
+    options = CalibrationOptions(closing_levels=("patch", "triangle"), f_scale=0.003, kinematics="auto")
+    assert CalibrationOptions.from_mapping(json.loads(json.dumps(options.as_mapping()))) == options
+    with pytest.raises(DataError, match=r"^parameter f_scale:=-1: expected a number"):
+        CalibrationOptions.from_mapping({"f_scale": -1}, where="parameter {name}:={value!r}")
+    with pytest.raises(DataError, match="unknown calibration option 'fscale'"):
+        CalibrationOptions.from_mapping({"fscale": 1e-3})
+    with pytest.raises(DataError, match="fabric_bounds.*lower bound is above"):     # checked together too
+        CalibrationOptions.from_mapping({"fabric_bounds": [0.003, 0.001]})
+
+
 def _refused(rule, value) -> bool:
     try:
         rule.check("x", value)

@@ -14,8 +14,8 @@ import yaml
 
 from nao_skin.calibration.pairing import metrics, pair_touches
 from nao_skin.errors import DataError
-from nao_skin.formats.bag import BagWriter, read_touches, touch_messages, write_touch_bag
-from nao_skin.touch.events import LIVE_CONFIG
+from nao_skin.formats.bag import BagWriter, detected_touch_messages, read_touches, touch_messages, write_touch_bag
+from nao_skin.touch.events import LIVE_CONFIG, ContactRecord, TouchRecord
 
 
 def canonical_pairs(touches, pairing):
@@ -32,6 +32,32 @@ def canonical_pairs(touches, pairing):
 
 
 # ---------------------------------------------------------------------- round trip of the real recording
+def test_the_recorder_writes_the_messages_a_touch_bag_holds(real, real_skin):
+    """What the recorder node writes of the touches its detector emits is what write_touch_bag writes of the same
+    touches: contact normals, geometric centres and pressures included (they were NaN in recorded bags)."""
+    touches = real.subset(np.arange(40))
+    records = []
+    for t in range(touches.n_touches):
+        contacts = [ContactRecord(int(touches.contact_part[c]), int(touches.contact_id[c]), touches.contact_cop[c],
+                                  touches.act_slot[touches.act_contact == c],
+                                  touches.act_pressure[touches.act_contact == c])
+                    for c in np.flatnonzero(touches.contact_touch == t)]
+        records.append(TouchRecord(float(touches.stamps[t]), touches.joints[t], contacts))
+    recorded = list(detected_touch_messages(records, real_skin, touches.part_names, touches.joint_names))
+    written = list(touch_messages(touches, real_skin))
+    assert len(recorded) == len(written) == 40
+    for (stamp, names, joints, parts), (stamp_w, names_w, joints_w, parts_w) in zip(recorded, written):
+        assert (stamp, tuple(names)) == (stamp_w, tuple(names_w))
+        np.testing.assert_array_equal(joints, joints_w)
+        assert [part.name for part, _, _ in parts] == [part.name for part, _, _ in parts_w]
+        for (_, taxels, contacts), (_, taxels_w, contacts_w) in zip(parts, parts_w):
+            assert taxels.dtype == taxels_w.dtype and taxels.tobytes() == taxels_w.tobytes()    # NaN pressures too
+            assert contacts.dtype == contacts_w.dtype and contacts.tobytes() == contacts_w.tobytes()
+            assert np.isfinite(contacts["nx"]).all() and np.isfinite(contacts["gx"]).all()
+    assert list(detected_touch_messages([], real_skin, touches.part_names, touches.joint_names)) == []
+
+
+
 @pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
 def test_real_touches_round_trip_with_identical_pairs(real, real_skin, tmp_path, storage):
     touches = real if storage == "sqlite3" else real.subset(np.arange(200))

@@ -624,3 +624,17 @@ def test_touches_at_a_few_poses_do_not_pass_for_many(skin, left_hand_sim):
     with pytest.raises(TooFewTouches, match=r"^parts l_hand and torso together: 30 training touches at 3 poses \(a"
                                             r" press held still is one pose\); a mount needs at least 10 poses"):
         calibrate(copies, skin, CalibrationOptions(test_fraction=0.0))
+
+
+def test_held_entries_read_back_as_the_components_the_stages_held():
+    """The report's held list is written once (compress_held) and read once (held_frames) by the report's coverage,
+    the guidance and the bench: a partly held frame keeps its components, a frame listed twice their union."""
+    from nao_skin.calibration.layout import COMPONENTS
+    from nao_skin.calibration.stages import compress_held, held_frames
+
+    held = compress_held(["l_hand/triangle_3/ry", "l_hand/triangle_3/rx"]
+                         + [f"torso/patch_1/{c}" for c in COMPONENTS])
+    assert held == ["l_hand/triangle_3 (rx,ry)", "torso/patch_1"]
+    assert held_frames(held + ["l_hand/triangle_3 (tz)"]) == {("l_hand", "triangle_3"): ("tz", "rx", "ry"),
+                                                              ("torso", "patch_1"): COMPONENTS}
+    assert held_frames(None) == {}

@@ -199,12 +199,16 @@ def package_dir() -> Path:
     source_tree = Path(__file__).resolve().parents[2]
     if (source_tree / "config" / "nao_skin.yaml").exists():
         return source_tree
-    try:
-        from ament_index_python.packages import get_package_share_directory
+    return installed_share_dir("nao_skin") or source_tree
 
-        return Path(get_package_share_directory("nao_skin"))
-    except Exception:  # noqa: BLE001 - any failure means "not installed the ROS way"
-        return source_tree
+
+def installed_share_dir(package: str) -> Path | None:
+    """``share/<package>`` of the first prefix on $AMENT_PREFIX_PATH whose ament index lists the package (what
+    ament_index_python's get_package_share_directory finds, read here without a ROS import), or None."""
+    for prefix in filter(None, os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep)):
+        if (Path(prefix) / "share" / "ament_index" / "resource_index" / "packages" / package).is_file():
+            return Path(prefix) / "share" / package
+    return None
 
 
 def config_dir() -> Path:

@@ -74,10 +74,7 @@ class CaptureSetup:
     options: dict = field(default_factory=dict)  # calibration option overrides
 
     def calibration_options(self) -> CalibrationOptions:
-        o = CalibrationOptions()
-        for k, v in self.options.items():
-            o.set(k, v)
-        return o
+        return CalibrationOptions.from_mapping(self.options)
 
 
 QUICK_SETUP = CaptureSetup(start=60, batch=20, cap=400, median_mm=1.0, p95_mm=2.0)

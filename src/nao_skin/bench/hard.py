@@ -21,6 +21,7 @@ from nao_skin.bench.rows import finite_calibration, fmt, nanmean, stage_totals
 from nao_skin.calibration.engine import CalibrationOptions, calibrate, truth_error
 from nao_skin.calibration.layout import COMPONENTS
 from nao_skin.calibration.pairing import robot_joints
+from nao_skin.calibration.stages import held_frames
 from nao_skin.errors import one_line
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.touches import TouchSet
@@ -68,20 +69,9 @@ def _frame_slots(part, frame: str) -> np.ndarray:
     return present[(tri_rows if kind == "triangle" else part.triangle_patch[tri_rows]) == row]
 
 
-def held_frames(held: list) -> list:
-    """``(part, frame)`` of the report's held entries ('l_hand/triangle_3' or 'torso/patch_1 (rx,ry)')."""
-    return [(part, frame) for part, frame, _ in held_components(held)]
-
-
 def held_components(held: list) -> list:
     """``(part, frame, component columns)`` of the report's held entries (all six when none are named)."""
-    out: dict = {}
-    for entry in held:
-        name, _, comps = entry.partition(" ")
-        part, _, frame = name.partition("/")
-        cols = [COMPONENTS.index(c) for c in comps.strip("()").split(",")] if comps else list(range(6))
-        out.setdefault((part, frame), set()).update(cols)
-    return [(part, frame, sorted(cols)) for (part, frame), cols in out.items()]
+    return [(part, frame, [COMPONENTS.index(c) for c in comps]) for (part, frame), comps in held_frames(held).items()]
 
 
 def untouched_triangles(touches: TouchSet, skin: SkinModel, parts) -> list:

@@ -177,7 +177,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
     schedule = _schedule(steps, options, warm)
     refined = _refines(schedule)
     report = CalibrationReport(
-        options=_options_dict(options),
+        options=options.as_mapping(),
         plan=[(prefix if prefix in (JOINT, CLOSING) else "") + step.name
               for round_no, step, prefix in schedule if round_no == 0 or not step.references],
         parts=sorted({p for s in steps for p in s.targets}, key=part_rank),
@@ -562,9 +562,3 @@ def _check_enough(train: TouchSet, steps: list, options: CalibrationOptions) -> 
                 raise TooFewTouches(f"part '{target}' with {'/'.join(others)}: {too_few(n, poses, need)} (about"
                                     f" {int(np.ceil(need / (1 - options.test_fraction)))} before the"
                                     f" {int(options.test_fraction * 100)} % test split)")
-
-def _options_dict(options: CalibrationOptions) -> dict:
-    out = asdict(options)
-    out["patch_bounds"] = list(options.patch_bounds)
-    out["triangle_bounds"] = list(options.triangle_bounds)
-    return out

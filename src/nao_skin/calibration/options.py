@@ -6,7 +6,8 @@ and the checks before any data is read all come from this one table
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
@@ -196,6 +197,20 @@ class CalibrationOptions:
         """The options of a stage that starts with the frames nearly in place (the closing stage, a warm
         stage, a linearisation at the truth): its rows are ``closing_pairs``."""
         return replace(self, pairs=self.closing_pairs)
+
+    @classmethod
+    def from_mapping(cls, values: Mapping, where: str = "calibration option {name}={value!r}") -> "CalibrationOptions":
+        """Options from ``{name: value}`` (a node's parameters, a bench's overrides, :meth:`as_mapping` read back),
+        each checked by its rule (``where``: how a refusal names the value), then together."""
+        options = cls()
+        for name, value in values.items():
+            options.set(name, value, where=where.format(name=name, value=value))
+        options.validate()
+        return options
+
+    def as_mapping(self) -> dict:
+        """``{name: value}`` as a report writes them (lists for tuples): :meth:`from_mapping` reads it back."""
+        return {name: list(value) if isinstance(value, tuple) else value for name, value in asdict(self).items()}
 
     def set(self, name: str, value, where: str | None = None) -> None:
         """Set option ``name`` to ``value`` (an int where a float is asked is fine), checked by its rule."""

@@ -14,11 +14,13 @@ from pathlib import Path
 import numpy as np
 
 from nao_skin.calibration.engine import CalibrationResult
+from nao_skin.calibration.layout import COMPONENTS
 from nao_skin.calibration.options import KIND_ROWS, CalibrationOptions
 from nao_skin.calibration.pairing import KIND_NAMES, pair_for_metrics
 from nao_skin.calibration.plan import touching_pairs
 from nao_skin.calibration.rows import concat_pairings, pair_parts
 from nao_skin.calibration.splits import kinematics_kept_text, spread_table
+from nao_skin.calibration.stages import held_frames
 from nao_skin.errors import OutputError, os_reason
 from nao_skin.formats.outdir import CALIBRATION, replace_dir, staging_dir, write_marker
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
@@ -271,29 +273,24 @@ def paired_activation_counts(touches: TouchSet, skin: SkinModel, calib: SkinCali
 def report_coverage(result: CalibrationResult, skin: SkinModel) -> dict:
     """Per calibrated part: paired activations per triangle on the training touches, under the final
     calibration, against ``min_triangle_activations``; held triangles and patches from the report."""
-    options = CalibrationOptions()
-    for k, v in result.report.options.items():
-        if hasattr(options, k):
-            setattr(options, k, tuple(v) if isinstance(v, list) else v)
+    options = CalibrationOptions.from_mapping(result.report.options)
     pairs = [tuple(p) for p in result.report.pairs]
     counts = paired_activation_counts(result.train, skin, result.calibration, options, pairs)
-    held: dict = {}
-    for entry in result.report.held:
-        name, _, comps = str(entry).partition(" ")
-        part, _, frame = name.partition("/")
-        held.setdefault(part, []).append((frame, comps.strip("()")))
+    held = held_frames(result.report.held)
     out = {}
     for name in result.report.parts:
         sp = skin.parts[name]
         c = counts[name]
-        tri_held = [(int(f.split("_")[1]), comps) for f, comps in held.get(name, []) if f.startswith("triangle_")]
+        frames = {frame: comps for (part, frame), comps in held.items() if part == name}
+        tri_held = [(int(f.split("_")[1]), comps) for f, comps in frames.items() if f.startswith("triangle_")]
         out[name] = {"triangle_ids": [int(t) for t in sp.triangle_ids], "activations": [int(v) for v in c],
                      "needed": int(options.min_triangle_activations),
                      "enough": int(np.sum(c >= options.min_triangle_activations)), "total": len(c),
-                     "held_triangles": sorted(t for t, comps in tri_held if not comps),
-                     "partly_held_triangles": sorted(f"{t} ({comps})" for t, comps in tri_held if comps),
-                     "held_patches": sorted(f.split("_")[1] + (f" ({comps})" if comps else "")
-                                            for f, comps in held.get(name, []) if f.startswith("patch_"))}
+                     "held_triangles": sorted(t for t, comps in tri_held if comps == COMPONENTS),
+                     "partly_held_triangles": sorted(f"{t} ({','.join(comps)})" for t, comps in tri_held
+                                                     if comps != COMPONENTS),
+                     "held_patches": sorted(f.split("_")[1] + ("" if comps == COMPONENTS else f" ({','.join(comps)})")
+                                            for f, comps in frames.items() if f.startswith("patch_"))}
     return out
 
 

@@ -429,3 +429,15 @@ def compress_held(names: list) -> list:
         frame, comp = n.rsplit("/", 1)
         by_frame.setdefault(frame, []).append(comp)
     return [f if len(c) == 6 else f"{f} ({','.join(sorted(c, key=COMPONENTS.index))})" for f, c in by_frame.items()]
+
+
+def held_frames(held) -> dict:
+    """``{(part, frame): held component names}`` of entries as :func:`compress_held` writes them
+    ('l_hand/triangle_3 (rx,ry)'; all of :data:`COMPONENTS` when an entry names none), in their order; a frame
+    listed twice holds the union."""
+    out: dict = {}
+    for entry in held or ():
+        name, _, comps = str(entry).partition(" ")
+        part, _, frame = name.partition("/")
+        out.setdefault((part, frame), set()).update(comps.strip("()").split(",") if comps else COMPONENTS)
+    return {key: tuple(c for c in COMPONENTS if c in comps) for key, comps in out.items()}

@@ -37,7 +37,7 @@ from nao_skin.model.skin import SkinModel
 from nao_skin.paths import free_sibling, identity, safe_load
 from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST, cluster_contacts, contact_geometry
 from nao_skin.touch.datasets import LoadReport
-from nao_skin.touch.events import (LIVE_CONFIG, TOUCH_BAG_CONFIG, EventConfig, EventDetector, TouchRecord,
+from nao_skin.touch.events import (LIVE_CONFIG, TOUCH_BAG_CONFIG, EventConfig, EventDetector,
                                    touchset_from_records)
 from nao_skin.touch.touches import TouchSet
 
@@ -294,26 +294,12 @@ class BagWriter:
             self._write_cloud(contacts_topic(part.name), stamp_ns, part.parent_frame, contacts)
 
 
-def record_parts(record: TouchRecord, skin: SkinModel, part_names) -> list:
-    """What :meth:`BagWriter.write_touch` stores of a detected touch: ``(SkinPart, taxel points, contact points)``.
-
-    One entry per touching part, in the order the record's contacts name them
-    (``part_names``: the detector's). Taxel positions are the nominal layout's;
-    a contacts message lists the skinManager contacts (id >= 0) with their COP.
-    """
-    by_part: dict = {}
-    for c in record.contacts:
-        by_part.setdefault(c.part, []).append(c)
-    out = []
-    for p, contacts in by_part.items():
-        part = skin.parts[part_names[p]]
-        slots = np.concatenate([c.slots for c in contacts]).astype(int)
-        taxels = taxels_array(slots, part.positions[slots], np.concatenate([c.pressures for c in contacts]),
-                              np.concatenate([np.full(len(c.slots), c.contact_id) for c in contacts]))
-        known = [c for c in contacts if c.contact_id >= 0]
-        out.append((part, taxels, contacts_array(np.array([c.contact_id for c in known], int),
-                                                 np.array([c.cop for c in known], float).reshape(-1, 3))))
-    return out
+def detected_touch_messages(records, skin: SkinModel, part_names, joint_names, where: str | Path = "touches"):
+    """:func:`touch_messages` of touches a detector emitted (``part_names``, ``joint_names``: the detector's): a
+    recorder's bag holds the same messages as one :func:`write_touch_bag` writes."""
+    if not records:
+        return iter(())
+    return touch_messages(touchset_from_records(records, part_names, joint_names), skin, where)
 
 
 # a message header's stamp (builtin_interfaces/Time) holds int32 seconds: the last is in January 2038

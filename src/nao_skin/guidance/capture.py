@@ -57,8 +57,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nao_skin.calibration.layout import COMPONENTS
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.report import paired_activation_counts
+from nao_skin.calibration.stages import held_frames
 from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.plain import jsonable
@@ -184,16 +186,6 @@ def _pair_touches(touches: TouchSet, pairs) -> dict:
     return out
 
 
-def parse_held(held) -> dict:
-    """``{(part, frame): components or None (all six)}`` of report entries like 'l_hand/triangle_3 (rx,ry)'."""
-    out: dict = {}
-    for entry in held or ():
-        name, _, comps = str(entry).partition(" ")
-        part, _, frame = name.partition("/")
-        out[(part, frame)] = tuple(comps.strip("()").split(",")) if comps else None
-    return out
-
-
 # ---------------------------------------------------------------------------- ranking
 def _state(state):
     """``(calibration, held, calibrated parts or None, fabric m or None)`` of a result, a calibration or None."""
@@ -223,7 +215,7 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
     rng = np.random.default_rng(seed)
     calib, rep_held, rep_parts, fabric = _state(state)
     calib = calib or skin.zero_calibration()
-    held_map = parse_held(held if held is not None else rep_held)
+    held_map = held_frames(held if held is not None else rep_held)
     pairs = [(h, b) for h, b in (skin.self_touch.pairs() if pairs is None else pairs)
              if h in skin.parts and b in skin.parts]
     parts = sorted({p for pair in pairs for p in pair}, key=part_rank)
@@ -243,18 +235,20 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
         sp = skin.parts[name]
         c = counts[name]
         calibrated = name in rep_parts
-        held_patch_ids = [int(pid) for pid in sp.patch_ids if held_map.get((name, f"patch_{int(pid)}"), 0) is None]
+        held_patch_ids = [int(pid) for pid in sp.patch_ids
+                          if held_map.get((name, f"patch_{int(pid)}")) == COMPONENTS]
         held_tris = []
         for row, tid in enumerate(sp.triangle_ids):
             comps = held_map.get((name, f"triangle_{int(tid)}"), ())
             pid = int(sp.patch_ids[sp.triangle_patch[row]])
             patch_held = pid in held_patch_ids
-            whole = comps is None or c[row] < needed
+            all_held = comps == COMPONENTS
+            whole = all_held or c[row] < needed
             if whole or patch_held:
                 held_tris.append(int(tid))
             if not calibrated:
                 tier, goal, reason = TIER_NEW, 2 * needed, "not calibrated"
-            elif c[row] < needed or comps is None:
+            elif c[row] < needed or all_held:
                 tier, goal, reason = TIER_HELD, needed, ("held" if c[row] < needed else "held by the solve")
             elif patch_held:
                 tier, goal, reason = TIER_HELD, 2 * needed, f"patch {pid} held"

@@ -34,7 +34,7 @@ from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 
 from nao_skin.errors import BagMoved, DataError, DiskFull, OutputError
-from nao_skin.formats.bag import BagWriter, default_bag_name, record_parts
+from nao_skin.formats.bag import BagWriter, default_bag_name, detected_touch_messages
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_topic, read_contacts, read_taxels, taxels_topic
 from nao_skin.live.clocks import SKEW_LIMIT_S, ArrivalLags
 from nao_skin.live.heatmap import ActivationCounts
@@ -154,12 +154,13 @@ class PairingRecorder(Node):
 
     # ------------------------------------------------------------------ output
     def _write(self, records) -> None:
-        for rec in records:
+        touches = detected_touch_messages(records, self.skin, self.detector.part_names, self.joint_names,
+                                          self.bag_path)
+        for stamp_ns, joint_names, joints, parts in touches:
             if self._closed:
                 return
-            parts = record_parts(rec, self.skin, self.detector.part_names)
             try:
-                self.bag.write_touch(int(round(rec.stamp * 1e9)), self.joint_names, rec.joints, parts)
+                self.bag.write_touch(stamp_ns, joint_names, joints, parts)
             except OutputError as exc:
                 self._cannot_write(exc)
             for part, taxels, _ in parts:

@@ -176,11 +176,8 @@ def skin_from_params(params: dict) -> SkinModel:
 
 def options_from_params(params: dict) -> CalibrationOptions:
     """The engine options of the calibrate node's parameters, each checked by its rule (ints for floats are fine)."""
-    options = CalibrationOptions()
-    for name in NODE_OPTIONS:
-        options.set(name, params[name], where=f"parameter {name}:={params[name]!r}")
-    options.validate()
-    return options
+    return CalibrationOptions.from_mapping({name: params[name] for name in NODE_OPTIONS},
+                                           where="parameter {name}:={value!r}")
 
 
 def sim_overrides(touches_per_pair: int, pairs, parts=None) -> dict:

@@ -26,7 +26,8 @@ from pathlib import Path
 from nao_skin.errors import ConfigError, NaoSkinError
 from nao_skin.model.skin import parse_taxel_files
 from nao_skin.model.urdf import expand_xacro
-from nao_skin.paths import config_dir, parse_yaml, read_ros_params_file, read_yaml, yaml_value
+from nao_skin.paths import (config_dir, default_skin_config, parse_yaml, read_ros_params_file, read_yaml,
+                            yaml_value)
 from nao_skin.rules import did_you_mean
 from nao_skin.session.params import CHECKS, NODE_PARAMS, PER_PART_NODES, per_part_params, skin_from_params
 
@@ -242,7 +243,7 @@ def _declared(spec: NodeSpec) -> dict:
     params = {name: (default, rule[0] if rule else None) for name, (default, _, *rule)
               in NODE_PARAMS[spec.executable].items()}
     if spec.executable in PER_PART_NODES:
-        skin_config = spec.overrides.get("skin_config") or str(config_dir() / "nao_skin.yaml")
+        skin_config = spec.overrides.get("skin_config") or str(default_skin_config())
         doc = read_yaml(skin_config, "skin config")
         parts = doc.get("parts") if isinstance(doc, dict) else None
         if not isinstance(parts, dict):

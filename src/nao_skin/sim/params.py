@@ -264,11 +264,9 @@ def validate(p: SimParams, where: str = "simulation parameters") -> None:
         raise ConfigError(f"{where}: 'pairs' must be a non-empty list of [hand, part] pairs")
     seen = set()
     for pair in p.pairs:
-        if isinstance(pair, str):
-            pair = pair.replace("-", " ").split()
-        if not isinstance(pair, (list, tuple)) or len(pair) != 2 or not all(isinstance(x, str) for x in pair):
+        if _as_pair(pair) is None:
             raise ConfigError(f"{where}: pair {pair!r} must be two skin part names, e.g. [l_hand, torso]")
-        hand, target = pair     # which parts can touch is the skin config's (simulate checks)
+        hand, target = _as_pair(pair)     # which parts can touch is the skin config's (simulate checks)
         if (hand, target) in seen:
             raise ConfigError(f"{where}: pair {hand}-{target} is listed twice")
         seen.add((hand, target))
@@ -291,10 +289,15 @@ def check_pairs(pairs, skin: SkinModel, where: str | None = None) -> None:
 
 
 def pair_list(p: SimParams) -> list:
-    """Pairs as ``(hand, target)`` tuples; accepts ``"l_hand-torso"`` strings too."""
-    out = []
-    for pair in p.pairs:
-        if isinstance(pair, str):
-            pair = pair.replace("-", " ").split()
-        out.append((str(pair[0]), str(pair[1])))
-    return out
+    """Pairs as ``(hand, target)`` tuples (checked parameters: each a pair)."""
+    return [_as_pair(pair) for pair in p.pairs]
+
+
+def _as_pair(pair) -> tuple | None:
+    """``(hand, target)`` of a ``pairs`` entry, ``[l_hand, torso]`` or ``"l_hand-torso"``; None when it is
+    neither."""
+    if isinstance(pair, str):
+        pair = pair.replace("-", " ").split()
+    if isinstance(pair, (list, tuple)) and len(pair) == 2 and all(isinstance(x, str) for x in pair):
+        return tuple(pair)
+    return None
