@@ -6,6 +6,8 @@ publishing the calibrated skin frames on /tf_static. Do not run it next to a
 record session: that session's calibrate node already publishes the skin
 frames (calibrate there with ``ros2 topic pub --once /nao_skin/calibrate ...``).
 """
+import shlex
+
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
@@ -16,7 +18,7 @@ from launch.substitutions import LaunchConfiguration
 def _node(context):
     from nao_skin.paths import config_dir
 
-    inputs = LaunchConfiguration("inputs").perform(context).split()
+    inputs = shlex.split(LaunchConfiguration("inputs").perform(context))
     overrides = {"inputs": inputs or [""], "calibrate_on_start": True,
                  "out_dir": LaunchConfiguration("out_dir").perform(context)}
     calibration = LaunchConfiguration("calibration").perform(context)
@@ -28,7 +30,8 @@ def _node(context):
 
 def generate_launch_description():
     return LaunchDescription([
-        DeclareLaunchArgument("inputs", description="bags (or legacy .txt), separated by spaces"),
+        DeclareLaunchArgument("inputs", description="bags (or legacy .txt), separated by spaces (quote a path"
+                                                    " with a space: inputs:=\"'my bag' b.bag\")"),
         DeclareLaunchArgument("out_dir", default_value="nao_skin_calibration", description="output directory"),
         DeclareLaunchArgument("calibration", default_value="", description="prior calibration (default: nominal)"),
         OpaqueFunction(function=_node),

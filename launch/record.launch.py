@@ -19,6 +19,8 @@ calibrates on this session's bag). robot_state_publisher gets
 ``skin_frames:=false``, so the two never disagree about a frame.
 Parameters: config/record.yaml and config/bridges.yaml.
 """
+import shlex
+
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
@@ -34,7 +36,8 @@ ARGUMENTS = {
     "bag": ("", "touch bag directory to write (default: ./nao_skin_touches_<date>_<time>)"),
     "calibration": ("", "calibration to start from (default: the nominal skin)"),
     "rviz": ("false", "start rviz2 with config/nao_skin.rviz"),
-    "taxels": ("", "the robot's own taxel files, PART=FILE separated by spaces (default: config/nao_skin.yaml's)"),
+    "taxels": ("", "the robot's own taxel files, PART=FILE separated by spaces, shell quoting for a path with a"
+                   " space (default: config/nao_skin.yaml's)"),
     "guided": ("false", "robot:=sim: the simulated robot's next touches follow /nao_skin/guidance"),
 }
 
@@ -45,7 +48,7 @@ def _nodes(context):
     arg = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
     specs = record_session(arg["robot"], nao_ip=arg["nao_ip"], naoqi=arg["naoqi"].lower() == "true",
                            events_port=arg["events_port"], bag_path=arg["bag"], calibration=arg["calibration"],
-                           rviz=arg["rviz"].lower() == "true", taxels=arg["taxels"].split(),
+                           rviz=arg["rviz"].lower() == "true", taxels=shlex.split(arg["taxels"]),
                            guided=arg["guided"].lower() == "true")
     check_needs(specs)    # e.g. robot:=nao without YARP's Python bindings: one line before any node starts
     actions = []
