@@ -20,7 +20,6 @@ when the command ends (also on error or Ctrl-C) unless ``--keep-temp``.
 """
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import signal
@@ -113,93 +112,59 @@ def run(args) -> int:
             shutil.rmtree(work, ignore_errors=True)
 
 
+def session_nodes(args, work: Path) -> list:
+    """The record session the benchmark runs (:func:`~nao_skin.session.record.record_session`, robot:=sim): the
+    recorder writes ``work/touches``, the calibrate node updates live on it, or on ``--update-input``."""
+    from nao_skin.session.record import record_session
+
+    overrides = {"sim_robot": sim_robot_overrides(args),
+                 "calibrate": {"live": True, "live_every_touches": args.update_every, "live_period": 1.0}}
+    specs = record_session("sim", bag_path=str(work / "touches"), overrides=overrides,
+                           with_robot_state_publisher=False)
+    if args.no_calibrate:
+        return [spec for spec in specs if spec.name != "calibrate"]
+    if args.update_input:      # every update over another recording than the session's (checked above)
+        next(spec for spec in specs if spec.name == "calibrate").overrides["recording"] = str(
+            Path(args.update_input).resolve())
+    return specs
+
+
 def _measure(args, work: Path) -> int:
     import numpy as np
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from sensor_msgs.msg import JointState, PointCloud2
-    from std_msgs.msg import String
-    from visualization_msgs.msg import MarkerArray
 
-    from nao_skin.commands.record import die_with_parent
     from nao_skin.errors import STOP_SIGNALS
-    from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, taxels_topic
-    from nao_skin.nodes.topics import HEATMAP_TOPIC, LATCHED, PROGRESS_TOPIC, STATUS_TOPIC
-    from nao_skin.session.record import PARENT_ENV
     from nao_skin.model.skin import load_skin
-    from nao_skin.paths import config_dir
+    from nao_skin.nodes.bench_probe import LiveProbe
+    from nao_skin.session.processes import die_with_parent, stop_all
+    from nao_skin.session.record import PARENT_ENV, command_line
 
     domain = args.domain or 10 + os.getpid() % 90
+    specs = session_nodes(args, work)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               PYTHONUNBUFFERED="1")
-    params = str(config_dir() / "record.yaml")
-    nodes = {
-        "sim_robot": sim_robot_overrides(args),
-        "pairing_recorder": {"bag_path": str(work / "touches")},
-        "skin_heatmap": {},
-        "calibrate": {"live": True, "recording": str(Path(args.update_input or work / "touches").resolve()),
-                      "live_every_touches": args.update_every, "live_period": 1.0,
-                      "out_dir": str(work / "touches_calibration")},
-    }
-    if args.no_calibrate:
-        del nodes["calibrate"]
-    procs = []
-    ctx = Context()
-    # Ctrl-C only sets a flag the loops below check: rclpy's own handler would shut the context down and let the
-    # window run on, and a KeyboardInterrupt raised inside rclpy's C++ calls comes out as a RuntimeError.
-    # The probe's participant is found on this host only, as the nodes' are (rcl reads it at init)
-    discovery = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE")
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    try:
-        rclpy.init(context=ctx, domain_id=domain, signal_handler_options=rclpy.SignalHandlerOptions.NO)
-    finally:
-        if discovery is None:
-            os.environ.pop("ROS_AUTOMATIC_DISCOVERY_RANGE")
-        else:
-            os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = discovery
-    node = Node("bench_live", context=ctx)
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(node)
-    counts = {"joints": 0, "skin": 0, "heat": 0}
-    progress, heat_stamps, heat_taxels = [], [], []
-    node.create_subscription(JointState, JOINT_STATES_TOPIC,
-                             lambda m: counts.__setitem__("joints", counts["joints"] + 1), 200)
-    node.create_subscription(PointCloud2, taxels_topic("torso"),
-                             lambda m: counts.__setitem__("skin", counts["skin"] + 1), 200)
-    node.create_subscription(String, PROGRESS_TOPIC, lambda m: progress.append(json.loads(m.data)), 10)
-    updates = []        # (when, status) of each live update
-    node.create_subscription(String, STATUS_TOPIC, lambda m: updates.append((time.monotonic(), json.loads(m.data))),
-                             LATCHED)
-
-    def on_heat(m):
-        heat_stamps.append(time.monotonic())
-        heat_taxels.append(sum(len(x.points) for x in m.markers if x.ns in skin_parts))
-
+               PYTHONUNBUFFERED="1", **{PARENT_ENV: str(os.getpid())})
     skin_parts = set(load_skin().parts)
-    node.create_subscription(MarkerArray, HEATMAP_TOPIC, on_heat, 10)
+    probe = LiveProbe(domain, skin_parts, "torso")
     interrupted = threading.Event()
     # SIGTERM (a timeout, a CI job cancelled) and SIGHUP stop the run as Ctrl-C does: the nodes are stopped and
     # the temporary directory removed; a kill -9 of this process reaches them as in record (parent death)
     previous_handlers = {s: signal.signal(s, lambda signum, frame: interrupted.set()) for s in STOP_SIGNALS}
-    env[PARENT_ENV] = str(os.getpid())
     preexec = die_with_parent(os.getpid())
+    procs = []
+    progress = probe.progress
     try:
-        for name, over in nodes.items():
-            argv = [sys.executable, "-m", f"nao_skin.nodes.{name}", "--ros-args", "--params-file", params]
-            for k, v in over.items():
-                argv += ["-p", f"{k}:={json.dumps(v) if not isinstance(v, str) else repr(v)}"]
-            procs.append(subprocess.Popen(argv, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
-                                          stderr=open(work / f"{name}.err", "wb"), preexec_fn=preexec))
+        for spec in specs:
+            procs.append((spec.name, subprocess.Popen(command_line(spec, work), env=env, start_new_session=True,
+                                                      stdout=subprocess.DEVNULL,
+                                                      stderr=open(work / f"{spec.name}.err", "wb"),
+                                                      preexec_fn=preexec)))
         # wait until the play has started (the recorder reports touches), then measure a clean window
         deadline = time.monotonic() + 60
         while (time.monotonic() < deadline and not (progress and progress[-1]["touches"] > 0)
                and not interrupted.is_set()):
-            executor.spin_once(timeout_sec=0.05)
+            probe.spin_once()
         if interrupted.is_set():
             raise KeyboardInterrupt
-        ended = [(name, p.returncode) for name, p in zip(nodes, procs) if p.poll() is not None]
+        ended = [(name, p.returncode) for name, p in procs if p.poll() is not None]
         if ended or not progress or not progress[-1]["touches"]:
             # a node that stopped (a parameter it refused) leaves a window of zeros: no figure to print
             where = f"see {work}" if args.keep_temp else "run again with --keep-temp to keep the nodes' logs"
@@ -208,34 +173,25 @@ def _measure(args, work: Path) -> int:
                    "the recorder never reported progress" if not progress else "no touch was recorded in 60 s")
             print(f"bench-live: {why}; {where}", file=sys.stderr)
             return 2
-        start_counts = dict(counts)
-        start_heat = len(heat_stamps)
+        start_counts = dict(probe.counts)
+        start_heat = len(probe.heat)
         start_progress_n = progress[-1]["skin_message_ms"]["n"]
         t0 = time.monotonic()
         while time.monotonic() - t0 < args.seconds and not interrupted.is_set():
-            executor.spin_once(timeout_sec=0.05)
+            probe.spin_once()
         if interrupted.is_set():
             raise KeyboardInterrupt
         window = time.monotonic() - t0
     finally:
-        for p in procs:
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGINT)
-        for p in procs:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
-        executor.shutdown()
-        node.destroy_node()
-        ctx.try_shutdown()
+        stop_all(procs, lambda line: print(f"bench-live: {line}", file=sys.stderr))
+        probe.close()
         for s, handler in previous_handlers.items():
             signal.signal(s, handler)
     last = progress[-1]
     ms = last["skin_message_ms"]
-    joints_hz = (counts["joints"] - start_counts["joints"]) / window
-    skin_hz = (counts["skin"] - start_counts["skin"]) / window
-    hs = np.array(heat_stamps[start_heat:])
+    joints_hz = (probe.counts["joints"] - start_counts["joints"]) / window
+    skin_hz = (probe.counts["skin"] - start_counts["skin"]) / window
+    hs = np.array([when for when, _ in probe.heat[start_heat:]])
     heat_hz = (len(hs) - 1) / (hs[-1] - hs[0]) if len(hs) > 1 else 0.0
     print(f"load: /joint_states {joints_hz:.1f} Hz, skin {skin_hz:.1f} Hz per part x {len(skin_parts)} parts"
           f" (taxels + contacts: {2 * len(skin_parts) * skin_hz:.0f} skin messages/s), window {window:.1f} s")
@@ -243,6 +199,7 @@ def _measure(args, work: Path) -> int:
           f" time per skin message p50 {ms['p50']:.3f} ms, p99 {ms['p99']:.3f} ms, max {ms['max']:.3f} ms"
           f" (target p99 <= 5 ms); {last['touches']} touches recorded")
     if not args.no_calibrate:
+        updates = probe.updates
         live = [u for when, u in updates if t0 <= when <= t0 + window and u.get("state") == "updated"]
         secs = np.array([u["seconds"] for u in live])
         busy = secs.sum() / window if len(secs) else 0.0
@@ -251,6 +208,6 @@ def _measure(args, work: Path) -> int:
                  f" {max(u['touches'] for u in live)} touches; the calibrate node was busy {100 * busy:.0f} % of the"
                  f" window" if len(live) else " none finished")
               + "; " + ", ".join(f"{k}: {v}" for k, v in Counter(u.get("state") for _, u in updates).items()))
-    print(f"heat-map: {heat_hz:.2f} Hz with {heat_taxels[-1] if heat_taxels else 0} taxels per message"
+    print(f"heat-map: {heat_hz:.2f} Hz with {probe.heat[-1][1] if probe.heat else 0} taxels per message"
           f" (target 10 Hz)")
     return 0

@@ -27,7 +27,6 @@ from pathlib import Path
 
 NAME = "record"
 HELP = "record self-touch: start the bridges or the simulated robot, the recorder, heat-map and calibrate node"
-PR_SET_PDEATHSIG = 1           # linux/prctl.h
 
 
 def add_arguments(parser) -> None:
@@ -104,6 +103,7 @@ def run(args) -> int:
 
 
 def _session(specs, work: Path, args, stop: dict) -> int:
+    from nao_skin.session.processes import die_with_parent, stop_all
     from nao_skin.session.record import PARENT_ENV, command_line
 
     commands = []
@@ -142,7 +142,7 @@ def _session(specs, work: Path, args, stop: dict) -> int:
         if failed is not None:
             _say(f"record: {failed[0]} exited with code {failed[1]}; stopping the session")
     finally:
-        codes = _stop_all(procs)
+        codes = stop_all(procs, lambda line: _say(f"record: {line}"))
     bad = {n: c for n, c in codes.items() if c not in (0, None)}
     if bad:
         _say(f"record: exit codes {bad}")
@@ -156,59 +156,9 @@ def _session(specs, work: Path, args, stop: dict) -> int:
     return 0
 
 
-def die_with_parent(parent_pid: int):
-    """``preexec_fn`` for a child: the kernel sends it SIGTERM when this process ends (Linux), or None.
-
-    The parent-death signal fires when the thread that forked the child exits;
-    children are started from the main thread, which lives as long as record.
-    """
-    import ctypes
-
-    try:
-        prctl = ctypes.CDLL(None, use_errno=True).prctl
-    except (OSError, AttributeError):
-        return None                    # not Linux: the nodes' own parent watch stops them
-    prctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong]
-    prctl.restype = ctypes.c_int
-
-    def preexec() -> None:
-        prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
-        if os.getppid() != parent_pid:     # record died before the prctl: that signal will never come
-            os.kill(os.getpid(), signal.SIGTERM)
-
-    return preexec
-
-
 def _say(line: str) -> None:
     """One line on stderr; a closed terminal (SIGHUP) must not keep record from stopping its nodes."""
     try:
         print(line, file=sys.stderr, flush=True)
     except OSError:
         pass
-
-
-def _stop_all(procs, timeout: float = 20.0) -> dict:
-    """SIGTERM every child (the recorder closes its bag), wait, then SIGKILL what is left.
-
-    A node stops on SIGTERM as on SIGINT once it runs; one still starting up
-    (importing, no handler yet) ends by SIGTERM's default action, quietly and
-    before it held any data: that counts as stopped (code 0), unlike a
-    KeyboardInterrupt traceback in the middle of an import.
-    """
-    for _, p in procs:
-        if p.poll() is None:
-            try:
-                os.killpg(p.pid, signal.SIGTERM)
-            except ProcessLookupError:
-                pass
-    deadline = time.monotonic() + timeout
-    codes = {}
-    for name, p in procs:
-        try:
-            code = p.wait(timeout=max(0.1, deadline - time.monotonic()))
-            codes[name] = 0 if code == -signal.SIGTERM else code
-        except subprocess.TimeoutExpired:
-            _say(f"record: {name} did not stop after SIGTERM; killed")
-            os.killpg(p.pid, signal.SIGKILL)
-            codes[name] = p.wait()
-    return codes
