@@ -2,19 +2,18 @@
 import pytest
 from real_data import REAL_DIR
 
-from nao_skin.formats.legacy import read_legacy, skin_model_for
-from nao_skin.model.robot import RobotModel
-from nao_skin.model.skin import SkinModel
+from nao_skin.formats.legacy import read_legacy
+from nao_skin.model.skin import SkinModel, load_skin
 from nao_skin.paths import default_skin_config
-
-ROBOT_YAML = default_skin_config().parent / "nao_h25.yaml"
 
 
 @pytest.fixture(scope="session")
 def real_skin():
-    """The real recording's own layouts (read in place from shared/)."""
-    robot = RobotModel.from_yaml(ROBOT_YAML)
-    return skin_model_for({"l_hand": REAL_DIR / "l_hand.taxels.txt", "torso": REAL_DIR / "torso.taxels.txt"}, robot)
+    """The recording's two parts with its own layouts (read in place from shared/), as the commands build them
+    (``--taxels``), without the parts it never touched."""
+    skin = load_skin(taxel_files={"l_hand": REAL_DIR / "l_hand.taxels.txt", "torso": REAL_DIR / "torso.taxels.txt"})
+    return SkinModel(skin.robot, {name: skin.parts[name] for name in ("l_hand", "torso")}, skin.source,
+                     skin.self_touch)
 
 
 @pytest.fixture(scope="session")

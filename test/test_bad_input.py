@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from real_data import REAL_DIR as REAL  # noqa: E402
 from thesis_format import write_thesis_file  # noqa: E402
 
@@ -23,9 +24,9 @@ from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions, set_
 from nao_skin.cli import build_parser
 from nao_skin.cli import main as cli_main
 from nao_skin.errors import ConfigError, DataError
-from nao_skin.formats.legacy import read_legacy, skin_model_for
+from nao_skin.formats.legacy import read_legacy
 from nao_skin.model.skin import SkinCalibration, load_skin
-from nao_skin.paths import config_dir, package_dir
+from nao_skin.paths import config_dir, default_skin_config, package_dir
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 
@@ -837,14 +838,23 @@ def test_stats_of_a_pair_the_recording_lacks_is_one_line_and_its_json_is_json(ca
     assert out["pairs"]["l_hand+torso"] > 0
 
 
-def test_the_recording_model_of_the_tests_is_the_commands_model():
-    robot = load_skin().robot
-    alone = skin_model_for({"l_hand": REAL / "l_hand.taxels.txt"}, robot)
+def test_a_layout_replaces_a_configured_part_and_never_adds_one(tmp_path):
+    """``--taxels`` gives a part of the skin config its own layout; a part the config lacks is refused, not added
+    on a chain its name suggests (a Nao default another robot's config never asked for)."""
     merged = load_skin(taxel_files={"l_hand": REAL / "l_hand.taxels.txt"})
-    assert alone.parts["l_hand"].layout_sha256 == merged.parts["l_hand"].layout_sha256
     assert set(merged.parts) == {"r_hand", "l_hand", "torso", "head"}
-    with pytest.raises(DataError):
-        skin_model_for({"knee": REAL / "l_hand.taxels.txt"}, robot)
+    assert merged.parts["l_hand"].layout_sha256 != load_skin().parts["l_hand"].layout_sha256
+    config = yaml.safe_load(default_skin_config().read_text())
+    del config["parts"]["head"]
+    config["self_touch"]["touched"] = ["torso"]
+    for part in config["parts"].values():
+        part["taxel_file"] = str(default_skin_config().parent / part["taxel_file"])
+    config["robot"] = str(default_skin_config().parent / config["robot"])
+    headless = tmp_path / "headless.yaml"
+    headless.write_text(yaml.safe_dump(config))       # its parts in key order: l_hand, r_hand, torso
+    with pytest.raises(ConfigError, match=r"--taxels head=.*: unknown skin part 'head' \(configured in .*headless"
+                                          r"\.yaml: l_hand, r_hand, torso\)"):
+        load_skin(headless, taxel_files={"head": REAL / "l_hand.taxels.txt"})
 
 
 def test_nodes_build_the_skin_as_the_commands_do():

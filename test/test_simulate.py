@@ -340,7 +340,8 @@ def test_a_params_file_whose_pair_cannot_touch_is_named_and_nothing_written(tmp_
 def test_unknown_preset_and_missing_part_fail_in_one_line(skin, capsys, tmp_path):
     with pytest.raises(ConfigError, match="unknown preset 'nope'.*cad-rotation"):
         load_params("nope")
-    headless = SkinModel(skin.robot, {k: v for k, v in skin.parts.items() if k != "head"}, "headless.yaml")
+    headless = SkinModel(skin.robot, {k: v for k, v in skin.parts.items() if k != "head"}, "headless.yaml",
+                         skin.self_touch)
     with pytest.raises(ConfigError, match="r_hand-head: skin part 'head' is not in headless.yaml"):
         simulate(headless, {"n_touches": 2}, seed=0)
     assert cli_main(["simulate", "--preset", "nope", "--out", str(tmp_path)]) == 2

@@ -436,6 +436,9 @@ BAD_MOUNT = "xyz and rotvec must be 3 finite numbers each, metres (at most 10) a
     (lambda d: d.pop("parts"), "a skin config needs a 'parts' mapping with at least one part"),
     (lambda d: d.update(parts={}), "a skin config needs a 'parts' mapping with at least one part"),
     (lambda d: d.update(robot=["robot.yaml"]), "names no 'robot' config file"),
+    # it read as the Nao's hands on its torso and head, whatever parts the config has
+    (lambda d: d.pop("self_touch"), "names no 'self_touch' (which parts touch which, e.g. touching: [r_hand, l_hand],"
+                                    " touched: [torso, head])"),
     (lambda d: d["parts"]["head"].update(taxel_file=None), "part 'head': needs 'taxel_file' and 'chain' (null for the base)"),
     (lambda d: d["parts"]["head"].update(chain=["head"]), "part 'head': unknown chain ['head'] (robot has head, l_arm, r_arm)"),
     (lambda d: d["parts"]["head"].update(slots=10 ** 10), "part 'head': slots 10000000000: " + BAD_SLOTS),

@@ -20,24 +20,12 @@ from typing import Mapping
 import numpy as np
 
 from nao_skin.errors import DataError
-from nao_skin.model.robot import MAX_JOINT_LIMIT, RobotModel
-from nao_skin.model.skin import DEFAULT_CHAINS, INTEGER_TEXT, SkinModel, part_from_layout
+from nao_skin.model.robot import MAX_JOINT_LIMIT
+from nao_skin.model.skin import INTEGER_TEXT, SkinModel
 from nao_skin.model.taxel_file import MAX_COORDINATE
 from nao_skin.paths import read_text
 from nao_skin.touch.datasets import LoadReport
 from nao_skin.touch.touches import TouchSet
-
-
-def skin_model_for(taxel_files: Mapping[str, str | Path], robot: RobotModel,
-                   chains: Mapping[str, str | None] | None = None) -> SkinModel:
-    """A skin model of just these parts, from a recording's own taxel files."""
-    chains = dict(DEFAULT_CHAINS, **(chains or {}))
-    parts = {}
-    for name, path in taxel_files.items():
-        if name not in chains:
-            raise DataError(f"{path}: skin part '{name}' has no known chain (give one for it)")
-        parts[name] = part_from_layout(name, chains[name], robot, path)
-    return SkinModel(robot, parts, source=", ".join(str(p) for p in taxel_files.values()))
 
 
 class _SkipTouch(DataError):

@@ -37,8 +37,7 @@ from nao_skin.model.taxel_file import DEFAULT_SLOTS, SLOTS_PER_TRIANGLE, TaxelFi
 from nao_skin.paths import DANGLING_LINK, read_yaml
 from nao_skin.rules import known_keys
 
-PART_NAMES = ("r_hand", "l_hand", "torso", "head")   # skinManager part names on the Nao
-DEFAULT_CHAINS = {"r_hand": "r_arm", "l_hand": "l_arm", "torso": None, "head": "head"}
+PART_NAMES = ("r_hand", "l_hand", "torso", "head")   # skinManager part names on the Nao: listed first
 
 
 @dataclass(frozen=True)
@@ -55,9 +54,6 @@ class SelfTouch:
     def pairs(self) -> tuple:
         """Every ``(touching, touched)`` pair."""
         return tuple((a, b) for a in self.touching for b in self.touched)
-
-
-NAO_SELF_TOUCH = SelfTouch(("r_hand", "l_hand"), ("torso", "head"))   # a skin config without self_touch
 
 
 def part_rank(name: str) -> tuple:
@@ -386,8 +382,7 @@ PART_KEYS = ("chain", "taxel_file", "slots", "patches", "mount")
 class SkinModel:
     """The robot plus its skin parts: taxel positions in the base frame for batches of poses."""
 
-    def __init__(self, robot: RobotModel, parts: Mapping[str, SkinPart], source: str = "<memory>",
-                 self_touch: SelfTouch = NAO_SELF_TOUCH):
+    def __init__(self, robot: RobotModel, parts: Mapping[str, SkinPart], source: str, self_touch: SelfTouch):
         self.robot = robot
         self.parts = dict(parts)
         self.source = source
@@ -432,8 +427,10 @@ class SkinModel:
                 mount = se3.pose_matrix(_mount_vector(spec["mount"], f"{where}: mount"))
             parts[str(name)] = build_part(str(name), chain, robot.end_frame(chain), taxels, patches,
                                           str(path), mount, str(taxel_path))
-        self_touch = (_self_touch(doc["self_touch"], parts, f"{path}: self_touch") if "self_touch" in doc
-                      else NAO_SELF_TOUCH)
+        if "self_touch" not in doc:
+            raise ConfigError(f"{path}: names no 'self_touch' (which parts touch which, e.g. touching: [r_hand,"
+                              f" l_hand], touched: [torso, head])")
+        self_touch = _self_touch(doc["self_touch"], parts, f"{path}: self_touch")
         return cls(robot, parts, str(path), self_touch)
 
     def source_files(self) -> list:
@@ -842,8 +839,8 @@ def load_skin(skin_config: str | Path | None = None, taxel_files: Mapping[str, s
               robot_config: str | Path | None = None) -> SkinModel:
     """The skin every command uses: the skin config, with the named parts' layouts from their own files.
 
-    A part named in ``taxel_files`` keeps its chain from the config (or the
-    skinManager part's usual chain) and takes its layout from the file, e.g. a
+    A part named in ``taxel_files`` (one the config has) keeps its chain from
+    the config and takes its layout from the file, e.g. a
     recording's own, grouped by the config's patch table (and placed by its
     nominal mount) where that table places every triangle of the file, else 16
     triangles per patch; every other part stays as configured.
@@ -854,13 +851,10 @@ def load_skin(skin_config: str | Path | None = None, taxel_files: Mapping[str, s
     skin = SkinModel.from_yaml(skin_config or default_skin_config(), robot)
     parts = dict(skin.parts)
     for name, path in (taxel_files or {}).items():
-        if name in parts:
-            chain = parts[name].chain
-        elif name in DEFAULT_CHAINS:
-            chain = DEFAULT_CHAINS[name]
-        else:
-            raise ConfigError(f"--taxels {name}={path}: unknown skin part '{name}'"
-                              f" (skinManager parts: {', '.join(sorted(set(parts) | set(DEFAULT_CHAINS)))})")
+        if name not in parts:
+            raise ConfigError(f"--taxels {name}={path}: unknown skin part '{name}' (configured in {skin.source}:"
+                              f" {', '.join(parts)})")
+        chain = parts[name].chain
         was = skin.parts.get(name)
         layout = read_taxel_file(path)
         if was is not None and was.patch_table is not None and _covers(was.patch_table, layout):
