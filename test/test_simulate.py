@@ -307,6 +307,12 @@ def test_every_default_is_defined_once_in_the_yaml():
     ({"start_stamp": float("nan")}, ["'start_stamp' must be seconds since 1970", "got nan"]),
     # a Python warning 'divide by zero' on stderr, and a recording
     ({"press_reach": [0, 0]}, ["'press_reach' must start above 0 m (a compliant fabric), got [0, 0]"]),
+    # the robot's body and rest posture are data (config/simulation.yaml), checked as the rest
+    ({"idle_posture": {"HeadYaw": [0.0, -0.4]}}, ["'idle_posture' must map joint names to [mean, spread] radians"]),
+    ({"idle_posture": {"HeadYaw": 0.0}}, ["'idle_posture' must map joint names to [mean, spread] radians"]),
+    ({"body_box": [[0.1, -0.1], [0, 0], [0, 0]]}, ["'body_box' must be [[low, high]] metres for x, y and z"]),
+    ({"body_box": [[-0.1, 0.1]]}, ["'body_box' must be [[low, high]] metres for x, y and z"]),
+    ({"hand_end": [0, float("nan"), 0]}, ["'hand_end' must be [x, y, z] metres"]),
 ])
 def test_bad_parameters_fail_in_one_line(overrides, words):
     with pytest.raises(ConfigError) as exc:
@@ -315,6 +321,17 @@ def test_bad_parameters_fail_in_one_line(overrides, words):
     assert len(message.splitlines()) == 1
     for word in words:
         assert word in message
+
+
+def test_a_rest_posture_of_a_joint_the_robot_lacks_is_named_before_anything_is_simulated(skin, tmp_path, capsys):
+    with pytest.raises(ConfigError, match=r"^idle_posture: LKnee not a joint of the robot \(HeadYaw, HeadPitch, "):
+        simulate(skin, {"n_touches": 2, "idle_posture": {"LKnee": [0.0, 0.1], "HeadYaw": [0.0, 0.4]}}, seed=0)
+    params = tmp_path / "sim.yaml"
+    params.write_text("defaults:\n  idle_posture: {HeadYaw: [0.0, 0.4], HeadYow: [0.0, 0.4]}\npresets: {}\n")
+    assert cli_main(["simulate", "--params", str(params), "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1].startswith(
+        f"nao-skin simulate: error: {params}: preset 'default': idle_posture: HeadYow not a joint of the robot")
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.parametrize("pair", [["torso", "head"], ["l_hand", "r_hand"]])

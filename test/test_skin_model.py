@@ -63,7 +63,8 @@ def test_nominal_corrections_reproduce_the_real_layouts(tmp_path):
     config.write_text(yaml.safe_dump({
         "robot": str(config_dir() / "nao_h25.yaml"),
         "parts": {"l_hand": {"chain": "l_arm", "taxel_file": str(REAL / "l_hand.taxels.txt")},
-                  "torso": {"chain": None, "taxel_file": str(REAL / "torso.taxels.txt")}}}))
+                  "torso": {"chain": None, "taxel_file": str(REAL / "torso.taxels.txt")}},
+        "self_touch": {"touching": ["l_hand"], "touched": ["torso"]}}))
     skin = SkinModel.from_yaml(config)
     for part, name in (("l_hand", "l_hand.taxels.txt"), ("torso", "torso.taxels.txt")):
         taxels = read_taxel_file(REAL / name)

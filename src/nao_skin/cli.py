@@ -60,7 +60,7 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {printable(message)} (see {self.prog} --help)\n")
 
     def _print_message(self, message, file=None):
-        # argparse drops a failed write: --help > /dev/full had printed nothing and exited 0. Standard
+        # argparse drops a failed write, so help on a full disk would print nothing and exit 0. Standard
         # output's failure is said (on standard error); standard error's has nowhere to be said.
         if message and file is sys.stdout:
             file.write(message)

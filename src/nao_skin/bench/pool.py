@@ -25,7 +25,7 @@ def worker_pool(jobs: int, tasks: int):
     try:
         yield pool
     except BrokenProcessPool as exc:   # a worker killed (out of memory, a kill): the run cannot go on
-        # waited for: the executor's own thread, left running, printed a traceback on a closed pipe at exit
+        # waited for: left running, the executor's own thread prints a traceback on a closed pipe at exit
         _kill_workers(pool, wait=True)
         raise NaoSkinError(f"a worker process ended abruptly ({exc.__class__.__name__}: killed, or out of"
                            f" memory?); the benchmark stops, its earlier output is kept") from None

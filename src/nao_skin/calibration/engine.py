@@ -344,10 +344,9 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
     # (test_calibrate: a stage that drives the touches apart is undone)
     if fit.fabric_stands_in and not step.references:
         # Fitted against a reference that is not calibrated yet, the fabric estimate takes up that reference's
-        # offset along its normals too, which helps those stages; but it is no fabric, and the joint
-        # refinement, starting there, did not give it all back (simulator, seed 0, 65 touches per pair: 2.6 mm
-        # for the true 1 mm after the fixed-reference steps, 1.2 mm at the end). The stages that free every
-        # part start the fabric over from the configured thickness (README, Calibration, item 7).
+        # offset along its normals too, which helps those stages; but it is no fabric, and a joint stage
+        # starting there does not give it all back. The stages that free every part start the fabric over
+        # from the configured thickness (measured: README, Calibration, item 7).
         fit.fabric, fit.fabric_stands_in = options.fabric_thickness, False
     kinds = fitted_kinds(options, levels)
     limit = (options.warm_repairings if warm else options.reference_repairings if refined and step.references
@@ -402,10 +401,8 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
 
 KINEMATICS_SETTLED = 2e-4   # rad / m: no kinematic correction moved more in a pass (0.01 deg, 0.2 mm)
 # auto asks the held-out gain to reach kinematics_min_gain at this one-sided confidence (1.645: 95 %): a
-# test split's gain has a spread, and extra unknowns always buy a little (simulator, 20 seeds per preset:
-# on presets whose robot is the config the gain reached 11 % on a seed of 30 test touches and 10.4 % on one
-# of planar poses, while their true error grew; bounds 3.4 % and 8.1 %. The kinematic preset: 22-39 %,
-# bound 18-32 %)
+# test split's gain has a spread, and extra unknowns always buy a little, also where the robot is the config
+# (the gains and bounds per preset: README, Kinematics)
 KINEMATICS_GAIN_Z = 1.645
 
 

@@ -83,8 +83,7 @@ def check_arguments(args) -> None:
         raise DataError(f"--domain {args.domain}: expected a ROS domain id in {DOMAINS.start}..{DOMAINS.stop - 1}")
     if args.update_input:
         check_inputs([args.update_input])
-        # read once here: a file that holds no touches made every update fail ("published: 1, failed: 5"),
-        # exit 0
+        # read once here: on a file that holds no touches every update would fail while the benchmark ends well
         from nao_skin.calibration.pipeline import load_inputs
         from nao_skin.model.skin import load_skin
 

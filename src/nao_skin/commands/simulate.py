@@ -49,7 +49,8 @@ def run(args) -> int:
     from nao_skin.formats.outdir import RECORDING, check_output_dir
     from nao_skin.model.skin import SkinModel
     from nao_skin.paths import default_skin_config
-    from nao_skin.sim.params import MAX_TOUCHES_PER_PAIR, check_pairs, default_params_file, load_params, pair_list
+    from nao_skin.sim.params import (MAX_TOUCHES_PER_PAIR, check_pairs, check_posture, default_params_file,
+                                     load_params, pair_list)
     from nao_skin.sim.simulate import simulate, write_outputs
 
     check_output_dir(args.out, RECORDING, inputs=(args.params, args.skin), force=args.force)
@@ -63,7 +64,9 @@ def run(args) -> int:
         overrides["n_touches"] = args.touches_per_pair
     params = load_params(args.preset, overrides, args.params)
     skin = SkinModel.from_yaml(args.skin or default_skin_config())
-    check_pairs(pair_list(params), skin, where=f"{args.params or default_params_file()}: preset '{args.preset}'")
+    where = f"{args.params or default_params_file()}: preset '{args.preset}'"
+    check_pairs(pair_list(params), skin, where=where)
+    check_posture(params, skin, where=where)
     result = simulate(skin, params, args.seed)
     for path in write_outputs(result, skin, Path(args.out), preset=args.preset, storage=args.storage):
         print(path)

@@ -249,7 +249,7 @@ def read_contacts(msg, part: SkinPart, where: str) -> tuple:
     """``(contact ids (K,), COPs (K, 3))`` of a ``/skin/<part>/contacts`` message; the other fields are not needed.
     A contact holds a taxel at least: more contacts than ``part`` has slots is no skin sample."""
     points = int(msg.width) * int(msg.height)
-    if points > part.n_slots:     # 2M points held a recorder 0.8 s per message, and its touches were lost
+    if points > part.n_slots:     # such clouds stall a recorder (0.8 s a message at 2M points): touches lost
         raise DataError(f"{where}: {points} contacts for part '{part.name}' of {part.n_slots} slots; sample skipped")
     cloud = decode_cloud(msg, where)
     cop = np.stack([cloud_field(cloud, k, float, where) for k in ("x", "y", "z")], axis=1)

@@ -18,7 +18,7 @@ from nao_skin.live.updates import LiveUpdates, Settling, UpdateSchedule, WarmSta
 from nao_skin.model.skin import SkinModel, load_skin, parse_pairs, parse_taxel_files
 from nao_skin.rules import (AT_LEAST_ONE, HOST, NON_NEGATIVE, PORT, POSITIVE, RATE, SECONDS, SECONDS_OR_ZERO, WHOLE,
                             YARP_PORT, Rule)
-from nao_skin.sim.params import load_params
+from nao_skin.sim.params import check_posture, load_params
 from nao_skin.touch.events import EventConfig
 
 # every node that reads the skin builds it the way the commands do (model.skin.load_skin)
@@ -198,7 +198,8 @@ def check_naoqi_bridge(p: dict, where: str = "") -> None:
 def check_sim_robot(p: dict, where: str = "sim_robot") -> None:
     """Presses that do not overlap, a preset and pairs the simulator knows for this skin."""
     check_timing(p["touch_period"], p["press_duration"], p["hold"], where)
-    load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], skin_from_params(p).parts))
+    skin = skin_from_params(p)
+    check_posture(load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], skin.parts)), skin)
 
 
 def guidance_pairs(p: dict, skin: SkinModel) -> tuple:

@@ -37,7 +37,7 @@ import numpy as np
 from nao_skin import se3
 from nao_skin.errors import ConfigError
 from nao_skin.model.skin import SkinModel
-from nao_skin.sim.params import SimParams, check_pairs, make_params, pair_list
+from nao_skin.sim.params import SimParams, check_pairs, check_posture, make_params, pair_list
 from nao_skin.sim.poses import PoseSet, Spots, choose_spots, idle_joints, solve_poses
 from nao_skin.sim.simulate import _assemble, _keep_firing, _pair_activations
 from nao_skin.sim.truth import draw_truth
@@ -66,6 +66,7 @@ class CaptureSim:
         self.params = make_params(params or {}) if not isinstance(params, SimParams) else make_params(params)
         self.pairs = pair_list(self.params)
         check_pairs(self.pairs, skin)
+        check_posture(self.params, skin)
         self.seed = int(seed)
         # the truth exactly as simulate() draws it for this seed and these parameters
         streams = np.random.SeedSequence(self.seed).spawn(2 + 2 * len(self.pairs))
@@ -118,7 +119,7 @@ class CaptureSim:
         m = len(t_spots.triangle)
         gap = np.maximum(2 * p.fabric_thickness + rng.normal(0.0, p.scaled("fabric_jitter"), size=m), 0.0)
         q, ok, best, _, _, _ = solve_poses(self.skin, hand, target, h_spots, t_spots, gap,
-                                           idle_joints(self.skin, m, rng), self.truth, p, rng)
+                                           idle_joints(self.skin, m, rng, p.idle_posture), self.truth, p, rng)
         self.attempted += m
         end = self.skin.robot.fk(self.skin.parts[target].chain, q)
         normal = se3.rotate_vectors(end, t_spots.normal)

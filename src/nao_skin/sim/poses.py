@@ -20,17 +20,7 @@ from nao_skin.sim.params import SimParams
 NORMAL_WEIGHT = 0.03       # m per unit of normal mismatch: 0.1 rad of tilt costs like 3 mm
 LIMIT_MARGIN = 0.01        # rad kept from the joint limits (the real joints stop softly)
 
-# Posture of joints a pair does not use: the idle arm hangs by the side, the head looks around.
-IDLE_POSTURE = {
-    "HeadYaw": (0.0, 0.4), "HeadPitch": (0.0, 0.25),
-    "LShoulderPitch": (1.4, 0.1), "LShoulderRoll": (0.2, 0.05), "LElbowYaw": (-1.2, 0.1),
-    "LElbowRoll": (-0.4, 0.1), "LWristYaw": (0.0, 0.3),
-    "RShoulderPitch": (1.4, 0.1), "RShoulderRoll": (-0.2, 0.05), "RElbowYaw": (1.2, 0.1),
-    "RElbowRoll": (0.4, 0.1), "RWristYaw": (0.0, 0.3),
-}
-
-# Rough torso body (torso frame, m) that the elbow and the hand's end must stay out of.
-TORSO_BODY = np.array([[-0.06, 0.045], [-0.07, 0.07], [-0.11, 0.12]])
+IDLE_SPREAD = 0.1        # rad: a joint the simulation's idle_posture does not list rests at 0 +- this
 
 
 @dataclass
@@ -84,12 +74,13 @@ def _chain_joint_columns(skin: SkinModel, chain: str | None) -> list:
     return [(r, robot.joint_index[j]) for r, j in enumerate(robot.chains[chain].joints) if j is not None]
 
 
-def idle_joints(skin: SkinModel, n: int, rng: np.random.Generator) -> np.ndarray:
-    """(n, J) joint angles of a resting robot, within the limits."""
+def idle_joints(skin: SkinModel, n: int, rng: np.random.Generator, posture: dict) -> np.ndarray:
+    """(n, J) joint angles of a resting robot (``posture``: the simulation's ``idle_posture``), within the
+    limits."""
     robot = skin.robot
     q = np.zeros((n, len(robot.joint_names)))
     for j, name in enumerate(robot.joint_names):
-        mean, spread = IDLE_POSTURE.get(name, (0.0, 0.1))
+        mean, spread = posture.get(name, (0.0, IDLE_SPREAD))
         q[:, j] = mean + rng.uniform(-spread, spread, size=n)
     return np.clip(q, robot.limits[:, 0] + LIMIT_MARGIN, robot.limits[:, 1] - LIMIT_MARGIN)
 
@@ -205,9 +196,10 @@ def penetrates(skin: SkinModel, hand: str, target: str, q: np.ndarray, target_sp
     lateral = np.linalg.norm(rel - height[..., None] * normal[:, None], axis=2)
     behind = (lateral < 0.03) & (height < -p.penetration_tolerance)
     bad = behind.any(axis=1)
-    # elbow (hand frame origin) and the hand's end (130 mm down the forearm axis)
-    probes = np.stack([hand_end[:, :3, 3], se3.transform_points(hand_end, np.array([0.0, -0.13, 0.0]))], axis=1)
-    inside = np.all((probes >= TORSO_BODY[:, 0]) & (probes <= TORSO_BODY[:, 1]), axis=2)
+    # the elbow (the hand chain's end frame origin) and the hand's far end
+    probes = np.stack([hand_end[:, :3, 3], se3.transform_points(hand_end, np.asarray(p.hand_end, float))], axis=1)
+    box = np.asarray(p.body_box, float)
+    inside = np.all((probes >= box[:, 0]) & (probes <= box[:, 1]), axis=2)
     return bad | inside.any(axis=1)
 
 
@@ -257,7 +249,7 @@ def find_poses(skin: SkinModel, truth: SkinCalibration, hand: str, target: str, 
         h_spots = choose_spots(skin, hand, truth, m * k, weight[0], p, rng)
         gap = np.maximum(2 * p.fabric_thickness + rng.normal(0.0, p.scaled("fabric_jitter"), size=m), 0.0)
         q, ok, best, _, _, ok_all = solve_poses(skin, hand, target, h_spots, t_spots, gap,
-                                                idle_joints(skin, m, rng), truth, p, rng, counts[0])
+                                                idle_joints(skin, m, rng, p.idle_posture), truth, p, rng, counts[0])
         attempted += m
         unreachable += int(np.count_nonzero(~ok))
         rate = max(ok.mean(), 0.05)

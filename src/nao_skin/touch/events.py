@@ -151,7 +151,7 @@ class EventDetector:
                                                 f" {len(positions)} positions")
             return []
         values[cols[1]] = positions[cols[0]]
-        # no measurement, as a joint not reported: inf (it made FK warn), and what no joint reaches (beyond
+        # no measurement, as a joint not reported: inf (FK would warn on it), and what no joint reaches (beyond
         # two turns: a broken encoder word, not an angle)
         values[np.abs(values) > MAX_JOINT_LIMIT] = np.nan
         stamp = float(stamp)
