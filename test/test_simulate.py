@@ -437,3 +437,22 @@ def test_bundled_recording_matches_the_simulator(skin, tmp_path):
     recorded = sum(info["recorded"] for info in meta["pairs"].values())
     assert joint_msgs["/joint_states"] == recorded
     assert all(info["touches"] == 1000 for info in meta["pairs"].values())
+
+
+def test_simulate_and_nominal_take_the_skin_as_every_command_does(tmp_path):
+    """--skin, --taxels and --robot in simulate and nominal too: a robot's own layouts are simulated (and their
+    nominal calibration written) without a skin config of their own."""
+    assert cli_main(["simulate", "--taxels", f"l_hand={REAL_HAND_LAYOUT}", "--touches-per-pair", "2",
+                     "--params", str(tmp_path / "sim.yaml"), "--out", str(tmp_path / "sim")]) == 2    # no such file
+    (tmp_path / "sim.yaml").write_text("defaults:\n  pairs: [[l_hand, torso]]\npresets: {}\n")
+    assert cli_main(["simulate", "--taxels", f"l_hand={REAL_HAND_LAYOUT}", "--touches-per-pair", "2",
+                     "--params", str(tmp_path / "sim.yaml"), "--out", str(tmp_path / "sim")]) == 0
+    meta = yaml.safe_load((tmp_path / "sim" / "simulation.yaml").read_text())
+    assert meta["skin"] == f"nao_skin.yaml + {REAL_HAND_LAYOUT.name}"
+    own = load_skin(taxel_files={"l_hand": REAL_HAND_LAYOUT})
+    truth = (tmp_path / "sim" / "truth_taxels" / "l_hand.txt").read_text()
+    assert truth.count("\n") >= len(own.parts["l_hand"].slots)
+    assert cli_main(["nominal", "--taxels", f"l_hand={REAL_HAND_LAYOUT}", "--out", str(tmp_path / "nominal.yaml")]) == 0
+    nominal = yaml.safe_load((tmp_path / "nominal.yaml").read_text())
+    ids = {int(t) for t in nominal["parts"]["l_hand"]["triangles"]}
+    assert ids == {int(t) for t in own.parts["l_hand"].triangle_ids} != {int(t) for t in load_skin().parts["l_hand"].triangle_ids}

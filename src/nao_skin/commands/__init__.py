@@ -1,6 +1,7 @@
 """One module per ``nao-skin`` command (see :mod:`nao_skin.cli`)."""
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 import time
@@ -65,11 +66,6 @@ def written_here(path: Path, mark: tuple) -> bool:
     return not head or (bool(mark) and all(m.encode() in head for m in mark))
 
 
-def config_files(skin) -> list:
-    """The files a skin model was read from: its skin config, the robot config and every part's layout."""
-    return skin.source_files()
-
-
 def add_output_arguments(parser, command: str) -> None:
     """``--out`` (default ``out/<command>``) and ``--force`` of a benchmark writing its own output directory."""
     default = f"out/{command.replace('-', '_')}"
@@ -92,6 +88,14 @@ def add_skin_arguments(parser) -> None:
                              " repeatable")
     parser.add_argument("--robot", default=None, metavar="YAML",
                         help="robot config YAML (default: the one the skin config names, config/nao_h25.yaml)")
+    parser.add_argument("--skin-config", dest="skin", default=None, help=argparse.SUPPRESS)   # --skin's old name
+
+
+def skin_config_file(args) -> Path:
+    """The skin config ``--skin`` names, or the package's."""
+    from nao_skin.paths import default_skin_config
+
+    return Path(args.skin) if getattr(args, "skin", None) else default_skin_config()
 
 
 def skin_from_args(args):

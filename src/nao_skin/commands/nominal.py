@@ -9,7 +9,7 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from nao_skin.commands import config_files, write_output
+from nao_skin.commands import add_skin_arguments, skin_config_file, skin_from_args, write_output
 
 NAME = "nominal"
 HELP = "write the nominal (zero-correction) calibration YAML of a skin config"
@@ -19,17 +19,14 @@ REGENERATE = "regenerate with: nao-skin nominal"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--skin-config", type=Path, default=None,
-                        help="skin config YAML (default: the package's config/nao_skin.yaml)")
+    add_skin_arguments(parser)
     parser.add_argument("--out", default=None,
                         help="output calibration YAML (default: stdout)")
 
 
-def nominal_calibration_text(skin_config: Path) -> str:
-    """The YAML text ``SkinCalibration.save`` writes for zero corrections of every part."""
-    from nao_skin.model.skin import SkinModel
-
-    skin = SkinModel.from_yaml(skin_config)
+def nominal_calibration_text(skin, skin_config: Path) -> str:
+    """The YAML text ``SkinCalibration.save`` writes for zero corrections of every part of ``skin`` (read from
+    ``skin_config``)."""
     # The comment names the config by file name only, so the text does not depend on the checkout's path.
     comment = f"nominal calibration (all corrections zero) of {Path(skin_config).name}; {REGENERATE} --out <this file>"
     with tempfile.TemporaryDirectory() as tmp:
@@ -39,13 +36,11 @@ def nominal_calibration_text(skin_config: Path) -> str:
 
 
 def run(args) -> int:
-    from nao_skin.paths import default_skin_config
+    from nao_skin.model.skin import CALIBRATION_HEADER
 
-    from nao_skin.model.skin import CALIBRATION_HEADER, SkinModel
-
-    skin_config = args.skin_config or default_skin_config()
-    text = nominal_calibration_text(skin_config)
+    skin_config = skin_config_file(args)
+    skin = skin_from_args(args)
     # what this command writes and no other: a calibration from touches holds the same header
-    write_output(text, args.out, inputs=[skin_config, *config_files(SkinModel.from_yaml(skin_config))],
-                 mark=(CALIBRATION_HEADER, REGENERATE))
+    write_output(nominal_calibration_text(skin, skin_config), args.out,
+                 inputs=[skin_config, *skin.source_files()], mark=(CALIBRATION_HEADER, REGENERATE))
     return 0

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from nao_skin.commands import add_skin_arguments, skin_config_file, skin_from_args
+
 NAME = "simulate"
 HELP = "simulate self-touch touches with a known true skin placement (bag + ground truth)"
 
@@ -38,7 +40,7 @@ def add_arguments(parser) -> None:
                         help="output directory: new, empty, or an earlier simulate output (with --force)")
     parser.add_argument("--params", default=None, metavar="YAML",
                         help="simulation parameters file (default: config/simulation.yaml)")
-    parser.add_argument("--skin", default=None, metavar="YAML", help="skin config (default: config/nao_skin.yaml)")
+    add_skin_arguments(parser)
     parser.add_argument("--storage", default="sqlite3", choices=("sqlite3", "mcap"), help="rosbag2 storage")
     parser.add_argument("--force", action="store_true",
                         help="replace the outputs of an earlier run in DIR (never a file nao-skin did not write)")
@@ -47,13 +49,13 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from nao_skin.errors import ConfigError
     from nao_skin.formats.outdir import RECORDING, check_output_dir
-    from nao_skin.model.skin import SkinModel
-    from nao_skin.paths import default_skin_config
     from nao_skin.sim.params import (MAX_TOUCHES_PER_PAIR, check_pairs, check_posture, default_params_file,
                                      load_params, pair_list)
     from nao_skin.sim.simulate import simulate, write_outputs
 
-    check_output_dir(args.out, RECORDING, inputs=(args.params, args.skin), force=args.force)
+    skin = skin_from_args(args)
+    check_output_dir(args.out, RECORDING, inputs=(args.params, skin_config_file(args), *skin.source_files()),
+                     force=args.force)
     if args.seed < 0:           # numpy's seed sequences take no negative entropy
         raise ConfigError(f"--seed {args.seed}: expected a whole number >= 0")
     overrides = {}
@@ -63,7 +65,6 @@ def run(args) -> int:
                               f" 1..{MAX_TOUCHES_PER_PAIR}")
         overrides["n_touches"] = args.touches_per_pair
     params = load_params(args.preset, overrides, args.params)
-    skin = SkinModel.from_yaml(args.skin or default_skin_config())
     where = f"{args.params or default_params_file()}: preset '{args.preset}'"
     check_pairs(pair_list(params), skin, where=where)
     check_posture(params, skin, where=where)

@@ -276,7 +276,7 @@ def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, prese
             part.write_taxel_file(path, result.truth.parts[name])
             written.append(path)
         meta = {"format": "nao_skin/simulation/1", "seed": result.seed, "preset": preset or "custom",
-                "skin": Path(skin.source).name, "pairs": result.pairs, "params": result.params.record()}
+                "skin": _skin_name(skin), "pairs": result.pairs, "params": result.params.record()}
         meta_path = tmp / "simulation.yaml"
         command = (f"nao-skin simulate --preset {preset or 'default'} --seed {result.seed}"
                    f" --touches-per-pair {result.params.n_touches} --out <this directory>")
@@ -300,3 +300,10 @@ def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, prese
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return [out / p.relative_to(tmp) for p in written]
+
+
+def _skin_name(skin: SkinModel) -> str:
+    """The skin config's file name, and the layouts given beside it (``--taxels``) by theirs: what the recording's
+    simulation.yaml says it was simulated on, the same text in any checkout."""
+    config, *layouts = skin.source.split(" + ")
+    return " + ".join([Path(config).name] + [Path(f.strip()).name for f in ", ".join(layouts).split(", ") if f])
