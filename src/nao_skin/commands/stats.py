@@ -3,9 +3,6 @@ from __future__ import annotations
 
 import json
 import sys
-from itertools import combinations
-
-import numpy as np
 
 from nao_skin.commands import add_skin_arguments, skin_from_args
 
@@ -24,8 +21,9 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from nao_skin.calibration.pairing import metrics, pair_for_metrics
+    from nao_skin.calibration.plan import pair_counts
     from nao_skin.formats.inputs import check_inputs, load_touches
-    from nao_skin.model.skin import SkinCalibration
+    from nao_skin.model.skin import SkinCalibration, pair_label
     from nao_skin.plain import jsonable
     from nao_skin.touch.datasets import deduplicate
 
@@ -41,18 +39,15 @@ def run(args) -> int:
     lines = []
     touches, report, _ = load_touches([args.input], skin, log=lines.append)
     _, n_dup = deduplicate(touches)
-    fires = touches.parts_of_touch()
-    pair_counts = {f"{a}+{b}": int(np.sum(fires[:, i] & fires[:, j]))
-                   for (i, a), (j, b) in combinations(enumerate(touches.part_names), 2)
-                   if np.any(fires[:, i] & fires[:, j])}
-    if parts is not None and f"{parts[0]}+{parts[1]}" not in pair_counts and f"{parts[1]}+{parts[0]}" not in pair_counts:
+    pairs_touching = {pair_label(pair): n for pair, n in pair_counts(touches).items()}
+    if parts is not None and pair_label(parts) not in pairs_touching:
         from nao_skin.errors import DataError
 
         raise DataError(f"{args.input}: no touch of the parts {parts[0]} and {parts[1]} together"
-                        f" (pairs touching: {', '.join(pair_counts) or 'none'})")
+                        f" (pairs touching: {', '.join(pairs_touching) or 'none'})")
     m = metrics(pair_for_metrics(touches, skin, calib, parts=parts))
     out = {"input": str(args.input), "touches": touches.n_touches, "exact_duplicates": n_dup,
-           "skipped": dict(report.skipped), "pairs": pair_counts,
+           "skipped": dict(report.skipped), "pairs": pairs_touching,
            "contacts_per_touch": round(len(touches.contact_touch) / max(touches.n_touches, 1), 3),
            "taxels_per_touch": round(len(touches.act_slot) / max(touches.n_touches, 1), 3),
            "calibration": args.calibration or "nominal", **{k: (round(v, 3) if isinstance(v, float) else v)

@@ -59,6 +59,7 @@ import numpy as np
 
 from nao_skin.calibration.layout import COMPONENTS
 from nao_skin.calibration.options import CalibrationOptions
+from nao_skin.calibration.plan import pair_counts
 from nao_skin.calibration.report import paired_activation_counts
 from nao_skin.calibration.stages import held_frames
 from nao_skin.errors import DataError
@@ -176,14 +177,9 @@ def targets_from_json(text: str, skin: SkinModel) -> tuple:
 
 # ---------------------------------------------------------------------------- counting
 def _pair_touches(touches: TouchSet, pairs) -> dict:
-    fired = touches.parts_of_touch() if touches.n_touches else np.zeros((0, len(touches.part_names)), bool)
-    out = {}
-    for hand, body in pairs:
-        if hand in touches.part_names and body in touches.part_names:
-            out[f"{hand}-{body}"] = int(np.sum(fired[:, touches.part_index(hand)] & fired[:, touches.part_index(body)]))
-        else:
-            out[f"{hand}-{body}"] = 0
-    return out
+    """``{'hand-body': touches where both fire}`` of each of ``pairs`` (none: 0)."""
+    counts = pair_counts(touches) if touches.n_touches else {}
+    return {f"{hand}-{body}": counts.get(frozenset((hand, body)), 0) for hand, body in pairs}
 
 
 # ---------------------------------------------------------------------------- ranking
