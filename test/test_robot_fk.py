@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from nao_skin.errors import ConfigError, DataError
+from nao_skin.errors import ConfigError
 from nao_skin.model.robot import RobotModel, parse_angle
 from nao_skin.paths import config_dir
 
@@ -140,33 +140,6 @@ def test_joint_columns_follow_joint_names(robot):
     np.testing.assert_allclose(robot.fk("r_arm", q), robot.fk("r_arm", pose(robot)), atol=0)
     assert not np.allclose(robot.fk("l_arm", pose(robot, LShoulderPitch=0.7)), robot.fk("l_arm", pose(robot)))
     assert robot.chain_joint_names("l_arm") == ["LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll", "LWristYaw"]
-
-
-# ---------------------------------------------------------------------- joint mappings
-def test_joints_from_mappings_places_values_by_name(robot):
-    poses = [{"HeadYaw": 0.1, "LShoulderPitch": -0.5, "NotAJoint": 3.0}, {"HeadYaw": -0.2}]
-    q = robot.joints_from_mappings(poses, needed=["HeadYaw"])
-    assert q.shape == (2, len(robot.joint_names))
-    assert q[0, robot.joint_index["HeadYaw"]] == 0.1
-    assert q[0, robot.joint_index["LShoulderPitch"]] == -0.5
-    assert q[1, robot.joint_index["HeadYaw"]] == -0.2
-    assert np.isnan(q[1, robot.joint_index["LShoulderPitch"]])
-
-
-def test_missing_joint_names_pose_and_joint_in_one_line(robot):
-    with pytest.raises(DataError) as err:
-        robot.joints_from_mappings([{n: 0.0 for n in robot.joint_names}, {"HeadYaw": 0.0}], where="rec.txt")
-    msg = str(err.value)
-    assert "\n" not in msg
-    assert msg.startswith("rec.txt: pose 1: joint ") and "missing" in msg
-
-
-@pytest.mark.parametrize("bad", [float("nan"), float("inf"), None])
-def test_non_finite_joint_value_is_rejected(robot, bad):
-    values = {n: 0.0 for n in robot.joint_names}
-    values["LElbowRoll"] = bad
-    with pytest.raises(DataError, match=r"^touches: pose 0: joint 'LElbowRoll' is not a finite angle"):
-        robot.joints_from_mappings([values], where="touches")
 
 
 def test_unknown_chain_is_a_config_error(robot):

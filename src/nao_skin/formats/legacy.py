@@ -98,8 +98,7 @@ def _key_integer(key) -> int | float | None:
     return None
 
 
-def _parse_touch(value, key: str, where: str, skin: SkinModel, joint_index: Mapping[str, int],
-                 part_index: Mapping[str, int]):
+def _parse_touch(value, where: str, skin: SkinModel, joint_index: Mapping[str, int], part_index: Mapping[str, int]):
     """Validate one ``[skinContacts, joints]`` entry; raise DataError naming the field."""
     if not isinstance(value, (list, tuple)) or len(value) != 2 or not isinstance(value[0], dict) \
             or not isinstance(value[1], dict):
@@ -332,7 +331,7 @@ def read_legacy(path: str | Path, skin: SkinModel, exact: bool = False) -> tuple
                                          f" strings, None are allowed)")
             continue
         try:
-            joints, contacts = _parse_touch(value, str(key), where, skin, joint_index, part_index)
+            joints, contacts = _parse_touch(value, where, skin, joint_index, part_index)
         except _SkipTouch as exc:
             report.skip(exc.reason, str(exc), part=exc.part)
             continue

@@ -11,7 +11,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from nao_skin.errors import ConfigError, DataError
+from nao_skin.errors import ConfigError
 from nao_skin.paths import read_yaml
 from nao_skin.rules import known_keys
 
@@ -215,28 +215,6 @@ class RobotModel:
         return RobotModel(self.name, self.base_frame, limits, chains, self.source, self.links)
 
     # ------------------------------------------------------------------ joints
-    def joints_from_mappings(self, poses: Sequence[Mapping[str, float]], needed: Sequence[str] | None = None,
-                             where: str = "input") -> np.ndarray:
-        """List of ``{joint name: angle}`` dicts to an ``(N, J)`` array.
-
-        Joints in ``needed`` (default: all) must be present and finite; others
-        absent from a mapping are NaN. Raises :class:`DataError` naming the pose.
-        """
-        needed = self.joint_names if needed is None else list(needed)
-        out = np.full((len(poses), len(self.joint_names)), np.nan)
-        for n, pose in enumerate(poses):
-            for jname, value in pose.items():
-                idx = self.joint_index.get(jname)
-                if idx is not None:
-                    out[n, idx] = float(value) if value is not None else np.nan
-            for jname in needed:
-                v = out[n, self.joint_index[jname]]
-                if jname not in pose:
-                    raise DataError(f"{where}: pose {n}: joint '{jname}' is missing")
-                if not np.isfinite(v):
-                    raise DataError(f"{where}: pose {n}: joint '{jname}' is not a finite angle ({pose[jname]!r})")
-        return out
-
     def chain_joint_names(self, chain: str) -> list:
         return [j for j in self.chains[chain].joints if j is not None]
 

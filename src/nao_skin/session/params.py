@@ -7,7 +7,7 @@ against them before any node starts (:mod:`nao_skin.session.record`). No ROS
 import here: ``nao-skin record --print`` runs where rclpy is not installed.
 Defaults that belong to the engine, the live updates or the event detector are
 theirs (``CalibrationOptions``, ``UpdateSchedule``, ``Settling``, ``WarmStart``,
-``LiveUpdates``, ``EventConfig``), read from there.
+``LiveUpdates``, ``LIVE_CONFIG``), read from there.
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from nao_skin.model.skin import SkinModel, load_skin, parse_pairs, parse_taxel_f
 from nao_skin.rules import (AT_LEAST_ONE, HOST, NON_NEGATIVE, PORT, POSITIVE, RATE, SECONDS, SECONDS_OR_ZERO, WHOLE,
                             YARP_PORT, Rule)
 from nao_skin.sim.params import check_posture, load_params
-from nao_skin.touch.events import EventConfig
+from nao_skin.touch.events import LIVE_CONFIG
 
 # every node that reads the skin builds it the way the commands do (model.skin.load_skin)
 SKIN_PARAMS = {
@@ -40,7 +40,6 @@ DEFAULT_JOINTS = ["HeadYaw", "HeadPitch",
 # iCub skinDynLib SkinPart ids; the Nao build put the head on the unused right forearm id (thesis §3.1.1).
 DEFAULT_PART_IDS = {"l_hand": 1, "r_hand": 4, "torso": 7, "head": 5}
 
-_EVENTS = EventConfig()       # the event detector's defaults: the recorder's parameters start from them
 
 CALIBRATE = {
     **SKIN_PARAMS,
@@ -96,13 +95,13 @@ PAIRING_RECORDER = {
                 Rule(str, ("mcap", "sqlite3"))),
     "flush_period": (1.0, "seconds between flushes of the bag to disk", SECONDS),
     "progress_period": (1.0, "seconds between progress messages", SECONDS),
-    "skin_tolerance": (_EVENTS.skin_tolerance, "s: skin samples of different parts this close are one moment",
+    "skin_tolerance": (LIVE_CONFIG.skin_tolerance, "s: skin samples of different parts this close are one moment",
                        NON_NEGATIVE),
-    "joint_tolerance": (_EVENTS.joint_tolerance, "s: bracketing joint states must be this close to the touch",
+    "joint_tolerance": (LIVE_CONFIG.joint_tolerance, "s: bracketing joint states must be this close to the touch",
                         NON_NEGATIVE),
-    "min_interval": (_EVENTS.min_interval, "s: during one continuous press, at most one touch per interval",
+    "min_interval": (LIVE_CONFIG.min_interval, "s: during one continuous press, at most one touch per interval",
                      NON_NEGATIVE),
-    "release_gap": (_EVENTS.release_gap, "s: a part silent this long counts as released", NON_NEGATIVE),
+    "release_gap": (LIVE_CONFIG.release_gap, "s: a part silent this long counts as released", NON_NEGATIVE),
 }
 
 

@@ -111,7 +111,7 @@ class CaptureSim:
             self.missed += len(group) - len(poses.q)
             if len(poses.q):
                 per_pair.append((hand, target, poses))
-        return self._record(per_pair, aimed=True, wanted=len(aims))
+        return self._record(per_pair, aimed=True)
 
     # ------------------------------------------------------------------ poses
     def _solve(self, hand, target, t_spots: Spots, h_spots: Spots):
@@ -190,7 +190,7 @@ class CaptureSim:
         return mask
 
     # ------------------------------------------------------------------ recording
-    def _record(self, per_pair, aimed: bool, wanted: int | None = None) -> TouchSet:
+    def _record(self, per_pair, aimed: bool) -> TouchSet:
         per_pair = [(h, t, poses) for h, t, poses in per_pair if len(poses.q)]
         if not per_pair:
             return TouchSet.empty(tuple(self.skin.parts), tuple(self.skin.robot.joint_names))
