@@ -34,11 +34,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nao_skin import se3
 from nao_skin.errors import ConfigError
 from nao_skin.model.skin import SkinModel
 from nao_skin.sim.params import SimParams, check_pairs, check_posture, make_params, pair_list
-from nao_skin.sim.poses import PoseSet, Spots, choose_spots, idle_joints, solve_poses
+from nao_skin.sim.poses import PoseSet, Spots, choose_spots, solve_spots
 from nao_skin.sim.simulate import _assemble, _keep_firing, _pair_activations
 from nao_skin.sim.truth import draw_truth
 from nao_skin.touch.touches import TouchSet
@@ -115,21 +114,14 @@ class CaptureSim:
 
     # ------------------------------------------------------------------ poses
     def _solve(self, hand, target, t_spots: Spots, h_spots: Spots):
-        p, rng = self.params, self.rng
-        m = len(t_spots.triangle)
-        gap = np.maximum(2 * p.fabric_thickness + rng.normal(0.0, p.scaled("fabric_jitter"), size=m), 0.0)
-        q, ok, best, _, _, _ = solve_poses(self.skin, hand, target, h_spots, t_spots, gap,
-                                           idle_joints(self.skin, m, rng, p.idle_posture), self.truth, p, rng)
-        self.attempted += m
-        end = self.skin.robot.fk(self.skin.parts[target].chain, q)
-        normal = se3.rotate_vectors(end, t_spots.normal)
-        contact = se3.transform_points(end, t_spots.point) + 0.5 * gap[:, None] * normal
-        return PoseSet(q, contact, normal, gap, h_spots.triangle[best], t_spots.triangle, m, int((~ok).sum())), ok
+        poses, ok, _ = solve_spots(self.skin, hand, target, t_spots, h_spots, self.truth, self.params, self.rng)
+        self.attempted += len(ok)
+        return poses, ok
 
     def _firing(self, hand, target, poses: PoseSet, rows: np.ndarray) -> tuple:
         """The poses of ``rows`` whose press fires both parts, and which of ``rows`` they are."""
         # _keep_firing keeps the first n firing poses, in order: with n = all, every firing one
-        kept, _ = _keep_firing(self.skin, self.truth, hand, target, _rows(poses, rows), len(rows), self.params,
+        kept, _ = _keep_firing(self.skin, self.truth, hand, target, poses.take(rows), len(rows), self.params,
                                self.rng)
         return kept
 
@@ -146,10 +138,10 @@ class CaptureSim:
             poses, ok = self._solve(hand, target, t_spots, h_spots)
             firing = self._firing(hand, target, poses, np.flatnonzero(ok))
             rate = max(len(firing.q) / m, 0.05)
-            firing = _rows(firing, np.arange(min(need, len(firing.q))))
+            firing = firing.take(np.arange(min(need, len(firing.q))))
             kept.append(firing)
             got += len(firing.q)
-        return _concat(kept, len(self.skin.robot.joint_names))
+        return PoseSet.concat(kept, len(self.skin.robot.joint_names))
 
     def _aimed_poses(self, hand, target, aims) -> PoseSet:
         p, k, r = self.params, self.params.pose_restarts, AIM_RETRIES
@@ -170,7 +162,7 @@ class CaptureSim:
                 if ok[row]:
                     firing_rows.append(row)
         if not firing_rows:
-            return _concat([], len(self.skin.robot.joint_names))
+            return PoseSet.empty(len(self.skin.robot.joint_names))
         firing_rows = np.array(firing_rows)
         probe = self._firing_mask(hand, target, poses, firing_rows)
         chosen, done = [], set()
@@ -178,11 +170,11 @@ class CaptureSim:
             if fires and row // r not in done:
                 done.add(row // r)
                 chosen.append(row)
-        return _rows(poses, np.array(chosen, int))
+        return poses.take(chosen)
 
     def _firing_mask(self, hand, target, poses, rows) -> np.ndarray:
         """Which of ``rows`` fire both parts under the simulator's probe press."""
-        sub = _rows(poses, rows)
+        sub = poses.take(rows)
         tagged = dataclasses.replace(sub, target_triangle=np.arange(len(rows)))   # carry the row through
         kept, _ = _keep_firing(self.skin, self.truth, hand, target, tagged, len(rows), self.params, self.rng)
         mask = np.zeros(len(rows), bool)
@@ -222,19 +214,3 @@ def _one_hot(part, triangle_id) -> np.ndarray:
             raise ConfigError(f"{part.name}: no triangle {triangle_id}")
         w[rows] = 1.0
     return w
-
-
-def _rows(poses: PoseSet, rows: np.ndarray) -> PoseSet:
-    rows = np.asarray(rows, int)
-    return dataclasses.replace(poses, q=poses.q[rows], contact=poses.contact[rows], normal=poses.normal[rows],
-                               gap=poses.gap[rows], hand_triangle=poses.hand_triangle[rows],
-                               target_triangle=poses.target_triangle[rows])
-
-
-def _concat(sets: list, n_joints: int) -> PoseSet:
-    if not sets:
-        return PoseSet(np.zeros((0, n_joints)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, int),
-                       np.zeros(0, int), 0, 0)
-    return PoseSet(*(np.concatenate([getattr(s, f) for s in sets]) for f in
-                     ("q", "contact", "normal", "gap", "hand_triangle", "target_triangle")),
-                   attempted=sum(s.attempted for s in sets), unreachable=sum(s.unreachable for s in sets))

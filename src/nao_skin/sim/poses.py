@@ -9,6 +9,7 @@ cost a few dozen vectorised forward-kinematics calls.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -216,6 +217,42 @@ class PoseSet:
     attempted: int            # target spots tried
     unreachable: int          # of which no pose was found (skipped)
 
+    ROWS = ("q", "contact", "normal", "gap", "hand_triangle", "target_triangle")
+
+    @classmethod
+    def empty(cls, n_joints: int) -> "PoseSet":
+        return cls(np.zeros((0, n_joints)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, int),
+                   np.zeros(0, int), 0, 0)
+
+    def take(self, rows) -> "PoseSet":
+        """The poses of ``rows`` (the counts of spots tried stay the set's)."""
+        rows = np.asarray(rows, int)
+        return dataclasses.replace(self, **{name: getattr(self, name)[rows] for name in self.ROWS})
+
+    @classmethod
+    def concat(cls, sets, n_joints: int) -> "PoseSet":
+        if not sets:
+            return cls.empty(n_joints)
+        return cls(*(np.concatenate([getattr(s, name) for s in sets]) for name in cls.ROWS),
+                   attempted=sum(s.attempted for s in sets), unreachable=sum(s.unreachable for s in sets))
+
+
+def solve_spots(skin: SkinModel, hand: str, target: str, t_spots: Spots, h_spots: Spots, truth: SkinCalibration,
+                p: SimParams, rng: np.random.Generator, counts: np.ndarray | None = None) -> tuple:
+    """``(poses, ok, ok_all)``: a pose for each target spot (``pose_restarts`` hand spots each), pressed with a
+    fabric gap drawn per touch, from the robot at rest (:func:`solve_poses`, ``counts``: its hand triangle
+    weights); ``ok`` which reached their spot, ``ok_all`` per hand spot. Every row is in ``poses``, reached or
+    not: its hand triangle the best restart's."""
+    m = len(t_spots.triangle)
+    gap = np.maximum(2 * p.fabric_thickness + rng.normal(0.0, p.scaled("fabric_jitter"), size=m), 0.0)
+    q, ok, best, _, _, ok_all = solve_poses(skin, hand, target, h_spots, t_spots, gap,
+                                            idle_joints(skin, m, rng, p.idle_posture), truth, p, rng, counts)
+    end = skin.robot.fk(skin.parts[target].chain, q)
+    normal = se3.rotate_vectors(end, t_spots.normal)
+    contact = se3.transform_points(end, t_spots.point) + 0.5 * gap[:, None] * normal
+    poses = PoseSet(q, contact, normal, gap, h_spots.triangle[best], t_spots.triangle, m, int(np.count_nonzero(~ok)))
+    return poses, ok, ok_all
+
 
 MAX_ROUNDS = 10
 
@@ -235,7 +272,7 @@ def find_poses(skin: SkinModel, truth: SkinCalibration, hand: str, target: str, 
     works = [np.zeros_like(c) for c in counts]
     k = p.pose_restarts
     kept = []
-    attempted = accepted = unreachable = 0
+    accepted = 0
     rate = 0.5
     for _ in range(MAX_ROUNDS):
         need = n - accepted
@@ -247,24 +284,15 @@ def find_poses(skin: SkinModel, truth: SkinCalibration, hand: str, target: str, 
         m = int(min(np.ceil(need / rate * 1.2) + 4, max(n / 3 / rate, 24)))
         t_spots = choose_spots(skin, target, truth, m, weight[1], p, rng)
         h_spots = choose_spots(skin, hand, truth, m * k, weight[0], p, rng)
-        gap = np.maximum(2 * p.fabric_thickness + rng.normal(0.0, p.scaled("fabric_jitter"), size=m), 0.0)
-        q, ok, best, _, _, ok_all = solve_poses(skin, hand, target, h_spots, t_spots, gap,
-                                                idle_joints(skin, m, rng, p.idle_posture), truth, p, rng, counts[0])
-        attempted += m
-        unreachable += int(np.count_nonzero(~ok))
+        poses, ok, ok_all = solve_spots(skin, hand, target, t_spots, h_spots, truth, p, rng, counts[0])
         rate = max(ok.mean(), 0.05)
         np.add.at(tries[0], h_spots.triangle, 1)
         np.add.at(works[0], h_spots.triangle, ok_all)
         np.add.at(tries[1], t_spots.triangle, 1)
         np.add.at(works[1], t_spots.triangle, ok)
-        rows = np.flatnonzero(ok)[:need]
-        end = skin.robot.fk(sp_t.chain, q[rows])
-        normal = se3.rotate_vectors(end, t_spots.normal[rows])
-        contact = se3.transform_points(end, t_spots.point[rows]) + 0.5 * gap[rows, None] * normal
-        kept.append((q[rows], contact, normal, gap[rows], h_spots.triangle[best[rows]], t_spots.triangle[rows]))
-        np.add.at(counts[0], h_spots.triangle[best[rows]], 1)
-        np.add.at(counts[1], t_spots.triangle[rows], 1)
-        accepted += len(rows)
-    fields = [np.concatenate(a) for a in zip(*kept)] if kept else [np.zeros((0, len(skin.robot.joint_names)))] + [
-        np.zeros((0, 3))] * 2 + [np.zeros(0)] + [np.zeros(0, int)] * 2
-    return PoseSet(*fields, attempted=attempted, unreachable=unreachable)
+        chosen = poses.take(np.flatnonzero(ok)[:need])
+        kept.append(chosen)
+        np.add.at(counts[0], chosen.hand_triangle, 1)
+        np.add.at(counts[1], chosen.target_triangle, 1)
+        accepted += len(chosen.q)
+    return PoseSet.concat(kept, len(skin.robot.joint_names))

@@ -11,7 +11,6 @@ the touches as a :class:`~nao_skin.touch.touches.TouchSet` with per-touch truth 
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -98,10 +97,7 @@ def _keep_firing(skin, truth, hand, target, poses, n, p: SimParams, rng):
     both[touch, side] = True
     fires = both.all(axis=1)
     rows = np.flatnonzero(fires)[:n]
-    kept = dataclasses.replace(poses, q=poses.q[rows], contact=poses.contact[rows], normal=poses.normal[rows],
-                               gap=poses.gap[rows], hand_triangle=poses.hand_triangle[rows],
-                               target_triangle=poses.target_triangle[rows])
-    return kept, int(np.count_nonzero(~fires))
+    return poses.take(rows), int(np.count_nonzero(~fires))
 
 
 def _pair_activations(skin, truth, hand, target, poses, p: SimParams, rng):
