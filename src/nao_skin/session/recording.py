@@ -1,0 +1,161 @@
+"""A record session's recording, apart from ROS: the live streams' touches into a touch bag, and what the
+operator is told of it.
+
+:class:`TouchRecording` feeds joint states and skin samples to the same
+:class:`~nao_skin.touch.events.EventDetector` that reads bags offline, writes
+each detected touch to a touch bag as ``write_touch_bag`` does
+(:func:`~nao_skin.formats.bag.detected_touch_messages`), makes it durable on
+:meth:`~TouchRecording.flush`, and keeps the progress: touches per pair, the
+share of each part's taxels in a recorded touch, what was dropped and why, the
+time per skin message, and how far each skin stream's stamps lag the joint
+states'. The pairing_recorder node only translates messages to it and its
+progress and warnings to topics and the log.
+"""
+from __future__ import annotations
+
+import json
+from collections import Counter, deque
+from pathlib import Path
+from typing import NoReturn
+
+import numpy as np
+
+from nao_skin.errors import BagMoved, DiskFull, OutputError
+from nao_skin.formats.bag import BagWriter, detected_touch_messages
+from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, taxels_topic
+from nao_skin.live.clocks import SKEW_LIMIT_S, ArrivalLags
+from nao_skin.live.heatmap import ActivationCounts
+from nao_skin.model.skin import SkinModel, pair_label
+from nao_skin.touch.events import EventConfig, EventDetector
+
+MAX_LOGGED_ERRORS = 5        # bad messages said one by one (all are counted)
+RECENT_SKIN_MESSAGES = 20000   # skin messages whose processing time the progress' percentiles cover
+
+
+class TouchRecording:
+    """The touches of one session into the touch bag ``bag_path`` (a new directory, opened here)."""
+
+    def __init__(self, skin: SkinModel, config: EventConfig, bag_path: str | Path, storage: str):
+        self.skin = skin
+        self.detector = EventDetector.for_skin(skin, config)
+        self.parts = list(skin.parts)
+        self.joint_names = list(skin.robot.joint_names)
+        self.bag_path = Path(bag_path).expanduser().resolve()
+        self.bag = BagWriter(self.bag_path, storage, kind="touches", live=True)
+        self.bag.__enter__()
+        self.n_touches = 0
+        self.pairs: Counter = Counter()
+        self.touched = ActivationCounts({n: skin.parts[n].n_slots for n in self.parts})     # in recorded touches
+        self.errors: Counter = Counter()
+        self._said_errors = 0
+        self.skin_ms: deque = deque(maxlen=RECENT_SKIN_MESSAGES)     # processing time of recent skin messages
+        self._dirty = False
+        self.closed = False
+        self._flushed = 0            # touches made durable by the last flush
+        self.lags = ArrivalLags()    # do the skin and the joints share a clock?
+        self._skew_said: set = set()
+        self._skew_seen: dict = {}   # skin topic -> progress checks in a row it was beyond the limit
+
+    # ------------------------------------------------------------------ input
+    def joint_state(self, stamp: float, names, positions, arrived: float) -> None:
+        self.lags.add(JOINT_STATES_TOPIC, stamp, arrived)
+        self._write(self.detector.add_joint_state(stamp, names, positions))
+
+    def taxels(self, part: str, stamp: float, slots, pressures, contacts, arrived: float) -> None:
+        self.lags.add(taxels_topic(part), stamp, arrived)
+        self._write(self.detector.add_skin(stamp, part, slots.tolist(), pressures.tolist(), contacts.tolist()))
+
+    def contacts(self, part: str, stamp: float, contact_ids, cops) -> None:
+        self._write(self.detector.add_contacts(stamp, part, contact_ids, cops))
+
+    def bad_message(self) -> bool:
+        """Count a message that could not be read; True while it is still to be said (the first few)."""
+        self.errors["bad message"] += 1
+        self._said_errors += 1
+        return self._said_errors <= MAX_LOGGED_ERRORS
+
+    # ------------------------------------------------------------------ output
+    def _write(self, records) -> None:
+        touches = detected_touch_messages(records, self.skin, self.detector.part_names, self.joint_names,
+                                          self.bag_path)
+        for stamp_ns, joint_names, joints, parts in touches:
+            if self.closed:
+                return
+            try:
+                self.bag.write_touch(stamp_ns, joint_names, joints, parts)
+            except OutputError as exc:
+                self._cannot_write(exc)
+            for part, taxels, _ in parts:
+                self.touched.update(part.name, taxels["slot"])
+            self.pairs[pair_label(part.name for part, _, _ in parts)] += 1
+            self.n_touches += 1
+            self._dirty = True
+
+    def flush(self) -> None:
+        """Make what was written durable: a recorder killed outright loses at most what came since."""
+        if self._dirty and not self.closed:
+            try:
+                self.bag.flush()
+            except OutputError as exc:
+                self._cannot_write(exc)
+            self._dirty = False
+            self._flushed = self.n_touches
+
+    def _cannot_write(self, exc: OutputError) -> NoReturn:
+        """The bag cannot take more (e.g. the disk is full): stop recording, leave the bag as it is.
+
+        Closing it would write again; left open, with its lock, every reader takes it for a recording
+        whose recorder died and reads it up to its last flush. The recorder ends (exit 2) and with it a
+        record session, rather than let the operator go on touching for nothing.
+        """
+        self.closed = True
+        if isinstance(exc, BagMoved):     # it says where the touches are now
+            raise OutputError(f"{exc} after {self.n_touches} touches") from None
+        then = "free some space, then record on" if isinstance(exc, DiskFull) else "once that is fixed, record on"
+        raise OutputError(f"{exc} after {self.n_touches} touches; recording stopped. The bag keeps the"
+                          f" {self._flushed} touches flushed before (maybe a few more) and nao-skin reads it as it"
+                          f" is; {then} into a new bag") from None
+
+    def close(self) -> str | None:
+        """End of the session: resolve what waits, write it, close the bag (metadata); the line that says what
+        the bag holds (None: closed before)."""
+        if self.closed:
+            return None
+        self._write(self.detector.flush())
+        self.closed = True
+        try:
+            self.bag.__exit__(None, None, None)
+        except OutputError as exc:
+            self._cannot_write(exc)
+        return f"wrote {self.n_touches} touches to {self.bag_path}: {json.dumps(dict(self.pairs))}"
+
+    # ------------------------------------------------------------------ what the operator is told
+    def progress(self) -> dict:
+        ms = np.array(self.skin_ms) if self.skin_ms else np.zeros(1)
+        drops = {k: v for k, v in self.detector.counts.items() if k not in ("touches", "continued press")}
+        return {
+            "bag": str(self.bag_path), "touches": self.n_touches, "pairs": dict(self.pairs),
+            "coverage": {n: round(self.touched.coverage(n, self.skin.parts[n].present), 4) for n in self.parts},
+            "dropped": drops | dict(self.errors),
+            # per skin topic, s its stamps lag the joint states' (beyond a few ms: another clock)
+            "clock_skew_s": {t: round(v, 4) for t, v in self.lags.skew(JOINT_STATES_TOPIC).items()},
+            "skin_message_ms": {"n": len(self.skin_ms), "p50": round(float(np.percentile(ms, 50)), 4),
+                                "p99": round(float(np.percentile(ms, 99)), 4), "max": round(float(ms.max()), 4)},
+        }
+
+    def clock_warnings(self, skew: dict) -> list:
+        """What to say of a progress check's ``clock_skew_s``: once per skin stream whose stamps are on another
+        clock than the joint states', beyond the limit at two checks in a row (one check's window can still
+        hold a start-up queue)."""
+        out = []
+        for topic, s in skew.items():
+            beyond = abs(s) > SKEW_LIMIT_S
+            self._skew_seen[topic] = self._skew_seen.get(topic, 0) + 1 if beyond else 0
+            if self._skew_seen[topic] >= 2 and topic not in self._skew_said:
+                self._skew_said.add(topic)
+                out.append(f"{topic} is stamped {abs(s):.2f} s {'behind' if s > 0 else 'ahead of'}"
+                           f" {JOINT_STATES_TOPIC} for messages that arrive together: the skin's clock is not the"
+                           f" joints' (skinManager on another host?), so every touch takes the arm pose of another"
+                           f" moment. Synchronise the clocks (chrony/NTP), or start yarp_skin_bridge with"
+                           f" stamp:=receive")
+        return out

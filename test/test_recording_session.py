@@ -1,0 +1,78 @@
+"""A record session's recording without ROS (session.recording.TouchRecording): the live streams in, a touch bag
+out, and what the operator is told. The node (pairing_recorder) only translates messages to it: the tests of the
+node over real DDS are in test_node_session.py, test_recording_survives.py and test_clock_skew.py."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nao_skin.formats.bag import read_touches
+from nao_skin.live.clocks import MIN_MESSAGES, SKEW_LIMIT_S
+from nao_skin.live.playback import Playback
+from nao_skin.session.recording import MAX_LOGGED_ERRORS, TouchRecording
+from nao_skin.sim.simulate import simulate
+from nao_skin.touch.datasets import deduplicate
+from nao_skin.touch.events import LIVE_CONFIG
+
+
+def _play(recording: TouchRecording, playback: Playback, start: float, skin_hz: float = 50.0,
+          joint_hz: float = 100.0) -> None:
+    """The streams a robot sends while ``playback`` plays, in the order they arrive (stamps from ``start``)."""
+    times = sorted([(t, "joints") for t in np.arange(0.0, playback.duration, 1.0 / joint_hz)]
+                   + [(t, "skin") for t in np.arange(0.003, playback.duration, 1.0 / skin_hz)])
+    for t, kind in times:
+        stamp = start + float(t)
+        if kind == "joints":
+            recording.joint_state(stamp, playback.joint_names, playback.joints_at(t), arrived=stamp + 0.002)
+            continue
+        k = playback.touch_at(t)
+        for part in playback.part_names:
+            sample = playback.samples[k].get(part) if k >= 0 else None
+            if sample is None:
+                recording.taxels(part, stamp, np.zeros(0, int), np.zeros(0), np.zeros(0, int), arrived=stamp + 0.003)
+                continue
+            recording.contacts(part, stamp, sample.contact_list, sample.cop)
+            recording.taxels(part, stamp, sample.slots, sample.pressures, sample.contact_ids, arrived=stamp + 0.003)
+
+
+def test_the_touches_played_are_the_touches_in_the_bag(skin, tmp_path):
+    sim = simulate(skin, {"pairs": [["l_hand", "torso"], ["r_hand", "head"]], "n_touches": 6}, seed=1)
+    touches, _ = deduplicate(sim.touches)
+    recording = TouchRecording(skin, LIVE_CONFIG, tmp_path / "touches", "mcap")
+    _play(recording, Playback(touches, skin, period=0.6, press=0.2, hold=0.05), start=1.7e9)
+    recording.flush()
+    progress = recording.progress()
+    assert progress["touches"] == touches.n_touches == 12 and progress["pairs"] == {"l_hand+torso": 6, "r_hand+head": 6}
+    assert 0 < progress["coverage"]["torso"] < 1
+    assert all(abs(s) < 0.01 for s in progress["clock_skew_s"].values()) and recording.clock_warnings(
+        progress["clock_skew_s"]) == recording.clock_warnings(progress["clock_skew_s"]) == []     # one clock
+    assert recording.close().startswith(f"wrote 12 touches to {tmp_path / 'touches'}: ")
+    assert recording.close() is None                       # closed once
+    back, report = read_touches(tmp_path / "touches", skin)
+    assert back.n_touches == 12 and report.n_skipped == 0
+    np.testing.assert_allclose(back.joints, touches.joints[np.argsort(touches.stamps, kind="stable")])
+    assert sorted(back.act_slot.tolist()) == sorted(touches.act_slot.tolist())
+
+
+def test_a_skin_stream_on_another_clock_is_said_once_after_two_checks(skin, tmp_path):
+    recording = TouchRecording(skin, LIVE_CONFIG, tmp_path / "touches", "sqlite3")
+    for i in range(MIN_MESSAGES + 5):
+        t = 100.0 + 0.02 * i
+        recording.joint_state(t, list(skin.robot.joint_names), np.zeros(len(skin.robot.joint_names)), t + 0.002)
+        for part, behind in (("torso", 3.0), ("head", 0.0)):
+            recording.taxels(part, t - behind, np.zeros(0, int), np.zeros(0), np.zeros(0, int), t + 0.003)
+    skew = recording.progress()["clock_skew_s"]
+    assert skew["/skin/torso/taxels"] == pytest.approx(3.001) and abs(skew["/skin/head/taxels"]) < SKEW_LIMIT_S
+    assert recording.clock_warnings(skew) == []            # one check's window can still hold a start-up queue
+    [said] = recording.clock_warnings(skew)
+    assert said.startswith("/skin/torso/taxels is stamped 3.00 s behind /joint_states")
+    assert recording.clock_warnings(skew) == []            # said once
+    recording.close()
+
+
+def test_bad_messages_are_all_counted_and_the_first_few_said(skin, tmp_path):
+    recording = TouchRecording(skin, LIVE_CONFIG, tmp_path / "touches", "sqlite3")
+    said = [recording.bad_message() for _ in range(MAX_LOGGED_ERRORS + 3)]
+    assert said == [True] * MAX_LOGGED_ERRORS + [False] * 3
+    assert recording.progress()["dropped"]["bad message"] == MAX_LOGGED_ERRORS + 3
+    recording.close()
