@@ -1,5 +1,7 @@
 """Live calibration's core, without ROS: a warm-started update, and what decides that it is published
 and that a part is done (the node over real DDS: test_live_calibration.py)."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -220,3 +222,22 @@ def test_a_live_session_updates_waits_and_fails_without_raising(skin, session, t
     gone = live(tmp_path / "nowhere").update()
     assert gone.status["state"] == "failed" and "nowhere" in gone.status["error"] and gone.touches is None
     assert "\n" not in gone.status["error"]
+
+
+def test_the_session_end_writes_beside_an_out_dir_written_during_the_session(tmp_path):
+    """The last live calibration goes to out_dir unless something wrote there meanwhile: then it goes beside it,
+    and the warning names who wrote it (the node's own requested calibration, or another command)."""
+    from nao_skin.paths import identity
+    from nao_skin.session.live import session_end_out_dir
+
+    out = tmp_path / "bag_calibration"
+    assert session_end_out_dir(out, identity(out), None, "/nao_skin/calibrate") == (out, None)   # still absent
+    at_start = identity(out)
+    out.mkdir()
+    (out / "calibration.yaml").write_text("parts: {}\n")
+    beside, said = session_end_out_dir(out, at_start, None, "/nao_skin/calibrate")
+    assert beside == f"{out}.live" and not Path(beside).exists()
+    assert said == (f"out_dir {out} was written by another command during the session and is left as it is; the"
+                    f" session's last live calibration goes to {beside}")
+    _, said = session_end_out_dir(out, at_start, identity(out), "/nao_skin/calibrate")
+    assert said.startswith(f"out_dir {out} was written by the calibration requested on /nao_skin/calibrate")

@@ -36,9 +36,9 @@ from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
 from nao_skin.nodes.topics import (GUIDANCE_TOPIC, LATCHED, MAX_SKIPPED_SAID, PROGRESS_TOPIC, REQUEST_TOPIC,
                                    STATUS_TOPIC)
-from nao_skin.paths import free_sibling, identity
+from nao_skin.paths import identity
 from nao_skin.plain import jsonable
-from nao_skin.session.live import LiveCalibration
+from nao_skin.session.live import LiveCalibration, session_end_out_dir
 from nao_skin.session.params import CALIBRATE, guidance_pairs, options_from_params, skin_from_params
 
 
@@ -235,17 +235,10 @@ class CalibrateNode(Node):
         if self.p["live"] and self.live.last is not None:
             from nao_skin.calibration.report import write_outputs
 
-            out_dir = self.p["out_dir"]
-            now = identity(out_dir)
-            if now != self._out_dir_at_start:
-                # written during the session, by a calibration requested of this node (other bags, maybe) or
-                # by another command (e.g. a calibrate --out of the bag so far): it stays, the session's last
-                # live calibration goes beside it
-                out_dir = free_sibling(self.p["out_dir"], ".live")
-                by = ("the calibration requested on " + REQUEST_TOPIC if now == self._requested_out
-                      else "another command")
-                self.get_logger().warning(f"out_dir {self.p['out_dir']} was written by {by} during the session and"
-                                          f" is left as it is; the session's last live calibration goes to {out_dir}")
+            out_dir, moved = session_end_out_dir(self.p["out_dir"], self._out_dir_at_start, self._requested_out,
+                                                 REQUEST_TOPIC)
+            if moved:
+                self.get_logger().warning(moved)
             # a failure here (out_dir refused, the disk full) is the node's one line and exit 2
             self._check_live_out_dir(out_dir)
             out = write_outputs(self.live.last, self.skin, out_dir, plots=False, command="calibrate (node, live)")

@@ -25,6 +25,7 @@ from nao_skin.formats.bag import GrowingBag
 from nao_skin.formats.inputs import find_bag
 from nao_skin.live.updates import LiveUpdates, Settling
 from nao_skin.model.skin import SkinCalibration, SkinModel, pair_label
+from nao_skin.paths import free_sibling, identity
 from nao_skin.touch.touches import TouchSet
 
 
@@ -84,3 +85,20 @@ class LiveCalibration:
         except Exception as exc:  # noqa: BLE001 - a failed update keeps the last good calibration published
             return LiveOutcome({"state": "failed", "error": one_line(exc), "parts": self.parts_state()}, None,
                                touches)
+
+
+def session_end_out_dir(out_dir: str | Path, at_start, requested, requested_by: str) -> tuple:
+    """``(directory, warning or None)``: where the session's last live calibration is written when it ends.
+
+    ``out_dir`` unless it changed during the session (``at_start``: its :func:`~nao_skin.paths.identity` then;
+    ``requested``: as the calibration requested of the node, on ``requested_by``, left it): then something
+    wrote there meanwhile (that request, other bags maybe, or another command, e.g. a calibrate --out of the bag
+    so far), and it stays; the live calibration goes beside it.
+    """
+    now = identity(out_dir)
+    if now == at_start:
+        return out_dir, None
+    beside = free_sibling(out_dir, ".live")
+    by = f"the calibration requested on {requested_by}" if now == requested else "another command"
+    return beside, (f"out_dir {out_dir} was written by {by} during the session and is left as it is; the session's"
+                    f" last live calibration goes to {beside}")
