@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from nao_skin.formats.bag import read_touches
+from nao_skin.formats.pointcloud import xyz
 from nao_skin.live.clocks import MIN_MESSAGES, SKEW_LIMIT_S
 from nao_skin.live.playback import Playback
 from nao_skin.session.recording import MAX_LOGGED_ERRORS, TouchRecording
@@ -31,8 +32,10 @@ def _play(recording: TouchRecording, playback: Playback, start: float, skin_hz: 
             if sample is None:
                 recording.taxels(part, stamp, np.zeros(0, int), np.zeros(0), np.zeros(0, int), arrived=stamp + 0.003)
                 continue
-            recording.contacts(part, stamp, sample.contact_list, sample.cop)
-            recording.taxels(part, stamp, sample.slots, sample.pressures, sample.contact_ids, arrived=stamp + 0.003)
+            taxels, contacts = sample          # what a skin driver sends of this press
+            recording.contacts(part, stamp, contacts["contact"], xyz(contacts))
+            recording.taxels(part, stamp, taxels["slot"].astype(int), taxels["pressure"].astype(float),
+                             taxels["contact"].astype(int), arrived=stamp + 0.003)
 
 
 def test_the_touches_played_are_the_touches_in_the_bag(skin, tmp_path):

@@ -353,6 +353,21 @@ def write_touch_bag(path: str | Path, touches: TouchSet, skin: SkinModel, storag
 
 def touch_messages(touches: TouchSet, skin: SkinModel, where: str | Path = "touches"):
     """The arguments of :meth:`BagWriter.write_touch` for every touch, in stamp order (see :func:`write_touch_bag`)."""
+    parts = touch_parts(touches, skin)
+    for t in np.argsort(touches.stamps, kind="stable"):
+        yield (_stamp_ns(touches.stamps[t], f"{where}: touch {touches.keys[t]!r}"), touches.joint_names,
+               touches.joints[t], parts[t])
+
+
+def touch_parts(touches: TouchSet, skin: SkinModel) -> list:
+    """Per touch (index order) its touching parts' skin messages, as a skin driver sends them and a touch bag
+    stores them: ``[(SkinPart, taxel points, contact points)]``
+    (:func:`~nao_skin.formats.pointcloud.taxels_array`, :func:`~nao_skin.formats.pointcloud.contacts_array`).
+
+    Taxel positions are the nominal layout's; a contacts message lists the recorded skinManager contacts
+    (id >= 0) with their recorded COP, the layout's geometric centre and normal, and the mean activation
+    pressure (NaN where a taxel's is unknown).
+    """
     geom = contact_geometry(touches, skin, None)
     act_touch, act_part = touches.act_touch, touches.act_part
     act_cid = touches.contact_id[touches.act_contact]
@@ -361,14 +376,13 @@ def touch_messages(touches: TouchSet, skin: SkinModel, where: str | Path = "touc
     c_has_pressure = np.bincount(touches.act_contact, weights=np.isfinite(touches.act_pressure),
                                  minlength=len(touches.contact_touch)) == geom.n_taxels
     c_pressure = np.where(c_has_pressure, c_pressure, np.nan)
-    # touches in stamp order; activations and contacts grouped per touch for slicing
-    order = np.argsort(touches.stamps, kind="stable")
+    # activations and contacts grouped per touch for slicing
     a_order = np.lexsort((act_part, act_touch))
     a_bounds = np.searchsorted(act_touch[a_order], np.arange(touches.n_touches + 1))
     c_order = np.lexsort((touches.contact_part, touches.contact_touch))
     c_bounds = np.searchsorted(touches.contact_touch[c_order], np.arange(touches.n_touches + 1))
-    for t in order:                                   # one message group per touch: I/O, not maths
-        stamp_ns = _stamp_ns(touches.stamps[t], f"{where}: touch {touches.keys[t]!r}")
+    out = []
+    for t in range(touches.n_touches):                 # one message group per touch: I/O, not maths
         acts = a_order[a_bounds[t]:a_bounds[t + 1]]
         cons = c_order[c_bounds[t]:c_bounds[t + 1]]
         parts = []
@@ -380,7 +394,8 @@ def touch_messages(touches: TouchSet, skin: SkinModel, where: str | Path = "touc
             parts.append((part, taxels_array(slots, part.positions[slots], touches.act_pressure[a], act_cid[a]),
                           contacts_array(touches.contact_id[c], touches.contact_cop[c], geom.normal[c],
                                          geom.geo_center[c], pressure=c_pressure[c])))
-        yield stamp_ns, touches.joint_names, touches.joints[t], parts
+        out.append(parts)
+    return out
 
 
 # ---------------------------------------------------------------------- reading

@@ -10,29 +10,12 @@ its joint angles.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from nao_skin.errors import ConfigError
+from nao_skin.formats.bag import touch_parts
 from nao_skin.model.skin import SkinModel
-from nao_skin.touch.contacts import contact_geometry
 from nao_skin.touch.touches import TouchSet
-
-
-@dataclass
-class PartSample:
-    """One part's skin data during one press."""
-
-    slots: np.ndarray          # (n,) activated slots
-    positions: np.ndarray      # (n, 3) nominal positions (what a skin driver sends)
-    pressures: np.ndarray      # (n,)
-    contact_ids: np.ndarray    # (n,) skinManager contact id of each taxel
-    contact_list: np.ndarray   # (k,) ids of the part's contacts with an id (>= 0)
-    cop: np.ndarray            # (k, 3) recorded COPs
-    normal: np.ndarray         # (k, 3)
-    geo_center: np.ndarray     # (k, 3)
-    pressure: np.ndarray       # (k,) mean pressure of each contact
 
 
 def check_timing(period: float, press: float, hold: float, where: str = "playback") -> None:
@@ -56,34 +39,9 @@ class Playback:
         self.hold = hold
         self.joints = touches.joints
         self.duration = (self.end[-1] + hold + lead_in) if n else lead_in
-        geom = contact_geometry(touches, skin, None)
-        act_part = touches.act_part
-        act_touch = touches.act_touch
-        act_cid = touches.contact_id[touches.act_contact]
-        # per touch and part, prepared once: playing is then only lookups
-        self.samples: list = []
-        a_order = np.lexsort((act_part, act_touch))
-        a_bounds = np.searchsorted(act_touch[a_order], np.arange(n + 1))
-        c_order = np.lexsort((touches.contact_part, touches.contact_touch))
-        c_bounds = np.searchsorted(touches.contact_touch[c_order], np.arange(n + 1))
-        for t in range(n):
-            acts = a_order[a_bounds[t]:a_bounds[t + 1]]
-            cons = c_order[c_bounds[t]:c_bounds[t + 1]]
-            per_part = {}
-            for p in np.unique(act_part[acts]):
-                name = touches.part_names[p]
-                if name not in skin.parts:
-                    continue
-                a = acts[act_part[acts] == p]
-                c = cons[(touches.contact_part[cons] == p) & (touches.contact_id[cons] >= 0)]
-                slots = touches.act_slot[a]
-                c_pressure = np.array([np.nanmean(touches.act_pressure[touches.act_contact == ci])
-                                       if np.any(np.isfinite(touches.act_pressure[touches.act_contact == ci]))
-                                       else np.nan for ci in c])
-                per_part[name] = PartSample(slots, skin.parts[name].positions[slots], touches.act_pressure[a],
-                                            act_cid[a], touches.contact_id[c], touches.contact_cop[c],
-                                            geom.normal[c], geom.geo_center[c], c_pressure)
-            self.samples.append(per_part)
+        # per touch, what each touching part's skin sends while pressed: prepared once, playing is then lookups
+        self.samples: list = [{part.name: (taxels, contacts) for part, taxels, contacts in parts}
+                              for parts in touch_parts(touches, skin)]
 
     def __len__(self) -> int:
         return self.touches.n_touches

@@ -159,15 +159,12 @@ class SimRobot(Node):
         pressed = self.playback.samples[k] if k >= 0 else {}
         for name in self.parts:
             frame = self.skin.parts[name].parent_frame
-            s = pressed.get(name)
-            if s is None:
+            if name in pressed:
+                taxels, contacts = (cloud_from_array(points, frame, stamp) for points in pressed[name])
+            else:
                 taxels, contacts = self._empty[name]
                 taxels.header.stamp = stamp
                 contacts.header.stamp = stamp
-            else:
-                taxels = cloud_from_array(taxels_array(s.slots, s.positions, s.pressures, s.contact_ids), frame, stamp)
-                contacts = cloud_from_array(contacts_array(s.contact_list, s.cop, s.normal, s.geo_center,
-                                                           pressure=s.pressure), frame, stamp)
             # contacts first: the recorder attaches them to the taxel sample of the same stamp
             self.contact_pub[name].publish(contacts)
             self.taxel_pub[name].publish(taxels)
