@@ -36,9 +36,8 @@ from nao_skin.live.playback import Playback
 from nao_skin.nodes.messages import cloud_from_array, joint_state_msg
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.topics import GUIDANCE_TOPIC, LATCHED, SIM_STATUS_TOPIC
-from nao_skin.session.params import SIM_ROBOT, check_sim_robot, sim_overrides, skin_from_params
+from nao_skin.session.params import SIM_ROBOT, check_sim_robot
 from nao_skin.sim.capture import Aim, CaptureSim
-from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 
 
@@ -46,9 +45,7 @@ class SimRobot(Node):
     def __init__(self, **kwargs):
         super().__init__("sim_robot", **kwargs)
         p = declare(self, SIM_ROBOT)
-        check_sim_robot(p)
-        self.skin = skin_from_params(p)
-        params = load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], self.skin.parts))
+        self.skin, params = check_sim_robot(p)
         self.timing = (p["touch_period"], p["press_duration"], p["hold"])
         self.guided = bool(p["guided"])
         self.targets: list = []           # the latest guidance's targets, best first

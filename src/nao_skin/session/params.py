@@ -194,11 +194,14 @@ def check_naoqi_bridge(p: dict, where: str = "") -> None:
                           f" reconnect_max:={p['reconnect_max']}: the first delay is longer than the longest")
 
 
-def check_sim_robot(p: dict, where: str = "sim_robot") -> None:
-    """Presses that do not overlap, a preset and pairs the simulator knows for this skin."""
+def check_sim_robot(p: dict, where: str = "sim_robot") -> tuple:
+    """Presses that do not overlap, a preset and pairs the simulator knows for this skin: ``(skin, simulation
+    parameters)`` of the node."""
     check_timing(p["touch_period"], p["press_duration"], p["hold"], where)
     skin = skin_from_params(p)
-    check_posture(load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], skin.parts)), skin)
+    params = load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], skin.parts))
+    check_posture(params, skin)
+    return skin, params
 
 
 def guidance_pairs(p: dict, skin: SkinModel) -> tuple:
