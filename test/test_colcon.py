@@ -204,7 +204,8 @@ def _imported_top_level_modules(paths) -> set:
 
 
 def test_package_xml_declares_every_package_the_code_imports():
-    """rosdep installs only what package.xml names: an undeclared import breaks a fresh ROS 2 install."""
+    """rosdep installs only what package.xml names: an undeclared import breaks a fresh ROS 2 install (and a
+    package named there that nothing uses is installed for nothing)."""
     from catkin_pkg.package import parse_package
 
     package = parse_package(str(ROOT / "package.xml"))     # also validates the format
@@ -213,3 +214,6 @@ def test_package_xml_declares_every_package_the_code_imports():
     assert {"rclpy", "launch"} <= imported        # the scan sees the code's imports
     needed = {NOT_ROS.get(name, name) for name in imported} - {None}
     assert needed <= declared, f"not in package.xml's exec_depend: {sorted(needed - declared)}"
+    # and nothing else: what the launch file starts, or a package the code imports
+    started = {"robot_state_publisher", "rviz2"}
+    assert declared - started <= needed, f"in package.xml but never imported: {sorted(declared - started - needed)}"
