@@ -199,10 +199,20 @@ def test_chain_naming_an_unknown_joint_fails_naming_file_and_joint(tmp_path):
     (lambda d: d.update(linkz=d.pop("links")), "unknown key 'linkz' (did you mean 'links'?)"),
     (lambda d: d["chains"]["head"][1].update(foo=1), "chain 'head' row 1: unknown key 'foo'"),
     (lambda d: d["links"]["LElbowOffsetY"].update(sign=-1), "link 'LElbowOffsetY': unknown key 'sign'"),
+    # the simulator's body: a misspelt joint would rest at 0 without a word
+    (lambda d: d["body"]["rest_posture"].update(HeadYow=[0, 0.1]), "body: rest_posture: HeadYow: not a joint of"),
+    (lambda d: d["body"]["rest_posture"].update(HeadYaw=[0, -0.1]), "body: rest_posture: HeadYaw: expected [mean,"),
+    (lambda d: d["body"]["rest_posture"].update(HeadYaw=0.3), "body: rest_posture: HeadYaw: expected [mean, spread]"),
+    (lambda d: d["body"].update(box=[[0.1, -0.1], [0, 0], [0, 0]]), "body: box: expected [[low, high]] metres"),
+    (lambda d: d["body"].update(box=[[-0.1, 0.1]]), "body: box: expected [[low, high]] metres"),
+    (lambda d: d["body"].update(hand_end=[0, float("nan"), 0]), "body: hand_end: nan is not a finite number"),
+    (lambda d: d["body"].update(hand_end=[0, 1e9, 0]), "body: hand_end: expected [x, y, z] metres"),
+    (lambda d: d["body"].update(rest=1), "body: unknown key 'rest'"),
 ], ids=["one-limit", "limits-swapped", "limits-beyond-two-turns", "angle-words", "missing-d", "frame-twice", "frame-is-base", "no-chains", "chains-list", "joints-list",
         "links-list", "link-row-word", "nan-limit", "infinite-limit", "nan-length", "huge-length", "joint-list",
         "frame-number", "frame-space", "frame-markup", "base-frame-list", "name-null", "top-key", "row-key",
-        "link-key"])
+        "link-key", "rest-unknown-joint", "rest-negative-spread", "rest-number", "box-swapped", "box-one-axis",
+        "hand-end-nan", "hand-end-huge", "body-key"])
 def test_malformed_robot_config_fails_with_one_line(tmp_path, mutate, expected):
     path = write_robot(tmp_path, mutate)
     with pytest.raises(ConfigError) as err:

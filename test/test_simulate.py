@@ -307,12 +307,6 @@ def test_every_default_is_defined_once_in_the_yaml():
     ({"start_stamp": float("nan")}, ["'start_stamp' must be seconds since 1970", "got nan"]),
     # a Python warning 'divide by zero' on stderr, and a recording
     ({"press_reach": [0, 0]}, ["'press_reach' must start above 0 m (a compliant fabric), got [0, 0]"]),
-    # the robot's body and rest posture are data (config/simulation.yaml), checked as the rest
-    ({"idle_posture": {"HeadYaw": [0.0, -0.4]}}, ["'idle_posture' must map joint names to [mean, spread] radians"]),
-    ({"idle_posture": {"HeadYaw": 0.0}}, ["'idle_posture' must map joint names to [mean, spread] radians"]),
-    ({"body_box": [[0.1, -0.1], [0, 0], [0, 0]]}, ["'body_box' must be [[low, high]] metres for x, y and z"]),
-    ({"body_box": [[-0.1, 0.1]]}, ["'body_box' must be [[low, high]] metres for x, y and z"]),
-    ({"hand_end": [0, float("nan"), 0]}, ["'hand_end' must be [x, y, z] metres"]),
 ])
 def test_bad_parameters_fail_in_one_line(overrides, words):
     with pytest.raises(ConfigError) as exc:
@@ -323,15 +317,24 @@ def test_bad_parameters_fail_in_one_line(overrides, words):
         assert word in message
 
 
-def test_a_rest_posture_of_a_joint_the_robot_lacks_is_named_before_anything_is_simulated(skin, tmp_path, capsys):
-    with pytest.raises(ConfigError, match=r"^idle_posture: LKnee not a joint of the robot \(HeadYaw, HeadPitch, "):
-        simulate(skin, {"n_touches": 2, "idle_posture": {"LKnee": [0.0, 0.1], "HeadYaw": [0.0, 0.4]}}, seed=0)
-    params = tmp_path / "sim.yaml"
-    params.write_text("defaults:\n  idle_posture: {HeadYaw: [0.0, 0.4], HeadYow: [0.0, 0.4]}\npresets: {}\n")
-    assert cli_main(["simulate", "--params", str(params), "--out", str(tmp_path / "out")]) == 2
-    assert capsys.readouterr().err.strip().splitlines()[-1].startswith(
-        f"nao-skin simulate: error: {params}: preset 'default': idle_posture: HeadYow not a joint of the robot")
-    assert not (tmp_path / "out").exists()
+def test_another_robot_rests_and_keeps_out_of_its_own_body(tmp_path):
+    """The rest posture and the torso box are the robot config's (``body``): a robot whose joints are named
+    otherwise simulates with its own, and one without a body rests at 0 and poses without a torso box."""
+    from nao_skin.paths import config_dir
+
+    text = (config_dir() / "nao_h25.yaml").read_text()
+    renamed = tmp_path / "other_robot.yaml"
+    renamed.write_text(text.replace("HeadYaw", "NeckYaw"))
+    other = load_skin(robot_config=renamed)
+    assert "NeckYaw" in other.robot.body.rest_posture and other.robot.body.box is not None
+    nao = simulate(load_skin(), {"n_touches": 3, "pairs": [["l_hand", "head"]]}, seed=2).touches
+    ours = simulate(other, {"n_touches": 3, "pairs": [["l_hand", "head"]]}, seed=2).touches
+    np.testing.assert_array_equal(ours.joints, nao.joints)          # the same robot under other names
+    bodiless = tmp_path / "bodiless.yaml"
+    bodiless.write_text(text[:text.index("\nbody:")] + "\n")
+    bare = load_skin(robot_config=bodiless)
+    assert bare.robot.body.rest_posture == {} and bare.robot.body.box is None
+    assert simulate(bare, {"n_touches": 3, "pairs": [["l_hand", "torso"]]}, seed=2).touches.n_touches >= 3
 
 
 @pytest.mark.parametrize("pair", [["torso", "head"], ["l_hand", "r_hand"]])

@@ -49,8 +49,7 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from nao_skin.errors import ConfigError
     from nao_skin.formats.outdir import RECORDING, check_output_dir
-    from nao_skin.sim.params import (MAX_TOUCHES_PER_PAIR, check_pairs, check_posture, default_params_file,
-                                     load_params, pair_list)
+    from nao_skin.sim.params import MAX_TOUCHES_PER_PAIR, check_pairs, default_params_file, load_params, pair_list
     from nao_skin.sim.simulate import simulate, write_outputs
 
     skin = skin_from_args(args)
@@ -65,9 +64,7 @@ def run(args) -> int:
                               f" 1..{MAX_TOUCHES_PER_PAIR}")
         overrides["n_touches"] = args.touches_per_pair
     params = load_params(args.preset, overrides, args.params)
-    where = f"{args.params or default_params_file()}: preset '{args.preset}'"
-    check_pairs(pair_list(params), skin, where=where)
-    check_posture(params, skin, where=where)
+    check_pairs(pair_list(params), skin, where=f"{args.params or default_params_file()}: preset '{args.preset}'")
     result = simulate(skin, params, args.seed)
     for path in write_outputs(result, skin, Path(args.out), preset=args.preset, storage=args.storage):
         print(path)

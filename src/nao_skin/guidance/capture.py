@@ -356,7 +356,7 @@ def _solve(targets: list, skin: SkinModel, calib: SkinCalibration, counts: dict,
         gap = np.full(n, 2.0 * p.fabric_thickness)
         q, ok, best, pos_err, _, _ = solve_poses(skin, hand, touched, h_spots, Spots(*(
             np.asarray(a) for a in (t_spots.triangle, t_spots.point, t_spots.normal))), gap,
-            idle_joints(skin, n, rng, p.idle_posture), calib, p, rng, counts[hand].astype(float))
+            idle_joints(skin, n, rng), calib, p, rng, counts[hand].astype(float))
         joints = _pair_joints(skin, hand, touched)
         for j, i in enumerate(rows):
             results.setdefault(i, {})[(hand, touched)] = (

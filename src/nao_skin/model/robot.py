@@ -50,7 +50,8 @@ def _finite(number: float, value, where: str) -> float:
 MAX_LINK_LENGTH = 10.0
 
 
-ROBOT_KEYS = ("name", "base_frame", "joints", "chains", "links")
+ROBOT_KEYS = ("name", "base_frame", "joints", "chains", "links", "body")
+BODY_KEYS = ("rest_posture", "box", "hand_end")
 DH_ROW_KEYS = ("joint", "a", "d", "alpha", "offset", "frame")
 DH_PARAMS = ("a", "d")   # the DH columns a named link length may be (translations along x and z of a row)
 
@@ -89,6 +90,57 @@ class Chain:
 MAX_JOINT_LIMIT = 4 * np.pi    # rad: a humanoid's joint turns less than this either way
 
 
+@dataclass(frozen=True)
+class Body:
+    """The body the simulator poses (a robot config's ``body``): how the robot rests, ``{joint: (mean,
+    spread)}`` rad (a joint not listed: 0 +- :data:`REST_SPREAD`), and the rough torso, a box of the base frame
+    ``(3, 2)`` [low, high] (None: none), that an arm chain's end frame origin and ``hand_end`` (a point of
+    that frame, m) keep out of."""
+
+    rest_posture: dict
+    box: np.ndarray | None = None
+    hand_end: np.ndarray | None = None
+
+
+REST_SPREAD = 0.1     # rad
+
+
+def _body(spec, joints, where: str) -> Body:
+    if not isinstance(spec, dict):
+        raise ConfigError(f"{where}: expected a mapping of {', '.join(BODY_KEYS)}")
+    known_keys(spec, BODY_KEYS, where)
+    posture = spec.get("rest_posture") or {}
+    if not isinstance(posture, dict):
+        raise ConfigError(f"{where}: rest_posture: expected a mapping of joint names to [mean, spread] radians")
+    rest = {}
+    for name, value in posture.items():
+        at = f"{where}: rest_posture: {name}"
+        if name not in joints:
+            raise ConfigError(f"{at}: not a joint of this robot (joints: {', '.join(joints)})")
+        if not (isinstance(value, (list, tuple)) and len(value) == 2):
+            raise ConfigError(f"{at}: expected [mean, spread] radians")
+        mean, spread = (parse_angle(v, at) for v in value)
+        if abs(mean) > MAX_JOINT_LIMIT or not 0 <= spread <= MAX_JOINT_LIMIT:
+            raise ConfigError(f"{at}: expected [mean, spread] radians, spread >= 0, within two turns")
+        rest[str(name)] = (mean, spread)
+    box = spec.get("box")
+    if box is not None:
+        if not (isinstance(box, (list, tuple)) and len(box) == 3 and all(
+                isinstance(r, (list, tuple)) and len(r) == 2 for r in box)):
+            raise ConfigError(f"{where}: box: expected [[low, high]] metres for x, y and z of the base frame")
+        box = np.array([[parse_angle(v, f"{where}: box") for v in r] for r in box])
+        if np.any(box[:, 0] > box[:, 1]) or np.any(np.abs(box) > MAX_LINK_LENGTH):
+            raise ConfigError(f"{where}: box: expected [[low, high]] metres for x, y and z of the base frame")
+    hand_end = spec.get("hand_end")
+    if hand_end is not None:
+        if not (isinstance(hand_end, (list, tuple)) and len(hand_end) == 3):
+            raise ConfigError(f"{where}: hand_end: expected [x, y, z] metres in an arm chain's end frame")
+        hand_end = np.array([parse_angle(v, f"{where}: hand_end") for v in hand_end])
+        if np.any(np.abs(hand_end) > MAX_LINK_LENGTH):
+            raise ConfigError(f"{where}: hand_end: expected [x, y, z] metres in an arm chain's end frame")
+    return Body(rest, box, hand_end)
+
+
 class RobotModel:
     """Kinematic model of the robot's upper body.
 
@@ -97,8 +149,10 @@ class RobotModel:
     """
 
     def __init__(self, name: str, base_frame: str, joint_limits: Mapping[str, Sequence[float]],
-                 chains: Mapping[str, Chain], source: str = "<memory>", links: Mapping[str, Link] | None = None):
+                 chains: Mapping[str, Chain], source: str = "<memory>", links: Mapping[str, Link] | None = None,
+                 body: Body | None = None):
         self.name = name
+        self.body = body or Body({})
         self.base_frame = base_frame
         self.joint_names = list(joint_limits)
         self.joint_index = {n: i for i, n in enumerate(self.joint_names)}
@@ -183,8 +237,9 @@ class RobotModel:
                 raise ConfigError(f"{path}: link '{lname}' needs chain, row (a whole number) and param (a or d)")
             known_keys(spec, ("chain", "row", "param"), f"{path}: link '{lname}'")
             links[str(lname)] = Link(str(spec["chain"]), int(spec["row"]), str(spec["param"]))
+        body = _body(doc["body"], limits, f"{path}: body") if "body" in doc else None
         return cls(frame_name(doc.get("name", path.stem), f"{path}: name", "robot name"), base_frame,
-                   limits, chains, source=str(path), links=links)
+                   limits, chains, source=str(path), links=links, body=body)
 
     # ------------------------------------------------------------------ corrections
     def kinematic_names(self, chains) -> list:
@@ -212,7 +267,7 @@ class RobotModel:
                                   f" (links: {', '.join(self.links) or 'none'})")
         chains = {name: Chain(name, dh[name], chain.joints, chain.frames) for name, chain in self.chains.items()}
         limits = {n: tuple(self.limits[i]) for i, n in enumerate(self.joint_names)}
-        return RobotModel(self.name, self.base_frame, limits, chains, self.source, self.links)
+        return RobotModel(self.name, self.base_frame, limits, chains, self.source, self.links, self.body)
 
     # ------------------------------------------------------------------ joints
     def chain_joint_names(self, chain: str) -> list:

@@ -36,7 +36,7 @@ import numpy as np
 
 from nao_skin.errors import ConfigError
 from nao_skin.model.skin import SkinModel
-from nao_skin.sim.params import SimParams, check_pairs, check_posture, make_params, pair_list
+from nao_skin.sim.params import SimParams, check_pairs, make_params, pair_list
 from nao_skin.sim.poses import PoseSet, Spots, choose_spots, solve_spots
 from nao_skin.sim.simulate import _assemble, _keep_firing, _pair_activations
 from nao_skin.sim.truth import draw_truth
@@ -65,7 +65,6 @@ class CaptureSim:
         self.params = make_params(params or {}) if not isinstance(params, SimParams) else make_params(params)
         self.pairs = pair_list(self.params)
         check_pairs(self.pairs, skin)
-        check_posture(self.params, skin)
         self.seed = int(seed)
         # the truth exactly as simulate() draws it for this seed and these parameters
         streams = np.random.SeedSequence(self.seed).spawn(2 + 2 * len(self.pairs))

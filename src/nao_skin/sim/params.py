@@ -53,9 +53,6 @@ class SimParams:
     penetration_tolerance: float          # how far another hand taxel may sit behind the target surface (m)
     spot_radius: float                    # chosen contact spot: random point this close to a triangle centre (m)
     planar_band: float                    # > 0: contact spots only in a band this wide (m) -> poses in a plane
-    idle_posture: dict                    # joint -> [mean, spread] (rad) of the robot at rest
-    body_box: list                        # [[low, high]] per base-frame axis (m): the torso a hand stays out of
-    hand_end: list                        # the hand's far end in its chain's end frame (m)
     # ------------------------------------------------------------ contact and activation
     fabric_thickness: float               # fabric over the taxels, each side (m): taxels never coincide
     footprint_radius: list                # pressure spots spread (m)
@@ -196,11 +193,6 @@ def make_params(values: Mapping | SimParams, where: str = "simulation parameters
     return params
 
 
-def _angle(value) -> bool:
-    """A finite angle within a turn either way (radians)."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and abs(value) <= 2 * math.pi
-
-
 def _metres(value) -> bool:
     """A finite length within MAX_METRES: far beyond, forward kinematics overflows (warnings on stderr)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool) and abs(value) <= MAX_METRES
@@ -242,19 +234,6 @@ def validate(p: SimParams, where: str = "simulation parameters") -> None:
     if number("joint_offset_deg") > MAX_JOINT_OFFSET_DEG:
         raise ConfigError(f"{where}: 'joint_offset_deg' {p.joint_offset_deg} is more than {MAX_JOINT_OFFSET_DEG} deg"
                           f" (a calibration file takes joint offsets up to {math.degrees(MAX_JOINT_CORRECTION):.1f})")
-    posture = p.idle_posture
-    if not isinstance(posture, dict) or not all(
-            isinstance(name, str) and isinstance(v, (list, tuple)) and len(v) == 2 and all(_angle(x) for x in v)
-            and v[1] >= 0 for name, v in posture.items()):
-        raise ConfigError(f"{where}: 'idle_posture' must map joint names to [mean, spread] radians (spread >= 0),"
-                          f" got {posture!r}")
-    box = p.body_box
-    if (not isinstance(box, (list, tuple)) or len(box) != 3
-            or not all(isinstance(r, (list, tuple)) and len(r) == 2 and all(_metres(x) for x in r) and r[0] <= r[1]
-                       for r in box)):
-        raise ConfigError(f"{where}: 'body_box' must be [[low, high]] metres for x, y and z, got {box!r}")
-    if not isinstance(p.hand_end, (list, tuple)) or len(p.hand_end) != 3 or not all(_metres(x) for x in p.hand_end):
-        raise ConfigError(f"{where}: 'hand_end' must be [x, y, z] metres, got {p.hand_end!r}")
     if p.press_reach[0] <= 0:      # a taxel's depth is its slack over the reach: 0 divides by it
         raise ConfigError(f"{where}: 'press_reach' must start above 0 m (a compliant fabric), got {p.press_reach!r}")
     if p.pressure_spots[0] < 1:
@@ -291,15 +270,6 @@ def validate(p: SimParams, where: str = "simulation parameters") -> None:
         if (hand, target) in seen:
             raise ConfigError(f"{where}: pair {hand}-{target} is listed twice")
         seen.add((hand, target))
-
-
-def check_posture(p: SimParams, skin: SkinModel, where: str | None = None) -> None:
-    """Every joint of ``idle_posture`` one of the robot's (a misspelt one would rest at 0 +- 0.1 rad)."""
-    unknown = [name for name in p.idle_posture if name not in skin.robot.joint_index]
-    if unknown:
-        at = f"{where}: " if where else ""
-        raise ConfigError(f"{at}idle_posture: {', '.join(unknown)} not a joint of the robot"
-                          f" ({', '.join(skin.robot.joint_names)})")
 
 
 def check_pairs(pairs, skin: SkinModel, where: str | None = None) -> None:

@@ -15,13 +15,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from nao_skin import se3
+from nao_skin.model.robot import REST_SPREAD
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.sim.params import SimParams
 
 NORMAL_WEIGHT = 0.03       # m per unit of normal mismatch: 0.1 rad of tilt costs like 3 mm
 LIMIT_MARGIN = 0.01        # rad kept from the joint limits (the real joints stop softly)
 
-IDLE_SPREAD = 0.1        # rad: a joint the simulation's idle_posture does not list rests at 0 +- this
 
 
 @dataclass
@@ -75,13 +75,12 @@ def _chain_joint_columns(skin: SkinModel, chain: str | None) -> list:
     return [(r, robot.joint_index[j]) for r, j in enumerate(robot.chains[chain].joints) if j is not None]
 
 
-def idle_joints(skin: SkinModel, n: int, rng: np.random.Generator, posture: dict) -> np.ndarray:
-    """(n, J) joint angles of a resting robot (``posture``: the simulation's ``idle_posture``), within the
-    limits."""
+def idle_joints(skin: SkinModel, n: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, J) joint angles of a resting robot (the robot config's ``body: rest_posture``), within the limits."""
     robot = skin.robot
     q = np.zeros((n, len(robot.joint_names)))
     for j, name in enumerate(robot.joint_names):
-        mean, spread = posture.get(name, (0.0, IDLE_SPREAD))
+        mean, spread = robot.body.rest_posture.get(name, (0.0, REST_SPREAD))
         q[:, j] = mean + rng.uniform(-spread, spread, size=n)
     return np.clip(q, robot.limits[:, 0] + LIMIT_MARGIN, robot.limits[:, 1] - LIMIT_MARGIN)
 
@@ -197,10 +196,13 @@ def penetrates(skin: SkinModel, hand: str, target: str, q: np.ndarray, target_sp
     lateral = np.linalg.norm(rel - height[..., None] * normal[:, None], axis=2)
     behind = (lateral < 0.03) & (height < -p.penetration_tolerance)
     bad = behind.any(axis=1)
+    body = skin.robot.body
+    if body.box is None:          # a robot config without a torso box: only the penetration test
+        return bad
     # the elbow (the hand chain's end frame origin) and the hand's far end
-    probes = np.stack([hand_end[:, :3, 3], se3.transform_points(hand_end, np.asarray(p.hand_end, float))], axis=1)
-    box = np.asarray(p.body_box, float)
-    inside = np.all((probes >= box[:, 0]) & (probes <= box[:, 1]), axis=2)
+    far = [] if body.hand_end is None else [se3.transform_points(hand_end, body.hand_end)]
+    probes = np.stack([hand_end[:, :3, 3]] + far, axis=1)
+    inside = np.all((probes >= body.box[:, 0]) & (probes <= body.box[:, 1]), axis=2)
     return bad | inside.any(axis=1)
 
 
@@ -246,7 +248,7 @@ def solve_spots(skin: SkinModel, hand: str, target: str, t_spots: Spots, h_spots
     m = len(t_spots.triangle)
     gap = np.maximum(2 * p.fabric_thickness + rng.normal(0.0, p.scaled("fabric_jitter"), size=m), 0.0)
     q, ok, best, _, _, ok_all = solve_poses(skin, hand, target, h_spots, t_spots, gap,
-                                            idle_joints(skin, m, rng, p.idle_posture), truth, p, rng, counts)
+                                            idle_joints(skin, m, rng), truth, p, rng, counts)
     end = skin.robot.fk(skin.parts[target].chain, q)
     normal = se3.rotate_vectors(end, t_spots.normal)
     contact = se3.transform_points(end, t_spots.point) + 0.5 * gap[:, None] * normal

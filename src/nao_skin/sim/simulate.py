@@ -20,7 +20,7 @@ import yaml
 from nao_skin.errors import ConfigError, OutputError, os_reason
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.sim import contact as sim_contact
-from nao_skin.sim.params import SimParams, check_pairs, check_posture, make_params, pair_list
+from nao_skin.sim.params import SimParams, check_pairs, make_params, pair_list
 from nao_skin.sim.poses import find_poses
 from nao_skin.sim.truth import draw_kinematics, draw_truth
 from nao_skin.touch.contacts import cluster_labels
@@ -47,7 +47,6 @@ def simulate(skin: SkinModel, params: SimParams | dict | None, seed: int) -> Sim
     p = make_params(params or {}) if not isinstance(params, SimParams) else make_params(params)
     pairs = pair_list(p)
     check_pairs(pairs, skin)
-    check_posture(p, skin)
     # independent streams: the truth does not change when touch counts or pairs change
     streams = np.random.SeedSequence(int(seed)).spawn(2 + 2 * len(pairs))
     rng_truth, rng_record = (np.random.default_rng(s) for s in streams[:2])
