@@ -2,9 +2,10 @@
 
 Writes ``DIR/touches.bag`` (rosbag2 touch bag), ``DIR/truth_calibration.yaml``,
 ``DIR/truth_taxels/<part>.txt`` and ``DIR/simulation.yaml``. The same seed and
-options give the same bytes, e.g. the bundled recording::
+options give the same bytes on one machine and version (the bundled recording's
+command and why today's touches differ from it: bags/README.md)::
 
-    nao-skin simulate --preset default --seed 0 --touches-per-pair 1000 --out bags/sim_default --force
+    nao-skin simulate --preset default --seed 0 --touches-per-pair 1000 --out /tmp/sim_default
 
 DIR must be new, empty, or the output of an earlier simulate run (then with
 ``--force``); see :mod:`nao_skin.outdir`.
