@@ -173,3 +173,29 @@ def test_a_request_names_its_bags_by_their_words_or_as_a_json_list():
     assert request_paths("") == [] and request_paths("  a.bag  b ") == ["a.bag", "b"]
     assert request_paths('["/x/sp ace/é bag", ""]') == ["/x/sp ace/é bag"]
     assert request_paths('["a", 5]') == ['["a",', "5]"]          # no list of paths: its words, refused as inputs
+
+
+def test_a_live_session_that_ends_before_any_update_says_no_calibration_is_written(tmp_path):
+    """A short session (or one whose touches never sufficed) wrote nothing beside its bag and said nothing."""
+    import signal
+
+    domain = unique_domain_id()
+    listener = node = None
+    out_dir = tmp_path / "touches_calibration"
+    try:
+        listener = Listener(domain)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        node = node_process("calibrate", {"live": True, "recording": str(tmp_path / "touches"),
+                                          "out_dir": str(out_dir)}, ros_env(domain), tmp_path)
+        assert listener.spin_until(lambda: status, timeout=60, procs=[node])
+        node.popen.send_signal(signal.SIGINT)
+        code = node.popen.wait(timeout=30)
+    finally:
+        if listener is not None:
+            listener.close()
+        if node is not None:
+            node.stop()
+    assert code == 0, node.stderr()[-2000:]
+    assert f"the session ends without a live calibration (no live update ran): none is written to {out_dir}" \
+        in node.stderr()
+    assert not out_dir.exists()

@@ -79,3 +79,18 @@ def test_bad_messages_are_all_counted_and_the_first_few_said(skin, tmp_path):
     assert said == [True] * MAX_LOGGED_ERRORS + [False] * 3
     assert recording.progress()["dropped"]["bad message"] == MAX_LOGGED_ERRORS + 3
     recording.close()
+
+
+def test_a_stream_that_never_comes_is_said_once_and_in_the_last_line(skin, tmp_path):
+    """A robot session whose bridges read nothing (NAOqi unreachable, no yarpserver) ended with 'wrote 0
+    touches' and nothing else: now each silent stream is said once after a while, and at the end."""
+    recording = TouchRecording(skin, LIVE_CONFIG, tmp_path / "touches", "sqlite3")
+    assert recording.silence_warnings(3.0) == []                    # too early to tell
+    said = recording.silence_warnings(12.0)
+    assert [line.split(":")[0] for line in said] == ["no joint states in 12 s", "no skin samples in 12 s"]
+    assert "naoqi_bridge" in said[0] and "yarp_skin_bridge" in said[1]
+    assert recording.silence_warnings(20.0) == []                   # once
+    recording.joint_state(5.0, list(skin.robot.joint_names), np.zeros(len(skin.robot.joint_names)), 5.0)
+    assert recording.close().endswith("{} (no skin samples ever arrived)")
+    fresh = TouchRecording(skin, LIVE_CONFIG, tmp_path / "other", "sqlite3")
+    assert fresh.close().endswith("{} (no joint states and no skin samples ever arrived)")

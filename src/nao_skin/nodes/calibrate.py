@@ -243,6 +243,11 @@ class CalibrateNode(Node):
             self._check_live_out_dir(out_dir)
             out = write_outputs(self.live.last, self.skin, out_dir, plots=False, command="calibrate (node, live)")
             self.get_logger().info(f"the last live calibration -> {out}")
+        elif self.p["live"]:     # a short session, or one whose touches never sufficed: say so, not nothing
+            latched = self._latched
+            why = latched.get("error") if latched.get("state") in ("waiting", "failed") else "no live update ran"
+            self.get_logger().warning(f"the session ends without a live calibration ({why}): none is written to"
+                                      f" {self.p['out_dir']}")
 
 
 def request_paths(text: str) -> list:

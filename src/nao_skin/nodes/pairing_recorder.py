@@ -50,6 +50,7 @@ class PairingRecorder(Node):
         self.recording = TouchRecording(self.skin, config, p["bag_path"] or default_bag_name(), p["storage"])
         self.get_logger().info(f"recording touches to {self.recording.bag_path}")
         self._crowded_said: set = set()
+        self._started = time.monotonic()
         self.create_subscription(JointState, JOINT_STATES_TOPIC, self._on_joints, 200)
         for n in self.skin.parts:
             self.create_subscription(PointCloud2, taxels_topic(n), lambda m, n=n: self._on_taxels(n, m), 200)
@@ -113,7 +114,8 @@ class PairingRecorder(Node):
 
     def _publish_progress(self) -> None:
         progress = self.recording.progress()
-        for warning in self.recording.clock_warnings(progress["clock_skew_s"]):
+        for warning in (self.recording.clock_warnings(progress["clock_skew_s"])
+                        + self.recording.silence_warnings(time.monotonic() - self._started)):
             self.get_logger().warning(warning)
         self._check_publishers()
         self.progress_pub.publish(String(data=json.dumps(progress, sort_keys=True)))

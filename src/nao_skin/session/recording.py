@@ -29,6 +29,15 @@ from nao_skin.model.skin import SkinModel, pair_label
 from nao_skin.touch.events import EventConfig, EventDetector
 
 MAX_LOGGED_ERRORS = 5        # bad messages said one by one (all are counted)
+SILENCE_S = 10.0             # s without a joint state, or without any skin sample, before the operator is told
+
+# what the recorder reads, and where to look when it never comes
+SILENT_STREAMS = {
+    "joint states": f"is anything publishing {JOINT_STATES_TOPIC}? (naoqi_bridge: is nao_ip the robot's, is NAOqi"
+                    f" running; or the driver that replaces it)",
+    "skin samples": "is anything publishing /skin/<part>/taxels? (yarp_skin_bridge: is yarpserver reachable"
+                    " ('yarp detect'), skinManager running, events_port its skin events port, part_ids its parts)",
+}
 RECENT_SKIN_MESSAGES = 20000   # skin messages whose processing time the progress' percentiles cover
 
 
@@ -55,13 +64,17 @@ class TouchRecording:
         self.lags = ArrivalLags()    # do the skin and the joints share a clock?
         self._skew_said: set = set()
         self._skew_seen: dict = {}   # skin topic -> progress checks in a row it was beyond the limit
+        self.received: Counter = Counter()    # joint states and skin samples read
+        self._silence_said: set = set()
 
     # ------------------------------------------------------------------ input
     def joint_state(self, stamp: float, names, positions, arrived: float) -> None:
+        self.received["joint states"] += 1
         self.lags.add(JOINT_STATES_TOPIC, stamp, arrived)
         self._write(self.detector.add_joint_state(stamp, names, positions))
 
     def taxels(self, part: str, stamp: float, slots, pressures, contacts, arrived: float) -> None:
+        self.received["skin samples"] += 1
         self.lags.add(taxels_topic(part), stamp, arrived)
         self._write(self.detector.add_skin(stamp, part, slots.tolist(), pressures.tolist(), contacts.tolist()))
 
@@ -127,7 +140,9 @@ class TouchRecording:
             self.bag.__exit__(None, None, None)
         except OutputError as exc:
             self._cannot_write(exc)
-        return f"wrote {self.n_touches} touches to {self.bag_path}: {json.dumps(dict(self.pairs))}"
+        silent = [what for what in SILENT_STREAMS if not self.received[what]]
+        return (f"wrote {self.n_touches} touches to {self.bag_path}: {json.dumps(dict(self.pairs))}"
+                + (f" (no {' and no '.join(silent)} ever arrived)" if silent else ""))
 
     # ------------------------------------------------------------------ what the operator is told
     def progress(self) -> dict:
@@ -159,3 +174,14 @@ class TouchRecording:
                            f" moment. Synchronise the clocks (chrony/NTP), or start yarp_skin_bridge with"
                            f" stamp:=receive")
         return out
+
+    def silence_warnings(self, elapsed: float) -> list:
+        """What to say, once each, of a stream that sent nothing in the session's first ``elapsed`` s (at least
+        :data:`SILENCE_S`): a robot session that records nothing would otherwise end with 'wrote 0 touches'."""
+        out = []
+        for what, hint in SILENT_STREAMS.items():
+            if elapsed >= SILENCE_S and not self.received[what] and what not in self._silence_said:
+                self._silence_said.add(what)
+                out.append(f"no {what} in {elapsed:.0f} s: {hint}")
+        return out
+
