@@ -277,7 +277,8 @@ def test_a_calibration_of_another_robot_is_refused(skin, tmp_path):
     with pytest.raises(ConfigError) as err:
         SkinCalibration.load(path, skin)
     assert str(err.value) == (f"{path}: made for robot 'pepper'; the skin config's robot is 'nao_h25'"
-                              f" ({skin.robot.source})")
+                              f" ({skin.robot.source}): give the robot config it was made with (--robot FILE, or a"
+                              f" skin config whose 'robot:' names it)")
 
 
 BAD_KINEMATICS = "needs a finite numeric correction (at most 0.1 m) and, if given, a finite std >= 0"

@@ -568,7 +568,8 @@ class SkinCalibration:
                               f" or a newer nao_skin's")
         if "robot" in doc and doc["robot"] != skin.robot.name:
             raise ConfigError(f"{path}: made for robot {doc['robot']!r}; the skin config's robot is"
-                              f" {skin.robot.name!r} ({skin.robot.source})")
+                              f" {skin.robot.name!r} ({skin.robot.source}): give the robot config it was made"
+                              f" with (--robot FILE, or a skin config whose 'robot:' names it)")
         if "base_frame" in doc and doc["base_frame"] != skin.robot.base_frame:
             raise ConfigError(f"{path}: its frames hang off base frame {doc['base_frame']!r}; the robot config's is"
                               f" {skin.robot.base_frame!r} ({skin.robot.source})")
