@@ -199,3 +199,32 @@ def test_a_live_session_that_ends_before_any_update_says_no_calibration_is_writt
     assert f"the session ends without a live calibration (no live update ran): none is written to {out_dir}" \
         in node.stderr()
     assert not out_dir.exists()
+
+
+def test_the_node_writes_beside_a_calibration_it_did_not_write(tmp_path, small_bag):
+    """`ros2 run nao_skin calibrate` twice in one directory replaced the first run's nao_skin_calibration without
+    a word: now the earlier one stays and the new one goes to <out_dir>.new (then replaced by the node's next)."""
+    from nao_skin.cli import main as cli_main
+
+    out_dir = tmp_path / "nao_skin_calibration"
+    assert cli_main(["calibrate", str(small_bag), "--out", str(out_dir), "--no-plots", "--quiet"]) == 0
+    earlier = (out_dir / "calibration.yaml").read_bytes()
+    domain = unique_domain_id()
+    listener = node = None
+    try:
+        listener = Listener(domain)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        node = node_process("calibrate", {"inputs": [str(small_bag)], "calibrate_on_start": True,
+                                          "out_dir": str(out_dir)}, ros_env(domain), tmp_path)
+        assert listener.spin_until(lambda: [s for s in status if s["state"] in ("done", "failed")], timeout=120,
+                                   procs=[node]), status[-1:]
+    finally:
+        if listener is not None:
+            listener.close()
+        if node is not None:
+            node.stop()
+    done = [s for s in status if s["state"] in ("done", "failed")][-1]
+    assert done["state"] == "done" and done["out_dir"] == f"{out_dir}.new", done
+    assert (out_dir / "calibration.yaml").read_bytes() == earlier
+    assert (tmp_path / "nao_skin_calibration.new" / "calibration.yaml").is_file()
+    assert f"out_dir {out_dir} holds a calibration this node did not write" in node.stderr()

@@ -38,7 +38,7 @@ from nao_skin.nodes.topics import (GUIDANCE_TOPIC, LATCHED, MAX_SKIPPED_SAID, PR
                                    STATUS_TOPIC)
 from nao_skin.paths import identity
 from nao_skin.plain import jsonable
-from nao_skin.session.live import LiveCalibration, session_end_out_dir
+from nao_skin.session.live import LiveCalibration, request_out_dir, session_end_out_dir
 from nao_skin.session.params import CALIBRATE, guidance_pairs, options_from_params, skin_from_params
 
 
@@ -56,7 +56,8 @@ class CalibrateNode(Node):
         self.generation = 0
         self._busy = threading.Lock()
         self._worker = None
-        self._requested_out = None        # out_dir as the last requested calibration left it
+        self._requested_out = None        # (path, identity) of the last requested calibration's output
+        self._out_dir_at_start = identity(self.p["out_dir"])
         self._latched: dict = {}          # the status last published (latched)
         self._ignored = 0                 # requests refused while one calibration or update was running
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
@@ -64,7 +65,6 @@ class CalibrateNode(Node):
         self.guidance_pairs = guidance_pairs(self.p, self.skin)
         if self.p["live"]:
             self._check_live_out_dir()    # refused now, not after an hour at the robot
-            self._out_dir_at_start = identity(self.p["out_dir"])
             self.schedule = UpdateSchedule(int(self.p["live_every_touches"]), float(self.p["live_period"]))
             self.live = LiveCalibration(self.skin, self.options, self.p["recording"], self.prior,
                                         float(self.p["live_refresh"]),
@@ -196,14 +196,17 @@ class CalibrateNode(Node):
         p = self.p
         log = self.get_logger()
         try:
-            # the node replaces its own out_dir on every success (force), but never one that holds an
-            # input or files nao-skin did not write; checked per request, before loading
-            run = calibrate_recordings(paths, self.skin, self.options, p["out_dir"], prior=self.prior,
+            # the node replaces its own last output on every success (force), never a calibration it did not
+            # write, one that holds an input or files nao-skin did not write; checked per request, before loading
+            out_dir, beside = request_out_dir(p["out_dir"], self._requested_out)
+            if beside:
+                log.warning(beside)
+            run = calibrate_recordings(paths, self.skin, self.options, out_dir, prior=self.prior,
                                        force=True, plots=bool(p["plots"]), label="out_dir",
                                        protected=[p["skin_config"], p["calibration"]],
                                        command="calibrate (node)", log=log.info, summary=log.warning)
             self.prior = run.result.calibration
-            self._requested_out = identity(run.out_dir)     # this session's own, not another command's
+            self._requested_out = (str(run.out_dir), identity(run.out_dir))    # the node's own, to replace
             calibration = str(run.out_dir / "calibration.yaml")
             self.publish_calibration(run.result.calibration, calibration)
             final = run.result.report.final
@@ -235,8 +238,8 @@ class CalibrateNode(Node):
         if self.p["live"] and self.live.last is not None:
             from nao_skin.calibration.report import write_outputs
 
-            out_dir, moved = session_end_out_dir(self.p["out_dir"], self._out_dir_at_start, self._requested_out,
-                                                 REQUEST_TOPIC)
+            requested = self._requested_out[1] if self._requested_out else None
+            out_dir, moved = session_end_out_dir(self.p["out_dir"], self._out_dir_at_start, requested, REQUEST_TOPIC)
             if moved:
                 self.get_logger().warning(moved)
             # a failure here (out_dir refused, the disk full) is the node's one line and exit 2

@@ -11,6 +11,7 @@ nothing: the last accepted calibration stays the one to publish and write.
 """
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -87,18 +88,40 @@ class LiveCalibration:
                                touches)
 
 
+def _free(out_dir) -> bool:
+    """Nothing there yet, or an empty directory: a place any output may take."""
+    path = Path(out_dir)
+    return not os.path.lexists(path) or (path.is_dir() and not path.is_symlink() and not any(path.iterdir()))
+
+
+def request_out_dir(out_dir: str | Path, own: tuple | None) -> tuple:
+    """``(directory, note or None)``: where the calibrate node writes a requested calibration. ``own``: ``(path,
+    identity)`` of the node's last output, which it may replace; else ``out_dir`` when it is free, or, when it
+    holds a calibration the node did not write (an earlier run's, another command's), the first free
+    ``<out_dir>.new``: the node never replaces what it was not asked to."""
+    if own is not None and identity(own[0]) == own[1]:
+        return own[0], None
+    if _free(out_dir):
+        return out_dir, None
+    beside = free_sibling(out_dir, ".new")
+    return beside, (f"out_dir {out_dir} holds a calibration this node did not write (an earlier run's, or another"
+                    f" command's) and is left as it is; this one goes to {beside}")
+
+
 def session_end_out_dir(out_dir: str | Path, at_start, requested, requested_by: str) -> tuple:
     """``(directory, warning or None)``: where the session's last live calibration is written when it ends.
 
-    ``out_dir`` unless it changed during the session (``at_start``: its :func:`~nao_skin.paths.identity` then;
-    ``requested``: as the calibration requested of the node, on ``requested_by``, left it): then something
-    wrote there meanwhile (that request, other bags maybe, or another command, e.g. a calibrate --out of the bag
-    so far), and it stays; the live calibration goes beside it.
+    ``out_dir`` when it is free. Else it holds a calibration that stays: the one requested of the node during
+    the session (``requested``: its :func:`~nao_skin.paths.identity`, requested on ``requested_by``), an earlier
+    one it held when the session started (``at_start``: its identity then), or another command's (e.g. a
+    calibrate --out of the bag so far); the live calibration goes beside it, and the warning says why.
     """
-    now = identity(out_dir)
-    if now == at_start:
+    if _free(out_dir):
         return out_dir, None
+    now = identity(out_dir)
     beside = free_sibling(out_dir, ".live")
-    by = f"the calibration requested on {requested_by}" if now == requested else "another command"
-    return beside, (f"out_dir {out_dir} was written by {by} during the session and is left as it is; the session's"
-                    f" last live calibration goes to {beside}")
+    what = (f"was written by the calibration requested on {requested_by} during the session" if now == requested
+            else "held an earlier calibration when the session started" if now == at_start
+            else "was written by another command during the session")
+    return beside, (f"out_dir {out_dir} {what} and is left as it is; the session's last live calibration goes to"
+                    f" {beside}")
