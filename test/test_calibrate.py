@@ -358,6 +358,7 @@ def test_a_right_hand_head_recording_in_the_thesis_format(tmp_path, skin):
     assert run.returncode == 0, run.stderr
     report = json.loads((out / "report.json").read_text())
     assert report["parts"] == ["r_hand", "head"]
+    assert report["input"]["touches_read"] >= report["input"]["touches_loaded"] > 0     # a text file counts touches
     for part in ("r_hand", "head"):
         calibrated = read_taxel_file(out / "taxels" / f"{part}.txt")
         true_pos, _ = sim.true_taxels[part]

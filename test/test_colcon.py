@@ -177,6 +177,7 @@ def test_the_installed_calibrate_node_calibrates_the_installed_recording(workspa
     report = json.loads((out / "report.json").read_text())
     assert report["input"]["files"] == [str(recording)], report["input"]
     assert report["input"]["touches_loaded"] > 1000, report["input"]
+    assert report["input"]["messages_read"] > report["input"]["touches_loaded"]     # a bag counts its messages
     # the truth beside the installed recording was found, and the calibration moved the skin towards it
     truth_after = report["final"]["truth_taxel_error_mm"]["all"]["median"]
     truth_before = report["before"]["truth_taxel_error_mm"]["all"]["median"]

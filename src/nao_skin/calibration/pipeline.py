@@ -101,9 +101,10 @@ def calibrate_loaded(loaded: LoadedInputs, skin: SkinModel, options: Calibration
     result = calibrate(loaded.touches, skin, options, prior=prior, truth=truth or loaded.truth, progress=log,
                        warm=warm, anchor=anchor, resume=resume)
     report = loaded.load_report
-    result.report.input = {"files": loaded.files, "touches_read": report.n_read, "touches_loaded": report.n_loaded,
-                           "skipped": dict(report.skipped), "notes": list(report.notes),
-                           "duplicates_removed": loaded.n_duplicates}
+    # what was read is counted in messages for a bag, in touches for the thesis' text format
+    result.report.input = {"files": loaded.files, f"{report.unit.replace(' ', '_')}_read": report.n_read,
+                           "touches_loaded": report.n_loaded, "skipped": dict(report.skipped),
+                           "notes": list(report.notes), "duplicates_removed": loaded.n_duplicates}
     return result
 
 
