@@ -85,6 +85,12 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     """
     if robot not in ROBOTS:
         raise ConfigError(f"robot:={robot!r}: expected one of {', '.join(ROBOTS)}")
+    if robot == "sim":       # said, not ignored: an operator who gave the robot's address meant the robot
+        for given, name in ((nao_ip, "nao_ip"), (events_port, "events_port"), (not naoqi, "naoqi")):
+            if given:
+                value = "false" if name == "naoqi" else given
+                raise ConfigError(f"{name}:={value}: only robot:=nao reads it (robot:=sim, the default, simulates the"
+                                  f" robot); give robot:=nao for the real one")
     for value, node, name, where in ((nao_ip, "naoqi_bridge", "nao_ip", "nao_ip:="),
                                      (events_port, "yarp_skin_bridge", "events_port", "events_port:=")):
         if value:    # the node's own rule, before any node starts
