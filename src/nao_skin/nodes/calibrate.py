@@ -191,19 +191,21 @@ class CalibrateNode(Node):
         self._worker.start()
 
     def _run(self, paths: list) -> None:
-        from nao_skin.calibration.pipeline import calibrate_recordings
+        from nao_skin.calibration.pipeline import calibrate_recordings, check_output
 
         p = self.p
         log = self.get_logger()
         try:
             # the node replaces its own last output on every success (force), never a calibration it did not
             # write, one that holds an input or files nao-skin did not write; checked per request, before loading
+            protected = [p["skin_config"], p["calibration"]]
             out_dir, beside = request_out_dir(p["out_dir"], self._requested_out)
-            if beside:
+            if beside:      # out_dir holds something: refused as ever when it is an input or not nao-skin's
+                check_output(p["out_dir"], [*paths, *protected, *self.skin.source_files()], force=True,
+                             label="out_dir")
                 log.warning(beside)
             run = calibrate_recordings(paths, self.skin, self.options, out_dir, prior=self.prior,
-                                       force=True, plots=bool(p["plots"]), label="out_dir",
-                                       protected=[p["skin_config"], p["calibration"]],
+                                       force=True, plots=bool(p["plots"]), label="out_dir", protected=protected,
                                        command="calibrate (node)", log=log.info, summary=log.warning)
             self.prior = run.result.calibration
             self._requested_out = (str(run.out_dir), identity(run.out_dir))    # the node's own, to replace
