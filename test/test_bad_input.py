@@ -968,3 +968,12 @@ def test_a_closed_standard_output_is_one_line_before_anything_runs(tmp_path):
         assert run.returncode == 2, run.stderr
         assert run.stderr.strip().splitlines() == [f"nao-skin {argv[0]}: error: standard output is closed;"
                                                    f" redirect it (e.g. > /dev/null)"]
+
+
+def test_calibrate_help_gives_every_option_its_default_and_meaning(capsys):
+    """The --set names alone told nobody what they do: the help lists each from the options table."""
+    assert cli_main(["calibrate", "--help"]) == 0
+    text = capsys.readouterr().out
+    for name, spec in OPTION_FIELDS.items():
+        assert f"\n  {name} (default " in text, name
+    assert "  f_scale (default 0.002): " in text

@@ -236,6 +236,18 @@ class CalibrationOptions:
 OPTION_FIELDS = {f.name: f for f in fields(CalibrationOptions)}
 
 
+def options_help(width: int = 79) -> str:
+    """Every option of the table with its default and help, one paragraph each (``nao-skin calibrate --help``)."""
+    import textwrap
+
+    lines = ["calibration options (--set OPTION=VALUE, the value in YAML):"]
+    for name, spec in OPTION_FIELDS.items():
+        default = list(spec.default) if isinstance(spec.default, tuple) else spec.default
+        lines += textwrap.wrap(f"{name} (default {default}): {spec.metadata['help']}", width,
+                               initial_indent="  ", subsequent_indent="      ")
+    return "\n".join(lines)
+
+
 def set_once(options: CalibrationOptions, name: str, value, where: str, given: dict) -> None:
     """``options.set`` that refuses an option ``given`` already holds (option -> the argument that set it):
     given twice, the second would silently win."""

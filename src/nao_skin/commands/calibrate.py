@@ -1,6 +1,7 @@
 """``nao-skin calibrate INPUT... --out DIR``: calibrate the skin from recorded self-touch."""
 from __future__ import annotations
 
+import argparse
 import sys
 
 from nao_skin.commands import add_skin_arguments, skin_from_args, wall_seconds
@@ -16,7 +17,7 @@ NUMBER_FLAGS = {"--gate-mm": ("gate_mm", float), "--test-fraction": ("test_fract
 
 
 def add_arguments(parser) -> None:
-    from nao_skin.calibration.options import OPTION_FIELDS
+    from nao_skin.calibration.options import OPTION_FIELDS, options_help
 
     parser.add_argument("inputs", nargs="+", metavar="INPUT", help="rosbag2 recordings or legacy .txt data sets")
     parser.add_argument("--out", required=True,
@@ -41,8 +42,10 @@ def add_arguments(parser) -> None:
                         help="no bounds on patch and triangle corrections, the Gaussian prior alone (the default)")
     parser.add_argument("--no-first-guess", action="store_true", help="skip the closed-form mount fit")
     parser.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
-                        help="any calibration option (YAML value), e.g. --set normal_weight=0.01; repeatable."
-                             " Options: " + ", ".join(OPTION_FIELDS))
+                        help="any calibration option (YAML value), e.g. --set normal_weight=0.01; repeatable (each"
+                             " option, its default and meaning: below)")
+    parser.epilog = options_help()
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter     # the epilog's lines as they are
     parser.add_argument("--splits", type=int, default=1, metavar="K",
                         help="also calibrate on K-1 more seeded train/test splits and report each figure's mean and"
                              " spread over the K (the calibration written is the first split's; default 1)")
