@@ -250,7 +250,8 @@ class CalibrateNode(Node):
             self.get_logger().info(f"the last live calibration -> {out}")
         elif self.p["live"]:     # a short session, or one whose touches never sufficed: say so, not nothing
             latched = self._latched
-            why = latched.get("error") if latched.get("state") in ("waiting", "failed") else "no live update ran"
+            why = {"waiting": latched.get("reason"), "failed": latched.get("error")}.get(latched.get("state"),
+                                                                                      "no live update ran")
             self.get_logger().warning(f"the session ends without a live calibration ({why}): none is written to"
                                       f" {self.p['out_dir']}")
 

@@ -80,7 +80,7 @@ class LiveCalibration:
                                 "parts": self.parts_state(), "seconds": time.perf_counter() - t0,
                                 "from_scratch": not start["warm"], "warnings": report.warnings}, result, touches)
         except TooFewTouches as exc:      # no pair has touches enough yet: wait for more
-            return LiveOutcome({"state": "waiting", "error": str(exc), "parts": self.parts_state()}, None, touches)
+            return LiveOutcome({"state": "waiting", "reason": str(exc), "parts": self.parts_state()}, None, touches)
         except NaoSkinError as exc:       # unreadable recording, diverged update: the last good frames stay
             return LiveOutcome({"state": "failed", "error": str(exc), "parts": self.parts_state()}, None, touches)
         except Exception as exc:  # noqa: BLE001 - a failed update keeps the last good calibration published
