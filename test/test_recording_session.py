@@ -94,3 +94,24 @@ def test_a_stream_that_never_comes_is_said_once_and_in_the_last_line(skin, tmp_p
     assert recording.close().endswith("{} (no skin samples ever arrived)")
     fresh = TouchRecording(skin, LIVE_CONFIG, tmp_path / "other", "sqlite3")
     assert fresh.close().endswith("{} (no joint states and no skin samples ever arrived)")
+
+
+def test_a_bag_of_the_simulated_robot_says_so_on_every_read(skin, tmp_path):
+    """`nao-skin record` runs the simulated robot by default: its bag looked like one of the robot. Its metadata
+    now says what the recorder was fed, and every read of it notes a simulated one (while it grows, too)."""
+    from nao_skin.formats.bag import SIMULATED, GrowingBag
+
+    sim = simulate(skin, {"pairs": [["l_hand", "torso"]], "n_touches": 3}, seed=2)
+    touches, _ = deduplicate(sim.touches)
+    notes = {}
+    for name, source in (("sim", SIMULATED), ("robot", "the robot"), ("unsaid", "")):
+        recording = TouchRecording(skin, LIVE_CONFIG, tmp_path / name, "mcap", source)
+        _play(recording, Playback(touches, skin, period=0.6, press=0.2, hold=0.05), start=1.7e9)
+        recording.flush()
+        _, growing = GrowingBag(tmp_path / name, skin).read()
+        recording.close()
+        _, closed = read_touches(tmp_path / name, skin)
+        notes[name] = ([n for n in growing.notes if "recorded from" in n], [n for n in closed.notes if "recorded from" in n])
+    said = f"{tmp_path / 'sim'}: recorded from {SIMULATED}, not the robot"
+    assert notes["sim"][1] == [said] and len(notes["sim"][0]) == 1 and "simulated robot" in notes["sim"][0][0]
+    assert notes["robot"] == notes["unsaid"] == ([], [])

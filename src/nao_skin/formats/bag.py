@@ -42,6 +42,8 @@ from nao_skin.touch.events import (LIVE_CONFIG, TOUCH_BAG_CONFIG, EventConfig, E
 from nao_skin.touch.touches import TouchSet
 
 BAG_KIND_KEY = "nao_skin.bag_kind"
+SOURCE_KEY = "nao_skin.recorded_from"     # what a recorder was fed: a simulated robot is said on every read
+SIMULATED = "the simulated robot (sim_robot)"
 BAG_VERSION = 8              # rosbag2 metadata version of ROS 2 Jazzy
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
@@ -74,7 +76,8 @@ class BagWriter:
     (metadata complete).
     """
 
-    def __init__(self, path: str | Path, storage: str = "sqlite3", kind: str = "stream", live: bool = False):
+    def __init__(self, path: str | Path, storage: str = "sqlite3", kind: str = "stream", live: bool = False,
+                 source: str = ""):
         from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 
         plugins = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}
@@ -102,7 +105,9 @@ class BagWriter:
         except WriterError:
             raise DataError(f"{self.path}: exists already (made meanwhile by another recording); a bag is never"
                             f" overwritten") from None
-        self._writer.set_custom_data(BAG_KIND_KEY, kind)
+        self._custom = {BAG_KIND_KEY: kind, **({SOURCE_KEY: source} if source else {})}
+        for key, value in self._custom.items():
+            self._writer.set_custom_data(key, value)
         self._kind = kind
         self._live = live
         self._place = self._file = None     # (device, inode) of the bag's directory and storage file once open
@@ -189,7 +194,7 @@ class BagWriter:
                 "relative_file_paths": [storage.path.name], "duration": {"nanoseconds": 0},
                 "starting_time": {"nanoseconds_since_epoch": 0}, "message_count": 0,
                 "topics_with_message_count": [], "compression_format": "", "compression_mode": "",
-                "files": [], "custom_data": {BAG_KIND_KEY: self._kind}, "ros_distro": "rosbags"}
+                "files": [], "custom_data": dict(self._custom), "ros_distro": "rosbags"}
         ((directory or self.path) / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}))
 
     def flush(self) -> None:
@@ -411,25 +416,32 @@ def _event_config(kind: str, path: Path) -> EventConfig:
     return TOUCH_BAG_CONFIG if kind == "touches" else LIVE_CONFIG
 
 
-def _bag_kind(reader, path: Path) -> str:
-    """The kind the bag's metadata names: rosbags reads it from metadata.yaml, not from a storage file opened
-    alone (its own copy of the metadata is read here then); a stream when nothing names one."""
+def _custom_data(reader, path: Path) -> dict:
+    """The bag's custom metadata: rosbags reads it from metadata.yaml, not from a storage file opened alone (its
+    own copy of the metadata is read here then)."""
     custom = getattr(getattr(reader, "storage", None), "metadata", None)
     custom = getattr(custom, "custom", None)
     if custom is None and path.is_file():
         custom = (stored_metadata(path) or {}).get("custom_data")
-    return str((custom or {}).get(BAG_KIND_KEY, "stream"))
+    return dict(custom or {})
 
 
-def _provisional_kind(path: Path) -> str:
-    """The kind an unclosed bag's provisional metadata.yaml names (beside the storage file, when that is
-    what ``path`` names); a stream when it names none."""
+def _source_note(custom: dict, path: Path) -> str | None:
+    """A note for every read of a bag recorded from the simulated robot: it is no recording of the robot."""
+    if custom.get(SOURCE_KEY) == SIMULATED:
+        return f"{path}: recorded from {SIMULATED}, not the robot"
+    return None
+
+
+def _provisional_custom(path: Path) -> dict:
+    """The custom metadata of an unclosed bag's provisional metadata.yaml (beside the storage file, when that is
+    what ``path`` names); none when it cannot be read."""
     try:
         meta = (path if path.is_dir() else path.parent) / "metadata.yaml"
         info = safe_load(meta.read_text())["rosbag2_bagfile_information"]
-        return str((info.get("custom_data") or {}).get(BAG_KIND_KEY, "stream"))
+        return dict(info.get("custom_data") or {})
     except Exception:  # noqa: BLE001 - no or unreadable metadata: nothing says it is a touch bag
-        return "stream"
+        return {}
 
 
 def _is_read(topic: str, msgtype: str) -> bool:
@@ -513,6 +525,7 @@ class GrowingBag:
         self._cursor = None
         self._feed: _Feed | None = None
         self._touches: TouchSet | None = None    # of the feed's records so far, clustered
+        self._source: str | None = None          # the note of a bag recorded from the simulated robot
 
     def read(self) -> tuple:
         """``(TouchSet, LoadReport)`` of everything the bag holds now."""
@@ -534,8 +547,9 @@ class GrowingBag:
                 return self._read_closed(reader)
         tail = bag.since(self._cursor)
         if self._feed is None or tail.restarted:
-            config = self.config or _event_config(bag.custom_data.get(BAG_KIND_KEY) or _provisional_kind(self.path),
-                                                   self.path)
+            custom = bag.custom_data or _provisional_custom(self.path)
+            config = self.config or _event_config(str(custom.get(BAG_KIND_KEY, "stream")), self.path)
+            self._source = _source_note(custom, self.path)
             self._feed = _Feed(self.path, self.skin, config, LoadReport(str(self.path)))
             self._touches = None
         self._cursor = tail.cursor
@@ -552,9 +566,9 @@ class GrowingBag:
             report.skip(*lost)
         touches = now.apart(self._finish(now, extra, self._touches))
         now.account(touches)
-        note = bag.note(now.n_msgs, touches.n_touches)
-        if note is not None:
-            report.notes.append(note)
+        for note in (bag.note(now.n_msgs, touches.n_touches), self._source):
+            if note is not None:
+                report.notes.append(note)
         return touches, report
 
     def _finish(self, feed: "_Feed", records: list, before: TouchSet | None) -> TouchSet:
@@ -567,8 +581,11 @@ class GrowingBag:
     def _read_closed(self, reader) -> tuple:
         report = LoadReport(str(self.path))
         try:
-            feed = _Feed(self.path, self.skin, self.config or _event_config(_bag_kind(reader, self.path), self.path),
-                         report)
+            custom = _custom_data(reader, self.path)
+            feed = _Feed(self.path, self.skin, self.config or _event_config(str(custom.get(BAG_KIND_KEY, "stream")),
+                                                                            self.path), report)
+            if _source_note(custom, self.path):
+                report.notes.append(_source_note(custom, self.path))
             wanted, unknown = [], {}
             for conn in reader.connections:
                 if not _is_read(conn.topic, conn.msgtype):

@@ -91,6 +91,8 @@ NAOQI_BRIDGE = {
 PAIRING_RECORDER = {
     **SKIN_PARAMS,
     "bag_path": ("", "touch bag to create (a new directory; empty: ./nao_skin_touches_<date>_<time>)"),
+    "recorded_from": ("", "what the touches come from, kept in the bag's metadata (a record session sets it; a bag"
+                          " of the simulated robot is said as such on every read)"),
     "storage": ("mcap", "bag storage: mcap (survives kill -9 up to the last flush) or sqlite3",
                 Rule(str, ("mcap", "sqlite3"))),
     "flush_period": (1.0, "seconds between flushes of the bag to disk", SECONDS),

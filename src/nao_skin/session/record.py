@@ -101,7 +101,7 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                 raise ConfigError(str(exc)) from None
     cfg = config_dir()
     # one name for the recorder and the calibrate node (which calibrates on that bag on request)
-    from nao_skin.formats.bag import default_bag_name
+    from nao_skin.formats.bag import SIMULATED, default_bag_name
 
     bag_path = str(Path(bag_path or default_bag_name()).expanduser().resolve())
     record_yaml, bridges_yaml = cfg / "record.yaml", cfg / "bridges.yaml"
@@ -117,7 +117,9 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                                   {"nao_ip": nao_ip} if nao_ip else {}))
         specs.append(NodeSpec("yarp_skin_bridge", "yarp_skin_bridge", [bridges_yaml],
                               {"events_port": events_port} if events_port else {}, needs={"yarp": YARP_HINT}))
-    specs.append(NodeSpec("pairing_recorder", "pairing_recorder", [record_yaml], {"bag_path": bag_path}))
+    source = SIMULATED if robot == "sim" else "the robot (naoqi_bridge or another joint state driver, yarp_skin_bridge)"
+    specs.append(NodeSpec("pairing_recorder", "pairing_recorder", [record_yaml],
+                          {"bag_path": bag_path, "recorded_from": source}))
     specs.append(NodeSpec("skin_heatmap", "skin_heatmap", [record_yaml]))
     # the calibration of the session is written beside its recording
     cal = {"recording": bag_path, "out_dir": f"{bag_path}_calibration"}
