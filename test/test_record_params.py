@@ -264,8 +264,10 @@ def test_record_refuses_unknown_or_mistyped_parameters(tmp_path):
     line = one_error_line(nao_skin(["record", "--robot", "nao", "--print", "--events-port", "-1"]))
     assert line.endswith("events_port:=-1: expected a YARP port name: '/' and no spaces,"
                          " e.g. /skinManager/skin_events:o"), line
-    line = one_error_line(nao_skin(["record", "--robot", "nao", "--print", "--nao-ip", "not an ip!"]))
-    assert line.endswith("nao_ip:=not an ip!: expected an IP address or a host name, e.g. 192.168.1.10"), line
+    for bad in ("not an ip!", "127.0.0.1:9559", "999.1.1.1"):     # a port in it was retried for ever, exit 0
+        line = one_error_line(nao_skin(["record", "--robot", "nao", "--print", "--nao-ip", bad]))
+        assert line.endswith(f"nao_ip:={bad}: expected an IPv4 address or a host name, e.g. 192.168.1.10 or"
+                             f" nao.local (the port is nao_port)"), line
 
     # without --print: refused before any node starts (no bag, no "started")
     for item in ("calibrate.gate_mmm=3", "sim_robot.touch_period=0"):

@@ -208,11 +208,12 @@ def test_chain_naming_an_unknown_joint_fails_naming_file_and_joint(tmp_path):
     (lambda d: d["body"].update(hand_end=[0, float("nan"), 0]), "body: hand_end: nan is not a finite number"),
     (lambda d: d["body"].update(hand_end=[0, 1e9, 0]), "body: hand_end: expected [x, y, z] metres"),
     (lambda d: d["body"].update(rest=1), "body: unknown key 'rest'"),
+    (lambda d: d["body"].update(rest_posture=False), "body: rest_posture: expected a mapping of joint names"),
 ], ids=["one-limit", "limits-swapped", "limits-beyond-two-turns", "angle-words", "missing-d", "frame-twice", "frame-is-base", "no-chains", "chains-list", "joints-list",
         "links-list", "link-row-word", "nan-limit", "infinite-limit", "nan-length", "huge-length", "joint-list",
         "frame-number", "frame-space", "frame-markup", "base-frame-list", "name-null", "top-key", "row-key",
         "link-key", "rest-unknown-joint", "rest-negative-spread", "rest-number", "box-swapped", "box-one-axis",
-        "hand-end-nan", "hand-end-huge", "body-key"])
+        "hand-end-nan", "hand-end-huge", "body-key", "rest-false"])
 def test_malformed_robot_config_fails_with_one_line(tmp_path, mutate, expected):
     path = write_robot(tmp_path, mutate)
     with pytest.raises(ConfigError) as err:

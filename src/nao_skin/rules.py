@@ -145,4 +145,8 @@ AT_LEAST_ONE = Rule(int, low=1)                       # a count of things that m
 WHOLE = Rule(int, low=0)                              # a count or seed that may be 0
 PORT = Rule(int, low=1, high=65535)
 YARP_PORT = Rule(str, pattern=r"/\S+", why="a YARP port name: '/' and no spaces, e.g. /skinManager/skin_events:o")
-HOST = Rule(str, pattern=r"(?!-)[A-Za-z0-9.:-]+", why="an IP address or a host name, e.g. 192.168.1.10")
+_OCTET = r"(?:25[0-5]|2[0-4][0-9]|1[0-9][0-9]|[1-9]?[0-9])"
+_LABEL = r"[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?"
+# an IPv4 address, or a host name whose last label is not all digits (999.1.1.1 is neither); no port: nao_port
+HOST = Rule(str, pattern=rf"{_OCTET}(?:\.{_OCTET}){{3}}|(?:{_LABEL}\.)*(?=[A-Za-z0-9-]*[A-Za-z])(?:{_LABEL})",
+            why="an IPv4 address or a host name, e.g. 192.168.1.10 or nao.local (the port is nao_port)")

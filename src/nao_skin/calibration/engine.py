@@ -41,7 +41,8 @@ from nao_skin.calibration.first_guess import guess_targets, rigid_mount_guess
 from nao_skin.calibration.layout import KINEMATICS
 from nao_skin.calibration.options import LEVELS, CalibrationOptions
 from nao_skin.calibration.pairing import robot_joints
-from nao_skin.calibration.plan import Step, left_out_pairs, plan_steps, too_few, touching_pairs
+from nao_skin.calibration.plan import (Step, left_out_pairs, pairs_outside_roles, plan_steps, too_few,
+                                       touching_pairs)
 from nao_skin.calibration.plausibility import implausible
 from nao_skin.calibration.rows import pairing_key
 from nao_skin.calibration.stages import compress_held, fitted_kinds, initial_prior_sigma, run_stage
@@ -207,8 +208,13 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
     # held: what no stage estimated (a triangle held while fitted to one reference and freed by the
     # joint refinement, where both references reach ten activations, was estimated: not listed)
     report.held = sorted(compress_held(sorted(fit.held - fit.estimated)))
-    report.warnings = implausible(train, skin, fit.calibration, report.parts, len(fit.set_aside),
-                                  report.final.get("train", {}).get("cop_mean_mm", float("nan")), options.gate_mm)
+    outside = pairs_outside_roles(train, options, skin.self_touch)
+    report.warnings = ([f"touches of {', '.join(outside)}: no pair of the skin config's self_touch (touching"
+                        f" {', '.join(skin.self_touch.touching)}; touched {', '.join(skin.self_touch.touched)};"
+                        f" {skin.source}), calibrated one from the other without the plan's order: is it this"
+                        f" robot's config?"] if outside else []) \
+        + implausible(train, skin, fit.calibration, report.parts, len(fit.set_aside),
+                      report.final.get("train", {}).get("cop_mean_mm", float("nan")), options.gate_mm)
     for line in report.warnings:
         say(f"warning: {line}")
     report.total_seconds = time.perf_counter() - t_start

@@ -73,6 +73,15 @@ def left_out_pairs(touches: TouchSet, options: "CalibrationOptions") -> list:
             if poses[p] < options.min_mount_touches]
 
 
+def pairs_outside_roles(touches: TouchSet, options: "CalibrationOptions", roles: SelfTouch) -> list:
+    """Names of the pairs the plan calibrates from (enough poses) that the skin config's ``self_touch`` does
+    not name: fitted one from the other, without the plan's order (a config or a recording of another robot?)."""
+    named = {frozenset(pair) for pair in roles.pairs()}
+    poses = pair_poses(touches)
+    return sorted((pair_label(p) for p in pair_counts(touches) if p not in named
+                   and poses[p] >= options.min_mount_touches), key=lambda name: [part_rank(n) for n in name.split("+")])
+
+
 def plan_steps(touches: TouchSet, options: "CalibrationOptions", roles: SelfTouch) -> list:
     """The multi-session plan the thesis found best, restricted to the pairs the data supports.
 

@@ -109,7 +109,8 @@ def _body(spec, joints, where: str) -> Body:
     if not isinstance(spec, dict):
         raise ConfigError(f"{where}: expected a mapping of {', '.join(BODY_KEYS)}")
     known_keys(spec, BODY_KEYS, where)
-    posture = spec.get("rest_posture") or {}
+    posture = spec.get("rest_posture")
+    posture = {} if posture is None else posture        # false or 0 is no posture: refused below
     if not isinstance(posture, dict):
         raise ConfigError(f"{where}: rest_posture: expected a mapping of joint names to [mean, spread] radians")
     rest = {}

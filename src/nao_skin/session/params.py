@@ -18,7 +18,7 @@ from nao_skin.live.updates import LiveUpdates, Settling, UpdateSchedule, WarmSta
 from nao_skin.model.skin import SkinModel, load_skin, parse_pairs, parse_taxel_files
 from nao_skin.rules import (AT_LEAST_ONE, HOST, NON_NEGATIVE, PORT, POSITIVE, RATE, SECONDS, SECONDS_OR_ZERO, WHOLE,
                             YARP_PORT, Rule)
-from nao_skin.sim.params import load_params
+from nao_skin.sim.params import check_pairs, default_params_file, load_params, pair_list
 from nao_skin.touch.events import LIVE_CONFIG
 
 # every node that reads the skin builds it the way the commands do (model.skin.load_skin)
@@ -201,7 +201,12 @@ def check_sim_robot(p: dict, where: str = "sim_robot") -> tuple:
     parameters)`` of the node."""
     check_timing(p["touch_period"], p["press_duration"], p["hold"], where)
     skin = skin_from_params(p)
-    return skin, load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], skin.parts))
+    params = load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], skin.parts))
+    # the pairs that press, the preset's or the parameter's, against what the skin config makes touch: said
+    # before a session starts, naming where they come from
+    check_pairs(pair_list(params), skin, where=f"{where}: parameter pairs" if any(p["pairs"])
+                else f"{where}: preset '{p['preset']}' of {default_params_file()}")
+    return skin, params
 
 
 def guidance_pairs(p: dict, skin: SkinModel) -> tuple:

@@ -91,6 +91,9 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                 value = "false" if name == "naoqi" else given
                 raise ConfigError(f"{name}:={value}: only robot:=nao reads it (robot:=sim, the default, simulates the"
                                   f" robot); give robot:=nao for the real one")
+    if nao_ip and not naoqi:
+        raise ConfigError(f"nao_ip:={nao_ip}: only naoqi_bridge reads it, and naoqi:=false leaves it out (another"
+                          f" driver publishes /joint_states)")
     for value, node, name, where in ((nao_ip, "naoqi_bridge", "nao_ip", "nao_ip:="),
                                      (events_port, "yarp_skin_bridge", "events_port", "events_port:=")):
         if value:    # the node's own rule, before any node starts

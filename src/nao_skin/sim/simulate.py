@@ -71,7 +71,8 @@ def simulate(skin: SkinModel, params: SimParams | dict | None, seed: int) -> Sim
         tried = sum(info["attempted"] for info in report.values())
         raise ConfigError(f"simulation parameters: no touch of {', '.join(report)} could be posed and fired"
                           f" ({tried} target spots tried); a size in the parameters (e.g. spot_radius,"
-                          f" fabric_thickness, hand_mount_offset, link_errors) is out of reach")
+                          f" fabric_thickness, hand_mount_offset, link_errors) is out of reach, or the robot"
+                          f" config's body box ({skin.robot.source}) holds the poses")
     touches = _assemble(skin, per_pair, p, rng_record)
     for name, info in report.items():
         rows = touches.labels["pair"] == name
