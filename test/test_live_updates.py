@@ -247,7 +247,7 @@ def test_the_node_never_replaces_a_calibration_it_did_not_write(tmp_path):
     """An out_dir that held a calibration when the node started (an earlier run's) stays as it is: a requested
     calibration goes to <out_dir>.new, then replaces only its own; the session's live one goes to .live."""
     from nao_skin.paths import identity
-    from nao_skin.session.live import request_out_dir, session_end_out_dir
+    from nao_skin.session.live import output_stamp, request_out_dir, session_end_out_dir
 
     out = tmp_path / "nao_skin_calibration"
     assert request_out_dir(out, None) == (out, None)              # new: the node's to take
@@ -258,9 +258,17 @@ def test_the_node_never_replaces_a_calibration_it_did_not_write(tmp_path):
     target, said = request_out_dir(out, None)
     assert target == f"{out}.new" and said.startswith(f"out_dir {out} holds a calibration this node did not write")
     Path(target).mkdir()
-    own = (target, identity(target))
+    own = (target, output_stamp(target))
     assert request_out_dir(out, own) == (target, None)            # its own output: replaced by the next request
-    beside, said = session_end_out_dir(out, at_start, own[1], "/nao_skin/calibrate")
+    beside, said = session_end_out_dir(out, at_start, identity(target), "/nao_skin/calibrate")
     assert beside == f"{out}.live" and said == (f"out_dir {out} held an earlier calibration when the session started"
                                                 f" and is left as it is; the session's last live calibration goes"
                                                 f" to {beside}")
+    # the user put something of theirs where the node's output was (the inode may well be reused): not the node's
+    import time
+
+    Path(target).rmdir()
+    time.sleep(0.01)
+    Path(target).mkdir()
+    (Path(target) / "mine.txt").write_text("the user's\n")
+    assert request_out_dir(out, own)[0] == f"{out}.new2"

@@ -38,7 +38,7 @@ from nao_skin.nodes.topics import (GUIDANCE_TOPIC, LATCHED, MAX_SKIPPED_SAID, PR
                                    STATUS_TOPIC)
 from nao_skin.paths import identity
 from nao_skin.plain import jsonable
-from nao_skin.session.live import LiveCalibration, request_out_dir, session_end_out_dir
+from nao_skin.session.live import LiveCalibration, output_stamp, request_out_dir, session_end_out_dir
 from nao_skin.session.params import CALIBRATE, guidance_pairs, options_from_params, skin_from_params
 
 
@@ -208,7 +208,7 @@ class CalibrateNode(Node):
                                        force=True, plots=bool(p["plots"]), label="out_dir", protected=protected,
                                        command="calibrate (node)", log=log.info, summary=log.warning)
             self.prior = run.result.calibration
-            self._requested_out = (str(run.out_dir), identity(run.out_dir))    # the node's own, to replace
+            self._requested_out = (str(run.out_dir), output_stamp(run.out_dir))    # the node's own, to replace
             calibration = str(run.out_dir / "calibration.yaml")
             self.publish_calibration(run.result.calibration, calibration)
             final = run.result.report.final
@@ -240,7 +240,8 @@ class CalibrateNode(Node):
         if self.p["live"] and self.live.last is not None:
             from nao_skin.calibration.report import write_outputs
 
-            requested = self._requested_out[1] if self._requested_out else None
+            requested = identity(self._requested_out[0]) if self._requested_out and \
+                output_stamp(self._requested_out[0]) == self._requested_out[1] else None
             out_dir, moved = session_end_out_dir(self.p["out_dir"], self._out_dir_at_start, requested, REQUEST_TOPIC)
             if moved:
                 self.get_logger().warning(moved)

@@ -94,12 +94,22 @@ def _free(out_dir) -> bool:
     return not os.path.lexists(path) or (path.is_dir() and not path.is_symlink() and not any(path.iterdir()))
 
 
+def output_stamp(path: str | Path) -> tuple | None:
+    """What tells the node's own output from anything put at its path since: (device, inode, change time). The
+    inode alone does not: a directory removed and another made in its place may get the same one."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino, st.st_ctime_ns
+
+
 def request_out_dir(out_dir: str | Path, own: tuple | None) -> tuple:
     """``(directory, note or None)``: where the calibrate node writes a requested calibration. ``own``: ``(path,
-    identity)`` of the node's last output, which it may replace; else ``out_dir`` when it is free, or, when it
+    output_stamp)`` of the node's last output, which it may replace; else ``out_dir`` when it is free, or, when it
     holds a calibration the node did not write (an earlier run's, another command's), the first free
     ``<out_dir>.new``: the node never replaces what it was not asked to."""
-    if own is not None and identity(own[0]) == own[1]:
+    if own is not None and output_stamp(own[0]) == own[1]:
         return own[0], None
     if _free(out_dir):
         return out_dir, None
