@@ -584,8 +584,9 @@ class GrowingBag:
             custom = _custom_data(reader, self.path)
             feed = _Feed(self.path, self.skin, self.config or _event_config(str(custom.get(BAG_KIND_KEY, "stream")),
                                                                             self.path), report)
-            if _source_note(custom, self.path):
-                report.notes.append(_source_note(custom, self.path))
+            source = _source_note(custom, self.path)
+            if source is not None:
+                report.notes.append(source)
             wanted, unknown = [], {}
             for conn in reader.connections:
                 if not _is_read(conn.topic, conn.msgtype):
