@@ -227,26 +227,24 @@ def test_a_live_session_updates_waits_and_fails_without_raising(skin, session, t
 def test_the_session_end_writes_beside_an_out_dir_written_during_the_session(tmp_path):
     """The last live calibration goes to out_dir unless something wrote there meanwhile: then it goes beside it,
     and the warning names who wrote it (the node's own requested calibration, or another command)."""
-    from nao_skin.paths import identity
-    from nao_skin.session.live import session_end_out_dir
+    from nao_skin.session.live import output_stamp, session_end_out_dir
 
     out = tmp_path / "bag_calibration"
-    assert session_end_out_dir(out, identity(out), None, "/nao_skin/calibrate") == (out, None)   # still absent
-    at_start = identity(out)
+    assert session_end_out_dir(out, output_stamp(out), None, "/nao_skin/calibrate") == (out, None)   # still absent
+    at_start = output_stamp(out)
     out.mkdir()
     (out / "calibration.yaml").write_text("parts: {}\n")
     beside, said = session_end_out_dir(out, at_start, None, "/nao_skin/calibrate")
     assert beside == f"{out}.live" and not Path(beside).exists()
     assert said == (f"out_dir {out} was written by another command during the session and is left as it is; the"
                     f" session's last live calibration goes to {beside}")
-    _, said = session_end_out_dir(out, at_start, identity(out), "/nao_skin/calibrate")
+    _, said = session_end_out_dir(out, at_start, output_stamp(out), "/nao_skin/calibrate")
     assert said.startswith(f"out_dir {out} was written by the calibration requested on /nao_skin/calibrate")
 
 
 def test_the_node_never_replaces_a_calibration_it_did_not_write(tmp_path):
     """An out_dir that held a calibration when the node started (an earlier run's) stays as it is: a requested
     calibration goes to <out_dir>.new, then replaces only its own; the session's live one goes to .live."""
-    from nao_skin.paths import identity
     from nao_skin.session.live import output_stamp, request_out_dir, session_end_out_dir
 
     out = tmp_path / "nao_skin_calibration"
@@ -254,13 +252,13 @@ def test_the_node_never_replaces_a_calibration_it_did_not_write(tmp_path):
     out.mkdir()
     assert request_out_dir(out, None) == (out, None)              # empty: too
     (out / "calibration.yaml").write_text("parts: {}\n")
-    at_start = identity(out)
+    at_start = output_stamp(out)
     target, said = request_out_dir(out, None)
     assert target == f"{out}.new" and said.startswith(f"out_dir {out} holds a calibration this node did not write")
     Path(target).mkdir()
     own = (target, output_stamp(target))
     assert request_out_dir(out, own) == (target, None)            # its own output: replaced by the next request
-    beside, said = session_end_out_dir(out, at_start, identity(target), "/nao_skin/calibrate")
+    beside, said = session_end_out_dir(out, at_start, output_stamp(target), "/nao_skin/calibrate")
     assert beside == f"{out}.live" and said == (f"out_dir {out} held an earlier calibration when the session started"
                                                 f" and is left as it is; the session's last live calibration goes"
                                                 f" to {beside}")

@@ -36,7 +36,6 @@ from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
 from nao_skin.nodes.topics import (GUIDANCE_TOPIC, LATCHED, MAX_SKIPPED_SAID, PROGRESS_TOPIC, REQUEST_TOPIC,
                                    STATUS_TOPIC)
-from nao_skin.paths import identity
 from nao_skin.plain import jsonable
 from nao_skin.session.live import LiveCalibration, output_stamp, request_out_dir, session_end_out_dir
 from nao_skin.session.params import CALIBRATE, guidance_pairs, options_from_params, skin_from_params
@@ -56,8 +55,8 @@ class CalibrateNode(Node):
         self.generation = 0
         self._busy = threading.Lock()
         self._worker = None
-        self._requested_out = None        # (path, identity) of the last requested calibration's output
-        self._out_dir_at_start = identity(self.p["out_dir"])
+        self._requested_out = None        # (path, output_stamp) of the last requested calibration's output
+        self._out_dir_at_start = output_stamp(self.p["out_dir"])
         self._latched: dict = {}          # the status last published (latched)
         self._ignored = 0                 # requests refused while one calibration or update was running
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
@@ -240,8 +239,7 @@ class CalibrateNode(Node):
         if self.p["live"] and self.live.last is not None:
             from nao_skin.calibration.report import write_outputs
 
-            requested = identity(self._requested_out[0]) if self._requested_out and \
-                output_stamp(self._requested_out[0]) == self._requested_out[1] else None
+            requested = self._requested_out[1] if self._requested_out else None
             out_dir, moved = session_end_out_dir(self.p["out_dir"], self._out_dir_at_start, requested, REQUEST_TOPIC)
             if moved:
                 self.get_logger().warning(moved)

@@ -26,7 +26,7 @@ from nao_skin.formats.bag import GrowingBag
 from nao_skin.formats.inputs import find_bag
 from nao_skin.live.updates import LiveUpdates, Settling
 from nao_skin.model.skin import SkinCalibration, SkinModel, pair_label
-from nao_skin.paths import free_sibling, identity
+from nao_skin.paths import free_sibling
 from nao_skin.touch.touches import TouchSet
 
 
@@ -122,13 +122,13 @@ def session_end_out_dir(out_dir: str | Path, at_start, requested, requested_by: 
     """``(directory, warning or None)``: where the session's last live calibration is written when it ends.
 
     ``out_dir`` when it is free. Else it holds a calibration that stays: the one requested of the node during
-    the session (``requested``: its :func:`~nao_skin.paths.identity`, requested on ``requested_by``), an earlier
-    one it held when the session started (``at_start``: its identity then), or another command's (e.g. a
+    the session (``requested``: its :func:`output_stamp`, requested on ``requested_by``), an earlier one it held
+    when the session started (``at_start``: its stamp then), or another command's (e.g. a
     calibrate --out of the bag so far); the live calibration goes beside it, and the warning says why.
     """
     if _free(out_dir):
         return out_dir, None
-    now = identity(out_dir)
+    now = output_stamp(out_dir)
     beside = free_sibling(out_dir, ".live")
     what = (f"was written by the calibration requested on {requested_by} during the session" if now == requested
             else "held an earlier calibration when the session started" if now == at_start
