@@ -1,5 +1,6 @@
 """Solver core: analytic Jacobian equals finite differences (point and normal rows); a known correction is recovered."""
 import types
+import warnings
 
 import numpy as np
 import pytest
@@ -46,6 +47,22 @@ def test_right_jacobian_matches_definition():
             lhs = se3.rotvec_to_matrix(phi).T @ se3.rotvec_to_matrix(phi + d)
             got = se3.matrix_to_rotvec(lhs) / eps
             np.testing.assert_allclose(got, jr[:, i], atol=1e-5)
+
+
+def test_urdf_rpy_is_fixed_axes_x_y_z_and_survives_gimbal_lock():
+    """URDF's rpy: R = Rz(yaw) Ry(pitch) Rx(roll); a pitch of +-90 degrees still gives back the same rotation."""
+    def about(axis, angle):
+        return se3.rotvec_to_matrix(np.eye(3)[axis] * angle)
+
+    rng = np.random.default_rng(3)
+    rpy = np.r_[rng.uniform(-3, 3, (20, 3)) * [1, 0.5, 1], [[0.3, np.pi / 2, 0.2], [-1.0, -np.pi / 2, 2.0]]]
+    expected = np.stack([about(2, y) @ about(1, p) @ about(0, r) for r, p, y in rpy])
+    np.testing.assert_allclose(se3.matrix_from_rpy(rpy), expected, atol=1e-12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")          # no gimbal-lock warning reaches a user writing a URDF
+        back = se3.rpy_from_matrix(expected)
+    np.testing.assert_allclose(se3.matrix_from_rpy(back), expected, atol=1e-12)
+    assert se3.rpy_from_matrix(np.eye(3)).shape == (3,)
 
 
 def test_analytic_jacobian_equals_central_differences(skin):

@@ -9,7 +9,10 @@ it is expressed in the frame's own axes, so bounds on its components mean
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 _EPS = 1e-12
 
@@ -183,35 +186,22 @@ def transform_coordinates(rot: np.ndarray, points: np.ndarray, trans: np.ndarray
 
 
 def rpy_from_matrix(rot: np.ndarray) -> np.ndarray:
-    """URDF roll-pitch-yaw (fixed axes X, Y, Z: R = Rz(y) Ry(p) Rx(r)).
+    """URDF roll-pitch-yaw (fixed axes X, Y, Z: R = Rz(y) Ry(p) Rx(r)), scipy's extrinsic ``"xyz"``.
 
-    Only for writing URDF ``<origin rpy=...>``; computation never uses Euler angles.
+    Only for writing URDF ``<origin rpy=...>``; computation never uses Euler angles. At pitch +-pi/2
+    (gimbal lock) scipy sets yaw to 0 and puts the whole turn about Z into roll: the same rotation.
     """
     rot = np.asarray(rot, dtype=float)
-    pitch = np.arctan2(-rot[..., 2, 0], np.hypot(rot[..., 0, 0], rot[..., 1, 0]))
-    gimbal = np.hypot(rot[..., 0, 0], rot[..., 1, 0]) < 1e-9
-    roll = np.where(gimbal, 0.0, np.arctan2(rot[..., 2, 1], rot[..., 2, 2]))
-    yaw = np.where(gimbal, np.arctan2(-rot[..., 0, 1], rot[..., 1, 1]),
-                   np.arctan2(rot[..., 1, 0], rot[..., 0, 0]))
-    return np.stack([roll, pitch, yaw], axis=-1)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Gimbal lock detected")
+        rpy = Rotation.from_matrix(rot.reshape(-1, 3, 3)).as_euler("xyz")
+    return rpy.reshape(rot.shape[:-2] + (3,))
 
 
 def matrix_from_rpy(rpy: np.ndarray) -> np.ndarray:
-    """URDF roll-pitch-yaw to rotation matrices (R = Rz(yaw) Ry(pitch) Rx(roll))."""
+    """URDF roll-pitch-yaw to rotation matrices (R = Rz(yaw) Ry(pitch) Rx(roll)), scipy's extrinsic ``"xyz"``."""
     rpy = np.asarray(rpy, dtype=float)
-    r, p, y = rpy[..., 0], rpy[..., 1], rpy[..., 2]
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    out = np.empty(rpy.shape[:-1] + (3, 3))
-    out[..., 0, 0] = cy * cp
-    out[..., 0, 1] = cy * sp * sr - sy * cr
-    out[..., 0, 2] = cy * sp * cr + sy * sr
-    out[..., 1, 0] = sy * cp
-    out[..., 1, 1] = sy * sp * sr + cy * cr
-    out[..., 1, 2] = sy * sp * cr - cy * sr
-    out[..., 2, 0] = -sp
-    out[..., 2, 1] = cp * sr
-    out[..., 2, 2] = cp * cr
-    return out
+    return Rotation.from_euler("xyz", rpy.reshape(-1, 3)).as_matrix().reshape(rpy.shape[:-1] + (3, 3))
 
 
 def rigid_fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None,

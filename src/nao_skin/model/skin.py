@@ -366,6 +366,11 @@ def _mount_vector(mount, where: str) -> np.ndarray:
     return vector
 
 
+def _written(value) -> float:
+    """A number as calibration files give it: 10 decimals, and no "-0.0" (``+ 0.0`` turns it to 0.0)."""
+    return round(float(value), 10) + 0.0
+
+
 def _plausible_pose(vector: np.ndarray) -> bool:
     """6 finite numbers, a translation and a rotation vector within :data:`MAX_OFFSET` / :data:`MAX_ROTATION`."""
     return vector.shape == (6,) and bool(np.all(np.isfinite(vector))) \
@@ -510,11 +515,11 @@ class SkinCalibration:
                                 f" nothing written")
             return {
                 "frame": f.frame, "parent": f.parent,
-                "correction": {"translation": [round(float(v), 10) for v in vector[:3]],
-                               "rotation_vector": [round(float(v), 10) for v in vector[3:]]},
+                "correction": {"translation": [_written(v) for v in vector[:3]],
+                               "rotation_vector": [_written(v) for v in vector[3:]]},
                 # calibrated pose relative to the parent frame, in URDF terms (for xacro)
-                "origin": {"xyz": [round(float(v), 10) for v in f.pose[:3, 3]],
-                           "rpy": [round(float(v), 10) for v in se3.rpy_from_matrix(f.pose[:3, :3])]},
+                "origin": {"xyz": [_written(v) for v in f.pose[:3, 3]],
+                           "rpy": [_written(v) for v in se3.rpy_from_matrix(f.pose[:3, :3])]},
             }
 
         # how many entries follow, ahead of them: a file cut short (a copy that stopped, a full disk
