@@ -11,12 +11,12 @@ angles republished as fresh would repeat a served value).
 from __future__ import annotations
 
 import itertools
-import socket
 import threading
 
 import pytest
 
 qi = pytest.importorskip("qi")
+from robot_body import free_port, serve_motion  # noqa: E402
 from ros_harness import Listener, node_process, ros_env, unique_domain_id  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
@@ -44,24 +44,11 @@ class FakeMotion:
         return values
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def serve(port: int, motion: FakeMotion):
-    session = qi.Session()
-    session.listenStandalone(f"tcp://127.0.0.1:{port}")
-    session.registerService("ALMotion", motion)
-    return session
-
-
 def test_joint_states_and_recovery(tmp_path):
     port = free_port()
     domain = unique_domain_id()
     first = FakeMotion(1)
-    robot = serve(port, first)
+    robot = serve_motion(port, first)
     bridge = listener = None
     try:
         bridge = node_process("naoqi_bridge", {"nao_ip": "127.0.0.1", "nao_port": port, "rate": 50.0,
@@ -88,7 +75,7 @@ def test_joint_states_and_recovery(tmp_path):
 
         # ... and comes back on the same port with a new body.
         second = FakeMotion(2)
-        robot = serve(port, second)
+        robot = serve_motion(port, second)
         assert listener.spin_until(lambda: any(m.position[0] >= 2.0 for m in got[during_outage:]),
                                    procs=[bridge]), "bridge did not recover after the service restarted"
 
@@ -138,7 +125,7 @@ def test_a_robot_that_answers_with_errors_is_no_outage_and_one_that_hangs_is(tmp
     port = free_port()
     domain = unique_domain_id()
     motion = MoodyMotion()
-    robot = serve(port, motion)
+    robot = serve_motion(port, motion)
     bridge = listener = None
     try:
         bridge = node_process("naoqi_bridge", {"nao_ip": "127.0.0.1", "nao_port": port, "rate": 50.0,

@@ -11,16 +11,13 @@ skipped; the writer port vanishing and coming back.
 from __future__ import annotations
 
 import json
-import shutil
-import socket
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 yarp = pytest.importorskip("yarp")
+from robot_body import free_port, open_writer, send, yarpserver_exe  # noqa: E402
 from ros_harness import Listener, Proc, node_process, ros_env, unique_domain_id  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
@@ -38,20 +35,6 @@ LOCAL = "/test/bridge"
 IDS = {"l_hand": 1, "r_hand": 4, "torso": 7, "head": 5}
 
 
-def yarpserver_exe() -> str:
-    cand = Path(sys.executable).parent / "yarpserver"
-    exe = str(cand) if cand.exists() else shutil.which("yarpserver")
-    if not exe:
-        pytest.fail("yarpserver not installed: run docker/setup_venv.sh --with-yarp (make test does)")
-    return exe
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def events_for(skin, contacts):
     """SkinEvents from ``[(part, contact id, slots, pressure)]`` with COPs from the nominal layout."""
     k = len(contacts)
@@ -66,20 +49,6 @@ def events_for(skin, contacts):
     return SkinEvents(sp, ids, np.full(k, 1), np.full(k, 6), cop, np.tile([0.0, 0.0, 1.5], (k, 1)),
                       np.zeros((k, 3)), cop + 1e-3, np.tile([0.0, 0.0, 1.0], (k, 1)),
                       np.array([c[3] for c in contacts], float), np.array(t_contact), np.array(t_id))
-
-
-def send(port, text: str, count: int, t: float) -> None:
-    b = port.prepare()
-    b.clear()
-    b.fromString(text)
-    port.setEnvelope(yarp.Stamp(count, t))
-    port.write(True)      # strict: back-to-back bottles are all delivered
-
-
-def open_writer(name: str):
-    port = yarp.BufferedPortBottle()
-    assert port.open(name), f"cannot open YARP port {name}"
-    return port
 
 
 def test_skin_bridge(tmp_path, monkeypatch):
