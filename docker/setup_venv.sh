@@ -49,6 +49,7 @@ done
 
 step() { echo "setup_venv: $*"; }
 die() { echo "setup_venv: ERROR: $*" >&2; exit 1; }
+refuse() { echo "setup_venv: ERROR: $*" >&2; exit 2; }     # a setting of the user's, not a failed step
 
 # --- packages ----------------------------------------------------------------
 # Exact versions come from docker/venv-constraints.txt.
@@ -79,9 +80,9 @@ pip_install() { "${PIP[@]}" install -q -c "$CONSTRAINTS" "$@"; }
 
 # --- base set-up ---------------------------------------------------------------
 check_tools() {
-  command -v "$PYTHON" >/dev/null || die "base interpreter '$PYTHON' not found (set PYTHON=...)"
+  command -v "$PYTHON" >/dev/null || refuse "base interpreter '$PYTHON' not found (set PYTHON=...)"
   "$PYTHON" -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)' \
-    || die "Python 3.11 required (ROS Kilted cp311 wheels); '$PYTHON' is $("$PYTHON" -V 2>&1)"
+    || refuse "Python 3.11 required (ROS Kilted cp311 wheels); '$PYTHON' is $("$PYTHON" -V 2>&1)"
   local missing=()
   # Debian packages what a bare python3 lacks: venv/ensurepip, and the headers the tf2_msgs build needs
   "$PYTHON" -c 'import venv, ensurepip' 2>/dev/null || missing+=(python3-venv)
@@ -105,6 +106,11 @@ make_venv() {
   if [[ -x "$VENV/bin/python" ]] && "$VENV/bin/python" -c 'import sys' 2>/dev/null; then
     step "venv exists: $VENV"
   else
+    # only a venv (a broken one: its pyvenv.cfg) or an empty directory is replaced; VENV=$HOME is not
+    if [[ -e "$VENV" || -L "$VENV" ]] && ! [[ -f "$VENV/pyvenv.cfg" ]] \
+        && ! { [[ -d "$VENV" && ! -L "$VENV" ]] && [[ -z "$(ls -A "$VENV")" ]]; }; then
+      refuse "VENV=$VENV exists and is no Python venv (no pyvenv.cfg): not replacing it; remove it or set another VENV"
+    fi
     step "creating venv $VENV"
     rm -rf "$VENV"
     "$PYTHON" -m venv "$VENV" || die "python -m venv $VENV failed"

@@ -24,6 +24,7 @@ from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions, set_
 from nao_skin.cli import build_parser
 from nao_skin.cli import main as cli_main
 from nao_skin.errors import ConfigError, DataError
+from nao_skin.formats.bag import read_touches
 from nao_skin.formats.legacy import read_legacy
 from nao_skin.model.skin import SkinCalibration, load_skin
 from nao_skin.paths import config_dir, default_skin_config, package_dir
@@ -552,6 +553,35 @@ def test_import_refuses_a_stamp_no_bag_can_hold_and_leaves_no_half_bag(tmp_path,
         line.endswith("': stamp 3000000000.0 is not a time between 0 and 2147483647 s (a ROS message header holds"
                       " int32 seconds: up to January 2038)"), line
     assert not (tmp_path / "bag").exists()
+
+
+KILLED_MID_WRITE = """
+import os, signal, sys
+from nao_skin.cli import main
+from nao_skin.formats import bag
+write, written = bag.BagWriter.write_touch, []
+def write_then_die(self, *args):
+    write(self, *args)
+    written.append(1)
+    if len(written) == 100:         # kill -9 (a power cut) half-way through the touches: no clean-up runs
+        os.kill(os.getpid(), signal.SIGKILL)
+bag.BagWriter.write_touch = write_then_die
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_an_import_killed_half_way_leaves_no_half_bag_and_the_next_run_cleans_up(tmp_path):
+    """kill -9 during the write left half a bag at -o, which read as a recorder's crash and made a rerun refuse."""
+    argv = ["import", str(RECORDING), "-o", "bag", "--storage", "mcap", *REAL_TAXELS]
+    run = subprocess.run([sys.executable, "-c", KILLED_MID_WRITE, *argv], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=300)
+    assert run.returncode == -9, run.stderr
+    assert not (tmp_path / "bag").exists()
+    (left,) = tmp_path.glob(".bag.*")            # what the killed run wrote, hidden beside -o
+    assert cli_main(["import", str(RECORDING), "-o", str(tmp_path / "bag"), "--storage", "mcap", *REAL_TAXELS]) == 0
+    assert not left.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["bag"]
+    touches, report = read_touches(tmp_path / "bag", load_skin(taxel_files=dict(t.split("=") for t in REAL_TAXELS[1::2])))
+    assert touches.n_touches == 810 and report.n_skipped == 0
 
 
 def test_a_legacy_cop_metres_away_skips_its_touch(tmp_path, skin, thesis_touches):

@@ -148,7 +148,32 @@ def test_skin_bridge(tmp_path, monkeypatch):
         assert listener.spin_until(lambda: stamped(taxels["head"], 3000.0), procs=[bridge]), "no data after reconnect"
         assert status[-1]["counts"]["outages"] == 1
 
-        # 5. stamp:=receive (skinManager's host on another clock): a second bridge on the same port stamps
+        # 5. envelope times no stamp holds (NaN, infinite, past int32 seconds): each bottle skipped and counted,
+        # the next one bridged (the first of them ended the bridge's reading thread: nothing was bridged after it)
+        malformed = status[-1]["counts"]["malformed"]
+        for count, bad in enumerate((float("nan"), float("inf"), 3e9), start=5):
+            send(events_port, format_skin_events(ev2), count, bad)
+        send(events_port, format_skin_events(ev2), 8, 3000.5)
+        assert listener.spin_until(lambda: stamped(taxels["head"], 3000.5), procs=[bridge]), "bridge stopped reading"
+        assert listener.spin_until(lambda: status[-1]["counts"]["malformed"] == malformed + 3, procs=[bridge])
+        assert all(m.header.stamp.sec >= 0 for m in taxels["head"])
+
+        # 6. the name server forgets the bridge's port (a restarted yarpserver): the bridge registers it again,
+        # and skinManager, coming back, connects and is bridged
+        events_port.close()
+        writers.remove(events_port)
+        assert listener.spin_until(lambda: status[-1]["connected"][EVENTS] is False, procs=[bridge])
+        yarp.Network.unregisterName(f"{LOCAL}/skin_events:i")
+        assert not yarp.Network.queryName(f"{LOCAL}/skin_events:i").isValid()
+        events_port = open_writer(EVENTS)
+        writers.append(events_port)
+        assert listener.spin_until(lambda: status[-1]["connected"][EVENTS] is True, procs=[bridge]), \
+            bridge.stderr()[-2000:]
+        send(events_port, format_skin_events(ev2), 9, 3001.0)
+        assert listener.spin_until(lambda: stamped(taxels["head"], 3001.0), procs=[bridge]), "no data after re-register"
+        assert status[-1]["counts"]["registered again"] == 1
+
+        # 7. stamp:=receive (skinManager's host on another clock): a second bridge on the same port stamps
         # what it reads with this machine's clock, the first still with the envelope's
         receiving = node_process("yarp_skin_bridge", {**params, "local_prefix": LOCAL + "_receive",
                                                       "stamp": "receive"},
@@ -157,7 +182,7 @@ def test_skin_bridge(tmp_path, monkeypatch):
                                    procs=[receiving]), "the second bridge did not connect"
         sent = time.time()
         now_stamped = lambda: [m for m in taxels["head"] if abs(stamp_from_msg(m.header.stamp) - sent) < 60]  # noqa: E731
-        for count in range(5, 200):  # again until both arrive: the second bridge's publishers are discovered late
+        for count in range(10, 200):  # again until both arrive: the second bridge's publishers are discovered late
             send(events_port, format_skin_events(ev2), count, 4000.0)
             if listener.spin_until(lambda: stamped(taxels["head"], 4000.0) and now_stamped(), timeout=0.3,
                                    procs=[bridge, receiving]):

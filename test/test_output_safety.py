@@ -857,3 +857,21 @@ def test_a_bench_never_replaces_another_bench_s_output_even_with_force(tmp_path)
     assert check_output_dir(earlier, CAPTURE_BENCHMARK, force=True) == earlier
     with pytest.raises(DataError):
         check_output_dir(earlier, BENCHMARK, force=True)
+
+
+def test_setup_venv_replaces_only_a_venv(tmp_path):
+    """VENV naming a directory of the user's (or a file) was removed with rm -rf and a venv made in its place."""
+    script = Path(__file__).resolve().parents[1] / "docker" / "setup_venv.sh"
+    mine = tmp_path / "thesis"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("precious\n")
+    note = tmp_path / "note.txt"
+    note.write_text("mine\n")
+    for venv in (mine, note):
+        run = subprocess.run(["bash", str(script)], env={**os.environ, "VENV": str(venv), "PIP_NO_INDEX": "1"},
+                             capture_output=True, text=True, timeout=120)
+        err = [x for x in run.stderr.splitlines() if x.strip()]
+        assert run.returncode == 2 and len(err) == 1, run.stderr
+        assert err[0] == (f"setup_venv: ERROR: VENV={venv} exists and is no Python venv (no pyvenv.cfg): not"
+                          f" replacing it; remove it or set another VENV")
+    assert (mine / "thesis.tex").read_text() == "precious\n" and note.read_text() == "mine\n"

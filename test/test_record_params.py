@@ -102,6 +102,17 @@ def test_node_refuses_a_string_for_a_float_parameter(tmp_path):
      "error: parameters reconnect_min:=10.0 and reconnect_max:=1.0: the first delay is longer than the longest"),
     ("calibrate", {"live_every_touches": -3},
      "error: node 'calibrate': parameter live_every_touches:=-3: expected a whole number >= 1"),
+    # a joint list read and published without a word: the same joint twice, a blank name
+    ("naoqi_bridge", {"joint_names": ["HeadYaw", "HeadYaw"]},
+     "error: node 'naoqi_bridge': parameter joint_names:=['HeadYaw', 'HeadYaw']: expected distinct joint names as"
+     " NAOqi spells them (e.g. HeadYaw), at least one"),
+    ("naoqi_bridge", {"joint_names": ["HeadYaw", ""]},
+     "error: node 'naoqi_bridge': parameter joint_names:=['HeadYaw', '']: expected distinct joint names as"
+     " NAOqi spells them (e.g. HeadYaw), at least one"),
+    # a port name YARP refuses: the bridge ran on, YARP logging 'invalid source' twice a second
+    ("yarp_skin_bridge", {"compensated_ports.torso": "nosl"},
+     "error: node 'yarp_skin_bridge': parameter compensated_ports.torso:='nosl': expected empty (no port) or a"
+     " YARP port name: '/' and no spaces, e.g. /nao/skin/torso_comp"),
 ])
 def test_a_node_refuses_a_value_out_of_its_range_in_one_line(tmp_path, node, params, line):
     """``ros2 run`` / ``ros2 launch`` reach the node without record's checks: the node holds the same rule."""
@@ -264,6 +275,10 @@ def test_record_refuses_unknown_or_mistyped_parameters(tmp_path):
     line = one_error_line(nao_skin(["record", "--robot", "nao", "--print", "--events-port", "-1"]))
     assert line.endswith("events_port:=-1: expected a YARP port name: '/' and no spaces,"
                          " e.g. /skinManager/skin_events:o"), line
+    for item, expected in (("naoqi_bridge.joint_names=[]", "expected distinct joint names as NAOqi spells them"),
+                           ("yarp_skin_bridge.compensated_ports.head=/a port", "expected empty (no port) or a YARP")):
+        line = one_error_line(nao_skin(["record", "--robot", "nao", "--print", "--param", item]))
+        assert f"--param {item}: {expected}" in line, line
     for bad in ("not an ip!", "127.0.0.1:9559", "999.1.1.1"):     # a port in it was retried for ever, exit 0
         line = one_error_line(nao_skin(["record", "--robot", "nao", "--print", "--nao-ip", bad]))
         assert line.endswith(f"nao_ip:={bad}: expected an IPv4 address or a host name, e.g. 192.168.1.10 or"

@@ -240,6 +240,9 @@ BAD_CORRECTION = ("part 'head' mount: correction must be 3 + 3 finite numbers, m
     # true was read as 1 m
     ({"head": {"mount": {"correction": {"translation": [True, False, False], "rotation_vector": [0, 0, 0]}}}},
      BAD_CORRECTION),
+    # text where numbers belong: '0.1 m' was said as a missing key, "000" read as three zeros
+    ({"head": {"mount": {"correction": {"translation": "0.1 m", "rotation_vector": [0, 0, 0]}}}}, BAD_CORRECTION),
+    ({"head": {"mount": {"correction": {"translation": "000", "rotation_vector": [0, 0, 0]}}}}, BAD_CORRECTION),
     ({"head": None}, "part 'head': expected a mapping (layout, mount, patches, triangles)"),
     ({"head": 5}, "part 'head': expected a mapping (layout, mount, patches, triangles)"),
     ({"torso": {"patches": [1, 2]}}, "part 'torso': 'patches' must be a mapping"),
@@ -260,7 +263,7 @@ BAD_CORRECTION = ("part 'head' mount: correction must be 3 + 3 finite numbers, m
     ({"head": {"mount": {"correction": {"translation": [0, 0], "rotation_vector": [0, 0, 0, 0]}}}},
      BAD_CORRECTION),
 ], ids=["unknown-part", "unknown-patch", "unknown-triangle", "two-numbers", "nan", "huge-translation",
-        "huge-rotation", "no-rotation", "bool-translation", "part-none", "part-number", "patches-list", "patch-word", "patch-half",
+        "huge-rotation", "no-rotation", "bool-translation", "text-translation", "digits-translation", "part-none", "part-number", "patches-list", "patch-word", "patch-half",
         "triangle-word", "other-chain", "patch-dashes", "triangle-superscript", "triangle-twice", "int-beyond-float",
         "two-plus-four"])
 def test_malformed_calibration_fails_naming_file_and_entry(skin, tmp_path, parts, problem):

@@ -182,6 +182,18 @@ def test_xacro_command_line_expands_the_file_as_is(tmp_path, nominal_urdf):
 
 
 # ---------------------------------------------------------------------- bad calibration files
+def test_an_origin_that_is_no_number_is_said_as_such(skin, tmp_path):
+    """A NaN in an origin was said as 'origin is nan m / 0 rad off the pose its correction gives'."""
+    doc = yaml.safe_load(NOMINAL.read_text())
+    doc["parts"]["r_hand"]["mount"]["origin"]["xyz"][0] = float("nan")
+    path = tmp_path / "nan.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ConfigError) as err:
+        check_calibration_origins(path, skin)
+    assert str(err.value).startswith(f"{path}: part 'r_hand' mount: origin.xyz and origin.rpy must be finite numbers"
+                                     f" (the URDF and /tf read them), not [nan, "), str(err.value)
+
+
 def test_origin_edited_by_hand_is_caught_naming_file_and_frame(skin, tmp_path):
     doc = yaml.safe_load(NOMINAL.read_text())
     tid = next(iter(doc["parts"]["head"]["triangles"]))

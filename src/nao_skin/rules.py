@@ -26,7 +26,8 @@ class Rule:
     length: int | None = None       # tuple of this many numbers
     optional: bool = False          # None allowed
     why: str = ""                   # said after a value out of range
-    pattern: str = ""               # a str must match this whole (regular expression) instead of a choice
+    pattern: str = ""               # a str must match this whole (regular expression) instead of a choice;
+                                    # a tuple of them: at least one, each matching, none twice (names)
 
     def describe(self) -> str:
         if self.kind is bool:
@@ -35,6 +36,8 @@ class Rule:
             return "one of " + ", ".join(self.choices) if self.choices else (self.why or f"a text like {self.pattern}")
         if self.kind is tuple and self.choices:
             return "a list of " + ", ".join(self.choices)
+        if self.kind is tuple and self.pattern:
+            return self.why or f"a list of distinct names like {self.pattern}"
         what = "a whole number" if self.kind is int else "a number"
         if self.kind is tuple:
             what = f"{self.length} numbers"
@@ -66,7 +69,7 @@ class Rule:
                     or (self.high is not None and (v > self.high or (self.high_open and v == self.high))))
 
     def check(self, where: str, value):
-        said = self.why and not (self.kind is str and self.pattern)      # a pattern's why is its description
+        said = self.why and not self.pattern      # a pattern's why is its description
         bad = DataError(f"{where}: expected {self.describe()}" + (f" ({self.why})" if said else ""))
         if value is None and self.optional:
             return None
@@ -86,6 +89,11 @@ class Rule:
                 raise bad
             if self.choices:
                 if any(v not in self.choices for v in value):
+                    raise bad
+                return tuple(value)
+            if self.pattern:
+                if (not value or len(set(map(str, value))) != len(value)
+                        or not all(isinstance(v, str) and re.fullmatch(self.pattern, v) for v in value)):
                     raise bad
                 return tuple(value)
             try:
@@ -145,6 +153,10 @@ AT_LEAST_ONE = Rule(int, low=1)                       # a count of things that m
 WHOLE = Rule(int, low=0)                              # a count or seed that may be 0
 PORT = Rule(int, low=1, high=65535)
 YARP_PORT = Rule(str, pattern=r"/\S+", why="a YARP port name: '/' and no spaces, e.g. /skinManager/skin_events:o")
+YARP_PORT_OR_NONE = Rule(str, pattern=r"(/\S+)?", why="empty (no port) or a YARP port name: '/' and no spaces, e.g."
+                                                      " /nao/skin/torso_comp")
+JOINT_NAMES = Rule(tuple, pattern=r"[A-Za-z][A-Za-z0-9_]*", why="distinct joint names as NAOqi spells them (e.g."
+                                                                " HeadYaw), at least one")
 _OCTET = r"(?:25[0-5]|2[0-4][0-9]|1[0-9][0-9]|[1-9]?[0-9])"
 _LABEL = r"[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?"
 # an IPv4 address, or a host name whose last label is not all digits (999.1.1.1 is neither); no port: nao_port

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import copy
 import errno
+import os
 import shutil
 import sqlite3
 from collections import Counter
@@ -28,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from nao_skin.errors import BagMoved, DataError, DiskFull, OutputError, one_line, os_reason
+from nao_skin.formats.outdir import staging_dir
 from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, encode_cloud,
                                          header_seconds, read_contacts, read_taxels, skin_topic, taxels_array,
                                          taxels_topic)
@@ -66,6 +68,25 @@ def enclosing_bag(path: str | Path) -> Path | None:
                  if (parent / "metadata.yaml").is_file() or (parent / LOCK_FILE).is_file()), None)
 
 
+def check_new_bag(path: Path) -> None:
+    """A bag can be made at ``path``: nothing is there, no bag encloses it, its folder is (made) a directory."""
+    if path.exists() or path.is_symlink():
+        raise DataError(f"{path}: exists already; a bag is never overwritten")
+    outer = enclosing_bag(path)
+    if outer is not None:
+        raise DataError(f"{path}: lies inside the bag {outer}; a bag is never written into another,"
+                        f" choose a place outside it")
+    for parent in path.absolute().parents:        # rosbags makes only the bag's own directory
+        if parent.exists():
+            if not parent.is_dir():
+                raise DataError(f"{path}: {parent} is a file, not a directory; choose another place")
+            break
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DataError(f"{path}: cannot make its folder ({exc.strerror}); choose another place") from None
+
+
 class BagWriter:
     """Write the nao_skin topics to a new rosbag2 (context manager). Used for touch and stream bags.
 
@@ -84,21 +105,7 @@ class BagWriter:
         if storage not in plugins:
             raise DataError(f"{path}: storage must be one of {', '.join(plugins)}, not {storage!r}")
         self.path = Path(path)
-        if self.path.exists() or self.path.is_symlink():
-            raise DataError(f"{self.path}: exists already; a bag is never overwritten")
-        outer = enclosing_bag(self.path)
-        if outer is not None:
-            raise DataError(f"{self.path}: lies inside the bag {outer}; a bag is never written into another,"
-                            f" choose a place outside it")
-        for parent in self.path.absolute().parents:        # rosbags makes only the bag's own directory
-            if parent.exists():
-                if not parent.is_dir():
-                    raise DataError(f"{self.path}: {parent} is a file, not a directory; choose another place")
-                break
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise DataError(f"{self.path}: cannot make its folder ({exc.strerror}); choose another place") from None
+        check_new_bag(self.path)
         self.store = _typestore()
         try:    # checked above; another recorder may have made it since (building the type store takes ~0.25 s)
             self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=plugins[storage])
@@ -346,14 +353,28 @@ def write_touch_bag(path: str | Path, touches: TouchSet, skin: SkinModel, storag
                             f" written at one stamp ({stamp_ns // 1_000_000_000}.{stamp_ns % 1_000_000_000:09d} s)"
                             f" and read back as one touch; nothing written")
         first[stamp_ns] = t
-    writer = BagWriter(path, storage, kind="touches")      # refuses an existing path: what is there now is ours
+    path = Path(path)
+    check_new_bag(path)
+    # written beside it and moved in whole: a run killed half-way (kill -9, a power cut) leaves no half bag to be
+    # taken for a recording, only a hidden staging directory the next write there removes
     try:
-        with writer as bag:
-            for touch in touch_messages(touches, skin, path):
-                bag.write_touch(*touch)
-    except BaseException:
-        shutil.rmtree(path, ignore_errors=True)            # no half-written bag left to be taken for a recording
-        raise
+        stage = staging_dir(path)
+    except OSError as exc:
+        raise DataError(f"{label}: cannot write the bag ({exc.strerror}); choose another place") from None
+    staged = stage / path.name          # the storage file is named after the bag's directory
+    try:
+        try:
+            with BagWriter(staged, storage, kind="touches") as bag:
+                for touch in touch_messages(touches, skin, label):
+                    bag.write_touch(*touch)
+        except DataError as exc:
+            raise DataError(str(exc).replace(str(staged), str(label))) from None
+        if path.exists() or path.is_symlink():
+            raise DataError(f"{label}: exists already (made meanwhile by another recording); a bag is never"
+                            f" overwritten")
+        os.replace(staged, path)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def touch_messages(touches: TouchSet, skin: SkinModel, where: str | Path = "touches"):

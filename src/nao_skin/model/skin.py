@@ -587,11 +587,12 @@ class SkinCalibration:
                 translation, rotation = list(c["translation"]), list(c["rotation_vector"])
                 values = translation + rotation
                 v = np.array(values, dtype=float)
-            except (KeyError, TypeError, ValueError):
+            except (KeyError, TypeError):
                 raise ConfigError(f"{path}: {where}: needs correction.translation and correction.rotation_vector") from None
-            except OverflowError:      # an integer beyond any float
+            except (ValueError, OverflowError):     # not numbers ('0.1 m'), an integer beyond any float
                 v = np.full(6, np.nan)
-            if len(translation) != 3 or any(isinstance(x, bool) for x in values) or not _plausible_pose(v):   # true is no 1 m
+            # true is no 1 m, and "000" no three zeros
+            if len(translation) != 3 or any(isinstance(x, (bool, str)) for x in values) or not _plausible_pose(v):
                 raise ConfigError(f"{path}: {where}: correction must be 3 + 3 finite numbers, metres (at most"
                                   f" {MAX_OFFSET:g}) and radians (at most {MAX_ROTATION:g})")
             return v
@@ -691,6 +692,9 @@ def check_origins(path: Path, doc: dict, calib: "SkinCalibration", skin: SkinMod
                 raise ConfigError(f"{where}: needs origin.xyz and origin.rpy (3 numbers each)") from None
             if xyz.shape != (3,) or rpy.shape != (3,):
                 raise ConfigError(f"{where}: needs origin.xyz and origin.rpy (3 numbers each)")
+            if not (np.all(np.isfinite(xyz)) and np.all(np.isfinite(rpy))):
+                raise ConfigError(f"{where}: origin.xyz and origin.rpy must be finite numbers (the URDF and /tf read"
+                                  f" them), not {xyz.tolist()} / {rpy.tolist()}")
             d_t = np.abs(xyz - np.array(want["origin"]["xyz"])).max()
             rel = se3.matrix_from_rpy(rpy).T @ se3.matrix_from_rpy(np.array(want["origin"]["rpy"]))
             d_r = float(np.linalg.norm(se3.matrix_to_rotvec(rel)))

@@ -15,8 +15,10 @@ stamping ``/joint_states``: the recorder warns when they differ):
 
 skinManager's numeric skin part ids map to our part names by configuration
 (``part_ids.<part>``): iCub and the Nao build of skinDynLib differ. A
-malformed bottle is counted, logged (first few) and skipped. Vanished ports
-are reconnected every ``reconnect_period`` s, logged once per outage.
+malformed bottle (its envelope time too) is counted, logged (first few) and
+skipped; the bridge goes on with the next. Vanished ports are reconnected
+every ``reconnect_period`` s, logged once per outage; a name server that
+forgot the bridge's own port (restarted) gets it registered again.
 Counters go to ``/skin/bridge_status`` (std_msgs/String, JSON) every second.
 """
 from __future__ import annotations
@@ -31,7 +33,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
-from nao_skin.errors import ConfigError, DataError
+from nao_skin.errors import ConfigError, DataError, one_line
 from nao_skin.formats.pointcloud import contacts_array, contacts_topic, taxels_array, taxels_topic
 from nao_skin.formats.skinmanager import activated_taxels, parse_skin_events, parts_by_id
 from nao_skin.live.reconnect import Backoff
@@ -91,14 +93,15 @@ class YarpSkinBridge(Node):
         port = self.yarp.BufferedPortBottle()
         port.setStrict(True)                       # keep every bottle: a touch is never dropped for being late
         if not port.open(local):
-            raise DataError(f"YARP port {local}: cannot open (is yarpserver running and reachable?)")
+            raise DataError(f"YARP port {local}: cannot open (is yarpserver running and reachable? is another"
+                            f" program, a second bridge, using this name? then give this one another local_prefix)")
         self.links.append((remote, port, local, handler, Backoff(f"YARP {remote} -> {local}", self.retry, self.retry)))
 
     def _check_links(self) -> None:
         net = self.yarp.Network
         now = time.monotonic()
         log = self.get_logger()
-        for remote, _, local, _, backoff in self.links:
+        for remote, port, local, _, backoff in self.links:
             if net.isConnected(remote, local, True):
                 if not backoff.connected:
                     log.info(backoff.succeeded(now) or f"YARP {remote} -> {local}: connected")
@@ -108,12 +111,24 @@ class YarpSkinBridge(Node):
                 log.warning(backoff.failed(now, "connection lost"))
             if not backoff.due(now):
                 continue
-            if net.connect(remote, local, "tcp", True):
+            if net.connect(remote, local, "tcp", True) or (self._register_again(port, local)
+                                                           and net.connect(remote, local, "tcp", True)):
                 log.info(backoff.succeeded(now) or f"YARP {remote} -> {local}: connected")
             else:
                 line = backoff.failed(now, "source port not available")
                 if line:
                     log.warning(line)
+
+    def _register_again(self, port, local: str) -> bool:
+        """Register ``local`` again where the name server lost it (a restarted yarpserver forgets the ports
+        opened before: no writer could connect to the bridge again); True when it did."""
+        net = self.yarp.Network
+        if net.queryName(local).isValid() or not net.registerContact(port.where()).isValid():
+            return False
+        self.counts["registered again"] += 1
+        self.get_logger().warning(f"YARP {local}: the name server had lost this port (yarpserver restarted?):"
+                                  f" registered it again")
+        return True
 
     def _read_loop(self, link) -> None:
         _, port, local, handler, _ = link
@@ -130,16 +145,22 @@ class YarpSkinBridge(Node):
                 self.counts["no envelope"] += 1
                 stamp = time.time()
             try:
-                handler(bottle, stamp)
+                handler(bottle, stamp_to_msg(stamp, f"envelope time of a bottle on {local}"))
             except DataError as exc:
                 self.counts[f"malformed {local}"] += 1
                 self.counts["malformed"] += 1
-                if self._logged_errors < MAX_LOGGED_ERRORS:
-                    self._logged_errors += 1
-                    self.get_logger().warning(f"skipped: {exc}")
+                self._say_skipped(str(exc))
+            except Exception as exc:     # noqa: BLE001 - one bottle must not end this thread: nothing would be bridged
+                self.counts["failed bottles"] += 1
+                self._say_skipped(f"a bottle on {local}: {one_line(exc)}")
+
+    def _say_skipped(self, what: str) -> None:
+        if self._logged_errors < MAX_LOGGED_ERRORS:
+            self._logged_errors += 1
+            self.get_logger().warning(f"skipped: {what}")
 
     # ------------------------------------------------------------------ bottles -> messages
-    def _on_events(self, bottle, stamp: float) -> None:
+    def _on_events(self, bottle, msg_stamp) -> None:
         where = f"skin events bottle #{self.counts['bottles'] + 1} on {self.links[0][0]}"
         self.counts["bottles"] += 1
         events = parse_skin_events(bottle.toString(), where)
@@ -153,7 +174,6 @@ class YarpSkinBridge(Node):
             if bad.any():
                 raise DataError(f"{where}: taxel id {int(events.taxel_id[taxels][bad][0])} is beyond the"
                                 f" {n_slots} slots of part '{part}'")
-        msg_stamp = stamp_to_msg(stamp)
         for pid, part in self.part_of_id.items():
             sp = self.skin.parts[part]
             rows, taxels = events.of_part(pid)
@@ -169,7 +189,7 @@ class YarpSkinBridge(Node):
             self.taxel_pub[part].publish(cloud_from_array(points, sp.parent_frame, msg_stamp))
             self.counts[f"messages {part}"] += 1
 
-    def _on_compensated(self, part: str, bottle, stamp: float) -> None:
+    def _on_compensated(self, part: str, bottle, msg_stamp) -> None:
         sp = self.skin.parts[part]
         where = f"compensated taxels of '{part}' on {self.comp_port_of[part]}"
         try:   # one numpy parse of the whole vector, not a Python call per taxel
@@ -178,7 +198,7 @@ class YarpSkinBridge(Node):
             raise DataError(f"{where}: not a vector of numbers") from None
         slots, vals = activated_taxels(values, self.threshold, where, sp.n_slots)
         points = taxels_array(slots, sp.positions[slots], vals)
-        self.taxel_pub[part].publish(cloud_from_array(points, sp.parent_frame, stamp_to_msg(stamp)))
+        self.taxel_pub[part].publish(cloud_from_array(points, sp.parent_frame, msg_stamp))
         self.counts[f"messages {part}"] += 1
 
     def _publish_status(self) -> None:

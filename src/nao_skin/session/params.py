@@ -16,8 +16,8 @@ from nao_skin.errors import ConfigError, NaoSkinError
 from nao_skin.live.playback import check_timing
 from nao_skin.live.updates import LiveUpdates, Settling, UpdateSchedule, WarmStart
 from nao_skin.model.skin import SkinModel, load_skin, parse_pairs, parse_taxel_files
-from nao_skin.rules import (AT_LEAST_ONE, HOST, NON_NEGATIVE, PORT, POSITIVE, RATE, SECONDS, SECONDS_OR_ZERO, WHOLE,
-                            YARP_PORT, Rule)
+from nao_skin.rules import (AT_LEAST_ONE, HOST, JOINT_NAMES, NON_NEGATIVE, PORT, POSITIVE, RATE, SECONDS,
+                            SECONDS_OR_ZERO, WHOLE, YARP_PORT, YARP_PORT_OR_NONE, Rule)
 from nao_skin.sim.params import check_pairs, default_params_file, load_params, pair_list
 from nao_skin.touch.events import LIVE_CONFIG
 
@@ -80,7 +80,7 @@ NAOQI_BRIDGE = {
     "nao_ip": ("127.0.0.1", "IP address or host name of the robot running NAOqi", HOST),
     "nao_port": (9559, "NAOqi port", PORT),
     "rate": (50.0, "joint angle reads per second (Hz)", RATE),
-    "joint_names": (DEFAULT_JOINTS, "NAOqi joint names to read and publish"),
+    "joint_names": (DEFAULT_JOINTS, "NAOqi joint names to read and publish", JOINT_NAMES),
     "use_sensors": (True, "getAngles' useSensors: sensed (true) or commanded (false) angles"),
     "reconnect_min": (0.5, "first reconnection delay after the robot vanished (s)", SECONDS),
     "reconnect_max": (5.0, "longest reconnection delay (s)", SECONDS),
@@ -162,12 +162,13 @@ PER_PART_NODES = ("yarp_skin_bridge",)
 
 
 def per_part_params(executable: str, parts) -> dict:
-    """``{<family>.<part>: (default, description)}``: what a node declares for each configured skin part."""
+    """``{<family>.<part>: (default, description[, rule])}``: what a node declares for each configured skin part."""
     if executable not in PER_PART_NODES:
         return {}
     return {**{f"part_ids.{n}": (DEFAULT_PART_IDS.get(n, -1), f"skinManager skinPart id of '{n}' (-1: not bridged)")
                for n in parts},
-            **{f"compensated_ports.{n}": ("", f"compensated taxel port of '{n}' (empty: none)") for n in parts}}
+            **{f"compensated_ports.{n}": ("", f"compensated taxel port of '{n}' (empty: none)", YARP_PORT_OR_NONE)
+               for n in parts}}
 
 
 def skin_from_params(params: dict) -> SkinModel:

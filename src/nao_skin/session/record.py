@@ -259,7 +259,7 @@ def _declared(spec: NodeSpec) -> dict:
         parts = doc.get("parts") if isinstance(doc, dict) else None
         if not isinstance(parts, dict):
             raise ConfigError(f"{skin_config}: a skin config needs a 'parts' mapping")
-        params.update({name: (default, None) for name, (default, _)
+        params.update({name: (default, rule[0] if rule else None) for name, (default, _, *rule)
                        in per_part_params(spec.executable, parts).items()})
     return params
 
