@@ -102,15 +102,22 @@ check_tools() {
   fi
 }
 
+venv_works() { [[ -x "$VENV/bin/python" ]] && "$VENV/bin/python" -c 'import sys' 2>/dev/null; }
+
+# Only a venv (a broken one: its pyvenv.cfg) or an empty directory is ever replaced; VENV=$HOME is not.
+# Checked first, before the tool checks (which may apt-get install) and any download.
+check_venv_target() {
+  venv_works && return
+  if [[ -e "$VENV" || -L "$VENV" ]] && ! [[ -f "$VENV/pyvenv.cfg" ]] \
+      && ! { [[ -d "$VENV" && ! -L "$VENV" ]] && [[ -z "$(ls -A "$VENV")" ]]; }; then
+    refuse "VENV=$VENV exists and is no Python venv (no pyvenv.cfg): not replacing it; remove it or set another VENV"
+  fi
+}
+
 make_venv() {
-  if [[ -x "$VENV/bin/python" ]] && "$VENV/bin/python" -c 'import sys' 2>/dev/null; then
+  if venv_works; then
     step "venv exists: $VENV"
   else
-    # only a venv (a broken one: its pyvenv.cfg) or an empty directory is replaced; VENV=$HOME is not
-    if [[ -e "$VENV" || -L "$VENV" ]] && ! [[ -f "$VENV/pyvenv.cfg" ]] \
-        && ! { [[ -d "$VENV" && ! -L "$VENV" ]] && [[ -z "$(ls -A "$VENV")" ]]; }; then
-      refuse "VENV=$VENV exists and is no Python venv (no pyvenv.cfg): not replacing it; remove it or set another VENV"
-    fi
     step "creating venv $VENV"
     rm -rf "$VENV"
     "$PYTHON" -m venv "$VENV" || die "python -m venv $VENV failed"
@@ -197,6 +204,7 @@ setup_base() {
     step "base venv up to date ($VENV)"
     return
   fi
+  check_venv_target
   check_tools
   [[ -f "$CONSTRAINTS" ]] || die "missing $CONSTRAINTS"
   rm -f "$STAMP"

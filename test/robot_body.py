@@ -31,8 +31,9 @@ from nao_skin.touch.touches import TouchSet
 
 # skinManager's skinPart ids of config/bridges.yaml (the thesis' Nao: the head on the right forearm's id)
 PART_IDS = {"l_hand": 1, "r_hand": 4, "torso": 7, "head": 5}
-# presses held still 0.2 s either side, as an operator holds the arm; NAOqi is polled at 50 Hz
-PLAY = {"period": 1.0, "press": 0.3, "hold": 0.2, "lead_in": 0.5}
+# presses held still 0.4 s either side, as an operator holds the arm: NAOqi, polled at 50 Hz, stamps an angle
+# when its answer arrives, and on a loaded machine that can come late
+PLAY = {"period": 1.5, "press": 0.3, "hold": 0.4, "lead_in": 0.5}
 
 
 def played_touches(skin: SkinModel, seed: int, per_pair: int = 5) -> TouchSet:

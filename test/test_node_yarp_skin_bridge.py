@@ -163,8 +163,7 @@ def test_skin_bridge(tmp_path, monkeypatch):
         events_port.close()
         writers.remove(events_port)
         assert listener.spin_until(lambda: status[-1]["connected"][EVENTS] is False, procs=[bridge])
-        yarp.Network.unregisterName(f"{LOCAL}/skin_events:i")
-        assert not yarp.Network.queryName(f"{LOCAL}/skin_events:i").isValid()
+        yarp.Network.unregisterName(f"{LOCAL}/skin_events:i")    # the bridge's next check registers it again
         events_port = open_writer(EVENTS)
         writers.append(events_port)
         assert listener.spin_until(lambda: status[-1]["connected"][EVENTS] is True, procs=[bridge]), \

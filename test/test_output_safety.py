@@ -221,7 +221,7 @@ def file_size_limit(size: int):
      "nao-skin simulate: error: sim: cannot write the simulated recording (File too large); nothing written"),
     # past the truth YAML (56 kB), in the bag: sqlite3 says "disk I/O error"
     (["simulate", "--out", "sim", "--touches-per-pair", "50"], 150_000,
-     "nao-skin simulate: error: sim: cannot write the simulated recording (touches.bag: cannot write the bag (disk"
+     "nao-skin simulate: error: sim: cannot write the simulated recording (sim/touches.bag: cannot write the bag (disk"
      " I/O error)); nothing written"),
 ])
 def test_a_full_disk_is_one_line_and_leaves_what_was_there(work, argv, limit, says):

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nao_skin.errors import BagMoved, DataError, DiskFull, OutputError, one_line, os_reason
+from nao_skin.errors import BagMoved, DataError, DiskFull, NaoSkinError, OutputError, one_line, os_reason
 from nao_skin.formats.outdir import staging_dir
 from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, encode_cloud,
                                          header_seconds, read_contacts, read_taxels, skin_topic, taxels_array,
@@ -367,12 +367,17 @@ def write_touch_bag(path: str | Path, touches: TouchSet, skin: SkinModel, storag
             with BagWriter(staged, storage, kind="touches") as bag:
                 for touch in touch_messages(touches, skin, label):
                     bag.write_touch(*touch)
-        except DataError as exc:
-            raise DataError(str(exc).replace(str(staged), str(label))) from None
+        except NaoSkinError as exc:     # said of the bag the user named (a full disk stays a DiskFull)
+            exc.args = (str(exc).replace(str(staged), str(label)),)
+            raise
+        made_meanwhile = DataError(f"{label}: exists already (made meanwhile by another recording); a bag is"
+                                   f" never overwritten")
         if path.exists() or path.is_symlink():
-            raise DataError(f"{label}: exists already (made meanwhile by another recording); a bag is never"
-                            f" overwritten")
-        os.replace(staged, path)
+            raise made_meanwhile
+        try:
+            os.replace(staged, path)
+        except OSError:             # made between the check and the move: a directory with files in it
+            raise made_meanwhile from None
     finally:
         shutil.rmtree(stage, ignore_errors=True)
 

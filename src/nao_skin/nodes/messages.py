@@ -20,9 +20,11 @@ MAX_STAMP_S = 2 ** 31      # builtin_interfaces/Time's int32 seconds: 2038-01-19
 
 def stamp_to_msg(seconds: float, where: str = "time") -> Time:
     """Seconds (float, e.g. a YARP envelope time) to ``builtin_interfaces/Time``; DataError naming ``where`` for
-    one no stamp holds (NaN, infinite, before 1970, past int32 seconds)."""
-    if not 0.0 <= float(seconds) < MAX_STAMP_S:
-        raise DataError(f"{where}: {float(seconds)!r} s is no time a ROS stamp holds (0 to 2^31 s since 1970)")
+    one no stamp holds (NaN, infinite, beyond int32 seconds either way; before 1970 is a time, the recorder
+    judges it)."""
+    if not -MAX_STAMP_S <= float(seconds) < MAX_STAMP_S:
+        raise DataError(f"{where}: {float(seconds)!r} s is no time a ROS stamp holds (int32 seconds: up to"
+                        f" January 2038)")
     ns = int(round(float(seconds) * 1e9))
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 

@@ -64,7 +64,9 @@ class YarpSkinBridge(Node):
         self.contact_pub = {n: self.create_publisher(PointCloud2, contacts_topic(n), 50) for n in self.bridged}
         self.status_pub = self.create_publisher(String, BRIDGE_STATUS_TOPIC, 10)
         self.counts: Counter = Counter()
+        self._counts_lock = threading.Lock()    # the reading threads count, the status timer copies
         self._logged_errors = 0
+        self._failures_said: set = set()          # kinds of unexpected error already logged
         self._stop = threading.Event()
         # retry on every check (the back-off is the check period itself)
         self.retry = float(p["reconnect_period"]) / 2
@@ -107,7 +109,7 @@ class YarpSkinBridge(Node):
                     log.info(backoff.succeeded(now) or f"YARP {remote} -> {local}: connected")
                 continue
             if backoff.connected:                  # it was up: the writer vanished
-                self.counts["outages"] += 1
+                self._count("outages")
                 log.warning(backoff.failed(now, "connection lost"))
             if not backoff.due(now):
                 continue
@@ -125,7 +127,7 @@ class YarpSkinBridge(Node):
         net = self.yarp.Network
         if net.queryName(local).isValid() or not net.registerContact(port.where()).isValid():
             return False
-        self.counts["registered again"] += 1
+        self._count("registered again")
         self.get_logger().warning(f"YARP {local}: the name server had lost this port (yarpserver restarted?):"
                                   f" registered it again")
         return True
@@ -142,17 +144,26 @@ class YarpSkinBridge(Node):
             elif port.getEnvelope(envelope) and envelope.isValid():
                 stamp = envelope.getTime()
             else:
-                self.counts["no envelope"] += 1
+                self._count("no envelope")
                 stamp = time.time()
             try:
                 handler(bottle, stamp_to_msg(stamp, f"envelope time of a bottle on {local}"))
             except DataError as exc:
-                self.counts[f"malformed {local}"] += 1
-                self.counts["malformed"] += 1
+                self._count(f"malformed {local}")
+                self._count("malformed")
                 self._say_skipped(str(exc))
             except Exception as exc:     # noqa: BLE001 - one bottle must not end this thread: nothing would be bridged
-                self.counts["failed bottles"] += 1
-                self._say_skipped(f"a bottle on {local}: {one_line(exc)}")
+                self._count("failed bottles")
+                kind = type(exc).__name__
+                if kind not in self._failures_said:  # each kind said once, whatever malformed bottles said before
+                    self._failures_said.add(kind)
+                    self.get_logger().error(f"a bottle on {local} failed ({kind}: {one_line(exc)}); skipped, the"
+                                            f" bridge goes on (counted as 'failed bottles' in {BRIDGE_STATUS_TOPIC})")
+
+    def _count(self, key: str, n: int = 1) -> int:
+        with self._counts_lock:
+            self.counts[key] += n
+            return self.counts[key]
 
     def _say_skipped(self, what: str) -> None:
         if self._logged_errors < MAX_LOGGED_ERRORS:
@@ -161,12 +172,11 @@ class YarpSkinBridge(Node):
 
     # ------------------------------------------------------------------ bottles -> messages
     def _on_events(self, bottle, msg_stamp) -> None:
-        where = f"skin events bottle #{self.counts['bottles'] + 1} on {self.links[0][0]}"
-        self.counts["bottles"] += 1
+        where = f"skin events bottle #{self._count('bottles')} on {self.links[0][0]}"
         events = parse_skin_events(bottle.toString(), where)
         unknown = set(np.unique(events.skin_part).tolist()) - set(self.part_of_id)
         if unknown:
-            self.counts["contacts of unmapped parts"] += int(np.isin(events.skin_part, list(unknown)).sum())
+            self._count("contacts of unmapped parts", int(np.isin(events.skin_part, list(unknown)).sum()))
         for pid, part in self.part_of_id.items():
             n_slots = self.skin.parts[part].n_slots
             rows, taxels = events.of_part(pid)
@@ -187,7 +197,7 @@ class YarpSkinBridge(Node):
             owner = events.taxel_contact[taxels]
             points = taxels_array(slots, sp.positions[slots], events.pressure[owner], events.contact_id[owner])
             self.taxel_pub[part].publish(cloud_from_array(points, sp.parent_frame, msg_stamp))
-            self.counts[f"messages {part}"] += 1
+            self._count(f"messages {part}")
 
     def _on_compensated(self, part: str, bottle, msg_stamp) -> None:
         sp = self.skin.parts[part]
@@ -199,11 +209,13 @@ class YarpSkinBridge(Node):
         slots, vals = activated_taxels(values, self.threshold, where, sp.n_slots)
         points = taxels_array(slots, sp.positions[slots], vals)
         self.taxel_pub[part].publish(cloud_from_array(points, sp.parent_frame, msg_stamp))
-        self.counts[f"messages {part}"] += 1
+        self._count(f"messages {part}")
 
     def _publish_status(self) -> None:
         connected = {remote: backoff.connected for remote, _, _, _, backoff in self.links}
-        self.status_pub.publish(String(data=json.dumps({"counts": dict(self.counts), "connected": connected},
+        with self._counts_lock:
+            counts = dict(self.counts)
+        self.status_pub.publish(String(data=json.dumps({"counts": counts, "connected": connected},
                                                        sort_keys=True)))
 
     def close(self) -> None:
