@@ -1,5 +1,6 @@
 """Live calibration's core, without ROS: a warm-started update, and what decides that it is published
 and that a part is done (the node over real DDS: test_live_calibration.py)."""
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -194,7 +195,13 @@ def test_a_live_session_updates_waits_and_fails_without_raising(skin, session, t
     touches, _, _ = session
     few, bag = tmp_path / "few", tmp_path / "touches"
     write_touch_bag(few, touches.subset(np.arange(8)), skin, storage="mcap")
-    write_touch_bag(bag, touches, skin, storage="mcap")
+
+    def recorded(n):        # the bag as the recorder has written it by now (replaced: read again from its start)
+        shutil.rmtree(bag, ignore_errors=True)
+        write_touch_bag(bag, touches.subset(np.arange(n)), skin, storage="mcap")
+
+    n = touches.n_touches
+    recorded(n - 20)
 
     def live(recording, max_move_mm=20.0):
         return LiveCalibration(skin, CalibrationOptions(), recording, skin.zero_calibration(), 2.0, Settling(),
@@ -207,13 +214,25 @@ def test_a_live_session_updates_waits_and_fails_without_raising(skin, session, t
     session_live = live(bag)
     first = session_live.update()
     assert first.status["state"] == "updated" and first.status["from_scratch"], first.status
-    assert first.accepted is session_live.last and first.status["touches"] == touches.n_touches
+    assert first.accepted is session_live.last and first.status["touches"] == n - 20
     assert set(first.status["pairs"]) == {"r_hand+torso", "l_hand+torso"}
-    assert sum(first.status["pairs"].values()) == touches.n_touches
+    assert sum(first.status["pairs"].values()) == n - 20
+    recorded(n - 10)
     second = session_live.update()
     assert second.status["state"] == "updated" and not second.status["from_scratch"]
     assert set(second.status["parts"]) == set(skin.parts)
-    accepted = session_live.last
+    # the session's report.md: a warm update measured its final figures only; its other rows said 0 touches
+    from nao_skin.calibration.report import markdown_report
+    warm_md, cold_md = (markdown_report(o.accepted.report.to_dict()) for o in (second, first))
+    assert "| before |" not in warm_md and "| final | test |" in warm_md and "measured on no split" in warm_md
+    assert "| before | train |" in cold_md and "measured on no split" not in cold_md
+    accepted, settled = session_live.last, len(session_live.updates.settling.figures)
+    # no touch in the bag since (the recorder counted one it has not flushed yet): nothing runs, no status,
+    # and no 0 mm update counts towards a part's 'done' (a rehearsal showed 'taxels moved up to 0.00 mm')
+    same = session_live.update()
+    assert same.status == {} and same.accepted is None and session_live.last is accepted
+    assert len(session_live.updates.settling.figures) == settled
+    recorded(n)
     session_live.updates.max_move_mm = 1e-9       # any move of a part calibrated before is now a divergence
     third = session_live.update()
     assert third.status["state"] == "failed" and "diverged" in third.status["error"], third.status

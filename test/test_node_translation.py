@@ -152,14 +152,17 @@ def test_triangle_slots_cover_every_present_taxel_once():
 def test_backoff_logs_once_per_outage():
     b = Backoff("robot", initial=1.0, maximum=4.0)
     assert b.due(0.0)
-    assert "retrying" in b.failed(0.0, "down")
+    assert b.failed(0.0, "down") == "robot: down; retrying every 1-4 s (logged once per outage)"
     assert not b.due(0.5) and b.due(1.0)
     assert b.failed(1.0, "down") is None and b.next_attempt == 3.0
     assert b.failed(3.0, "down") is None and b.next_attempt == 7.0
     assert b.failed(7.0, "down") is None and b.next_attempt == 11.0          # capped at 4 s
-    assert "after 8.0 s (4 failed attempts)" in b.succeeded(8.0)
+    assert b.succeeded(8.0) == "robot: connected after 8.0 s (4 failed attempts)"    # never connected before
     assert not b.due(9.0)
     assert "retrying" in b.failed(20.0, "lost again") and b.outages == 2
+    assert b.succeeded(21.0) == "robot: connected again after 1.0 s (1 failed attempts)"
+    # a fixed period says one number (it said 'every 0.5-0.5 s')
+    assert Backoff("port", 1.0, 1.0).failed(0.0, "gone") == "port: gone; retrying every 1 s (logged once per outage)"
 
 
 def test_a_float_contact_field_that_is_no_whole_number_is_no_contact():

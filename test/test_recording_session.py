@@ -3,6 +3,8 @@ out, and what the operator is told. The node (pairing_recorder) only translates 
 node over real DDS are in test_node_session.py, test_recording_survives.py and test_clock_skew.py."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -94,6 +96,44 @@ def test_a_stream_that_never_comes_is_said_once_and_in_the_last_line(skin, tmp_p
     assert recording.close().endswith("{} (no skin samples ever arrived)")
     fresh = TouchRecording(skin, LIVE_CONFIG, tmp_path / "other", "sqlite3")
     assert fresh.close().endswith("{} (no joint states and no skin samples ever arrived)")
+
+
+def test_joint_states_that_stop_mid_session_are_said_while_touches_are_lost_and_counted_at_the_end(skin, tmp_path):
+    """NAOqi gone for 17 s mid-session (a rehearsal): the 12 touches pressed then were dropped without a word, the
+    progress' 'dropped' still empty until NAOqi was back, and the last line said nothing of them."""
+    sim = simulate(skin, {"pairs": [["l_hand", "torso"]], "n_touches": 8}, seed=3)
+    touches, _ = deduplicate(sim.touches)
+    playback = Playback(touches, skin, period=1.0, press=0.2, hold=0.1)
+    gap = (2.8, 6.3)                 # no joint state in these seconds of the play: touches 3 to 5 have no pose
+    recording = TouchRecording(skin, LIVE_CONFIG, tmp_path / "touches", "mcap")
+    said = []
+    times = sorted([(t, "joints") for t in np.arange(0.0, playback.duration, 0.01) if not gap[0] <= t < gap[1]]
+                   + [(t, "skin") for t in np.arange(0.003, playback.duration, 0.02)])
+    next_check = 1.0
+    for t, kind in times:
+        while t >= next_check:         # the node's progress timer, once a second, on the arrival clock
+            said += recording.outage_warnings(100.0 + next_check)
+            next_check += 1.0
+        if kind == "joints":
+            recording.joint_state(100.0 + t, playback.joint_names, playback.joints_at(t), arrived=100.0 + t)
+            continue
+        k = playback.touch_at(t)
+        for part in playback.part_names:
+            taxels, contacts = playback.samples[k][part] if k >= 0 else (None, None)
+            if taxels is None:
+                recording.taxels(part, 100.0 + t, np.zeros(0, int), np.zeros(0), np.zeros(0, int), 100.0 + t)
+                continue
+            recording.contacts(part, 100.0 + t, contacts["contact"], xyz(contacts))
+            recording.taxels(part, 100.0 + t, taxels["slot"].astype(int), taxels["pressure"].astype(float),
+                             taxels["contact"].astype(int), 100.0 + t)
+    assert len(said) == 2, said
+    assert said[0].startswith("no joint states for 2 s while skin samples go on: a touch pressed now has no arm pose"
+                              " and cannot be recorded; stop touching until they are back (is anything publishing")
+    assert said[1].startswith("joint states again after 3.5 s without: touches pressed in the gap are not recorded")
+    line = recording.close()
+    lost = recording.dropped()
+    assert sum(lost.values()) == 3 and recording.n_touches == 5, lost
+    assert line.endswith(f'{{"l_hand+torso": 5}}; not recorded: {json.dumps(lost)}'), line
 
 
 def test_a_bag_of_the_simulated_robot_says_so_on_every_read(skin, tmp_path):

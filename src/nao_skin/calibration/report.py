@@ -52,7 +52,7 @@ def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Pat
             skin.parts[name].write_taxel_file(tmp / "taxels" / f"{name}.txt", result.calibration.parts[name])
         (tmp / "report.json").write_text(json.dumps(jsonable(result.report.to_dict()), indent=2) + "\n")
         coverage = report_coverage(result, skin)
-        (tmp / "report.md").write_text(markdown_report(result.report.to_dict(), coverage))
+        (tmp / "report.md").write_text(markdown_report(result.report.to_dict(), coverage, pictures=plots))
         if plots:
             _plots(result, skin, prior or skin.zero_calibration(), tmp, calibrated)
             plot_coverage(coverage, skin, result.calibration, tmp / "coverage.png")
@@ -100,8 +100,9 @@ def kinematics_section(kin: dict) -> list:
     return lines
 
 
-def markdown_report(report: dict, coverage: dict | None = None) -> str:
-    """report.md from the report's dict; ``coverage`` (:func:`report_coverage`) adds the coverage table."""
+def markdown_report(report: dict, coverage: dict | None = None, pictures: bool = True) -> str:
+    """report.md from the report's dict; ``coverage`` (:func:`report_coverage`) adds the coverage table;
+    ``pictures``: the plots are written beside it (coverage.png is named only then)."""
     keys = ("cop_mean_mm", "taxel_mean_mm", "contact_taxel_mean_mm", "taxel5_mean_mm")
     lines = ["# Skin calibration report", "",
              f"Plan: {' → '.join(report['plan'])}", "",
@@ -117,11 +118,19 @@ def markdown_report(report: dict, coverage: dict | None = None) -> str:
     rows += [("final", report["final"], None)]
     accepted = {"train": report["final"].get("train_accepted", {}), "test": report["final"].get("test_accepted", {})}
     rows += [("final, touches a self-contact explains", accepted, None)]
+    unmeasured = 0
     for name, entry, secs in rows:
+        if name != "final" and not any(entry.get(split) for split in ("train", "test")):
+            unmeasured += 1            # a live update's warm start measures the final figures only
+            continue
         for split in ("train", "test"):
             m = entry.get(split, {})
             lines.append(f"| {name} | {split} | {m.get('n_touches', 0)} | "
                          + " | ".join(_fmt(m.get(k)) for k in keys) + f" | {_fmt(secs) if split == 'train' else ''} |")
+    if unmeasured:
+        lines += ["", f"{unmeasured} rows measured on no split are left out: a live update, warm-started from the"
+                      f" one before, measures its final figures only, and its time is its own, not the session's"
+                      f" (`nao-skin calibrate` on the bag gives every stage's)."]
     truth = report["final"].get("truth_taxel_error_mm")
     if truth:
         lines += ["", "## True taxel error (simulation ground truth)", "",
@@ -150,7 +159,7 @@ def markdown_report(report: dict, coverage: dict | None = None) -> str:
         lines += ["", "## Left out: too few touches (held at the prior)", ""]
         lines += [f"- {e['pair']}: {e['reason']}" for e in report["left_out"]]
     if coverage:
-        lines += ["", *coverage_lines(coverage)]
+        lines += ["", *coverage_lines(coverage, pictures)]
     if report.get("held"):
         lines += ["", "## Held at their prior (not determined by the touches)", ""]
         lines += [f"- {h}" for h in report["held"]]
@@ -294,8 +303,9 @@ def report_coverage(result: CalibrationResult, skin: SkinModel) -> dict:
     return out
 
 
-def coverage_lines(coverage: dict) -> list:
-    """The coverage table of report.md: triangles with enough paired activations, held triangles."""
+def coverage_lines(coverage: dict, picture: bool = True) -> list:
+    """The coverage table of report.md: triangles with enough paired activations, held triangles; ``picture``:
+    coverage.png is written beside it."""
     lines = ["## Coverage: paired activations per triangle (training touches)", "",
              "| part | triangles with enough (>= needed) / total | fewest / median activations | held triangles"
              " | partly held triangles | held patches |", "|---|---|---|---|---|---|"]
@@ -305,9 +315,9 @@ def coverage_lines(coverage: dict) -> list:
                      f" {int(acts.min()) if len(acts) else 0} / {float(np.median(acts)) if len(acts) else 0:g} |"
                      f" {', '.join(map(str, c['held_triangles'])) or '–'} |"
                      f" {', '.join(c['partly_held_triangles']) or '–'} | {', '.join(c['held_patches']) or '–'} |")
-    lines.append("")
-    lines.append("The picture: coverage.png (taxels coloured by their triangle's paired activations, held triangles"
-                 " crossed).")
+    if picture:
+        lines += ["", "The picture: coverage.png (taxels coloured by their triangle's paired activations, held"
+                      " triangles crossed)."]
     return lines
 
 

@@ -18,6 +18,7 @@ class Backoff:
         self.delay = self.initial
         self.next_attempt = float("-inf")
         self.connected = False
+        self.ever_connected = False              # an outage of a link never made is its first connection
         self.outage_start: float | None = None   # time of the first failure of the current outage
         self.attempts = 0                        # failed attempts in the current outage
         self.outages = 0                         # outages so far (first connection failures included)
@@ -39,7 +40,8 @@ class Backoff:
         self.attempts += 1
         self.next_attempt = now + self.delay
         if first:
-            return f"{self.what}: {reason}; retrying every {self.initial:g}-{self.maximum:g} s (logged once per outage)"
+            every = f"{self.initial:g}" if self.initial == self.maximum else f"{self.initial:g}-{self.maximum:g}"
+            return f"{self.what}: {reason}; retrying every {every} s (logged once per outage)"
         return None
 
     def succeeded(self, now: float) -> str | None:
@@ -47,9 +49,11 @@ class Backoff:
         self.connected = True
         line = None
         if self.outage_start is not None:
-            line = f"{self.what}: connected again after {now - self.outage_start:.1f} s ({self.attempts} failed attempts)"
+            line = (f"{self.what}: connected {'again ' if self.ever_connected else ''}after"
+                    f" {now - self.outage_start:.1f} s ({self.attempts} failed attempts)")
         elif self.attempts == 0:
             line = f"{self.what}: connected"
+        self.ever_connected = True
         self.outage_start = None
         self.attempts = 0
         self.delay = self.initial

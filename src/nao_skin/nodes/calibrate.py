@@ -22,6 +22,7 @@ Status on ``/nao_skin/calibration/status`` (std_msgs/String, JSON, latched).
 from __future__ import annotations
 
 import json
+import math
 import threading
 import time
 
@@ -127,6 +128,10 @@ class CalibrateNode(Node):
         log = self.get_logger()
         try:
             out = self.live.update(log=log.debug)
+            if not out.status:      # the bag has no touch since the last update yet (not flushed): the next tick
+                self.schedule.last_touches -= 1
+                self.schedule.last_time = -math.inf
+                return
             try:
                 if out.accepted is not None:
                     self.publish_calibration(out.accepted.calibration, "live update", quiet=True)

@@ -24,6 +24,7 @@ Counters go to ``/skin/bridge_status`` (std_msgs/String, JSON) every second.
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 from collections import Counter
@@ -68,9 +69,13 @@ class YarpSkinBridge(Node):
         self._logged_errors = 0
         self._failures_said: set = set()          # kinds of unexpected error already logged
         self._stop = threading.Event()
-        # retry on every check (the back-off is the check period itself)
-        self.retry = float(p["reconnect_period"]) / 2
+        self.period = float(p["reconnect_period"])     # the links are checked, and retried, this often
+        self._last_bottle: dict = {}                    # local port -> monotonic time of its last bottle
 
+        # YARP's own lines are quiet unless the environment asks for them: without a name server it printed
+        # two a second ('No connection to nameserver', 'try running: yarp detect'), 70 lines in a 25 s
+        # outage, where this bridge says each outage and recovery once (YARP reads this as it loads)
+        os.environ.setdefault("YARP_QUIET", "1")
         try:
             import yarp
         except ImportError as exc:      # started alone (ros2 run): the line record and the launch file give
@@ -97,21 +102,25 @@ class YarpSkinBridge(Node):
         if not port.open(local):
             raise DataError(f"YARP port {local}: cannot open (is yarpserver running and reachable? is another"
                             f" program, a second bridge, using this name? then give this one another local_prefix)")
-        self.links.append((remote, port, local, handler, Backoff(f"YARP {remote} -> {local}", self.retry, self.retry)))
+        self.links.append((remote, port, local, handler, Backoff(f"YARP {remote} -> {local}", self.period,
+                                                                 self.period)))
 
     def _check_links(self) -> None:
         net = self.yarp.Network
         now = time.monotonic()
         log = self.get_logger()
         for remote, port, local, _, backoff in self.links:
-            if net.isConnected(remote, local, True):
+            # bottles still arriving are a connection whatever the name server says: a restarted yarpserver
+            # knows neither port, and the connection made before goes on
+            flowing = now - self._last_bottle.get(local, -np.inf) < 2 * self.period
+            if flowing or net.isConnected(remote, local, True):
                 if not backoff.connected:
                     log.info(backoff.succeeded(now) or f"YARP {remote} -> {local}: connected")
                 continue
             if backoff.connected:                  # it was up: the writer vanished
                 self._count("outages")
                 log.warning(backoff.failed(now, "connection lost"))
-            if not backoff.due(now):
+            if not backoff.due(now + 0.5 * self.period):    # due before the next check (the timer jitters)
                 continue
             if net.connect(remote, local, "tcp", True) or (self._register_again(port, local)
                                                            and net.connect(remote, local, "tcp", True)):
@@ -139,6 +148,7 @@ class YarpSkinBridge(Node):
             bottle = port.read(True)
             if bottle is None or self._stop.is_set():
                 continue
+            self._last_bottle[local] = time.monotonic()
             if self._receive_stamps:
                 stamp = time.time()
             elif port.getEnvelope(envelope) and envelope.isValid():

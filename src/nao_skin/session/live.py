@@ -32,8 +32,9 @@ from nao_skin.touch.touches import TouchSet
 
 @dataclass
 class LiveOutcome:
-    """What one update did: the status to latch (the node adds the generation it publishes), the result
-    to publish if it was accepted, and every touch read (for the guidance; None when reading failed)."""
+    """What one update did: the status to latch (the node adds the generation it publishes; empty when the
+    bag held no touch since the last accepted update, so nothing ran), the result to publish if it was
+    accepted, and every touch read (for the guidance; None when reading failed)."""
 
     status: dict
     accepted: CalibrationResult | None = None
@@ -53,6 +54,7 @@ class LiveCalibration:
         self.skin, self.options, self.recording = skin, options, str(recording)
         self.updates = LiveUpdates(skin, start, refresh, settling, max_move_mm)
         self.last: CalibrationResult | None = None     # the last accepted update's result
+        self._last_touches = -1                         # how many touches it calibrated (-1: the last failed)
         self._followed: dict = {}                       # the recording, read incrementally
 
     def parts_state(self) -> dict:
@@ -69,10 +71,14 @@ class LiveCalibration:
                 self._followed = {self.recording: GrowingBag(find_bag(Path(self.recording)), self.skin)}
             loaded = load_inputs([self.recording], self.skin, log=log, summary=log, followed=self._followed)
             touches = loaded.touches
+            if touches.n_touches == self._last_touches:
+                # the recorder counts a touch before its next flush puts it in the bag: an update now would
+                # repeat the last one, and its 0 mm would count towards a part's 'done'
+                return LiveOutcome({}, None, None)
             result, moved, start = self.updates.update(
                 touches.n_touches, lambda args: calibrate_loaded(loaded, self.skin, self.options, log=log, **args))
             report = result.report
-            self.last = result
+            self.last, self._last_touches = result, touches.n_touches
             return LiveOutcome({"state": "updated", "touches": touches.n_touches,
                                 "pairs": {pair_label(p): n for p, n in pair_counts(touches).items()},
                                 "final": {k: report.final.get(k) for k in ("train", "test")},
@@ -80,10 +86,13 @@ class LiveCalibration:
                                 "parts": self.parts_state(), "seconds": time.perf_counter() - t0,
                                 "from_scratch": not start["warm"], "warnings": report.warnings}, result, touches)
         except TooFewTouches as exc:      # no pair has touches enough yet: wait for more
+            self._last_touches = -1
             return LiveOutcome({"state": "waiting", "reason": str(exc), "parts": self.parts_state()}, None, touches)
         except NaoSkinError as exc:       # unreadable recording, diverged update: the last good frames stay
+            self._last_touches = -1         # the next update runs, to say the recording is good again
             return LiveOutcome({"state": "failed", "error": str(exc), "parts": self.parts_state()}, None, touches)
         except Exception as exc:  # noqa: BLE001 - a failed update keeps the last good calibration published
+            self._last_touches = -1
             return LiveOutcome({"state": "failed", "error": one_line(exc), "parts": self.parts_state()}, None,
                                touches)
 

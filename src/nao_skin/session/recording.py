@@ -30,6 +30,7 @@ from nao_skin.touch.events import EventConfig, EventDetector
 
 MAX_LOGGED_ERRORS = 5        # bad messages said one by one (all are counted)
 SILENCE_S = 10.0             # s without a joint state, or without any skin sample, before the operator is told
+OUTAGE_S = 2.0               # s a stream may pause mid-session while the other goes on (joints come at 10-100 Hz)
 
 # what the recorder reads, and where to look when it never comes
 SILENT_STREAMS = {
@@ -67,17 +68,26 @@ class TouchRecording:
         self._skew_seen: dict = {}   # skin topic -> progress checks in a row it was beyond the limit
         self.received: Counter = Counter()    # joint states and skin samples read
         self._silence_said: set = set()
+        self._last: dict = {}        # stream -> arrival time of its last message (the node's clock)
+        self._gap_open: dict = {}    # stream -> arrival time of its last message before a gap said as open
+        self._resumed: list = []     # (stream, gap s) of the gaps that closed since last said
 
     # ------------------------------------------------------------------ input
     def joint_state(self, stamp: float, names, positions, arrived: float) -> None:
-        self.received["joint states"] += 1
+        self._arrived("joint states", arrived)
         self.lags.add(JOINT_STATES_TOPIC, stamp, arrived)
         self._write(self.detector.add_joint_state(stamp, names, positions))
 
     def taxels(self, part: str, stamp: float, slots, pressures, contacts, arrived: float) -> None:
-        self.received["skin samples"] += 1
+        self._arrived("skin samples", arrived)
         self.lags.add(taxels_topic(part), stamp, arrived)
         self._write(self.detector.add_skin(stamp, part, slots.tolist(), pressures.tolist(), contacts.tolist()))
+
+    def _arrived(self, stream: str, arrived: float) -> None:
+        self.received[stream] += 1
+        self._last[stream] = arrived
+        if stream in self._gap_open:
+            self._resumed.append((stream, arrived - self._gap_open.pop(stream)))
 
     def contacts(self, part: str, stamp: float, contact_ids, cops) -> None:
         self._write(self.detector.add_contacts(stamp, part, contact_ids, cops))
@@ -142,17 +152,23 @@ class TouchRecording:
         except OutputError as exc:
             self._cannot_write(exc)
         silent = [what for what in SILENT_STREAMS if not self.received[what]]
+        dropped = self.dropped()
         return (f"wrote {self.n_touches} touches to {self.bag_path}: {json.dumps(dict(self.pairs))}"
-                + (f" (no {' and no '.join(silent)} ever arrived)" if silent else ""))
+                + (f" (no {' and no '.join(silent)} ever arrived)" if silent else "")
+                + (f"; not recorded: {json.dumps(dropped)}" if dropped else ""))
+
+    def dropped(self) -> dict:
+        """What the detector dropped, and the messages that could not be read, by reason."""
+        return {k: v for k, v in self.detector.counts.items() if k not in ("touches", "continued press")} \
+            | dict(self.errors)
 
     # ------------------------------------------------------------------ what the operator is told
     def progress(self) -> dict:
         ms = np.array(self.skin_ms) if self.skin_ms else np.zeros(1)
-        drops = {k: v for k, v in self.detector.counts.items() if k not in ("touches", "continued press")}
         return {
             "bag": str(self.bag_path), "touches": self.n_touches, "pairs": dict(self.pairs),
             "coverage": {n: round(self.touched.coverage(n, self.skin.parts[n].present), 4) for n in self.parts},
-            "dropped": drops | dict(self.errors),
+            "dropped": self.dropped(),
             # per skin topic, s its stamps lag the joint states' (beyond a few ms: another clock)
             "clock_skew_s": {t: round(v, 4) for t, v in self.lags.skew(JOINT_STATES_TOPIC).items()},
             "skin_message_ms": {"n": len(self.skin_ms), "p50": round(float(np.percentile(ms, 50)), 4),
@@ -174,6 +190,24 @@ class TouchRecording:
                            f" joints' (skinManager on another host?), so every touch takes the arm pose of another"
                            f" moment. Synchronise the clocks (chrony/NTP), or start yarp_skin_bridge with"
                            f" stamp:=receive")
+        return out
+
+    def outage_warnings(self, now: float) -> list:
+        """What to say when the joint states stop mid-session while skin samples go on (``now``: the clock of
+        the ``arrived`` times): a touch pressed then has no arm pose and is lost, and the detector counts it
+        only once the joint states are back. Said once when the gap reaches :data:`OUTAGE_S`, and once when
+        they are back. (Not the other way round: a skin driver may send nothing while nothing is pressed.)"""
+        out = [f"{stream} again after {gap:.1f} s without: touches pressed in the gap are not recorded (counted"
+               f" in 'dropped')" for stream, gap in self._resumed]
+        self._resumed.clear()
+        stream, other = "joint states", "skin samples"
+        last, other_last = self._last.get(stream), self._last.get(other)
+        if (last is not None and other_last is not None and stream not in self._gap_open
+                and now - last >= OUTAGE_S and now - other_last < OUTAGE_S):
+            self._gap_open[stream] = last
+            out.append(f"no {stream} for {now - last:.0f} s while {other} go on: a touch pressed now has no arm"
+                       f" pose and cannot be recorded; stop touching until they are back"
+                       f" ({SILENT_STREAMS[stream]})")
         return out
 
     def silence_warnings(self, elapsed: float) -> list:
