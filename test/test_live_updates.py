@@ -190,6 +190,7 @@ def test_a_live_session_updates_waits_and_fails_without_raising(skin, session, t
     `waiting`, then an update from scratch, then warm ones; a diverged update is `failed` and the last
     accepted calibration stays; a recording that is not there is one line, never an exception."""
     from nao_skin.formats.bag import write_touch_bag
+    from nao_skin.formats.salvage import LOCK_FILE, write_lock
     from nao_skin.session.live import LiveCalibration
 
     touches, _, _ = session
@@ -227,16 +228,22 @@ def test_a_live_session_updates_waits_and_fails_without_raising(skin, session, t
     assert "| before |" not in warm_md and "| final | test |" in warm_md and "measured on no split" in warm_md
     assert "| before | train |" in cold_md and "measured on no split" not in cold_md
     accepted, settled = session_live.last, len(session_live.updates.settling.figures)
-    # no touch in the bag since (the recorder counted one it has not flushed yet): nothing runs, no status,
-    # and no 0 mm update counts towards a part's 'done' (a rehearsal showed 'taxels moved up to 0.00 mm')
+    # no touch in the bag since, while it is being recorded (the recorder counted one it has not flushed yet):
+    # nothing runs, no status, and no 0 mm update counts towards a part's 'done' (a rehearsal showed 'taxels
+    # moved up to 0.00 mm')
+    write_lock(bag)                                   # the bag open in its recorder: this process
     same = session_live.update()
     assert same.status == {} and same.accepted is None and session_live.last is accepted
     assert len(session_live.updates.settling.figures) == settled
+    # a closed recording is calibrated again each time it is asked (bench-live's --update-input)
+    (bag / LOCK_FILE).unlink()
+    again = session_live.update()
+    assert again.status["state"] == "updated" and again.status["touches"] == n - 10
     recorded(n)
     session_live.updates.max_move_mm = 1e-9       # any move of a part calibrated before is now a divergence
     third = session_live.update()
     assert third.status["state"] == "failed" and "diverged" in third.status["error"], third.status
-    assert third.accepted is None and session_live.last is accepted and third.touches is not None
+    assert third.accepted is None and session_live.last is again.accepted and third.touches is not None
 
     gone = live(tmp_path / "nowhere").update()
     assert gone.status["state"] == "failed" and "nowhere" in gone.status["error"] and gone.touches is None

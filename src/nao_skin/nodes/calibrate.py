@@ -72,6 +72,7 @@ class CalibrateNode(Node):
                                                  float(self.p["live_flat_percent"])),
                                         float(self.p["live_max_move_mm"]))
             self._recorded = 0            # touches the recorder reported so far
+            self._retried = False         # an update found no new touch in the bag and tries once more
             self._malformed = 0           # progress messages skipped
             self.create_subscription(String, PROGRESS_TOPIC, self._on_progress, 10)
             self.create_timer(0.5, self._maybe_update)
@@ -128,10 +129,13 @@ class CalibrateNode(Node):
         log = self.get_logger()
         try:
             out = self.live.update(log=log.debug)
-            if not out.status:      # the bag has no touch since the last update yet (not flushed): the next tick
-                self.schedule.last_touches -= 1
-                self.schedule.last_time = -math.inf
+            if not out.status:      # the bag has no touch since the last update yet (not flushed)
+                if not self._retried:       # once at the next tick; then the schedule as usual (a touch the
+                    self._retried = True    # reading drops as a duplicate would keep the recorder's count ahead)
+                    self.schedule.last_touches -= 1
+                    self.schedule.last_time = -math.inf
                 return
+            self._retried = False
             try:
                 if out.accepted is not None:
                     self.publish_calibration(out.accepted.calibration, "live update", quiet=True)

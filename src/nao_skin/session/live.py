@@ -24,6 +24,7 @@ from nao_skin.calibration.plan import pair_counts
 from nao_skin.errors import NaoSkinError, TooFewTouches, one_line
 from nao_skin.formats.bag import GrowingBag
 from nao_skin.formats.inputs import find_bag
+from nao_skin.formats.salvage import recording_lock
 from nao_skin.live.updates import LiveUpdates, Settling
 from nao_skin.model.skin import SkinCalibration, SkinModel, pair_label
 from nao_skin.paths import free_sibling
@@ -56,6 +57,7 @@ class LiveCalibration:
         self.last: CalibrationResult | None = None     # the last accepted update's result
         self._last_touches = -1                         # how many touches it calibrated (-1: the last failed)
         self._followed: dict = {}                       # the recording, read incrementally
+        self._bag_dir: Path | None = None
 
     def parts_state(self) -> dict:
         """``{part: collecting | converging | done}``."""
@@ -68,12 +70,15 @@ class LiveCalibration:
         touches = None
         try:
             if not self._followed:      # the recorder has created the bag by its first touch
-                self._followed = {self.recording: GrowingBag(find_bag(Path(self.recording)), self.skin)}
+                bag = find_bag(Path(self.recording))
+                self._bag_dir = bag if bag.is_dir() else bag.parent
+                self._followed = {self.recording: GrowingBag(bag, self.skin)}
             loaded = load_inputs([self.recording], self.skin, log=log, summary=log, followed=self._followed)
             touches = loaded.touches
-            if touches.n_touches == self._last_touches:
+            if touches.n_touches == self._last_touches and self._being_recorded():
                 # the recorder counts a touch before its next flush puts it in the bag: an update now would
-                # repeat the last one, and its 0 mm would count towards a part's 'done'
+                # repeat the last one, and its 0 mm would count towards a part's 'done' (a closed bag, e.g.
+                # bench-live's --update-input, is calibrated again each time: that is what is asked)
                 return LiveOutcome({}, None, None)
             result, moved, start = self.updates.update(
                 touches.n_touches, lambda args: calibrate_loaded(loaded, self.skin, self.options, log=log, **args))
@@ -95,6 +100,12 @@ class LiveCalibration:
             self._last_touches = -1
             return LiveOutcome({"state": "failed", "error": one_line(exc), "parts": self.parts_state()}, None,
                                touches)
+
+
+    def _being_recorded(self) -> bool:
+        """The recording is open in its recorder (its lock names a running process)."""
+        lock = recording_lock(self._bag_dir) if self._bag_dir is not None else None
+        return lock is not None and lock.state == "open"
 
 
 def _free(out_dir) -> bool:
