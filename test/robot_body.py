@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from nao_skin.formats.pointcloud import xyz
 from nao_skin.formats.skinmanager import SkinEvents, format_skin_events
@@ -29,8 +30,9 @@ from nao_skin.sim.simulate import simulate
 from nao_skin.touch.datasets import deduplicate
 from nao_skin.touch.touches import TouchSet
 
-# skinManager's skinPart ids of config/bridges.yaml (the thesis' Nao: the head on the right forearm's id)
-PART_IDS = {"l_hand": 1, "r_hand": 4, "torso": 7, "head": 5}
+# skinManager's skinPart ids, as the bridge reads them (config/bridges.yaml: the thesis' Nao)
+PART_IDS = dict(yaml.safe_load((Path(__file__).resolve().parents[1] / "config" / "bridges.yaml").read_text())
+                ["yarp_skin_bridge"]["ros__parameters"]["part_ids"])
 # presses held still 0.4 s either side, as an operator holds the arm: NAOqi, polled at 50 Hz, stamps an angle
 # when its answer arrives, and on a loaded machine that can come late
 PLAY = {"period": 1.5, "press": 0.3, "hold": 0.4, "lead_in": 0.5}
