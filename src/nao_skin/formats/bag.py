@@ -30,7 +30,7 @@ import numpy as np
 
 from nao_skin.errors import BagMoved, DataError, DiskFull, NaoSkinError, OutputError, one_line, os_reason
 from nao_skin.formats.outdir import staging_dir
-from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, encode_cloud,
+from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, LAST_STAMP, contacts_array, contacts_topic, encode_cloud,
                                          header_seconds, read_contacts, read_taxels, skin_topic, taxels_array,
                                          taxels_topic)
 from nao_skin.formats.salvage import (LOCK_FILE, check_storage_files, cut_mcap, cut_sqlite, provisional_mcap,
@@ -312,11 +312,6 @@ def detected_touch_messages(records, skin: SkinModel, part_names, joint_names, w
     if not records:
         return iter(())
     return touch_messages(touchset_from_records(records, part_names, joint_names), skin, where)
-
-
-# a message header's stamp (builtin_interfaces/Time) holds int32 seconds: the last is in January 2038
-# (rosbag2's own int64 nanoseconds would reach 2262)
-LAST_STAMP = float(2 ** 31 - 1)
 
 
 def _stamp_ns(stamp: float, where: str) -> int:

@@ -162,6 +162,11 @@ class NoTime(DataError):
     reason = "no header stamp"        # what a load report counts it under
 
 
+# a message header's stamp (builtin_interfaces/Time) holds int32 seconds: the last is in January 2038
+# (rosbag2's own int64 nanoseconds would reach 2262); beyond it the seconds wrap negative
+LAST_STAMP = float(2 ** 31 - 1)
+
+
 def header_seconds(stamp, where: str, zero: bool = True) -> float:
     """A header's ``builtin_interfaces/Time`` in seconds; :class:`NoTime` for one that is no time: before
     1970, with nanoseconds beyond a second, or unset (0) unless ``zero`` allows it.

@@ -34,6 +34,12 @@ class UpdateSchedule:
     def started(self, touches: int, now: float) -> None:
         self.last_touches, self.last_time = touches, now
 
+    def again(self) -> None:
+        """The update just started found no new touch to read (the recorder counts one before it flushes it):
+        due again at the next check."""
+        self.last_touches -= 1
+        self.last_time = -np.inf
+
 
 @dataclass
 class WarmStart:

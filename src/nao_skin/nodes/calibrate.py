@@ -22,7 +22,6 @@ Status on ``/nao_skin/calibration/status`` (std_msgs/String, JSON, latched).
 from __future__ import annotations
 
 import json
-import math
 import threading
 import time
 
@@ -132,8 +131,7 @@ class CalibrateNode(Node):
             if not out.status:      # the bag has no touch since the last update yet (not flushed)
                 if not self._retried:       # once at the next tick; then the schedule as usual (a touch the
                     self._retried = True    # reading drops as a duplicate would keep the recorder's count ahead)
-                    self.schedule.last_touches -= 1
-                    self.schedule.last_time = -math.inf
+                    self.schedule.again()
                 return
             self._retried = False
             try:

@@ -11,18 +11,15 @@ from builtin_interfaces.msg import Time
 from sensor_msgs.msg import JointState, PointCloud2, PointField
 
 from nao_skin.errors import DataError
-from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, encode_cloud, header_seconds
+from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, LAST_STAMP, encode_cloud, header_seconds
 
 
 # ---------------------------------------------------------------------- time
-MAX_STAMP_S = 2 ** 31      # builtin_interfaces/Time's int32 seconds: 2038-01-19; beyond, the seconds wrap negative
-
-
 def stamp_to_msg(seconds: float, where: str = "time") -> Time:
     """Seconds (float, e.g. a YARP envelope time) to ``builtin_interfaces/Time``; DataError naming ``where`` for
     one no stamp holds (NaN, infinite, beyond int32 seconds either way; before 1970 is a time, the recorder
     judges it)."""
-    if not -MAX_STAMP_S <= float(seconds) < MAX_STAMP_S:
+    if not -LAST_STAMP <= float(seconds) < LAST_STAMP:
         raise DataError(f"{where}: {float(seconds)!r} s is no time a ROS stamp holds (int32 seconds: up to"
                         f" January 2038)")
     ns = int(round(float(seconds) * 1e9))
