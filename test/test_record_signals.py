@@ -113,8 +113,9 @@ class RecordingSession:
         try:
             self.listener = Listener(domain)
             progress = self.listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))
-            self.session = Proc(record_cmd(self.bag, self.seed, self.per_pair), ros_env(domain), self.tmp_path,
-                                "record")
+            # TMPDIR: a record killed with SIGKILL cannot remove its temporary directory; it stays in the test's
+            self.session = Proc(record_cmd(self.bag, self.seed, self.per_pair), ros_env(domain, TMPDIR=self.tmp_path),
+                                self.tmp_path, "record")
             assert self.listener.spin_until(lambda: progress and progress[-1]["touches"] >= 3, timeout=60,
                                             procs=[self.session]), "recorder reported no touches"
             self.reported = progress[-1]["touches"]
