@@ -83,6 +83,54 @@ def test_updates_arrive_while_touches_are_recorded(tmp_path):
     assert_frames(joiner[0], load_skin(), written)      # what the late joiner got is what was written
 
 
+def test_the_session_end_calibrates_the_touches_since_the_last_update_and_says_where_it_went(tmp_path):
+    """Updates every 20 touches, none by time: the touches recorded after the last update are calibrated when
+    the session ends, so the calibration written covers every touch (it covered the last update's only); its
+    frames go out on /tf_static, and the latched status says the session ended and where the calibration is."""
+    bag = tmp_path / "touches"
+    argv = record_cmd(bag, seed=5, per_pair=32) + [
+        "--param", "sim_robot.pairs=[r_hand-torso]", "--param", "sim_robot.touch_period=0.35",
+        "--param", "calibrate.live_every_touches=20", "--param", "calibrate.live_period=86400"]
+    domain = unique_domain_id()
+    listener = session = None
+    code = None
+    try:
+        listener = Listener(domain)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        frames = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=LATCHED)
+        sim = listener.subscribe(String, SIM_STATUS_TOPIC, keep=lambda m: json.loads(m.data))
+        progress = listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))
+        session = Proc(argv, ros_env(domain), tmp_path, "record")
+        updated = lambda: [s for s in status if s["state"] == "updated"]  # noqa: E731
+        assert listener.spin_until(lambda: sim and sim[-1]["done"] and updated(), timeout=120, procs=[session]), \
+            (status[-2:], sim[-1:])
+        listener.spin_for(2.0)       # the recorder's last touches reported
+        recorded = progress[-1]["touches"]
+        (last_update,) = updated()
+        assert last_update["touches"] < recorded, (last_update["touches"], recorded)
+        code = session.stop(signal.SIGINT)
+        assert listener.spin_until(lambda: status[-1]["state"] == "ended", timeout=10), status[-3:]
+        listener.spin_for(0.5)
+    finally:
+        if listener is not None:
+            listener.close()
+        if session is not None and code is None:
+            session.stop(signal.SIGINT)
+    err = session.stderr()
+    assert code == 0 and "Traceback" not in err, err[-3000:]
+    end = status[-1]
+    out = tmp_path / "touches_calibration"
+    assert end["calibration"] == str(out / "calibration.yaml") and end["touches"] == end["recorded"] == recorded, end
+    assert f"the last live calibration (all {recorded} touches) -> {out}" in err, err[-3000:]
+    # one more generation, published: the final update's frames (the status is latched with depth 1: the
+    # listener, not spinning while the session stopped, kept the last status only)
+    assert end["generation"] == last_update["generation"] + 1
+    written = SkinCalibration.load(out / "calibration.yaml", load_skin())
+    assert_frames(frames[-1], load_skin(), written)
+    report = json.loads((out / "report.json").read_text())
+    assert report["final"]["train"]["n_touches"] + report["final"]["test"]["n_touches"] == recorded
+
+
 def test_a_failing_update_keeps_the_last_good_frames(tmp_path):
     """The calibrate node alone, live, on a recording the test writes (it stands in for the recorder: it
     writes the bag and publishes the progress). A good update is published; then the recording turns
@@ -173,3 +221,44 @@ def test_an_out_dir_another_command_writes_during_the_session_is_left_and_the_se
     SkinCalibration.load(session / "calibration.yaml", skin)
     assert (f"out_dir {out} was written by another command during the session and is left as it is; the session's"
             f" last live calibration goes to {session}") in node.stderr()
+
+
+def test_a_session_end_that_cannot_write_its_calibration_says_the_bag_holds_every_touch(tmp_path):
+    """out_dir's folder replaced by a file during the session: the end is one line, exit 2, naming what failed
+    and how to calibrate the recording's touches again (the session was over: "choose another place" alone
+    came too late), and the latched status says the session ended without a calibration."""
+    skin = load_skin()
+    touches = simulate(skin, {"pairs": [["r_hand", "torso"]], "n_touches": 40}, seed=6).touches
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, touches, skin)
+    folder = tmp_path / "results"
+    folder.mkdir()
+    domain = unique_domain_id()
+    listener = node = None
+    code = None
+    try:
+        listener = Listener(domain)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        progress = listener.node.create_publisher(String, PROGRESS_TOPIC, 10)
+        node = node_process("calibrate", {"live": True, "recording": str(bag), "live_every_touches": 1,
+                                          "out_dir": str(folder / "cal")}, ros_env(domain), tmp_path)
+        assert listener.spin_until(lambda: progress.get_subscription_count() >= 1 and status, procs=[node])
+        progress.publish(String(data=json.dumps({"touches": touches.n_touches})))
+        assert listener.spin_until(lambda: status[-1]["state"] == "updated", timeout=90, procs=[node]), status[-1:]
+        folder.rmdir()
+        folder.write_text("a file where out_dir's folder was\n")
+        code = node.stop(signal.SIGINT)
+        listener.spin_for(1.0)
+    finally:
+        if listener is not None:
+            listener.close()
+        if node is not None and code is None:
+            node.stop()
+    err = [line for line in node.stderr().splitlines() if line.strip()]
+    assert code == 2 and "Traceback" not in "\n".join(err), err
+    (line,) = [x for x in err if x.startswith("error:")]
+    assert line.startswith(f"error: out_dir {folder / 'cal'}: Not a directory"), line
+    assert f"the recording {bag} holds every touch, and nao-skin calibrate {bag} --out DIR calibrates them again" \
+        in line, line
+    assert status[-1]["state"] == "ended" and status[-1]["calibration"] is None, status[-1]
+

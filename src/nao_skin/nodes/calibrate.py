@@ -17,7 +17,8 @@ joining at any time gets exactly the latest calibration. robot_state_publisher
 must get the URDF without skin frames (xacro arg ``skin_frames:=false``) so
 that no frame has two publishers.
 
-Status on ``/nao_skin/calibration/status`` (std_msgs/String, JSON, latched).
+Status on ``/nao_skin/calibration/status`` (std_msgs/String, JSON, latched); when a live session ends, a final
+update calibrates the touches since the last one, and the status says ``ended`` and where the calibration is.
 """
 from __future__ import annotations
 
@@ -39,6 +40,9 @@ from nao_skin.nodes.topics import (GUIDANCE_TOPIC, LATCHED, MAX_SKIPPED_SAID, PR
 from nao_skin.plain import jsonable
 from nao_skin.session.live import LiveCalibration, output_stamp, request_out_dir, session_end_out_dir
 from nao_skin.session.params import CALIBRATE, guidance_pairs, options_from_params, skin_from_params
+
+
+FINAL_WAIT_S = 5.0      # at the session's end: how long the final update waits for the recorder to close the bag
 
 
 class CalibrateNode(Node):
@@ -243,23 +247,62 @@ class CalibrateNode(Node):
                 self.get_logger().warning(f"stopped during the {self._worker.name}: it is not written (a staging"
                                           f" directory it left beside out_dir is removed by the next calibration"
                                           f" written there)")
-        if self.p["live"] and self.live.last is not None:
+        if not self.p["live"]:
+            return
+        if self.p["recording"] and not (self._worker is not None and self._worker.is_alive()):
+            self._final_update()
+        if self.live.last is not None:
             from nao_skin.calibration.report import write_outputs
 
             requested = self._requested_out[1] if self._requested_out else None
             out_dir, moved = session_end_out_dir(self.p["out_dir"], self._out_dir_at_start, requested, REQUEST_TOPIC)
             if moved:
                 self.get_logger().warning(moved)
-            # a failure here (out_dir refused, the disk full) is the node's one line and exit 2
-            self._check_live_out_dir(out_dir)
-            out = write_outputs(self.live.last, self.skin, out_dir, plots=False, command="calibrate (node, live)")
-            self.get_logger().info(f"the last live calibration -> {out}")
-        elif self.p["live"]:     # a short session, or one whose touches never sufficed: say so, not nothing
+            covered = (f"all {self.live.last_count} touches" if self.live.last_count >= self.live.read_count
+                       else f"{self.live.last_count} of {self.live.read_count} touches")
+            try:
+                self._check_live_out_dir(out_dir)
+                out = write_outputs(self.live.last, self.skin, out_dir, plots=False, command="calibrate (node, live)")
+            except NaoSkinError as exc:
+                # the node's one line and exit 2; the touches are in the recording, whole
+                error = (f"{exc}; the session's last live calibration ({covered}) is not written: the recording"
+                         f" {self.p['recording']} holds every touch, and nao-skin calibrate {self.p['recording']}"
+                         f" --out DIR calibrates them again")
+                self._status({"state": "ended", "generation": self.generation, "calibration": None, "error": error})
+                raise type(exc)(error) from None
+            self.get_logger().info(f"the last live calibration ({covered}) -> {out}")
+            self._status({"state": "ended", "generation": self.generation, "out_dir": str(out),
+                          "calibration": str(out / "calibration.yaml"), "touches": self.live.last_count,
+                          "recorded": self.live.read_count, "parts": self.live.parts_state()})
+        else:     # a short session, or one whose touches never sufficed: say so, not nothing
             latched = self._latched
             why = {"waiting": latched.get("reason"), "failed": latched.get("error")}.get(latched.get("state"),
                                                                                       "no live update ran")
             self.get_logger().warning(f"the session ends without a live calibration ({why}): none is written to"
                                       f" {self.p['out_dir']}")
+            self._status({"state": "ended", "generation": self.generation, "calibration": None, "reason": why,
+                          "recorded": self.live.read_count})
+
+    def _final_update(self) -> None:
+        """The touches recorded since the last update calibrated too, so that what the session writes covers
+        every touch: once the recorder has closed the bag (it writes what it still holds as it stops)."""
+        log = self.get_logger()
+        if not self.live.recording_exists():      # no touch was recorded
+            return
+        if not self.live.wait_until_closed(FINAL_WAIT_S):
+            log.warning(f"the recorder has not closed {self.p['recording']} after {FINAL_WAIT_S:g} s; the final"
+                        f" update calibrates the touches it has written")
+        out = self.live.update(log=log.debug, final=True)
+        if not out.status:          # no touch since the last accepted update
+            return
+        if out.accepted is not None:
+            self.publish_calibration(out.accepted.calibration, "final live update", quiet=True)
+            log.info(f"final live update {self.generation}: {out.status['touches']} touches")
+        elif self.live.last is not None:
+            why = out.status.get("error") or out.status.get("reason")
+            log.warning(f"the final live update over {self.live.read_count} touches was not accepted ({why});"
+                        f" the last accepted update's is written")
+        self._status({**out.status, "live": True, "generation": self.generation})
 
 
 def request_paths(text: str) -> list:

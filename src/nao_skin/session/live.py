@@ -8,6 +8,9 @@ calibration to :class:`~nao_skin.live.updates.LiveUpdates`, as the capture
 benchmark does: warm from the last accepted update, refused when it diverged,
 and per part whether more touches still move it. A failed update changes
 nothing: the last accepted calibration stays the one to publish and write.
+When the session ends, a final update (``final=True``, once the recorder has
+closed the bag: :meth:`LiveCalibration.wait_until_closed`) calibrates the
+touches recorded since the last one, so that what is written covers them all.
 """
 from __future__ import annotations
 
@@ -55,7 +58,9 @@ class LiveCalibration:
         self.skin, self.options, self.recording = skin, options, str(recording)
         self.updates = LiveUpdates(skin, start, refresh, settling, max_move_mm)
         self.last: CalibrationResult | None = None     # the last accepted update's result
-        self._last_touches = -1                         # how many touches it calibrated (-1: the last failed)
+        self.last_count = 0                             # how many touches it calibrated
+        self.read_count = 0                             # how many touches the recording held at the last read
+        self._last_touches = -1                         # touches the last update calibrated (-1: it failed)
         self._followed: dict = {}                       # the recording, read incrementally
         self._bag_dir: Path | None = None
 
@@ -63,8 +68,12 @@ class LiveCalibration:
         """``{part: collecting | converging | done}``."""
         return self.updates.states(self.skin.parts)
 
-    def update(self, log: Callable[[str], None] | None = None) -> LiveOutcome:
-        """Recalibrate on every touch recorded so far; never raises (a failure is a ``failed`` status)."""
+    def update(self, log: Callable[[str], None] | None = None, final: bool = False) -> LiveOutcome:
+        """Recalibrate on every touch recorded so far; never raises (a failure is a ``failed`` status).
+
+        ``final``: the session's end; an update only when the recording holds a touch the last accepted
+        update did not calibrate (empty status otherwise), so the calibration written covers every touch.
+        """
         log = log or (lambda msg: None)
         t0 = time.perf_counter()
         touches = None
@@ -75,7 +84,8 @@ class LiveCalibration:
                 self._followed = {self.recording: GrowingBag(bag, self.skin)}
             loaded = load_inputs([self.recording], self.skin, log=log, summary=log, followed=self._followed)
             touches = loaded.touches
-            if touches.n_touches == self._last_touches and self._being_recorded():
+            self.read_count = touches.n_touches
+            if touches.n_touches == self._last_touches and (final or self._being_recorded()):
                 # the recorder counts a touch before its next flush puts it in the bag: an update now would
                 # repeat the last one, and its 0 mm would count towards a part's 'done' (a closed bag, e.g.
                 # bench-live's --update-input, is calibrated again each time: that is what is asked)
@@ -83,7 +93,7 @@ class LiveCalibration:
             result, moved, start = self.updates.update(
                 touches.n_touches, lambda args: calibrate_loaded(loaded, self.skin, self.options, log=log, **args))
             report = result.report
-            self.last, self._last_touches = result, touches.n_touches
+            self.last, self._last_touches, self.last_count = result, touches.n_touches, touches.n_touches
             return LiveOutcome({"state": "updated", "touches": touches.n_touches,
                                 "pairs": {pair_label(p): n for p, n in pair_counts(touches).items()},
                                 "final": {k: report.final.get(k) for k in ("train", "test")},
@@ -106,6 +116,26 @@ class LiveCalibration:
         """The recording is open in its recorder (its lock names a running process)."""
         lock = recording_lock(self._bag_dir) if self._bag_dir is not None else None
         return lock is not None and lock.state == "open"
+
+    def recording_exists(self) -> bool:
+        """The recorder has made the recording (it does with its first touch)."""
+        if self._bag_dir is None:
+            try:
+                bag = find_bag(Path(self.recording))
+            except (NaoSkinError, OSError):
+                return False
+            self._bag_dir = bag if bag.is_dir() else bag.parent
+        return True
+
+    def wait_until_closed(self, timeout: float, poll: float = 0.05) -> bool:
+        """Wait up to ``timeout`` s for the recorder to close the recording (at the session's end it writes the
+        touches it still holds, then closes): True when it is closed."""
+        deadline = time.monotonic() + timeout
+        while self._being_recorded():
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(poll)
+        return True
 
 
 def _free(out_dir) -> bool:
