@@ -43,6 +43,7 @@ ARGUMENTS = {
 
 
 def _nodes(context):
+    from nao_skin.session.claim import claim_domain
     from nao_skin.session.record import check_needs, record_session, robot_description
 
     arg = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
@@ -51,6 +52,8 @@ def _nodes(context):
                            rviz=arg["rviz"].lower() == "true", taxels=shlex.split(arg["taxels"]),
                            guided=arg["guided"].lower() == "true")
     check_needs(specs)    # e.g. robot:=nao without YARP's Python bindings: one line before any node starts
+    # one session per ROS domain on this machine (two would record each other's touches); held while launch runs
+    claim_domain()
     actions = []
     for spec in specs:
         overrides = {}

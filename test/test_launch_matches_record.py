@@ -47,8 +47,10 @@ class _ParameterValue:
 
 
 @pytest.fixture()
-def launch_file(monkeypatch):
-    """launch/record.launch.py loaded with the stand-ins in place of launch and launch_ros."""
+def launch_file(monkeypatch, tmp_path):
+    """launch/record.launch.py loaded with the stand-ins in place of launch and launch_ros (its claim of the ROS
+    domain in the test's directory: the test process holds it while it runs)."""
+    monkeypatch.setattr("nao_skin.session.claim.LOCK_DIR", tmp_path)
     modules = {
         "launch": {"LaunchDescription": list},
         "launch.actions": {"DeclareLaunchArgument": _DeclareLaunchArgument, "OpaqueFunction": _OpaqueFunction},
@@ -166,6 +168,23 @@ def test_the_comparison_sees_a_difference(tmp_path, launch_file, monkeypatch):
 
     monkeypatch.setattr(launch_file, "_nodes", dropping)
     assert launched(launch_file, bag=bag) != recorded(tmp_path, bag_path=bag)
+
+
+def test_the_launch_file_refuses_a_domain_another_session_holds(tmp_path, launch_file, monkeypatch):
+    """Two sessions on one ROS_DOMAIN_ID record each other's touches: the launch file claims the domain before
+    any node starts, as `nao-skin record` does (test_domain_claim.py), and is refused while another holds it."""
+    from test_domain_claim import Holder
+
+    from nao_skin.errors import ConfigError
+
+    monkeypatch.setenv("ROS_DOMAIN_ID", "57")
+    holder = Holder(57, tmp_path)
+    try:
+        with pytest.raises(ConfigError, match=f"another nao-skin session \\(pid {holder.pid}\\) runs on ROS_DOMAIN_ID"):
+            launched(launch_file, bag=str(tmp_path / "b"))
+    finally:
+        holder.end()
+    launched(launch_file, bag=str(tmp_path / "b"))      # its session ended, the domain is free again
 
 
 def test_record_print_shows_these_command_lines(tmp_path):

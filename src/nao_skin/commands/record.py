@@ -73,6 +73,7 @@ def run(args) -> int:
 
     from nao_skin.errors import ConfigError
     from nao_skin.errors import STOP_SIGNALS
+    from nao_skin.session.claim import claim_domain
     from nao_skin.session.record import check_needs, record_session
 
     if not (args.duration >= 0 and math.isfinite(args.duration)):     # NaN, -5, inf would all mean 'forever'
@@ -81,8 +82,10 @@ def run(args) -> int:
     specs = record_session(args.robot, nao_ip=args.nao_ip, naoqi=not args.no_naoqi, events_port=args.events_port,
                            bag_path=args.bag, calibration=args.calibration, rviz=args.rviz, taxels=args.taxels,
                            overrides=parse_overrides(args.param), guided=args.guided)
+    claim = None
     if not args.print:
         check_needs(specs)
+        claim = claim_domain()         # one session per ROS domain: two would record each other's touches
     stop = {"signal": None}
 
     def on_signal(signum, frame):      # noqa: ARG001 - signal handler signature
@@ -98,6 +101,8 @@ def run(args) -> int:
             _say(f"record: kept the temporary files in {work}")
         else:
             shutil.rmtree(work, ignore_errors=True)
+        if claim is not None:
+            claim.release()
         for s, handler in old.items():
             signal.signal(s, handler)
 

@@ -1,0 +1,130 @@
+"""One record session per ROS domain on this machine (``nao_skin.session.claim``).
+
+Two sessions on one ROS_DOMAIN_ID recorded each other's touches (a review found 494 touches in a bag whose robot
+played 25, a pair r_hand+l_hand mixing two robots, and each calibrate node answering the other's requests): the
+second now gets one line and starts nothing. Real processes hold the claims here; the last test runs two
+``nao-skin record`` sessions over real DDS.
+"""
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+
+import pytest
+from ros_harness import Listener, Proc, ros_env, unique_domain_id
+
+from nao_skin.errors import ConfigError
+from nao_skin.session.claim import claim_domain, domain_id
+
+
+@pytest.mark.parametrize("text,expected", [("", 0), ("  ", 0), ("0", 0), ("17", 17), ("232", 232)])
+def test_the_domain_is_read_as_rcl_reads_it(text, expected):
+    assert domain_id({"ROS_DOMAIN_ID": text}) == expected
+    assert domain_id({}) == 0
+
+
+@pytest.mark.parametrize("text", ["abc", "233", "-1", "1.5", "\u0663", "9" * 40])
+def test_a_domain_rcl_cannot_take_is_one_line(text):
+    with pytest.raises(ConfigError) as err:
+        domain_id({"ROS_DOMAIN_ID": text})
+    line = str(err.value)
+    assert line.startswith("ROS_DOMAIN_ID=") and "from 0 to 232" in line and "\n" not in line
+
+
+class Holder:
+    """Another process holding a claim (as a running record session does) until it is told to end."""
+
+    def __init__(self, domain: int, lock_dir):
+        code = ("import sys; from nao_skin.session.claim import claim_domain;"
+                f" c = claim_domain({domain}, {str(lock_dir)!r}); print('held', flush=True); sys.stdin.read();"
+                " c.release() if len(sys.argv) > 1 else None")
+        self.popen = subprocess.Popen([sys.executable, "-c", code, "release"], stdin=subprocess.PIPE,
+                                      stdout=subprocess.PIPE, text=True)
+        assert self.popen.stdout.readline() == "held\n"
+        self.pid = self.popen.pid
+
+    def kill(self):
+        self.popen.kill()
+        self.popen.communicate()
+
+    def end(self):
+        self.popen.communicate("")
+
+
+def test_a_domain_held_by_a_running_session_is_refused_and_a_killed_sessions_is_taken_over(tmp_path):
+    holder = Holder(41, tmp_path)
+    try:
+        with pytest.raises(ConfigError) as err:
+            claim_domain(41, tmp_path)
+        line = str(err.value)
+        assert f"another nao-skin session (pid {holder.pid}) runs on ROS_DOMAIN_ID 41 on this machine" in line
+        assert "ROS_DOMAIN_ID=42 nao-skin record" in line and "\n" not in line, line
+        claim_domain(40, tmp_path).release()      # another domain is free
+    finally:
+        holder.kill()                            # killed: its lock stays, naming a process that is gone
+    assert (tmp_path / "nao_skin_ros_domain_41.lock").exists()
+    claim = claim_domain(41, tmp_path)
+    claim.release()
+    assert list(tmp_path.iterdir()) == []        # released: nothing left, no staging file either
+
+
+def test_a_released_claim_frees_the_domain_and_release_never_removes_another_sessions_lock(tmp_path):
+    holder = Holder(7, tmp_path)
+    holder.end()                                  # released as record does when its session ends
+    assert list(tmp_path.iterdir()) == []
+    mine = claim_domain(7, tmp_path)
+    lock = tmp_path / "nao_skin_ros_domain_7.lock"
+    lock.unlink()
+    holder = Holder(7, tmp_path)                  # someone removed the lock by hand; another session took it
+    try:
+        mine.release()
+        assert lock.exists()                      # its lock, not ours: left
+    finally:
+        holder.end()
+
+
+def test_an_unreadable_lock_is_taken_over(tmp_path):
+    (tmp_path / "nao_skin_ros_domain_3.lock").write_text("{not json")
+    claim_domain(3, tmp_path).release()
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.middleware
+def test_a_second_record_session_on_the_domain_is_refused_in_one_line_and_the_first_goes_on(tmp_path):
+    from std_msgs.msg import String
+    from test_record_session import record_cmd
+
+    from nao_skin.formats.bag import read_touches
+    from nao_skin.model.skin import load_skin
+    from nao_skin.nodes.topics import PROGRESS_TOPIC
+
+    domain = unique_domain_id()
+    listener = first = None
+    try:
+        listener = Listener(domain)
+        progress = listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))
+        first = Proc(record_cmd(tmp_path / "first", seed=3, per_pair=3) + ["--param", "calibrate.live=false"],
+                     ros_env(domain), tmp_path, "first")
+        assert listener.spin_until(lambda: progress and progress[-1]["touches"] >= 1, timeout=60, procs=[first])
+        second = subprocess.run(record_cmd(tmp_path / "second", seed=4, per_pair=3), env=ros_env(domain),
+                                capture_output=True, text=True, timeout=60)
+        listener.spin_for(1.0)
+        assert first.alive()
+    finally:
+        if listener is not None:
+            listener.close()
+        code = first.stop(signal.SIGINT) if first is not None else None
+    err = [line for line in second.stderr.splitlines() if line.strip()]
+    assert second.returncode == 2 and len(err) == 1, err
+    assert err[0].startswith(f"nao-skin record: error: another nao-skin session (pid {first.popen.pid}) runs on"
+                             f" ROS_DOMAIN_ID {domain} on this machine"), err
+    assert not (tmp_path / "second").exists()
+    assert code == 0, first.stderr()[-3000:]
+    touches, _ = read_touches(tmp_path / "first", load_skin())
+    assert touches.n_touches >= 1 and "has 2 publishers" not in first.stderr()
+    # the domain is free again once the first session ended
+    again = subprocess.run(record_cmd(tmp_path / "third", seed=4, per_pair=1) + ["--duration", "1"],
+                           env=ros_env(domain), capture_output=True, text=True, timeout=60)
+    assert again.returncode == 0 and "another nao-skin session" not in again.stderr, again.stderr[-2000:]
