@@ -296,3 +296,25 @@ def test_the_node_never_replaces_a_calibration_it_did_not_write(tmp_path):
     Path(target).mkdir()
     (Path(target) / "mine.txt").write_text("the user's\n")
     assert request_out_dir(out, own)[0] == f"{out}.new2"
+
+
+def test_a_chmod_of_the_nodes_output_leaves_it_the_nodes_own(tmp_path):
+    """Its output marker tells the node's output from another's, not the change time: a chmod or a permission
+    change of the directory made the node disown it (a request went to <out_dir>.new, the session's end said
+    "written by another command during the session"); another command's output in its place is still not its own."""
+    import os
+
+    from nao_skin.formats.outdir import write_marker
+    from nao_skin.session.live import output_stamp, request_out_dir, session_end_out_dir
+
+    out = tmp_path / "touches_calibration"
+    out.mkdir()
+    (out / "calibration.yaml").write_text("parts: {}\n")
+    write_marker(out, "calibrate (node)", "calibration")
+    own = (out, output_stamp(out))
+    os.chmod(out, 0o775)
+    assert request_out_dir(out, own) == (out, None)
+    assert session_end_out_dir(out, None, output_stamp(out), "/nao_skin/calibrate")[1].startswith(
+        f"out_dir {out} was written by the calibration requested on /nao_skin/calibrate")
+    write_marker(out, "calibrate", "calibration")      # another command's output, written in the same place
+    assert request_out_dir(out, own)[0] == f"{out}.new"

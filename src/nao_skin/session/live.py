@@ -27,6 +27,7 @@ from nao_skin.calibration.plan import pair_counts
 from nao_skin.errors import NaoSkinError, TooFewTouches, one_line
 from nao_skin.formats.bag import GrowingBag
 from nao_skin.formats.inputs import find_bag
+from nao_skin.formats.outdir import MARKER
 from nao_skin.formats.salvage import recording_lock
 from nao_skin.live.updates import LiveUpdates, Settling
 from nao_skin.model.skin import SkinCalibration, SkinModel, pair_label
@@ -145,13 +146,19 @@ def _free(out_dir) -> bool:
 
 
 def output_stamp(path: str | Path) -> tuple | None:
-    """What tells the node's own output from anything put at its path since: (device, inode, change time). The
-    inode alone does not: a directory removed and another made in its place may get the same one."""
+    """What tells the node's own output from anything put at its path since: (device, inode, its output marker's
+    text). The inode alone does not: a directory removed and another made in its place may get the same one;
+    the marker says when it was written and by which command. A directory without a marker: its change time
+    (which a chmod changes too; an output marker does not)."""
     try:
         st = os.stat(path)
     except OSError:
         return None
-    return st.st_dev, st.st_ino, st.st_ctime_ns
+    try:
+        marker = (Path(path) / MARKER).read_bytes()
+    except OSError:
+        marker = st.st_ctime_ns
+    return st.st_dev, st.st_ino, marker
 
 
 def request_out_dir(out_dir: str | Path, own: tuple | None) -> tuple:
