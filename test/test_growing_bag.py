@@ -168,9 +168,14 @@ def test_a_bag_whose_directory_goes_while_recording_is_copied_out_and_what_took_
                               f" {rescued}); recording stopped")
     # sqlite3 takes no more touches once its directory is gone (its journal would be made there)
     kept = 16 if storage == "mcap" else 10
-    got, _ = read_touches(rescued, skin)
+    got, report = read_touches(rescued, skin)
     assert got.n_touches == kept
     np.testing.assert_allclose(got.stamps, np.sort(touches.stamps[:kept]), rtol=0, atol=1e-6)
+    # read as the copy it is, with nothing lost (it was read as a damaged file whose rest is lost)
+    assert not report.skipped, report.lines()
+    assert any(note.startswith(f"{rescued}: the copy of {path} its recorder made when that bag's directory was"
+                               f" removed, moved or replaced while recording") and f"{kept} touches" in note
+               for note in report.notes), report.lines()
     if how == "replaced":
         assert {f.name: f.read_bytes() for f in path.iterdir()} == theirs
     if how != "removed":              # the moved original holds them too

@@ -33,8 +33,8 @@ from nao_skin.formats.outdir import staging_dir
 from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, LAST_STAMP, contacts_array, contacts_topic, encode_cloud,
                                          header_seconds, read_contacts, read_taxels, skin_topic, taxels_array,
                                          taxels_topic)
-from nao_skin.formats.salvage import (LOCK_FILE, check_storage_files, cut_mcap, cut_sqlite, provisional_mcap,
-                                      stored_metadata, unclosed_sqlite, write_lock)
+from nao_skin.formats.salvage import (LOCK_FILE, RESCUED_FROM_KEY, check_storage_files, cut_mcap, cut_sqlite,
+                                      provisional_mcap, stored_metadata, unclosed_sqlite, write_lock)
 from nao_skin.model.skin import SkinModel
 from nao_skin.paths import free_sibling, identity, safe_load
 from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST, cluster_contacts, contact_geometry
@@ -190,10 +190,10 @@ class BagWriter:
             shutil.copyfileobj(src, out)
             out.flush()
             os.fsync(out.fileno())
-        self._write_provisional_metadata(target)
+        self._write_provisional_metadata(target, {RESCUED_FROM_KEY: str(self.path)})
         return target
 
-    def _write_provisional_metadata(self, directory: Path | None = None) -> None:
+    def _write_provisional_metadata(self, directory: Path | None = None, custom: dict | None = None) -> None:
         import yaml
 
         storage = self._writer.storage
@@ -201,7 +201,7 @@ class BagWriter:
                 "relative_file_paths": [storage.path.name], "duration": {"nanoseconds": 0},
                 "starting_time": {"nanoseconds_since_epoch": 0}, "message_count": 0,
                 "topics_with_message_count": [], "compression_format": "", "compression_mode": "",
-                "files": [], "custom_data": dict(self._custom), "ros_distro": "rosbags"}
+                "files": [], "custom_data": {**self._custom, **(custom or {})}, "ros_distro": "rosbags"}
         ((directory or self.path) / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}))
 
     def flush(self) -> None:

@@ -22,6 +22,8 @@ from nao_skin.errors import DataError, one_line
 from nao_skin.paths import DANGLING_LINK, not_a_file, safe_load
 
 LOCK_FILE = "recording.lock"          # in a live bag's directory while its writer has it open
+# in a rescued copy's metadata (custom_data): the bag it was copied from, its directory moved while recording
+RESCUED_FROM_KEY = "nao_skin.rescued_from"
 STORAGE_SUFFIXES = (".mcap", ".db3")
 # a storage file read whole into memory (an mcap whose bag does not open): a touch bag of 4000 touches is 12 MB
 MAX_SALVAGE_BYTES = 1 << 30
@@ -144,6 +146,7 @@ class UnclosedBag:
         # file named itself: the lock of the folder it is in)
         self.lock = recording_lock(path if path.is_dir() else path.parent)
         self.custom_data: dict = {}     # the bag's custom metadata, where the storage file holds a copy of it
+        self.rescued_from = _rescued_from(path if path.is_dir() else path.parent)
 
     def since(self, cursor) -> "Tail":
         """The messages written after ``cursor`` (None: from the start), see :class:`Tail`."""
@@ -160,6 +163,8 @@ class UnclosedBag:
 
         ``ends``: how the messages ended (the ``why`` of the last ``(None, why, None)``).
         """
+        if self.lock is None and self.rescued_from is not None and ends == "ends cleanly":
+            return None             # a copy made while its recorder held the file: everything written to then
         if self.lock is None:
             return self._lost_without_lock(n_msgs, ends)
         if self.lock.state == "died":
@@ -171,6 +176,10 @@ class UnclosedBag:
         """The report note of a bag read from its storage file that lost nothing (so far): a recording read
         while (maybe) still being written; None when it is not one."""
         lock = self.lock
+        if lock is None and self.rescued_from is not None and self.lost(n_msgs, "ends cleanly") is None:
+            return (f"{self.path}: the copy of {self.rescued_from} its recorder made when that bag's directory was"
+                    f" removed, moved or replaced while recording: {n_msgs} messages of {self.file.name},"
+                    f" {n_touches} touches, every one written until then")
         if lock is None or lock.state == "died":
             return None
         read = f"read {n_msgs} messages of {self.file.name} written so far: {n_touches} touches"
@@ -181,6 +190,17 @@ class UnclosedBag:
                     f" {read}")
         return (f"{self.path}: {LOCK_FILE} names pid {lock.pid} on host {lock.host}, which cannot be checked from"
                 f" here: the recording is open if that recorder still runs, else it died; {read}")
+
+
+def _rescued_from(directory: Path) -> str | None:
+    """The bag a rescued copy (``<bag>.rescued``) was copied from, as its metadata.yaml says; None for any
+    other bag."""
+    try:
+        info = safe_load((directory / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        origin = (info.get("custom_data") or {}).get(RESCUED_FROM_KEY)
+    except Exception:  # noqa: BLE001 - no or unreadable metadata: not a rescued copy
+        return None
+    return origin if isinstance(origin, str) else None
 
 
 # ---------------------------------------------------------------------- sqlite3: metadata.yaml lists no messages
