@@ -456,3 +456,22 @@ def test_a_node_that_has_ended_keeps_its_exit_code_whatever_stop_signal_follows(
                          env=ros_env(unique_domain_id()))
     assert run.stdout.splitlines() == ["[True, True, True]"], run.stderr
     assert run.returncode == 2 and "error: cannot write the bag (No space left on device)" in run.stderr
+
+
+def test_a_session_ended_before_the_recorder_made_its_bag_says_nothing_was_recorded(tmp_path):
+    """A `record --duration` shorter than the nodes' start (or a Ctrl-C as it starts) ended with exit 0, no bag
+    and no word of it; now one line says so. A session that ends with an empty bag leaves the recorder's own
+    line ("wrote 0 touches") and the calibrate node's (no live update ran), not a failed update over nothing."""
+    bag = tmp_path / "touches"
+    env = ros_env(unique_domain_id())
+    run = nao_skin(["record", "--duration", "0.3", "--bag", str(bag)], env=env)
+    assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr
+    assert f"record: nothing was recorded: the session ended before the recorder made its bag ({bag})" \
+        in run.stderr, run.stderr
+    assert not bag.exists()
+    # the simulated robot waits for subscribers that never come: no touch is played
+    run = nao_skin(["record", "--duration", "3", "--bag", str(bag), "--param", "sim_robot.wait_for_subscribers=50",
+                    "--param", "sim_robot.wait_timeout=60"], env=env)
+    assert run.returncode == 0 and "nothing was recorded" not in run.stderr, run.stderr
+    assert f"wrote 0 touches to {bag}" in run.stderr and "no usable touch" not in run.stderr, run.stderr
+    assert "the session ends without a live calibration (no live update ran)" in run.stderr, run.stderr

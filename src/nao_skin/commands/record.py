@@ -148,10 +148,12 @@ def _session(specs, work: Path, args, stop: dict) -> int:
             _say(f"record: {failed[0]} exited with code {failed[1]}; stopping the session")
     finally:
         codes = stop_all(procs, lambda line: _say(f"record: {line}"))
+    bag = next((spec.overrides.get("bag_path") for spec in specs if spec.name == "pairing_recorder"), None)
+    if bag and not os.path.lexists(bag) and "pairing_recorder" in codes:
+        _say(f"record: nothing was recorded: the session ended before the recorder made its bag ({bag})")
     bad = {n: c for n, c in codes.items() if c not in (0, None)}
     if bad:
         _say(f"record: exit codes {bad}")
-        bag = next((spec.overrides.get("bag_path") for spec in specs if spec.name == "pairing_recorder"), None)
         if bag and any(c not in (0, 2, None) for c in bad.values()):     # killed or crashed: it said nothing
             _say(f"record: the bag {bag} keeps every touch recorded up to its last flush; nao-skin reads it as"
                  f" it is (nao-skin stats {bag})")

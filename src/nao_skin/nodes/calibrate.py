@@ -287,8 +287,8 @@ class CalibrateNode(Node):
         """The touches recorded since the last update calibrated too, so that what the session writes covers
         every touch: once the recorder has closed the bag (it writes what it still holds as it stops)."""
         log = self.get_logger()
-        if not self.live.recording_exists():      # no touch was recorded
-            return
+        if not self.live.recording_exists() or (self.live.last is None and not self._recorded):
+            return      # no touch recorded (a first calibration needs 10 or more anyway)
         if not self.live.wait_until_closed(FINAL_WAIT_S):
             log.warning(f"the recorder has not closed {self.p['recording']} after {FINAL_WAIT_S:g} s; the final"
                         f" update calibrates the touches it has written")
