@@ -20,6 +20,7 @@ calibrates on this session's bag). robot_state_publisher gets
 Parameters: config/record.yaml and config/bridges.yaml.
 """
 import shlex
+import sys
 
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
@@ -52,8 +53,12 @@ def _nodes(context):
                            rviz=arg["rviz"].lower() == "true", taxels=shlex.split(arg["taxels"]),
                            guided=arg["guided"].lower() == "true")
     check_needs(specs)    # e.g. robot:=nao without YARP's Python bindings: one line before any node starts
-    # one session per ROS domain on this machine (two would record each other's touches); held while launch runs
-    claim_domain()
+    # one session per ROS domain on this machine (two would record each other's touches): held as long as the
+    # launch context (the launch process) lives
+    claim = claim_domain()
+    if claim.problem:
+        print(f"record.launch.py: {claim.problem}", file=sys.stderr)
+    context.extend_globals({"nao_skin_domain_claim": claim})
     actions = []
     for spec in specs:
         overrides = {}

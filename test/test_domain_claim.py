@@ -8,6 +8,7 @@ second now gets one line and starts nothing. Real processes hold the claims here
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -53,7 +54,7 @@ class Holder:
         self.popen.communicate("")
 
 
-def test_a_domain_held_by_a_running_session_is_refused_and_a_killed_sessions_is_taken_over(tmp_path):
+def test_a_domain_held_by_a_running_session_is_refused_and_a_killed_sessions_is_free(tmp_path):
     holder = Holder(41, tmp_path)
     try:
         with pytest.raises(ConfigError) as err:
@@ -63,32 +64,37 @@ def test_a_domain_held_by_a_running_session_is_refused_and_a_killed_sessions_is_
         assert "ROS_DOMAIN_ID=42 nao-skin record" in line and "\n" not in line, line
         claim_domain(40, tmp_path).release()      # another domain is free
     finally:
-        holder.kill()                            # killed: its lock stays, naming a process that is gone
-    assert (tmp_path / "nao_skin_ros_domain_41.lock").exists()
+        holder.kill()                            # kill -9: no clean-up ran, the kernel released the lock
     claim = claim_domain(41, tmp_path)
+    assert (tmp_path / "nao_skin_ros_domain_41.lock").read_text() == f"{os.getpid()}\n"
     claim.release()
-    assert list(tmp_path.iterdir()) == []        # released: nothing left, no staging file either
 
 
-def test_a_released_claim_frees_the_domain_and_release_never_removes_another_sessions_lock(tmp_path):
-    holder = Holder(7, tmp_path)
-    holder.end()                                  # released as record does when its session ends
-    assert list(tmp_path.iterdir()) == []
-    mine = claim_domain(7, tmp_path)
-    lock = tmp_path / "nao_skin_ros_domain_7.lock"
-    lock.unlink()
-    holder = Holder(7, tmp_path)                  # someone removed the lock by hand; another session took it
-    try:
-        mine.release()
-        assert lock.exists()                      # its lock, not ours: left
-    finally:
-        holder.end()
+def test_a_claim_is_held_until_released_or_dropped_and_two_claims_at_once_get_one(tmp_path):
+    claim = claim_domain(7, tmp_path)
+    with pytest.raises(ConfigError, match=f"another nao-skin session \\(pid {os.getpid()}\\)"):
+        claim_domain(7, tmp_path)                # one per domain, this process's second claim too
+    claim.release()
+    claim = claim_domain(7, tmp_path)
+    del claim                                    # dropped: released
+    # many processes at once: exactly one gets it
+    code = ("import sys, time; from nao_skin.errors import ConfigError; from nao_skin.session.claim import"
+            f" claim_domain\ntry:\n    c = claim_domain(9, {str(tmp_path)!r}); print('got', flush=True);"
+            " time.sleep(2)\nexcept ConfigError:\n    print('refused', flush=True)")
+    runs = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True) for _ in range(6)]
+    outcomes = sorted(p.communicate()[0].strip() for p in runs)
+    assert outcomes == ["got"] + ["refused"] * 5, outcomes
 
 
-def test_an_unreadable_lock_is_taken_over(tmp_path):
-    (tmp_path / "nao_skin_ros_domain_3.lock").write_text("{not json")
+def test_a_lock_file_of_any_content_is_claimed_when_no_session_holds_it(tmp_path):
+    (tmp_path / "nao_skin_ros_domain_3.lock").write_text("{not a pid")
     claim_domain(3, tmp_path).release()
-    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_unwritable_lock_directory_leaves_the_session_unclaimed_and_says_so(tmp_path):
+    claim = claim_domain(5, tmp_path / "no" / "such" / "dir")
+    assert claim.fd is None and claim.problem.startswith("cannot claim ROS_DOMAIN_ID 5 (")
+    assert "a second session on this domain would not be refused" in claim.problem
 
 
 @pytest.mark.middleware

@@ -36,6 +36,14 @@ class _OpaqueFunction:
         self.function = function
 
 
+class _LaunchContext:
+    def __init__(self, arguments):
+        self.arguments, self.globals = arguments, {}
+
+    def extend_globals(self, extensions):
+        self.globals.update(extensions)
+
+
 class _Node:
     def __init__(self, **kwargs):
         self.kwargs = kwargs
@@ -75,7 +83,7 @@ def launched(launch_file, **arguments) -> dict:
     declared = {e.name: e.default_value for e in entities if isinstance(e, _DeclareLaunchArgument)}
     unknown = set(arguments) - set(declared)
     assert not unknown, unknown
-    context = types.SimpleNamespace(arguments={**declared, **arguments})
+    context = _LaunchContext({**declared, **arguments})
     out = {}
     for entity in entities:
         if isinstance(entity, _OpaqueFunction):
@@ -170,12 +178,15 @@ def test_the_comparison_sees_a_difference(tmp_path, launch_file, monkeypatch):
     assert launched(launch_file, bag=bag) != recorded(tmp_path, bag_path=bag)
 
 
-def test_the_launch_file_refuses_a_domain_another_session_holds(tmp_path, launch_file, monkeypatch):
+def test_the_launch_file_claims_the_domain_while_it_runs_and_is_refused_one_another_session_holds(
+        tmp_path, launch_file, monkeypatch):
     """Two sessions on one ROS_DOMAIN_ID record each other's touches: the launch file claims the domain before
-    any node starts, as `nao-skin record` does (test_domain_claim.py), and is refused while another holds it."""
+    any node starts, as `nao-skin record` does (test_domain_claim.py), is refused while another session holds
+    it, and holds it as long as its launch context lives."""
     from test_domain_claim import Holder
 
     from nao_skin.errors import ConfigError
+    from nao_skin.session.claim import claim_domain
 
     monkeypatch.setenv("ROS_DOMAIN_ID", "57")
     holder = Holder(57, tmp_path)
@@ -184,7 +195,14 @@ def test_the_launch_file_refuses_a_domain_another_session_holds(tmp_path, launch
             launched(launch_file, bag=str(tmp_path / "b"))
     finally:
         holder.end()
-    launched(launch_file, bag=str(tmp_path / "b"))      # its session ended, the domain is free again
+    declared = {e.name: e.default_value for e in launch_file.generate_launch_description()
+                if isinstance(e, _DeclareLaunchArgument)}
+    context = _LaunchContext({**declared, "bag": str(tmp_path / "b")})
+    launch_file._nodes(context)                        # its session ended: the domain is free again
+    with pytest.raises(ConfigError, match="another nao-skin session"):
+        claim_domain(57, tmp_path)                    # held while the launch context lives
+    del context
+    claim_domain(57, tmp_path).release()
 
 
 def test_record_print_shows_these_command_lines(tmp_path):

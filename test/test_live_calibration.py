@@ -14,6 +14,7 @@ import shutil
 import signal
 import time
 
+import numpy as np
 import pytest
 from ros_harness import Listener, Proc, node_process, ros_env, unique_domain_id
 
@@ -121,6 +122,7 @@ def test_the_session_end_calibrates_the_touches_since_the_last_update_and_says_w
     end = status[-1]
     out = tmp_path / "touches_calibration"
     assert end["calibration"] == str(out / "calibration.yaml") and end["touches"] == end["recorded"] == recorded, end
+    assert end["complete"] is True, end
     assert f"the last live calibration (all {recorded} touches) -> {out}" in err, err[-3000:]
     # one more generation, published: the final update's frames (the status is latched with depth 1: the
     # listener, not spinning while the session stopped, kept the last status only)
@@ -258,7 +260,56 @@ def test_a_session_end_that_cannot_write_its_calibration_says_the_bag_holds_ever
     assert code == 2 and "Traceback" not in "\n".join(err), err
     (line,) = [x for x in err if x.startswith("error:")]
     assert line.startswith(f"error: out_dir {folder / 'cal'}: Not a directory"), line
-    assert f"the recording {bag} holds every touch, and nao-skin calibrate {bag} --out DIR calibrates them again" \
-        in line, line
+    assert (f"the session's touches are in the recording {bag} (the recorder's last line says how many), and"
+            f" nao-skin calibrate {bag} --out DIR calibrates them again") in line, line
     assert status[-1]["state"] == "ended" and status[-1]["calibration"] is None, status[-1]
 
+
+
+def test_the_session_end_writes_the_last_update_before_the_final_one_runs(tmp_path):
+    """A stop that comes during the final update (ros2 launch sends SIGKILL about 10 s after Ctrl-C; a final
+    update over thousands of touches takes seconds) must find the last accepted calibration written: it is
+    written first, then replaced by the final update's. The node runs in the test's process, its final update
+    watched."""
+    from rclpy.parameter import Parameter
+
+    from nao_skin.nodes.calibrate import CalibrateNode
+
+    skin = load_skin()
+    touches = simulate(skin, {"pairs": [["r_hand", "torso"]], "n_touches": 40}, seed=6).touches
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, touches.subset(np.arange(30)), skin)
+    out = tmp_path / "cal"
+    listener = node = None
+    try:
+        listener = Listener(unique_domain_id())
+        node = CalibrateNode(context=listener.context, parameter_overrides=[
+            Parameter("live", value=True), Parameter("recording", value=str(bag)),
+            Parameter("out_dir", value=str(out))])
+        assert node._busy.acquire(blocking=False)          # as the schedule's tick does
+        node._live_update()
+        first = node.live.last_count
+        assert 25 <= first <= 30, first
+        shutil.rmtree(bag)
+        write_touch_bag(bag, touches, skin)                 # 10 more touches recorded since
+        node._recorded = 40
+        seen = {}
+        update = node.live.update
+
+        def watched(*args, final=False, **kwargs):
+            if final:
+                seen["written before"] = (out / "calibration.yaml").exists()
+            return update(*args, final=final, **kwargs)
+
+        node.live.update = watched
+        node.close()
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if listener is not None:
+            listener.close()
+    assert seen == {"written before": True}
+    report = json.loads((out / "report.json").read_text())
+    assert report["final"]["train"]["n_touches"] + report["final"]["test"]["n_touches"] \
+        == node.live.read_count == node.live.last_count > first
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal", "touches"]      # replaced in place, nothing beside

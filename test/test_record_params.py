@@ -470,7 +470,7 @@ def test_a_session_ended_before_the_recorder_made_its_bag_says_nothing_was_recor
         in run.stderr, run.stderr
     assert not bag.exists()
     # the simulated robot waits for subscribers that never come: no touch is played
-    run = nao_skin(["record", "--duration", "3", "--bag", str(bag), "--param", "sim_robot.wait_for_subscribers=50",
+    run = nao_skin(["record", "--duration", "6", "--bag", str(bag), "--param", "sim_robot.wait_for_subscribers=50",
                     "--param", "sim_robot.wait_timeout=60"], env=env)
     assert run.returncode == 0 and "nothing was recorded" not in run.stderr, run.stderr
     assert f"wrote 0 touches to {bag}" in run.stderr and "no usable touch" not in run.stderr, run.stderr

@@ -345,3 +345,21 @@ def test_a_ctrl_c_as_a_console_script_ends_changes_nothing(tmp_path, argv):
     assert "Traceback" not in err, err[-2000:]
     assert code in (0, 130), (code, err[-2000:])
     assert proc.stdout().startswith("usage: nao-skin"), proc.stdout()[:200]
+
+
+def test_a_bag_removed_mid_session_is_rescued_and_record_does_not_say_nothing_was_recorded(tmp_path):
+    """`rm -rf` of the bag being recorded: the recorder copies every touch to <bag>.rescued and ends the session
+    (exit 2) saying so; record's "nothing was recorded" (for a session that ended before the recorder made its
+    bag) must not follow it, and the copy reads as one with nothing lost."""
+    import shutil
+
+    with RecordingSession(tmp_path, seed=29) as run:
+        shutil.rmtree(run.bag)
+        code = run.session.popen.wait(timeout=60)
+    err = run.session.stderr()
+    rescued = tmp_path / "touches.rescued"
+    assert code == 2 and "Traceback" not in err, err[-3000:]
+    assert f"every touch written so far is copied to {rescued}" in err, err[-3000:]
+    assert "nothing was recorded" not in err, err[-3000:]
+    got, report = read_touches(rescued, load_skin())
+    assert got.n_touches >= run.reported and not report.skipped, report.lines()

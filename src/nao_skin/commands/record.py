@@ -86,6 +86,8 @@ def run(args) -> int:
     if not args.print:
         check_needs(specs)
         claim = claim_domain()         # one session per ROS domain: two would record each other's touches
+        if claim.problem:
+            _say(f"record: {claim.problem}")
     stop = {"signal": None}
 
     def on_signal(signum, frame):      # noqa: ARG001 - signal handler signature
@@ -149,7 +151,7 @@ def _session(specs, work: Path, args, stop: dict) -> int:
     finally:
         codes = stop_all(procs, lambda line: _say(f"record: {line}"))
     bag = next((spec.overrides.get("bag_path") for spec in specs if spec.name == "pairing_recorder"), None)
-    if bag and not os.path.lexists(bag) and "pairing_recorder" in codes:
+    if bag and not os.path.lexists(bag) and codes.get("pairing_recorder", 1) == 0:   # not moved, not failed
         _say(f"record: nothing was recorded: the session ended before the recorder made its bag ({bag})")
     bad = {n: c for n, c in codes.items() if c not in (0, None)}
     if bad:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import threading
 import time
+from pathlib import Path
 
 from rclpy.node import Node
 from std_msgs.msg import String
@@ -63,6 +64,7 @@ class CalibrateNode(Node):
         self._out_dir_at_start = output_stamp(self.p["out_dir"])
         self._latched: dict = {}          # the status last published (latched)
         self._ignored = 0                 # requests refused while one calibration or update was running
+        self._closing = False             # the node is stopping: close() writes the live calibration
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
         self.guidance_pairs = guidance_pairs(self.p, self.skin)
@@ -138,6 +140,8 @@ class CalibrateNode(Node):
                     self.schedule.again()
                 return
             self._retried = False
+            if self._closing:         # close() publishes and writes from here on (its final update covers this)
+                return
             try:
                 if out.accepted is not None:
                     self.publish_calibration(out.accepted.calibration, "live update", quiet=True)
@@ -240,7 +244,10 @@ class CalibrateNode(Node):
             self._busy.release()
 
     def close(self) -> None:
-        """End of the session: the last accepted live calibration is written where users apply it."""
+        """End of the session: the last accepted live calibration is written where users apply it, then the
+        touches recorded since it calibrated too (a final update) and written over it: a stop that comes while
+        the final update runs (ros2 launch escalates to SIGKILL after about 10 s) keeps the first."""
+        self._closing = True              # a live update still running publishes nothing from now on
         if self._worker is not None:
             self._worker.join(timeout=10.0)
             if self._worker.is_alive():   # a daemon thread: it ends with the process, its output unwritten
@@ -249,32 +256,13 @@ class CalibrateNode(Node):
                                           f" written there)")
         if not self.p["live"]:
             return
+        out = self._write_live() if self.live.last is not None else None
+        complete = False                  # what is written covers every touch of the closed recording
         if self.p["recording"] and not (self._worker is not None and self._worker.is_alive()):
-            self._final_update()
-        if self.live.last is not None:
-            from nao_skin.calibration.report import write_outputs
-
-            requested = self._requested_out[1] if self._requested_out else None
-            out_dir, moved = session_end_out_dir(self.p["out_dir"], self._out_dir_at_start, requested, REQUEST_TOPIC)
-            if moved:
-                self.get_logger().warning(moved)
-            covered = (f"all {self.live.last_count} touches" if self.live.last_count >= self.live.read_count
-                       else f"{self.live.last_count} of {self.live.read_count} touches")
-            try:
-                self._check_live_out_dir(out_dir)
-                out = write_outputs(self.live.last, self.skin, out_dir, plots=False, command="calibrate (node, live)")
-            except NaoSkinError as exc:
-                # the node's one line and exit 2; the touches are in the recording, whole
-                error = (f"{exc}; the session's last live calibration ({covered}) is not written: the recording"
-                         f" {self.p['recording']} holds every touch, and nao-skin calibrate {self.p['recording']}"
-                         f" --out DIR calibrates them again")
-                self._status({"state": "ended", "generation": self.generation, "calibration": None, "error": error})
-                raise type(exc)(error) from None
-            self.get_logger().info(f"the last live calibration ({covered}) -> {out}")
-            self._status({"state": "ended", "generation": self.generation, "out_dir": str(out),
-                          "calibration": str(out / "calibration.yaml"), "touches": self.live.last_count,
-                          "recorded": self.live.read_count, "parts": self.live.parts_state()})
-        else:     # a short session, or one whose touches never sufficed: say so, not nothing
+            accepted, complete = self._final_update()
+            if accepted:
+                out = self._write_live(out)
+        if out is None:                   # a short session, or one whose touches never sufficed: say so
             latched = self._latched
             why = {"waiting": latched.get("reason"), "failed": latched.get("error")}.get(latched.get("state"),
                                                                                       "no live update ran")
@@ -282,19 +270,56 @@ class CalibrateNode(Node):
                                       f" {self.p['out_dir']}")
             self._status({"state": "ended", "generation": self.generation, "calibration": None, "reason": why,
                           "recorded": self.live.read_count})
+            return
+        n, read = self.live.last_count, self.live.read_count
+        covered = (f"all {n} touches" if complete and n >= read else f"{n} of {read} touches" if n < read
+                   else f"{n} touches")
+        self.get_logger().info(f"the last live calibration ({covered}) -> {out}")
+        self._status({"state": "ended", "generation": self.generation, "out_dir": str(out),
+                      "calibration": str(out / "calibration.yaml"), "touches": n, "recorded": read,
+                      "complete": complete, "parts": self.live.parts_state()})
 
-    def _final_update(self) -> None:
-        """The touches recorded since the last update calibrated too, so that what the session writes covers
-        every touch: once the recorder has closed the bag (it writes what it still holds as it stops)."""
+    def _write_live(self, written: Path | None = None) -> Path:
+        """The last accepted live calibration, written to out_dir (or beside it: :func:`session_end_out_dir`);
+        ``written``: where this session's end wrote it already, replaced."""
+        from nao_skin.calibration.report import write_outputs
+
+        out_dir = written
+        if out_dir is None:
+            requested = self._requested_out[1] if self._requested_out else None
+            out_dir, moved = session_end_out_dir(self.p["out_dir"], self._out_dir_at_start, requested, REQUEST_TOPIC)
+            if moved:
+                self.get_logger().warning(moved)
+        try:
+            self._check_live_out_dir(out_dir)
+            return write_outputs(self.live.last, self.skin, out_dir, plots=False, command="calibrate (node, live)")
+        except NaoSkinError as exc:
+            if written is not None:       # the final update's not written: the one written before stays
+                self.get_logger().error(f"the final live update is not written ({exc}); {written} keeps the one"
+                                        f" before")
+                return written
+            # the node's one line and exit 2; the touches are in the recording
+            recording = self.p["recording"]
+            error = (f"{exc}; the session's live calibration is not written: the session's touches are in the"
+                     f" recording {recording} (the recorder's last line says how many), and nao-skin calibrate"
+                     f" {recording} --out DIR calibrates them again")
+            self._status({"state": "ended", "generation": self.generation, "calibration": None, "error": error})
+            raise type(exc)(error) from None
+
+    def _final_update(self) -> tuple:
+        """The touches recorded since the last update calibrated too, once the recorder has closed the bag (it
+        writes what it still holds as it stops): ``(accepted, complete)``, complete when the calibration now
+        covers every touch of the closed recording."""
         log = self.get_logger()
         if not self.live.recording_exists() or (self.live.last is None and not self._recorded):
-            return      # no touch recorded (a first calibration needs 10 or more anyway)
-        if not self.live.wait_until_closed(FINAL_WAIT_S):
+            return False, False      # no touch recorded (a first calibration needs 10 or more anyway)
+        closed = self.live.wait_until_closed(FINAL_WAIT_S)
+        if not closed:
             log.warning(f"the recorder has not closed {self.p['recording']} after {FINAL_WAIT_S:g} s; the final"
                         f" update calibrates the touches it has written")
         out = self.live.update(log=log.debug, final=True)
         if not out.status:          # no touch since the last accepted update
-            return
+            return False, closed
         if out.accepted is not None:
             self.publish_calibration(out.accepted.calibration, "final live update", quiet=True)
             log.info(f"final live update {self.generation}: {out.status['touches']} touches")
@@ -303,6 +328,7 @@ class CalibrateNode(Node):
             log.warning(f"the final live update over {self.live.read_count} touches was not accepted ({why});"
                         f" the last accepted update's is written")
         self._status({**out.status, "live": True, "generation": self.generation})
+        return out.accepted is not None, closed and out.accepted is not None
 
 
 def request_paths(text: str) -> list:

@@ -4,22 +4,24 @@ Two sessions on one ``ROS_DOMAIN_ID`` hear each other: each recorder takes
 the other robot's skin and joint states for its own, each calibrate node
 answers the other's requests, and both bags mix the two robots beyond
 repair. So ``nao-skin record`` and ``record.launch.py`` claim the domain
-before any node starts: a lock file names the claiming process
-(:func:`~nao_skin.formats.salvage.lock_text`), and while that process runs
-another session on the domain is refused in one line. The lock of a session
-that was killed names a process that is gone: the next session takes it
-over. The files live in ``/tmp`` whatever ``TMPDIR`` says, so that every
-shell of the machine sees them. Sessions on two machines share a domain
-only with ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``; there the recorder says
-when a second publisher feeds one of its skin topics.
+before any node starts: an exclusive ``flock`` on
+``/tmp/nao_skin_ros_domain_<id>.lock``, held as long as the claiming process
+runs. The kernel releases it when that process ends in any way (a
+``kill -9`` too), so a claim never outlives its session and two sessions
+starting at once cannot both get it. The file stays (it names the last
+claimant's pid, for the refusal's line); it is in ``/tmp`` whatever
+``TMPDIR`` says, so that every shell of the machine sees the same one.
+Sessions on two machines share a domain only with
+``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``; there the recorder says when a
+second publisher feeds one of its skin topics.
 """
 from __future__ import annotations
 
+import fcntl
 import os
 from pathlib import Path
 
-from nao_skin.errors import ConfigError
-from nao_skin.formats.salvage import lock_text, read_lock
+from nao_skin.errors import ConfigError, os_reason
 
 LOCK_DIR = Path("/tmp")
 DOMAIN_IDS = range(0, 233)       # what rmw accepts on Linux (ports 7400 + 250 * id must stay below 65536)
@@ -36,54 +38,90 @@ def domain_id(environ=os.environ) -> int:
     return int(text)
 
 
-class DomainClaim:
-    """This process's claim on a ROS domain (:func:`claim_domain`); :meth:`release` gives it up."""
+def lock_path(domain: int, lock_dir: Path | None = None) -> Path:
+    return (LOCK_DIR if lock_dir is None else Path(lock_dir)) / f"nao_skin_ros_domain_{domain}.lock"
 
-    def __init__(self, path: Path, domain: int):
-        self.path, self.domain = path, domain
+
+class DomainClaim:
+    """This process's claim on a ROS domain (:func:`claim_domain`): held while the object lives or until
+    :meth:`release`; ``fd`` None: the lock file could not be opened, the domain is not claimed."""
+
+    def __init__(self, path: Path, domain: int, fd: int | None, problem: str | None = None):
+        self.path, self.domain, self.fd, self.problem = path, domain, fd, problem
 
     def release(self) -> None:
-        """Remove the lock if it still names this process (never another session's)."""
-        lock = read_lock(self.path) if self.path.exists() else None
-        if lock is not None and lock.pid == os.getpid():
-            self.path.unlink(missing_ok=True)
+        if self.fd is not None:
+            os.close(self.fd)        # closing the descriptor releases the flock
+            self.fd = None
+
+    def __del__(self):
+        self.release()
 
 
 def claim_domain(domain: int | None = None, lock_dir: Path | None = None) -> DomainClaim:
     """Claim ``domain`` (default :func:`domain_id`) for this process's record session, or raise
-    :class:`~nao_skin.errors.ConfigError` naming the session that holds it. ``lock_dir``: :data:`LOCK_DIR`."""
+    :class:`~nao_skin.errors.ConfigError` naming the session that holds it. When the lock file cannot be
+    opened at all (``/tmp`` not writable) the session goes on unclaimed: the returned claim's ``problem``
+    says why, for the caller to say."""
     domain = domain_id() if domain is None else domain
-    lock_dir = LOCK_DIR if lock_dir is None else lock_dir
-    path = Path(lock_dir) / f"nao_skin_ros_domain_{domain}.lock"
-    mine = path.with_name(f".{path.name}.{os.getpid()}")
+    path = lock_path(domain, lock_dir)
     try:
-        mine.write_text(lock_text())
-        try:
-            os.link(mine, path)          # atomic: exactly one of two sessions starting at once gets it
-        except FileExistsError:
-            held = read_lock(path)
-            if held.state == "open" and held.pid != os.getpid():
-                raise ConfigError(
-                    f"another nao-skin session (pid {held.pid}) runs on ROS_DOMAIN_ID {domain} on this machine:"
-                    f" the two would record each other's touches; stop it first, or give each robot its own"
-                    f" domain (e.g. ROS_DOMAIN_ID={_free_neighbour(domain, lock_dir)} nao-skin record ...)") from None
-            os.replace(mine, path)       # its session is gone (killed): its lock is taken over
+        fd = _open(path)
     except OSError as exc:
-        raise ConfigError(f"cannot claim ROS_DOMAIN_ID {domain} for this session: {path}: "
-                          f"{exc.strerror or exc}") from None
-    finally:
-        mine.unlink(missing_ok=True)
-    held = read_lock(path)               # two sessions taking over one stale lock at once: the last one has it
-    if held.pid != os.getpid():
-        raise ConfigError(f"another nao-skin session (pid {held.pid}) claimed ROS_DOMAIN_ID {domain} on this"
-                          f" machine just now; stop it first, or give each robot its own domain")
-    return DomainClaim(path, domain)
+        return DomainClaim(path, domain, None, f"cannot claim ROS_DOMAIN_ID {domain} ({path}: {os_reason(exc)}):"
+                                               f" a second session on this domain would not be refused")
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = _holder(fd)
+        os.close(fd)
+        raise ConfigError(
+            f"another nao-skin session{f' (pid {holder})' if holder else ''} runs on ROS_DOMAIN_ID {domain} on"
+            f" this machine: the two would record each other's touches; stop it first, or give each robot its own"
+            f" domain (e.g. ROS_DOMAIN_ID={_free_neighbour(domain, lock_dir)} nao-skin record ...)") from None
+    try:                              # the pid, for the line another session is refused with
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    except OSError:                   # another user's file, read only to us: the flock alone is the claim
+        pass
+    return DomainClaim(path, domain, fd)
 
 
-def _free_neighbour(domain: int, lock_dir: Path) -> int:
+def _open(path: Path) -> int:
+    """The lock file's descriptor, the file made if need be, writable by every user (sticky /tmp keeps it
+    from being removed by others; the next session, whoever runs it, writes its pid there)."""
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o666)
+    except PermissionError:           # another user's file that is not writable to us: flock needs no write
+        return os.open(path, os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW)
+    try:
+        if os.fstat(fd).st_uid == os.getuid():
+            os.fchmod(fd, 0o666)      # the umask took write access from the others
+    except OSError:
+        pass
+    return fd
+
+
+def _holder(fd: int) -> int | None:
+    try:
+        text = os.pread(fd, 32, 0).decode("ascii").strip()
+    except (OSError, UnicodeDecodeError):
+        return None
+    return int(text) if text.isdigit() else None
+
+
+def _free_neighbour(domain: int, lock_dir: Path | None) -> int:
     """A domain near ``domain`` that no running session holds (a suggestion in the refusal)."""
     for other in list(range(domain + 1, DOMAIN_IDS.stop)) + list(range(DOMAIN_IDS.start, domain)):
-        path = Path(lock_dir) / f"nao_skin_ros_domain_{other}.lock"
-        if not path.exists() or read_lock(path).state != "open":
+        try:
+            fd = os.open(lock_path(other, lock_dir), os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW)
+        except OSError:               # no session ever claimed it here
             return other
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            return other
+        except BlockingIOError:
+            continue
+        finally:
+            os.close(fd)
     return domain
