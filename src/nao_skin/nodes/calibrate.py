@@ -274,6 +274,8 @@ class CalibrateNode(Node):
         n, read = self.live.last_count, self.live.read_count
         covered = (f"all {n} touches" if complete and n >= read else f"{n} of {read} touches" if n < read
                    else f"{n} touches")
+        if self.live.duplicates:           # the recorder's count includes them
+            covered += f"; {self.live.duplicates} exact duplicates in the bag left out"
         self.get_logger().info(f"the last live calibration ({covered}) -> {out}")
         self._status({"state": "ended", "generation": self.generation, "out_dir": str(out),
                       "calibration": str(out / "calibration.yaml"), "touches": n, "recorded": read,

@@ -61,6 +61,7 @@ class LiveCalibration:
         self.last: CalibrationResult | None = None     # the last accepted update's result
         self.last_count = 0                             # how many touches it calibrated
         self.read_count = 0                             # how many touches the recording held at the last read
+        self.duplicates = 0                             # ... after leaving out this many exact duplicates
         self._last_touches = -1                         # touches the last update calibrated (-1: it failed)
         self._followed: dict = {}                       # the recording, read incrementally
         self._bag_dir: Path | None = None
@@ -85,7 +86,7 @@ class LiveCalibration:
                 self._followed = {self.recording: GrowingBag(bag, self.skin)}
             loaded = load_inputs([self.recording], self.skin, log=log, summary=log, followed=self._followed)
             touches = loaded.touches
-            self.read_count = touches.n_touches
+            self.read_count, self.duplicates = touches.n_touches, loaded.n_duplicates
             if touches.n_touches == self._last_touches and (final or self._being_recorded()):
                 # the recorder counts a touch before its next flush puts it in the bag: an update now would
                 # repeat the last one, and its 0 mm would count towards a part's 'done' (a closed bag, e.g.
