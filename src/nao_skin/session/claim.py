@@ -54,8 +54,12 @@ class DomainClaim:
             os.close(self.fd)        # closing the descriptor releases the flock
             self.fd = None
 
-    def __del__(self):
-        self.release()
+    def __del__(self, close=os.close):    # bound now: at interpreter exit the module's names may be gone
+        if self.fd is not None:
+            try:
+                close(self.fd)
+            except OSError:
+                pass
 
 
 def claim_domain(domain: int | None = None, lock_dir: Path | None = None) -> DomainClaim:
