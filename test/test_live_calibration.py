@@ -32,11 +32,18 @@ from nao_skin.sim.simulate import simulate  # noqa: E402
 pytestmark = [pytest.mark.middleware, pytest.mark.slow]
 
 
+def live_session_cmd(bag, seed: int, per_pair: int, pairs: str, every_touches: int, period: float) -> list:
+    """A record session whose simulated robot plays ``pairs`` briskly and whose calibrate node updates every
+    ``every_touches`` new touches or ``period`` s."""
+    return record_cmd(bag, seed=seed, per_pair=per_pair) + [
+        "--param", f"sim_robot.pairs=[{pairs}]", "--param", "sim_robot.touch_period=0.35",
+        "--param", f"calibrate.live_every_touches={every_touches}",
+        "--param", f"calibrate.live_period={float(period)!r}"]
+
+
 def test_updates_arrive_while_touches_are_recorded(tmp_path):
     bag = tmp_path / "touches"
-    argv = record_cmd(bag, seed=3, per_pair=20) + [
-        "--param", "sim_robot.pairs=[r_hand-torso, l_hand-torso]", "--param", "sim_robot.touch_period=0.35",
-        "--param", "calibrate.live_every_touches=6", "--param", "calibrate.live_period=1.0"]
+    argv = live_session_cmd(bag, 3, 20, "r_hand-torso, l_hand-torso", every_touches=6, period=1.0)
     domain = unique_domain_id()
     listener = session = None
     try:
@@ -89,9 +96,7 @@ def test_the_session_end_calibrates_the_touches_since_the_last_update_and_says_w
     the session ends, so the calibration written covers every touch (it covered the last update's only); its
     frames go out on /tf_static, and the latched status says the session ended and where the calibration is."""
     bag = tmp_path / "touches"
-    argv = record_cmd(bag, seed=5, per_pair=32) + [
-        "--param", "sim_robot.pairs=[r_hand-torso]", "--param", "sim_robot.touch_period=0.35",
-        "--param", "calibrate.live_every_touches=20", "--param", "calibrate.live_period=86400"]
+    argv = live_session_cmd(bag, 5, 32, "r_hand-torso", every_touches=20, period=86400)     # no update by time
     domain = unique_domain_id()
     listener = session = None
     code = None
