@@ -318,3 +318,48 @@ def test_the_session_end_writes_the_last_update_before_the_final_one_runs(tmp_pa
     assert report["final"]["train"]["n_touches"] + report["final"]["test"]["n_touches"] \
         == node.live.read_count == node.live.last_count > first
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cal", "touches"]      # replaced in place, nothing beside
+
+
+def test_the_session_end_writes_the_last_update_at_once_while_a_live_update_still_runs(tmp_path):
+    """Stopped while a live update runs, the node waited for it (up to 10 s) before writing anything: a SIGKILL
+    then (ros2 launch sends one about 10 s after Ctrl-C) lost the calibration. It is written at once now; the
+    node runs in the test's process, a live update stands in as a thread that has not finished."""
+    import threading
+
+    from rclpy.parameter import Parameter
+
+    from nao_skin.nodes.calibrate import CalibrateNode
+
+    skin = load_skin()
+    touches = simulate(skin, {"pairs": [["r_hand", "torso"]], "n_touches": 30}, seed=6).touches
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, touches, skin)
+    out = tmp_path / "cal"
+    running = threading.Event()
+    listener = node = None
+    try:
+        listener = Listener(unique_domain_id())
+        node = CalibrateNode(context=listener.context, parameter_overrides=[
+            Parameter("live", value=True), Parameter("recording", value=str(bag)),
+            Parameter("out_dir", value=str(out))])
+        assert node._busy.acquire(blocking=False)
+        node._live_update()
+        assert node.live.last is not None
+        node._worker = threading.Thread(target=running.wait, args=(60,), daemon=True, name="live calibration")
+        node._worker.start()
+        closing = threading.Thread(target=node.close)
+        closing.start()
+        deadline = time.monotonic() + 5        # well before close() gives up waiting for the update (10 s)
+        while not (out / "calibration.yaml").exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        written_while_running = (out / "calibration.yaml").exists() and node._worker.is_alive()
+        running.set()
+        closing.join(timeout=60)
+    finally:
+        running.set()
+        if node is not None:
+            node.destroy_node()
+        if listener is not None:
+            listener.close()
+    assert written_while_running
+    assert set(SkinCalibration.load(out / "calibration.yaml", skin).parts) == set(node.live.last.calibration.parts)

@@ -27,6 +27,7 @@ import threading
 import time
 from pathlib import Path
 
+from rclpy.duration import Duration
 from rclpy.node import Node
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
@@ -44,6 +45,7 @@ from nao_skin.session.params import CALIBRATE, guidance_pairs, options_from_para
 
 
 FINAL_WAIT_S = 5.0      # at the session's end: how long the final update waits for the recorder to close the bag
+FINAL_ACK_S = 1.0       # ... and how long the last status and frames may take to reach their subscribers
 
 
 class CalibrateNode(Node):
@@ -64,7 +66,7 @@ class CalibrateNode(Node):
         self._out_dir_at_start = output_stamp(self.p["out_dir"])
         self._latched: dict = {}          # the status last published (latched)
         self._ignored = 0                 # requests refused while one calibration or update was running
-        self._closing = False             # the node is stopping: close() writes the live calibration
+        self._ended = False               # the session's end is published: nothing is published after it
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
         self.guidance_pairs = guidance_pairs(self.p, self.skin)
@@ -140,7 +142,7 @@ class CalibrateNode(Node):
                     self.schedule.again()
                 return
             self._retried = False
-            if self._closing:         # close() publishes and writes from here on (its final update covers this)
+            if self._ended:           # a live update that outlived close()'s wait: the session is over
                 return
             try:
                 if out.accepted is not None:
@@ -244,10 +246,11 @@ class CalibrateNode(Node):
             self._busy.release()
 
     def close(self) -> None:
-        """End of the session: the last accepted live calibration is written where users apply it, then the
-        touches recorded since it calibrated too (a final update) and written over it: a stop that comes while
-        the final update runs (ros2 launch escalates to SIGKILL after about 10 s) keeps the first."""
-        self._closing = True              # a live update still running publishes nothing from now on
+        """End of the session: the last accepted live calibration is written where users apply it, at once
+        (whatever comes next: an update that takes long, ros2 launch's SIGKILL about 10 s after Ctrl-C); then the
+        touches recorded since it are calibrated too (a final update) and written over it."""
+        written = self.live.last if self.p["live"] else None
+        out = self._write_live(written) if written is not None else None
         if self._worker is not None:
             self._worker.join(timeout=10.0)
             if self._worker.is_alive():   # a daemon thread: it ends with the process, its output unwritten
@@ -256,20 +259,20 @@ class CalibrateNode(Node):
                                           f" written there)")
         if not self.p["live"]:
             return
-        out = self._write_live() if self.live.last is not None else None
         complete = False                  # what is written covers every touch of the closed recording
         if self.p["recording"] and not (self._worker is not None and self._worker.is_alive()):
-            accepted, complete = self._final_update()
-            if accepted:
-                out = self._write_live(out)
+            complete = self._final_update()
+        if self.live.last is not None and self.live.last is not written:      # an update accepted since
+            out = self._write_live(self.live.last, out)
+        self._ended = True
         if out is None:                   # a short session, or one whose touches never sufficed: say so
             latched = self._latched
             why = {"waiting": latched.get("reason"), "failed": latched.get("error")}.get(latched.get("state"),
                                                                                       "no live update ran")
             self.get_logger().warning(f"the session ends without a live calibration ({why}): none is written to"
                                       f" {self.p['out_dir']}")
-            self._status({"state": "ended", "generation": self.generation, "calibration": None, "reason": why,
-                          "recorded": self.live.read_count})
+            self._final_status({"state": "ended", "generation": self.generation, "calibration": None, "reason": why,
+                                "recorded": self.live.read_count})
             return
         n, read = self.live.last_count, self.live.read_count
         covered = (f"all {n} touches" if complete and n >= read else f"{n} of {read} touches" if n < read
@@ -277,13 +280,20 @@ class CalibrateNode(Node):
         if self.live.duplicates:           # the recorder's count includes them
             covered += f"; {self.live.duplicates} exact duplicates in the bag left out"
         self.get_logger().info(f"the last live calibration ({covered}) -> {out}")
-        self._status({"state": "ended", "generation": self.generation, "out_dir": str(out),
-                      "calibration": str(out / "calibration.yaml"), "touches": n, "recorded": read,
-                      "complete": complete, "parts": self.live.parts_state()})
+        self._final_status({"state": "ended", "generation": self.generation, "out_dir": str(out),
+                            "calibration": str(out / "calibration.yaml"), "touches": n, "recorded": read,
+                            "complete": complete, "parts": self.live.parts_state()})
 
-    def _write_live(self, written: Path | None = None) -> Path:
-        """The last accepted live calibration, written to out_dir (or beside it: :func:`session_end_out_dir`);
-        ``written``: where this session's end wrote it already, replaced."""
+    def _final_status(self, info: dict) -> None:
+        """The session's last status, delivered before the node goes (the process ends right after: a
+        subscriber missed it now and then)."""
+        self._status(info)
+        for publisher in (self.status_pub, self.tf_pub):
+            publisher.wait_for_all_acked(Duration(seconds=FINAL_ACK_S))
+
+    def _write_live(self, result, written: Path | None = None) -> Path:
+        """A live calibration ``result``, written to out_dir (or beside it: :func:`session_end_out_dir`);
+        ``written``: where this session's end wrote one already, replaced."""
         from nao_skin.calibration.report import write_outputs
 
         out_dir = written
@@ -294,34 +304,36 @@ class CalibrateNode(Node):
                 self.get_logger().warning(moved)
         try:
             self._check_live_out_dir(out_dir)
-            return write_outputs(self.live.last, self.skin, out_dir, plots=False, command="calibrate (node, live)")
+            return write_outputs(result, self.skin, out_dir, plots=False, command="calibrate (node, live)")
         except NaoSkinError as exc:
-            if written is not None:       # the final update's not written: the one written before stays
-                self.get_logger().error(f"the final live update is not written ({exc}); {written} keeps the one"
-                                        f" before")
+            if written is not None:       # the later one is not written: the one written before stays
+                self.get_logger().error(f"the final live calibration is not written ({exc}); {written} keeps the"
+                                        f" one before")
                 return written
             # the node's one line and exit 2; the touches are in the recording
             recording = self.p["recording"]
             error = (f"{exc}; the session's live calibration is not written: the session's touches are in the"
                      f" recording {recording} (the recorder's last line says how many), and nao-skin calibrate"
                      f" {recording} --out DIR calibrates them again")
-            self._status({"state": "ended", "generation": self.generation, "calibration": None, "error": error})
+            self._ended = True
+            self._final_status({"state": "ended", "generation": self.generation, "calibration": None,
+                                "error": error})
             raise type(exc)(error) from None
 
-    def _final_update(self) -> tuple:
+    def _final_update(self) -> bool:
         """The touches recorded since the last update calibrated too, once the recorder has closed the bag (it
-        writes what it still holds as it stops): ``(accepted, complete)``, complete when the calibration now
-        covers every touch of the closed recording."""
+        writes what it still holds as it stops); True when the last accepted calibration now covers every touch
+        of the closed recording."""
         log = self.get_logger()
         if not self.live.recording_exists() or (self.live.last is None and not self._recorded):
-            return False, False      # no touch recorded (a first calibration needs 10 or more anyway)
+            return False             # no touch recorded (a first calibration needs 10 or more anyway)
         closed = self.live.wait_until_closed(FINAL_WAIT_S)
         if not closed:
             log.warning(f"the recorder has not closed {self.p['recording']} after {FINAL_WAIT_S:g} s; the final"
                         f" update calibrates the touches it has written")
         out = self.live.update(log=log.debug, final=True)
         if not out.status:          # no touch since the last accepted update
-            return False, closed
+            return closed
         if out.accepted is not None:
             self.publish_calibration(out.accepted.calibration, "final live update", quiet=True)
             log.info(f"final live update {self.generation}: {out.status['touches']} touches")
@@ -330,7 +342,7 @@ class CalibrateNode(Node):
             log.warning(f"the final live update over {self.live.read_count} touches was not accepted ({why});"
                         f" the last accepted update's is written")
         self._status({**out.status, "live": True, "generation": self.generation})
-        return out.accepted is not None, closed and out.accepted is not None
+        return closed and out.accepted is not None
 
 
 def request_paths(text: str) -> list:
