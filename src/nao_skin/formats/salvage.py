@@ -59,17 +59,12 @@ class RecordingLock:
 
 def write_lock(path: Path) -> None:
     """Name this process as the writer of the bag directory ``path``."""
-    (path / LOCK_FILE).write_text(lock_text())
-
-
-def lock_text() -> str:
-    """What a lock file holds to name this process: its pid, host and start time (a later process that gets
-    the same pid is not taken for it)."""
     import json
     import os
     import socket
 
-    return json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "start": _process_start(os.getpid())}) + "\n"
+    info = {"pid": os.getpid(), "host": socket.gethostname(), "start": _process_start(os.getpid())}
+    (path / LOCK_FILE).write_text(json.dumps(info) + "\n")
 
 
 def _process_start(pid: int) -> str | None:
@@ -83,19 +78,13 @@ def _process_start(pid: int) -> str | None:
 
 def recording_lock(path: Path) -> RecordingLock | None:
     """The bag's lock, if its writer left one: it holds the bag open now (state open) or died without closing it."""
-    lock = path / LOCK_FILE if path.is_dir() else None
-    if lock is None or not lock.exists():
-        return None
-    return read_lock(lock)
-
-
-def read_lock(lock: Path) -> RecordingLock:
-    """A lock file (:func:`lock_text`): whether the process it names runs (open), is gone (died), or cannot
-    be checked from here (unknown: unreadable, or another host's)."""
     import json
     import os
     import socket
 
+    lock = path / LOCK_FILE if path.is_dir() else None
+    if lock is None or not lock.exists():
+        return None
     try:
         info = json.loads(lock.read_text())
         pid, host, start = int(info["pid"]), str(info["host"]), info.get("start")
