@@ -19,7 +19,8 @@ def _node(context):
     from nao_skin.paths import config_dir
 
     inputs = shlex.split(LaunchConfiguration("inputs").perform(context))
-    overrides = {"inputs": inputs or [""], "calibrate_on_start": True,
+    # record.yaml's calibrate section is a record session's: here no live updates (no recorder runs)
+    overrides = {"inputs": inputs or [""], "calibrate_on_start": True, "live": False,
                  "out_dir": LaunchConfiguration("out_dir").perform(context)}
     calibration = LaunchConfiguration("calibration").perform(context)
     if calibration:

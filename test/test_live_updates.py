@@ -253,7 +253,8 @@ def test_a_live_session_updates_waits_and_fails_without_raising(skin, session, t
 def test_the_session_end_writes_beside_an_out_dir_written_during_the_session(tmp_path):
     """The last live calibration goes to out_dir unless something wrote there meanwhile: then it goes beside it,
     and the warning names who wrote it (the node's own requested calibration, or another command)."""
-    from nao_skin.session.live import output_stamp, session_end_out_dir
+    from nao_skin.formats.outdir import output_stamp
+    from nao_skin.session.live import session_end_out_dir
 
     out = tmp_path / "bag_calibration"
     assert session_end_out_dir(out, output_stamp(out), None, "/nao_skin/calibrate") == (out, None)   # still absent
@@ -271,19 +272,20 @@ def test_the_session_end_writes_beside_an_out_dir_written_during_the_session(tmp
 def test_the_node_never_replaces_a_calibration_it_did_not_write(tmp_path):
     """An out_dir that held a calibration when the node started (an earlier run's) stays as it is: a requested
     calibration goes to <out_dir>.new, then replaces only its own; the session's live one goes to .live."""
-    from nao_skin.session.live import output_stamp, request_out_dir, session_end_out_dir
+    from nao_skin.formats.outdir import output_stamp
+    from nao_skin.session.live import request_out_dir, session_end_out_dir
 
     out = tmp_path / "nao_skin_calibration"
-    assert request_out_dir(out, None) == (out, None)              # new: the node's to take
+    assert request_out_dir(out, None) == (out, (), None)          # new: the node's to take, while it is free
     out.mkdir()
-    assert request_out_dir(out, None) == (out, None)              # empty: too
+    assert request_out_dir(out, None) == (out, (), None)          # empty: too
     (out / "calibration.yaml").write_text("parts: {}\n")
     at_start = output_stamp(out)
-    target, said = request_out_dir(out, None)
-    assert target == f"{out}.new" and said.startswith(f"out_dir {out} holds a calibration this node did not write")
+    target, replacing, said = request_out_dir(out, None)
+    assert target == f"{out}.new" and replacing == () and said.startswith(f"out_dir {out} holds a calibration this node did not write")
     Path(target).mkdir()
     own = (target, output_stamp(target))
-    assert request_out_dir(out, own) == (target, None)            # its own output: replaced by the next request
+    assert request_out_dir(out, own) == (target, own[1], None)    # its own output: replaced by the next request
     beside, said = session_end_out_dir(out, at_start, output_stamp(target), "/nao_skin/calibrate")
     assert beside == f"{out}.live" and said == (f"out_dir {out} held an earlier calibration when the session started"
                                                 f" and is left as it is; the session's last live calibration goes"
@@ -304,8 +306,8 @@ def test_a_chmod_of_the_nodes_output_leaves_it_the_nodes_own(tmp_path):
     "written by another command during the session"); another command's output in its place is still not its own."""
     import os
 
-    from nao_skin.formats.outdir import write_marker
-    from nao_skin.session.live import output_stamp, request_out_dir, session_end_out_dir
+    from nao_skin.formats.outdir import output_stamp, write_marker
+    from nao_skin.session.live import request_out_dir, session_end_out_dir
 
     out = tmp_path / "touches_calibration"
     out.mkdir()
@@ -313,7 +315,7 @@ def test_a_chmod_of_the_nodes_output_leaves_it_the_nodes_own(tmp_path):
     write_marker(out, "calibrate (node)", "calibration")
     own = (out, output_stamp(out))
     os.chmod(out, 0o775)
-    assert request_out_dir(out, own) == (out, None)
+    assert request_out_dir(out, own) == (out, own[1], None)
     assert session_end_out_dir(out, None, output_stamp(out), "/nao_skin/calibrate")[1].startswith(
         f"out_dir {out} was written by the calibration requested on /nao_skin/calibrate")
     write_marker(out, "calibrate", "calibration")      # another command's output, written in the same place

@@ -43,6 +43,30 @@ def test_a_wrong_option_value_stops_the_node_at_start_in_one_line(tmp_path):
     assert len(lines) == 1 and "parameter test_fraction:=2.0: expected a number in [0, 1)" in lines[0], lines
 
 
+@pytest.mark.parametrize("params, says", [
+    ({"inputs": ["{tmp}/no_such_bag"]}, "parameter inputs: {tmp}/no_such_bag: no such file or directory"),
+    ({"inputs": [""]}, "parameter inputs: empty; calibrate_on_start needs the bags"),
+    ({"out_dir": "/dev/null"}, "out_dir /dev/null: is an existing file, not a directory"),
+    ({"out_dir": "{tmp}/notes"}, "out_dir {tmp}/notes: is a non-empty directory nao-skin did not write"),
+])
+def test_a_calibration_at_start_that_cannot_run_stops_the_node_in_one_line(tmp_path, small_bag, params, says):
+    """calibrate_on_start with a missing input or an out_dir it may not write logged an error, then ran on
+    with nothing to do and exited 0 at Ctrl-C: now one line and exit 2 at start, as a bad parameter."""
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "mine.txt").write_text("the user's\n")
+    given = {"inputs": [str(small_bag)], "out_dir": str(tmp_path / "cal"), "calibrate_on_start": True}
+    given.update({k: [x.format(tmp=tmp_path) for x in v] if isinstance(v, list) else v.format(tmp=tmp_path)
+                  for k, v in params.items()})
+    node = node_process("calibrate", given, ros_env(unique_domain_id()), tmp_path)
+    try:
+        code = node.popen.wait(timeout=60)
+    finally:
+        node.stop()
+    lines = [line for line in node.stderr().splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and says.format(tmp=tmp_path) in lines[0], lines
+    assert (tmp_path / "notes" / "mine.txt").read_text() == "the user's\n"
+
+
 def test_any_failure_of_a_calibration_ends_in_a_failed_status(tmp_path, small_bag):
     blocker = tmp_path / "notes.txt"
     blocker.write_text("a file where the output's parent should be\n")
@@ -102,6 +126,43 @@ def test_a_request_while_busy_leaves_the_running_state_latched(tmp_path, small_b
             listener.close()
         code = node.stop() if node is not None else None
     assert code == 0, node.stderr()[-3000:]
+
+
+def test_a_request_calibrates_as_the_first_did_and_a_node_on_record_yaml_without_a_recording_is_no_session(
+        tmp_path, small_bag):
+    """Each request started from the last one's result, so the same request gave another calibration each
+    time (and not nao-skin calibrate's). And calibrate.launch.py's node (record.yaml's section: live) ended
+    saying "the session ends without a live calibration ...: none is written" beside the one it had written."""
+    from nao_skin.paths import config_dir
+
+    out_dir = tmp_path / "cal"
+    domain = unique_domain_id()
+    listener = node = None
+    calibrations = []
+    try:
+        listener = Listener(domain)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        request = listener.node.create_publisher(String, REQUEST_TOPIC, 10)
+        node = node_process("calibrate", {"inputs": [str(small_bag)], "calibrate_on_start": True,
+                                          "out_dir": str(out_dir), "plots": False}, ros_env(domain), tmp_path,
+                            params_file=config_dir() / "record.yaml")
+        for _ in range(2):
+            n = len([s for s in status if s["state"] == "done"])
+            assert listener.spin_until(lambda: len([s for s in status if s["state"] == "done"]) > n
+                                       and request.get_subscription_count() >= 1, timeout=120,
+                                       procs=[node]), status[-1:]
+            calibrations.append((out_dir / "calibration.yaml").read_text())
+            request.publish(String(data=""))
+        assert listener.spin_until(lambda: len([s for s in status if s["state"] == "done"]) == 3, timeout=120,
+                                   procs=[node]), status[-1:]
+        calibrations.append((out_dir / "calibration.yaml").read_text())
+    finally:
+        if listener is not None:
+            listener.close()
+        code = node.stop() if node is not None else None
+    assert code == 0, node.stderr()[-3000:]
+    assert calibrations[1] == calibrations[0] and calibrations[2] == calibrations[0]
+    assert "the session ends" not in node.stderr() and "live calibration" not in node.stderr()
 
 
 def test_a_request_during_a_live_update_keeps_the_update_state_latched(tmp_path):
@@ -199,6 +260,35 @@ def test_a_live_session_that_ends_before_any_update_says_no_calibration_is_writt
     assert f"the session ends without a live calibration (no live update ran): none is written to {out_dir}" \
         in node.stderr()
     assert not out_dir.exists()
+
+
+def test_two_nodes_given_one_out_dir_each_keep_their_calibration(tmp_path, small_bag):
+    """Two calibrate nodes started together with one out_dir (two `ros2 run` in one directory: the default
+    out_dir is relative) both found it free, and the second to finish replaced the first's calibration while
+    both said they had written it. Now each calibration is where its node says, and none is lost."""
+    import time
+
+    out_dir = tmp_path / "nao_skin_calibration"
+    nodes = []
+    try:
+        for seed in (1, 2):
+            nodes.append(node_process("calibrate", {"inputs": [str(small_bag)], "calibrate_on_start": True,
+                                                    "out_dir": str(out_dir), "seed": seed, "plots": False},
+                                      ros_env(unique_domain_id()), tmp_path, name=f"calibrate_{seed}"))
+        deadline = time.monotonic() + 180
+        while time.monotonic() < deadline and not all("calibrated from" in n.stderr() for n in nodes):
+            assert all(n.popen.poll() is None for n in nodes), [n.stderr()[-2000:] for n in nodes]
+            time.sleep(0.2)
+    finally:
+        codes = [n.stop() for n in nodes]
+    assert codes == [0, 0], [n.stderr()[-2000:] for n in nodes]
+    written = {}
+    for seed, node in zip((1, 2), nodes):
+        line = next(x for x in node.stderr().splitlines() if "calibrated from" in x)
+        written[seed] = line.rsplit(" -> ", 1)[1].strip()
+    assert sorted(written.values()) == [str(out_dir), f"{out_dir}.new"], written
+    for seed, place in written.items():       # each node's own calibration is where it says
+        assert json.loads((tmp_path / place / "report.json").read_text())["options"]["seed"] == seed
 
 
 def test_the_node_writes_beside_a_calibration_it_did_not_write(tmp_path, small_bag):

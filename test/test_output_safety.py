@@ -614,32 +614,23 @@ def test_bench_live_stops_its_nodes_and_removes_its_temporary_directory_when_sto
 # ------------------------------------------------------------------------------ the calibrate node
 @pytest.mark.middleware   # starts ROS 2 nodes
 def test_calibrate_node_refuses_an_out_dir_holding_its_input(work):
+    """At start (calibrate_on_start), in one line and exit 2, as any bad parameter: the node used to log the
+    error, then run on with nothing to do and exit 0."""
     pytest.importorskip("rclpy")
-    from ros_harness import Listener, node_process, ros_env, unique_domain_id
-    from std_msgs.msg import String
-
-    from nao_skin.nodes.topics import LATCHED, STATUS_TOPIC
+    from ros_harness import node_process, ros_env, unique_domain_id
 
     bag = work / "session" / "touches.bag"
     (work / "logs").mkdir()
     before = tree(work / "session")
-    domain = unique_domain_id()
-    listener = node = None
+    node = node_process("calibrate", {"inputs": [str(bag)], "calibrate_on_start": True,
+                                      "out_dir": str(work / "session")}, ros_env(unique_domain_id()), work / "logs")
     try:
-        listener = Listener(domain)
-        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
-        node = node_process("calibrate", {"inputs": [str(bag)], "calibrate_on_start": True,
-                                          "out_dir": str(work / "session")}, ros_env(domain), work / "logs")
-        assert listener.spin_until(lambda: status and status[-1]["state"] in ("failed", "done"), timeout=120,
-                                   procs=[node]), status
-        error = status[-1].get("error", "")
-        assert status[-1]["state"] == "failed", status[-1]
-        assert f"out_dir {work / 'session'}" in error and "contains the input" in error and "\n" not in error
+        code = node.popen.wait(timeout=60)
     finally:
-        if listener is not None:
-            listener.close()
-        code = node.stop() if node is not None else None
-    assert code == 0, node.stderr()[-3000:]
+        node.stop()
+    lines = [line for line in node.stderr().splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1, lines
+    assert f"out_dir {work / 'session'}" in lines[0] and "contains the input" in lines[0]
     assert tree(work / "session") == before
 
 
@@ -875,3 +866,73 @@ def test_setup_venv_replaces_only_a_venv(tmp_path):
         assert err[0] == (f"setup_venv: ERROR: VENV={venv} exists and is no Python venv (no pyvenv.cfg): not"
                           f" replacing it; remove it or set another VENV")
     assert (mine / "thesis.tex").read_text() == "precious\n" and note.read_text() == "mine\n"
+
+
+def _marked_output(directory: Path, text: str, command: str = "calibrate (node)") -> Path:
+    from nao_skin.formats import outdir
+
+    directory.mkdir()
+    (directory / "calibration.yaml").write_text(text)
+    outdir.write_marker(directory, command, outdir.CALIBRATION)
+    return directory
+
+
+def test_a_writer_replaces_only_the_output_it_expects_never_one_written_there_meanwhile(tmp_path, monkeypatch):
+    """Two calibrate nodes given one out_dir (two `ros2 run` in one directory: the default out_dir is relative)
+    both found it free, both wrote there, and the second replaced the first's calibration without a word while
+    both said they had written it. A writer now says what it may replace (nothing, or its own last output,
+    by its stamp), checked again once the earlier output is moved aside."""
+    from nao_skin.errors import OutputTaken
+    from nao_skin.formats import outdir
+
+    out = tmp_path / "nao_skin_calibration"
+    first = _marked_output(tmp_path / ".first", "first")
+    outdir.replace_dir(first, out, replacing=())                      # free: taken
+    second = _marked_output(tmp_path / ".second", "second")
+    with pytest.raises(OutputTaken, match="another output was written there meanwhile"):
+        outdir.replace_dir(second, out, replacing=())                 # it was free when this writer looked
+    assert (out / "calibration.yaml").read_text() == "first" and second.is_dir()
+
+    own = outdir.output_stamp(out)
+    outdir.replace_dir(second, out, replacing=own)                    # its own: replaced
+    assert (out / "calibration.yaml").read_text() == "second"
+    third = _marked_output(tmp_path / ".third", "third")
+    with pytest.raises(OutputTaken):                                  # no longer the output it wrote
+        outdir.replace_dir(third, out, replacing=own)
+    assert (out / "calibration.yaml").read_text() == "second"
+
+    # another writer's output lands between the check and the move aside: it goes back, whole
+    mine = outdir.output_stamp(out)
+    mkdtemp = outdir.tempfile.mkdtemp
+
+    def another_writer_first(*args, **kwargs):
+        shutil.rmtree(out)
+        _marked_output(out, "another's", command="calibrate")
+        return mkdtemp(*args, **kwargs)
+
+    monkeypatch.setattr(outdir.tempfile, "mkdtemp", another_writer_first)
+    with pytest.raises(OutputTaken):
+        outdir.replace_dir(third, out, replacing=mine)
+    assert (out / "calibration.yaml").read_text() == "another's"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".third", "nao_skin_calibration"]
+
+
+def test_a_calibration_whose_place_was_taken_meanwhile_goes_beside_it(tmp_path):
+    """write_outputs with ``beside``: the first free <out_dir><beside>, and the place it was meant for stays."""
+    from nao_skin.calibration.report import write_outputs
+    from nao_skin.errors import OutputTaken
+    from nao_skin.model.skin import load_skin
+    from nao_skin.sim.simulate import simulate
+    from nao_skin.calibration.engine import calibrate
+    from nao_skin.calibration.options import CalibrationOptions
+
+    skin = load_skin()
+    result = calibrate(simulate(skin, {"n_touches": 60, "pairs": [["l_hand", "torso"]]}, seed=3).touches, skin,
+                       CalibrationOptions(levels=("mount",)))
+    out = _marked_output(tmp_path / "cal", "another's", command="calibrate")
+    with pytest.raises(OutputTaken):
+        write_outputs(result, skin, out, plots=False, replacing=())
+    wrote = write_outputs(result, skin, out, plots=False, replacing=(), beside=".new")
+    assert wrote == tmp_path / "cal.new" and (wrote / "calibration.yaml").is_file()
+    assert (out / "calibration.yaml").read_text() == "another's"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal", "cal.new"]

@@ -34,6 +34,10 @@ class OutputError(NaoSkinError):
     """An output cannot be written (a full disk, no permission, a folder gone): what was written before stays."""
 
 
+class OutputTaken(OutputError):
+    """The place an output was to take was taken meanwhile (another process wrote there): it stays as it is."""
+
+
 class DiskFull(OutputError):
     """The disk, a quota or a file size limit is full: with space freed the same output goes on."""
 

@@ -41,7 +41,8 @@ def check_output(out_dir, inputs: Sequence, force: bool = False, label: str = "-
 def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: CalibrationOptions, out_dir,
                          prior: SkinCalibration | None = None, truth: SkinCalibration | None = None,
                          force: bool = False, plots: bool = True, protected: Sequence = (), splits: int = 1,
-                         command: str = "calibrate", label: str = "--out", extra=None,
+                         command: str = "calibrate", label: str = "--out", extra=None, replacing=None,
+                         beside: str | None = None,
                          log: Callable[[str], None] | None = None,
                          summary: Callable[[str], None] | None = None) -> PipelineRun:
     """Calibrate the skin from recordings and write the result where users apply it.
@@ -51,7 +52,8 @@ def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: Calibration
     were named (a layout named only inside the skin config). ``truth`` overrides a simulator's ground truth
     found beside a recording. ``log`` gets progress; ``summary`` what loading
     skipped, even when ``log`` is silent. ``extra(directory)`` adds files to
-    the output before it is moved into place (see :func:`write_outputs`).
+    the output before it is moved into place; ``replacing`` and ``beside``: what the output may replace, and
+    where it goes when another process took its place meanwhile (see :func:`write_outputs`).
     ``splits`` > 1: the report also gives each figure's mean and spread over that
     many seeded splits (:func:`~nao_skin.calibration.splits.split_spread`); the
     calibration written is the first split's.
@@ -62,7 +64,8 @@ def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: Calibration
     if splits > 1:
         log(f"the same calibration on {splits - 1} more splits (seeds {options.seed + 1}..{options.seed + splits - 1})")
         result.report.splits = split_spread(touches, skin, options, splits, prior=prior, first=result)
-    out = write_outputs(result, skin, out_dir, prior=prior, plots=plots, command=command, extra=extra)
+    out = write_outputs(result, skin, out_dir, prior=prior, plots=plots, command=command, extra=extra,
+                        replacing=replacing, beside=beside)
     return PipelineRun(result, Path(out), load_report, touches.n_touches, n_dup)
 
 

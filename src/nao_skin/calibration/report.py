@@ -21,22 +21,29 @@ from nao_skin.calibration.plan import touching_pairs
 from nao_skin.calibration.rows import concat_pairings, pair_parts
 from nao_skin.calibration.splits import kinematics_kept_text, spread_table
 from nao_skin.calibration.stages import held_frames
-from nao_skin.errors import OutputError, os_reason
+from nao_skin.errors import OutputError, OutputTaken, os_reason
 from nao_skin.formats.outdir import CALIBRATION, replace_dir, staging_dir, write_marker
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
+from nao_skin.paths import free_sibling
 from nao_skin.plain import jsonable
 from nao_skin.touch.touches import TouchSet
 
 
+TAKEN_RETRIES = 5     # places tried when another process takes the one chosen as the output is moved there
+
+
 def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Path,
                   prior: SkinCalibration | None = None, plots: bool = True, command: str = "calibrate",
-                  extra=None) -> Path:
-    """Write the calibration into ``out_dir``, marked as written by ``nao-skin COMMAND``.
+                  extra=None, replacing=None, beside: str | None = None) -> Path:
+    """Write the calibration into ``out_dir``, marked as written by ``nao-skin COMMAND``; returns where.
 
     ``extra(directory)`` may add files beside ours before the directory is
     marked and moved into place (they are then ours too). An earlier output
     in ``out_dir`` is replaced only when :mod:`nao_skin.outdir` allows it;
     callers check the directory with ``check_output_dir`` before any work.
+    ``replacing``: what may be replaced there (:func:`~nao_skin.formats.outdir.replace_dir`); when something
+    else took the place meanwhile, the output goes to the first free ``<out_dir><beside>`` (with ``beside``;
+    else :class:`~nao_skin.errors.OutputTaken` is raised).
     """
     given, out_dir = Path(out_dir), Path(os.path.realpath(out_dir))
     try:
@@ -59,7 +66,18 @@ def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Pat
         if extra is not None:
             extra(tmp)
         write_marker(tmp, command, CALIBRATION)
-        replace_dir(tmp, out_dir)
+        for _ in range(TAKEN_RETRIES):
+            try:
+                replace_dir(tmp, out_dir, replacing=replacing)
+                break
+            except OutputTaken:
+                if beside is None:
+                    raise
+                # another process wrote there meanwhile (two nodes given one out_dir): its output stays
+                given = Path(free_sibling(given, beside))
+                out_dir, replacing = Path(os.path.realpath(given)), ()
+        else:
+            raise OutputTaken(f"{given}: every place tried was taken meanwhile; nothing is written")
     except OSError as exc:     # e.g. a full disk: the calibration is not written, an earlier one there stays
         shutil.rmtree(tmp, ignore_errors=True)
         raise OutputError(f"{given}: cannot write the calibration ({os_reason(exc)}); an earlier output there is"

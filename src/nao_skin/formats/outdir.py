@@ -25,7 +25,7 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from nao_skin.errors import STOP_SIGNALS, DataError
+from nao_skin.errors import STOP_SIGNALS, DataError, OutputTaken
 
 MARKER = ".nao_skin_output"
 FORMAT = "nao_skin/output/1"
@@ -240,13 +240,40 @@ def _sync_tree(root: Path) -> None:
         _sync_path(folder)
 
 
-def replace_dir(new: str | Path, out: str | Path, label: str = "output directory") -> Path:
+def output_stamp(path: str | Path) -> tuple | None:
+    """What tells one output from anything put at its path since (None: nothing there): (device, inode, its
+    output marker's text). The inode alone does not: a directory removed and another made in its place may get
+    the same one; the marker says when it was written and by which command. A directory without a marker: its
+    change time (which a chmod changes too; an output marker does not)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    try:
+        marker = (Path(path) / MARKER).read_bytes()
+    except OSError:
+        marker = st.st_ctime_ns
+    return st.st_dev, st.st_ino, marker
+
+
+def is_free(path: str | Path) -> bool:
+    """Nothing there yet, or an empty directory: a place any output may take."""
+    path = Path(path)
+    return not os.path.lexists(path) or (path.is_dir() and not path.is_symlink() and not any(path.iterdir()))
+
+
+def replace_dir(new: str | Path, out: str | Path, label: str = "output directory", replacing=None) -> Path:
     """Move the finished, marked directory ``new`` to ``out`` (same file system, e.g. a temporary sibling).
 
     An earlier output at ``out`` is renamed aside first, the new one moved in,
     then the old one removed, so at no moment is there neither. It is checked
     once more here: one holding a file we did not write, or another kind of
     output, is not replaced.
+
+    ``replacing``: None, any earlier output those rules allow (the user asked for it, ``--force``); ``()``,
+    none: ``out`` must still be free (:func:`is_free`); else the :func:`output_stamp` of the one output that
+    may be replaced (a node's own last one). Anything else found there, e.g. another process's output
+    written to the same place meanwhile, raises :class:`OutputTaken` and stays as it is.
     """
     new, out = Path(new), Path(os.path.realpath(out))
     marker = read_marker(new)
@@ -255,12 +282,20 @@ def replace_dir(new: str | Path, out: str | Path, label: str = "output directory
     problem = _replace_problem(out, marker["kind"], force=True)
     if problem:
         raise DataError(f"{label} {out}: {problem}")
+    if replacing is not None and not (is_free(out) if replacing == () else output_stamp(out) == replacing):
+        raise OutputTaken(f"{label} {out}: another output was written there meanwhile; it is left as it is")
     # the temporary directory is private (0700): the output gets the mode of the directory it replaces,
     # or the one a plain mkdir gives
     os.chmod(new, stat.S_IMODE(out.stat().st_mode) if out.is_dir() else 0o777 & ~_umask())
     _sync_tree(new)       # the new output whole on the disk before any rename: the earlier one stays till then
     if not out.exists():
-        os.replace(new, out)
+        try:
+            os.replace(new, out)      # onto nothing or an empty directory only: never onto one made meanwhile
+        except OSError as exc:
+            if replacing is None or exc.errno not in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR):
+                raise
+            raise OutputTaken(f"{label} {out}: another output was written there meanwhile; it is left as it is"
+                              ) from None
         _sync_path(out.parent)
         return out
     with _stops_deferred():
@@ -270,6 +305,12 @@ def replace_dir(new: str | Path, out: str | Path, label: str = "output directory
         except BaseException:
             aside.rmdir()
             raise
+        if replacing is not None and not (is_free(aside / out.name) if replacing == ()
+                                          else output_stamp(aside / out.name) == replacing):
+            # replaced by another writer between the check above and the move: it goes back, untouched
+            os.replace(aside / out.name, out)
+            aside.rmdir()
+            raise OutputTaken(f"{label} {out}: another output was written there meanwhile; it is left as it is")
         try:
             os.replace(new, out)
         except BaseException:

@@ -33,6 +33,7 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
 from nao_skin.errors import NaoSkinError, one_line
+from nao_skin.formats.outdir import output_stamp
 from nao_skin.live.updates import Settling, UpdateSchedule
 from nao_skin.model.skin import SkinCalibration, skin_frame_transforms
 from nao_skin.nodes.runtime import declare, run_node
@@ -40,7 +41,7 @@ from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_s
 from nao_skin.nodes.topics import (GUIDANCE_TOPIC, LATCHED, MAX_SKIPPED_SAID, PROGRESS_TOPIC, REQUEST_TOPIC,
                                    STATUS_TOPIC)
 from nao_skin.plain import jsonable
-from nao_skin.session.live import LiveCalibration, output_stamp, request_out_dir, session_end_out_dir
+from nao_skin.session.live import LiveCalibration, request_out_dir, session_end_out_dir
 from nao_skin.session.params import CALIBRATE, guidance_pairs, options_from_params, skin_from_params
 
 
@@ -67,6 +68,7 @@ class CalibrateNode(Node):
         self._latched: dict = {}          # the status last published (latched)
         self._ignored = 0                 # requests refused while one calibration or update was running
         self._ended = False               # the session's end is published: nothing is published after it
+        self._written_stamp = None        # output_stamp of what the session's end wrote first, to replace
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
         self.guidance_pairs = guidance_pairs(self.p, self.skin)
@@ -85,6 +87,7 @@ class CalibrateNode(Node):
             self.create_timer(0.5, self._maybe_update)
         inputs = [i for i in self.p["inputs"] if i]
         if self.p["calibrate_on_start"]:
+            self._check_start(inputs)     # refused now, in one line and exit 2, not logged by a node that runs on
             self._start(inputs)
 
     def publish_calibration(self, calib: SkinCalibration, source: str, quiet: bool = False) -> None:
@@ -118,6 +121,22 @@ class CalibrateNode(Node):
         check_output(out_dir or self.p["out_dir"], [self.p["recording"], self.p["calibration"],
                                                     self.p["skin_config"], *self.skin.source_files()],
                      force=True, label="out_dir")
+
+    def _check_start(self, inputs: list) -> None:
+        """What the calibration at start reads and where it writes, as a request checks them: an input that is
+        not there, an out_dir that holds an input or what nao-skin did not write, one that cannot be written."""
+        import os
+
+        from nao_skin.calibration.pipeline import check_output
+        from nao_skin.errors import DataError
+
+        if not inputs:
+            raise DataError("parameter inputs: empty; calibrate_on_start needs the bags (or .txt files) to calibrate")
+        for path in inputs:
+            if not os.path.lexists(path):
+                raise DataError(f"parameter inputs: {path}: no such file or directory")
+        check_output(self.p["out_dir"], [*inputs, self.p["skin_config"], self.p["calibration"],
+                                         *self.skin.source_files()], force=True, label="out_dir")
 
     def _maybe_update(self) -> None:
         now = time.monotonic()
@@ -215,15 +234,20 @@ class CalibrateNode(Node):
             # the node replaces its own last output on every success (force), never a calibration it did not
             # write, one that holds an input or files nao-skin did not write; checked per request, before loading
             protected = [p["skin_config"], p["calibration"]]
-            out_dir, beside = request_out_dir(p["out_dir"], self._requested_out)
+            out_dir, replacing, beside = request_out_dir(p["out_dir"], self._requested_out)
             if beside:      # out_dir holds something: refused as ever when it is an input or not nao-skin's
                 check_output(p["out_dir"], [*paths, *protected, *self.skin.source_files()], force=True,
                              label="out_dir")
                 log.warning(beside)
+            # every request starts where the node did (``calibration``, or nominal), as nao-skin calibrate does:
+            # the same request gives the same calibration; only the place written may be the node's last output
             run = calibrate_recordings(paths, self.skin, self.options, out_dir, prior=self.prior,
                                        force=True, plots=bool(p["plots"]), label="out_dir", protected=protected,
-                                       command="calibrate (node)", log=log.info, summary=log.warning)
-            self.prior = run.result.calibration
+                                       command="calibrate (node)", log=log.info, summary=log.warning,
+                                       replacing=replacing, beside=".new")
+            if str(run.out_dir) != str(out_dir):
+                log.warning(f"{out_dir}: another output was written there while this calibration ran and is left"
+                            f" as it is; this one goes to {run.out_dir}")
             self._requested_out = (str(run.out_dir), output_stamp(run.out_dir))    # the node's own, to replace
             calibration = str(run.out_dir / "calibration.yaml")
             self.publish_calibration(run.result.calibration, calibration)
@@ -249,7 +273,8 @@ class CalibrateNode(Node):
         """End of the session: the last accepted live calibration is written where users apply it, at once
         (whatever comes next: an update that takes long, ros2 launch's SIGKILL about 10 s after Ctrl-C); then the
         touches recorded since it are calibrated too (a final update) and written over it."""
-        written = self.live.last if self.p["live"] else None
+        session = self.p["live"] and self.p["recording"]     # a live record session (not calibrate.launch.py)
+        written = self.live.last if session else None
         out = self._write_live(written) if written is not None else None
         if self._worker is not None:
             self._worker.join(timeout=10.0)
@@ -257,10 +282,10 @@ class CalibrateNode(Node):
                 self.get_logger().warning(f"stopped during the {self._worker.name}: it is not written (a staging"
                                           f" directory it left beside out_dir is removed by the next calibration"
                                           f" written there)")
-        if not self.p["live"]:
+        if not session:
             return
         complete = False                  # what is written covers every touch of the closed recording
-        if self.p["recording"] and not (self._worker is not None and self._worker.is_alive()):
+        if not (self._worker is not None and self._worker.is_alive()):
             complete = self._final_update()
         if self.live.last is not None and self.live.last is not written:      # an update accepted since
             out = self._write_live(self.live.last, out)
@@ -304,7 +329,15 @@ class CalibrateNode(Node):
                 self.get_logger().warning(moved)
         try:
             self._check_live_out_dir(out_dir)
-            return write_outputs(result, self.skin, out_dir, plots=False, command="calibrate (node, live)")
+            # a new place must still be free, the end's first write is the one to replace: another process's
+            # output written there meanwhile stays, this one goes beside it
+            wrote = write_outputs(result, self.skin, out_dir, plots=False, command="calibrate (node, live)",
+                                  replacing=self._written_stamp if written is not None else (), beside=".live")
+            if str(wrote) != str(out_dir):
+                self.get_logger().warning(f"{out_dir}: another output was written there during the session's end"
+                                          f" and is left as it is; the session's live calibration goes to {wrote}")
+            self._written_stamp = output_stamp(wrote)
+            return wrote
         except NaoSkinError as exc:
             if written is not None:       # the later one is not written: the one written before stays
                 self.get_logger().error(f"the final live calibration is not written ({exc}); {written} keeps the"

@@ -14,7 +14,6 @@ touches recorded since the last one, so that what is written covers them all.
 """
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +26,7 @@ from nao_skin.calibration.plan import pair_counts
 from nao_skin.errors import NaoSkinError, TooFewTouches, one_line
 from nao_skin.formats.bag import GrowingBag
 from nao_skin.formats.inputs import find_bag
-from nao_skin.formats.outdir import MARKER
+from nao_skin.formats.outdir import is_free, output_stamp
 from nao_skin.formats.salvage import recording_lock
 from nao_skin.live.updates import LiveUpdates, Settling
 from nao_skin.model.skin import SkinCalibration, SkinModel, pair_label
@@ -140,40 +139,19 @@ class LiveCalibration:
         return True
 
 
-def _free(out_dir) -> bool:
-    """Nothing there yet, or an empty directory: a place any output may take."""
-    path = Path(out_dir)
-    return not os.path.lexists(path) or (path.is_dir() and not path.is_symlink() and not any(path.iterdir()))
-
-
-def output_stamp(path: str | Path) -> tuple | None:
-    """What tells the node's own output from anything put at its path since: (device, inode, its output marker's
-    text). The inode alone does not: a directory removed and another made in its place may get the same one;
-    the marker says when it was written and by which command. A directory without a marker: its change time
-    (which a chmod changes too; an output marker does not)."""
-    try:
-        st = os.stat(path)
-    except OSError:
-        return None
-    try:
-        marker = (Path(path) / MARKER).read_bytes()
-    except OSError:
-        marker = st.st_ctime_ns
-    return st.st_dev, st.st_ino, marker
-
-
 def request_out_dir(out_dir: str | Path, own: tuple | None) -> tuple:
-    """``(directory, note or None)``: where the calibrate node writes a requested calibration. ``own``: ``(path,
+    """``(directory, replacing, note or None)``: where the calibrate node writes a requested calibration, and what
+    it may replace there (``replacing`` of :func:`~nao_skin.formats.outdir.replace_dir`). ``own``: ``(path,
     output_stamp)`` of the node's last output, which it may replace; else ``out_dir`` when it is free, or, when it
     holds a calibration the node did not write (an earlier run's, another command's), the first free
     ``<out_dir>.new``: the node never replaces what it was not asked to."""
     if own is not None and output_stamp(own[0]) == own[1]:
-        return own[0], None
-    if _free(out_dir):
-        return out_dir, None
+        return own[0], own[1], None
+    if is_free(out_dir):
+        return out_dir, (), None
     beside = free_sibling(out_dir, ".new")
-    return beside, (f"out_dir {out_dir} holds a calibration this node did not write (an earlier run's, or another"
-                    f" command's) and is left as it is; this one goes to {beside}")
+    return beside, (), (f"out_dir {out_dir} holds a calibration this node did not write (an earlier run's, or"
+                        f" another command's) and is left as it is; this one goes to {beside}")
 
 
 def session_end_out_dir(out_dir: str | Path, at_start, requested, requested_by: str) -> tuple:
@@ -184,7 +162,7 @@ def session_end_out_dir(out_dir: str | Path, at_start, requested, requested_by: 
     when the session started (``at_start``: its stamp then), or another command's (e.g. a
     calibrate --out of the bag so far); the live calibration goes beside it, and the warning says why.
     """
-    if _free(out_dir):
+    if is_free(out_dir):
         return out_dir, None
     now = output_stamp(out_dir)
     beside = free_sibling(out_dir, ".live")
