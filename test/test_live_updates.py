@@ -114,6 +114,43 @@ def test_a_diverged_update_is_rejected_and_a_first_calibration_is_not(skin, sess
     assert "non-finite" in rejection(skin, broken, {}, (), 20.0)
 
 
+def test_a_part_an_update_leaves_out_keeps_its_last_frames_and_stays_guarded(skin, session):
+    """A part calibrated before and left out of an update (its training touches fell below the minimum under a
+    new split) was published back at the session's start by an update from scratch, called "not calibrated" by
+    the guidance while the status said "converging", and the next update that calibrated it again was not
+    checked for divergence. Now it keeps its last accepted frames, says so, and stays guarded."""
+    import dataclasses
+
+    from nao_skin.errors import DataError
+    from nao_skin.live.updates import LiveUpdates
+
+    touches, _, first = session
+    assert {"r_hand", "l_hand", "torso"} <= set(first.report.parts)
+    fired = touches.parts_of_touch()
+    left = np.flatnonzero(fired[:, touches.part_index("l_hand")])
+    few_left = touches.subset(np.concatenate([np.flatnonzero(~fired[:, touches.part_index("l_hand")]), left[:5]]))
+    live = LiveUpdates(skin, skin.zero_calibration())
+    live.update(30, lambda args: first)
+
+    def from_scratch_only(args):
+        if args["warm"]:
+            raise TooFewTouches("the warm update failed")
+        return calibrate(few_left, skin, CalibrationOptions(max_repairings=1), **args)
+
+    result, _, arguments = live.update(few_left.n_touches, from_scratch_only)
+    assert not arguments["warm"] and "l_hand" not in result.report.parts
+    for frames in ("mount", "patches", "triangles"):
+        assert np.array_equal(getattr(result.calibration.parts["l_hand"], frames),
+                              getattr(first.calibration.parts["l_hand"], frames))
+    assert any("part 'l_hand': not calibrated by this update" in w for w in result.report.warnings)
+    assert "l_hand" in live.calibrated_parts
+    # calibrated again, 50 mm away: a divergence, as for any part calibrated before
+    far = first.calibration.copy()
+    far.parts["l_hand"].mount[0] += 0.05
+    with pytest.raises(DataError, match="part 'l_hand': its taxels would move"):
+        live.update(few_left.n_touches + 20, lambda args: dataclasses.replace(first, calibration=far))
+
+
 def test_done_needs_settled_taxels_and_a_flat_held_out_figure():
     settling = Settling(settle_mm=0.1, updates=3, flat_percent=5.0)
     assert settling.states(["r_hand", "l_hand"]) == {"r_hand": "collecting", "l_hand": "collecting"}

@@ -135,7 +135,7 @@ def run_capture(skin: SkinModel, seed: int, strategy: str, setup: CaptureSetup |
             continue
         tg = time.perf_counter()
         g = guidance(touches, skin, result, options, max_targets=setup.max_targets, seed=seed * 1000 + len(batches),
-                     pairs=cap.pairs)
+                     pairs=cap.pairs, calibrated_parts=live.calibrated_parts if setup.warm_start else None)
         guide_s.append(time.perf_counter() - tg)
         # as the simulated robot follows the guidance (nodes.sim_robot): each target a pose reaches, once
         aims = [Aim(t.hand, t.touched, t.hand_triangle_id, t.touched_triangle_id) for t in g.targets

@@ -98,11 +98,14 @@ class WarmStart:
         return result, arguments
 
     def accepted(self, result, n_touches: int, arguments: dict) -> None:
-        """An update's result was published: the next warm update goes on from its calibration, the parts it
-        calibrated and its fit's :attr:`~nao_skin.calibration.engine.CalibrationResult.state`."""
+        """An update's result was published: the next warm update goes on from its calibration, the parts
+        calibrated so far (this update's, and any an earlier one calibrated: its frames are held in this
+        one's, :meth:`LiveUpdates.update`) and its fit's
+        :attr:`~nao_skin.calibration.engine.CalibrationResult.state`."""
         if not arguments["warm"]:
             self.scratch_touches = n_touches
-        self.last, self.parts, self.state = result.calibration, tuple(result.report.parts), result.state
+        self.last, self.state = result.calibration, result.state
+        self.parts = tuple(dict.fromkeys([*self.parts, *result.report.parts]))
 
 
 def _test_taxel_mm(result) -> float:
@@ -214,6 +217,7 @@ class LiveUpdates:
         last accepted calibration stays), and whatever ``run`` raises."""
         result, arguments = self.warm_start.update(n_touches, run)
         before = self.warm_start.last or self.warm_start.start
+        self._hold_parts_left_out(result, before)
         moved = taxel_displacement_mm(self.skin, before, result.calibration, result.report.parts)
         why = rejection(self.skin, result.calibration, moved, self.warm_start.parts, self.max_move_mm)
         if why is not None:
@@ -221,3 +225,19 @@ class LiveUpdates:
         self.settling.add(moved, result.report.final.get("test", {}).get("taxel_mean_mm", float("nan")))
         self.warm_start.accepted(result, n_touches, arguments)
         return result, moved, arguments
+
+    @property
+    def calibrated_parts(self) -> tuple:
+        """The parts an accepted update has calibrated so far (each held since at its last value when an update
+        left it out)."""
+        return self.warm_start.parts
+
+    def _hold_parts_left_out(self, result, before: SkinCalibration) -> None:
+        """A part an earlier update calibrated and this one left out (its pairs' training touches fell below the
+        minimum, as a new split may make them) keeps its last accepted frames: an update from scratch would
+        otherwise publish it back at the session's start, and the next one would calibrate it anew unchecked."""
+        left_out = [p for p in self.warm_start.parts if p not in result.report.parts and p in before.parts]
+        for part in left_out:
+            result.calibration.parts[part] = before.parts[part].copy()
+            result.report.warnings.append(f"part '{part}': not calibrated by this update (too few touches in its"
+                                          f" training split); its frames stay at the last accepted update's")

@@ -190,7 +190,8 @@ class CalibrateNode(Node):
         from nao_skin.guidance.capture import guidance
 
         advice = guidance(touches, self.skin, self.live.last, self.options, pairs=self.guidance_pairs,
-                          max_targets=int(self.p["guidance_targets"]), seed=self.generation)
+                          max_targets=int(self.p["guidance_targets"]), seed=self.generation,
+                          calibrated_parts=self.live.updates.calibrated_parts)
         self.guidance_pub.publish(String(data=json.dumps({"generation": self.generation, **advice.to_dict()},
                                                          sort_keys=True)))
 
