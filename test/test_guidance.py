@@ -137,6 +137,22 @@ def test_capture_batches_concatenate_and_simulate_unchanged(skin):
     assert again.touches.keys == ref.touches.keys and np.array_equal(again.touches.act_slot, ref.touches.act_slot)
 
 
+def test_a_guided_batch_fills_what_its_aims_did_not_reach_with_random_touches(skin):
+    """The simulated robot played only the touches its aims reached (3 of a batch of 5), and with aims that
+    all missed fell back on random touches while its log said "aimed": one batch as the capture benchmark
+    makes it, for both, says how many were aimed."""
+    cap = CaptureSim(skin, {"pairs": PAIRS}, 3)
+    a = cap.random(10)
+    r = int(a.labels["target_triangle_row"][a.labels["pair"] == "l_hand-torso"][0])    # a torso triangle reached
+    aim = Aim("l_hand", "torso", None, int(skin.parts["torso"].triangle_ids[r]))
+    touches, aimed = cap.guided([aim, aim], 5)
+    kept, _ = deduplicate(touches)
+    assert aimed == 2 and kept.n_touches == 5
+    assert np.sum(np.asarray(touches.labels["aimed"])[np.asarray(touches.labels["duplicate_of"]) < 0]) == 2
+    touches, aimed = cap.guided([], 4)                       # no aim: a random batch
+    assert aimed == 0 and deduplicate(touches)[0].n_touches == 4 and not np.any(touches.labels["aimed"])
+
+
 def test_random_touches_split_over_the_pairs_by_weight(skin):
     """The oracle strategy of bench-capture sends a batch where the weights say; uniform without weights."""
     cap = CaptureSim(skin, {"pairs": PAIRS}, 2)

@@ -320,6 +320,46 @@ def test_the_session_end_writes_the_last_update_before_the_final_one_runs(tmp_pa
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cal", "touches"]      # replaced in place, nothing beside
 
 
+def test_guidance_after_a_failed_update_says_it_comes_from_the_last_accepted_calibration(tmp_path):
+    """After a refused update the guidance was published again under the last accepted calibration, with
+    the same generation and nothing saying so (one target was repeated 46 times while no update was
+    accepted). It now says so, and counts its own messages. The node runs in the test's process."""
+    from rclpy.parameter import Parameter
+
+    from nao_skin.nodes.calibrate import CalibrateNode
+
+    skin = load_skin()
+    touches = simulate(skin, {"pairs": [["r_hand", "torso"]], "n_touches": 45}, seed=6).touches
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, touches.subset(np.arange(30)), skin)
+    listener = node = None
+    published = []
+    try:
+        listener = Listener(unique_domain_id())
+        node = CalibrateNode(context=listener.context, parameter_overrides=[
+            Parameter("live", value=True), Parameter("recording", value=str(bag)),
+            Parameter("out_dir", value=str(tmp_path / "cal"))])
+        node.guidance_pub.publish = lambda msg: published.append(json.loads(msg.data))
+        for _ in range(2):
+            assert node._busy.acquire(blocking=False)      # as the schedule's tick does
+            node._live_update()
+            if len(published) == 1:                         # the next update diverges: refused
+                node.live.updates.max_move_mm = 1e-6
+                shutil.rmtree(bag)
+                write_touch_bag(bag, touches, skin)
+        assert node._latched["state"] == "failed", node._latched
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if listener is not None:
+            listener.close()
+    assert [g["sequence"] for g in published] == [1, 2]
+    assert published[0]["generation"] == published[1]["generation"]
+    assert not any("failed" in n for n in published[0]["notes"])
+    assert any(n.startswith("the last live update failed (update over") and "these targets are under the last"
+               " accepted calibration" in n for n in published[1]["notes"]), published[1]["notes"]
+
+
 def test_the_session_end_writes_the_last_update_at_once_while_a_live_update_still_runs(tmp_path):
     """Stopped while a live update runs, the node waited for it (up to 10 s) before writing anything: a SIGKILL
     then (ros2 launch sends one about 10 s after Ctrl-C) lost the calibration. It is written at once now; the

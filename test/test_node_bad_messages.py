@@ -28,7 +28,7 @@ from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, taxels_array, taxels
 from nao_skin.guidance.capture import targets_from_json  # noqa: E402
 from nao_skin.nodes.messages import cloud_from_array, joint_state_msg, stamp_to_msg  # noqa: E402
 from nao_skin.nodes.topics import (GUIDANCE_MARKERS_TOPIC, GUIDANCE_TOPIC, LATCHED, PROGRESS_TOPIC,  # noqa: E402
-                                   STATUS_TOPIC)
+                                   SIM_STATUS_TOPIC, STATUS_TOPIC)
 
 GOOD = {"part": "torso", "triangle_id": 3, "hand": "l_hand", "touched": "torso", "reason": "held",
         "hand_triangle_id": None, "touched_triangle_id": 3, "pose": {"LShoulderPitch": 0.5}}
@@ -51,6 +51,50 @@ def test_the_guidance_parser_keeps_this_skins_targets_and_counts_the_rest(skin):
     huge = json.dumps({"targets": [GOOD]}).replace('"LShoulderPitch": 0.5', '"LShoulderPitch": ' + "9" * 400)
     (target,), skipped = targets_from_json(huge, skin)
     assert target["pose"] is None and skipped == 0
+
+
+def test_the_guidance_parser_reads_the_first_targets_only(skin):
+    """20000 targets held the heat-map node for 7 s and drew 40000 markers."""
+    targets, skipped = targets_from_json(json.dumps({"targets": [GOOD] * 20_000}), skin)
+    assert len(targets) == 100 and skipped == 0
+
+
+@pytest.mark.middleware
+def test_rviz_tells_targets_no_pose_reaches_and_the_robot_plays_no_more_than_its_touches(tmp_path):
+    """Targets without a pose were drawn and labelled as reachable ones; a guided robot told to start with more
+    random touches than it has played them all (43 of 8)."""
+    from nao_skin.live.heatmap import GUIDANCE_COLOUR
+    from nao_skin.nodes.skin_heatmap import UNREACHED_ALPHA
+
+    domain = unique_domain_id()
+    env = ros_env(domain)
+    listener = None
+    nodes = []
+    try:
+        listener = Listener(domain)
+        markers = listener.subscribe(MarkerArray, GUIDANCE_MARKERS_TOPIC, qos=LATCHED)
+        robot = listener.subscribe(String, SIM_STATUS_TOPIC, keep=lambda m: json.loads(m.data))
+        nodes = [node_process("skin_heatmap", {}, env, tmp_path),
+                 node_process("sim_robot", {"guided": True, "touches_per_pair": 2, "guided_start": 40,
+                                            "pairs": ["l_hand-torso"], "touch_period": 0.6,
+                                            "wait_for_subscribers": 0}, env, tmp_path)]
+        guidance = listener.node.create_publisher(String, GUIDANCE_TOPIC, LATCHED)
+        assert listener.spin_until(lambda: guidance.get_subscription_count() >= 2, timeout=60, procs=nodes)
+        guidance.publish(String(data=json.dumps({"targets": [GOOD, {**GOOD, "triangle_id": 4, "pose": None}]})))
+        labels = lambda: {m.text: m.color.a for m in markers[-1].markers if m.ns == "guidance_label"} \
+            if markers else {}  # noqa: E731
+        assert listener.spin_until(lambda: len(labels()) == 2, timeout=30, procs=nodes), labels()
+        assert listener.spin_until(lambda: robot and robot[-1]["done"], timeout=30, procs=nodes), robot[-1:]
+    finally:
+        if listener is not None:
+            listener.close()
+        codes = [node.stop() for node in nodes]
+    assert labels() == {"1: torso triangle 3 with l_hand (held)": GUIDANCE_COLOUR[3],
+                        "2: torso triangle 4 with l_hand (held; no pose reaches it)": pytest.approx(UNREACHED_ALPHA)}
+    # the simulator records a touch twice now and then (a defect it plays as a robot's): at most one more
+    assert robot[-1]["total"] == 2 and robot[-1]["played"] <= 3 and robot[-1]["done"], robot[-1]
+    assert robot[-1]["aimed"] == 0 and robot[-1]["missed_aims"] == 0, robot[-1]
+    assert codes == [0, 0], [node.stderr()[-2000:] for node in nodes]
 
 
 @pytest.mark.middleware

@@ -140,6 +140,22 @@ def test_activation_counts_count_presses_not_samples():
     assert palette().shape == (SCALE_LEVELS + 2, 4)
 
 
+def test_a_part_whose_skin_stream_goes_silent_is_released():
+    """A skin stream stopped mid-press (skinManager gone, a bridge killed: no released sample comes) left its
+    taxels red, "pressed now", for the rest of the session."""
+    h = ActivationCounts({"a": 10, "b": 4})
+    h.update("a", [1, 2], when=10.0)
+    h.update("b", [0], when=10.0)
+    h.release_silent(10.4)                                  # streaming at ~50 Hz: a pause this short is no gap
+    assert h.pressed["a"].sum() == 2
+    h.update("b", [0], when=10.5)
+    h.release_silent(10.6)                                  # 'a' silent for 0.6 s: released; 'b' still pressed
+    assert not h.pressed["a"].any() and h.pressed["b"][0]
+    np.testing.assert_array_equal(h.counts["a"][[1, 2]], [1, 1])            # what was pressed is still counted
+    h.update("a", [1, 2], when=11.0)                        # pressed again: a new press
+    np.testing.assert_array_equal(h.counts["a"][[1, 2]], [2, 2])
+
+
 def test_triangle_slots_cover_every_present_taxel_once():
     skin = load_skin()
     for part in skin.parts.values():

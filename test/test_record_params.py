@@ -340,6 +340,32 @@ def test_record_refuses_a_guided_start_the_simulated_robot_would_refuse(tmp_path
     assert "--param sim_robot.guided_start=0" in line, line
 
 
+@pytest.mark.parametrize("off, says", [
+    (["--param", "calibrate.guidance=false"], "(calibrate.guidance=false here)"),
+    (["--param", "calibrate.live=false"], "(calibrate.live=false here)"),
+    (["--param", "calibrate.live=false", "--param", "calibrate.guidance=false"],
+     "(calibrate.live=false and calibrate.guidance=false here)"),
+])
+def test_record_refuses_a_guided_robot_without_the_guidance_it_follows(tmp_path, off, says):
+    """`record --guided` with the calibrate node's guidance or live updates off exited 0 and played random
+    touches only, every batch logged 'random (no guidance yet)'."""
+    line = one_error_line(nao_skin(["record", "--print", "--guided", "--bag", str(tmp_path / "b"), *off]))
+    assert "sim_robot.guided=true follows the guidance" in line and says in line, line
+    run = nao_skin(["record", "--print", "--bag", str(tmp_path / "b"), *off])     # not guided: fine
+    assert run.returncode == 0, run.stderr
+
+
+@pytest.mark.parametrize("pairs, bad", [("[head-torso]", "head-torso"), ("[torso-l_hand]", "torso-l_hand"),
+                                        ("[l_hand-torso, r_hand-l_hand]", "r_hand-l_hand")])
+def test_record_refuses_guidance_pairs_no_self_touch_makes(tmp_path, pairs, bad):
+    """guidance_pairs took any two parts: with head-torso the guidance named 48 of 48 targets unreachable,
+    one triangle twice."""
+    line = one_error_line(nao_skin(["record", "--print", "--bag", str(tmp_path / "b"),
+                                    "--param", f"calibrate.guidance_pairs={pairs}"]))
+    assert f"parameter guidance_pairs: '{bad}' is not a self-touch pair of the skin config" in line, line
+    assert "l_hand-torso" in line and "r_hand-head" in line
+
+
 def test_record_checks_the_parameters_where_rclpy_is_not_installed(tmp_path):
     """The nodes' parameters are plain data (nao_skin.session.params): `record --print` with an override
     checked them by importing the node modules, which import rclpy, and ended in a traceback without it."""

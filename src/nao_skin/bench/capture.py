@@ -140,13 +140,7 @@ def run_capture(skin: SkinModel, seed: int, strategy: str, setup: CaptureSetup |
         # as the simulated robot follows the guidance (nodes.sim_robot): each target a pose reaches, once
         aims = [Aim(t.hand, t.touched, t.hand_triangle_id, t.touched_triangle_id) for t in g.targets
                 if t.pose is not None and t.hand_triangle_id is not None and (t.hand, t.touched) in cap.pairs][:n]
-        got = cap.aimed(aims) if aims else None
-        short = n
-        if got is not None and got.n_touches:
-            batches.append(got)
-            short -= deduplicate(got)[0].n_touches
-        if short > 0:
-            batches.append(cap.random(short))
+        batches.append(cap.guided(aims, n)[0])
     final = trace[-1]
     return {"seed": seed, "strategy": strategy, "needed": needed, "touches": final["touches"],
             "worst_median_mm": final["worst_median_mm"], "worst_p95_mm": final["worst_p95_mm"],

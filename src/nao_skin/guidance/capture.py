@@ -74,6 +74,7 @@ TIER_NEW, TIER_HELD, TIER_WEAK = 3, 2, 1
 DEFICIT_SPAN = 0.99     # a tier's scores stay below the next tier's
 # the pose search of a suggestion: fewer restarts than the simulator, it runs after every live update
 GUIDANCE_POSE = {"pose_restarts": 6, "pose_iterations": 40}
+MAX_READ_TARGETS = 100   # targets a consumer of the guidance message reads, best first
 
 
 @dataclass
@@ -134,9 +135,11 @@ class Guidance:
                 "coverage": {k: v.to_dict() for k, v in self.coverage.items()}, "notes": list(self.notes)}
 
 
-def targets_from_json(text: str, skin: SkinModel) -> tuple:
+def targets_from_json(text: str, skin: SkinModel, limit: int = MAX_READ_TARGETS) -> tuple:
     """The targets of a guidance message (``Guidance.to_dict`` as JSON) that name this skin's parts and
-    triangles, as dicts with the fields a consumer reads, checked: ``(targets, skipped)``.
+    triangles, as dicts with the fields a consumer reads, checked: ``(targets, skipped)``. Only the first
+    ``limit`` are read (best first: a robot aims at a handful, RViz shows them; 20000 held the heat-map
+    node for 7 s and drew 40000 markers).
 
     What arrives on a topic is anybody's: a message that is not the guidance's JSON is a DataError, a
     target that names another skin's part or triangle, or whose fields have the wrong type, is skipped
@@ -158,6 +161,7 @@ def targets_from_json(text: str, skin: SkinModel) -> tuple:
         ok = isinstance(value, int) and not isinstance(value, bool) and value in skin.parts[part].triangle_ids
         return value if ok else None
 
+    targets = targets[:limit]
     out = []
     for t in targets:
         if not isinstance(t, dict) or not all(isinstance(t.get(k), str) and t[k] in skin.parts

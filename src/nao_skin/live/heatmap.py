@@ -43,15 +43,20 @@ def colour_index(counts: np.ndarray, pressed: np.ndarray, max_count: int) -> np.
     return np.where(pressed, PRESSED_INDEX, idx)
 
 
+SILENT_RELEASE_S = 0.5    # a part whose skin stream is silent this long counts as released (it streams at ~50 Hz)
+
+
 class ActivationCounts:
     """Per part: how often each slot has been activated, and what is pressed now."""
 
     def __init__(self, slots_per_part: dict):
         self.counts = {p: np.zeros(n, dtype=np.int64) for p, n in slots_per_part.items()}
         self.pressed = {p: np.zeros(n, dtype=bool) for p, n in slots_per_part.items()}
+        self.heard = {p: -np.inf for p in slots_per_part}      # when each part's last sample came (s)
 
-    def update(self, part: str, slots) -> None:
-        """One skin sample of ``part``: ``slots`` are active now (empty = released)."""
+    def update(self, part: str, slots, when: float = 0.0) -> None:
+        """One skin sample of ``part`` at time ``when`` (s): ``slots`` are active now (empty = released)."""
+        self.heard[part] = when
         now = np.zeros_like(self.pressed[part])
         slots = np.asarray(slots, dtype=np.int64)
         slots = slots[(slots >= 0) & (slots < len(now))]
@@ -60,6 +65,13 @@ class ActivationCounts:
         if started.any() or (now != self.pressed[part]).any():
             self.counts[part] += started
             self.pressed[part] = now
+
+    def release_silent(self, when: float, gap: float = SILENT_RELEASE_S) -> None:
+        """Parts silent for more than ``gap`` s at ``when`` are released: a skin stream pauses only when its
+        source is gone (skinManager stopped, a bridge killed), which sends no released sample."""
+        for part, heard in self.heard.items():
+            if when - heard > gap and self.pressed[part].any():
+                self.pressed[part][:] = False
 
     def max_count(self) -> int:
         return max((int(c.max()) for c in self.counts.values() if len(c)), default=0)

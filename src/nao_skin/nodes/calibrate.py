@@ -69,6 +69,7 @@ class CalibrateNode(Node):
         self._ignored = 0                 # requests refused while one calibration or update was running
         self._ended = False               # the session's end is published: nothing is published after it
         self._written_stamp = None        # output_stamp of what the session's end wrote first, to replace
+        self._guidance_sequence = 0       # guidance messages published
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
         self.guidance_pairs = guidance_pairs(self.p, self.skin)
@@ -179,20 +180,26 @@ class CalibrateNode(Node):
                               "parts": self.live.parts_state()})
             try:
                 if out.touches is not None and self.p["guidance"]:
-                    self._publish_guidance(out.touches)
+                    self._publish_guidance(out.touches, out.status)
             except Exception as exc:  # noqa: BLE001 - guidance is advice: its failure never stops the session
                 log.warning(f"guidance not updated: {one_line(exc)}")
         finally:
             self._busy.release()
 
-    def _publish_guidance(self, touches) -> None:
-        """Where to touch next under the last accepted calibration (nominal before the first), latched JSON."""
+    def _publish_guidance(self, touches, status: dict) -> None:
+        """Where to touch next under the last accepted calibration (nominal before the first), latched JSON;
+        ``generation``: that calibration's on /tf_static, ``sequence``: this guidance's own count."""
         from nao_skin.guidance.capture import guidance
 
         advice = guidance(touches, self.skin, self.live.last, self.options, pairs=self.guidance_pairs,
                           max_targets=int(self.p["guidance_targets"]), seed=self.generation,
                           calibrated_parts=self.live.updates.calibrated_parts)
-        self.guidance_pub.publish(String(data=json.dumps({"generation": self.generation, **advice.to_dict()},
+        if status.get("state") == "failed":     # said: the targets come from an older calibration than the touches
+            advice.notes.append(f"the last live update failed ({status.get('error')}); these targets are under the"
+                                f" last accepted calibration (generation {self.generation})")
+        self._guidance_sequence += 1
+        self.guidance_pub.publish(String(data=json.dumps({"generation": self.generation,
+                                                          "sequence": self._guidance_sequence, **advice.to_dict()},
                                                          sort_keys=True)))
 
     def _status(self, info: dict) -> None:

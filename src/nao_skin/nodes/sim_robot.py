@@ -52,7 +52,8 @@ class SimRobot(Node):
         if self.guided:
             self.capture = CaptureSim(self.skin, params, int(p["seed"]))
             self.total = int(p["touches_per_pair"]) * len(self.capture.pairs)
-            self.batch = (int(p["guided_start"]), int(p["guided_batch"]))
+            self.batch = (min(int(p["guided_start"]), self.total), int(p["guided_batch"]))
+            self.aimed = 0                # touches aimed at a guidance target (the rest are random)
             self.playback = Playback(self.capture.random(self.batch[0]), self.skin, *self.timing)
             self.create_subscription(String, GUIDANCE_TOPIC, self._on_guidance, LATCHED)
             self.get_logger().info(f"guided: {self.batch[0]} random touches, then batches of {self.batch[1]} aimed"
@@ -140,11 +141,15 @@ class SimRobot(Node):
         pairs = set(self.capture.pairs)
         aims = [Aim(t["hand"], t["touched"], t["hand_triangle_id"], t["touched_triangle_id"])
                 for t in self.targets if t["pose"] is not None and (t["hand"], t["touched"]) in pairs][:n]
-        touches = self.capture.aimed(aims) if aims else None
-        if touches is None or touches.n_touches == 0:
-            touches = self.capture.random(n)
-        self.get_logger().info(f"next {touches.n_touches} touches: "
-                               + (f"aimed at {len(aims)} guidance targets" if aims else "random (no guidance yet)"))
+        touches, aimed = self.capture.guided(aims, n)
+        self.aimed += aimed
+        if aims:
+            missed = f" ({len(aims) - aimed} of {len(aims)} aims reached no firing press)" if aimed < len(aims) else ""
+            how = f"{aimed} aimed at guidance targets{missed}, {touches.n_touches - aimed} random"
+        else:
+            how = ("random (no guidance yet)" if not self.targets
+                   else f"random (none of the guidance's {len(self.targets)} targets has a pose for a pair played here)")
+        self.get_logger().info(f"next {touches.n_touches} touches: {how}")
         return touches
 
     def _publish(self, t: float, tick: int) -> int:
@@ -168,8 +173,10 @@ class SimRobot(Node):
         return k
 
     def _publish_status(self) -> None:
-        self.status_pub.publish(String(data=json.dumps({"played": self.played, "total": self.total,
-                                                        "done": self.done})))
+        status = {"played": self.played, "total": self.total, "done": self.done}
+        if self.guided:       # how the touches were chosen: aimed at the guidance, or random
+            status.update(aimed=self.aimed, missed_aims=self.capture.missed)
+        self.status_pub.publish(String(data=json.dumps(status)))
 
     def close(self) -> None:
         self._stop.set()

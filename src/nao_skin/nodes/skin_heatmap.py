@@ -20,6 +20,7 @@ over its mount (namespace ``state``).
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 from builtin_interfaces.msg import Duration
@@ -40,6 +41,7 @@ from nao_skin.nodes.topics import (GUIDANCE_MARKERS_TOPIC, GUIDANCE_TOPIC, HEATM
 from nao_skin.session.params import SKIN_HEATMAP, skin_from_params
 
 STATE_COLOURS = {"collecting": (0.6, 0.6, 0.6, 1.0), "converging": (1.0, 0.8, 0.2, 1.0), "done": (0.2, 1.0, 0.4, 1.0)}
+UNREACHED_ALPHA = 0.35   # a guidance target no pose reaches, drawn faint
 LEGEND_NS = "legend"
 LEGEND_HEIGHT = 0.12      # m: height of the colour bar
 
@@ -68,7 +70,8 @@ class SkinHeatmap(Node):
         self.publisher = self.create_publisher(MarkerArray, HEATMAP_TOPIC, 10)
         for n in self.skin.parts:
             self.create_subscription(PointCloud2, taxels_topic(n), lambda m, n=n: self._on_taxels(n, m), 200)
-        self.errors = 0
+        self.errors = 0                   # skin samples skipped
+        self.status_errors = 0            # status messages skipped
         self.published = 0
         self.create_timer(1.0 / float(p["rate"]), self._publish)
         self.guidance_pub = self.create_publisher(MarkerArray, GUIDANCE_MARKERS_TOPIC, LATCHED)
@@ -85,7 +88,7 @@ class SkinHeatmap(Node):
             if self.errors <= MAX_SKIPPED_SAID:
                 self.get_logger().warning(f"skipped: {exc}")
             return
-        self.counts.update(part, slots)
+        self.counts.update(part, slots, time.monotonic())
 
     def _on_guidance(self, msg: String) -> None:
         try:
@@ -106,8 +109,8 @@ class SkinHeatmap(Node):
             return                        # a status of no live update (a calibration published): no states
         states = status.get("parts") if isinstance(status, dict) else None
         if not isinstance(states, dict):
-            self.errors += 1
-            if self.errors <= MAX_SKIPPED_SAID:
+            self.status_errors += 1
+            if self.status_errors <= MAX_SKIPPED_SAID:
                 self.get_logger().warning(f"skipped a malformed {STATUS_TOPIC} message ({msg.data[:80]!r}: expected"
                                           f" JSON with a 'parts' mapping)")
             return
@@ -123,18 +126,23 @@ class SkinHeatmap(Node):
         clear.action = Marker.DELETEALL
         markers = [clear]
         colour = ColorRGBA(r=GUIDANCE_COLOUR[0], g=GUIDANCE_COLOUR[1], b=GUIDANCE_COLOUR[2], a=GUIDANCE_COLOUR[3])
+        # a target no pose reaches under the current calibration: faint, and its label says so
+        faint = ColorRGBA(r=GUIDANCE_COLOUR[0], g=GUIDANCE_COLOUR[1], b=GUIDANCE_COLOUR[2], a=UNREACHED_ALPHA)
         for rank, t in enumerate(self.targets, start=1):
+            reached = t["pose"] is not None
             part = self.skin.parts[t["part"]]
             frame = part.triangle_frame(int(t["triangle_id"]))
             outline = triangle_outline(part, int(t["triangle_id"]))
-            line = self._marker(frame, "guidance", rank, Marker.LINE_STRIP, stamp, colour)
+            line = self._marker(frame, "guidance", rank, Marker.LINE_STRIP, stamp, colour if reached else faint)
             line.scale.x = 0.0015
             line.points = [Point(x=float(v[0]), y=float(v[1]), z=float(v[2])) for v in outline]
-            label = self._marker(frame, "guidance_label", rank, Marker.TEXT_VIEW_FACING, stamp, colour)
+            label = self._marker(frame, "guidance_label", rank, Marker.TEXT_VIEW_FACING, stamp,
+                                 colour if reached else faint)
             label.pose.position.z = 0.012
             label.scale.z = 0.008
             other = t["touched"] if t["part"] == t["hand"] else t["hand"]
-            label.text = f"{rank}: {t['part']} triangle {t['triangle_id']} with {other} ({t.get('reason', '')})"
+            why = t.get("reason", "") + ("" if reached else "; no pose reaches it")
+            label.text = f"{rank}: {t['part']} triangle {t['triangle_id']} with {other} ({why})"
             markers += [line, label]
         for i, (name, state) in enumerate(sorted(self.states.items())):
             part = self.skin.parts[name]
@@ -184,6 +192,7 @@ class SkinHeatmap(Node):
 
     def _publish(self) -> None:
         stamp = self.get_clock().now().to_msg()
+        self.counts.release_silent(time.monotonic())
         colours = {n: self.counts.colour_indices(n) for n in self.skin.parts}
         get = self.palette.__getitem__
         for name, slots, m in self.markers:

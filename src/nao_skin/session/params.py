@@ -213,7 +213,14 @@ def check_sim_robot(p: dict, where: str = "sim_robot") -> tuple:
 def guidance_pairs(p: dict, skin: SkinModel) -> tuple:
     """The calibrate node's ``guidance_pairs``: 'hand-part' strings to (hand, part) pairs of the skin's parts;
     none given: the skin config's self-touch pairs (the four thesis pairs on the Nao)."""
-    return parse_pairs(p["guidance_pairs"], skin.parts, "parameter guidance_pairs:") or skin.self_touch.pairs()
+    given = parse_pairs(p["guidance_pairs"], skin.parts, "parameter guidance_pairs:")
+    touching = skin.self_touch.pairs()
+    for hand, part in given:
+        if (hand, part) not in touching:     # the guidance would ask for a press no pose makes
+            raise ConfigError(f"parameter guidance_pairs: '{hand}-{part}' is not a self-touch pair of the skin config"
+                              f" (a hand of its 'touching' pressed on a part it touches: "
+                              f"{', '.join(f'{h}-{b}' for h, b in touching)})")
+    return given or touching
 
 
 def check_calibrate(p: dict, where: str = "calibrate") -> None:

@@ -160,6 +160,7 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
         _check_printable(spec)
         if spec.ours:
             _check_together(spec, spec.name in own_skin)
+    _check_guided(by_name)
     _check_files(bag_path, calibration, by_name["calibrate"].overrides)
     return specs
 
@@ -183,6 +184,19 @@ def _check_together(spec: NodeSpec, own_skin: bool = False) -> None:
     reads_own_skin = own_skin and spec.name in SKIN_NODES
     if check is None and not reads_own_skin:
         return
+    values = _start_values(spec)
+    where = f"node {spec.name} (parameters from {', '.join(map(str, spec.params_files)) or 'its defaults'} and --param)"
+    if reads_own_skin:
+        try:
+            skin_from_params(values)
+        except NaoSkinError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+    if check is not None:
+        check(values, where)
+
+
+def _start_values(spec: NodeSpec) -> dict:
+    """The parameters a node of ours starts with: declared defaults, then its parameter files, then the overrides."""
     values = node_parameters(spec)
     for path in spec.params_files:
         doc = read_ros_params_file(path)
@@ -192,14 +206,21 @@ def _check_together(spec: NodeSpec, own_skin: bool = False) -> None:
             if isinstance(given, dict):
                 values.update(given)
     values.update(spec.overrides)
-    where = f"node {spec.name} (parameters from {', '.join(map(str, spec.params_files)) or 'its defaults'} and --param)"
-    if reads_own_skin:
-        try:
-            skin_from_params(values)
-        except NaoSkinError as exc:
-            raise ConfigError(f"{where}: {exc}") from None
-    if check is not None:
-        check(values, where)
+    return values
+
+
+def _check_guided(by_name: dict) -> None:
+    """A simulated robot that follows the guidance needs a calibrate node that publishes it (live updates with
+    guidance): else every touch of a "guided" session is random, and nothing said so."""
+    robot, calibrate = by_name.get("sim_robot"), by_name.get("calibrate")
+    if robot is None or calibrate is None or not _start_values(robot).get("guided"):
+        return
+    values = _start_values(calibrate)
+    off = [f"calibrate.{name}=false" for name in ("live", "guidance") if not values.get(name)]
+    if off:
+        raise ConfigError(f"sim_robot.guided=true follows the guidance, which the calibrate node publishes only with"
+                          f" live updates and guidance on ({' and '.join(off)} here); drop --guided or the"
+                          f" {' and '.join(o.split('=')[0] for o in off)} setting")
 
 
 def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> None:

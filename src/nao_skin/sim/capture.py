@@ -40,6 +40,7 @@ from nao_skin.sim.params import SimParams, check_pairs, make_params, pair_list
 from nao_skin.sim.poses import PoseSet, Spots, choose_spots, solve_spots
 from nao_skin.sim.simulate import _assemble, _keep_firing, _pair_activations
 from nao_skin.sim.truth import draw_truth
+from nao_skin.touch.datasets import deduplicate
 from nao_skin.touch.touches import TouchSet
 
 CAPTURE_STREAM = 0xCA97       # the capture's own random stream, beside simulate()'s
@@ -110,6 +111,19 @@ class CaptureSim:
             if len(poses.q):
                 per_pair.append((hand, target, poses))
         return self._record(per_pair, aimed=True)
+
+    def guided(self, aims, n: int) -> tuple:
+        """``n`` touches as a robot following the guidance makes them: one aimed at each of ``aims[:n]``, random
+        ones for the rest, the aims no pose reached among them: ``(touches, how many were aimed)``."""
+        aims = list(aims)[:n]
+        got = self.aimed(aims) if aims else None
+        batches, aimed = [], 0
+        if got is not None and got.n_touches:
+            batches.append(got)
+            aimed = deduplicate(got)[0].n_touches
+        if n - aimed > 0:
+            batches.append(self.random(n - aimed))
+        return (batches[0] if len(batches) == 1 else TouchSet.concatenate(batches)), aimed
 
     # ------------------------------------------------------------------ poses
     def _solve(self, hand, target, t_spots: Spots, h_spots: Spots):
