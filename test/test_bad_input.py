@@ -890,6 +890,11 @@ def test_a_layout_replaces_a_configured_part_and_never_adds_one(tmp_path):
     with pytest.raises(ConfigError, match=r"--taxels head=.*: unknown skin part 'head' \(configured in .*headless"
                                           r"\.yaml: l_hand, r_hand, torso\)"):
         load_skin(headless, taxel_files={"head": REAL / "l_hand.taxels.txt"})
+    # a node's parameter is named as such, not as the command line's --taxels
+    from nao_skin.session.params import skin_from_params
+
+    with pytest.raises(ConfigError, match=r"^parameter taxels foo=.*: unknown skin part 'foo'"):
+        skin_from_params({"skin_config": "", "taxels": [f"foo={REAL / 'l_hand.taxels.txt'}"]})
 
 
 def test_nodes_build_the_skin_as_the_commands_do():

@@ -846,14 +846,15 @@ def parse_taxel_files(items, where: str = "--taxels") -> dict:
 
 
 def load_skin(skin_config: str | Path | None = None, taxel_files: Mapping[str, str | Path] | None = None,
-              robot_config: str | Path | None = None) -> SkinModel:
+              robot_config: str | Path | None = None, where: str = "--taxels") -> SkinModel:
     """The skin every command uses: the skin config, with the named parts' layouts from their own files.
 
     A part named in ``taxel_files`` (one the config has) keeps its chain from
     the config and takes its layout from the file, e.g. a
     recording's own, grouped by the config's patch table (and placed by its
     nominal mount) where that table places every triangle of the file, else 16
-    triangles per patch; every other part stays as configured.
+    triangles per patch; every other part stays as configured. ``where``: how the user named the files
+    (``--taxels``, a node's ``parameter taxels``), for the one line that refuses them.
     """
     from nao_skin.paths import default_skin_config
 
@@ -862,7 +863,7 @@ def load_skin(skin_config: str | Path | None = None, taxel_files: Mapping[str, s
     parts = dict(skin.parts)
     for name, path in (taxel_files or {}).items():
         if name not in parts:
-            raise ConfigError(f"--taxels {name}={path}: unknown skin part '{name}' (configured in {skin.source}:"
+            raise ConfigError(f"{where} {name}={path}: unknown skin part '{name}' (configured in {skin.source}:"
                               f" {', '.join(parts)})")
         chain = parts[name].chain
         was = skin.parts.get(name)

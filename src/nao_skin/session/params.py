@@ -173,7 +173,8 @@ def per_part_params(executable: str, parts) -> dict:
 
 def skin_from_params(params: dict) -> SkinModel:
     """The skin model of a node's ``skin_config`` and ``taxels`` parameters (:data:`SKIN_PARAMS`)."""
-    return load_skin(params["skin_config"] or None, parse_taxel_files(params["taxels"], "parameter taxels"))
+    return load_skin(params["skin_config"] or None, parse_taxel_files(params["taxels"], "parameter taxels"),
+                     where="parameter taxels")
 
 
 def options_from_params(params: dict) -> CalibrationOptions:
