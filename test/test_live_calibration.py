@@ -127,7 +127,7 @@ def test_the_session_end_calibrates_the_touches_since_the_last_update_and_says_w
     end = status[-1]
     out = tmp_path / "touches_calibration"
     assert end["calibration"] == str(out / "calibration.yaml") and end["touches"] == end["recorded"] == recorded, end
-    assert end["complete"] is True, end
+    assert end["complete"] is True and end["duplicates"] == 0, end
     assert f"the last live calibration (all {recorded} touches) -> {out}" in err, err[-3000:]
     # one more generation, published: the final update's frames (the status is latched with depth 1: the
     # listener, not spinning while the session stopped, kept the last status only)

@@ -195,7 +195,7 @@ def test_a_refresh_keeps_the_warm_update_when_its_held_out_touches_pair_closer(s
         return calibrate(touches, skin, CalibrationOptions(), **args)
 
     result, arguments = updates.update(60, run)              # 60 >= 2 x 30: a refresh
-    assert ran == [False, True]
+    assert ran == [False, True] and updates.refreshed         # said in the status: its seconds are both runs
     scratch, warm = (calibrate(touches, skin, CalibrationOptions(), **a)
                      for a in ({"prior": updates.start}, {"prior": first.calibration, "warm": first.report.parts,
                                                           "anchor": updates.start, "resume": first.state}))
@@ -205,7 +205,7 @@ def test_a_refresh_keeps_the_warm_update_when_its_held_out_touches_pair_closer(s
     updates.accepted(result, 60, arguments)
     ran.clear()
     updates.update(100, run)                                  # < 2 x 60: warm only
-    assert ran == [True]
+    assert ran == [True] and not updates.refreshed
 
 
 def test_a_refresh_stands_alone_when_the_warm_update_fails(skin, session):
@@ -258,6 +258,7 @@ def test_a_live_session_updates_waits_and_fails_without_raising(skin, session, t
     recorded(n - 10)
     second = session_live.update()
     assert second.status["state"] == "updated" and not second.status["from_scratch"]
+    assert not first.status["refresh"] and not second.status["refresh"]
     assert set(second.status["parts"]) == set(skin.parts)
     # the session's report.md: a warm update measured its final figures only; its other rows said 0 touches
     from nao_skin.calibration.report import markdown_report

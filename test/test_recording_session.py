@@ -96,6 +96,15 @@ def test_a_stream_that_never_comes_is_said_once_and_in_the_last_line(skin, tmp_p
     assert recording.close().endswith("{} (no skin samples ever arrived)")
     fresh = TouchRecording(skin, LIVE_CONFIG, tmp_path / "other", "sqlite3")
     assert fresh.close().endswith("{} (no joint states and no skin samples ever arrived)")
+    # the simulated robot's session: no bridge to blame (a 2400-touch robot simulates for 12 s before it plays,
+    # and the warning sent the operator to NAOqi and skinManager)
+    from nao_skin.formats.bag import SIMULATED
+
+    simulated = TouchRecording(skin, LIVE_CONFIG, tmp_path / "sim", "sqlite3", recorded_from=SIMULATED)
+    said = simulated.silence_warnings(12.0)
+    assert len(said) == 2 and all("is sim_robot running? It simulates all its touches" in line for line in said)
+    assert not any("naoqi_bridge" in line or "yarp" in line for line in said)
+    simulated.close()
 
 
 def test_joint_states_that_stop_mid_session_are_said_while_touches_are_lost_and_counted_at_the_end(skin, tmp_path):

@@ -66,6 +66,7 @@ class WarmStart:
     parts: tuple = ()                       # the parts it calibrated
     scratch_touches: int = 0                # touches of the last update from scratch
     state: object = None                    # the last accepted update's CalibrationResult.state
+    refreshed: bool = False                 # the last update ran from scratch and warm, and kept the closer
 
     def arguments(self, n_touches: int) -> dict:
         """``prior``, ``warm``, ``anchor`` and ``resume`` of :func:`~nao_skin.calibration.engine.calibrate`
@@ -84,10 +85,12 @@ class WarmStart:
         taxel pairs are closer (mean, mm) is returned; either way the refresh is done for ``refresh`` times
         more touches. Hand both to :meth:`accepted` when the result is published."""
         arguments = self.arguments(n_touches)
+        self.refreshed = False
         result = run(arguments)
         if arguments["warm"] or self.last is None or not self.parts:
             return result, arguments
         self.scratch_touches = n_touches
+        self.refreshed = True
         warm = self._warm_arguments()
         try:
             other = run(warm)

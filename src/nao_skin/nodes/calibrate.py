@@ -305,7 +305,7 @@ class CalibrateNode(Node):
             self.get_logger().warning(f"the session ends without a live calibration ({why}): none is written to"
                                       f" {self.p['out_dir']}")
             self._final_status({"state": "ended", "generation": self.generation, "calibration": None, "reason": why,
-                                "recorded": self.live.read_count})
+                                "recorded": self.live.read_count, "duplicates": self.live.duplicates})
             return
         n, read = self.live.last_count, self.live.read_count
         covered = (f"all {n} touches" if complete and n >= read else f"{n} of {read} touches" if n < read
@@ -315,7 +315,9 @@ class CalibrateNode(Node):
         self.get_logger().info(f"the last live calibration ({covered}) -> {out}")
         self._final_status({"state": "ended", "generation": self.generation, "out_dir": str(out),
                             "calibration": str(out / "calibration.yaml"), "touches": n, "recorded": read,
-                            "complete": complete, "parts": self.live.parts_state()})
+                            # the bag's exact duplicates, left out of 'recorded' (the recorder counted them)
+                            "duplicates": self.live.duplicates, "complete": complete,
+                            "parts": self.live.parts_state()})
 
     def _final_status(self, info: dict) -> None:
         """The session's last status, delivered before the node goes (the process ends right after: a

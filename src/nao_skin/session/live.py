@@ -100,7 +100,10 @@ class LiveCalibration:
                                 "final": {k: report.final.get(k) for k in ("train", "test")},
                                 "displacement_mm": moved, "held": report.held, "left_out": report.left_out,
                                 "parts": self.parts_state(), "seconds": time.perf_counter() - t0,
-                                "from_scratch": not start["warm"], "warnings": report.warnings}, result, touches)
+                                "from_scratch": not start["warm"],
+                                # a refresh runs both (its seconds are theirs) and keeps the closer
+                                "refresh": self.updates.warm_start.refreshed,
+                                "warnings": report.warnings}, result, touches)
         except TooFewTouches as exc:      # no pair has touches enough yet: wait for more
             self._last_touches = -1
             return LiveOutcome({"state": "waiting", "reason": str(exc), "parts": self.parts_state()}, None, touches)

@@ -21,7 +21,7 @@ from typing import NoReturn
 import numpy as np
 
 from nao_skin.errors import BagMoved, DiskFull, OutputError
-from nao_skin.formats.bag import BagWriter, detected_touch_messages
+from nao_skin.formats.bag import SIMULATED, BagWriter, detected_touch_messages
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, taxels_topic
 from nao_skin.live.clocks import SKEW_LIMIT_S, ArrivalLags
 from nao_skin.live.heatmap import ActivationCounts
@@ -39,6 +39,8 @@ SILENT_STREAMS = {
     "skin samples": "is anything publishing /skin/<part>/taxels? (yarp_skin_bridge: is yarpserver reachable"
                     " ('yarp detect'), skinManager running, events_port its skin events port, part_ids its parts)",
 }
+SIMULATED_SILENCE = ("is sim_robot running? It simulates all its touches before it plays the first (about 5 ms a"
+                     " touch: 12 s for 2400), so a large touches_per_pair starts late")
 RECENT_SKIN_MESSAGES = 20000   # skin messages whose processing time the progress' percentiles cover
 
 
@@ -52,6 +54,7 @@ class TouchRecording:
         self.parts = list(skin.parts)
         self.joint_names = list(skin.robot.joint_names)
         self.bag_path = Path(bag_path).expanduser().resolve()
+        self.recorded_from = recorded_from
         self.bag = BagWriter(self.bag_path, storage, kind="touches", live=True, source=recorded_from)
         self.bag.__enter__()
         self.n_touches = 0
@@ -217,6 +220,8 @@ class TouchRecording:
         for what, hint in SILENT_STREAMS.items():
             if elapsed >= SILENCE_S and not self.received[what] and what not in self._silence_said:
                 self._silence_said.add(what)
+                if self.recorded_from == SIMULATED:  # the robot's bridges are not in this session
+                    hint = SIMULATED_SILENCE
                 out.append(f"no {what} in {elapsed:.0f} s: {hint}")
         return out
 
