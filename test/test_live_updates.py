@@ -164,6 +164,25 @@ def test_done_needs_settled_taxels_and_a_flat_held_out_figure():
     assert settling.states(["r_hand"]) == {"r_hand": "converging"}
 
 
+def test_a_done_part_stays_done_while_its_moves_hover_about_the_threshold():
+    """Moves hovering about settle_mm and a wavering held-out figure flipped a part between done and converging
+    20 times in a 2400-touch session (every part at once when the figure wavered): once done, a part is
+    converging again only when an update moves it twice settle_mm."""
+    settling = Settling(settle_mm=0.3, updates=3, flat_percent=5.0)
+    for _ in range(3):
+        settling.add({"r_hand": 0.2, "torso": 0.2}, 3.0)
+    assert settling.states(["r_hand", "torso"]) == {"r_hand": "done", "torso": "done"}
+    settling.add({"r_hand": 0.45, "torso": 0.1}, 3.6)      # above settle_mm, and the figure no longer flat
+    assert settling.states(["r_hand", "torso"]) == {"r_hand": "done", "torso": "done"}
+    settling.add({"r_hand": 0.6, "torso": 0.1}, 3.0)       # twice settle_mm: r_hand is moving again
+    assert settling.states(["r_hand", "torso"]) == {"r_hand": "converging", "torso": "done"}
+    for _ in range(2):
+        settling.add({"r_hand": 0.2}, 3.0)
+    assert settling.states(["r_hand"]) == {"r_hand": "converging"}       # the last 3 moves not all settled yet
+    settling.add({"r_hand": 0.2}, 3.0)
+    assert settling.states(["r_hand"]) == {"r_hand": "done"}
+
+
 def test_an_update_from_scratch_whenever_the_touches_doubled(skin, session):
     """Warm updates between updates from scratch, which start where the session started; a warm update's
     prior is centred there too (not on the last update, which the same touches made)."""
