@@ -347,6 +347,7 @@ def test_guidance_after_a_failed_update_says_it_comes_from_the_last_accepted_cal
                 node.live.updates.max_move_mm = 1e-6
                 shutil.rmtree(bag)
                 write_touch_bag(bag, touches, skin)
+                node.publish_calibration(skin.zero_calibration(), "a request's")     # a later generation
         assert node._latched["state"] == "failed", node._latched
     finally:
         if node is not None:
@@ -356,8 +357,9 @@ def test_guidance_after_a_failed_update_says_it_comes_from_the_last_accepted_cal
     assert [g["sequence"] for g in published] == [1, 2]
     assert published[0]["generation"] == published[1]["generation"]
     assert not any("failed" in n for n in published[0]["notes"])
+    live = published[0]["generation"]            # the live update's, not the request's published after it
     assert any(n.startswith("the last live update failed (update over") and "these targets are under the last"
-               " accepted calibration" in n for n in published[1]["notes"]), published[1]["notes"]
+               f" accepted calibration (generation {live})" in n for n in published[1]["notes"]), published[1]["notes"]
 
 
 def test_the_session_end_writes_the_last_update_at_once_while_a_live_update_still_runs(tmp_path):

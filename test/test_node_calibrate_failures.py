@@ -291,9 +291,11 @@ def test_two_nodes_given_one_out_dir_each_keep_their_calibration(tmp_path, small
         assert json.loads((tmp_path / place / "report.json").read_text())["options"]["seed"] == seed
 
 
-def test_the_node_writes_beside_a_calibration_it_did_not_write(tmp_path, small_bag):
+@pytest.mark.parametrize("written_as", ["", "/"])
+def test_the_node_writes_beside_a_calibration_it_did_not_write(tmp_path, small_bag, written_as):
     """`ros2 run nao_skin calibrate` twice in one directory replaced the first run's nao_skin_calibration without
-    a word: now the earlier one stays and the new one goes to <out_dir>.new (then replaced by the node's next)."""
+    a word: now the earlier one stays and the new one goes to <out_dir>.new (then replaced by the node's next);
+    with out_dir written 'DIR/' (a shell's completion) it went into the earlier output, as DIR/.new."""
     from nao_skin.cli import main as cli_main
 
     out_dir = tmp_path / "nao_skin_calibration"
@@ -305,7 +307,7 @@ def test_the_node_writes_beside_a_calibration_it_did_not_write(tmp_path, small_b
         listener = Listener(domain)
         status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
         node = node_process("calibrate", {"inputs": [str(small_bag)], "calibrate_on_start": True,
-                                          "out_dir": str(out_dir)}, ros_env(domain), tmp_path)
+                                          "out_dir": str(out_dir) + written_as}, ros_env(domain), tmp_path)
         assert listener.spin_until(lambda: [s for s in status if s["state"] in ("done", "failed")], timeout=120,
                                    procs=[node]), status[-1:]
     finally:
@@ -318,3 +320,4 @@ def test_the_node_writes_beside_a_calibration_it_did_not_write(tmp_path, small_b
     assert (out_dir / "calibration.yaml").read_bytes() == earlier
     assert (tmp_path / "nao_skin_calibration.new" / "calibration.yaml").is_file()
     assert f"out_dir {out_dir} holds a calibration this node did not write" in node.stderr()
+    assert "another output was written there" not in node.stderr()

@@ -915,9 +915,22 @@ def test_a_writer_replaces_only_the_output_it_expects_never_one_written_there_me
         outdir.replace_dir(third, out, replacing=mine)
     assert (out / "calibration.yaml").read_text() == "another's"
     assert sorted(p.name for p in tmp_path.iterdir()) == [".third", "nao_skin_calibration"]
+    monkeypatch.setattr(outdir.tempfile, "mkdtemp", mkdtemp)
+
+    # its own output removed meanwhile: the place is free, taken without a word
+    own = outdir.output_stamp(out)
+    shutil.rmtree(out)
+    outdir.replace_dir(third, out, replacing=own)
+    assert (out / "calibration.yaml").read_text() == "third"
+    # a user's file put into the node's own output: left as it is, for the writer to go beside it
+    (out / "mine.txt").write_text("the user's")
+    fourth = _marked_output(tmp_path / ".fourth", "fourth")
+    with pytest.raises(OutputTaken, match="mine.txt was not written by"):
+        outdir.replace_dir(fourth, out, replacing=outdir.output_stamp(out))
+    assert (out / "mine.txt").read_text() == "the user's" and (out / "calibration.yaml").read_text() == "third"
 
 
-def test_a_calibration_whose_place_was_taken_meanwhile_goes_beside_it(tmp_path):
+def test_a_calibration_whose_place_was_taken_meanwhile_goes_beside_it(tmp_path, monkeypatch):
     """write_outputs with ``beside``: the first free <out_dir><beside>, and the place it was meant for stays."""
     from nao_skin.calibration.report import write_outputs
     from nao_skin.errors import OutputTaken
@@ -936,3 +949,19 @@ def test_a_calibration_whose_place_was_taken_meanwhile_goes_beside_it(tmp_path):
     assert wrote == tmp_path / "cal.new" and (wrote / "calibration.yaml").is_file()
     assert (out / "calibration.yaml").read_text() == "another's"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cal", "cal.new"]
+    # a place beside that is taken too: the next one beside the first, not one beside it (cal.new.new)
+    wrote = write_outputs(result, skin, tmp_path / "cal.new", plots=False, replacing=(), beside=".new")
+    assert wrote == tmp_path / "cal.new2"
+    # every place tried taken as the output is moved there (a race each time, stood in for): one line naming
+    # them, nothing written, nothing left behind
+    from nao_skin.calibration import report
+
+    def always_taken(new, out, label="output directory", replacing=None):
+        raise OutputTaken(f"{out}: taken")
+
+    monkeypatch.setattr(report, "replace_dir", always_taken)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    with pytest.raises(OutputTaken, match=rf"{tmp_path}/cal: the places tried \({tmp_path}/cal, {tmp_path}/cal.new3,"
+                                          rf" {tmp_path}/cal.new3, .*\) were taken meanwhile by other outputs"):
+        write_outputs(result, skin, out, plots=False, replacing=(), beside=".new")
+    assert sorted(p.name for p in tmp_path.iterdir()) == before

@@ -102,7 +102,7 @@ def test_a_stream_that_never_comes_is_said_once_and_in_the_last_line(skin, tmp_p
 
     simulated = TouchRecording(skin, LIVE_CONFIG, tmp_path / "sim", "sqlite3", recorded_from=SIMULATED)
     said = simulated.silence_warnings(12.0)
-    assert len(said) == 2 and all("is sim_robot running? It simulates all its touches" in line for line in said)
+    assert len(said) == 2 and all("is sim_robot running? It simulates its touches before it plays" in line for line in said)
     assert not any("naoqi_bridge" in line or "yarp" in line for line in said)
     simulated.close()
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -29,7 +30,7 @@ from nao_skin.plain import jsonable
 from nao_skin.touch.touches import TouchSet
 
 
-TAKEN_RETRIES = 5     # places tried when another process takes the one chosen as the output is moved there
+TAKEN_TRIES = 5     # places tried when another process takes the one chosen as the output is moved there
 
 
 def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Path,
@@ -66,18 +67,22 @@ def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Pat
         if extra is not None:
             extra(tmp)
         write_marker(tmp, command, CALIBRATION)
-        for _ in range(TAKEN_RETRIES):
+        # the places beside: <base><beside>, <base><beside>2, ... (a place already beside is not nested further)
+        base, tried = Path(re.sub(rf"{re.escape(beside)}[0-9]*$", "", str(given)) if beside else given), []
+        while True:
             try:
                 replace_dir(tmp, out_dir, replacing=replacing)
                 break
             except OutputTaken:
                 if beside is None:
                     raise
+                tried.append(str(given))
+                if len(tried) == TAKEN_TRIES:
+                    raise OutputTaken(f"{base}: the places tried ({', '.join(tried)}) were taken meanwhile by"
+                                      f" other outputs, left as they are; nothing is written") from None
                 # another process wrote there meanwhile (two nodes given one out_dir): its output stays
-                given = Path(free_sibling(given, beside))
+                given = Path(free_sibling(base, beside))
                 out_dir, replacing = Path(os.path.realpath(given)), ()
-        else:
-            raise OutputTaken(f"{given}: every place tried was taken meanwhile; nothing is written")
     except OSError as exc:     # e.g. a full disk: the calibration is not written, an earlier one there stays
         shutil.rmtree(tmp, ignore_errors=True)
         raise OutputError(f"{given}: cannot write the calibration ({os_reason(exc)}); an earlier output there is"

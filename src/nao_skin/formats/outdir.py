@@ -272,55 +272,81 @@ def replace_dir(new: str | Path, out: str | Path, label: str = "output directory
 
     ``replacing``: None, any earlier output those rules allow (the user asked for it, ``--force``); ``()``,
     none: ``out`` must still be free (:func:`is_free`); else the :func:`output_stamp` of the one output that
-    may be replaced (a node's own last one). Anything else found there, e.g. another process's output
-    written to the same place meanwhile, raises :class:`OutputTaken` and stays as it is.
+    may be replaced (a node's own last one; a free ``out`` may be taken too). Anything else found there,
+    e.g. another process's output written to the same place meanwhile, raises :class:`OutputTaken` and
+    stays as it is. Writers in one folder take turns (a lock on the folder): no two check and swap at once.
     """
     new, out = Path(new), Path(os.path.realpath(out))
     marker = read_marker(new)
     if marker is None:
         raise RuntimeError(f"{new}: has no output marker; write_marker first")   # a bug of the caller, not bad input
-    problem = _replace_problem(out, marker["kind"], force=True)
-    if problem:
-        raise DataError(f"{label} {out}: {problem}")
-    if replacing is not None and not (is_free(out) if replacing == () else output_stamp(out) == replacing):
-        raise OutputTaken(f"{label} {out}: another output was written there meanwhile; it is left as it is")
-    # the temporary directory is private (0700): the output gets the mode of the directory it replaces,
-    # or the one a plain mkdir gives
-    os.chmod(new, stat.S_IMODE(out.stat().st_mode) if out.is_dir() else 0o777 & ~_umask())
-    _sync_tree(new)       # the new output whole on the disk before any rename: the earlier one stays till then
-    if not out.exists():
-        try:
-            os.replace(new, out)      # onto nothing or an empty directory only: never onto one made meanwhile
-        except OSError as exc:
-            if replacing is None or exc.errno not in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR):
+    taken = f"{label} {out}: another output was written there meanwhile; it is left as it is"
+    with _folder_locked(out.parent):
+        if replacing is not None and not _may_take(out, replacing):
+            raise OutputTaken(taken)
+        problem = _replace_problem(out, marker["kind"], force=True)
+        if problem:      # e.g. a user's file put into the node's own output: with ``replacing``, left for beside it
+            raise (OutputTaken if replacing is not None else DataError)(f"{label} {out}: {problem}")
+        # the temporary directory is private (0700): the output gets the mode of the directory it replaces,
+        # or the one a plain mkdir gives
+        os.chmod(new, stat.S_IMODE(out.stat().st_mode) if out.is_dir() else 0o777 & ~_umask())
+        _sync_tree(new)   # the new output whole on the disk before any rename: the earlier one stays till then
+        if not out.exists() or (replacing is not None and is_free(out)):
+            try:
+                os.replace(new, out)  # onto nothing or an empty directory only: never onto one made meanwhile
+            except OSError as exc:
+                if replacing is None or exc.errno not in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR):
+                    raise
+                raise OutputTaken(taken) from None
+            _sync_path(out.parent)
+            return out
+        with _stops_deferred():
+            aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
+            try:
+                os.replace(out, aside / out.name)
+            except BaseException:
+                aside.rmdir()
                 raise
-            raise OutputTaken(f"{label} {out}: another output was written there meanwhile; it is left as it is"
-                              ) from None
-        _sync_path(out.parent)
-        return out
-    with _stops_deferred():
-        aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
-        try:
-            os.replace(out, aside / out.name)
-        except BaseException:
-            aside.rmdir()
-            raise
-        if replacing is not None and not (is_free(aside / out.name) if replacing == ()
-                                          else output_stamp(aside / out.name) == replacing):
-            # replaced by another writer between the check above and the move: it goes back, untouched
-            os.replace(aside / out.name, out)
-            aside.rmdir()
-            raise OutputTaken(f"{label} {out}: another output was written there meanwhile; it is left as it is")
-        try:
-            os.replace(new, out)
-        except BaseException:
-            os.replace(aside / out.name, out)
-            aside.rmdir()
-            raise
-        _sync_path(out.parent)   # the swap on the disk before the earlier output goes
-        shutil.rmtree(aside, ignore_errors=True)
+            if replacing is not None and not _may_take(aside / out.name, replacing):
+                # replaced by a writer that does not take turns, between the check and the move: it goes back
+                os.replace(aside / out.name, out)
+                aside.rmdir()
+                raise OutputTaken(taken)
+            try:
+                os.replace(new, out)
+            except BaseException:
+                try:
+                    os.replace(aside / out.name, out)
+                except OSError:      # something took the place in between: the earlier output is kept aside
+                    raise OutputTaken(f"{taken}; the earlier output there is kept at {aside / out.name}") from None
+                aside.rmdir()
+                raise
+            _sync_path(out.parent)   # the swap on the disk before the earlier output goes
+            shutil.rmtree(aside, ignore_errors=True)
     return out
 
+
+def _may_take(out: Path, replacing) -> bool:
+    """``out`` is free, or the one output ``replacing`` names (see :func:`replace_dir`)."""
+    return is_free(out) or (replacing != () and output_stamp(out) == replacing)
+
+
+@contextmanager
+def _folder_locked(folder: Path):
+    """An exclusive ``flock`` on ``folder`` while the block runs: nao-skin writers of one folder take turns.
+    A folder that cannot be opened for it (no read permission) is written without."""
+    import fcntl
+
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError:
+        yield
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
 
 
 @contextmanager

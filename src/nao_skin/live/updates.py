@@ -158,10 +158,10 @@ class Settling:
     ``settle_mm`` is measured, not a wish: an update re-pairs the touches, so even at 1500 touches a part's
     largest taxel moves 0.15–0.3 mm from one update of 25 new touches to the next. At 0.1 mm every part was
     done in none of 20 simulated sessions by 1500 touches (random capture, ``nao-skin bench-capture
-    --until-done --settle-mm 0.1 --strategies random --seeds 20``). At 0.3 mm it was in 17 of them, at
-    about 1260 touches, the worst part's true taxel error median then 0.49 mm (highest 0.58): the same
-    without ``--settle-mm``. Fewer new touches per update (a slow operator, every ``period`` seconds)
-    move the taxels less, so "done" comes sooner there."""
+    --until-done --settle-mm 0.1 --strategies random --seeds 20``). At 0.3 mm, with the margin of
+    :meth:`add`, it was in 19 of them, at about 1060 touches, the worst part's true taxel error median then
+    0.51 mm (highest 0.65): the same without ``--settle-mm``. Fewer new touches per update (a slow
+    operator, every ``period`` seconds) move the taxels less, so "done" comes sooner there."""
 
     settle_mm: float = 0.3
     updates: int = 3
@@ -231,11 +231,13 @@ class LiveUpdates:
         last accepted calibration stays), and whatever ``run`` raises."""
         result, arguments = self.warm_start.update(n_touches, run)
         before = self.warm_start.last or self.warm_start.start
-        self._hold_parts_left_out(result, before)
+        held = self._hold_parts_left_out(result, before)
         moved = taxel_displacement_mm(self.skin, before, result.calibration, result.report.parts)
         why = rejection(self.skin, result.calibration, moved, self.warm_start.parts, self.max_move_mm)
         if why is not None:
             raise DataError(f"update over {n_touches} touches not published: {why}")
+        # the calibration holds them (written with their taxel files), as the update's warning says
+        result.report.parts = [*result.report.parts, *held]
         self.settling.add(moved, result.report.final.get("test", {}).get("taxel_mean_mm", float("nan")))
         self.warm_start.accepted(result, n_touches, arguments)
         return result, moved, arguments
@@ -246,7 +248,7 @@ class LiveUpdates:
         left it out)."""
         return self.warm_start.parts
 
-    def _hold_parts_left_out(self, result, before: SkinCalibration) -> None:
+    def _hold_parts_left_out(self, result, before: SkinCalibration) -> list:
         """A part an earlier update calibrated and this one left out (its pairs' training touches fell below the
         minimum, as a new split may make them) keeps its last accepted frames: an update from scratch would
         otherwise publish it back at the session's start, and the next one would calibrate it anew unchecked."""
@@ -255,3 +257,4 @@ class LiveUpdates:
             result.calibration.parts[part] = before.parts[part].copy()
             result.report.warnings.append(f"part '{part}': not calibrated by this update (too few touches in its"
                                           f" training split); its frames stay at the last accepted update's")
+        return left_out

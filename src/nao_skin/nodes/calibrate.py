@@ -23,6 +23,7 @@ update calibrates the touches since the last one, and the status says ``ended`` 
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 from pathlib import Path
@@ -53,6 +54,8 @@ class CalibrateNode(Node):
     def __init__(self, **kwargs):
         super().__init__("calibrate", **kwargs)
         self.p = declare(self, CALIBRATE)
+        if self.p["out_dir"]:     # 'cal/' and './cal' are 'cal': its places beside are 'cal.new', never 'cal/.new'
+            self.p["out_dir"] = os.path.normpath(self.p["out_dir"])
         self.options = options_from_params(self.p)      # a wrong value stops the node at start, in one line
         self.skin = skin_from_params(self.p)
         self.prior = (SkinCalibration.load(self.p["calibration"], self.skin) if self.p["calibration"]
@@ -70,6 +73,7 @@ class CalibrateNode(Node):
         self._ended = False               # the session's end is published: nothing is published after it
         self._written_stamp = None        # output_stamp of what the session's end wrote first, to replace
         self._guidance_sequence = 0       # guidance messages published
+        self._live_generation = 1         # the generation of the last accepted live update (1: where it started)
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
         self.guidance_pairs = guidance_pairs(self.p, self.skin)
@@ -126,16 +130,15 @@ class CalibrateNode(Node):
     def _check_start(self, inputs: list) -> None:
         """What the calibration at start reads and where it writes, as a request checks them: an input that is
         not there, an out_dir that holds an input or what nao-skin did not write, one that cannot be written."""
-        import os
-
         from nao_skin.calibration.pipeline import check_output
         from nao_skin.errors import DataError
 
         if not inputs:
             raise DataError("parameter inputs: empty; calibrate_on_start needs the bags (or .txt files) to calibrate")
         for path in inputs:
-            if not os.path.lexists(path):
-                raise DataError(f"parameter inputs: {path}: no such file or directory")
+            if not os.path.exists(path):
+                what = "a link to nothing" if os.path.lexists(path) else "no such file or directory"
+                raise DataError(f"parameter inputs: {path}: {what}")
         check_output(self.p["out_dir"], [*inputs, self.p["skin_config"], self.p["calibration"],
                                          *self.skin.source_files()], force=True, label="out_dir")
 
@@ -167,6 +170,7 @@ class CalibrateNode(Node):
             try:
                 if out.accepted is not None:
                     self.publish_calibration(out.accepted.calibration, "live update", quiet=True)
+                    self._live_generation = self.generation
                     for line in out.accepted.report.warnings:
                         log.warning(f"live update {self.generation}: {line}")
                     log.info(f"live update {self.generation}: {out.status['touches']} touches, taxels moved up to"
@@ -196,9 +200,9 @@ class CalibrateNode(Node):
                           calibrated_parts=self.live.updates.calibrated_parts)
         if status.get("state") == "failed":     # said: the targets come from an older calibration than the touches
             advice.notes.append(f"the last live update failed ({status.get('error')}); these targets are under the"
-                                f" last accepted calibration (generation {self.generation})")
+                                f" last accepted calibration (generation {self._live_generation})")
         self._guidance_sequence += 1
-        self.guidance_pub.publish(String(data=json.dumps({"generation": self.generation,
+        self.guidance_pub.publish(String(data=json.dumps({"generation": self._live_generation,
                                                           "sequence": self._guidance_sequence, **advice.to_dict()},
                                                          sort_keys=True)))
 
@@ -253,7 +257,7 @@ class CalibrateNode(Node):
                                        force=True, plots=bool(p["plots"]), label="out_dir", protected=protected,
                                        command="calibrate (node)", log=log.info, summary=log.warning,
                                        replacing=replacing, beside=".new")
-            if str(run.out_dir) != str(out_dir):
+            if Path(run.out_dir) != Path(out_dir):
                 log.warning(f"{out_dir}: another output was written there while this calibration ran and is left"
                             f" as it is; this one goes to {run.out_dir}")
             self._requested_out = (str(run.out_dir), output_stamp(run.out_dir))    # the node's own, to replace
@@ -342,8 +346,9 @@ class CalibrateNode(Node):
             # a new place must still be free, the end's first write is the one to replace: another process's
             # output written there meanwhile stays, this one goes beside it
             wrote = write_outputs(result, self.skin, out_dir, plots=False, command="calibrate (node, live)",
-                                  replacing=self._written_stamp if written is not None else (), beside=".live")
-            if str(wrote) != str(out_dir):
+                                  replacing=(self._written_stamp or ()) if written is not None else (),
+                                  beside=".live")
+            if Path(wrote) != Path(out_dir):
                 self.get_logger().warning(f"{out_dir}: another output was written there during the session's end"
                                           f" and is left as it is; the session's live calibration goes to {wrote}")
             self._written_stamp = output_stamp(wrote)
@@ -379,6 +384,7 @@ class CalibrateNode(Node):
             return closed
         if out.accepted is not None:
             self.publish_calibration(out.accepted.calibration, "final live update", quiet=True)
+            self._live_generation = self.generation
             log.info(f"final live update {self.generation}: {out.status['touches']} touches")
         elif self.live.last is not None:
             why = out.status.get("error") or out.status.get("reason")

@@ -145,7 +145,7 @@ class SimRobot(Node):
         self.aimed += aimed
         if aims:
             missed = f" ({len(aims) - aimed} of {len(aims)} aims reached no firing press)" if aimed < len(aims) else ""
-            how = f"{aimed} aimed at guidance targets{missed}, {touches.n_touches - aimed} random"
+            how = f"{aimed} aimed at guidance targets{missed}, {n - aimed} random"
         else:
             how = ("random (no guidance yet)" if not self.targets
                    else f"random (none of the guidance's {len(self.targets)} targets has a pose for a pair played here)")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
 from nao_skin.errors import ConfigError, NaoSkinError
+from nao_skin.guidance.capture import MAX_READ_TARGETS
 from nao_skin.live.playback import check_timing
 from nao_skin.live.updates import LiveUpdates, Settling, UpdateSchedule, WarmStart
 from nao_skin.model.skin import SkinModel, load_skin, parse_pairs, parse_taxel_files
@@ -55,13 +56,14 @@ CALIBRATE = {
                            AT_LEAST_ONE),
     "live_period": (UpdateSchedule.period, "live: ... or this many seconds after the last one, if any touch came"
                                            " since", SECONDS),
-    "live_settle_mm": (Settling.settle_mm, "live: a part is done when its taxels moved less than this (mm) ...",
-                       POSITIVE),
+    "live_settle_mm": (Settling.settle_mm, "live: a part is done when its taxels moved less than this (mm; done"
+                                            " until an update moves it twice this) ...", POSITIVE),
     "live_settle_updates": (Settling.updates, "live: ... in each of this many updates in a row, ...", AT_LEAST_ONE),
     "live_flat_percent": (Settling.flat_percent, "live: ... and the held-out closest taxel figure stayed within this"
                                                  " % of its mean", NON_NEGATIVE),
     "guidance": (True, "live: after each update, publish where touches would help most on /nao_skin/guidance"),
-    "guidance_targets": (5, "live: how many targets the guidance names", AT_LEAST_ONE),
+    "guidance_targets": (5, "live: how many targets the guidance names (its readers take the first 100)",
+                         Rule(int, low=1, high=MAX_READ_TARGETS)),
     "guidance_pairs": ([""], "live: the pairs the guidance may ask for, as 'hand-part' (e.g. l_hand-torso);"
                              " empty: the skin config's self_touch pairs"),
     "live_refresh": (WarmStart.refresh, "live: an update from scratch (the whole plan) beside the warm one whenever"

@@ -39,8 +39,8 @@ SILENT_STREAMS = {
     "skin samples": "is anything publishing /skin/<part>/taxels? (yarp_skin_bridge: is yarpserver reachable"
                     " ('yarp detect'), skinManager running, events_port its skin events port, part_ids its parts)",
 }
-SIMULATED_SILENCE = ("is sim_robot running? It simulates all its touches before it plays the first (about 5 ms a"
-                     " touch: 12 s for 2400), so a large touches_per_pair starts late")
+SIMULATED_SILENCE = ("is sim_robot running? It simulates its touches before it plays the first (all of them, about"
+                     " 5 ms a touch: 12 s for 2400; guided: guided_start), so a large touches_per_pair starts late")
 RECENT_SKIN_MESSAGES = 20000   # skin messages whose processing time the progress' percentiles cover
 
 
