@@ -359,6 +359,29 @@ def test_what_a_run_killed_outright_left_is_removed_by_the_next_run_and_nothing_
     ok(nao_skin("simulate", "--touches-per-pair", "3", "--out", "cal", cwd=work))
     assert not left.exists() and all(path.is_dir() for path in kept)
     assert sorted(p.name for p in work.glob(".cal*")) == sorted(p.name for p in kept)
+    # killed after the swap, before the earlier output moved aside was removed: removed by the next run
+    swapped = work / f".cal.old.{dead.pid}.abcd_123"
+    (swapped / "cal").mkdir(parents=True)
+    ok(nao_skin("simulate", "--touches-per-pair", "3", "--out", "cal", "--force", cwd=work))
+    assert not swapped.exists() and (work / "cal" / "touches.bag").is_dir()
+
+
+def test_an_earlier_output_a_kill_left_aside_mid_swap_goes_back_before_anything_else(work):
+    """Killed between the swap's two renames (SIGKILL, or a node's worker thread ended with its process), the
+    earlier output stayed in a hidden .<out>.old.* directory for good and <out> looked free: the next run
+    wrote there, and the earlier output was never seen again. It goes back first now."""
+    ok(nao_skin("simulate", "--touches-per-pair", "3", "--out", "cal", cwd=work))
+    earlier = tree(work / "cal")
+    dead = subprocess.Popen(["true"])
+    dead.wait()
+    aside = work / f".cal.old.{dead.pid}.abcd_123"
+    aside.mkdir()
+    (work / "cal").rename(aside / "cal")                 # where the kill left it
+    run = nao_skin("simulate", "--touches-per-pair", "4", "--out", "cal", cwd=work)
+    err = run.stderr.strip()
+    assert run.returncode == 2 and len(err.splitlines()) == 1, (run.returncode, err)
+    assert "holds the outputs of an earlier nao-skin simulate run" in err, err
+    assert tree(work / "cal") == earlier and not aside.exists()
 
 
 def _ended(proc: subprocess.Popen) -> str:
@@ -965,3 +988,39 @@ def test_a_calibration_whose_place_was_taken_meanwhile_goes_beside_it(tmp_path, 
                                           rf" {tmp_path}/cal.new3, .*\) were taken meanwhile by other outputs"):
         write_outputs(result, skin, out, plots=False, replacing=(), beside=".new")
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+@pytest.mark.parametrize("force", [False, True])
+def test_a_command_never_replaces_an_output_written_while_it_ran(tmp_path, monkeypatch, force):
+    """`nao-skin calibrate --out X` (with or without --force) replaced, at its end, a calibration another command
+    had written to X while it ran, without --force and without a word: a live session's own calibration was
+    lost that way. Only what the check at its start saw (nothing, or the output --force agreed to replace)
+    is replaced; another output there goes on, this one goes beside it and says so."""
+    from nao_skin.calibration import pipeline
+    from nao_skin.model.skin import load_skin
+    from nao_skin.sim.simulate import simulate
+
+    from nao_skin.formats.bag import write_touch_bag
+
+    skin = load_skin()
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, simulate(skin, {"n_touches": 20, "pairs": [["l_hand", "torso"]]}, seed=2).touches, skin)
+    out = tmp_path / "cal"
+    if force:
+        _marked_output(out, "the one --force replaces", command="calibrate")
+    calibrate_inputs = pipeline.calibrate_inputs
+
+    def another_writes_meanwhile(*args, **kwargs):
+        got = calibrate_inputs(*args, **kwargs)
+        shutil.rmtree(out, ignore_errors=True)
+        _marked_output(out, "another command's", command="calibrate")
+        return got
+
+    monkeypatch.setattr(pipeline, "calibrate_inputs", another_writes_meanwhile)
+    said = []
+    run = pipeline.calibrate_recordings([bag], skin, pipeline.CalibrationOptions(), out, force=force, plots=False,
+                                        summary=said.append)
+    assert run.out_dir == tmp_path / "cal.new" and (run.out_dir / "report.json").is_file()
+    assert (out / "calibration.yaml").read_text() == "another command's"
+    assert said[-1] == f"{out}: another output was written there while this calibration ran and is left as it is;" \
+                       f" this one goes to {tmp_path / 'cal.new'}"

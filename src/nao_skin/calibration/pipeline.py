@@ -16,7 +16,7 @@ from nao_skin.calibration.report import write_outputs
 from nao_skin.calibration.splits import kinematics_kept_text, split_spread, spread_text
 from nao_skin.errors import DataError
 from nao_skin.formats.inputs import load_touches
-from nao_skin.formats.outdir import CALIBRATION, check_output_dir
+from nao_skin.formats.outdir import CALIBRATION, as_checked, check_output_dir
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.datasets import LoadReport, deduplicate
 from nao_skin.touch.touches import TouchSet
@@ -53,19 +53,25 @@ def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: Calibration
     found beside a recording. ``log`` gets progress; ``summary`` what loading
     skipped, even when ``log`` is silent. ``extra(directory)`` adds files to
     the output before it is moved into place; ``replacing`` and ``beside``: what the output may replace, and
-    where it goes when another process took its place meanwhile (see :func:`write_outputs`).
+    where it goes when another process took its place meanwhile (see :func:`write_outputs`; default: what the
+    check of ``out_dir`` saw, and ``.new``).
     ``splits`` > 1: the report also gives each figure's mean and spread over that
     many seeded splits (:func:`~nao_skin.calibration.splits.split_spread`); the
     calibration written is the first split's.
     """
     log = log or (lambda msg: None)
     check_output(out_dir, [*inputs, *protected, *skin.source_files()], force=force, label=label)
+    if replacing is None:    # what the check saw, nothing else: another output written there meanwhile stays
+        replacing, beside = as_checked(out_dir), beside or ".new"
     result, touches, load_report, n_dup = calibrate_inputs(inputs, skin, options, prior, truth, log, summary)
     if splits > 1:
         log(f"the same calibration on {splits - 1} more splits (seeds {options.seed + 1}..{options.seed + splits - 1})")
         result.report.splits = split_spread(touches, skin, options, splits, prior=prior, first=result)
     out = write_outputs(result, skin, out_dir, prior=prior, plots=plots, command=command, extra=extra,
                         replacing=replacing, beside=beside)
+    if Path(out) != Path(out_dir) and summary is not None:
+        summary(f"{out_dir}: another output was written there while this calibration ran and is left as it is;"
+                f" this one goes to {out}")
     return PipelineRun(result, Path(out), load_report, touches.n_touches, n_dup)
 
 

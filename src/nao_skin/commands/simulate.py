@@ -49,13 +49,14 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from nao_skin.errors import ConfigError
-    from nao_skin.formats.outdir import RECORDING, check_output_dir
+    from nao_skin.formats.outdir import RECORDING, as_checked, check_output_dir
     from nao_skin.sim.params import MAX_TOUCHES_PER_PAIR, check_pairs, default_params_file, load_params, pair_list
     from nao_skin.sim.simulate import simulate, write_outputs
 
     skin = skin_from_args(args)
     check_output_dir(args.out, RECORDING, inputs=(args.params, skin_config_file(args), *skin.source_files()),
                      force=args.force)
+    checked = as_checked(args.out)       # what --force agreed to replace, nothing written there meanwhile
     if args.seed < 0:           # numpy's seed sequences take no negative entropy
         raise ConfigError(f"--seed {args.seed}: expected a whole number >= 0")
     overrides = {}
@@ -67,7 +68,8 @@ def run(args) -> int:
     params = load_params(args.preset, overrides, args.params)
     check_pairs(pair_list(params), skin, where=f"{args.params or default_params_file()}: preset '{args.preset}'")
     result = simulate(skin, params, args.seed)
-    for path in write_outputs(result, skin, Path(args.out), preset=args.preset, storage=args.storage):
+    for path in write_outputs(result, skin, Path(args.out), preset=args.preset, storage=args.storage,
+                              replacing=checked):
         print(path)
     for pair, info in result.pairs.items():
         print(f"{pair}: {info['recorded']} touches recorded ({info['touches']} poses, {info['duplicates']} duplicates,"

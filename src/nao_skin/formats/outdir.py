@@ -104,6 +104,8 @@ def check_output_dir(out: str | Path, kind: str, inputs=(), force: bool = False,
             if not parent.is_dir():
                 raise DataError(f"{name}: {parent} is a file, not a directory; choose another place")
             break
+    # an earlier output a killed run had moved aside to swap goes back first: the check sees what is really there
+    _remove_stale_staging(Path(os.path.realpath(given)))
     forms = _forms(given)
     for cwd in _forms(Path.cwd()):
         for o in forms:
@@ -242,18 +244,28 @@ def _sync_tree(root: Path) -> None:
 
 def output_stamp(path: str | Path) -> tuple | None:
     """What tells one output from anything put at its path since (None: nothing there): (device, inode, its
-    output marker's text). The inode alone does not: a directory removed and another made in its place may get
-    the same one; the marker says when it was written and by which command. A directory without a marker: its
-    change time (which a chmod changes too; an output marker does not)."""
+    output marker's text, inode and change time). The inode alone does not: a directory removed and another
+    made in its place may get the same one; the marker says when it was written and by which command. A
+    directory without a marker: its change time (which a chmod changes too; an output marker does not)."""
     try:
         st = os.stat(path)
     except OSError:
         return None
     try:
-        marker = (Path(path) / MARKER).read_bytes()
+        # the marker's own inode and change time too: a run of the same command within the same second, in a
+        # directory that got the same inode, writes the same marker text
+        written = os.stat(Path(path) / MARKER)
+        marker = ((Path(path) / MARKER).read_bytes(), written.st_ino, written.st_ctime_ns)
     except OSError:
         marker = st.st_ctime_ns
     return st.st_dev, st.st_ino, marker
+
+
+def as_checked(out: str | Path) -> tuple:
+    """``replacing`` for :func:`replace_dir` that allows exactly what is at ``out`` now, when a command checks
+    it: nothing (a free place) or that output (the one ``--force`` agreed to replace). Another output written
+    there while the command runs is then never replaced."""
+    return () if is_free(os.path.realpath(out)) else output_stamp(os.path.realpath(out))
 
 
 def is_free(path: str | Path) -> bool:
@@ -301,7 +313,8 @@ def replace_dir(new: str | Path, out: str | Path, label: str = "output directory
             _sync_path(out.parent)
             return out
         with _stops_deferred():
-            aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=out.parent))
+            # named by this process: a kill between the two renames leaves it for the next writer to put back
+            aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.{os.getpid()}.", dir=out.parent))
             try:
                 os.replace(out, aside / out.name)
             except BaseException:
@@ -385,15 +398,26 @@ def staging_dir(out: str | Path) -> Path:
 
 
 def _remove_stale_staging(out: Path) -> None:
-    name = re.compile(rf"\.{re.escape(out.name)}\.([0-9]{{1,10}})\.[a-z0-9_]{{8}}")
+    """What a run killed outright left beside ``out``: its staging directory is removed; an earlier output it had
+    moved aside to swap (``.<out>.old.<pid>.<random>/<out>``) goes back to ``out`` when nothing took its place
+    (killed between the two renames), else is removed (killed after the swap, before the removal)."""
+    staged = re.compile(rf"\.{re.escape(out.name)}\.([0-9]{{1,10}})\.[a-z0-9_]{{8}}")
+    aside = re.compile(rf"\.{re.escape(out.name)}\.old\.([0-9]{{1,10}})\.[a-z0-9_]{{8}}")
     try:
         siblings = list(os.scandir(out.parent))
     except OSError:
         return
     for entry in siblings:
-        match = name.fullmatch(entry.name)
-        if match and entry.is_dir(follow_symlinks=False) and not _alive(int(match.group(1))):
-            shutil.rmtree(entry.path, ignore_errors=True)
+        match = staged.fullmatch(entry.name) or aside.fullmatch(entry.name)
+        if not match or not entry.is_dir(follow_symlinks=False) or _alive(int(match.group(1))):
+            continue
+        earlier = Path(entry.path) / out.name
+        if match.re is aside and not os.path.lexists(out) and earlier.is_dir():
+            try:
+                os.replace(earlier, out)
+            except OSError:
+                continue          # left as it is: never removed while it may be the only copy
+        shutil.rmtree(entry.path, ignore_errors=True)
 
 
 def _alive(pid: int) -> bool:

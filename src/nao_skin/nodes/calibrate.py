@@ -257,9 +257,6 @@ class CalibrateNode(Node):
                                        force=True, plots=bool(p["plots"]), label="out_dir", protected=protected,
                                        command="calibrate (node)", log=log.info, summary=log.warning,
                                        replacing=replacing, beside=".new")
-            if Path(run.out_dir) != Path(out_dir):
-                log.warning(f"{out_dir}: another output was written there while this calibration ran and is left"
-                            f" as it is; this one goes to {run.out_dir}")
             self._requested_out = (str(run.out_dir), output_stamp(run.out_dir))    # the node's own, to replace
             calibration = str(run.out_dir / "calibration.yaml")
             self.publish_calibration(run.result.calibration, calibration)
@@ -291,9 +288,10 @@ class CalibrateNode(Node):
         if self._worker is not None:
             self._worker.join(timeout=10.0)
             if self._worker.is_alive():   # a daemon thread: it ends with the process, its output unwritten
-                self.get_logger().warning(f"stopped during the {self._worker.name}: it is not written (a staging"
-                                          f" directory it left beside out_dir is removed by the next calibration"
-                                          f" written there)")
+                self.get_logger().warning(f"stopped during the {self._worker.name}: it is written only if it had"
+                                          f" got to its output (a staging directory it left beside out_dir is"
+                                          f" removed, an earlier output it had moved aside put back, by the next"
+                                          f" calibration written there)")
         if not session:
             return
         complete = False                  # what is written covers every touch of the closed recording

@@ -14,6 +14,7 @@ touches recorded since the last one, so that what is written covers them all.
 """
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -150,7 +151,7 @@ def request_out_dir(out_dir: str | Path, own: tuple | None) -> tuple:
     ``<out_dir>.new``: the node never replaces what it was not asked to."""
     if own is not None and output_stamp(own[0]) == own[1]:
         return own[0], own[1], None
-    if is_free(out_dir):
+    if is_free(os.path.realpath(out_dir)):       # a link to an empty directory is free too
         return out_dir, (), None
     beside = free_sibling(out_dir, ".new")
     return beside, (), (f"out_dir {out_dir} holds a calibration this node did not write (an earlier run's, or"
@@ -165,7 +166,7 @@ def session_end_out_dir(out_dir: str | Path, at_start, requested, requested_by: 
     when the session started (``at_start``: its stamp then), or another command's (e.g. a
     calibrate --out of the bag so far); the live calibration goes beside it, and the warning says why.
     """
-    if is_free(out_dir):
+    if is_free(os.path.realpath(out_dir)):
         return out_dir, None
     now = output_stamp(out_dir)
     beside = free_sibling(out_dir, ".live")

@@ -241,7 +241,7 @@ def _assemble(skin: SkinModel, per_pair, p: SimParams, rng) -> TouchSet:
 
 # ---------------------------------------------------------------------------- files
 def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, preset: str = "",
-                  storage: str = "sqlite3", with_bag: bool = True) -> list:
+                  storage: str = "sqlite3", with_bag: bool = True, replacing=None) -> list:
     """Write the recording and its ground truth; returns the paths written.
 
     ``touches.bag`` (rosbag2, via :mod:`nao_skin.formats.bag`), ``truth_calibration.yaml``
@@ -249,7 +249,8 @@ def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, prese
     skinManager format) and ``simulation.yaml`` (parameters, seed, counts).
     Written into a temporary sibling and moved into place at the end (an
     earlier output in ``out_dir`` is replaced only as :mod:`nao_skin.outdir`
-    allows), so a failed run leaves no half-written recording.
+    allows, and only the one ``replacing`` names, :func:`~nao_skin.formats.outdir.replace_dir`), so a failed
+    run leaves no half-written recording.
     """
     import os
     import shutil
@@ -287,7 +288,7 @@ def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, prese
             written.append(bag)
         # no time in the marker: the same seed gives the same bytes, marker included
         write_marker(tmp, "simulate", RECORDING, stamp=False)
-        replace_dir(tmp, final)
+        replace_dir(tmp, final, replacing=replacing)
     except (OSError, OutputError) as exc:      # e.g. a full disk: nothing of this run stays
         shutil.rmtree(tmp, ignore_errors=True)
         reason = os_reason(exc) if isinstance(exc, OSError) else str(exc).replace(f"{tmp}{os.sep}", "")
