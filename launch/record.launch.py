@@ -9,7 +9,9 @@ Starts (the same set as ``nao-skin record``, from nao_skin.session.record):
 * pairing_recorder writing the touch bag ``bag:=DIR`` (default
   ./nao_skin_touches_<date>_<time>), skin_heatmap, and the calibrate node;
 * robot_state_publisher with the xacro URDF *without* skin frames, and
-  rviz2 with config/nao_skin.rviz when rviz:=true.
+  rviz2 with config/nao_skin.rviz when rviz:=true;
+* continue_from:="BAG ...": the session continues earlier sittings' bags (the
+  calibrate node and the heat-map count their touches too).
 
 Skin frames have exactly one publisher: the calibrate node publishes the
 current calibration (``calibration:=FILE``, nominal by default) on
@@ -36,6 +38,8 @@ ARGUMENTS = {
     "events_port": ("", "skinManager's skin events port (default: config/bridges.yaml)"),
     "bag": ("", "touch bag directory to write (default: ./nao_skin_touches_<date>_<time>)"),
     "calibration": ("", "calibration to start from (default: the nominal skin)"),
+    "continue_from": ("", "bags of earlier sittings of this capture, separated by spaces (shell quoting for a path"
+                          " with a space): the live calibration and guidance cover their touches too"),
     "rviz": ("false", "start rviz2 with config/nao_skin.rviz"),
     "taxels": ("", "the robot's own taxel files, PART=FILE separated by spaces, shell quoting for a path with a"
                    " space (default: config/nao_skin.yaml's)"),
@@ -51,7 +55,7 @@ def _nodes(context):
     specs = record_session(arg["robot"], nao_ip=arg["nao_ip"], naoqi=arg["naoqi"].lower() == "true",
                            events_port=arg["events_port"], bag_path=arg["bag"], calibration=arg["calibration"],
                            rviz=arg["rviz"].lower() == "true", taxels=shlex.split(arg["taxels"]),
-                           guided=arg["guided"].lower() == "true")
+                           guided=arg["guided"].lower() == "true", continue_from=shlex.split(arg["continue_from"]))
     check_needs(specs)    # e.g. robot:=nao without YARP's Python bindings: one line before any node starts
     # one session per ROS domain on this machine (two would record each other's touches): held as long as the
     # launch context (the launch process) lives

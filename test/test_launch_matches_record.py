@@ -15,7 +15,10 @@ import pytest
 import yaml
 from ros_harness import ROOT  # noqa: E402
 
+from nao_skin.formats.bag import write_touch_bag
+from nao_skin.model.skin import load_skin
 from nao_skin.session.record import command_line, record_session, robot_description
+from nao_skin.sim.simulate import simulate
 
 
 class _LaunchConfiguration:
@@ -135,18 +138,26 @@ def _ros_args(spec, tmp_path):
 @pytest.mark.parametrize("arguments", [
     {},
     {"guided": "true"},
+    {"continue_from": "EARLIER_SITTINGS"},
     {"robot": "nao", "nao_ip": "127.0.0.1", "events_port": "/skinManager/skin_events:o", "rviz": "true"},
     {"robot": "nao", "naoqi": "false", "calibration": str(ROOT / "config" / "calibration_nominal.yaml"),
      "taxels": f"l_hand={ROOT / 'config' / 'layouts' / 'l_hand.txt'} torso={ROOT / 'config' / 'layouts' / 'torso.txt'}"},
 ])
 def test_the_launch_file_starts_what_nao_skin_record_starts(tmp_path, launch_file, arguments):
     bag = str(tmp_path / "session_bag")
+    if arguments.get("continue_from"):       # two earlier sittings' bags, one named with a space
+        earlier = [tmp_path / "sitting 1", tmp_path / "sitting2"]
+        skin = load_skin()
+        for seed, path in enumerate(earlier):
+            write_touch_bag(path, simulate(skin, {"n_touches": 12}, seed=seed).touches, skin)
+        arguments = {**arguments, "continue_from": " ".join(shlex.quote(str(p)) for p in earlier)}
     via_launch = launched(launch_file, bag=bag, **arguments)
     session = dict(robot=arguments.get("robot", "sim"), nao_ip=arguments.get("nao_ip", ""),
                    naoqi=arguments.get("naoqi", "true") == "true", events_port=arguments.get("events_port", ""),
                    bag_path=bag, calibration=arguments.get("calibration", ""),
                    rviz=arguments.get("rviz", "false") == "true", taxels=arguments.get("taxels", "").split(),
-                   guided=arguments.get("guided", "false") == "true")
+                   guided=arguments.get("guided", "false") == "true",
+                   continue_from=shlex.split(arguments.get("continue_from", "")))
     via_record = recorded(tmp_path, **session)
     assert set(via_launch) == set(via_record)
     for name in via_launch:
@@ -157,6 +168,10 @@ def test_the_launch_file_starts_what_nao_skin_record_starts(tmp_path, launch_fil
             {"yarp_skin_bridge", "pairing_recorder", "skin_heatmap", "calibrate"}
     if arguments.get("guided"):
         assert via_launch["sim_robot"][3]["guided"] is True
+    if arguments.get("continue_from"):
+        for node, param in (("calibrate", "earlier_recordings"), ("skin_heatmap", "earlier_recordings"),
+                            ("pairing_recorder", "continues")):
+            assert via_launch[node][3][param] == [str(p) for p in earlier], node
     urdf = via_launch["robot_state_publisher"][3]["robot_description"]
     assert urdf == robot_description(session["calibration"], skin_frames=False) and "skin_mount" not in urdf
 

@@ -24,7 +24,7 @@ from test_node_calibrate import assert_frames  # noqa: E402
 from test_record_session import record_cmd  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
 
-from nao_skin.formats.bag import write_touch_bag  # noqa: E402
+from nao_skin.formats.bag import continued_bags, write_touch_bag  # noqa: E402
 from nao_skin.model.skin import SkinCalibration, load_skin  # noqa: E402
 from nao_skin.nodes.topics import LATCHED, PROGRESS_TOPIC, SIM_STATUS_TOPIC, STATUS_TOPIC, TF_STATIC_TOPIC  # noqa: E402
 from nao_skin.sim.simulate import simulate  # noqa: E402
@@ -39,6 +39,36 @@ def live_session_cmd(bag, seed: int, per_pair: int, pairs: str, every_touches: i
         "--param", f"sim_robot.pairs=[{pairs}]", "--param", "sim_robot.touch_period=0.35",
         "--param", f"calibrate.live_every_touches={every_touches}",
         "--param", f"calibrate.live_period={float(period)!r}"]
+
+
+def run_sitting(tmp_path, argv, name: str, until):
+    """One record session, stopped with SIGINT 2 s after ``until(status, sim)`` holds (the recorder's last
+    touches reported) and checked to end cleanly: the calibrate node's statuses, the session's stderr, and what
+    else it published (``frames`` on /tf_static, the recorder's ``progress``, the simulated robot's ``sim``)."""
+    domain = unique_domain_id()
+    listener = session = None
+    code = None
+    try:
+        listener = Listener(domain)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        seen = {"frames": listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=LATCHED),
+                "sim": listener.subscribe(String, SIM_STATUS_TOPIC, keep=lambda m: json.loads(m.data)),
+                "progress": listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))}
+        session = Proc(argv, ros_env(domain), tmp_path, name)
+        assert listener.spin_until(lambda: until(status, seen["sim"]), timeout=120, procs=[session]), \
+            (status[-2:], seen["sim"][-1:])
+        listener.spin_for(2.0)
+        code = session.stop(signal.SIGINT)
+        assert listener.spin_until(lambda: status[-1]["state"] == "ended", timeout=10), status[-3:]
+        listener.spin_for(0.5)
+    finally:
+        if listener is not None:
+            listener.close()
+        if session is not None and code is None:
+            session.stop(signal.SIGINT)
+    err = session.stderr()
+    assert code == 0 and "Traceback" not in err, err[-3000:]
+    return status, err, seen
 
 
 def test_updates_arrive_while_touches_are_recorded(tmp_path):
@@ -97,33 +127,13 @@ def test_the_session_end_calibrates_the_touches_since_the_last_update_and_says_w
     frames go out on /tf_static, and the latched status says the session ended and where the calibration is."""
     bag = tmp_path / "touches"
     argv = live_session_cmd(bag, 5, 32, "r_hand-torso", every_touches=20, period=86400)     # no update by time
-    domain = unique_domain_id()
-    listener = session = None
-    code = None
-    try:
-        listener = Listener(domain)
-        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
-        frames = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=LATCHED)
-        sim = listener.subscribe(String, SIM_STATUS_TOPIC, keep=lambda m: json.loads(m.data))
-        progress = listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))
-        session = Proc(argv, ros_env(domain), tmp_path, "record")
-        updated = lambda: [s for s in status if s["state"] == "updated"]  # noqa: E731
-        assert listener.spin_until(lambda: sim and sim[-1]["done"] and updated(), timeout=120, procs=[session]), \
-            (status[-2:], sim[-1:])
-        listener.spin_for(2.0)       # the recorder's last touches reported
-        recorded = progress[-1]["touches"]
-        (last_update,) = updated()
-        assert last_update["touches"] < recorded, (last_update["touches"], recorded)
-        code = session.stop(signal.SIGINT)
-        assert listener.spin_until(lambda: status[-1]["state"] == "ended", timeout=10), status[-3:]
-        listener.spin_for(0.5)
-    finally:
-        if listener is not None:
-            listener.close()
-        if session is not None and code is None:
-            session.stop(signal.SIGINT)
-    err = session.stderr()
-    assert code == 0 and "Traceback" not in err, err[-3000:]
+    updated = lambda status: [s for s in status if s["state"] == "updated"]  # noqa: E731
+    status, err, seen = run_sitting(tmp_path, argv, "record", lambda status, sim: sim and sim[-1]["done"]
+                                    and updated(status))
+    recorded = seen["progress"][-1]["touches"]     # the recorder's last touches reported
+    (last_update,) = updated(status)
+    assert last_update["touches"] < recorded, (last_update["touches"], recorded)
+    frames = seen["frames"]
     end = status[-1]
     out = tmp_path / "touches_calibration"
     assert end["calibration"] == str(out / "calibration.yaml") and end["touches"] == end["recorded"] == recorded, end
@@ -405,3 +415,34 @@ def test_the_session_end_writes_the_last_update_at_once_while_a_live_update_stil
             listener.close()
     assert written_while_running
     assert set(SkinCalibration.load(out / "calibration.yaml", skin).parts) == set(node.live.last.calibration.parts)
+
+
+
+
+def test_a_second_sitting_continues_the_first_ones_capture(tmp_path):
+    """Two record sessions, as two sittings at the robot: the second (another seed) continues the first's bag
+    (--continue-from). Its first update calibrates the first sitting's touches (before or with its own first
+    ones: RViz shows that calibration at once), every update counts both sittings', and the calibration written at
+    its end covers every touch of both."""
+    first_bag, second_bag = tmp_path / "sitting1", tmp_path / "sitting2"
+    played = lambda status, sim: sim and sim[-1]["done"]  # noqa: E731
+    status, _, _ = run_sitting(tmp_path, live_session_cmd(first_bag, 3, 16, "r_hand-torso", 100, 86400.0), "sitting1",
+                            played)
+    earlier = status[-1]["recorded"]
+    assert earlier >= 12, status[-1]
+    argv = live_session_cmd(second_bag, 4, 16, "r_hand-torso", 100, 86400.0) + ["--continue-from", str(first_bag)]
+    status, err, _ = run_sitting(tmp_path, argv, "sitting2", played)
+    updated = [s for s in status if s.get("state") == "updated"]
+    assert updated and updated[0]["earlier"] == earlier and updated[0]["touches"] >= earlier, status
+    end = status[-1]
+    assert end["earlier"] == earlier and end["recorded"] > earlier and end["complete"] is True, end
+    assert end["touches"] == end["recorded"], end
+    out = tmp_path / "sitting2_calibration"
+    said = next(line for line in err.splitlines() if "the last live calibration" in line)
+    assert f"(all {end['recorded']} touches, {earlier} of them from the earlier sittings' bags" in said, said
+    assert said.endswith(f"-> {out}"), said
+    report = json.loads((out / "report.json").read_text())
+    assert report["final"]["train"]["n_touches"] + report["final"]["test"]["n_touches"] == end["recorded"]
+    assert report["input"]["files"] == [str(first_bag), str(second_bag)]
+    assert (first_bag / "metadata.yaml").exists()     # the earlier sitting's bag is read, never written
+    assert continued_bags(second_bag) == [str(first_bag)]         # said in the new bag's metadata

@@ -37,6 +37,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--events-port", default="", help="skinManager's skin events port (robot nao)")
     parser.add_argument("--bag", default="", help="touch bag to write (default: ./nao_skin_touches_<date>_<time>)")
     parser.add_argument("--calibration", default="", help="calibration to start from (default: nominal)")
+    parser.add_argument("--continue-from", action="append", default=[], metavar="BAG",
+                        help="a bag of an earlier sitting of this capture: the live calibration, the guidance and the"
+                             " calibration written at the end cover its touches too (repeatable; the new touches go"
+                             " to a new bag, --bag)")
     parser.add_argument("--taxels", action="append", default=[], metavar="PART=FILE",
                         help="the robot's own skinManager taxel file of a part, for every node that reads the skin;"
                              " repeatable")
@@ -81,7 +85,8 @@ def run(args) -> int:
 
     specs = record_session(args.robot, nao_ip=args.nao_ip, naoqi=not args.no_naoqi, events_port=args.events_port,
                            bag_path=args.bag, calibration=args.calibration, rviz=args.rviz, taxels=args.taxels,
-                           overrides=parse_overrides(args.param), guided=args.guided)
+                           overrides=parse_overrides(args.param), guided=args.guided,
+                           continue_from=args.continue_from)
     claim = None
     if not args.print:
         check_needs(specs)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import copy
 import errno
+import json
 import os
 import shutil
 import sqlite3
@@ -46,6 +47,7 @@ from nao_skin.touch.touches import TouchSet
 BAG_KIND_KEY = "nao_skin.bag_kind"
 SOURCE_KEY = "nao_skin.recorded_from"     # what a recorder was fed: a simulated robot is said on every read
 SIMULATED = "the simulated robot (sim_robot)"
+CONTINUES_KEY = "nao_skin.continues"        # the earlier sittings' bags a record session continued: a JSON list
 BAG_VERSION = 8              # rosbag2 metadata version of ROS 2 Jazzy
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
@@ -98,7 +100,7 @@ class BagWriter:
     """
 
     def __init__(self, path: str | Path, storage: str = "sqlite3", kind: str = "stream", live: bool = False,
-                 source: str = ""):
+                 source: str = "", continues=()):
         from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 
         plugins = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}
@@ -112,7 +114,8 @@ class BagWriter:
         except WriterError:
             raise DataError(f"{self.path}: exists already (made meanwhile by another recording); a bag is never"
                             f" overwritten") from None
-        self._custom = {BAG_KIND_KEY: kind, **({SOURCE_KEY: source} if source else {})}
+        self._custom = {BAG_KIND_KEY: kind, **({SOURCE_KEY: source} if source else {}),
+                        **({CONTINUES_KEY: json.dumps([str(p) for p in continues])} if continues else {})}
         for key, value in self._custom.items():
             self._writer.set_custom_data(key, value)
         self._kind = kind
@@ -452,6 +455,23 @@ def _source_note(custom: dict, path: Path) -> str | None:
     if custom.get(SOURCE_KEY) == SIMULATED:
         return f"{path}: recorded from {SIMULATED}, not the robot"
     return None
+
+
+def recorded_from(path: Path) -> str | None:
+    """What a touch bag's recorder was fed (its metadata's ``nao_skin.recorded_from``), None when it does not say
+    (a bag converted from a text file, one whose metadata is gone)."""
+    source = _provisional_custom(path).get(SOURCE_KEY)
+    return str(source) if source else None
+
+
+def continued_bags(path: Path) -> list:
+    """The earlier sittings' bags a record session's bag continues (its metadata's ``nao_skin.continues``, as the
+    session named them: absolute paths); none when it says nothing or cannot be read."""
+    try:
+        paths = json.loads(_provisional_custom(path).get(CONTINUES_KEY) or "[]")
+    except ValueError:
+        return []
+    return [str(p) for p in paths if isinstance(p, str) and p] if isinstance(paths, list) else []
 
 
 def _provisional_custom(path: Path) -> dict:

@@ -66,6 +66,26 @@ def _recording_of(path: Path) -> Path:
     return bag
 
 
+class ReadOnce:
+    """A recording that no longer grows (an earlier sitting's bag a record session continues), as a follower of
+    :func:`load_touches`: decoded on the first read only; each read returns its touches and a fresh copy of its
+    load report (the loader adds its notes to the report it gets)."""
+
+    def __init__(self, path: str | Path, skin: SkinModel):
+        self.path, self.skin = Path(path), skin
+        self._read: tuple | None = None
+
+    def read(self) -> tuple:
+        import copy
+
+        from nao_skin.formats.bag import read_touches
+
+        if self._read is None:
+            self._read = read_touches(find_bag(self.path), self.skin)
+        touches, report = self._read
+        return touches, copy.deepcopy(report)
+
+
 def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None) -> tuple:
     """Touches of every input, concatenated; the load report; ground truth if a simulator wrote one.
 
@@ -74,7 +94,7 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
     the hints, so a quiet caller still says what was left out. Nothing already
     read is lost because of a bad touch elsewhere. ``followed``: bags read again
     and again while they are recorded, by input path, each a
-    :class:`~nao_skin.formats.bag.GrowingBag` that decodes only what is new.
+    :class:`~nao_skin.formats.bag.GrowingBag` that decodes only what is new (or a :class:`ReadOnce`).
     """
     from nao_skin.formats.bag import read_touches
     from nao_skin.formats.legacy import read_legacy
@@ -116,6 +136,9 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
         report.merge(rep)
         if touches.n_touches:
             sets.append(touches)
+    for note in continuation_notes(paths):
+        report.notes.append(note)
+        summary(note)
     if not sets:
         why = f"; {report.notes[0]}" if report.notes else ""    # e.g. why no moment was a touch
         raise DataError(f"{report.source}: no usable touch in the input ({report.summary()}){why}")
@@ -124,6 +147,37 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
         report.notes.append(note)
         summary(note)
     return (sets[0] if len(sets) == 1 else TouchSet.concatenate(sets)), report, truth
+
+
+def continuation_notes(paths) -> list:
+    """A line per input recorded as the continuation of earlier sittings (``nao-skin record --continue-from``)
+    some of which are not among the inputs: its calibration would leave their touches out."""
+    from nao_skin.formats.bag import continued_bags
+
+    named = set()
+    for raw in paths:
+        try:
+            named.add(_recording_of(Path(raw)))
+        except (NaoSkinError, OSError):
+            pass
+    out = []
+    for raw in paths:
+        path = Path(raw)
+        if path.is_file() and path.suffix == ".txt":
+            continue
+        missing = []
+        for earlier in continued_bags(find_bag(path)):
+            try:
+                if _recording_of(Path(earlier)) in named:
+                    continue
+            except (NaoSkinError, OSError):
+                pass
+            missing.append(earlier)
+        if missing:
+            out.append(f"{raw}: continues the capture of {', '.join(missing)} (nao-skin record --continue-from),"
+                       f" not among the inputs: name {'it' if len(missing) == 1 else 'them'} too to calibrate the"
+                       f" whole capture")
+    return out
 
 
 def _ground_truth(truths: dict, skin: SkinModel) -> tuple:

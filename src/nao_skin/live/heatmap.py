@@ -66,6 +66,15 @@ class ActivationCounts:
             self.counts[part] += started
             self.pressed[part] = now
 
+    def add_touches(self, touches) -> None:
+        """Touches recorded before (an earlier sitting's bag): each activation one press of its taxel."""
+        for index, name in enumerate(touches.part_names):
+            counts = self.counts.get(name)
+            if counts is None:
+                continue
+            slots = touches.act_slot[touches.act_part == index]
+            np.add.at(counts, slots[(slots >= 0) & (slots < len(counts))], 1)
+
     def release_silent(self, when: float, gap: float = SILENT_RELEASE_S) -> None:
         """Parts silent for more than ``gap`` s at ``when`` are released: a skin stream pauses only when its
         source is gone (skinManager stopped, a bridge killed), which sends no released sample."""

@@ -84,7 +84,9 @@ class CalibrateNode(Node):
                                         float(self.p["live_refresh"]),
                                         Settling(float(self.p["live_settle_mm"]), int(self.p["live_settle_updates"]),
                                                  float(self.p["live_flat_percent"])),
-                                        float(self.p["live_max_move_mm"]))
+                                        float(self.p["live_max_move_mm"]), earlier=self._earlier())
+            if self.live.read_earlier(log=self.get_logger().info):    # a bad bag: one line and exit 2, now
+                self.schedule.again()     # their calibration on /tf_static at once, before the first new touch
             self._recorded = 0            # touches the recorder reported so far
             self._retried = False         # an update found no new touch in the bag and tries once more
             self._malformed = 0           # progress messages skipped
@@ -123,9 +125,13 @@ class CalibrateNode(Node):
         it holds what the node reads (the recording, the calibration it started from, the skin's files)."""
         from nao_skin.calibration.pipeline import check_output
 
-        check_output(out_dir or self.p["out_dir"], [self.p["recording"], self.p["calibration"],
+        check_output(out_dir or self.p["out_dir"], [self.p["recording"], *self._earlier(), self.p["calibration"],
                                                     self.p["skin_config"], *self.skin.source_files()],
                      force=True, label="out_dir")
+
+    def _earlier(self) -> list:
+        """The bags of earlier sittings this session continues (``earlier_recordings``)."""
+        return [path for path in self.p["earlier_recordings"] if path]
 
     def _check_start(self, inputs: list) -> None:
         """What the calibration at start reads and where it writes, as a request checks them: an input that is
@@ -214,8 +220,17 @@ class CalibrateNode(Node):
     def _on_request(self, msg: String) -> None:
         paths = request_paths(msg.data)
         if not paths:
-            paths = [i for i in self.p["inputs"] if i] or ([self.p["recording"]] if self.p["recording"] else [])
+            paths = [i for i in self.p["inputs"] if i] or self._session_inputs()
         self._start(paths)
+
+    def _session_inputs(self) -> list:
+        """What an empty request calibrates in a record session: the recording, after the earlier sittings' bags
+        it continues (before its first touch, those alone)."""
+        recording = self.p["recording"]
+        if not recording:
+            return []
+        earlier = self._earlier()
+        return [*earlier, recording] if not earlier or os.path.lexists(recording) else earlier
 
     def _start(self, paths: list) -> None:
         if not paths:
@@ -312,13 +327,17 @@ class CalibrateNode(Node):
         n, read = self.live.last_count, self.live.read_count
         covered = (f"all {n} touches" if complete and n >= read else f"{n} of {read} touches" if n < read
                    else f"{n} touches")
+        if self.live.earlier_count:
+            covered += f", {self.live.earlier_count} of them from the earlier sittings' bags"
         if self.live.duplicates:           # the recorder's count includes them
-            covered += f"; {self.live.duplicates} exact duplicates in the bag left out"
+            covered += (f"; {self.live.duplicates} exact duplicates in the {'bags' if self.live.earlier else 'bag'}"
+                        f" left out")
         self.get_logger().info(f"the last live calibration ({covered}) -> {out}")
         self._final_status({"state": "ended", "generation": self.generation, "out_dir": str(out),
                             "calibration": str(out / "calibration.yaml"), "touches": n, "recorded": read,
                             # the bag's exact duplicates, left out of 'recorded' (the recorder counted them)
                             "duplicates": self.live.duplicates, "complete": complete,
+                            **({"earlier": self.live.earlier_count} if self.live.earlier else {}),
                             "parts": self.live.parts_state()})
 
     def _final_status(self, info: dict) -> None:
@@ -371,7 +390,9 @@ class CalibrateNode(Node):
         writes what it still holds as it stops); True when the last accepted calibration now covers every touch
         of the closed recording."""
         log = self.get_logger()
-        if not self.live.recording_exists() or (self.live.last is None and not self._recorded):
+        if not self.live.recording_exists():     # no touch recorded: complete if the earlier sittings' all are
+            return self.live.last is not None and self.live.last_count >= self.live.read_count
+        if self.live.last is None and not self._recorded:
             return False             # no touch recorded (a first calibration needs 10 or more anyway)
         closed = self.live.wait_until_closed(FINAL_WAIT_S)
         if not closed:

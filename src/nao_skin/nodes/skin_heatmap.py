@@ -1,7 +1,8 @@
 """skin_heatmap: live coverage heat-map of the skin for RViz (visualization_msgs/MarkerArray).
 
 Every taxel of every part is a sphere, coloured by how often it has been
-activated in this session (:mod:`nao_skin.live.heatmap`: grey = never, then a
+activated in this session and, when it continues earlier sittings
+(``earlier_recordings``), in their touches (:mod:`nao_skin.live.heatmap`: grey = never, then a
 viridis-like log scale), currently pressed taxels red. One SPHERE_LIST marker
 per triangle, in the triangle's own frame (``<part>_skin_triangle_<t>``,
 namespace = part, id = triangle number, points in slot order), so the
@@ -31,6 +32,7 @@ from std_msgs.msg import ColorRGBA, String
 from visualization_msgs.msg import Marker, MarkerArray
 
 from nao_skin.errors import DataError
+from nao_skin.formats.inputs import load_touches
 from nao_skin.formats.pointcloud import read_taxels, taxels_topic
 from nao_skin.guidance.capture import targets_from_json
 from nao_skin.live.heatmap import (GUIDANCE_COLOUR, SCALE_LEVELS, ActivationCounts, palette, triangle_outline,
@@ -51,6 +53,9 @@ class SkinHeatmap(Node):
         p = declare(self, SKIN_HEATMAP)
         self.skin = skin_from_params(p)
         self.counts = ActivationCounts({n: part.n_slots for n, part in self.skin.parts.items()})
+        earlier = [path for path in p["earlier_recordings"] if path]
+        if earlier:     # the capture's coverage so far, not this sitting's alone; a bad bag: one line, exit 2
+            self.counts.add_touches(load_touches(earlier, self.skin, log=self.get_logger().debug)[0])
         self.palette = [ColorRGBA(r=float(c[0]), g=float(c[1]), b=float(c[2]), a=float(c[3])) for c in palette()]
         d = float(p["taxel_diameter"])
         # Everything but the colours is fixed: build markers once, recolour them per update.

@@ -11,6 +11,9 @@ nothing: the last accepted calibration stays the one to publish and write.
 When the session ends, a final update (``final=True``, once the recorder has
 closed the bag: :meth:`LiveCalibration.wait_until_closed`) calibrates the
 touches recorded since the last one, so that what is written covers them all.
+A session that continues earlier sittings (``earlier``: their bags, read once
+at its start) calibrates their touches with the recording's, from the first
+update on, which needs no new touch.
 """
 from __future__ import annotations
 
@@ -18,7 +21,7 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 from nao_skin.calibration.engine import CalibrationResult
 from nao_skin.calibration.options import CalibrationOptions
@@ -26,7 +29,7 @@ from nao_skin.calibration.pipeline import calibrate_loaded, load_inputs
 from nao_skin.calibration.plan import pair_counts
 from nao_skin.errors import NaoSkinError, TooFewTouches, one_line
 from nao_skin.formats.bag import GrowingBag
-from nao_skin.formats.inputs import find_bag
+from nao_skin.formats.inputs import ReadOnce, find_bag
 from nao_skin.formats.outdir import is_free, output_stamp
 from nao_skin.formats.salvage import recording_lock
 from nao_skin.live.updates import LiveUpdates, Settling
@@ -55,16 +58,28 @@ class LiveCalibration:
     """
 
     def __init__(self, skin: SkinModel, options: CalibrationOptions, recording: str | Path,
-                 start: SkinCalibration, refresh: float, settling: Settling, max_move_mm: float):
+                 start: SkinCalibration, refresh: float, settling: Settling, max_move_mm: float,
+                 earlier: Sequence = ()):
         self.skin, self.options, self.recording = skin, options, str(recording)
+        self.earlier = [str(p) for p in earlier]        # bags of earlier sittings: the session continues them
+        self.earlier_count = 0                          # their touches (exact duplicates left out)
         self.updates = LiveUpdates(skin, start, refresh, settling, max_move_mm)
         self.last: CalibrationResult | None = None     # the last accepted update's result
         self.last_count = 0                             # how many touches it calibrated
         self.read_count = 0                             # how many touches the recording held at the last read
         self.duplicates = 0                             # ... after leaving out this many exact duplicates
         self._last_touches = -1                         # touches the last update calibrated (-1: it failed)
-        self._followed: dict = {}                       # the recording, read incrementally
+        self._followed: dict = {p: ReadOnce(p, skin) for p in self.earlier}   # the recording read incrementally
         self._bag_dir: Path | None = None
+
+    def read_earlier(self, log: Callable[[str], None] | None = None) -> int:
+        """Read the earlier sittings' bags (once: they no longer grow), so that a bad one is said at the session's
+        start, in one line (:class:`~nao_skin.errors.NaoSkinError`), not at its first update; their touches."""
+        if self.earlier:
+            log = log or (lambda msg: None)
+            self.earlier_count = load_inputs(self.earlier, self.skin, log=log, summary=log,
+                                             followed=self._followed).touches.n_touches
+        return self.earlier_count
 
     def parts_state(self) -> dict:
         """``{part: collecting | converging | done}``."""
@@ -80,11 +95,13 @@ class LiveCalibration:
         t0 = time.perf_counter()
         touches = None
         try:
-            if not self._followed:      # the recorder has created the bag by its first touch
-                bag = find_bag(Path(self.recording))
+            if self.recording not in self._followed and (not self.earlier or self.recording_exists()):
+                bag = find_bag(Path(self.recording))     # the recorder has created the bag by its first touch
                 self._bag_dir = bag if bag.is_dir() else bag.parent
-                self._followed = {self.recording: GrowingBag(bag, self.skin)}
-            loaded = load_inputs([self.recording], self.skin, log=log, summary=log, followed=self._followed)
+                self._followed[self.recording] = GrowingBag(bag, self.skin)
+            # a session continuing earlier sittings calibrates their touches before its own first one
+            inputs = [*self.earlier, *([self.recording] if self.recording in self._followed else [])]
+            loaded = load_inputs(inputs, self.skin, log=log, summary=log, followed=self._followed)
             touches = loaded.touches
             self.read_count, self.duplicates = touches.n_touches, loaded.n_duplicates
             if touches.n_touches == self._last_touches and (final or self._being_recorded()):
@@ -104,7 +121,8 @@ class LiveCalibration:
                                 "from_scratch": not start["warm"],
                                 # a refresh runs both (its seconds are theirs) and keeps the closer
                                 "refresh": self.updates.warm_start.refreshed,
-                                "warnings": report.warnings}, result, touches)
+                                "warnings": report.warnings,
+                                **({"earlier": self.earlier_count} if self.earlier else {})}, result, touches)
         except TooFewTouches as exc:      # no pair has touches enough yet: wait for more
             self._last_touches = -1
             return LiveOutcome({"state": "waiting", "reason": str(exc), "parts": self.parts_state()}, None, touches)

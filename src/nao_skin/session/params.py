@@ -47,6 +47,8 @@ CALIBRATE = {
     "calibration": ("", "calibration published at start and used as prior (empty: nominal skin)"),
     "inputs": ([""], "bags (or legacy .txt) to calibrate from; empty entries are ignored"),
     "recording": ("", "the recorder's bag: calibrated on an empty request when 'inputs' is empty"),
+    "earlier_recordings": ([""], "bags of earlier sittings this record session continues: its live updates, guidance"
+                                 " and empty requests calibrate their touches with the recording's"),
     "calibrate_on_start": (False, "run on 'inputs' right after start (ros2 run ... calibrate)"),
     "out_dir": ("nao_skin_calibration", "output directory (replaced when a run succeeds)"),
     "plots": (False, "write the report's plots too (slower)"),
@@ -95,6 +97,8 @@ PAIRING_RECORDER = {
     "bag_path": ("", "touch bag to create (a new directory; empty: ./nao_skin_touches_<date>_<time>)"),
     "recorded_from": ("", "what the touches come from, kept in the bag's metadata (a record session sets it; a bag"
                           " of the simulated robot is said as such on every read)"),
+    "continues": ([""], "the earlier sittings' bags the session continues, kept in the bag's metadata (a record"
+                        " session sets it: nao-skin calibrate says when one of them is not among its inputs)"),
     "storage": ("mcap", "bag storage: mcap (survives kill -9 up to the last flush) or sqlite3",
                 Rule(str, ("mcap", "sqlite3"))),
     "flush_period": (1.0, "seconds between flushes of the bag to disk", SECONDS),
@@ -137,6 +141,8 @@ SKIN_HEATMAP = {
     "taxel_diameter": (0.005, "sphere diameter of a taxel (m)", POSITIVE),
     "legend_origin": ([0.0, -0.25, 0.15], "where the colour bar starts, in the base frame (m)",
                       Rule(tuple, length=3)),
+    "earlier_recordings": ([""], "bags of earlier sittings the record session continues: their touches count"
+                                 " as presses from the start"),
 }
 
 

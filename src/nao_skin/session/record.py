@@ -76,11 +76,13 @@ def robot_description(calibration: str = "", skin_frames: bool = False) -> str:
 def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, events_port: str = "",
                    bag_path: str = "", calibration: str = "", rviz: bool = False, taxels=(),
                    overrides: dict | None = None, with_robot_state_publisher: bool = True,
-                   guided: bool = False) -> list:
+                   guided: bool = False, continue_from=()) -> list:
     """The nodes of ``record.launch.py`` for these launch arguments.
 
     ``taxels``: ``PART=FILE`` items, the robot's own layouts, given to every node that reads the skin.
     ``guided``: the simulated robot follows the guidance (robot sim only).
+    ``continue_from``: bags of earlier sittings of this capture; the calibrate node calibrates their touches with
+    the new recording's (live updates, guidance, the calibration written at the end).
     ``overrides``: ``{node name: {parameter: value}}`` applied last (tests, CLI ``--param``).
     """
     if robot not in ROBOTS:
@@ -121,11 +123,16 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
         specs.append(NodeSpec("yarp_skin_bridge", "yarp_skin_bridge", [bridges_yaml],
                               {"events_port": events_port} if events_port else {}, needs={"yarp": YARP_HINT}))
     source = SIMULATED if robot == "sim" else "the robot (naoqi_bridge or another joint state driver, yarp_skin_bridge)"
+    earlier = _earlier_recordings(continue_from, robot, source)
     specs.append(NodeSpec("pairing_recorder", "pairing_recorder", [record_yaml],
-                          {"bag_path": bag_path, "recorded_from": source}))
-    specs.append(NodeSpec("skin_heatmap", "skin_heatmap", [record_yaml]))
+                          {"bag_path": bag_path, "recorded_from": source,
+                           **({"continues": earlier} if earlier else {})}))
+    specs.append(NodeSpec("skin_heatmap", "skin_heatmap", [record_yaml],
+                          {"earlier_recordings": earlier} if earlier else {}))
     # the calibration of the session is written beside its recording
     cal = {"recording": bag_path, "out_dir": f"{bag_path}_calibration"}
+    if earlier:
+        cal["earlier_recordings"] = earlier
     if calibration:
         cal["calibration"] = calibration
     specs.append(NodeSpec("calibrate", "calibrate", [record_yaml], cal))
@@ -149,6 +156,11 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
         if bag_param in values:
             raise ConfigError(f"--param {node}.{bag_param}: the session's bag is set once, for the recorder and the"
                               f" calibrate node together: give --bag (launch: bag:=) instead")
+        earlier_param = {"pairing_recorder": "continues", "calibrate": "earlier_recordings",
+                         "skin_heatmap": "earlier_recordings"}.get(node)
+        if earlier_param in values:       # one list for both, checked before any node starts
+            raise ConfigError(f"--param {node}.{earlier_param}: give --continue-from BAG (launch: continue_from:=BAG)"
+                              f" instead")
         if node not in by_name:
             raise ConfigError(f"--param {node}.{next(iter(values), '')}: no node '{node}' in this session"
                               f" (robot {robot}: {', '.join(by_name)})")
@@ -163,6 +175,35 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     _check_guided(by_name)
     _check_files(bag_path, calibration, by_name["calibrate"].overrides)
     return specs
+
+
+def _earlier_recordings(paths, robot: str, source: str) -> list:
+    """The bags of earlier sittings a session continues, as absolute paths, each checked before any node starts:
+    a recording nao-skin reads (the calibrate node reads their touches at its start), none named twice, none still
+    being recorded, none recorded from the other robot (a calibration of both would mix the simulated robot's
+    touches with the real one's)."""
+    from nao_skin.formats.bag import SIMULATED, recorded_from
+    from nao_skin.formats.inputs import check_inputs, find_bag
+    from nao_skin.formats.salvage import recording_lock
+
+    paths = [str(Path(p).expanduser().resolve()) for p in paths if str(p).strip()]
+    if not paths:
+        return []
+    try:
+        check_inputs(paths)
+    except NaoSkinError as exc:
+        raise ConfigError(f"continue from {exc}") from None
+    for path in paths:
+        bag = find_bag(Path(path))
+        lock = recording_lock(bag if bag.is_dir() else bag.parent)
+        if lock is not None and lock.state == "open":
+            raise ConfigError(f"continue from {path}: is being recorded now (by process {lock.pid}); continue it"
+                              f" once that session has ended")
+        was = recorded_from(bag)
+        if was and (was == SIMULATED) != (source == SIMULATED):
+            raise ConfigError(f"continue from {path}: was recorded from {was}; this session records {source}:"
+                              f" one calibration of both would mix the simulated robot's touches with the real one's")
+    return paths
 
 
 def _check_printable(spec: NodeSpec) -> None:

@@ -48,14 +48,15 @@ class TouchRecording:
     """The touches of one session into the touch bag ``bag_path`` (a new directory, opened here)."""
 
     def __init__(self, skin: SkinModel, config: EventConfig, bag_path: str | Path, storage: str,
-                 recorded_from: str = ""):
+                 recorded_from: str = "", continues=()):
         self.skin = skin
         self.detector = EventDetector.for_skin(skin, config)
         self.parts = list(skin.parts)
         self.joint_names = list(skin.robot.joint_names)
         self.bag_path = Path(bag_path).expanduser().resolve()
         self.recorded_from = recorded_from
-        self.bag = BagWriter(self.bag_path, storage, kind="touches", live=True, source=recorded_from)
+        self.bag = BagWriter(self.bag_path, storage, kind="touches", live=True, source=recorded_from,
+                             continues=continues)
         self.bag.__enter__()
         self.n_touches = 0
         self.pairs: Counter = Counter()

@@ -1,0 +1,209 @@
+"""A capture over several sittings (``nao-skin record --continue-from BAG``, launch ``continue_from:=``).
+
+Hours of moving the arm by hand do not fit one session (a battery, a break, a recorder that died): the next
+sitting records to a new bag and its live calibration, guidance and the calibration written at its end cover
+the earlier sittings' touches too. These tests check the pure parts on real bag files: the live calibration of
+a recording that continues earlier bags, and what a record session refuses before any node starts. A real
+session over DDS continuing a real one is in ``test_live_calibration.py``.
+"""
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from nao_skin.calibration.options import CalibrationOptions
+from nao_skin.errors import ConfigError, DataError
+from nao_skin.formats.bag import SIMULATED, BagWriter, touch_messages, write_touch_bag
+from nao_skin.formats.salvage import write_lock
+from nao_skin.live.updates import Settling
+from nao_skin.session.live import LiveCalibration
+from nao_skin.session.record import record_session
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate
+from nao_skin.touch.datasets import deduplicate
+
+
+@pytest.fixture(scope="module")
+def touches(skin):
+    params = load_params("default", {"pairs": [["r_hand", "torso"]], "n_touches": 60})
+    out, _ = deduplicate(simulate(skin, params, seed=6).touches)
+    return out
+
+
+def live(skin, recording, earlier):
+    return LiveCalibration(skin, CalibrationOptions(), recording, skin.zero_calibration(), 2.0, Settling(), 20.0,
+                           earlier=earlier)
+
+
+def test_a_session_continuing_an_earlier_bag_calibrates_its_touches_first_then_with_the_new_ones(skin, touches,
+                                                                                                 tmp_path):
+    earlier, recording = tmp_path / "sitting1", tmp_path / "sitting2"
+    write_touch_bag(earlier, touches.subset(np.arange(40)), skin, storage="mcap")
+    session = live(skin, recording, [earlier])
+    assert session.read_earlier() == 40
+    # before the new sitting's first touch (its bag not made yet): the earlier touches alone, not a failure
+    first = session.update()
+    assert first.status["state"] == "updated" and first.status["touches"] == 40, first.status
+    assert first.status["earlier"] == 40 and first.status["parts"]["r_hand"] == "converging"
+    # the new sitting's touches come: one calibration of both, warm from the earlier sitting's
+    write_touch_bag(recording, touches.subset(np.arange(40, 60)), skin, storage="mcap")
+    second = session.update()
+    assert second.status["state"] == "updated" and second.status["touches"] == 60, second.status
+    assert second.status["earlier"] == 40 and not second.status["from_scratch"]
+    assert second.accepted.report.input["files"] == [str(earlier), str(recording)]
+    # an earlier bag moved away during the session: an update says so in one line, the last good one stays
+    shutil.move(earlier, tmp_path / "moved")
+    third = session.update()
+    assert third.status["state"] == "failed" and str(earlier) in third.status["error"], third.status
+    assert session.last is second.accepted
+
+
+def test_without_earlier_bags_a_recording_not_made_yet_is_a_failed_update_as_before(skin, tmp_path):
+    out = live(skin, tmp_path / "not_yet", []).update()
+    assert out.status["state"] == "failed" and "not_yet" in out.status["error"] and "earlier" not in out.status
+
+
+def test_an_earlier_bag_that_cannot_be_read_is_one_line_at_the_start(skin, tmp_path):
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "metadata.yaml").write_text("rosbag2_bagfile_information: [\n")
+    with pytest.raises(DataError, match="bad"):
+        live(skin, tmp_path / "new", [bad]).read_earlier()
+
+
+def session_with(tmp_path, earlier, robot="sim", **kwargs):
+    return record_session(robot, bag_path=str(tmp_path / "new_bag"), continue_from=earlier,
+                          with_robot_state_publisher=False, **kwargs)
+
+
+def test_the_calibrate_node_gets_the_earlier_bags_as_absolute_paths(skin, touches, tmp_path, monkeypatch):
+    write_touch_bag(tmp_path / "sitting1", touches.subset(np.arange(20)), skin)
+    monkeypatch.chdir(tmp_path)
+    (calibrate,) = [s for s in session_with(tmp_path, ["sitting1"]) if s.name == "calibrate"]
+    assert calibrate.overrides["earlier_recordings"] == [str(tmp_path / "sitting1")]
+    (calibrate,) = [s for s in session_with(tmp_path, []) if s.name == "calibrate"]
+    assert "earlier_recordings" not in calibrate.overrides
+
+
+def test_a_session_refuses_earlier_bags_it_cannot_continue_before_any_node_starts(skin, touches, tmp_path):
+    bag = tmp_path / "sitting1"
+    write_touch_bag(bag, touches.subset(np.arange(20)), skin)
+    with pytest.raises(ConfigError, match=r"continue from .*missing: no such file or directory"):
+        session_with(tmp_path, [str(tmp_path / "missing")])
+    with pytest.raises(ConfigError, match="the same recording as the input"):
+        session_with(tmp_path, [str(bag), str(bag / "")])
+    with pytest.raises(ConfigError, match="give --continue-from BAG"):
+        session_with(tmp_path, [], overrides={"calibrate": {"earlier_recordings": f"[{bag}]"}})
+    # a bag still being recorded (its recorder's lock names a running process: this one)
+    write_lock(bag)
+    with pytest.raises(ConfigError, match=f"continue from {bag}: is being recorded now"):
+        session_with(tmp_path, [str(bag)])
+
+
+def test_a_session_of_the_real_robot_refuses_to_continue_a_simulated_one(skin, touches, tmp_path):
+    simulated = tmp_path / "simulated_sitting"
+    with BagWriter(simulated, source=SIMULATED):
+        pass
+    with pytest.raises(ConfigError, match="mix the simulated robot's touches with the real one's"):
+        session_with(tmp_path, [str(simulated)], robot="nao")
+    assert [s for s in session_with(tmp_path, [str(simulated)]) if s.name == "calibrate"]   # sim continues sim
+
+
+def test_record_says_a_missing_earlier_bag_in_one_line_with_exit_2(tmp_path):
+    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "record", "--bag", str(tmp_path / "new"),
+                          "--continue-from", str(tmp_path / "gone")], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and "Traceback" not in run.stderr, run.stderr
+    assert run.stderr.strip().splitlines()[-1].endswith(f"continue from {tmp_path / 'gone'}: no such file or"
+                                                         f" directory"), run.stderr
+    assert not (tmp_path / "new").exists()
+
+
+def test_calibrating_a_continuing_bag_without_the_bags_it_continues_says_so(skin, touches, tmp_path):
+    """The bag of a sitting that continued earlier ones names them in its metadata: a calibration of it alone
+    would leave their touches out, and says so in one line; with them among the inputs nothing is said."""
+    from nao_skin.calibration.pipeline import load_inputs
+
+    first, second = tmp_path / "sitting1", tmp_path / "sitting2"
+    write_touch_bag(first, touches.subset(np.arange(30)), skin)
+    with BagWriter(second, kind="touches", continues=[str(first)]) as bag:
+        for args in touch_messages(touches.subset(np.arange(30, 60)), skin):
+            bag.write_touch(*args)
+    said: list = []
+    alone = load_inputs([str(second)], skin, summary=said.append)
+    line = f"{second}: continues the capture of {first} (nao-skin record --continue-from), not among the inputs"
+    assert alone.touches.n_touches == 30 and [s for s in said if s.startswith(line)], said
+    said.clear()
+    both = load_inputs([str(first / ""), str(second)], skin, summary=said.append)    # named another way: the same
+    assert both.touches.n_touches == 60 and not [s for s in said if "continues the capture" in s], said
+    stats = subprocess.run([sys.executable, "-m", "nao_skin.cli", "stats", str(second)], capture_output=True,
+                           text=True, timeout=120)
+    assert stats.returncode == 0 and line in stats.stdout + stats.stderr, stats.stdout + stats.stderr
+
+
+@pytest.mark.middleware
+def test_the_heatmap_of_a_continuing_session_starts_with_the_earlier_sittings_presses(skin, touches, tmp_path):
+    """skin_heatmap given an earlier sitting's bag (real node, real DDS): before any skin message, every taxel
+    is coloured by how often the earlier touches activated it; a bag it cannot read is one line and exit 2."""
+    pytest.importorskip("rclpy")
+    from ros_harness import Listener, node_process, ros_env, unique_domain_id
+    from visualization_msgs.msg import MarkerArray
+
+    from nao_skin.live.heatmap import ActivationCounts, palette, triangle_slots
+    from nao_skin.nodes.topics import HEATMAP_TOPIC
+
+    earlier = tmp_path / "sitting1"
+    write_touch_bag(earlier, touches, skin)
+    want = ActivationCounts({n: p.n_slots for n, p in skin.parts.items()})
+    want.add_touches(touches)
+    assert want.max_count() > 1 and sum(int((c > 0).sum()) for c in want.counts.values()) > 50
+    domain = unique_domain_id()
+    listener = node = None
+    try:
+        listener = Listener(domain)
+        heat = listener.subscribe(MarkerArray, HEATMAP_TOPIC, qos=5)
+        node = node_process("skin_heatmap", {"earlier_recordings": [str(earlier)]}, ros_env(domain), tmp_path)
+        assert listener.spin_until(lambda: heat, timeout=60, procs=[node])
+    finally:
+        if listener is not None:
+            listener.close()
+        code = node.stop() if node is not None else None
+    assert code == 0, node.stderr()[-3000:]
+    markers = {(m.ns, m.id): m for m in heat[-1].markers}
+    pal = palette()
+    for name, part in skin.parts.items():
+        expect = want.colour_indices(name)
+        for tid, slots in triangle_slots(part):
+            colours = np.array([[c.r, c.g, c.b, c.a] for c in markers[(name, tid)].colors])
+            np.testing.assert_allclose(colours, pal[expect[slots]], atol=1e-6, err_msg=f"{name} triangle {tid}")
+    bad = node_process("skin_heatmap", {"earlier_recordings": [str(tmp_path / "gone")]}, ros_env(domain), tmp_path)
+    bad.popen.wait(timeout=60)
+    code = bad.stop()
+    err = bad.stderr()
+    assert code == 2 and "Traceback" not in err and f"{tmp_path / 'gone'}: no such file or directory" in err, err
+
+
+def test_a_sitting_whose_recorder_died_is_continued_with_every_touch_it_flushed(skin, touches, tmp_path):
+    """The sitting before ended with its recorder killed (the bag unclosed, its lock naming a process that is
+    gone): the next sitting continues it, and reads every touch the recorder had flushed."""
+    import json
+    import socket
+
+    from nao_skin.formats.salvage import LOCK_FILE
+
+    earlier = tmp_path / "killed_sitting"
+    writer = BagWriter(earlier, "mcap", kind="touches", live=True, source=SIMULATED)
+    writer.__enter__()
+    for args in touch_messages(touches.subset(np.arange(25)), skin):
+        writer.write_touch(*args)
+    writer.flush()                                          # what a recorder's last flush wrote before its kill
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    (earlier / LOCK_FILE).write_text(json.dumps({"pid": gone.pid, "host": socket.gethostname(), "start": "0"}))
+    (calibrate,) = [s for s in session_with(tmp_path, [str(earlier)]) if s.name == "calibrate"]
+    session = live(skin, tmp_path / "next_sitting", calibrate.overrides["earlier_recordings"])
+    assert session.read_earlier() == 25
+    assert session.update().status["touches"] == 25
