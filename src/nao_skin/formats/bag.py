@@ -48,6 +48,7 @@ BAG_KIND_KEY = "nao_skin.bag_kind"
 SOURCE_KEY = "nao_skin.recorded_from"     # what a recorder was fed: a simulated robot is said on every read
 SIMULATED = "the simulated robot (sim_robot)"
 CONTINUES_KEY = "nao_skin.continues"        # the earlier sittings' bags a record session continued: a JSON list
+CONTINUES_RELATIVE_KEY = "nao_skin.continues_relative"     # ... relative to the bag's folder (moved together)
 BAG_VERSION = 8              # rosbag2 metadata version of ROS 2 Jazzy
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
@@ -114,8 +115,12 @@ class BagWriter:
         except WriterError:
             raise DataError(f"{self.path}: exists already (made meanwhile by another recording); a bag is never"
                             f" overwritten") from None
-        self._custom = {BAG_KIND_KEY: kind, **({SOURCE_KEY: source} if source else {}),
-                        **({CONTINUES_KEY: json.dumps([str(p) for p in continues])} if continues else {})}
+        self._custom = {BAG_KIND_KEY: kind, **({SOURCE_KEY: source} if source else {})}
+        if continues:
+            folder = os.path.abspath(self.path.parent)
+            self._custom[CONTINUES_KEY] = json.dumps([os.path.abspath(p) for p in continues])
+            self._custom[CONTINUES_RELATIVE_KEY] = json.dumps([os.path.relpath(os.path.abspath(p), folder)
+                                                               for p in continues])
         for key, value in self._custom.items():
             self._writer.set_custom_data(key, value)
         self._kind = kind
@@ -465,13 +470,29 @@ def recorded_from(path: Path) -> str | None:
 
 
 def continued_bags(path: Path) -> list:
-    """The earlier sittings' bags a record session's bag continues (its metadata's ``nao_skin.continues``, as the
-    session named them: absolute paths); none when it says nothing or cannot be read."""
-    try:
-        paths = json.loads(_provisional_custom(path).get(CONTINUES_KEY) or "[]")
-    except ValueError:
-        return []
-    return [str(p) for p in paths if isinstance(p, str) and p] if isinstance(paths, list) else []
+    """The earlier sittings' bags a record session's bag continues (its metadata's ``nao_skin.continues``), as
+    absolute paths: each where it lies relative to this bag as the session found them, when there is one there (a
+    capture's folder moved or copied whole), else where the session found it; none when it says nothing."""
+    custom = _provisional_custom(path)
+    folder = (path if path.is_dir() else path.parent).parent
+
+    def paths(key: str) -> list:
+        try:
+            value = json.loads(custom.get(key) or "[]")
+        except ValueError:
+            return []
+        return [str(p) if isinstance(p, str) and p else "" for p in value] if isinstance(value, list) else []
+
+    found, relative = paths(CONTINUES_KEY), paths(CONTINUES_RELATIVE_KEY)
+    out = []
+    for i, where in enumerate(found):
+        moved = os.path.normpath(os.path.join(os.path.abspath(folder), relative[i])) if i < len(relative) \
+            and relative[i] else ""
+        if moved and (os.path.lexists(moved) or not where):
+            out.append(moved)
+        elif where:
+            out.append(where)
+    return out
 
 
 def _provisional_custom(path: Path) -> dict:

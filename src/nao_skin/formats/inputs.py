@@ -48,14 +48,14 @@ def check_inputs(paths) -> None:
             raise DataError(f"{path}: empty directory; expected {WHAT}")
         if path.is_file() and path.suffix != ".txt" and not is_bag(path):
             raise DataError(f"{path}: neither {WHAT}")
-        recording = _recording_of(path)
+        recording = recording_of(path)
         if recording in seen:
             raise DataError(f"{raw}: the same recording as the input {seen[recording]}; give each input once"
                             f" (its touches would count twice)")
         seen[recording] = raw      # as typed: './x/' and 'x' differ only there
 
 
-def _recording_of(path: Path) -> Path:
+def recording_of(path: Path) -> Path:
     """The recording an input names, one path however it is named: a bag's directory, its storage file, the
     simulator output directory holding it, through symlinks."""
     if path.is_file() and path.suffix == ".txt":
@@ -67,23 +67,50 @@ def _recording_of(path: Path) -> Path:
 
 
 class ReadOnce:
-    """A recording that no longer grows (an earlier sitting's bag a record session continues), as a follower of
-    :func:`load_touches`: decoded on the first read only; each read returns its touches and a fresh copy of its
-    load report (the loader adds its notes to the report it gets)."""
+    """An input that no longer grows (an earlier sitting's bag a record session continues), for
+    :func:`load_touches`: read on the first load only, then held in memory (moved away or removed meanwhile, it is
+    still what was read). Each :meth:`read` returns its touches, a fresh copy of its load report (the loader adds
+    its notes to the report it gets) and the simulator's ground truth file found beside it (or None)."""
 
     def __init__(self, path: str | Path, skin: SkinModel):
         self.path, self.skin = Path(path), skin
         self._read: tuple | None = None
 
+    @property
+    def held(self) -> bool:
+        return self._read is not None
+
     def read(self) -> tuple:
         import copy
 
         from nao_skin.formats.bag import read_touches
+        from nao_skin.formats.legacy import read_legacy
 
         if self._read is None:
-            self._read = read_touches(find_bag(self.path), self.skin)
-        touches, report = self._read
-        return touches, copy.deepcopy(report)
+            if self.path.is_file() and self.path.suffix == ".txt":
+                self._read = (*read_legacy(self.path, self.skin), None)
+            else:
+                bag = find_bag(self.path)
+                truth = next((c for c in (self.path / TRUTH_FILE, bag.parent / TRUTH_FILE) if c.exists()), None)
+                self._read = (*read_touches(bag, self.skin), truth)
+        touches, report, truth = self._read
+        return touches, copy.deepcopy(report), truth
+
+
+def read_sitting(path: str | Path, skin: SkinModel) -> ReadOnce:
+    """An earlier sitting's recording a record session continues, read (and held) and checked: a
+    :class:`~nao_skin.errors.DataError` naming it when it holds no touch, or when its touches do not fit the skin
+    the session reads (taxels its layouts lack, contact points far from the taxels they name: a sitting recorded
+    with other taxel files, or another robot's recording): its touches would pull every live update apart."""
+    sitting = ReadOnce(path, skin)
+    touches, report, _ = sitting.read()
+    if touches.n_touches == 0:
+        raise DataError(f"{path}: holds no touch ({report.summary()})")
+    misfit = [*layout_hints(touches, report, skin), *cop_layout_notes(touches, skin, str(path))]
+    if misfit:
+        raise DataError(f"{misfit[0]} (a session continues only sittings recorded with the taxel files it reads:"
+                        f" give that sitting's, --taxels PART=FILE)")
+    return sitting
 
 
 def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None) -> tuple:
@@ -99,18 +126,23 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
     from nao_skin.formats.bag import read_touches
     from nao_skin.formats.legacy import read_legacy
 
-    check_inputs(paths)
+    followed = followed or {}
+    held = {raw for raw in paths if getattr(followed.get(raw), "held", False)}     # read before, in memory
+    if len(held) < len(paths) or not paths:
+        check_inputs([raw for raw in paths if raw not in held])
     summary = summary or log
     sets, truths = [], {}     # input -> the simulator's ground truth beside it (None: a real recording)
     report = LoadReport(source=", ".join(str(p) for p in paths))
     for raw in paths:
         path = Path(raw)
-        if path.is_file() and path.suffix == ".txt":
+        follower = followed.get(raw)
+        if isinstance(follower, ReadOnce):
+            touches, rep, truths[raw] = follower.read()
+        elif path.is_file() and path.suffix == ".txt":
             touches, rep = read_legacy(path, skin)
             truths[raw] = None
         else:
             bag = find_bag(path)
-            follower = (followed or {}).get(raw)
             touches, rep = follower.read() if follower is not None else read_touches(bag, skin)
             truths[raw] = next((c for c in (path / TRUTH_FILE, bag.parent / TRUTH_FILE) if c.exists()), None)
         for note in (joint_limit_note(touches, skin.robot, str(path)), *cop_layout_notes(touches, skin, str(path))):
@@ -157,18 +189,20 @@ def continuation_notes(paths) -> list:
     named = set()
     for raw in paths:
         try:
-            named.add(_recording_of(Path(raw)))
+            named.add(recording_of(Path(raw)))
         except (NaoSkinError, OSError):
             pass
     out = []
     for raw in paths:
         path = Path(raw)
-        if path.is_file() and path.suffix == ".txt":
+        try:
+            bag = find_bag(path)
+        except (NaoSkinError, OSError):      # a text file; an earlier sitting's bag moved away, read before
             continue
         missing = []
-        for earlier in continued_bags(find_bag(path)):
+        for earlier in continued_bags(bag):
             try:
-                if _recording_of(Path(earlier)) in named:
+                if recording_of(Path(earlier)) in named:
                     continue
             except (NaoSkinError, OSError):
                 pass

@@ -85,7 +85,9 @@ class CalibrateNode(Node):
                                         Settling(float(self.p["live_settle_mm"]), int(self.p["live_settle_updates"]),
                                                  float(self.p["live_flat_percent"])),
                                         float(self.p["live_max_move_mm"]), earlier=self._earlier())
-            if self.live.read_earlier(log=self.get_logger().info):    # a bad bag: one line and exit 2, now
+            # a bad bag: one line and exit 2, now; what is worth a look (skips, a sitting they continue left out)
+            # as warnings
+            if self.live.read_earlier(log=self.get_logger().info, summary=self.get_logger().warning):
                 self.schedule.again()     # their calibration on /tf_static at once, before the first new touch
             self._recorded = 0            # touches the recorder reported so far
             self._retried = False         # an update found no new touch in the bag and tries once more

@@ -29,7 +29,7 @@ from nao_skin.calibration.pipeline import calibrate_loaded, load_inputs
 from nao_skin.calibration.plan import pair_counts
 from nao_skin.errors import NaoSkinError, TooFewTouches, one_line
 from nao_skin.formats.bag import GrowingBag
-from nao_skin.formats.inputs import ReadOnce, find_bag
+from nao_skin.formats.inputs import ReadOnce, find_bag, read_sitting
 from nao_skin.formats.outdir import is_free, output_stamp
 from nao_skin.formats.salvage import recording_lock
 from nao_skin.live.updates import LiveUpdates, Settling
@@ -72,12 +72,16 @@ class LiveCalibration:
         self._followed: dict = {p: ReadOnce(p, skin) for p in self.earlier}   # the recording read incrementally
         self._bag_dir: Path | None = None
 
-    def read_earlier(self, log: Callable[[str], None] | None = None) -> int:
-        """Read the earlier sittings' bags (once: they no longer grow), so that a bad one is said at the session's
-        start, in one line (:class:`~nao_skin.errors.NaoSkinError`), not at its first update; their touches."""
+    def read_earlier(self, log: Callable[[str], None] | None = None,
+                     summary: Callable[[str], None] | None = None) -> int:
+        """Read the earlier sittings' bags once (they no longer grow: held in memory from now on), so that a bad
+        one (:func:`~nao_skin.formats.inputs.read_sitting`) is said at the session's start, in one line
+        (:class:`~nao_skin.errors.NaoSkinError`), not at its first update; their touches, exact duplicates left
+        out. ``summary``: what is worth a look (e.g. a sitting they continue that is not among them)."""
         if self.earlier:
             log = log or (lambda msg: None)
-            self.earlier_count = load_inputs(self.earlier, self.skin, log=log, summary=log,
+            self._followed.update({path: read_sitting(path, self.skin) for path in self.earlier})
+            self.earlier_count = load_inputs(self.earlier, self.skin, log=log, summary=summary or log,
                                              followed=self._followed).touches.n_touches
         return self.earlier_count
 

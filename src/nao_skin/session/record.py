@@ -178,12 +178,14 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
 
 
 def _earlier_recordings(paths, robot: str, source: str) -> list:
-    """The bags of earlier sittings a session continues, as absolute paths, each checked before any node starts:
-    a recording nao-skin reads (the calibrate node reads their touches at its start), none named twice, none still
-    being recorded, none recorded from the other robot (a calibration of both would mix the simulated robot's
-    touches with the real one's)."""
-    from nao_skin.formats.bag import SIMULATED, recorded_from
-    from nao_skin.formats.inputs import check_inputs, find_bag
+    """The recordings of earlier sittings a session continues, as absolute paths: those named and, before each, the
+    sittings it continued in turn (its metadata's ``nao_skin.continues``, those still there: continuing the last
+    sitting continues the capture). Each checked before any node starts: a recording nao-skin reads, none named
+    twice, none still being recorded, none recorded from the other robot (a calibration of both would mix the
+    simulated robot's touches with the real one's); what they hold is checked with the skin
+    (:func:`_check_files`)."""
+    from nao_skin.formats.bag import SIMULATED, continued_bags, recorded_from
+    from nao_skin.formats.inputs import check_inputs, find_bag, recording_of
     from nao_skin.formats.salvage import recording_lock
 
     paths = [str(Path(p).expanduser().resolve()) for p in paths if str(p).strip()]
@@ -193,7 +195,25 @@ def _earlier_recordings(paths, robot: str, source: str) -> list:
         check_inputs(paths)
     except NaoSkinError as exc:
         raise ConfigError(f"continue from {exc}") from None
+    ordered: list = []
+    seen: set = set()
+
+    def with_earlier(path: str) -> None:
+        recording = recording_of(Path(path))
+        if recording in seen:
+            return
+        seen.add(recording)
+        if not _is_text(path):
+            for earlier in continued_bags(find_bag(Path(path))):
+                if os.path.lexists(earlier):      # one moved away: the calibrate node says so as it starts
+                    with_earlier(earlier)
+        ordered.append(path)
+
     for path in paths:
+        with_earlier(path)
+    for path in ordered:
+        if _is_text(path):                        # the thesis' text format: no recorder, no lock
+            continue
         bag = find_bag(Path(path))
         lock = recording_lock(bag if bag.is_dir() else bag.parent)
         if lock is not None and lock.state == "open":
@@ -203,7 +223,11 @@ def _earlier_recordings(paths, robot: str, source: str) -> list:
         if was and (was == SIMULATED) != (source == SIMULATED):
             raise ConfigError(f"continue from {path}: was recorded from {was}; this session records {source}:"
                               f" one calibration of both would mix the simulated robot's touches with the real one's")
-    return paths
+    return ordered
+
+
+def _is_text(path: str) -> bool:
+    return Path(path).is_file() and Path(path).suffix == ".txt"
 
 
 def _check_printable(spec: NodeSpec) -> None:
@@ -268,6 +292,7 @@ def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> Non
     """What the nodes read and write first, checked before any starts: one line here instead of a node dying
     after the others are up (a bag is never overwritten; a calibration must fit the skin the nodes read)."""
     from nao_skin.formats.bag import enclosing_bag
+    from nao_skin.formats.inputs import read_sitting
     from nao_skin.formats.outdir import check_writable
     from nao_skin.model.skin import load_skin
     from nao_skin.model.urdf import check_calibration_origins
@@ -288,11 +313,13 @@ def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> Non
     out = Path(calibrate_params["out_dir"]).expanduser() if calibrate_params.get("out_dir") else None
     if out is not None:
         # the node refuses an out_dir that is, lies in or holds what it reads: said here, before the bag is made
-        o, b = Path(os.path.abspath(out)), Path(os.path.abspath(bag))
-        relation = "is" if o == b else "lies inside" if b in o.parents else "holds" if o in b.parents else None
-        if relation:
-            raise ConfigError(f"calibration output {out}: {relation} the bag {bag}; the calibration is written"
-                              f" beside the recording, not in it: choose another --param calibrate.out_dir")
+        o = Path(os.path.abspath(out))
+        for read in (bag, *calibrate_params.get("earlier_recordings", [])):
+            b = Path(os.path.abspath(read))
+            relation = "is" if o == b else "lies inside" if b in o.parents else "holds" if o in b.parents else None
+            if relation:
+                raise ConfigError(f"calibration output {out}: {relation} the bag {read}; the calibration is written"
+                                  f" beside the recordings, not in them: choose another --param calibrate.out_dir")
         if out.exists() or out.is_symlink():
             raise ConfigError(f"calibration output {out}: exists already; the session writes its calibration there"
                               f" and replaces nothing it did not write: name another bag, or --param"
@@ -300,6 +327,11 @@ def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> Non
         check_writable(out, f"calibration output {out}")
     skin = load_skin(calibrate_params.get("skin_config") or None,
                      parse_taxel_files(calibrate_params.get("taxels") or [], "taxels"))
+    for path in calibrate_params.get("earlier_recordings") or []:
+        try:     # read as the calibrate node will at its start: one that holds no touch or fits another skin
+            read_sitting(path, skin)
+        except NaoSkinError as exc:
+            raise ConfigError(f"continue from {exc}") from None
     calibration = calibrate_params.get("calibration") or calibration
     if calibration:    # its corrections go to the nodes, its origins to robot_state_publisher's URDF: they must agree
         check_calibration_origins(calibration, skin)
