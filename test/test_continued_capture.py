@@ -50,17 +50,22 @@ def test_a_session_continuing_an_earlier_bag_calibrates_its_touches_first_then_w
     first = session.update()
     assert first.status["state"] == "updated" and first.status["touches"] == 40, first.status
     assert first.status["earlier"] == 40 and first.status["parts"]["r_hand"] == "converging"
-    # the new sitting's touches come: one calibration of both, warm from the earlier sitting's
-    write_touch_bag(recording, touches.subset(np.arange(40, 60)), skin, storage="mcap")
+    # the new sitting's touches come (its bag names the sitting it continues, as the recorder's does): one
+    # calibration of both, warm from the earlier sitting's
+    with BagWriter(recording, "mcap", kind="touches", continues=[str(earlier)]) as bag:
+        for args in touch_messages(touches.subset(np.arange(40, 60)), skin):
+            bag.write_touch(*args)
     second = session.update()
     assert second.status["state"] == "updated" and second.status["touches"] == 60, second.status
     assert second.status["earlier"] == 40 and not second.status["from_scratch"]
     assert second.accepted.report.input["files"] == [str(earlier), str(recording)]
-    # an earlier bag moved away during the session: what was read is held, the updates go on with every touch
+    assert not [n for n in second.accepted.report.input["notes"] if "continues the capture" in n]
+    # an earlier bag moved away during the session: what was read is held, the updates go on with every touch,
+    # and nothing says the sitting is missing
     shutil.move(earlier, tmp_path / "moved")
-    write_touch_bag(recording.with_name("grown"), touches.subset(np.arange(40, 60)), skin, storage="mcap")
     third = session.update()
     assert third.status["state"] == "updated" and third.status["touches"] == 60, third.status
+    assert not [n for n in third.accepted.report.input["notes"] if "continues the capture" in n]
 
 
 def test_without_earlier_bags_a_recording_not_made_yet_is_a_failed_update_as_before(skin, tmp_path):
@@ -68,12 +73,19 @@ def test_without_earlier_bags_a_recording_not_made_yet_is_a_failed_update_as_bef
     assert out.status["state"] == "failed" and "not_yet" in out.status["error"] and "earlier" not in out.status
 
 
-def test_an_earlier_bag_that_cannot_be_read_is_one_line_at_the_start(skin, tmp_path):
+def test_an_earlier_bag_that_cannot_be_read_is_one_line_at_the_start(skin, touches, tmp_path):
     bad = tmp_path / "bad"
     bad.mkdir()
     (bad / "metadata.yaml").write_text("rosbag2_bagfile_information: [\n")
     with pytest.raises(DataError, match="bad"):
         live(skin, tmp_path / "new", [bad]).read_earlier()
+    # a node started without nao-skin record's checks (ros2 run ... -p earlier_recordings:=...) checks them too
+    good = tmp_path / "good"
+    write_touch_bag(good, touches.subset(np.arange(20)), skin)
+    with pytest.raises(DataError, match="the same recording as the input"):
+        live(skin, tmp_path / "new", [good, f"{good}/"]).read_earlier()
+    with pytest.raises(DataError, match="the recording is among the earlier sittings it continues"):
+        live(skin, good, [good]).read_earlier()
 
 
 def session_with(tmp_path, earlier, robot="sim", **kwargs):
@@ -105,6 +117,9 @@ def test_a_session_refuses_earlier_bags_it_cannot_continue_before_any_node_start
         session_with(tmp_path, [str(bag), str(bag / "")])
     with pytest.raises(ConfigError, match="give --continue-from BAG"):
         session_with(tmp_path, [], overrides={"calibrate": {"earlier_recordings": f"[{bag}]"}})
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    with pytest.raises(ConfigError, match=f"continue from {tmp_path / 'loop'}: cannot read"):
+        session_with(tmp_path, [str(tmp_path / "loop")])
     with pytest.raises(ConfigError, match=f"calibration output {bag / 'cal'}: lies inside the bag {bag}"):
         session_with(tmp_path, [str(bag)], overrides={"calibrate": {"out_dir": str(bag / "cal")}})
     # a bag still being recorded (its recorder's lock names a running process: this one)
@@ -265,6 +280,8 @@ def test_continuing_the_last_sitting_continues_the_sittings_it_continued(skin, t
     assert earlier(s1, s2) == earlier(s2, s1) == [str(s1), str(s2)]
     shutil.move(s1, tmp_path / "s1_elsewhere")
     assert earlier(s2) == [str(s2)]
+    s1.mkdir()                                  # something else took its name: no recording, left out as well
+    assert earlier(s2) == [str(s2)]
     said: list = []
     LiveCalibration(skin, CalibrationOptions(), tmp_path / "s3", skin.zero_calibration(), 2.0, Settling(), 20.0,
                     earlier=[s2]).read_earlier(summary=said.append)
@@ -292,3 +309,30 @@ def test_a_capture_folder_moved_whole_still_knows_its_sittings(skin, touches, tm
     shutil.rmtree(capture)
     shutil.move(moved, capture.with_name("moved"))
     assert continued_bags(tmp_path / "moved" / "s2") == [str(tmp_path / "moved" / "s1")]
+
+
+def test_a_simulator_output_folder_is_continued_as_the_bag_it_holds(skin, touches, tmp_path):
+    """The session names the recording itself (a new bag put in that folder would make it hold two)."""
+    folder = tmp_path / "simulated"
+    folder.mkdir()
+    write_touch_bag(folder / "touches", touches.subset(np.arange(20)), skin)
+    (calibrate,) = [s for s in session_with(tmp_path, [str(folder)]) if s.name == "calibrate"]
+    assert calibrate.overrides["earlier_recordings"] == [str(folder / "touches")]
+
+
+def test_earlier_touches_count_one_press_per_activation(skin):
+    """ActivationCounts.add_touches against a count by hand: touch 0 presses torso slots 3 and 5 and r_hand slot 3,
+    touch 1 torso slot 5 again; a part the heat-map does not draw and a slot beyond the layout are skipped."""
+    from nao_skin.live.heatmap import ActivationCounts
+
+    class Activations:      # the TouchSet fields add_touches reads
+        part_names = ["torso", "r_hand", "elbow"]
+        act_part = np.array([0, 0, 1, 0, 2, 0])
+        act_slot = np.array([3, 5, 3, 5, 0, 9999])
+
+    counts = ActivationCounts({"torso": 384, "r_hand": 384})
+    counts.add_touches(Activations())
+    torso, hand = np.zeros(384, int), np.zeros(384, int)
+    torso[3], torso[5], hand[3] = 1, 2, 1
+    np.testing.assert_array_equal(counts.counts["torso"], torso)
+    np.testing.assert_array_equal(counts.counts["r_hand"], hand)

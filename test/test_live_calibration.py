@@ -430,6 +430,7 @@ def test_a_second_sitting_continues_the_first_ones_capture(tmp_path):
                             played)
     earlier = status[-1]["recorded"]
     assert earlier >= 12, status[-1]
+    before = files_of(first_bag)
     argv = live_session_cmd(second_bag, 4, 16, "r_hand-torso", 100, 86400.0) + ["--continue-from", str(first_bag)]
     status, err, _ = run_sitting(tmp_path, argv, "sitting2", played)
     updated = [s for s in status if s.get("state") == "updated"]
@@ -444,5 +445,11 @@ def test_a_second_sitting_continues_the_first_ones_capture(tmp_path):
     report = json.loads((out / "report.json").read_text())
     assert report["final"]["train"]["n_touches"] + report["final"]["test"]["n_touches"] == end["recorded"]
     assert report["input"]["files"] == [str(first_bag), str(second_bag)]
-    assert (first_bag / "metadata.yaml").exists()     # the earlier sitting's bag is read, never written
+    assert files_of(first_bag) == before               # the earlier sitting's bag is read, never written
     assert continued_bags(second_bag) == [str(first_bag)]         # said in the new bag's metadata
+
+
+def files_of(folder) -> dict:
+    """Every file under ``folder``: its bytes and modification time."""
+    return {p.relative_to(folder): (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(folder.rglob("*"))
+            if p.is_file()}

@@ -1,6 +1,7 @@
 """Load touches from what users have: rosbag2 recordings, simulator output directories, the thesis' text files."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,12 @@ from nao_skin.touch.touches import TouchSet
 
 TRUTH_FILE = "truth_calibration.yaml"      # written by `nao-skin simulate` next to its bag
 WHAT = "a rosbag2 recording, a simulator output directory or a legacy .txt data set"
+
+
+def is_text_input(path: str | Path) -> bool:
+    """A data set in the thesis' text format (a legacy .txt file)."""
+    path = Path(path)
+    return path.is_file() and path.suffix == ".txt"
 
 
 def is_bag(path: Path) -> bool:
@@ -58,7 +65,7 @@ def check_inputs(paths) -> None:
 def recording_of(path: Path) -> Path:
     """The recording an input names, one path however it is named: a bag's directory, its storage file, the
     simulator output directory holding it, through symlinks."""
-    if path.is_file() and path.suffix == ".txt":
+    if is_text_input(path):
         return path.resolve()
     bag = find_bag(path).resolve()
     if bag.is_file() and (bag.parent / "metadata.yaml").exists():
@@ -67,13 +74,15 @@ def recording_of(path: Path) -> Path:
 
 
 class ReadOnce:
-    """An input that no longer grows (an earlier sitting's bag a record session continues), for
+    """An input that no longer grows (an earlier sitting's recording a record session continues), for
     :func:`load_touches`: read on the first load only, then held in memory (moved away or removed meanwhile, it is
-    still what was read). Each :meth:`read` returns its touches, a fresh copy of its load report (the loader adds
-    its notes to the report it gets) and the simulator's ground truth file found beside it (or None)."""
+    still what was read, and still the recording it was: ``recording``). Each :meth:`read` returns its touches
+    and a fresh copy of its load report (the loader adds its notes to the report it gets). It carries no ground
+    truth: it is calibrated with a recording the recorder is writing, which never has one."""
 
     def __init__(self, path: str | Path, skin: SkinModel):
         self.path, self.skin = Path(path), skin
+        self.recording: Path | None = None         # :func:`recording_of` the path, as it was read
         self._read: tuple | None = None
 
     @property
@@ -87,14 +96,11 @@ class ReadOnce:
         from nao_skin.formats.legacy import read_legacy
 
         if self._read is None:
-            if self.path.is_file() and self.path.suffix == ".txt":
-                self._read = (*read_legacy(self.path, self.skin), None)
-            else:
-                bag = find_bag(self.path)
-                truth = next((c for c in (self.path / TRUTH_FILE, bag.parent / TRUTH_FILE) if c.exists()), None)
-                self._read = (*read_touches(bag, self.skin), truth)
-        touches, report, truth = self._read
-        return touches, copy.deepcopy(report), truth
+            self.recording = recording_of(self.path)
+            self._read = (read_legacy(self.path, self.skin) if is_text_input(self.path)
+                          else read_touches(find_bag(self.path), self.skin))
+        touches, report = self._read
+        return touches, copy.deepcopy(report)
 
 
 def read_sitting(path: str | Path, skin: SkinModel) -> ReadOnce:
@@ -103,7 +109,7 @@ def read_sitting(path: str | Path, skin: SkinModel) -> ReadOnce:
     the session reads (taxels its layouts lack, contact points far from the taxels they name: a sitting recorded
     with other taxel files, or another robot's recording): its touches would pull every live update apart."""
     sitting = ReadOnce(path, skin)
-    touches, report, _ = sitting.read()
+    touches, report = sitting.read()
     if touches.n_touches == 0:
         raise DataError(f"{path}: holds no touch ({report.summary()})")
     misfit = [*layout_hints(touches, report, skin), *cop_layout_notes(touches, skin, str(path))]
@@ -137,8 +143,9 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
         path = Path(raw)
         follower = followed.get(raw)
         if isinstance(follower, ReadOnce):
-            touches, rep, truths[raw] = follower.read()
-        elif path.is_file() and path.suffix == ".txt":
+            touches, rep = follower.read()
+            truths[raw] = None
+        elif is_text_input(path):
             touches, rep = read_legacy(path, skin)
             truths[raw] = None
         else:
@@ -168,7 +175,7 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
         report.merge(rep)
         if touches.n_touches:
             sets.append(touches)
-    for note in continuation_notes(paths):
+    for note in continuation_notes(paths, followed):
         report.notes.append(note)
         summary(note)
     if not sets:
@@ -181,15 +188,17 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
     return (sets[0] if len(sets) == 1 else TouchSet.concatenate(sets)), report, truth
 
 
-def continuation_notes(paths) -> list:
+def continuation_notes(paths, followed=None) -> list:
     """A line per input recorded as the continuation of earlier sittings (``nao-skin record --continue-from``)
-    some of which are not among the inputs: its calibration would leave their touches out."""
+    some of which are not among the inputs: its calibration would leave their touches out. ``followed``:
+    :func:`load_touches`'; an input held in memory is the recording it was read from, wherever that is now."""
     from nao_skin.formats.bag import continued_bags
 
     named = set()
     for raw in paths:
+        held = (followed or {}).get(raw)
         try:
-            named.add(recording_of(Path(raw)))
+            named.add(held.recording if isinstance(held, ReadOnce) and held.held else recording_of(Path(raw)))
         except (NaoSkinError, OSError):
             pass
     out = []
@@ -202,11 +211,11 @@ def continuation_notes(paths) -> list:
         missing = []
         for earlier in continued_bags(bag):
             try:
-                if recording_of(Path(earlier)) in named:
-                    continue
-            except (NaoSkinError, OSError):
-                pass
-            missing.append(earlier)
+                recording = recording_of(Path(earlier))
+            except (NaoSkinError, OSError):     # not there now: an input held in memory may have been read there
+                recording = Path(os.path.realpath(earlier))
+            if recording not in named:
+                missing.append(earlier)
         if missing:
             out.append(f"{raw}: continues the capture of {', '.join(missing)} (nao-skin record --continue-from),"
                        f" not among the inputs: name {'it' if len(missing) == 1 else 'them'} too to calibrate the"

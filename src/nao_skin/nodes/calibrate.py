@@ -324,7 +324,8 @@ class CalibrateNode(Node):
             self.get_logger().warning(f"the session ends without a live calibration ({why}): none is written to"
                                       f" {self.p['out_dir']}")
             self._final_status({"state": "ended", "generation": self.generation, "calibration": None, "reason": why,
-                                "recorded": self.live.read_count, "duplicates": self.live.duplicates})
+                                "recorded": self.live.read_count, "duplicates": self.live.duplicates,
+                                **({"earlier": self.live.earlier_count} if self.live.earlier else {})})
             return
         n, read = self.live.last_count, self.live.read_count
         covered = (f"all {n} touches" if complete and n >= read else f"{n} of {read} touches" if n < read

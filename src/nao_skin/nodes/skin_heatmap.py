@@ -41,6 +41,7 @@ from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.topics import (GUIDANCE_MARKERS_TOPIC, GUIDANCE_TOPIC, HEATMAP_TOPIC, LATCHED, MAX_SKIPPED_SAID,
                                    STATUS_TOPIC)
 from nao_skin.session.params import SKIN_HEATMAP, skin_from_params
+from nao_skin.touch.datasets import deduplicate
 
 STATE_COLOURS = {"collecting": (0.6, 0.6, 0.6, 1.0), "converging": (1.0, 0.8, 0.2, 1.0), "done": (0.2, 1.0, 0.4, 1.0)}
 UNREACHED_ALPHA = 0.35   # a guidance target no pose reaches, drawn faint
@@ -55,7 +56,8 @@ class SkinHeatmap(Node):
         self.counts = ActivationCounts({n: part.n_slots for n, part in self.skin.parts.items()})
         earlier = [path for path in p["earlier_recordings"] if path]
         if earlier:     # the capture's coverage so far, not this sitting's alone; a bad bag: one line, exit 2
-            self.counts.add_touches(load_touches(earlier, self.skin, log=self.get_logger().debug)[0])
+            # as the calibration counts them: a touch recorded twice (an exact duplicate) is one press
+            self.counts.add_touches(deduplicate(load_touches(earlier, self.skin, log=self.get_logger().debug)[0])[0])
         self.palette = [ColorRGBA(r=float(c[0]), g=float(c[1]), b=float(c[2]), a=float(c[3])) for c in palette()]
         d = float(p["taxel_diameter"])
         # Everything but the colours is fixed: build markers once, recolour them per update.

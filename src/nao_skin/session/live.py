@@ -27,9 +27,9 @@ from nao_skin.calibration.engine import CalibrationResult
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.pipeline import calibrate_loaded, load_inputs
 from nao_skin.calibration.plan import pair_counts
-from nao_skin.errors import NaoSkinError, TooFewTouches, one_line
+from nao_skin.errors import DataError, NaoSkinError, TooFewTouches, one_line
 from nao_skin.formats.bag import GrowingBag
-from nao_skin.formats.inputs import ReadOnce, find_bag, read_sitting
+from nao_skin.formats.inputs import ReadOnce, check_inputs, find_bag, read_sitting, recording_of
 from nao_skin.formats.outdir import is_free, output_stamp
 from nao_skin.formats.salvage import recording_lock
 from nao_skin.live.updates import LiveUpdates, Settling
@@ -69,7 +69,8 @@ class LiveCalibration:
         self.read_count = 0                             # how many touches the recording held at the last read
         self.duplicates = 0                             # ... after leaving out this many exact duplicates
         self._last_touches = -1                         # touches the last update calibrated (-1: it failed)
-        self._followed: dict = {p: ReadOnce(p, skin) for p in self.earlier}   # the recording read incrementally
+        # input -> its reader: each earlier sitting held once read (ReadOnce), the recording read as it grows
+        self._followed: dict = {p: ReadOnce(p, skin) for p in self.earlier}
         self._bag_dir: Path | None = None
 
     def read_earlier(self, log: Callable[[str], None] | None = None,
@@ -80,6 +81,11 @@ class LiveCalibration:
         out. ``summary``: what is worth a look (e.g. a sitting they continue that is not among them)."""
         if self.earlier:
             log = log or (lambda msg: None)
+            check_inputs(self.earlier)          # none named twice (a node started without nao-skin record's checks)
+            if os.path.lexists(self.recording) and recording_of(Path(self.recording)) in \
+                    {recording_of(Path(path)) for path in self.earlier}:
+                raise DataError(f"{self.recording}: the recording is among the earlier sittings it continues;"
+                                f" name only the earlier ones")
             self._followed.update({path: read_sitting(path, self.skin) for path in self.earlier})
             self.earlier_count = load_inputs(self.earlier, self.skin, log=log, summary=summary or log,
                                              followed=self._followed).touches.n_touches

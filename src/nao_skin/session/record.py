@@ -185,14 +185,15 @@ def _earlier_recordings(paths, robot: str, source: str) -> list:
     simulated robot's touches with the real one's); what they hold is checked with the skin
     (:func:`_check_files`)."""
     from nao_skin.formats.bag import SIMULATED, continued_bags, recorded_from
-    from nao_skin.formats.inputs import check_inputs, find_bag, recording_of
+    from nao_skin.formats.inputs import check_inputs, find_bag, is_text_input, recording_of
     from nao_skin.formats.salvage import recording_lock
 
-    paths = [str(Path(p).expanduser().resolve()) for p in paths if str(p).strip()]
+    paths = [str(Path(p).expanduser()) for p in paths if str(p).strip()]
     if not paths:
         return []
     try:
-        check_inputs(paths)
+        check_inputs(paths)     # before resolving: a loop of links is one line here
+        paths = [str(Path(p).resolve()) for p in paths]
     except NaoSkinError as exc:
         raise ConfigError(f"continue from {exc}") from None
     ordered: list = []
@@ -203,16 +204,20 @@ def _earlier_recordings(paths, robot: str, source: str) -> list:
         if recording in seen:
             return
         seen.add(recording)
-        if not _is_text(path):
+        if not is_text_input(path):
             for earlier in continued_bags(find_bag(Path(path))):
-                if os.path.lexists(earlier):      # one moved away: the calibrate node says so as it starts
-                    with_earlier(earlier)
-        ordered.append(path)
+                try:
+                    check_inputs([earlier])
+                except NaoSkinError:    # moved away, or no recording now: the calibrate node says so as it starts
+                    continue
+                with_earlier(earlier)
+        # the recording itself (a bag in a simulator's output folder: a new bag put beside it would be a second)
+        ordered.append(path if is_text_input(path) else str(find_bag(Path(path))))
 
     for path in paths:
         with_earlier(path)
     for path in ordered:
-        if _is_text(path):                        # the thesis' text format: no recorder, no lock
+        if is_text_input(path):                        # the thesis' text format: no recorder, no lock
             continue
         bag = find_bag(Path(path))
         lock = recording_lock(bag if bag.is_dir() else bag.parent)
@@ -224,10 +229,6 @@ def _earlier_recordings(paths, robot: str, source: str) -> list:
             raise ConfigError(f"continue from {path}: was recorded from {was}; this session records {source}:"
                               f" one calibration of both would mix the simulated robot's touches with the real one's")
     return ordered
-
-
-def _is_text(path: str) -> bool:
-    return Path(path).is_file() and Path(path).suffix == ".txt"
 
 
 def _check_printable(spec: NodeSpec) -> None:
