@@ -136,6 +136,16 @@ def test_a_session_of_the_real_robot_refuses_to_continue_a_simulated_one(skin, t
     with pytest.raises(ConfigError, match="mix the simulated robot's touches with the real one's"):
         session_with(tmp_path, [str(simulated)], robot="nao")
     assert [s for s in session_with(tmp_path, [str(simulated)]) if s.name == "calibrate"]   # sim continues sim
+    # the robot's own sitting: continued by the robot's next one, not by the simulated robot
+    (recorder,) = [s for s in session_with(tmp_path, [], robot="nao") if s.name == "pairing_recorder"]
+    robot = tmp_path / "robot_sitting"
+    with BagWriter(robot, kind="touches", source=recorder.overrides["recorded_from"]) as bag:
+        for args in touch_messages(touches.subset(np.arange(20)), skin):
+            bag.write_touch(*args)
+    (calibrate,) = [s for s in session_with(tmp_path, [str(robot)], robot="nao") if s.name == "calibrate"]
+    assert calibrate.overrides["earlier_recordings"] == [str(robot)]
+    with pytest.raises(ConfigError, match="mix the simulated robot's touches with the real one's"):
+        session_with(tmp_path, [str(robot)])
 
 
 def test_record_says_a_missing_earlier_bag_in_one_line_with_exit_2(tmp_path):
