@@ -292,6 +292,13 @@ def test_continuing_the_last_sitting_continues_the_sittings_it_continued(skin, t
     assert earlier(s2) == [str(s2)]
     s1.mkdir()                                  # something else took its name: no recording, left out as well
     assert earlier(s2) == [str(s2)]
+    # a cycle (each names the other, as copied metadata might): each once, then it ends
+    y, z = tmp_path / "y", tmp_path / "z"
+    for this, other in ((y, z), (z, y)):
+        with BagWriter(this, kind="touches", continues=[str(other)]) as bag:
+            for args in touch_messages(touches.subset(np.arange(20)), skin):
+                bag.write_touch(*args)
+    assert earlier(y) == [str(z), str(y)]
     said: list = []
     LiveCalibration(skin, CalibrationOptions(), tmp_path / "s3", skin.zero_calibration(), 2.0, Settling(), 20.0,
                     earlier=[s2]).read_earlier(summary=said.append)
