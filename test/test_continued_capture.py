@@ -270,7 +270,7 @@ def test_the_thesis_text_format_is_continued_too(tmp_path):
     legacy = REAL_DIR / "l_hand_torso.legacy.txt"
     taxels = [f"l_hand={REAL_DIR / 'l_hand.taxels.txt'}", f"torso={REAL_DIR / 'torso.taxels.txt'}"]
     (calibrate,) = [s for s in session_with(tmp_path, [str(legacy)], taxels=taxels) if s.name == "calibrate"]
-    assert calibrate.overrides["earlier_recordings"] == [str(legacy)]
+    assert calibrate.overrides["earlier_recordings"] == [str(legacy.resolve())]      # through links, as every path
 
 
 def test_continuing_the_last_sitting_continues_the_sittings_it_continued(skin, touches, tmp_path):
