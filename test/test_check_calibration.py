@@ -1,0 +1,153 @@
+"""``nao-skin check``: a calibration judged by new touches, part by part (calibration/check.py).
+
+The simulator stands in for the robot's body: it records touches of a skin whose true placement it knows.
+A skin part that moved after its calibration is a calibration whose frame of that part is off by the
+move, which is what the check sees either way: the tests shift a mount in the calibration file.
+"""
+import json
+
+import numpy as np
+import pytest
+from real_data import REAL_DIR
+
+from nao_skin.calibration.check import FITS, MOVED, NOT_CHECKED, check_calibration
+from nao_skin.calibration.engine import CalibrationOptions, calibrate
+from nao_skin.cli import main as cli_main
+from nao_skin.formats.bag import write_touch_bag
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate
+from nao_skin.touch.datasets import deduplicate
+
+REAL_TAXELS = ["--taxels", f"l_hand={REAL_DIR / 'l_hand.taxels.txt'}", "--taxels",
+               f"torso={REAL_DIR / 'torso.taxels.txt'}"]
+
+
+@pytest.fixture(scope="module")
+def sittings(default_skin):
+    """One simulated skin touched twice: 560 touches calibrate it, 240 others come later (all four pairs)."""
+    touches, _ = deduplicate(simulate(default_skin, load_params("default", {"n_touches": 200}), seed=5).touches)
+    order = np.random.default_rng(0).permutation(touches.n_touches)
+    old, new = touches.subset(np.sort(order[:560])), touches.subset(np.sort(order[560:]))
+    made = calibrate(old, default_skin, CalibrationOptions())
+    return old, new, made.calibration, made.report.fabric_thickness_mm
+
+
+def shifted(calibration, part: str, mm: float, axis: int = 0):
+    """The calibration with ``part``'s mount translated by ``mm`` along one of its axes: the skin moved."""
+    out = calibration.copy()
+    out.parts[part].mount[axis] += mm / 1000.0
+    return out
+
+
+def test_new_touches_of_the_same_skin_fit_its_calibration(default_skin, sittings):
+    old, new, calibration, fabric = sittings
+    result = check_calibration(new, default_skin, calibration, fabric_mm=fabric)
+    assert {name: p.verdict for name, p in result.parts.items()} == dict.fromkeys(default_skin.parts, FITS)
+    assert result.moved == []
+    for part in result.parts.values():
+        assert part.moved_mm["median"] < 1.0 and part.held_out_cop_mm["touches"] >= 20
+
+
+def test_a_hand_that_moved_is_named_and_the_other_parts_still_fit(default_skin, sittings):
+    old, new, calibration, fabric = sittings
+    result = check_calibration(new, default_skin, shifted(calibration, "l_hand", 4.0), fabric_mm=fabric)
+    assert result.moved == ["l_hand"]
+    l_hand = result.parts["l_hand"]
+    assert 3.0 < l_hand.moved_mm["median"] < 5.0       # the refit finds about the move
+    assert l_hand.held_out_cop_mm["gain_low"] > 0.1
+    assert l_hand.pairs == ["r_hand+l_hand", "l_hand+torso", "l_hand+head"]
+    assert "moved" not in " ".join(p.reason for n, p in result.parts.items() if n != "l_hand")
+    # a smaller tolerance than the move changes nothing; a larger one keeps the part
+    assert check_calibration(new, default_skin, shifted(calibration, "l_hand", 4.0), tolerance_mm=6.0,
+                             fabric_mm=fabric).moved == []
+
+
+def test_a_part_no_pair_of_the_new_touches_reaches_is_not_checked(default_skin, sittings):
+    old, new, calibration, fabric = sittings
+    fired = new.parts_of_touch()
+    keep = ~fired[:, new.part_index("head")]
+    result = check_calibration(new.subset(np.flatnonzero(keep)), default_skin, shifted(calibration, "head", 5.0),
+                                fabric_mm=fabric)
+    assert result.parts["head"].verdict == NOT_CHECKED
+    assert result.moved == []        # the head's move is not seen without its touches, nor blamed on another part
+
+
+def test_the_command_says_fits_then_names_the_moved_part_with_exit_1(tmp_path, capsys, default_skin, sittings):
+    old, new, calibration, fabric = sittings
+    write_touch_bag(tmp_path / "first", old, default_skin)
+    write_touch_bag(tmp_path / "later", new, default_skin)
+    assert cli_main(["calibrate", str(tmp_path / "first"), "--out", str(tmp_path / "cal"), "--quiet", "--no-plots"]) == 0
+    capsys.readouterr()
+    cal = tmp_path / "cal" / "calibration.yaml"
+    before = {p: p.read_bytes() for p in (tmp_path / "cal").rglob("*") if p.is_file()}
+
+    assert cli_main(["check", str(tmp_path / "later"), "--calibration", str(cal)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert f"from {tmp_path / 'cal' / 'report.json'}" in out[0]       # the fabric the calibration was made with
+    assert [line.split(":")[:2] for line in out[1:5]] == [[p, " fits"] for p in default_skin.parts]
+    assert out[-1] == "every part checked fits the calibration"
+
+    (tmp_path / "moved").mkdir()
+    shifted(calibration, "l_hand", 4.0).save(tmp_path / "moved" / "calibration.yaml", default_skin)
+    assert cli_main(["check", str(tmp_path / "later"), "--calibration", str(tmp_path / "moved" / "calibration.yaml"),
+                     "--fabric", f"{json.loads((tmp_path / 'cal' / 'report.json').read_text())['fabric_thickness_mm']}",
+                     "--json"]) == 1
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["moved"] == ["l_hand"] and doc["fabric_from"] == "--fabric"
+    assert doc["parts"]["l_hand"]["verdict"] == MOVED and doc["parts"]["torso"]["verdict"] == FITS
+    assert {p: p.read_bytes() for p in (tmp_path / "cal").rglob("*") if p.is_file()} == before   # only read
+
+
+def test_one_pair_of_parts_on_the_real_recording(tmp_path, capsys):
+    """Its own calibration fits it (judged at the fabric it was made with: at the configured 1 mm instead the
+    mounts move about 3 mm to make up the difference); a hand moved 5 mm is seen, and the line says one
+    pair cannot tell which of its two parts moved."""
+    recording = str(REAL_DIR / "l_hand_torso.legacy.txt")
+    assert cli_main(["calibrate", recording, *REAL_TAXELS, "--out", str(tmp_path / "cal"), "--quiet", "--no-plots"]) == 0
+    capsys.readouterr()
+    cal = tmp_path / "cal" / "calibration.yaml"
+    assert cli_main(["check", recording, *REAL_TAXELS, "--calibration", str(cal)]) == 0
+    out = capsys.readouterr().out
+    assert "r_hand: not checked" in out and "head: not checked" in out
+    assert "l_hand: fits" in out and "torso: fits" in out
+
+    from nao_skin.model.skin import SkinCalibration, load_skin
+
+    skin = load_skin(taxel_files={"l_hand": REAL_DIR / "l_hand.taxels.txt", "torso": REAL_DIR / "torso.taxels.txt"})
+    moved = tmp_path / "moved"
+    moved.mkdir()
+    (moved / "report.json").write_bytes((tmp_path / "cal" / "report.json").read_bytes())
+    shifted(SkinCalibration.load(cal, skin), "l_hand", 5.0, axis=1).save(moved / "calibration.yaml", skin)
+    assert cli_main(["check", recording, *REAL_TAXELS, "--calibration", str(moved / "calibration.yaml")]) == 1
+    out = capsys.readouterr().out
+    assert "l_hand: moved" in out
+    assert "l_hand+torso is its only pair: whether it or the other part moved, touches of another pair tell" in out
+    assert "Recalibrate" in out
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--tolerance", "0"], "--tolerance 0: expected millimetres above 0 and at most 50"),
+    (["--tolerance", "nan"], "--tolerance nan: expected millimetres above 0"),
+    (["--tolerance", "80"], "--tolerance 80: expected millimetres above 0 and at most 50"),
+    (["--fabric", "20"], "--fabric 20"),
+    (["--fabric", "-1"], "--fabric -1"),
+    (["--seed", "-3"], "--seed -3"),
+])
+def test_a_wrong_option_is_one_line_and_exit_2(tmp_path, capsys, args, says):
+    cal = tmp_path / "calibration.yaml"
+    assert cli_main(["nominal", "--out", str(cal)]) == 0
+    capsys.readouterr()
+    assert cli_main(["check", str(REAL_DIR / "l_hand_torso.legacy.txt"), *REAL_TAXELS, "--calibration", str(cal),
+                     *args]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and err[0].startswith("nao-skin check: error: ") and says in err[0], err
+
+
+def test_a_calibration_that_is_no_file_or_no_calibration_is_one_line(tmp_path, capsys):
+    recording = str(REAL_DIR / "l_hand_torso.legacy.txt")
+    assert cli_main(["check", recording, *REAL_TAXELS, "--calibration", str(tmp_path / "gone.yaml")]) == 2
+    assert str(tmp_path / "gone.yaml") in capsys.readouterr().err
+    (tmp_path / "notes.yaml").write_text("just: notes\n")
+    assert cli_main(["check", recording, *REAL_TAXELS, "--calibration", str(tmp_path / "notes.yaml")]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and str(tmp_path / "notes.yaml") in err[0]
