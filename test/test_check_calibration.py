@@ -151,3 +151,27 @@ def test_a_calibration_that_is_no_file_or_no_calibration_is_one_line(tmp_path, c
     assert cli_main(["check", recording, *REAL_TAXELS, "--calibration", str(tmp_path / "notes.yaml")]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1 and str(tmp_path / "notes.yaml") in err[0]
+
+
+def test_bench_check_counts_what_the_check_named(tmp_path, capsys):
+    out = tmp_path / "bench"
+    assert cli_main(["bench-check", "--seeds", "1", "--sizes", "200", "--moves", "0,4", "--reference", "1500",
+                     "--out", str(out)]) == 0
+    doc = json.loads((out / "check_results.json").read_text())
+    rows = {r["move_mm"]: r for r in doc["rows"]}
+    assert rows[0.0]["verdicts"] == dict.fromkeys(["r_hand", "l_hand", "torso", "head"], FITS)
+    assert rows[4.0]["verdicts"]["l_hand"] == MOVED and 3.0 < rows[4.0]["moved_mm"]["l_hand"] < 5.0
+    summary = {s["move_mm"]: s for s in doc["summary"]}
+    assert summary[4.0]["found"] == 1 and summary[0.0]["found"] is None
+    assert summary[0.0]["false_alarms"] == 0 and summary[0.0]["checks"] == 4
+    assert summary[4.0]["checks"] == 3       # the parts that did not move
+    assert "| 4 | 200 | 1 | 1 of 1 |" in (out / "check_results.md").read_text()
+    capsys.readouterr()
+    for args, says in ((["--moves", "0,,3"], "--moves '0,,3': expected numbers from 0 to 50"),
+                       (["--sizes", "5"], "--sizes '5': expected numbers from 10"),
+                       (["--part", "tail"], "--part tail: not a skin part"),
+                       (["--reference", "3990"], "--reference 3990 + --sizes up to 400: more than the 4000")):
+        assert cli_main(["bench-check", *args, "--out", str(tmp_path / "b2")]) == 2
+        err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+        assert len(err) == 1 and says in err[0], err
+        assert not (tmp_path / "b2").exists()

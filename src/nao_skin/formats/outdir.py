@@ -35,6 +35,7 @@ CALIBRATION = "calibration"      # nao-skin calibrate, demo, the calibrate node
 BENCHMARK = "benchmark"          # nao-skin bench
 CAPTURE_BENCHMARK = "capture benchmark"   # nao-skin bench-capture
 BOUND_BENCHMARK = "bound benchmark"       # nao-skin bench-bound
+CHECK_BENCHMARK = "check benchmark"       # nao-skin bench-check
 # outputs of earlier versions mark all three benches "benchmark": such a marker is read as the kind its command
 # writes now, so that --force never lets one bench replace another's (hours of a bench for minutes of another)
 _EARLIER_KINDS = {("benchmark", "nao-skin bench-capture"): CAPTURE_BENCHMARK,
