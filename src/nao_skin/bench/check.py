@@ -4,6 +4,7 @@ Per seed the touches of a simulated recording (ground truth beside it) are shuff
 make the calibration, the check runs on ``size`` others of the same skin. A skin part that moved after its
 calibration is, to the check, a calibration whose frame of that part is off by the move: the moved part's
 mount is translated in the calibration by ``move`` mm, in a direction drawn per seed (0: nothing moved).
+The check runs as the command does: at the fabric the new touches imply under the calibration.
 Each check is judged by what it names: the moved part (found), or a part that did not move (a false alarm).
 """
 from __future__ import annotations
@@ -35,7 +36,7 @@ def check_rows(touches: TouchSet, skin: SkinModel, seeds, sizes, moves, part: st
                 calibration = made.calibration.copy()
                 calibration.parts[part].mount[:3] += direction * move / 1000.0
                 start = time.perf_counter()
-                result = check_calibration(new, skin, calibration, fabric_mm=made.report.fabric_thickness_mm)
+                result = check_calibration(new, skin, calibration)
                 seconds = time.perf_counter() - start
                 rows.append({"seed": seed, "touches": size, "move_mm": move, "part": part, "seconds": seconds,
                              "verdicts": {n: p.verdict for n, p in result.parts.items()},

@@ -160,7 +160,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
     say = progress or (lambda msg: None)
     t_start = time.perf_counter()
     _check_parts(touches, skin)
-    train, test = _train_test(touches, options, split)
+    train, test = train_test(touches, options, split)
     if train.n_touches == 0 and touches.n_touches:
         raise TooFewTouches(f"test_fraction {options.test_fraction:g} holds out all {touches.n_touches} touches:"
                             f" none is left to calibrate from; lower it")
@@ -247,7 +247,8 @@ def _check_parts(touches: TouchSet, skin: SkinModel) -> None:
                             f" (configured: {', '.join(skin.parts)})")
 
 
-def _train_test(touches: TouchSet, options: CalibrationOptions, split: tuple | None) -> tuple:
+def train_test(touches: TouchSet, options: CalibrationOptions, split: tuple | None = None) -> tuple:
+    """``(train, test)`` as :func:`calibrate` splits the touches (``split``: given instead)."""
     train, test = split if split is not None else split_touches(
         touches, options.test_fraction, options.seed, pose_groups(touches) if options.split_by == "pose" else None)
     if options.max_touches is not None and train.n_touches > options.max_touches:

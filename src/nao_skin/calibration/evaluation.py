@@ -101,10 +101,10 @@ def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float, 
     return float(np.mean(means)) if means else np.inf
 
 
-def fitted_touch_distances(touches, skin, calib, step, kinds, fabric: float) -> np.ndarray:
+def fitted_touch_distances(touches, skin, calib, step, kinds, fabric: float, pairing=None) -> np.ndarray:
     """Per touch, the mean of its capped distances (m) as :func:`fitted_pair_cost` measures them; NaN
-    where a touch has no pair."""
-    fitted = _fitted_distances(touches, skin, calib, step, kinds, fabric)
+    where a touch has no pair (``pairing``: the touches' pairing under ``calib``, when at hand)."""
+    fitted = _fitted_distances(touches, skin, calib, step, kinds, fabric, pairing)
     if fitted is None:
         return np.full(touches.n_touches, np.nan)
     dist, pairing = fitted

@@ -82,7 +82,7 @@ def run(args) -> int:
           f"{sim.name}, {touches.n_touches} touches; per seed, {args.reference} of them (shuffled) make a calibration"
           f" with the default options, and `nao-skin check` judges it with each number of other touches of the same"
           f" skin, its {args.part}'s mount shifted in the calibration by each move (a direction drawn per seed; 0:"
-          f" nothing moved), at the calibration's fabric estimate. Seconds: one check, this machine.", "",
+          f" nothing moved), as the command runs it. Seconds: one check (the command also reads the recording), this machine.", "",
           *summary_table(rows), "", f"Wall time: {seconds:.0f} s.", ""]
     text = "\n".join(md)
     clear_for_writing(out, NAME, CHECK_BENCHMARK, OUTPUTS)      # an earlier output goes only now, when the new is ready
