@@ -33,7 +33,8 @@ class _StoreOnce(argparse.Action):
         for value in values if isinstance(values, list) else [values]:
             if isinstance(value, str) and not value.strip():
                 parser.error(f"argument {name}: an empty value" + ("; give one, or leave the option out for its"
-                                                                   " default" if option_string else ""))
+                                                                   " default" if option_string and not self.required
+                                                                   else "; give one" if option_string else ""))
         if option_string is not None:
             given = namespace.__dict__.setdefault(self.GIVEN, {})
             if self.dest in given:

@@ -57,7 +57,8 @@ def pair_poses(touches: TouchSet) -> dict:
 def too_few(n_touches: int, n_poses: int, need: int) -> str:
     """The words for touches that cannot pin a mount: ``need`` poses at least."""
     at = f" at {n_poses} poses (a press held still is one pose)" if n_poses < n_touches else ""
-    return f"{n_touches} training touches{at}; a mount needs at least {need}{' poses' if at else ''}"
+    return (f"{n_touches} training touch{'' if n_touches == 1 else 'es'}{at}; a mount needs at least {need}"
+            f"{' poses' if at else ''}")
 
 
 def touching_pairs(touches: TouchSet) -> set:
