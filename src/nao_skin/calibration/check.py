@@ -12,12 +12,13 @@ hundred touches wanders up to about a millimetre where nothing moved, and on one
 real recording) several millimetres along what one pair cannot tell apart; a held-out gain of a few
 per cent is no reason to recalibrate (README, "Has the skin moved?").
 
-Both calibrations are measured at the fabric surfaces of one fabric thickness: the one that brings the new
-training touches closest under the calibration as it is (:func:`implied_fabric`; the mount stages do not
-estimate it). Judged at another fabric, the mounts of a calibration that fits move by about the difference
-along the normals (the real recording's calibration estimated 0.05 mm: at the configured 1 mm its own
-touches called both parts moved). The new touches' own fabric, not the report's of the calibration: how
-hard the fabric is pressed is the session's.
+Both calibrations are measured at the fabric surfaces of the fabric thickness the calibration was made with
+(its file's ``fabric_thickness``, the engine's estimate; the mount stages do not estimate it). Judged at
+another fabric, the mounts of a calibration that fits move by about the difference along the normals (the
+real recording's calibration estimated 0.05 mm: at the configured 1 mm its own touches called both parts
+moved). A calibration without one (written before it was kept) is judged at the fabric the new training
+touches imply under it (:func:`implied_fabric`), which also takes up part of a move along a part's normal
+(a review: the real recording's torso shifted 3 mm that way came out `fits`).
 """
 from __future__ import annotations
 
@@ -65,6 +66,8 @@ class CheckResult:
     parts: dict                       # part name -> PartCheck, every part of the skin
     tolerance_mm: float
     fabric_mm: float                  # the fabric thickness both were measured at
+    fabric_from: str                  # 'given', 'calibration' (its file's), 'estimated' (implied_fabric) or
+                                      # 'configured' (the options': no pair to estimate it from)
     refit: CalibrationResult
 
     @property
@@ -74,7 +77,7 @@ class CheckResult:
     def as_dict(self) -> dict:
         return {"tolerance_mm": self.tolerance_mm, "moved": self.moved,
                 "split": {"train": self.refit.train.n_touches, "test": self.refit.test.n_touches},
-                "fabric_mm": self.fabric_mm,
+                "fabric_mm": self.fabric_mm, "fabric_from": self.fabric_from,
                 "parts": {name: {"verdict": p.verdict, "reason": p.reason, "pairs": p.pairs,
                                  "moved_mm": p.moved_mm, "held_out_cop_mm": p.held_out_cop_mm}
                           for name, p in self.parts.items()}}
@@ -117,7 +120,7 @@ def check_calibration(touches: TouchSet, skin: SkinModel, calibration: SkinCalib
     The touches are split as a calibration splits them (``options``: seed, ``test_fraction``, ``split_by``);
     the mounts are refit on the training touches from ``calibration`` (its patches, triangles and kinematic
     corrections kept), and judged on the held-out ones. ``fabric_mm``: the fabric thickness to measure at
-    (default: :func:`implied_fabric` of the training touches). A part no pair of the new touches calibrates
+    (default: the calibration's, else :func:`implied_fabric` of the training touches). A part no pair of the new touches calibrates
     is :data:`NOT_CHECKED`, and so is one with fewer than :data:`MIN_HELD_OUT` held-out touches, or one the
     refit moves while the held-out touches cannot yet tell whether that helps; a part the calibration holds at
     its nominal placement is :data:`NOT_CALIBRATED`.
@@ -127,9 +130,12 @@ def check_calibration(touches: TouchSet, skin: SkinModel, calibration: SkinCalib
     poses_per_pair = pair_poses(train)
     pairs = sorted((tuple(sorted(p, key=part_rank)) for p, n in poses_per_pair.items()
                     if n >= options.min_mount_touches), key=lambda p: [part_rank(n) for n in p])
-    if fabric_mm is None and pairs:
-        fabric_mm = 1000.0 * implied_fabric(train, skin, calibration,
-                                            tuple(sorted({n for p in pairs for n in p}, key=part_rank)), options)
+    fabric_from = "given" if fabric_mm is not None else "configured"
+    if fabric_mm is None and calibration.fabric_thickness is not None:
+        fabric_mm, fabric_from = 1000.0 * calibration.fabric_thickness, "calibration"
+    elif fabric_mm is None and pairs:
+        fabric_mm, fabric_from = 1000.0 * implied_fabric(
+            train, skin, calibration, tuple(sorted({n for p in pairs for n in p}, key=part_rank)), options), "estimated"
     options = check_options(options, fabric_mm)
     refit = calibrate(touches, skin, options, prior=calibration, progress=progress, split=(train, test))
     fabric = options.fabric_thickness
@@ -151,7 +157,7 @@ def check_calibration(touches: TouchSet, skin: SkinModel, calibration: SkinCalib
         gain = paired_gain(before, after, float(student_t.ppf(CONFIDENCE, n - 1)) if n > 1 else np.inf)
         nominal = not _calibrated(calibration, name)
         out[name] = _verdict(name, labels, moved, gain, tolerance_mm, nominal)
-    return CheckResult(out, tolerance_mm, options.fabric_thickness * 1000.0, refit)
+    return CheckResult(out, tolerance_mm, options.fabric_thickness * 1000.0, fabric_from, refit)
 
 
 def _calibrated(calibration: SkinCalibration, name: str) -> bool:

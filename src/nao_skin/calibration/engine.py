@@ -203,6 +203,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
                                             report)
     report.final = _final_figures(train, test, skin, steps, options, fit, truth, explained_too=not warm)
     report.fabric_thickness_mm = 1000.0 * fit.fabric
+    fit.calibration.fabric_thickness = fit.fabric      # with the frames: what their closest pairs were measured at
     report.prior_sigma = fit.prior_sigma
     report.set_aside = fit.set_aside
     # held: what no stage estimated (a triangle held while fitted to one reference and freed by the

@@ -494,10 +494,13 @@ class SkinCalibration:
     # angle the joint reports, named link (e.g. LElbowOffsetY) -> m added to its DH parameter
     kinematics: dict = field(default_factory=dict)
     kinematics_std: dict = field(default_factory=dict)   # their standard deviations, from the normal equations
+    # m: the pressed fabric over the taxels the calibration's touches implied (the engine's estimate), what
+    # its closest pairs were measured at; None where nothing estimated it (nominal, older files)
+    fabric_thickness: float | None = None
 
     def copy(self) -> "SkinCalibration":
         return SkinCalibration({k: v.copy() for k, v in self.parts.items()}, dict(self.kinematics),
-                               dict(self.kinematics_std))
+                               dict(self.kinematics_std), self.fabric_thickness)
 
     # ------------------------------------------------------------------ YAML
     def to_dict(self, skin: SkinModel) -> dict:
@@ -526,8 +529,10 @@ class SkinCalibration:
         # elsewhere) is refused by load() instead of read as a calibration with frames at nominal
         n_frames = sum(1 + len(part.patch_ids) + len(part.triangle_ids) for part in skin.parts.values())
         out = {"format": CALIBRATION_FORMAT, "robot": skin.robot.name, "base_frame": skin.robot.base_frame,
-               "contents": {"frames": n_frames, **({"kinematics": len(self.kinematics)} if self.kinematics else {})},
-               "parts": {}}
+               "contents": {"frames": n_frames, **({"kinematics": len(self.kinematics)} if self.kinematics else {})}}
+        if self.fabric_thickness is not None:   # ahead of the parts: a file cut short loses the frames first
+            out["fabric_thickness"] = {"value": round(float(self.fabric_thickness), 9), "unit": "m"}
+        out["parts"] = {}
         for name, part in skin.parts.items():
             mount, *others = part.frames(self.parts.get(name))
             out["parts"][name] = {
@@ -553,6 +558,9 @@ class SkinCalibration:
                   "#   applied after the nominal pose from the layout; origin: resulting pose relative\n"
                   "#   to the parent frame (URDF xyz/rpy), read by urdf/nao_skin.urdf.xacro.\n"
                   "# contents: how many frames and kinematic corrections the file holds (checked on load).\n")
+        if self.fabric_thickness is not None:
+            header += ("# fabric_thickness: the pressed fabric over the taxels the touches implied (m); nao-skin\n"
+                       "#   check judges new touches at it.\n")
         if self.kinematics:
             header += ("# kinematics: corrections of the robot config, a joint's (rad) added to the angle it\n"
                        "#   reports, a link's (m) to its DH parameter; std from the normal equations.\n")
@@ -650,8 +658,26 @@ class SkinCalibration:
             calib.kinematics[str(name)] = correction
             if std is not None:
                 calib.kinematics_std[str(name)] = std
+        if "fabric_thickness" in doc:
+            calib.fabric_thickness = _fabric_entry(path, doc["fabric_thickness"])
         check_origins(path, doc, calib, skin)
         return calib
+
+
+MAX_FABRIC = 0.01          # m: the calibration options' own limit of a fabric thickness
+
+
+def _fabric_entry(path: Path, entry) -> float:
+    """The ``fabric_thickness`` of a calibration file: ``{value: m, unit: m}``, 0 to :data:`MAX_FABRIC`."""
+    try:
+        value = entry["value"]
+        ok = (not isinstance(value, bool) and isinstance(value, (int, float)) and entry.get("unit", "m") == "m"
+              and 0.0 <= float(value) <= MAX_FABRIC)
+    except (TypeError, KeyError, AttributeError, OverflowError):
+        ok = False
+    if not ok:
+        raise ConfigError(f"{path}: fabric_thickness must be {{value: metres from 0 to {MAX_FABRIC:g}, unit: m}}")
+    return float(value)
 
 
 ORIGIN_TOLERANCE = 1e-8   # m and rad; files hold origins rounded to 1e-10
