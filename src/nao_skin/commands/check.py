@@ -20,7 +20,7 @@ def add_arguments(parser) -> None:
 
     parser.add_argument("inputs", nargs="+", metavar="INPUT",
                         help="new touches: rosbag2 recordings, simulator output folders or legacy .txt data sets")
-    parser.add_argument("--calibration", required=True, help="the calibration.yaml to judge")
+    parser.add_argument("--calibration", required=True, metavar="YAML", help="the calibration.yaml to judge")
     parser.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE_MM, metavar="MM",
                         help="a part has moved when a refit from the new touches carries its taxels at least this"
                              f" far (median, mm) and brings its held-out touches closer (default {DEFAULT_TOLERANCE_MM:g})")
