@@ -121,31 +121,24 @@ def _recalibrate(args) -> str:
             f" --calibration {q(args.calibration)}{taxels}), or {calibrate}")
 
 
-REPORT_LIMIT = 50_000_000     # bytes: a calibration's report.json is a few hundred kB
-
-
 def _report_fabric(calibration: str, options) -> tuple:
     """``(mm, report path)`` from the report.json beside a calibration written before calibrations kept their
     fabric estimate (beside the file a link leads to); ``(None, None)`` where there is no usable one. A report
     that cannot be read is no reason to stop: the check then estimates the fabric, and says so."""
     import math
-    import stat
     from pathlib import Path
+
+    from nao_skin.errors import DataError
+    from nao_skin.paths import read_text
 
     report = Path(calibration).resolve().with_name("report.json")
     try:
-        info = report.stat()
-        if not stat.S_ISREG(info.st_mode) or info.st_size > REPORT_LIMIT:    # a FIFO would block for good
+        value = json.loads(read_text(report, "as a report"))["fabric_thickness_mm"]
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
             return None, None
-        value = float(_strict_number(json.loads(report.read_text())["fabric_thickness_mm"]))
-        if math.isfinite(value) and 0.0 <= value <= 1000.0 * options.fabric_bounds[1]:
-            return value, report
-    except (OSError, ValueError, KeyError, TypeError, OverflowError, RecursionError, UnicodeDecodeError):
-        pass
+        value = float(value)
+    except (DataError, ValueError, KeyError, TypeError, OverflowError, RecursionError):
+        return None, None
+    if math.isfinite(value) and 0.0 <= value <= 1000.0 * options.fabric_bounds[1]:
+        return value, report
     return None, None
-
-
-def _strict_number(value):
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise TypeError("not a number")
-    return value
