@@ -138,7 +138,10 @@ class RecordingSession:
         # a session of the simulated robot: its bag says so on every read, and nothing else
         assert not report.skipped and report.notes == [f"{self.bag}: recorded from {SIMULATED}, not the robot"], \
             report.lines()
-        assert_same_touches(got, self.want.subset(np.arange(got.n_touches)))
+        try:
+            assert_same_touches(got, self.want.subset(np.arange(got.n_touches)))
+        except AssertionError as exc:     # what the nodes said tells a lost touch from a wrong one
+            raise AssertionError(f"{exc}\n--- record's stderr:\n{self.session.stderr()[-4000:]}") from None
         return got, report
 
 

@@ -9,8 +9,9 @@ press per touch. Publishes ``/sim_robot/status`` (std_msgs/String, JSON:
 touches played / total, done) once per second.
 
 With ``wait_for_subscribers: N`` the play starts only when every skin taxels
-topic has N subscribers and the other topics at least one (bounded by
-``wait_timeout``), so nothing played is lost to DDS discovery.
+topic has N subscribers and the other topics at least one, and each of them
+acknowledged the released state published then (bounded by ``wait_timeout``),
+so nothing played is lost to DDS discovery.
 
 ``guided: true`` follows the guidance instead of playing a set made in
 advance (:class:`nao_skin.sim.capture.CaptureSim`, the same truth for the
@@ -25,6 +26,7 @@ import json
 import threading
 import time
 
+from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
@@ -91,12 +93,33 @@ class SimRobot(Node):
                 and self.joint_pub.get_subscription_count() >= 1
                 and all(pub.get_subscription_count() >= 1 for pub in self.contact_pub.values()))
 
-    def _play(self) -> None:
+    def _wait_for_subscribers(self) -> None:
+        """Until every topic has its subscribers and each of them takes what is published (bounded).
+
+        A publisher counts a subscriber as soon as it has discovered it, which can be before the
+        subscriber has discovered the publisher; under load that gap outlasted the lead-in, and a
+        subscriber that meets a volatile publisher late drops what it sent before (the recorder lost
+        the first touch). So the released state is published once and every publisher waits until
+        its subscribers acknowledged it: from then on each of them receives every message."""
         deadline = time.monotonic() + self.wait_timeout
         while not self._subscribers_ready() and time.monotonic() < deadline and not self._stop.is_set():
             self._stop.wait(0.05)
         if not self._subscribers_ready():
             self.get_logger().warning(f"playing although not every topic has {self.wait_for} subscribers")
+            return
+        if self.wait_for <= 0:
+            return
+        self._publish(0.0, 0)
+        publishers = [self.joint_pub, *self.contact_pub.values(), *self.taxel_pub.values()]
+        for pub in publishers:
+            left = deadline - time.monotonic()
+            if self._stop.is_set() or left <= 0 or not pub.wait_for_all_acked(Duration(seconds=left)):
+                self.get_logger().warning(f"playing although {pub.topic_name} was not acknowledged by every"
+                                          f" subscriber within wait_timeout {self.wait_timeout:g} s")
+                return
+
+    def _play(self) -> None:
+        self._wait_for_subscribers()
         while not self._stop.is_set():
             self._play_once()
             if self.guided and self.played < self.total:
