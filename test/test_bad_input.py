@@ -453,6 +453,64 @@ def test_a_bag_whose_storage_file_is_no_regular_file_is_one_line(tmp_path, capsy
         assert "is larger than 1 GiB and its bag does not open" in one_line(capsys)
 
 
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_a_bag_whose_metadata_yaml_is_no_regular_file_is_one_line(tmp_path, capsys, skin, storage):
+    """A FIFO named metadata.yaml waited for a writer for ever (the storage files were checked, it was not),
+    and so did every reader of the bag: stats, check, calibrate (an adversarial review, 2026-11-28)."""
+    from nao_skin.formats.bag import write_touch_bag
+
+    bag = tmp_path / "bag"
+    write_touch_bag(bag, simulate(skin, {"n_touches": 3}, seed=2).touches, skin, storage=storage)
+    (bag / "metadata.yaml").rename(tmp_path / "kept.yaml")
+    os.mkfifo(tmp_path / "fifo")
+    for target, kind in ((tmp_path / "fifo", "a FIFO"), (Path("/dev/zero"), "a character device")):
+        (bag / "metadata.yaml").symlink_to(target)
+        assert cli_main(["stats", str(bag)]) == 2
+        assert one_line(capsys) == (f"nao-skin stats: error: {bag / 'metadata.yaml'}: cannot read the bag's"
+                                    f" metadata (it is {kind}, not a regular file)")
+        (bag / "metadata.yaml").unlink()
+    (tmp_path / "kept.yaml").rename(bag / "metadata.yaml")
+    assert cli_main(["stats", str(bag)]) == 0
+
+
+def test_a_ground_truth_beside_a_recording_that_is_no_regular_file_is_a_note(tmp_path, capsys):
+    """The simulator's truth_calibration.yaml is never asked for: as a FIFO it hung stats, check and calibrate
+    (it was read whole to compare it with the other inputs' even when there was one input), as a directory it
+    refused the recording. Now a note says no true error is reported, and the recording is read."""
+    out = tmp_path / "sim"
+    assert cli_main(["simulate", "--seed", "1", "--touches-per-pair", "3", "--out", str(out)]) == 0
+    truth = out / "truth_calibration.yaml"
+    truth.unlink()
+    os.mkfifo(tmp_path / "fifo")
+    for make, kind in ((lambda: truth.symlink_to(tmp_path / "fifo"), "a FIFO"),
+                       (lambda: truth.symlink_to("/dev/zero"), "a character device"),
+                       (lambda: truth.mkdir(), "a directory")):
+        make()
+        capsys.readouterr()
+        assert cli_main(["stats", str(out), "--json"]) == 0
+        said = capsys.readouterr()
+        assert (f"{truth}: cannot read as the simulator's ground truth (it is {kind}, not a regular file): no true"
+                f" taxel error is reported") in said.out + said.err
+        assert json.loads(said.out.splitlines()[-1])["touches"] > 0
+        truth.rmdir() if truth.is_dir() and not truth.is_symlink() else truth.unlink()
+
+
+def test_an_output_marker_that_is_no_regular_file_is_not_ours(tmp_path, capsys):
+    """A FIFO in place of an output's .nao_skin_output hung calibrate and simulate, --force or not: the marker
+    was read as it was. Now it is no marker of ours, and the directory one nao-skin did not write."""
+    out = tmp_path / "out"
+    assert cli_main(["simulate", "--seed", "1", "--touches-per-pair", "2", "--out", str(out)]) == 0
+    marker = out / ".nao_skin_output"
+    marker.unlink()
+    os.mkfifo(marker)
+    before = sorted(p.name for p in out.iterdir())
+    for force in ([], ["--force"]):
+        capsys.readouterr()
+        assert cli_main(["simulate", "--seed", "1", "--touches-per-pair", "2", "--out", str(out), *force]) == 2
+        assert f"--out {out}: is a non-empty directory nao-skin did not write" in one_line(capsys)
+    assert sorted(p.name for p in out.iterdir()) == before
+
+
 def test_stats_reads_a_simulator_output_directory(tmp_path, capsys):
     assert cli_main(["simulate", "--preset", "default", "--seed", "1", "--touches-per-pair", "2",
                      "--out", str(tmp_path / "session")]) == 0
@@ -549,7 +607,8 @@ def test_import_refuses_a_stamp_no_bag_can_hold_and_leaves_no_half_bag(tmp_path,
     write_thesis_file(legacy, touches, skin)
     assert cli_main(["import", str(legacy), "-o", str(tmp_path / "bag")]) == 2
     line = one_line(capsys)
-    assert line.startswith(f"nao-skin import: error: {tmp_path / 'bag'}: touch '3000000000") and \
+    # the input is named, where the stamp is to be corrected (it named the bag that was not written)
+    assert line.startswith(f"nao-skin import: error: {legacy}: touch '3000000000") and \
         line.endswith("': stamp 3000000000.0 is not a time between 0 and 2147483647 s (a ROS message header holds"
                       " int32 seconds: up to January 2038)"), line
     assert not (tmp_path / "bag").exists()

@@ -599,3 +599,19 @@ def test_a_bag_is_never_written_into_another(tmp_path):
                                         r" choose a place outside it$"):
         BagWriter(outer / "deeper" / "inner", storage="mcap", kind="touches")
     assert sorted(p.name for p in outer.iterdir()) == before
+
+
+def test_a_simulation_into_a_bag_names_the_place_given_not_its_staging_directory(tmp_path, capsys):
+    """``simulate --out <bag>/sim`` was refused naming ``<bag>/.sim.<pid>.<random>/touches.bag``, a directory the
+    user never made nor sees (an adversarial review, 2026-11-28)."""
+    from nao_skin.cli import main as cli_main
+
+    outer = tmp_path / "outer"
+    with BagWriter(outer, storage="mcap", kind="touches"):
+        pass
+    before = sorted(p.name for p in outer.iterdir())
+    assert cli_main(["simulate", "--seed", "1", "--touches-per-pair", "2", "--out", str(outer / "sim")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"nao-skin simulate: error: {outer / 'sim' / 'touches.bag'}: lies inside the bag {outer}; a bag"
+                   f" is never written into another, choose a place outside it"], err
+    assert sorted(p.name for p in outer.iterdir()) == before

@@ -46,28 +46,35 @@ def free_sibling(path: str | Path, suffix: str) -> str:
 def read_text(path: str | Path, what: str = "", error: type | None = None, name: str | None = None,
               limit: int = MAX_TEXT_BYTES) -> str:
     """The text of ``path``; one line naming it (``name``, default the path) and ``what`` it was read as when it
-    cannot be read or is no text (a bag or another binary file given for a text one), as ``error`` (DataError).
-    Only a regular file is read, and at most ``limit`` bytes: ``/dev/zero`` never ends, a FIFO waits."""
+    cannot be read or is no text (a bag or another binary file given for a text one), as ``error`` (DataError),
+    whose ``reason`` is the part in brackets. Only a regular file is read, and at most ``limit`` bytes:
+    ``/dev/zero`` never ends, a FIFO waits."""
     from nao_skin.errors import DataError
 
     error = error or DataError
     what = f" {what}" if what else ""
     name = str(path) if name is None else name
+
+    def unreadable(reason: str) -> Exception:
+        exc = error(f"{name}: cannot read{what} ({reason})")
+        exc.reason = reason
+        return exc
+
     try:
         kind = not_a_file(os.stat(path).st_mode)
         if kind:
-            raise error(f"{name}: cannot read{what} (it is {kind}, not a regular file)")
+            raise unreadable(f"it is {kind}, not a regular file")
         with open(path, "rb") as f:
             data = f.read(limit + 1)
         if len(data) > limit:
             size = f"{limit >> 30} GiB" if limit >= 1 << 30 else f"{limit >> 20} MiB"
-            raise error(f"{name}: cannot read{what} (larger than {size}: is it the right file?)")
+            raise unreadable(f"larger than {size}: is it the right file?")
         # UTF-8 whatever the locale; a byte-order mark (as Windows editors write it) is not part of the text
         return data.decode("utf-8-sig")
     except OSError as exc:
-        raise error(f"{name}: cannot read{what} ({exc.strerror})") from None
+        raise unreadable(exc.strerror) from None
     except UnicodeDecodeError as exc:
-        raise error(f"{name}: cannot read{what} (not a text file: {exc.reason} at byte {exc.start})") from None
+        raise unreadable(f"not a text file: {exc.reason} at byte {exc.start}") from None
 
 
 def read_yaml(path: str | Path, what: str):

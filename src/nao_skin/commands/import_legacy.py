@@ -38,6 +38,6 @@ def run(args) -> int:
     if args.dedup:
         touches, removed = deduplicate(touches)
         print(f"exact duplicates removed: {removed}")
-    write_touch_bag(args.output, touches, skin, storage=args.storage)
+    write_touch_bag(args.output, touches, skin, storage=args.storage, source=args.legacy)
     print(f"wrote {touches.n_touches} touches to {args.output} ({args.storage})")
     return 0

@@ -34,10 +34,10 @@ from nao_skin.formats.outdir import staging_dir
 from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, LAST_STAMP, contacts_array, contacts_topic, encode_cloud,
                                          header_seconds, read_contacts, read_taxels, skin_topic, taxels_array,
                                          taxels_topic)
-from nao_skin.formats.salvage import (LOCK_FILE, RESCUED_FROM_KEY, check_storage_files, cut_mcap, cut_sqlite,
-                                      provisional_mcap, stored_metadata, unclosed_sqlite, write_lock)
+from nao_skin.formats.salvage import (LOCK_FILE, RESCUED_FROM_KEY, bag_metadata, check_storage_files, cut_mcap,
+                                      cut_sqlite, provisional_mcap, stored_metadata, unclosed_sqlite, write_lock)
 from nao_skin.model.skin import SkinModel
-from nao_skin.paths import free_sibling, identity, safe_load
+from nao_skin.paths import free_sibling, identity
 from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST, cluster_contacts, contact_geometry
 from nao_skin.touch.datasets import LoadReport
 from nao_skin.touch.events import (LIVE_CONFIG, TOUCH_BAG_CONFIG, EventConfig, EventDetector,
@@ -71,23 +71,25 @@ def enclosing_bag(path: str | Path) -> Path | None:
                  if (parent / "metadata.yaml").is_file() or (parent / LOCK_FILE).is_file()), None)
 
 
-def check_new_bag(path: Path) -> None:
-    """A bag can be made at ``path``: nothing is there, no bag encloses it, its folder is (made) a directory."""
+def check_new_bag(path: Path, label: str | Path | None = None) -> None:
+    """A bag can be made at ``path``: nothing is there, no bag encloses it, its folder is (made) a directory.
+    ``label``: the bag's name in messages (``path`` in a staging directory the user never sees)."""
+    name = path if label is None else label
     if path.exists() or path.is_symlink():
-        raise DataError(f"{path}: exists already; a bag is never overwritten")
+        raise DataError(f"{name}: exists already; a bag is never overwritten")
     outer = enclosing_bag(path)
     if outer is not None:
-        raise DataError(f"{path}: lies inside the bag {outer}; a bag is never written into another,"
+        raise DataError(f"{name}: lies inside the bag {outer}; a bag is never written into another,"
                         f" choose a place outside it")
     for parent in path.absolute().parents:        # rosbags makes only the bag's own directory
         if parent.exists():
             if not parent.is_dir():
-                raise DataError(f"{path}: {parent} is a file, not a directory; choose another place")
+                raise DataError(f"{name}: {parent} is a file, not a directory; choose another place")
             break
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise DataError(f"{path}: cannot make its folder ({exc.strerror}); choose another place") from None
+        raise DataError(f"{name}: cannot make its folder ({exc.strerror}); choose another place") from None
 
 
 class BagWriter:
@@ -337,27 +339,29 @@ def default_bag_name(now=None) -> str:
 
 
 def write_touch_bag(path: str | Path, touches: TouchSet, skin: SkinModel, storage: str = "sqlite3",
-                    label: str | Path | None = None) -> None:
+                    label: str | Path | None = None, source: str | Path | None = None) -> None:
     """Write a touch bag: per touch (in stamp order) one JointState and the touching parts' skin messages.
 
     Taxel positions are those of the nominal layout (what a skin driver sends);
     a contacts message lists the recorded skinManager contacts (id >= 0) with
     their recorded COP, the layout's geometric centre and normal, and the mean
     activation pressure; force and moment are not kept in a TouchSet (NaN). ``label``: the bag's name in
-    messages (where ``path`` is a staging directory the user never sees).
+    messages (where ``path`` is a staging directory the user never sees). ``source``: where the touches were
+    read, named instead when their stamps cannot be written (the input is what to correct, not the bag).
     """
     label = path if label is None else label
+    origin = label if source is None else source
     first: dict = {}                        # a bad stamp is refused before anything is written
     for t in range(touches.n_touches):
-        stamp_ns = _stamp_ns(touches.stamps[t], f"{label}: touch {touches.keys[t]!r}")
+        stamp_ns = _stamp_ns(touches.stamps[t], f"{origin}: touch {touches.keys[t]!r}")
         if stamp_ns in first:
             # a touch bag tells touches apart by their stamp: the reader would take the two as one touch
-            raise DataError(f"{label}: touches {touches.keys[first[stamp_ns]]!r} and {touches.keys[t]!r} would be"
+            raise DataError(f"{origin}: touches {touches.keys[first[stamp_ns]]!r} and {touches.keys[t]!r} would be"
                             f" written at one stamp ({stamp_ns // 1_000_000_000}.{stamp_ns % 1_000_000_000:09d} s)"
                             f" and read back as one touch; nothing written")
         first[stamp_ns] = t
     path = Path(path)
-    check_new_bag(path)
+    check_new_bag(path, label)
     # written beside it and moved in whole: a run killed half-way (kill -9, a power cut) leaves no half bag to be
     # taken for a recording, only a hidden staging directory the next write there removes
     try:
@@ -499,8 +503,7 @@ def _provisional_custom(path: Path) -> dict:
     """The custom metadata of an unclosed bag's provisional metadata.yaml (beside the storage file, when that is
     what ``path`` names); none when it cannot be read."""
     try:
-        meta = (path if path.is_dir() else path.parent) / "metadata.yaml"
-        info = safe_load(meta.read_text())["rosbag2_bagfile_information"]
+        info = bag_metadata(path if path.is_dir() else path.parent)
         return dict(info.get("custom_data") or {})
     except Exception:  # noqa: BLE001 - no or unreadable metadata: nothing says it is a touch bag
         return {}

@@ -8,6 +8,7 @@ import numpy as np
 
 from nao_skin.errors import DataError, NaoSkinError
 from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.paths import read_text
 from nao_skin.touch.datasets import LoadReport
 from nao_skin.touch.touches import TouchSet
 
@@ -231,7 +232,11 @@ def _ground_truth(truths: dict, skin: SkinModel) -> tuple:
     files = {str(f.resolve()) if f is not None else None for f in truths.values()}
     if files <= {None}:
         return None, None
-    if None in files or len({Path(f).read_bytes() for f in files}) > 1:
+    try:    # read as every text input is: a FIFO named like it would wait, /dev/zero never end
+        texts = {read_text(f, "as the simulator's ground truth") for f in {f for f in truths.values() if f}}
+    except DataError as exc:
+        return None, f"{exc}: no true taxel error is reported"
+    if None in files or len(texts) > 1:
         each = ", ".join(f"{raw}: {f or 'none'}" for raw, f in truths.items())
         return None, f"the inputs carry different ground truths ({each}): no true taxel error is reported"
     try:

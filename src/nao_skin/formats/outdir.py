@@ -26,8 +26,10 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from nao_skin.errors import STOP_SIGNALS, DataError, OutputTaken
+from nao_skin.paths import read_text
 
 MARKER = ".nao_skin_output"
+MARKER_LIMIT = 16 << 20     # bytes: a marker lists the entries of one output, a few kB
 FORMAT = "nao_skin/output/1"
 # kinds of output
 RECORDING = "recording"          # nao-skin simulate
@@ -65,9 +67,9 @@ def write_marker(directory: str | Path, command: str, kind: str, entries=None, s
 def read_marker(directory: str | Path) -> dict | None:
     """The marker of ``directory``, or None when it has none (or one we cannot read: not ours)."""
     path = Path(directory) / MARKER
-    try:
-        info = json.loads(path.read_text())
-    except (OSError, ValueError):
+    try:     # as every text input is read: a FIFO put there would wait, /dev/zero never end
+        info = json.loads(read_text(path, limit=MARKER_LIMIT))
+    except ValueError:      # DataError too: not a regular file, too large, no text
         return None
     if (not isinstance(info, dict) or info.get("format") != FORMAT or not isinstance(info.get("entries"), list)
             or not isinstance(info.get("kind"), str)):
@@ -256,8 +258,8 @@ def output_stamp(path: str | Path) -> tuple | None:
         # the marker's own inode and change time too: a run of the same command within the same second, in a
         # directory that got the same inode, writes the same marker text
         written = os.stat(Path(path) / MARKER)
-        marker = ((Path(path) / MARKER).read_bytes(), written.st_ino, written.st_ctime_ns)
-    except OSError:
+        marker = (read_text(Path(path) / MARKER, limit=MARKER_LIMIT), written.st_ino, written.st_ctime_ns)
+    except (OSError, ValueError):   # none, or (DataError) a FIFO that would wait, a device, no text: not ours
         marker = st.st_ctime_ns
     return st.st_dev, st.st_ino, marker
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from nao_skin.errors import DataError, one_line
-from nao_skin.paths import DANGLING_LINK, not_a_file, safe_load
+from nao_skin.paths import DANGLING_LINK, not_a_file, read_text, safe_load
 
 LOCK_FILE = "recording.lock"          # in a live bag's directory while its writer has it open
 # in a rescued copy's metadata (custom_data): the bag it was copied from, its directory moved while recording
@@ -30,10 +30,13 @@ MAX_SALVAGE_BYTES = 1 << 30
 
 
 def check_storage_files(path: Path) -> None:
-    """Every storage file of a bag (the bag's own file, or the .mcap and .db3 files in its directory) is a
-    regular file: a FIFO would wait for a writer forever, ``/dev/zero`` never ends."""
+    """Every storage file of a bag (the bag's own file, or the .mcap and .db3 files in its directory) and its
+    metadata.yaml is a regular file: a FIFO would wait for a writer forever, ``/dev/zero`` never ends."""
     path = Path(path)
     files = [path] if not path.is_dir() else sorted(p for p in path.iterdir() if p.suffix in STORAGE_SUFFIXES)
+    meta = (path if path.is_dir() else path.parent) / "metadata.yaml"
+    if meta.exists() or meta.is_symlink():    # read by rosbags too, before anything of ours could refuse it
+        files.append(meta)
     for file in files:
         try:
             kind = not_a_file(file.stat().st_mode)
@@ -42,7 +45,19 @@ def check_storage_files(path: Path) -> None:
         except OSError as exc:
             raise DataError(f"{file}: cannot read ({exc.strerror})") from None
         if kind:
-            raise DataError(f"{file}: cannot read the bag's storage (it is {kind}, not a regular file)")
+            what = "metadata" if file.name == "metadata.yaml" else "storage"
+            raise DataError(f"{file}: cannot read the bag's {what} (it is {kind}, not a regular file)")
+
+
+METADATA_LIMIT = 64 << 20     # bytes: a bag's metadata.yaml lists files and topics, a few kB
+
+
+def bag_metadata(path: Path):
+    """The ``rosbag2_bagfile_information`` of a bag directory's metadata.yaml, read as every text input is
+    (a regular file, bounded: :func:`nao_skin.paths.read_text`); DataError, OSError, YAMLError, KeyError or
+    TypeError when it cannot be read, is no YAML or no rosbag2 metadata."""
+    return safe_load(read_text(Path(path) / "metadata.yaml", "as rosbag2 metadata",
+                               limit=METADATA_LIMIT))["rosbag2_bagfile_information"]
 
 
 # ---------------------------------------------------------------------- the lock of a live recording
@@ -185,7 +200,7 @@ def _rescued_from(directory: Path) -> str | None:
     """The bag a rescued copy (``<bag>.rescued``) was copied from, as its metadata.yaml says; None for any
     other bag."""
     try:
-        info = safe_load((directory / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        info = bag_metadata(directory)
         origin = (info.get("custom_data") or {}).get(RESCUED_FROM_KEY)
     except Exception:  # noqa: BLE001 - no or unreadable metadata: not a rescued copy
         return None
@@ -266,7 +281,7 @@ def cut_sqlite(path: Path, open_error: Exception) -> UnclosedBag | None:
 def _lists_no_messages(path: Path) -> bool:
     """The bag directory's (readable) metadata.yaml lists no messages: BagWriter's provisional one, written
     at open, lists neither files nor topics; the real one, written on close, both."""
-    info = safe_load((path / "metadata.yaml").read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+    info = bag_metadata(path)
     return isinstance(info, dict) and not (info.get("files") or info.get("topics_with_message_count"))
 
 
@@ -274,7 +289,7 @@ def listed_message_count(path: Path) -> int | None:
     """How many messages the bag directory's metadata.yaml lists (a closed bag's); None when it lists none or
     does not read."""
     try:
-        info = safe_load((path / "metadata.yaml").read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        info = bag_metadata(path)
         count = info["message_count"]
     except Exception:  # noqa: BLE001 - unreadable in any way: no count to go by
         return None
@@ -290,12 +305,11 @@ def metadata_yaml_problem(path: Path) -> str | None:
     if not meta.exists():
         return "it has no metadata.yaml"
     try:
-        info = safe_load(meta.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
-        info.get("files")
+        bag_metadata(path).get("files")
+    except DataError as exc:      # its text: not a regular file, too large, not UTF-8
+        problem = getattr(exc, "reason", one_line(exc))
     except OSError as exc:
         problem = exc.strerror or one_line(exc)
-    except UnicodeDecodeError:
-        problem = "not text"
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         problem = f"not YAML{f' from line {mark.line + 1}' if mark is not None else ''}: {getattr(exc, 'problem', '')}"

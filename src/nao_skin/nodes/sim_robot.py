@@ -112,11 +112,14 @@ class SimRobot(Node):
         self._publish(0.0, 0)
         publishers = [self.joint_pub, *self.contact_pub.values(), *self.taxel_pub.values()]
         for pub in publishers:
-            left = deadline - time.monotonic()
-            if self._stop.is_set() or left <= 0 or not pub.wait_for_all_acked(Duration(seconds=left)):
-                self.get_logger().warning(f"playing although {pub.topic_name} was not acknowledged by every"
-                                          f" subscriber within wait_timeout {self.wait_timeout:g} s")
-                return
+            # in short waits: a node stopped meanwhile is not held up for the rest of wait_timeout
+            while not pub.wait_for_all_acked(Duration(seconds=0.1)):
+                if self._stop.is_set():
+                    return
+                if time.monotonic() >= deadline:
+                    self.get_logger().warning(f"playing although {pub.topic_name} was not acknowledged by every"
+                                              f" subscriber within wait_timeout {self.wait_timeout:g} s")
+                    return
 
     def _play(self) -> None:
         self._wait_for_subscribers()
