@@ -496,19 +496,21 @@ def test_a_ground_truth_beside_a_recording_that_is_no_regular_file_is_a_note(tmp
 
 
 def test_an_output_marker_that_is_no_regular_file_is_not_ours(tmp_path, capsys):
-    """A FIFO in place of an output's .nao_skin_output hung calibrate and simulate, --force or not: the marker
-    was read as it was. Now it is no marker of ours, and the directory one nao-skin did not write."""
+    """A FIFO in place of an output's .nao_skin_output hung calibrate and simulate, --force or not (the marker
+    was read as it was), JSON nested 100000 deep there was a RecursionError traceback. Now it is no marker of
+    ours, and the directory one nao-skin did not write."""
     out = tmp_path / "out"
     assert cli_main(["simulate", "--seed", "1", "--touches-per-pair", "2", "--out", str(out)]) == 0
     marker = out / ".nao_skin_output"
-    marker.unlink()
-    os.mkfifo(marker)
-    before = sorted(p.name for p in out.iterdir())
-    for force in ([], ["--force"]):
-        capsys.readouterr()
-        assert cli_main(["simulate", "--seed", "1", "--touches-per-pair", "2", "--out", str(out), *force]) == 2
-        assert f"--out {out}: is a non-empty directory nao-skin did not write" in one_line(capsys)
-    assert sorted(p.name for p in out.iterdir()) == before
+    for make in (os.mkfifo, lambda path: path.write_text("[" * 100_000)):    # JSON too deep: a RecursionError
+        marker.unlink()
+        make(marker)
+        before = sorted(p.name for p in out.iterdir())
+        for force in ([], ["--force"]):
+            capsys.readouterr()
+            assert cli_main(["simulate", "--seed", "1", "--touches-per-pair", "2", "--out", str(out), *force]) == 2
+            assert f"--out {out}: is a non-empty directory nao-skin did not write" in one_line(capsys)
+        assert sorted(p.name for p in out.iterdir()) == before
 
 
 def test_stats_reads_a_simulator_output_directory(tmp_path, capsys):

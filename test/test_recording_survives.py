@@ -237,3 +237,31 @@ def test_a_killed_mcap_named_by_its_file_or_without_metadata_reads_as_its_bag(pl
         got, report = read_touches(path, skin)
         assert_first_touches(got, as_stream, as_stream.n_touches)
         assert dict(report.skipped) == {"truncated bag": 1}, (path, report.lines())
+
+
+@pytest.mark.parametrize("lock_kind", ["fifo", "dev_zero", "deep"])
+def test_a_lock_that_does_not_read_leaves_the_touches_readable(played, tmp_path, lock_kind):
+    """The recorder's lock as a FIFO waited for a writer for ever in every read of the unclosed bag (stats,
+    check, calibrate, record --continue-from), /dev/zero grew without end, JSON nested 100000 deep raised a
+    RecursionError (an adversarial review, 2026-11-28). Now such a lock is 'unreadable', as a garbled one is."""
+    skin, want = played
+    bag = tmp_path / "touches"
+    writer = Writer(bag, "mcap")
+    try:
+        writer.kill()
+    finally:
+        writer.stop()
+    lock = bag / LOCK_FILE
+    lock.unlink()
+    if lock_kind == "fifo":
+        os.mkfifo(lock)
+    elif lock_kind == "dev_zero":
+        lock.symlink_to("/dev/zero")
+    else:
+        lock.write_text("[" * 100_000)
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "stats", str(bag), "--json"], env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr[-2000:]
+    assert json.loads(run.stdout.splitlines()[-1])["touches"] == FLUSHED
+    assert f"{LOCK_FILE} is unreadable" in run.stdout + run.stderr

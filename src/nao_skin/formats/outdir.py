@@ -69,7 +69,7 @@ def read_marker(directory: str | Path) -> dict | None:
     path = Path(directory) / MARKER
     try:     # as every text input is read: a FIFO put there would wait, /dev/zero never end
         info = json.loads(read_text(path, limit=MARKER_LIMIT))
-    except ValueError:      # DataError too: not a regular file, too large, no text
+    except (ValueError, RecursionError):      # DataError too: not a regular file, too large, no text
         return None
     if (not isinstance(info, dict) or info.get("format") != FORMAT or not isinstance(info.get("entries"), list)
             or not isinstance(info.get("kind"), str)):

@@ -34,9 +34,8 @@ def check_storage_files(path: Path) -> None:
     metadata.yaml is a regular file: a FIFO would wait for a writer forever, ``/dev/zero`` never ends."""
     path = Path(path)
     files = [path] if not path.is_dir() else sorted(p for p in path.iterdir() if p.suffix in STORAGE_SUFFIXES)
-    meta = (path if path.is_dir() else path.parent) / "metadata.yaml"
-    if meta.exists() or meta.is_symlink():    # read by rosbags too, before anything of ours could refuse it
-        files.append(meta)
+    if path.is_dir() and (path / "metadata.yaml").exists():   # rosbags reads it, before anything of ours could
+        files.append(path / "metadata.yaml")
     for file in files:
         try:
             kind = not_a_file(file.stat().st_mode)
@@ -50,6 +49,7 @@ def check_storage_files(path: Path) -> None:
 
 
 METADATA_LIMIT = 64 << 20     # bytes: a bag's metadata.yaml lists files and topics, a few kB
+LOCK_LIMIT = 1 << 16          # bytes: a lock names a process, a host and a start time
 
 
 def bag_metadata(path: Path):
@@ -101,9 +101,9 @@ def recording_lock(path: Path) -> RecordingLock | None:
     if lock is None or not lock.exists():
         return None
     try:
-        info = json.loads(lock.read_text())
+        info = json.loads(read_text(lock, limit=LOCK_LIMIT))     # a FIFO put there would wait, /dev/zero not end
         pid, host, start = int(info["pid"]), str(info["host"]), info.get("start")
-    except (OSError, ValueError, KeyError, TypeError):
+    except (ValueError, KeyError, TypeError, RecursionError):    # DataError (a ValueError): it does not read
         return RecordingLock(None, None, "unknown")
     if host != socket.gethostname():
         return RecordingLock(pid, host, "unknown")
@@ -308,8 +308,6 @@ def metadata_yaml_problem(path: Path) -> str | None:
         bag_metadata(path).get("files")
     except DataError as exc:      # its text: not a regular file, too large, not UTF-8
         problem = getattr(exc, "reason", one_line(exc))
-    except OSError as exc:
-        problem = exc.strerror or one_line(exc)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         problem = f"not YAML{f' from line {mark.line + 1}' if mark is not None else ''}: {getattr(exc, 'problem', '')}"

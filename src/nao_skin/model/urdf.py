@@ -16,7 +16,7 @@ import numpy as np
 
 from nao_skin import se3
 from nao_skin.errors import ConfigError, DataError
-from nao_skin.paths import safe_load, urdf_dir
+from nao_skin.paths import read_text, safe_load, urdf_dir
 
 XACRO_NAME = "nao_skin.urdf.xacro"
 _MOVING = ("revolute", "continuous", "prismatic")
@@ -231,7 +231,7 @@ def check_calibration_origins(path: str | Path, skin) -> None:
     path = Path(path)
     calib = SkinCalibration.load(path, skin)          # one-line errors for malformed files
     # C loader when available: this runs on every `nao-skin urdf` and the file has ~100 entries
-    doc = safe_load(path.read_text())
+    doc = safe_load(read_text(path, "as a calibration", ConfigError))
     check_origins(path, doc, calib, skin, complete=True)
 
 
