@@ -92,6 +92,15 @@ class Writer:
         self.popen.stdout.close()
 
 
+def killed_recording(bag: Path, storage: str, mode: str = "live") -> None:
+    """A recording at ``bag`` whose writer was killed (SIGKILL) after its first FLUSHED touches were flushed."""
+    writer = Writer(bag, storage, mode)
+    try:
+        writer.kill()
+    finally:
+        writer.stop()
+
+
 def assert_first_touches(got, want, n):
     """``got`` is exactly the first ``n`` touches of ``want``: stamps, joints, activated (part, slot) sets."""
     assert got.n_touches == n
@@ -163,11 +172,7 @@ def test_stats_of_an_unclosed_sqlite_bag_without_lock(played, tmp_path):
     """A writer without the lock (older recorder): metadata.yaml incomplete; stats reads the .db3 directly."""
     skin, want = played
     bag = tmp_path / "touches"
-    writer = Writer(bag, "sqlite3", mode="no-lock")
-    try:
-        writer.kill()
-    finally:
-        writer.stop()
+    killed_recording(bag, "sqlite3", "no-lock")
     assert not (bag / LOCK_FILE).exists()
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert info["message_count"] == 0 and info["topics_with_message_count"] == []      # the provisional one
@@ -215,11 +220,7 @@ def test_a_killed_mcap_named_by_its_file_or_without_metadata_reads_as_its_bag(pl
 
     skin, want = played
     bag = tmp_path / "touches"
-    writer = Writer(bag, "mcap")
-    try:
-        writer.kill()
-    finally:
-        writer.stop()
+    killed_recording(bag, "mcap")
     file = bag / "touches.mcap"
     alone = tmp_path / "alone"
     alone.mkdir()
@@ -246,11 +247,7 @@ def test_a_lock_that_does_not_read_leaves_the_touches_readable(played, tmp_path,
     RecursionError (an adversarial review, 2026-11-28). Now such a lock is 'unreadable', as a garbled one is."""
     skin, want = played
     bag = tmp_path / "touches"
-    writer = Writer(bag, "mcap")
-    try:
-        writer.kill()
-    finally:
-        writer.stop()
+    killed_recording(bag, "mcap")
     lock = bag / LOCK_FILE
     lock.unlink()
     if lock_kind == "fifo":
