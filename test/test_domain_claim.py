@@ -91,6 +91,20 @@ def test_a_lock_file_of_any_content_is_claimed_when_no_session_holds_it(tmp_path
     claim_domain(3, tmp_path).release()
 
 
+def test_a_fifo_where_a_lock_file_goes_does_not_hold_up_a_refusal(tmp_path):
+    """/tmp is everybody's: a FIFO at the next domain's lock path made the refusal's suggestion of a free
+    domain wait for a writer for ever (opened to read, blocking; an adversarial review, 2026-11-28)."""
+    os.mkfifo(tmp_path / "nao_skin_ros_domain_42.lock")
+    holder = Holder(41, tmp_path)
+    try:     # in a process of its own: a wait for ever fails the test instead of holding up the suite
+        run = subprocess.run([sys.executable, "-c", "from nao_skin.session.claim import claim_domain;"
+                              f" claim_domain(41, {str(tmp_path)!r})"], capture_output=True, text=True, timeout=60)
+    finally:
+        holder.kill()
+    assert run.returncode == 1 and "ConfigError: another nao-skin session" in run.stderr, run.stderr[-2000:]
+    assert "ROS_DOMAIN_ID=42 nao-skin record" in run.stderr       # no session holds 42: a FIFO is no claim
+
+
 def test_an_unwritable_lock_directory_leaves_the_session_unclaimed_and_says_so(tmp_path):
     claim = claim_domain(5, tmp_path / "no" / "such" / "dir")
     assert claim.fd is None and claim.problem.startswith("cannot claim ROS_DOMAIN_ID 5 (")

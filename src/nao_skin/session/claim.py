@@ -97,7 +97,8 @@ def _open(path: Path) -> int:
     try:
         fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o666)
     except PermissionError:           # another user's file that is not writable to us: flock needs no write
-        return os.open(path, os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW)
+        # non-blocking: a FIFO planted there (/tmp is everybody's) would wait for a writer for ever
+        return os.open(path, os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW | os.O_NONBLOCK)
     try:
         if os.fstat(fd).st_uid == os.getuid():
             os.fchmod(fd, 0o666)      # the umask took write access from the others
@@ -118,7 +119,7 @@ def _free_neighbour(domain: int, lock_dir: Path | None) -> int:
     """A domain near ``domain`` that no running session holds (a suggestion in the refusal)."""
     for other in list(range(domain + 1, DOMAIN_IDS.stop)) + list(range(DOMAIN_IDS.start, domain)):
         try:
-            fd = os.open(lock_path(other, lock_dir), os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW)
+            fd = os.open(lock_path(other, lock_dir), os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW | os.O_NONBLOCK)
         except OSError:               # no session ever claimed it here
             return other
         try:
