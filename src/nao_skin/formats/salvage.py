@@ -54,8 +54,8 @@ LOCK_LIMIT = 1 << 16          # bytes: a lock names a process, a host and a star
 
 def bag_metadata(path: Path):
     """The ``rosbag2_bagfile_information`` of a bag directory's metadata.yaml, read as every text input is
-    (a regular file, bounded: :func:`nao_skin.paths.read_text`); DataError, OSError, YAMLError, KeyError or
-    TypeError when it cannot be read, is no YAML or no rosbag2 metadata."""
+    (a regular file, bounded: :func:`nao_skin.paths.read_text`); DataError (an OSError too), YAMLError,
+    KeyError or TypeError when it cannot be read, is no YAML or no rosbag2 metadata."""
     return safe_load(read_text(Path(path) / "metadata.yaml", "as rosbag2 metadata",
                                limit=METADATA_LIMIT))["rosbag2_bagfile_information"]
 
