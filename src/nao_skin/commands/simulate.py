@@ -49,6 +49,7 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from nao_skin.errors import ConfigError
+    from nao_skin.formats.bag import check_outside_bags
     from nao_skin.formats.outdir import RECORDING, as_checked, check_output_dir
     from nao_skin.sim.params import MAX_TOUCHES_PER_PAIR, check_pairs, default_params_file, load_params, pair_list
     from nao_skin.sim.simulate import simulate, write_outputs
@@ -57,6 +58,8 @@ def run(args) -> int:
     check_output_dir(args.out, RECORDING, inputs=(args.params, skin_config_file(args), *skin.source_files()),
                      force=args.force)
     checked = as_checked(args.out)       # what --force agreed to replace, nothing written there meanwhile
+    # refused here, not after minutes of simulating (the bag's own check stays where it is written)
+    check_outside_bags(Path(args.out) / "touches.bag")
     if args.seed < 0:           # numpy's seed sequences take no negative entropy
         raise ConfigError(f"--seed {args.seed}: expected a whole number >= 0")
     overrides = {}

@@ -71,16 +71,21 @@ def enclosing_bag(path: str | Path) -> Path | None:
                  if (parent / "metadata.yaml").is_file() or (parent / LOCK_FILE).is_file()), None)
 
 
+def check_outside_bags(path: Path, label: str | Path | None = None) -> None:
+    """No bag encloses ``path`` (``label``: its name in the message)."""
+    outer = enclosing_bag(path)
+    if outer is not None:
+        raise DataError(f"{path if label is None else label}: lies inside the bag {outer}; a bag is never written"
+                        f" into another, choose a place outside it")
+
+
 def check_new_bag(path: Path, label: str | Path | None = None) -> None:
     """A bag can be made at ``path``: nothing is there, no bag encloses it, its folder is (made) a directory.
     ``label``: the bag's name in messages (``path`` in a staging directory the user never sees)."""
     name = path if label is None else label
     if path.exists() or path.is_symlink():
         raise DataError(f"{name}: exists already; a bag is never overwritten")
-    outer = enclosing_bag(path)
-    if outer is not None:
-        raise DataError(f"{name}: lies inside the bag {outer}; a bag is never written into another,"
-                        f" choose a place outside it")
+    check_outside_bags(path, name)
     for parent in path.absolute().parents:        # rosbags makes only the bag's own directory
         if parent.exists():
             if not parent.is_dir():
