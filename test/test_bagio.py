@@ -601,25 +601,6 @@ def test_a_bag_is_never_written_into_another(tmp_path):
     assert sorted(p.name for p in outer.iterdir()) == before
 
 
-def test_a_simulation_into_a_bag_is_refused_before_it_simulates(tmp_path, capsys):
-    """The place was refused only once the touches were simulated (minutes for a large preset). A preset
-    that fails while simulating (a link_errors entry the robot config does not name) tells the order: the
-    place's line comes first."""
-    from nao_skin.cli import main as cli_main
-
-    outer = tmp_path / "outer"
-    with BagWriter(outer, storage="mcap", kind="touches"):
-        pass
-    params = tmp_path / "sim.yaml"
-    params.write_text("defaults:\n  n_touches: 2\npresets:\n  broken:\n    link_errors: {NoSuchLink: 0.01}\n")
-    outside = tmp_path / "elsewhere"
-    assert cli_main(["simulate", "--params", str(params), "--preset", "broken", "--out", str(outside)]) == 2
-    assert "NoSuchLink" in capsys.readouterr().err          # the preset does fail while simulating
-    assert cli_main(["simulate", "--params", str(params), "--preset", "broken", "--out", str(outer / "sim")]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "lies inside the bag" in err[0] and "NoSuchLink" not in err[0], err
-
-
 def test_a_simulation_into_a_bag_names_the_place_given_not_its_staging_directory(tmp_path, capsys):
     """``simulate --out <bag>/sim`` was refused naming ``<bag>/.sim.<pid>.<random>/touches.bag``, a directory the
     user never made nor sees (an adversarial review, 2026-11-28)."""
