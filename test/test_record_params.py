@@ -21,6 +21,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 import yaml
@@ -331,6 +332,49 @@ def test_record_refuses_what_its_nodes_would_fail_on_before_any_starts(tmp_path)
         line = one_error_line(nao_skin(["record", "--bag", str(other), "--param", item]))
         assert expected in line, line
         assert not other.exists()
+
+
+def _config_copy(tmp_path, edit) -> Path:
+    """A copy of the package's config directory whose record.yaml ``edit`` (text -> text) changed."""
+    import shutil
+
+    cfg = tmp_path / "config"
+    if cfg.exists():
+        shutil.rmtree(cfg)
+    shutil.copytree(ROOT / "config", cfg)
+    (cfg / "record.yaml").write_text(edit((ROOT / "config" / "record.yaml").read_text()))
+    return cfg
+
+
+@pytest.mark.parametrize("edit, expected", [
+    (lambda t: t.replace("joint_rate: 100.0", "joint_rate: .nan", 1), "sim_robot.joint_rate=nan: expected a number"),
+    (lambda t: t.replace("flush_period: 1.0", "flush_period: -1.0", 1),
+     "pairing_recorder.flush_period=-1.0: expected a number in (0"),
+    (lambda t: t.replace("seed: 1 ", "seed: one ", 1), "sim_robot.seed=one: expected an integer"),
+    # rcl refuses such a file in every node that reads it, in two lines each, after the bag was made
+    (lambda t: t + "extra_node: 5\n", "'extra_node' is an integer where a node name maps to its ros__parameters"),
+    (lambda t: t.replace("joint_rate: 100.0", "joint_rate:", 1), "sim_robot.joint_rate has no value (ROS refuses"
+                                                                  " the whole file)"),
+], ids=["nan", "negative", "type", "structure", "no-value"])
+def test_record_refuses_a_bad_value_in_its_parameter_file_before_any_node_starts(tmp_path, edit, expected):
+    """The same value refused given with --param went through when record.yaml held it: every node started,
+    one refused it, and an empty bag took the name (exit 0 when the session ended before that node read its
+    parameters; an adversarial review, 2026-11-28)."""
+    cfg = _config_copy(tmp_path, edit)
+    assert (cfg / "record.yaml").read_text() != RECORD_YAML.read_text()
+    bag = tmp_path / "touches"
+    line = one_error_line(nao_skin(["record", "--bag", str(bag), "--duration", "30"],
+                                   env=ros_env(unique_domain_id(), NAO_SKIN_CONFIG=cfg)))
+    assert f"{cfg / 'record.yaml'}: " in line and expected in line, line
+    assert not bag.exists()
+
+
+def test_record_checks_a_parameter_file_value_only_where_no_override_replaces_it(tmp_path):
+    cfg = _config_copy(tmp_path, lambda t: t.replace("joint_rate: 100.0", "joint_rate: .nan", 1))
+    env = ros_env(unique_domain_id(), NAO_SKIN_CONFIG=cfg)
+    run = nao_skin(["record", "--print", "--bag", str(tmp_path / "b"), "--param", "sim_robot.joint_rate=50"], env=env)
+    assert run.returncode == 0, run.stderr
+    assert "joint_rate:=50.0" in run.stdout, run.stdout
 
 
 def test_record_refuses_a_guided_start_the_simulated_robot_would_refuse(tmp_path):

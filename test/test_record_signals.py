@@ -366,3 +366,26 @@ def test_a_bag_removed_mid_session_is_rescued_and_record_does_not_say_nothing_wa
     assert "nothing was recorded" not in err, err[-3000:]
     got, report = read_touches(rescued, load_skin())
     assert got.n_touches >= run.reported and not report.skipped, report.lines()
+
+
+def test_a_simulated_robot_stopped_while_it_simulates_ends_without_playing(tmp_path):
+    """sim_robot simulates its touches before it spins (seconds for many touches). A stop then (record killed,
+    whose death reaches its nodes as SIGTERM) waited for the whole simulation: it outlived record by that
+    long, and played to nobody (an adversarial review, 2026-11-28). Now the signal ends the simulation."""
+    domain = unique_domain_id()
+    listener = robot = None
+    try:
+        listener = Listener(domain)
+        robot = node_process("sim_robot", {"touches_per_pair": 5000}, ros_env(domain), tmp_path)
+        # the node exists (its participant is discovered) before it simulates: then the simulation is under way
+        assert listener.spin_until(lambda: "sim_robot" in listener.node.get_node_names(), timeout=60,
+                                   procs=[robot]), "sim_robot did not start"
+        robot.popen.send_signal(signal.SIGTERM)
+        code = robot.popen.wait(timeout=60)
+    finally:
+        if listener is not None:
+            listener.close()
+        if robot is not None:
+            robot.stop()
+    assert code == 0, robot.stderr()[-2000:]
+    assert "simulated" not in robot.stderr(), robot.stderr()[-2000:]

@@ -105,7 +105,49 @@ def read_ros_params_file(path: str | Path) -> dict:
     if not isinstance(doc, dict):
         raise ConfigError(f"{path}: a ROS parameters file maps node names to ros__parameters; this one is a"
                           f" {type(doc).__name__}")
+    problem = _ros_params_problem(doc)
+    if problem:       # rcl refuses the whole file, in every node that reads it, in two lines each
+        raise ConfigError(f"{path}: {problem} (ROS refuses the whole file)")
     return doc
+
+
+def _ros_params_problem(doc: dict, trail: tuple = ()) -> str | None:
+    """What rcl's parameter file parser refuses in ``doc`` (names down to ``ros__parameters`` mapping to
+    mappings, a value to every parameter, one type per list), or None."""
+    for key, value in doc.items():
+        name = "/".join(map(str, trail + (key,)))
+        if key == "ros__parameters":
+            if not isinstance(value, dict):
+                return f"'{name}' must map parameter names to values"
+            problem = _parameter_problem(value, trail)
+        elif not isinstance(value, dict):
+            return f"'{name}' is {_kind(value)} where a node name maps to its ros__parameters"
+        else:
+            problem = _ros_params_problem(value, trail + (key,))
+        if problem:
+            return problem
+    return None
+
+
+def _parameter_problem(params: dict, trail: tuple, prefix: str = "") -> str | None:
+    for key, value in params.items():
+        name = f"{'/'.join(map(str, trail))}.{prefix}{key}"
+        if value is None:
+            return f"{name} has no value"
+        if isinstance(value, dict):
+            problem = _parameter_problem(value, trail, f"{prefix}{key}.")
+            if problem:
+                return problem
+        elif isinstance(value, list):
+            kinds = {type(v) for v in value if isinstance(v, (bool, int, float, str))}
+            if len(kinds) > 1:
+                return f"{name} mixes {' and '.join(sorted(_kind(k()) for k in kinds))} in one list"
+    return None
+
+
+def _kind(value) -> str:
+    return {type(None): "empty", bool: "a boolean", int: "an integer", float: "a number", str: "a string",
+            list: "a list"}.get(type(value), type(value).__name__)
 
 
 class _DuplicateKey(Exception):

@@ -192,8 +192,17 @@ def _spin_once(executor, node, failures: Counter) -> None:
                                     + (f" ({n} so far)" if n > 1 else ""))
 
 
-def run_node(factory, args=None) -> int:
-    """Create the node with ``factory()``, spin it, shut it down cleanly on a stop signal or when record is gone."""
+class _StoppedWhileStarting(Exception):
+    """A stop signal arrived while an interruptible node was still being made."""
+
+
+def run_node(factory, args=None, interruptible_start: bool = False) -> int:
+    """Create the node with ``factory()``, spin it, shut it down cleanly on a stop signal or when record is gone.
+
+    ``interruptible_start``: a stop signal aborts ``factory()`` itself (a node that computes for seconds
+    before it spins, as sim_robot simulating its touches: else it outlived a killed ``nao-skin record``,
+    whose death reaches it as SIGTERM, by that long). Only for a factory that writes nothing.
+    """
     args = sys.argv if args is None else args
     try:
         _check_params_files(args)
@@ -205,9 +214,13 @@ def run_node(factory, args=None) -> int:
         print(f"error: the ROS arguments: {_rcl_reason(exc)}", file=sys.stderr)
         return 2
     stop = threading.Event()
+    starting = [interruptible_start]
 
     def on_signal(signum, frame):      # noqa: ARG001 - signal handler signature
         stop.set()
+        if starting[0]:
+            starting[0] = False
+            raise _StoppedWhileStarting
 
     for s in STOP_SIGNALS:
         signal.signal(s, on_signal)
@@ -217,9 +230,12 @@ def run_node(factory, args=None) -> int:
     try:
         try:
             node = factory()
+            starting[0] = False
         except NaoSkinError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
+        except _StoppedWhileStarting:
+            return 0
         _warn_undeclared(node)
         # one thread: a node's callbacks never run concurrently (the recorder's detector is not
         # thread-safe); slow work (polling NAOqi, YARP reads, calibration) has its own threads

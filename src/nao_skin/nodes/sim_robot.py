@@ -215,7 +215,7 @@ class SimRobot(Node):
 
 
 def main(args=None) -> int:
-    return run_node(SimRobot, args)
+    return run_node(SimRobot, args, interruptible_start=True)   # simulating takes seconds and writes nothing
 
 
 if __name__ == "__main__":

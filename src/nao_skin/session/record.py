@@ -171,6 +171,7 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     for spec in specs:
         _check_printable(spec)
         if spec.ours:
+            _check_file_values(spec)
             _check_together(spec, spec.name in own_skin)
     _check_guided(by_name)
     _check_files(bag_path, calibration, by_name["calibrate"].overrides)
@@ -264,15 +265,53 @@ def _check_together(spec: NodeSpec, own_skin: bool = False) -> None:
 def _start_values(spec: NodeSpec) -> dict:
     """The parameters a node of ours starts with: declared defaults, then its parameter files, then the overrides."""
     values = node_parameters(spec)
+    for _, given in _file_sections(spec):
+        values.update(given)
+    values.update(spec.overrides)
+    return values
+
+
+def _file_sections(spec: NodeSpec) -> list:
+    """``[(path, ros__parameters)]``: the sections of the node's parameter files that reach it."""
+    out = []
     for path in spec.params_files:
         doc = read_ros_params_file(path)
         for key in ("/**", spec.name, f"/{spec.name}"):
             section = doc.get(key)
             given = section.get("ros__parameters") if isinstance(section, dict) else None
             if isinstance(given, dict):
-                values.update(given)
-    values.update(spec.overrides)
-    return values
+                out.append((path, given))
+    return out
+
+
+def _flattened(params: dict, prefix: str = "") -> dict:
+    """A ``ros__parameters`` mapping with its nested names dotted, as rcl reads them (``part_ids: {torso: 7}``)."""
+    out = {}
+    for name, value in params.items():
+        if isinstance(value, dict):
+            out.update(_flattened(value, f"{prefix}{name}."))
+        else:
+            out[f"{prefix}{name}"] = value
+    return out
+
+
+def _check_file_values(spec: NodeSpec) -> None:
+    """Each parameter the node declares, as its parameter files give it, of the node's type and within its
+    rule: the node would refuse it only once started, beside the others, after the bag was made. Values an
+    override replaces, and names the node does not declare (it warns of those), are not checked."""
+    known = _declared(spec)
+    for path, given in _file_sections(spec):
+        for name, value in _flattened(given).items():
+            if name not in known or name in spec.overrides:
+                continue
+            default, rule = known[name]
+            where = f"{path}: {spec.name}.{name}"
+            typed = _typed(value, default, where)
+            if rule is not None:
+                try:
+                    rule.check(f"{where}={_text(value)}", typed)
+                except NaoSkinError as exc:
+                    raise ConfigError(str(exc)) from None
 
 
 def _check_guided(by_name: dict) -> None:
