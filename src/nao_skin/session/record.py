@@ -304,14 +304,7 @@ def _check_file_values(spec: NodeSpec) -> None:
         for name, value in _flattened(given).items():
             if name not in known or name in spec.overrides:
                 continue
-            default, rule = known[name]
-            where = f"{path}: {spec.name}.{name}"
-            typed = _typed(value, default, where)
-            if rule is not None:
-                try:
-                    rule.check(f"{where}={_text(value)}", typed)
-                except NaoSkinError as exc:
-                    raise ConfigError(str(exc)) from None
+            _checked(value, *known[name], f"{path}: {spec.name}.{name}")
 
 
 def _check_guided(by_name: dict) -> None:
@@ -411,14 +404,20 @@ def typed_overrides(spec: NodeSpec, values: dict) -> dict:
         if name not in known:
             raise ConfigError(f"{where}: node '{spec.name}' has no parameter '{name}'{did_you_mean(name, known)};"
                               f" its parameters: {', '.join(known)}")
-        default, rule = known[name]
-        out[name] = _typed(value, default, where)
-        if rule is not None:     # the node's own check, made before any node starts
-            try:
-                rule.check(f"{where}={_text(value)}", out[name])
-            except NaoSkinError as exc:
-                raise ConfigError(str(exc)) from None
+        out[name] = _checked(value, *known[name], where)
     return out
+
+
+def _checked(value, default, rule, where: str):
+    """``value`` as the type of ``default``, within the node's ``rule``: the node's own check, made before
+    any node starts (ConfigError naming ``where``)."""
+    typed = _typed(value, default, where)
+    if rule is not None:
+        try:
+            rule.check(f"{where}={_text(value)}", typed)
+        except NaoSkinError as exc:
+            raise ConfigError(str(exc)) from None
+    return typed
 
 
 def _typed(value, default, where: str):
