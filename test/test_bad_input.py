@@ -819,10 +819,12 @@ def test_a_broken_bench_input_never_costs_an_earlier_benchmark(tmp_path, capsys,
     (["--duration", "-5"], "--duration -5.0: expected seconds >= 0 (0: until Ctrl-C)"),
     (["--duration", "nan"], "--duration nan: expected seconds >= 0 (0: until Ctrl-C)"),
     # the simulated robot (the default) ignored the real robot's address without a word
-    (["--nao-ip", "10.0.0.9"], "nao_ip:=10.0.0.9: only robot:=nao reads it (robot:=sim, the default, simulates"),
-    (["--no-naoqi"], "naoqi:=false: only robot:=nao reads it"),
-    (["--robot", "nao", "--no-naoqi", "--nao-ip", "10.0.0.2"], "nao_ip:=10.0.0.2: only naoqi_bridge reads it, and"
-                                                             " naoqi:=false leaves it out"),
+    # named as given here, not in the launch file's spelling (nao_ip:=...; an adversarial review, 2026-11-28)
+    (["--nao-ip", "10.0.0.9"], "--nao-ip 10.0.0.9: only --robot nao reads it (--robot sim, the default, simulates"),
+    (["--no-naoqi"], "--no-naoqi: only --robot nao reads it"),
+    (["--robot", "nao", "--no-naoqi", "--nao-ip", "10.0.0.2"], "--nao-ip 10.0.0.2: only naoqi_bridge reads it, and"
+                                                             " --no-naoqi leaves it out"),
+    (["--robot", "nao", "--guided"], "--guided: only the simulated robot (--robot sim) follows the guidance"),
 ])
 def test_record_refuses_what_a_node_would_die_of_before_any_starts(tmp_path, capsys, monkeypatch, args, says):
     monkeypatch.chdir(tmp_path)

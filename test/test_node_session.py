@@ -71,6 +71,24 @@ def test_params_files_match_the_nodes(config):
                 f"{config}:{lineno}: parameter without a comment"
 
 
+@pytest.mark.parametrize("kwargs, launch, command", [
+    ({"nao_ip": "10.0.0.9"}, "nao_ip:=10.0.0.9: only robot:=nao reads it (robot:=sim, the default",
+     "--nao-ip 10.0.0.9: only --robot nao reads it (--robot sim, the default"),
+    ({"robot": "nao", "guided": True}, "guided:=true: only the simulated robot (robot:=sim)",
+     "--guided: only the simulated robot (--robot sim)"),
+    ({"robot": "nao", "nao_ip": "not an ip!"}, "nao_ip:=not an ip!: expected an IPv4 address",
+     "--nao-ip not an ip!: expected an IPv4 address"),
+])
+def test_a_session_names_its_arguments_as_its_starter_takes_them(kwargs, launch, command):
+    """One description for ros2 launch and nao-skin record: each user reads the arguments as they typed them."""
+    from nao_skin.errors import ConfigError
+
+    for spelling, expected in (("launch", launch), ("command", command)):
+        with pytest.raises(ConfigError) as caught:
+            record_session(**kwargs, spelling=spelling)
+        assert str(caught.value).startswith(expected), (spelling, str(caught.value))
+
+
 def test_session_nodes_and_shared_bag(tmp_path):
     sim = {s.name: s for s in record_session("sim", bag_path=str(tmp_path / "b"))}
     assert set(sim) == {"sim_robot", "pairing_recorder", "skin_heatmap", "calibrate", "robot_state_publisher"}

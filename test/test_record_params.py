@@ -274,7 +274,7 @@ def test_record_refuses_unknown_or_mistyped_parameters(tmp_path):
 
     # the robot's address and skinManager's port, by the bridges' own rules
     line = one_error_line(nao_skin(["record", "--robot", "nao", "--print", "--events-port", "-1"]))
-    assert line.endswith("events_port:=-1: expected a YARP port name: '/' and no spaces,"
+    assert line.endswith("--events-port -1: expected a YARP port name: '/' and no spaces,"
                          " e.g. /skinManager/skin_events:o"), line
     for item, expected in (("naoqi_bridge.joint_names=[]", "expected distinct joint names as NAOqi spells them"),
                            ("yarp_skin_bridge.compensated_ports.head=/a port", "expected empty (no port) or a YARP")):
@@ -282,7 +282,7 @@ def test_record_refuses_unknown_or_mistyped_parameters(tmp_path):
         assert f"--param {item}: {expected}" in line, line
     for bad in ("not an ip!", "127.0.0.1:9559", "999.1.1.1"):     # a port in it was retried for ever, exit 0
         line = one_error_line(nao_skin(["record", "--robot", "nao", "--print", "--nao-ip", bad]))
-        assert line.endswith(f"nao_ip:={bad}: expected an IPv4 address or a host name, e.g. 192.168.1.10 or"
+        assert line.endswith(f"--nao-ip {bad}: expected an IPv4 address or a host name, e.g. 192.168.1.10 or"
                              f" nao.local (the port is nao_port)"), line
 
     # without --print: refused before any node starts (no bag, no "started")

@@ -86,7 +86,7 @@ def run(args) -> int:
     specs = record_session(args.robot, nao_ip=args.nao_ip, naoqi=not args.no_naoqi, events_port=args.events_port,
                            bag_path=args.bag, calibration=args.calibration, rviz=args.rviz, taxels=args.taxels,
                            overrides=parse_overrides(args.param), guided=args.guided,
-                           continue_from=args.continue_from)
+                           continue_from=args.continue_from, spelling="command")
     claim = None
     if not args.print:
         check_needs(specs)

@@ -76,8 +76,11 @@ def robot_description(calibration: str = "", skin_frames: bool = False) -> str:
 def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, events_port: str = "",
                    bag_path: str = "", calibration: str = "", rviz: bool = False, taxels=(),
                    overrides: dict | None = None, with_robot_state_publisher: bool = True,
-                   guided: bool = False, continue_from=()) -> list:
+                   guided: bool = False, continue_from=(), spelling: str = "launch") -> list:
     """The nodes of ``record.launch.py`` for these launch arguments.
+
+    ``spelling``: how a message names the arguments, as the caller's user gave them: ``launch``
+    (``nao_ip:=...``) or ``command`` (``nao-skin record --nao-ip ...``).
 
     ``taxels``: ``PART=FILE`` items, the robot's own layouts, given to every node that reads the skin.
     ``guided``: the simulated robot follows the guidance (robot sim only).
@@ -86,22 +89,22 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     ``overrides``: ``{node name: {parameter: value}}`` applied last (tests, CLI ``--param``).
     """
     if robot not in ROBOTS:
-        raise ConfigError(f"robot:={robot!r}: expected one of {', '.join(ROBOTS)}")
+        raise ConfigError(f"{_said('robot', repr(robot), spelling)}: expected one of {', '.join(ROBOTS)}")
     if robot == "sim":       # said, not ignored: an operator who gave the robot's address meant the robot
         for given, name in ((nao_ip, "nao_ip"), (events_port, "events_port"), (not naoqi, "naoqi")):
             if given:
                 value = "false" if name == "naoqi" else given
-                raise ConfigError(f"{name}:={value}: only robot:=nao reads it (robot:=sim, the default, simulates the"
-                                  f" robot); give robot:=nao for the real one")
+                nao, sim = _said("robot", "nao", spelling), _said("robot", "sim", spelling)
+                raise ConfigError(f"{_said(name, value, spelling)}: only {nao} reads it ({sim}, the default,"
+                                  f" simulates the robot); give {nao} for the real one")
     if nao_ip and not naoqi:
-        raise ConfigError(f"nao_ip:={nao_ip}: only naoqi_bridge reads it, and naoqi:=false leaves it out (another"
-                          f" driver publishes /joint_states)")
-    for value, node, name, where in ((nao_ip, "naoqi_bridge", "nao_ip", "nao_ip:="),
-                                     (events_port, "yarp_skin_bridge", "events_port", "events_port:=")):
+        raise ConfigError(f"{_said('nao_ip', nao_ip, spelling)}: only naoqi_bridge reads it, and"
+                          f" {_said('naoqi', 'false', spelling)} leaves it out (another driver publishes /joint_states)")
+    for value, node, name in ((nao_ip, "naoqi_bridge", "nao_ip"), (events_port, "yarp_skin_bridge", "events_port")):
         if value:    # the node's own rule, before any node starts
             _, rule = _declared(NodeSpec(node, node))[name]
             try:
-                rule.check(f"{where}{value}", value)
+                rule.check(_said(name, value, spelling), value)
             except NaoSkinError as exc:
                 raise ConfigError(str(exc)) from None
     cfg = config_dir()
@@ -112,8 +115,9 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     record_yaml, bridges_yaml = cfg / "record.yaml", cfg / "bridges.yaml"
     specs = []
     if guided and robot != "sim":
-        raise ConfigError("guided:=true: only the simulated robot (robot:=sim) follows the guidance; on the real"
-                          " robot the operator does, from RViz or /nao_skin/guidance")
+        raise ConfigError(f"{_said('guided', 'true', spelling)}: only the simulated robot"
+                          f" ({_said('robot', 'sim', spelling)}) follows the guidance; on the real robot the"
+                          f" operator does, from RViz or /nao_skin/guidance")
     if robot == "sim":
         specs.append(NodeSpec("sim_robot", "sim_robot", [record_yaml], {"guided": True} if guided else {}))
     else:
@@ -176,6 +180,14 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     _check_guided(by_name)
     _check_files(bag_path, calibration, by_name["calibrate"].overrides)
     return specs
+
+
+def _said(name: str, value: str, spelling: str) -> str:
+    """A session argument as its user gave it: ``name:=value`` to ros2 launch, the option to nao-skin record."""
+    if spelling == "launch":
+        return f"{name}:={value}"
+    flag = {"naoqi": "--no-naoqi", "guided": "--guided"}.get(name)     # options without a value
+    return flag or f"--{name.replace('_', '-')} {value}"
 
 
 def _earlier_recordings(paths, robot: str, source: str) -> list:
