@@ -24,10 +24,14 @@ setup-test:
 demo: setup
 	cd $(ROOT) && $(VENV)/bin/nao-skin demo
 
-## test: run the test suite
+# The suite runs on two pytest-xdist workers; each test owns its ROS domain (test/ros_harness.py), ports
+# and temporary files, and the tests that must run alone are in one xdist_group (--dist loadgroup).
+PYTEST_PARALLEL ?= -n 2 --dist loadgroup
+
+## test: run the test suite (in parallel: PYTEST_PARALLEL= runs it serially)
 test: setup-test
-	cd $(ROOT) && $(VENV)/bin/python -m pytest -q test
+	cd $(ROOT) && $(VENV)/bin/python -m pytest -q $(PYTEST_PARALLEL) test
 
 ## test-core: the fast core tests only (no ROS 2 nodes/DDS, libqi, yarpserver; no slow runs)
 test-core: setup
-	cd $(ROOT) && $(VENV)/bin/python -m pytest -q -m "not middleware and not slow" test
+	cd $(ROOT) && $(VENV)/bin/python -m pytest -q $(PYTEST_PARALLEL) -m "not middleware and not slow" test

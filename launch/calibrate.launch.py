@@ -2,7 +2,8 @@
 
 Runs the calibrate node once on the inputs at start (options: config/record.yaml,
 section ``calibrate``), writes DIR/calibration.yaml and the report, and keeps
-publishing the calibrated skin frames on /tf_static. Do not run it next to a
+publishing the calibrated skin frames on /tf_static; a calibration that fails ends the launch with exit
+code 1 (the node's own line says why). Do not run it next to a
 record session: that session's calibrate node already publishes the skin
 frames (calibrate there with ``ros2 topic pub --once /nao_skin/calibrate ...``).
 """
@@ -16,6 +17,7 @@ from launch.substitutions import LaunchConfiguration
 
 
 def _node(context):
+    from nao_skin.nodes.launch_actions import ending_the_launch
     from nao_skin.paths import config_dir
 
     inputs = shlex.split(LaunchConfiguration("inputs").perform(context))
@@ -25,8 +27,8 @@ def _node(context):
     calibration = LaunchConfiguration("calibration").perform(context)
     if calibration:
         overrides["calibration"] = calibration
-    return [Node(package="nao_skin", executable="calibrate", name="calibrate", output="screen",
-                 parameters=[str(config_dir() / "record.yaml"), overrides])]
+    return ending_the_launch(Node(package="nao_skin", executable="calibrate", name="calibrate", output="screen",
+                                  parameters=[str(config_dir() / "record.yaml"), overrides]))
 
 
 def generate_launch_description():

@@ -13,6 +13,10 @@ Starts (the same set as ``nao-skin record``, from nao_skin.session.record):
 * continue_from:="BAG ...": the session continues earlier sittings' bags (the
   calibrate node and the heat-map count their touches too).
 
+A nao_skin node that ends ends the session (exit code 1 when it failed, after its own line saying why);
+robot_state_publisher and rviz2 are left out, with a line, where they are not installed (as
+``nao-skin record`` does).
+
 Skin frames have exactly one publisher: the calibrate node publishes the
 current calibration (``calibration:=FILE``, nominal by default) on
 /tf_static and replaces it after each calibration
@@ -48,6 +52,7 @@ ARGUMENTS = {
 
 
 def _nodes(context):
+    from nao_skin.nodes.launch_actions import ending_the_launch, installed
     from nao_skin.session.claim import claim_domain
     from nao_skin.session.record import check_needs, record_session, robot_description
 
@@ -65,14 +70,18 @@ def _nodes(context):
     context.extend_globals({"nao_skin_domain_claim": claim})
     actions = []
     for spec in specs:
+        if spec.optional and not installed(spec.package):
+            print(f"record.launch.py: {spec.package} is not installed: the session runs without it", file=sys.stderr)
+            continue
         overrides = {}
         for key, value in spec.overrides.items():
             if isinstance(value, tuple) and value and value[0] == "__urdf__":
                 value = ParameterValue(robot_description(value[1], skin_frames=False), value_type=str)
             overrides[key] = value
         parameters = [str(f) for f in spec.params_files] + ([overrides] if overrides else [])
-        actions.append(Node(package=spec.package, executable=spec.executable, name=spec.name,
-                            parameters=parameters, arguments=list(spec.arguments), output="screen"))
+        node = Node(package=spec.package, executable=spec.executable, name=spec.name,
+                    parameters=parameters, arguments=list(spec.arguments), output="screen")
+        actions += ending_the_launch(node) if spec.ours else [node]
     return actions
 
 

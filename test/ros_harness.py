@@ -1,13 +1,17 @@
 """Helpers for tests that run real nodes over real DDS: processes, listeners, bounded waits.
 
-* every test gets its own ROS domain id (pid-derived, so parallel runs on
-  one machine do not cross-talk) and localhost-only discovery;
+* every test gets its own ROS domain id and localhost-only discovery: the id is
+  claimed with a lock in /tmp for as long as the test runs, so the pytest-xdist
+  workers of one run, and other runs on the machine, never share one (two
+  tests on one domain hear each other's messages, and their record sessions
+  refuse each other's domain claim);
 * nodes run as subprocesses in their own process group, stopped with SIGINT
   (then SIGKILL of the group) in ``finally`` blocks: nothing outlives a test;
 * waits are bounded and poll a predicate; nothing asserts on wall-clock time.
 """
 from __future__ import annotations
 
+import fcntl
 import itertools
 import os
 import signal
@@ -26,11 +30,67 @@ from nao_skin.session.record import param_text
 ROOT = Path(__file__).resolve().parents[1]
 WAIT_S = 20.0                      # generous upper bound for a 2-core CI machine; polls end much earlier
 _counter = itertools.count()
+TEST_DOMAINS = range(10, 100)      # their DDS ports (7400 + 250 * id ...) stay below the ephemeral ports
+_held_domains: dict[int, int] = {}   # domain id -> descriptor of its flocked test lock file
+
+
+def _test_lock(domain: int) -> Path:
+    return Path("/tmp") / f"nao_skin_test_domain_{domain}.lock"
+
+
+def _flocked_inodes() -> set:
+    """Inodes of the files someone holds a flock on (/proc/locks: read, so that no claim is disturbed)."""
+    try:
+        lines = Path("/proc/locks").read_text().splitlines()
+    except OSError:
+        return set()
+    inodes = set()
+    for line in lines:
+        fields = line.split()
+        if "FLOCK" in fields and len(fields) >= 6:
+            for f in fields:
+                if f.count(":") == 2:          # MAJ:MIN:INODE
+                    inodes.add(int(f.rsplit(":", 1)[1]))
+                    break
+    return inodes
+
+
+def _session_holds(domain: int, flocked: set) -> bool:
+    """A running record session (or launch) claims ``domain`` (nao_skin.session.claim's lock is held)."""
+    from nao_skin.session.claim import lock_path
+
+    try:
+        return os.stat(lock_path(domain)).st_ino in flocked
+    except OSError:
+        return False
 
 
 def unique_domain_id() -> int:
-    """A domain id in 10..99 from the pid and a counter (valid DDS port range)."""
-    return 10 + (os.getpid() * 13 + next(_counter) * 7) % 90
+    """A domain id in 10..99 that no other test on this machine uses while this one runs: an exclusive flock
+    on ``/tmp/nao_skin_test_domain_<id>.lock`` (the kernel drops it if the process dies), released by
+    :func:`release_domains` when the test ends (conftest.py), and no record session claims (test or not)."""
+    flocked = _flocked_inodes()
+    start = os.getpid() * 13 + next(_counter) * 7        # spread the searches of parallel workers
+    for k in range(len(TEST_DOMAINS)):
+        domain = TEST_DOMAINS[(start + k) % len(TEST_DOMAINS)]
+        if domain in _held_domains or _session_holds(domain, flocked):
+            continue
+        fd = os.open(_test_lock(domain), os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            continue
+        _held_domains[domain] = fd
+        return domain
+    raise RuntimeError(f"every ROS domain in {TEST_DOMAINS} is taken by running tests or sessions")
+
+
+def release_domains() -> None:
+    """Give back the domains this process's test claimed (its nodes have been stopped)."""
+    while _held_domains:
+        _, fd = _held_domains.popitem()
+        os.close(fd)
 
 
 def ros_env(domain_id: int, **extra) -> dict:

@@ -45,3 +45,38 @@ def test_the_core_finds_an_installed_share_directory_through_the_ament_index(tmp
     assert installed_share_dir("other") is None
     monkeypatch.delenv("AMENT_PREFIX_PATH")
     assert installed_share_dir("nao_skin") is None
+
+
+# what the help of every command may import: no numpy, scipy or engine (they took most of a second to load)
+_HEAVY = ("numpy", "scipy", "rosbags", "nao_skin.calibration.engine", "nao_skin.calibration.pairing",
+          "nao_skin.model.skin")
+
+
+def _imported_by(argv: list) -> tuple:
+    """(exit code, the heavy modules imported) of ``nao-skin ARGV`` in a fresh interpreter."""
+    code = ("import contextlib, io, json, sys\n"
+            "from nao_skin.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()):\n"
+            f"    rc = main({argv!r})\n"
+            f"print(json.dumps([rc, sorted(m for m in sys.modules if m.split('.')[0] in {_HEAVY!r}"
+            f" or m in {_HEAVY!r})]))\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    rc, modules = __import__("json").loads(run.stdout.splitlines()[-1])
+    return rc, modules
+
+
+def test_the_help_imports_no_engine():
+    """``nao-skin --help`` and each command's help read only the command modules and the options table: a
+    command imports numpy, scipy and the engine when it runs."""
+    from nao_skin.cli import build_parser
+
+    commands = list(build_parser()._subparsers._group_actions[0].choices)
+    assert "calibrate" in commands and "simulate" in commands
+    for argv in (["--help"], *([name, "--help"] for name in commands)):
+        assert _imported_by(argv) == (0, []), argv
+
+
+def test_the_help_check_sees_an_import():
+    """The same check on a command that runs (it loads a recording): the engine's modules are seen."""
+    rc, modules = _imported_by(["stats", str(ROOT / "bags" / "sim_default")])
+    assert rc == 0 and "numpy" in modules and "nao_skin.model.skin" in modules

@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from real_data import REAL_DIR as REAL  # noqa: E402
 from thesis_format import write_thesis_file  # noqa: E402
 
 from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions, set_items
@@ -31,9 +30,7 @@ from nao_skin.paths import config_dir, default_skin_config, package_dir
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 
-RECORDING = REAL / "l_hand_torso.legacy.txt"
 BENCH_CHEAP = ["bench", "--quick", "--only", "hard", "--seeds", "1", "--presets", "ideal"]
-REAL_TAXELS = ["--taxels", f"l_hand={REAL / 'l_hand.taxels.txt'}", "--taxels", f"torso={REAL / 'torso.taxels.txt'}"]
 
 
 def one_line(capsys) -> str:
@@ -298,20 +295,21 @@ def test_an_absurd_angle_is_named_in_a_short_line(tmp_path, capsys, skin, thesis
 
 # ------------------------------------------------------------------------------ one skin model
 @pytest.fixture(scope="module")
-def real_calibration(tmp_path_factory):
+def real_calibration(tmp_path_factory, real_recording, real_taxels):
     """The real recording calibrated with its own layouts, through the command."""
     out = tmp_path_factory.mktemp("real") / "cal"
-    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "calibrate", str(RECORDING), *REAL_TAXELS,
+    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "calibrate", str(real_recording), *real_taxels,
                           "--out", str(out), "--quiet", "--no-plots"], capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     return out, run
 
 
 @pytest.mark.slow   # real_calibration: the real recording calibrated by the command
-def test_stats_evaluates_a_calibration_with_the_layouts_it_was_made_with(capsys, real_calibration):
+def test_stats_evaluates_a_calibration_with_the_layouts_it_was_made_with(capsys, real_calibration, real_recording,
+                                                                         real_taxels):
     out, _ = real_calibration
     report = json.loads((out / "report.json").read_text())
-    assert cli_main(["stats", str(RECORDING), *REAL_TAXELS, "--calibration", str(out / "calibration.yaml"),
+    assert cli_main(["stats", str(real_recording), *real_taxels, "--calibration", str(out / "calibration.yaml"),
                      "--json"]) == 0
     stats = json.loads(capsys.readouterr().out.splitlines()[-1])
     n_train, n_test = report["final"]["train"]["n_touches"], report["final"]["test"]["n_touches"]
@@ -322,9 +320,9 @@ def test_stats_evaluates_a_calibration_with_the_layouts_it_was_made_with(capsys,
 
 
 @pytest.mark.slow   # real_calibration: the real recording calibrated by the command
-def test_another_layout_refuses_the_calibration_in_one_line(capsys, real_calibration):
+def test_another_layout_refuses_the_calibration_in_one_line(capsys, real_calibration, real_recording):
     out, _ = real_calibration
-    assert cli_main(["stats", str(RECORDING), "--calibration", str(out / "calibration.yaml")]) == 2
+    assert cli_main(["stats", str(real_recording), "--calibration", str(out / "calibration.yaml")]) == 2
     line = one_line(capsys)
     assert "calibrated on the layout l_hand.taxels.txt" in line and "--taxels l_hand=" in line, line
     doc = (out / "calibration.yaml").read_text()
@@ -332,13 +330,13 @@ def test_another_layout_refuses_the_calibration_in_one_line(capsys, real_calibra
 
 
 @pytest.mark.slow   # real_calibration: the real recording calibrated by the command
-def test_urdf_takes_the_layouts_a_calibration_was_made_with(tmp_path, capsys, real_calibration):
+def test_urdf_takes_the_layouts_a_calibration_was_made_with(tmp_path, capsys, real_calibration, real_taxels):
     """urdf told a user to give the same layout with --taxels, which it did not have."""
     out, _ = real_calibration
     calibration = str(out / "calibration.yaml")
     assert cli_main(["urdf", "--calibration", calibration, "--out", str(tmp_path / "a.urdf")]) == 2
     assert "--taxels l_hand=" in one_line(capsys)
-    assert cli_main(["urdf", "--calibration", calibration, *REAL_TAXELS, "--out", str(tmp_path / "b.urdf")]) == 0
+    assert cli_main(["urdf", "--calibration", calibration, *real_taxels, "--out", str(tmp_path / "b.urdf")]) == 0
     assert "l_hand_skin_mount" in (tmp_path / "b.urdf").read_text()
 
 
@@ -351,7 +349,7 @@ def test_calibrate_prints_the_engine_time_and_the_whole_command_time(real_calibr
     assert 0 < engine <= whole + 0.05
 
 
-def test_a_layout_is_the_same_whatever_file_holds_it(tmp_path):
+def test_a_layout_is_the_same_whatever_file_holds_it(tmp_path, real_dir):
     skin = load_skin()
     part = skin.parts["torso"]
     part.write_taxel_file(tmp_path / "torso_copy.txt")        # the same taxels, another file and format
@@ -360,7 +358,7 @@ def test_a_layout_is_the_same_whatever_file_holds_it(tmp_path):
     calib = skin.zero_calibration()
     calib.save(tmp_path / "c.yaml", skin)
     SkinCalibration.load(tmp_path / "c.yaml", again)            # same layout: accepted
-    real = load_skin(taxel_files={"torso": REAL / "torso.taxels.txt"})
+    real = load_skin(taxel_files={"torso": real_dir / "torso.taxels.txt"})
     with pytest.raises(ConfigError, match="part 'torso' was calibrated on the layout torso.txt"):
         SkinCalibration.load(tmp_path / "c.yaml", real)
     # a layout record that is no record: the check it is there for was skipped without a word
@@ -407,18 +405,18 @@ def test_a_calibration_applies_only_to_the_chain_description_it_was_made_on(tmp_
     SkinCalibration.load(tmp_path / "c.yaml", load_skin(robot_config=tmp_path / "same.yaml"))
 
 
-def test_an_unknown_part_in_taxels_is_one_line(capsys, tmp_path):
-    assert cli_main(["stats", str(RECORDING), "--taxels", f"l_arm={REAL / 'l_hand.taxels.txt'}"]) == 2
+def test_an_unknown_part_in_taxels_is_one_line(capsys, tmp_path, real_recording, real_dir):
+    assert cli_main(["stats", str(real_recording), "--taxels", f"l_arm={real_dir / 'l_hand.taxels.txt'}"]) == 2
     assert "unknown skin part 'l_arm'" in one_line(capsys)
-    assert cli_main(["stats", str(RECORDING), "--taxels", f"l_hand={tmp_path / 'none.txt'}"]) == 2
+    assert cli_main(["stats", str(real_recording), "--taxels", f"l_hand={tmp_path / 'none.txt'}"]) == 2
     assert "none.txt: no such file" in one_line(capsys)
-    assert cli_main(["stats", str(RECORDING), "--taxels", f"l_hand={tmp_path}"]) == 2
+    assert cli_main(["stats", str(real_recording), "--taxels", f"l_hand={tmp_path}"]) == 2
     assert f"{tmp_path} is a directory, not a taxel file" in one_line(capsys)
     (tmp_path / "loop").symlink_to(tmp_path / "loop")
-    assert cli_main(["stats", str(RECORDING), "--taxels", f"l_hand={tmp_path / 'loop'}"]) == 2
+    assert cli_main(["stats", str(real_recording), "--taxels", f"l_hand={tmp_path / 'loop'}"]) == 2
     assert "loop: a symbolic link that leads nowhere (a loop or a missing target)" in one_line(capsys)
     os.mkfifo(tmp_path / "fifo")         # it was "no such file"
-    assert cli_main(["stats", str(RECORDING), "--taxels", f"l_hand={tmp_path / 'fifo'}"]) == 2
+    assert cli_main(["stats", str(real_recording), "--taxels", f"l_hand={tmp_path / 'fifo'}"]) == 2
     assert "fifo: not a regular file" in one_line(capsys)
 
 
@@ -558,8 +556,8 @@ def test_missing_and_empty_inputs_get_the_same_line_in_every_command(tmp_path, c
             if says == "empty directory" else "")
 
 
-def test_one_recording_named_twice_is_refused_before_its_touches_count_twice(tmp_path, capsys):
-    shutil.copy(RECORDING, tmp_path / "touches.txt")
+def test_one_recording_named_twice_is_refused_before_its_touches_count_twice(tmp_path, capsys, real_recording):
+    shutil.copy(real_recording, tmp_path / "touches.txt")
     (tmp_path / "link.txt").symlink_to(tmp_path / "touches.txt")
     for again in (str(tmp_path / "touches.txt"), str(tmp_path / "." / "touches.txt"), str(tmp_path / "link.txt")):
         assert cli_main(["calibrate", str(tmp_path / "touches.txt"), again, "--out", str(tmp_path / "o")]) == 2
@@ -593,10 +591,11 @@ def test_simulate_refuses_a_negative_seed_in_one_line(tmp_path, capsys):
     ("/proc/nao_skin_bag", "/proc/nao_skin_bag: cannot write the bag (No such file or directory)"),
     ("notes.txt/bag", "notes.txt is a file, not a directory"),
 ], ids=["proc", "below-a-file"])
-def test_import_to_a_place_no_bag_can_be_written_is_one_line(tmp_path, capsys, monkeypatch, output, says):
+def test_import_to_a_place_no_bag_can_be_written_is_one_line(tmp_path, capsys, monkeypatch, output, says,
+                                                             real_recording, real_taxels):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "notes.txt").write_text("mine\n")
-    assert cli_main(["import", str(RECORDING), "-o", output, *REAL_TAXELS]) == 2
+    assert cli_main(["import", str(real_recording), "-o", output, *real_taxels]) == 2
     line = one_line(capsys)
     assert line.startswith("nao-skin import: error: ") and says in line, line
     assert (tmp_path / "notes.txt").read_text() == "mine\n"
@@ -631,17 +630,20 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
-def test_an_import_killed_half_way_leaves_no_half_bag_and_the_next_run_cleans_up(tmp_path):
+def test_an_import_killed_half_way_leaves_no_half_bag_and_the_next_run_cleans_up(tmp_path, real_recording,
+                                                                                  real_taxels):
     """kill -9 during the write left half a bag at -o, which read as a recorder's crash and made a rerun refuse."""
-    argv = ["import", str(RECORDING), "-o", "bag", "--storage", "mcap", *REAL_TAXELS]
+    argv = ["import", str(real_recording), "-o", "bag", "--storage", "mcap", *real_taxels]
     run = subprocess.run([sys.executable, "-c", KILLED_MID_WRITE, *argv], cwd=tmp_path, capture_output=True,
                          text=True, timeout=300)
     assert run.returncode == -9, run.stderr
     assert not (tmp_path / "bag").exists()
     (left,) = tmp_path.glob(".bag.*")            # what the killed run wrote, hidden beside -o
-    assert cli_main(["import", str(RECORDING), "-o", str(tmp_path / "bag"), "--storage", "mcap", *REAL_TAXELS]) == 0
+    assert cli_main(["import", str(real_recording), "-o", str(tmp_path / "bag"), "--storage", "mcap",
+                     *real_taxels]) == 0
     assert not left.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["bag"]
-    touches, report = read_touches(tmp_path / "bag", load_skin(taxel_files=dict(t.split("=") for t in REAL_TAXELS[1::2])))
+    touches, report = read_touches(tmp_path / "bag",
+                                   load_skin(taxel_files=dict(t.split("=") for t in real_taxels[1::2])))
     assert touches.n_touches == 810 and report.n_skipped == 0
 
 
@@ -699,14 +701,14 @@ def test_layouts_that_cannot_be_written_leave_no_folder_behind(tmp_path, capsys,
     assert list((tmp_path / "mine").iterdir()) == []        # the user's folder stays, what the run made is gone
 
 
-def test_layouts_never_replace_a_robots_own_layout_without_force(tmp_path, capsys):
+def test_layouts_never_replace_a_robots_own_layout_without_force(tmp_path, capsys, real_dir):
     own = tmp_path / "layouts" / "l_hand.txt"
     own.parent.mkdir()
-    shutil.copy(REAL / "l_hand.taxels.txt", own)
+    shutil.copy(real_dir / "l_hand.taxels.txt", own)
     assert cli_main(["layouts", str(own.parent)]) == 2
     assert one_line(capsys) == (f"nao-skin layouts: error: layouts {own.parent}: {own} differs from the default"
                                 f" layout; nothing written (pass --force to replace it, or choose another directory)")
-    assert own.read_bytes() == (REAL / "l_hand.taxels.txt").read_bytes() and len(list(own.parent.iterdir())) == 1
+    assert own.read_bytes() == (real_dir / "l_hand.taxels.txt").read_bytes() and len(list(own.parent.iterdir())) == 1
     assert cli_main(["layouts", str(own.parent), "--force"]) == 0
     assert cli_main(["layouts", str(own.parent)]) == 0                  # the defaults again: the same bytes
     capsys.readouterr()
@@ -757,6 +759,27 @@ def test_bench_arguments_are_checked_before_anything_runs(tmp_path, capsys, monk
     (tmp_path / "binary.md").write_bytes(b"\xff\xfe")
     assert cli_main([*BENCH_CHEAP, *args, "--out", "b"]) == 2
     assert one_line(capsys).startswith(f"nao-skin bench: error: {says}")
+    assert not (tmp_path / "b").exists()
+
+
+def test_the_bench_takes_the_real_recording_from_an_argument_or_the_variable_else_says_so(tmp_path, capsys,
+                                                                                          monkeypatch):
+    """The real recording is no part of the repository: --only real without --real or $NAO_SKIN_REAL_DATA, or
+    with the variable naming a directory that lacks a file of it, is one line before anything runs."""
+    monkeypatch.delenv("NAO_SKIN_REAL_DATA", raising=False)
+    assert cli_main(["bench", "--only", "real", "--out", str(tmp_path / "b")]) == 2
+    assert one_line(capsys) == ("nao-skin bench: error: --only real needs a real recording: --real PATH (with --taxels"
+                                " PART=FILE of its layouts), or NAO_SKIN_REAL_DATA=DIR holding l_hand_torso.legacy.txt,"
+                                " l_hand.taxels.txt, torso.taxels.txt")
+    half = tmp_path / "half"
+    half.mkdir()
+    (half / "l_hand_torso.legacy.txt").write_text("{}\n")
+    monkeypatch.setenv("NAO_SKIN_REAL_DATA", str(half))
+    for sections in (["--only", "real"], ["--quick"]):          # every section, the real one among them
+        assert cli_main(["bench", *sections, "--out", str(tmp_path / "b")]) == 2
+        assert one_line(capsys) == (f"nao-skin bench: error: NAO_SKIN_REAL_DATA={half}: no l_hand.taxels.txt,"
+                                    f" torso.taxels.txt there (expected a directory holding l_hand_torso.legacy.txt,"
+                                    f" l_hand.taxels.txt, torso.taxels.txt); set it to one, or give --real PATH")
     assert not (tmp_path / "b").exists()
 
 
@@ -902,14 +925,14 @@ def test_a_removed_current_directory_is_one_line(tmp_path, capsys, monkeypatch):
     gone.mkdir()
     monkeypatch.chdir(gone)
     gone.rmdir()
-    assert cli_main(["calibrate", str(RECORDING), "--out", "out"]) == 2
+    assert cli_main(["calibrate", str(package_dir() / "bags" / "sim_default"), "--out", "out"]) == 2
     assert one_line(capsys) == ("nao-skin calibrate: error: --out out: the current directory no longer exists;"
                                 " change to an existing one")
 
 
-def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):
+def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path, real_recording):
     """The real recording under the packaged layouts: most touches name slots those layouts lack."""
-    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "calibrate", str(RECORDING), "--quiet",
+    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "calibrate", str(real_recording), "--quiet",
                           "--no-plots", "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=300)
     skipped = [line for line in run.stderr.splitlines() if "skipped: 634 bad taxel slot" in line]
     assert len(skipped) == 1, run.stderr
@@ -918,28 +941,28 @@ def test_quiet_still_says_what_was_skipped_and_which_layout_to_pass(tmp_path):
 
 
 @pytest.mark.parametrize("parts", ["l_hand,knee", "l_hand,l_hand", "l_hand,", " ,"])
-def test_unknown_parts_are_refused_by_stats_pairs(capsys, tmp_path, parts):
+def test_unknown_parts_are_refused_by_stats_pairs(capsys, tmp_path, parts, real_taxels):
     broken = tmp_path / "broken.txt"                # told before the touches are read
     broken.write_text("{'0': [{0: {'cop': [0, 0,")
-    assert cli_main(["stats", str(broken), *REAL_TAXELS, "--parts", parts]) == 2
+    assert cli_main(["stats", str(broken), *real_taxels, "--parts", parts]) == 2
     assert one_line(capsys) == (f"nao-skin stats: error: --parts {parts!r}: expected two different skin parts A,B of"
                                 f" r_hand, l_hand, torso, head")
 
 
-def test_stats_of_a_pair_the_recording_lacks_is_one_line_and_its_json_is_json(capsys):
+def test_stats_of_a_pair_the_recording_lacks_is_one_line_and_its_json_is_json(capsys, real_recording, real_taxels):
     # every figure was NaN with exit 0, and '--json' printed a bare NaN no JSON reader takes
-    assert cli_main(["stats", str(RECORDING), *REAL_TAXELS, "--parts", "r_hand,head"]) == 2
-    assert one_line(capsys) == (f"nao-skin stats: error: {RECORDING}: no touch of the parts r_hand and head"
+    assert cli_main(["stats", str(real_recording), *real_taxels, "--parts", "r_hand,head"]) == 2
+    assert one_line(capsys) == (f"nao-skin stats: error: {real_recording}: no touch of the parts r_hand and head"
                                 f" together (pairs touching: l_hand+torso)")
-    assert cli_main(["stats", str(RECORDING), *REAL_TAXELS, "--parts", "torso,l_hand", "--json"]) == 0
+    assert cli_main(["stats", str(real_recording), *real_taxels, "--parts", "torso,l_hand", "--json"]) == 0
     out = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
     assert out["pairs"]["l_hand+torso"] > 0
 
 
-def test_a_layout_replaces_a_configured_part_and_never_adds_one(tmp_path):
+def test_a_layout_replaces_a_configured_part_and_never_adds_one(tmp_path, real_dir):
     """``--taxels`` gives a part of the skin config its own layout; a part the config lacks is refused, not added
     on a chain its name suggests (a Nao default another robot's config never asked for)."""
-    merged = load_skin(taxel_files={"l_hand": REAL / "l_hand.taxels.txt"})
+    merged = load_skin(taxel_files={"l_hand": real_dir / "l_hand.taxels.txt"})
     assert set(merged.parts) == {"r_hand", "l_hand", "torso", "head"}
     assert merged.parts["l_hand"].layout_sha256 != load_skin().parts["l_hand"].layout_sha256
     config = yaml.safe_load(default_skin_config().read_text())
@@ -952,31 +975,31 @@ def test_a_layout_replaces_a_configured_part_and_never_adds_one(tmp_path):
     headless.write_text(yaml.safe_dump(config))       # its parts in key order: l_hand, r_hand, torso
     with pytest.raises(ConfigError, match=r"--taxels head=.*: unknown skin part 'head' \(configured in .*headless"
                                           r"\.yaml: l_hand, r_hand, torso\)"):
-        load_skin(headless, taxel_files={"head": REAL / "l_hand.taxels.txt"})
+        load_skin(headless, taxel_files={"head": real_dir / "l_hand.taxels.txt"})
     # a node's parameter is named as such, not as the command line's --taxels
     from nao_skin.session.params import skin_from_params
 
     with pytest.raises(ConfigError, match=r"^parameter taxels foo=.*: unknown skin part 'foo'"):
-        skin_from_params({"skin_config": "", "taxels": [f"foo={REAL / 'l_hand.taxels.txt'}"]})
+        skin_from_params({"skin_config": "", "taxels": [f"foo={real_dir / 'l_hand.taxels.txt'}"]})
 
 
-def test_nodes_build_the_skin_as_the_commands_do():
+def test_nodes_build_the_skin_as_the_commands_do(real_dir):
     from nao_skin.session.params import skin_from_params
 
-    skin = skin_from_params({"skin_config": "", "taxels": ["", f"l_hand={REAL / 'l_hand.taxels.txt'}"]})
-    same = load_skin(taxel_files={"l_hand": REAL / "l_hand.taxels.txt"})
+    skin = skin_from_params({"skin_config": "", "taxels": ["", f"l_hand={real_dir / 'l_hand.taxels.txt'}"]})
+    same = load_skin(taxel_files={"l_hand": real_dir / "l_hand.taxels.txt"})
     assert {n: p.layout_sha256 for n, p in skin.parts.items()} == {n: p.layout_sha256 for n, p in same.parts.items()}
     with pytest.raises(ConfigError, match="parameter taxels 'l_hand': expected PART=FILE"):
         skin_from_params({"skin_config": "", "taxels": ["l_hand"]})
 
 
-def test_a_key_given_twice_in_a_config_is_one_line_naming_both_lines(tmp_path, capsys):
+def test_a_key_given_twice_in_a_config_is_one_line_naming_both_lines(tmp_path, capsys, real_recording, real_taxels):
     """YAML keeps the second of two equal keys without a word: a hand edit above a forgotten line lost."""
     robot = (package_dir() / "config" / "nao_h25.yaml").read_text().splitlines()
     first = next(i for i, line in enumerate(robot) if re.match(r"^[a-z_]+:", line))
     doubled = tmp_path / "robot.yaml"
     doubled.write_text("\n".join(robot + [robot[first]]) + "\n")
-    assert cli_main(["stats", str(RECORDING), "--robot", str(doubled), *REAL_TAXELS]) == 2
+    assert cli_main(["stats", str(real_recording), "--robot", str(doubled), *real_taxels]) == 2
     key = robot[first].split(":")[0]
     assert one_line(capsys) == (f"nao-skin stats: error: {doubled}: key '{key}' given twice"
                                 f" (lines {first + 1} and {len(robot) + 1}); give it once")
@@ -990,7 +1013,7 @@ def test_a_key_given_twice_in_a_config_is_one_line_naming_both_lines(tmp_path, c
 
 @pytest.mark.parametrize("argv", [["nominal", "--skin-config", "deep.yaml"], ["urdf", "--calibration", "deep.yaml"],
                                   ["simulate", "--params", "deep.yaml", "--out", "o"],
-                                  ["stats", str(RECORDING), "--robot", "deep.yaml", *REAL_TAXELS],
+                                  ["stats", str(package_dir() / "bags" / "sim_default"), "--robot", "deep.yaml"],
                                   ["nominal", "--skin-config", "block.yaml"]],
                          ids=["skin", "calibration", "params", "robot", "block"])
 def test_yaml_nested_without_end_is_one_line_not_a_crash(tmp_path, capsys, monkeypatch, argv):
@@ -1017,18 +1040,18 @@ def test_a_bag_whose_metadata_nests_without_end_is_read_from_its_storage_file(tm
     assert "nothing lost" in out.out + out.err
 
 
-def test_a_robot_config_without_a_chain_says_which_chain_is_missing(tmp_path, capsys):
+def test_a_robot_config_without_a_chain_says_which_chain_is_missing(tmp_path, capsys, real_recording, real_taxels):
     """A robot file without the left arm had said its elbow-offset link was malformed; then, with the link
     gone too, the skin's left hand names the chain the robot lacks."""
     robot = (package_dir() / "config" / "nao_h25.yaml").read_text()
     no_arm = robot[:robot.index("  l_arm:")] + robot[robot.index("  r_arm:"):]
     path = tmp_path / "robot.yaml"
     path.write_text(no_arm)
-    assert cli_main(["stats", str(RECORDING), "--robot", str(path), *REAL_TAXELS]) == 2
+    assert cli_main(["stats", str(real_recording), "--robot", str(path), *real_taxels]) == 2
     assert one_line(capsys) == (f"nao-skin stats: error: {path}: link 'LElbowOffsetY' is on chain 'l_arm', which"
                                 f" the file does not describe (chains: head, r_arm)")
     path.write_text("\n".join(line for line in no_arm.splitlines() if not line.startswith("  LElbowOffsetY:")))
-    assert cli_main(["stats", str(RECORDING), "--robot", str(path), *REAL_TAXELS]) == 2
+    assert cli_main(["stats", str(real_recording), "--robot", str(path), *real_taxels]) == 2
     assert "part 'l_hand': unknown chain 'l_arm' (robot has head, r_arm)" in one_line(capsys)
 
 
@@ -1077,3 +1100,49 @@ def test_calibrate_help_gives_every_option_its_default_and_meaning(capsys):
     for name, spec in OPTION_FIELDS.items():
         assert f"\n  {name} (default " in text, name
     assert "  f_scale (default 0.002): " in text
+
+
+@pytest.mark.parametrize("item, says", [
+    # YAML 1.1 read yes, true and ON as a switch, and a switch as 'on': a choice takes its own words
+    ("kinematics=yes", "--set kinematics=yes: expected one of off, on, auto"),
+    ("kinematics=true", "--set kinematics=true: expected one of off, on, auto"),
+    ("kinematics=ON", "--set kinematics=ON: expected one of off, on, auto"),
+    ("kinematics=", "--set kinematics=: expected one of off, on, auto"),
+    # yes was a switch where 1 was refused: a switch takes true or false
+    ("estimate_fabric=yes", "--set estimate_fabric=yes: expected true or false"),
+    ("estimate_fabric=True", "--set estimate_fabric=True: expected true or false"),
+    ("bounded=on", "--set bounded=on: expected true or false"),
+    ("strategy=sequential\u00a0x", "expected one of sequential, all-at-once"),
+    # a level listed twice was stored twice (its stage run twice)
+    ("closing_levels=[mount,mount]", "--set closing_levels=[mount,mount]: expected a list of mount, patch, triangle,"
+                                     " each at most once"),
+    ("levels=[patch, triangle, patch]", "each at most once"),
+])
+def test_a_set_value_is_read_by_its_options_rule(tmp_path, capsys, item, says):
+    broken = tmp_path / "broken.txt"
+    broken.write_text("{'0': [{0: {'cop': [0, 0,")
+    assert cli_main(["calibrate", str(broken), "--out", str(tmp_path / "out"), "--set", item]) == 2
+    line = one_line(capsys)
+    assert says in line and "broken.txt" not in line, line
+
+
+def test_a_set_value_in_its_options_words_is_taken():
+    options = CalibrationOptions()
+    set_items(options, ["kinematics=on", "estimate_fabric=false", "bounded= true", "closing_levels=[]",
+                        "normal_levels=[mount, patch]", "max_touches=null", "strategy=all-at-once"])
+    assert (options.kinematics, options.estimate_fabric, options.bounded, options.closing_levels,
+            options.normal_levels, options.max_touches, options.strategy) == (
+        "on", False, True, (), ("mount", "patch"), None, "all-at-once")
+
+
+@pytest.mark.parametrize("item, says", [
+    # the empty value had been echoed as '=None', and taken for no value rather than said
+    ("sim_robot.touches_per_pair=", "--param sim_robot.touches_per_pair=: an empty value; give an integer, or leave"
+                                    " it out for the node's default 20"),
+    ("sim_robot.touches_per_pair= ", "--param sim_robot.touches_per_pair= : an empty value"),
+    ("sim_robot.touches_per_pair=~", "--param sim_robot.touches_per_pair=~: expected an integer like 20"),
+])
+def test_record_says_a_param_value_as_given(capsys, item, says):
+    assert cli_main(["record", "--print", "--param", item]) == 2
+    line = one_line(capsys)
+    assert line.startswith("nao-skin record: error: ") and says in line, line

@@ -1,6 +1,6 @@
 """Touch bags: real rosbag2 files (sqlite3 and mcap) written with rosbags, read back through the event detector.
 
-The real recording is read from /work/shared; bags are written to tmp_path.
+The real recording is read in place (see real_data.py); bags are written to tmp_path.
 """
 import shutil
 

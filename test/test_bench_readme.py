@@ -1,4 +1,7 @@
-"""`nao-skin bench --readme`: the results section and the plot land in the README, the rest stays."""
+"""`nao-skin bench --readme`: the results blocks and the plot land in the file named (the project's: docs/results.md),
+the rest stays."""
+from pathlib import Path
+
 import pytest
 
 from nao_skin.commands.bench import README_END, README_PLOT, README_START, update_readme
@@ -53,3 +56,24 @@ def test_a_kinematics_run_fills_its_own_block_and_leaves_the_main_one(tmp_path):
     kin = text.split(README_KIN_START)[1].split(README_KIN_END)[0]
     assert "### Speed against error" in main and "| k |" not in main and "Benchmark wall time: 99 s." in main
     assert "| k |" in kin and "| a |" not in kin and kin.strip().startswith("Command: `nao-skin bench`")
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_project_keeps_its_bench_results_in_docs_results_md():
+    """``--readme`` alone writes the project's results file, docs/results.md: it holds both blocks, with the plot
+    beside it (the README itself links there and has no bench block any more)."""
+    from nao_skin.cli import build_parser
+    from nao_skin.commands.bench import README_KIN_END, README_KIN_START, RESULTS_DOC
+
+    assert RESULTS_DOC == "docs/results.md"
+    args = build_parser().parse_args(["bench", "--out", "out/bench", "--readme", "--force"])
+    assert args.readme == RESULTS_DOC and args.force
+    assert build_parser().parse_args(["bench", "--out", "o", "--readme", "my.md"]).readme == "my.md"
+    text = (ROOT / RESULTS_DOC).read_text()
+    for start, end in ((README_START, README_END), (README_KIN_START, README_KIN_END)):
+        assert text.count(start) == 1 and text.count(end) == 1 and text.index(start) < text.index(end)
+    assert f"]({README_PLOT})" in text and (ROOT / RESULTS_DOC).with_name(README_PLOT).is_file()
+    readme = (ROOT / "README.md").read_text()
+    assert README_START not in readme and README_KIN_START not in readme and RESULTS_DOC in readme

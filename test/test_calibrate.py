@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from real_data import REAL_DIR as REAL  # noqa: E402
 from thesis_format import write_thesis_file  # noqa: E402
 
 from nao_skin.calibration.engine import CalibrationOptions, calibrate, plan_steps
@@ -213,11 +212,12 @@ def test_unknown_option_value_is_one_line(skin, left_hand_sim):
 
 
 @pytest.mark.slow   # the real recording calibrated by the command
-def test_real_recording_through_the_command(tmp_path):
+def test_real_recording_through_the_command(tmp_path, real_dir):
     """The real left hand-torso recording: the command runs end to end and gets within centimetres to millimetres."""
     out = tmp_path / "real"
-    cmd = [sys.executable, "-m", "nao_skin.cli", "calibrate", str(REAL / "l_hand_torso.legacy.txt"),
-           "--taxels", f"l_hand={REAL / 'l_hand.taxels.txt'}", "--taxels", f"torso={REAL / 'torso.taxels.txt'}",
+    cmd = [sys.executable, "-m", "nao_skin.cli", "calibrate", str(real_dir / "l_hand_torso.legacy.txt"),
+           "--taxels", f"l_hand={real_dir / 'l_hand.taxels.txt'}", "--taxels",
+           f"torso={real_dir / 'torso.taxels.txt'}",
            "--out", str(out), "--quiet", "--no-plots"]
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
@@ -230,7 +230,7 @@ def test_real_recording_through_the_command(tmp_path):
     assert report["warnings"] == [] and "warning" not in run.stderr
 
 
-def test_a_calibration_no_glued_skin_can_have_is_written_but_never_as_a_success_without_a_word(tmp_path):
+def test_a_calibration_no_glued_skin_can_have_is_written_but_never_as_a_success_without_a_word(tmp_path, real_dir):
     """A robot config with the left shoulder 10 cm off: the fit sets most touches aside and ends centimetres
     apart; with the gate off it ends a few mm apart by moving patches 6 cm. Written (exit 0), and said."""
     robot = tmp_path / "nao_h25_shoulder.yaml"
@@ -238,14 +238,14 @@ def test_a_calibration_no_glued_skin_can_have_is_written_but_never_as_a_success_
     line = "d: 0.1,    alpha: -pi/2, offset: 0,     frame: l_shoulder_base"
     assert line in text
     robot.write_text(text.replace(line, line.replace("d: 0.1,", "d: 0.2,")))
-    base = [sys.executable, "-m", "nao_skin.cli", "calibrate", str(REAL / "l_hand_torso.legacy.txt"), "--robot",
-            str(robot), "--taxels", f"l_hand={REAL / 'l_hand.taxels.txt'}", "--taxels",
-            f"torso={REAL / 'torso.taxels.txt'}", "--quiet", "--no-plots"]
+    base = [sys.executable, "-m", "nao_skin.cli", "calibrate", str(real_dir / "l_hand_torso.legacy.txt"), "--robot",
+            str(robot), "--taxels", f"l_hand={real_dir / 'l_hand.taxels.txt'}", "--taxels",
+            f"torso={real_dir / 'torso.taxels.txt'}", "--quiet", "--no-plots"]
     for name, extra, says in (
+            # the few touches kept meet (they are what the gate let through): the many set aside say it
             ("gated", [], ["training touches were set aside as farther apart than the gate (15 mm) after the mount"
                            " fit: the recording does not fit the robot config, the taxel files or the starting"
-                           " calibration", "mm apart, more than the gate (15 mm): the calibration does not explain"
-                                           " the recording"]),
+                           " calibration"]),
             ("ungated", ["--gate-mm", "0"], ["part 'torso': patch frames moved beyond glue error (more than 30 mm or"
                                              " 60 deg)"])):
         out = tmp_path / name
@@ -258,7 +258,7 @@ def test_a_calibration_no_glued_skin_can_have_is_written_but_never_as_a_success_
             assert any(said in w for w in report["warnings"]), (said, report["warnings"])
             assert said in (out / "report.md").read_text()
         SkinCalibration.load(out / "calibration.yaml", load_skin(robot_config=robot, taxel_files={
-            "l_hand": REAL / "l_hand.taxels.txt", "torso": REAL / "torso.taxels.txt"}))     # written, and loads
+            "l_hand": real_dir / "l_hand.taxels.txt", "torso": real_dir / "torso.taxels.txt"}))   # written, and loads
 
 
 def test_a_joint_stream_that_never_moved_is_said(skin, left_hand_sim):
@@ -377,7 +377,8 @@ def test_a_right_hand_head_recording_in_the_thesis_format(tmp_path, skin):
 @pytest.mark.slow   # four calibrations
 def test_figures_over_seeded_splits_through_the_pipeline(tmp_path, skin, left_hand_sim):
     """--splits K: the same calibration on K seeded splits; the first is the one written, and the report
-    gives each figure's mean and spread over the K (README and bench report real figures this way)."""
+    gives each figure's mean and spread over the K (docs/method.md, "Calibration", and the bench report real
+    figures this way)."""
     from nao_skin.bench.speed import BenchInput, real_split_lines
     from nao_skin.calibration.pipeline import calibrate_recordings, summary_line
     from nao_skin.formats.bag import write_touch_bag
@@ -657,3 +658,36 @@ def test_a_pair_the_skin_config_does_not_name_is_calibrated_with_a_warning(skin)
                               " touched head; other_roles.yaml)"), said
     assert not any("self_touch" in line for line in calibrate(touches, skin, CalibrationOptions(max_repairings=2))
                    .report.warnings)
+
+
+def test_the_touches_set_aside_are_judged_and_reported_apart(skin):
+    """A fifth of the touches are no self-contact (outliers-20): the calibration was right, but the figure of
+    every training touch, set-aside ones included, passed the gate and the run ended "does not explain the
+    recording". The kept touches are judged; the set-aside ones are counted and measured apart."""
+    from nao_skin.calibration.pipeline import summary_line
+    from nao_skin.calibration.report import markdown_report
+
+    sim = simulate(skin, load_params("outliers-20", {"pairs": [["l_hand", "torso"]], "n_touches": 100}), 3)
+    touches, _ = deduplicate(sim.touches)
+    result = calibrate(touches, skin, CalibrationOptions(gate_mm=10.0), truth=sim.truth)
+    final = result.report.final
+    kept, aside = final["train_kept"], final["train_set_aside"]
+    assert aside["n_touches"] == len(result.set_aside) > 0       # one pair: a touch is one pair
+    assert kept["n_touches"] + aside["n_touches"] == final["train"]["n_touches"]
+    # every training touch together is beyond the gate, the kept ones well within it
+    assert final["train"]["cop_mean_mm"] > 10.0 > 2 * kept["cop_mean_mm"] and aside["cop_mean_mm"] > 10.0
+    assert not [w for w in result.report.warnings if "does not explain the recording" in w], result.report.warnings
+    assert (f"; {aside['n_touches']} training touches set aside (closest COP {aside['cop_mean_mm']:.1f} mm; the"
+            f" {kept['n_touches']} kept: {kept['cop_mean_mm']:.2f} mm)") in summary_line(result)
+    report = markdown_report(json.loads(json.dumps(result.report.to_dict())), pictures=False)
+    assert f"Touches set aside: {aside['n_touches']} (closest COP mean {aside['cop_mean_mm']:.2f} mm" in report
+    assert f"| final, touches set aside | train | {aside['n_touches']} | {aside['cop_mean_mm']:.2f} |" in report
+
+
+def test_kept_touches_far_apart_are_still_a_warning(skin, left_hand_sim):
+    from nao_skin.calibration.plausibility import implausible
+
+    touches, _ = left_hand_sim
+    said = implausible(touches, skin, skin.zero_calibration(), ["l_hand", "torso"], 3, 20.0, 15.0)
+    assert said == ["the kept touches' closest COP pairs end 20.0 mm apart (besides the 3 set aside), more than the"
+                    " gate (15 mm): the calibration does not explain the recording"]

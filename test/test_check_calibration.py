@@ -8,7 +8,6 @@ import json
 
 import numpy as np
 import pytest
-from real_data import REAL_DIR
 
 from nao_skin.calibration.check import FITS, MOVED, NOT_CALIBRATED, NOT_CHECKED, check_calibration
 from nao_skin.calibration.engine import CalibrationOptions, calibrate
@@ -18,8 +17,6 @@ from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 from nao_skin.touch.datasets import deduplicate
 
-REAL_TAXELS = ["--taxels", f"l_hand={REAL_DIR / 'l_hand.taxels.txt'}", "--taxels",
-               f"torso={REAL_DIR / 'torso.taxels.txt'}"]
 
 
 @pytest.fixture(scope="module")
@@ -120,7 +117,7 @@ def test_the_command_says_fits_then_names_the_moved_part_with_exit_1(tmp_path, c
     assert {p: p.read_bytes() for p in (tmp_path / "cal").rglob("*") if p.is_file()} == before   # only read
 
 
-def test_one_pair_of_parts_on_the_real_recording(tmp_path, capsys):
+def test_one_pair_of_parts_on_the_real_recording(tmp_path, capsys, real_taxels, real_dir):
     """Its own calibration fits it, judged at the fabric it was made with (the file holds it: at the
     configured 1 mm instead of the 0.05 mm that calibration estimated, the mounts move 2-4 mm to make up the
     difference and the check called both parts moved). A hand moved 5 mm, or the torso 3 mm along its normal,
@@ -128,40 +125,40 @@ def test_one_pair_of_parts_on_the_real_recording(tmp_path, capsys):
     with these taxel files."""
     from nao_skin.model.skin import SkinCalibration, load_skin
 
-    recording = str(REAL_DIR / "l_hand_torso.legacy.txt")
-    assert cli_main(["calibrate", recording, *REAL_TAXELS, "--out", str(tmp_path / "cal"), "--quiet", "--no-plots"]) == 0
+    recording = str(real_dir / "l_hand_torso.legacy.txt")
+    assert cli_main(["calibrate", recording, *real_taxels, "--out", str(tmp_path / "cal"), "--quiet", "--no-plots"]) == 0
     capsys.readouterr()
     cal = tmp_path / "cal" / "calibration.yaml"
-    skin = load_skin(taxel_files={"l_hand": REAL_DIR / "l_hand.taxels.txt", "torso": REAL_DIR / "torso.taxels.txt"})
+    skin = load_skin(taxel_files={"l_hand": real_dir / "l_hand.taxels.txt", "torso": real_dir / "torso.taxels.txt"})
     made = SkinCalibration.load(cal, skin)
     assert made.fabric_thickness == pytest.approx(
         json.loads((tmp_path / "cal" / "report.json").read_text())["fabric_thickness_mm"] / 1000.0, abs=1e-9)
-    assert cli_main(["check", recording, *REAL_TAXELS, "--calibration", str(cal)]) == 0
+    assert cli_main(["check", recording, *real_taxels, "--calibration", str(cal)]) == 0
     out = capsys.readouterr().out
     assert "the calibration's" in next(line for line in out.splitlines() if " held out; fabric " in line)
     assert "r_hand: not checked: no pair" in out and "head: not checked: no pair" in out
     assert "l_hand: fits" in out and "torso: fits" in out
     assert out.splitlines()[-1] == "every part checked fits the calibration (l_hand, torso)"
-    assert cli_main(["check", recording, *REAL_TAXELS, "--calibration", str(cal), "--fabric", "1"]) == 1
+    assert cli_main(["check", recording, *real_taxels, "--calibration", str(cal), "--fabric", "1"]) == 1
     capsys.readouterr()
 
     for name, part, axis, mm in (("hand", "l_hand", 1, 5.0), ("torso", "torso", 0, -3.0)):
         moved = tmp_path / name
         moved.mkdir()
         shifted(made, part, mm, axis=axis).save(moved / "calibration.yaml", skin)
-        assert cli_main(["check", recording, *REAL_TAXELS, "--calibration", str(moved / "calibration.yaml")]) == 1
+        assert cli_main(["check", recording, *real_taxels, "--calibration", str(moved / "calibration.yaml")]) == 1
         out = capsys.readouterr().out
         assert f"{part}: moved" in out, out
         assert (f"{'l_hand+torso'} is its only pair: whether it or the other part moved, touches of another pair"
                 f" tell") in out
-        assert f"--prior {moved / 'calibration.yaml'} {' '.join(REAL_TAXELS)} --out DIR" in out
+        assert f"--prior {moved / 'calibration.yaml'} {' '.join(real_taxels)} --out DIR" in out
 
 
-def test_a_calibration_written_before_it_kept_its_fabric(tmp_path, capsys):
+def test_a_calibration_written_before_it_kept_its_fabric(tmp_path, capsys, real_taxels, real_dir):
     """Such a file is judged at its report's fabric (found beside the file a link leads to), else at the one
     the new touches imply; a report that cannot be read is no reason to stop."""
-    recording = str(REAL_DIR / "l_hand_torso.legacy.txt")
-    assert cli_main(["calibrate", recording, *REAL_TAXELS, "--out", str(tmp_path / "cal"), "--quiet", "--no-plots"]) == 0
+    recording = str(real_dir / "l_hand_torso.legacy.txt")
+    assert cli_main(["calibrate", recording, *real_taxels, "--out", str(tmp_path / "cal"), "--quiet", "--no-plots"]) == 0
     capsys.readouterr()
     old = tmp_path / "old"
     old.mkdir()
@@ -170,17 +167,17 @@ def test_a_calibration_written_before_it_kept_its_fabric(tmp_path, capsys):
     (old / "calibration.yaml").write_text("".join(lines[:at] + lines[at + 3:]))     # as files were before
     (old / "report.json").write_bytes((tmp_path / "cal" / "report.json").read_bytes())
     (tmp_path / "link.yaml").symlink_to(old / "calibration.yaml")
-    assert cli_main(["check", recording, *REAL_TAXELS, "--calibration", str(tmp_path / "link.yaml"), "--json"]) == 0
+    assert cli_main(["check", recording, *real_taxels, "--calibration", str(tmp_path / "link.yaml"), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["fabric_from"] == str(old / "report.json") and doc["fabric_mm"] < 0.2
     for broken in ('{"fabric_thickness_mm": 1' + "0" * 400 + "}", "[" * 100000 + "]" * 100000, "{", '{"x": 1}'):
         (old / "report.json").write_text(broken)
-        assert cli_main(["check", recording, *REAL_TAXELS, "--calibration", str(old / "calibration.yaml"),
+        assert cli_main(["check", recording, *real_taxels, "--calibration", str(old / "calibration.yaml"),
                          "--json"]) == 0
         doc = json.loads(capsys.readouterr().out)
         assert doc["fabric_from"] == "estimated" and doc["fabric_mm"] < 0.2
     (old / "report.json").unlink()
-    assert cli_main(["check", recording, *REAL_TAXELS, "--calibration", str(old / "calibration.yaml")]) == 0
+    assert cli_main(["check", recording, *real_taxels, "--calibration", str(old / "calibration.yaml")]) == 0
     assert "it holds no fabric estimate: a move along a part's normal is partly taken for fabric" in capsys.readouterr().out
 
 
@@ -236,22 +233,22 @@ def test_nothing_judged_is_no_pass(tmp_path, capsys, default_skin, sittings):
     (["--fabric", "inf"], "--fabric inf: expected millimetres from 0 to 3"),
     (["--seed", "-3"], "--seed -3"),
 ])
-def test_a_wrong_option_is_one_line_and_exit_2(tmp_path, capsys, args, says):
+def test_a_wrong_option_is_one_line_and_exit_2(tmp_path, capsys, args, says, real_taxels, real_dir):
     cal = tmp_path / "calibration.yaml"
     assert cli_main(["nominal", "--out", str(cal)]) == 0
     capsys.readouterr()
-    assert cli_main(["check", str(REAL_DIR / "l_hand_torso.legacy.txt"), *REAL_TAXELS, "--calibration", str(cal),
+    assert cli_main(["check", str(real_dir / "l_hand_torso.legacy.txt"), *real_taxels, "--calibration", str(cal),
                      *args]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1 and err[0].startswith("nao-skin check: error: ") and says in err[0], err
 
 
-def test_a_calibration_that_is_no_file_or_no_calibration_is_one_line(tmp_path, capsys):
-    recording = str(REAL_DIR / "l_hand_torso.legacy.txt")
-    assert cli_main(["check", recording, *REAL_TAXELS, "--calibration", str(tmp_path / "gone.yaml")]) == 2
+def test_a_calibration_that_is_no_file_or_no_calibration_is_one_line(tmp_path, capsys, real_taxels, real_dir):
+    recording = str(real_dir / "l_hand_torso.legacy.txt")
+    assert cli_main(["check", recording, *real_taxels, "--calibration", str(tmp_path / "gone.yaml")]) == 2
     assert str(tmp_path / "gone.yaml") in capsys.readouterr().err
     (tmp_path / "notes.yaml").write_text("just: notes\n")
-    assert cli_main(["check", recording, *REAL_TAXELS, "--calibration", str(tmp_path / "notes.yaml")]) == 2
+    assert cli_main(["check", recording, *real_taxels, "--calibration", str(tmp_path / "notes.yaml")]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1 and str(tmp_path / "notes.yaml") in err[0]
 

@@ -264,11 +264,9 @@ def test_a_sitting_recorded_with_other_taxel_files_is_refused_unless_the_session
     assert session_with(tmp_path, [str(tmp_path / "sitting1")], taxels=[f"torso={shifted}"])
 
 
-def test_the_thesis_text_format_is_continued_too(tmp_path):
-    from real_data import REAL_DIR
-
-    legacy = REAL_DIR / "l_hand_torso.legacy.txt"
-    taxels = [f"l_hand={REAL_DIR / 'l_hand.taxels.txt'}", f"torso={REAL_DIR / 'torso.taxels.txt'}"]
+def test_the_thesis_text_format_is_continued_too(tmp_path, real_dir):
+    legacy = real_dir / "l_hand_torso.legacy.txt"
+    taxels = [f"l_hand={real_dir / 'l_hand.taxels.txt'}", f"torso={real_dir / 'torso.taxels.txt'}"]
     (calibrate,) = [s for s in session_with(tmp_path, [str(legacy)], taxels=taxels) if s.name == "calibrate"]
     assert calibrate.overrides["earlier_recordings"] == [str(legacy.resolve())]      # through links, as every path
 

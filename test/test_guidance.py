@@ -196,7 +196,7 @@ def _activated(touches: TouchSet, part: str, triangle_row: int) -> np.ndarray:
 def test_an_aimed_touch_fires_its_target_far_more_often_than_a_random_touch(skin, captured):
     """What following the guidance does: each aimed touch presses the triangle it was sent to. (That it
     frees held triangles sooner or reaches an accuracy target in fewer touches than random capture, it
-    does not, measured: README, Guided capture; ``nao-skin bench-capture``.)"""
+    does not, measured: docs/decisions.md, "Guided capture against random capture"; ``nao-skin bench-capture``.)"""
     _, touches, result = captured
     g = guidance(touches, skin, result, max_targets=8, seed=3, pairs=[tuple(p) for p in PAIRS])
     targets = [t for t in g.targets if t.pose is not None and t.hand_triangle_id is not None]

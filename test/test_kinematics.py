@@ -165,7 +165,7 @@ def test_kinematics_on_recovers_the_simulated_joint_offsets(kinematic_run):
     # kinematic-error preset the largest determined offset error was alike, 0.13 / 0.26 against 0.12 /
     # 0.24 deg median / worst with the inexact solves). The weakly determined ones, within 1 deg: with
     # ElbowYaw near 0, ShoulderRoll, ElbowRoll and the elbow offset are one direction to first order
-    # (README, Kinematics), and LShoulderRoll, std 0.19 deg, ends 0.82 deg off on this seed on one
+    # (docs/method.md, "Kinematics"), and LShoulderRoll, std 0.19 deg, ends 0.82 deg off on this seed on one
     # machine and within 0.5 on another (the bench's worst over 20 seeds: 1.73 deg)
     for name, entry in est.items():
         if entry["unit"] == "rad":

@@ -1,12 +1,11 @@
 """Legacy dataset import (thesis §3.5.1 text format), deduplication and the train/test split.
 
-The real recording is read from /work/shared (never copied into the repo);
+The real recording is read in place (never copied into the repo; see real_data.py);
 bad-input cases are small files written to tmp_path.
 """
 
 import numpy as np
 import pytest
-from real_data import REAL_DIR as REAL  # noqa: E402
 
 from nao_skin.errors import DataError
 from nao_skin.formats.legacy import _ast_entries, _json_entries, read_legacy
@@ -63,21 +62,21 @@ def test_real_file_imports_all_touches(real, real_skin):
     assert np.isfinite(touches.joints).all()
 
 
-def test_real_file_taxel_info_matches_the_taxel_files(real):
+def test_real_file_taxel_info_matches_the_taxel_files(real, real_dir):
     """The recorder's taxelInfo rows are exactly the taxel file rows (checked once here, then ignored)."""
     import ast
 
-    text = (REAL / "l_hand_torso.legacy.txt").read_text()
+    text = (real_dir / "l_hand_torso.legacy.txt").read_text()
     first = text[: text.index("'1': [")].rstrip().rstrip(",") + "}"
     contacts, _ = ast.literal_eval(first)["0"]
-    files = {n: read_taxel_file(REAL / f"{n}.taxels.txt") for n in ("l_hand", "torso")}
+    files = {n: read_taxel_file(real_dir / f"{n}.taxels.txt") for n in ("l_hand", "torso")}
     for c in contacts.values():
         tf = files[c["skinPart"]]
         for slot, row in c["taxelInfo"].items():
             np.testing.assert_allclose(row, np.r_[tf.positions[int(slot)], tf.normals[int(slot)]], atol=1e-9)
 
 
-def test_a_taxel_file_that_is_not_the_recordings_is_said(real, real_skin, capsys):
+def test_a_taxel_file_that_is_not_the_recordings_is_said(real, real_skin, capsys, real_dir):
     """skinManager computed each recorded COP from its own taxel file: with that file the COPs lie among
     their taxels; with another part's file (swapped by mistake) centimetres off, and the calibration would fit
     taxels that are not where the skin reported its touches."""
@@ -86,15 +85,16 @@ def test_a_taxel_file_that_is_not_the_recordings_is_said(real, real_skin, capsys
 
     touches, _ = real
     assert cop_layout_notes(touches, real_skin, "rec") == []
-    legacy = str(REAL / "l_hand_torso.legacy.txt")
-    swapped = ["--taxels", f"l_hand={REAL / 'torso.taxels.txt'}", "--taxels", f"torso={REAL / 'l_hand.taxels.txt'}"]
+    legacy = str(real_dir / "l_hand_torso.legacy.txt")
+    swapped = ["--taxels", f"l_hand={real_dir / 'torso.taxels.txt'}", "--taxels",
+               f"torso={real_dir / 'l_hand.taxels.txt'}"]
     assert cli.main(["stats", legacy, *swapped]) == 0
     said = capsys.readouterr()
     err = said.out + said.err
     for part, other in (("l_hand", "torso"), ("torso", "l_hand")):
         assert (f"{legacy}: part '{part}': the recorded contact COPs lie a median") in err
-        assert (f"mm from the taxels they name in {REAL / f'{other}.taxels.txt'} (a few mm with the layout skinManager"
-                f" used): is that this robot's taxel file of this part?") in err
+        assert (f"mm from the taxels they name in {real_dir / f'{other}.taxels.txt'} (a few mm with the layout"
+                f" skinManager used): is that this robot's taxel file of this part?") in err
 
 
 def test_real_file_has_25_exact_duplicates(real):
@@ -226,11 +226,16 @@ def test_a_byte_order_mark_is_not_part_of_the_text(tmp_path, skin):
 
 # ---------------------------------------------------------------------- bad input
 def test_syntax_error_names_file_and_line(tmp_path, skin):
+    """In the note that says what was lost when another touch is read, in the error when none is."""
     path = write(tmp_path, {"0": touch(), "1": "[{0: {'cop': [1, 2,}}, {}]"})
+    touches, report = read_legacy(path, skin)
+    assert touches.keys == ["0"] and len(report.notes) == 1
+    assert report.notes[0].startswith(f"{path}: damaged text at line 3 (touch '1': unreadable text)")
+    path = write(tmp_path, {"1": "[{0: {'cop': [1, 2,}}, {}]"})
     with pytest.raises(DataError) as err:
         read_legacy(path, skin)
     msg = str(err.value)
-    assert "\n" not in msg and str(path) in msg and f"{path}:3:" in msg and "syntax" in msg
+    assert "\n" not in msg and str(path) in msg and f"{path}:2:" in msg and "syntax" in msg
 
 
 def test_bad_touches_are_skipped_with_one_line_each(tmp_path, skin):
@@ -370,11 +375,11 @@ def _same_entries(fast, exact) -> bool:
 
 
 @pytest.mark.slow   # reads the real recording twice, once with the slow exact reader
-def test_the_fast_reader_reads_the_real_file_exactly_as_python_does():
-    text = (REAL / "l_hand_torso.legacy.txt").read_text()
+def test_the_fast_reader_reads_the_real_file_exactly_as_python_does(real_dir):
+    text = (real_dir / "l_hand_torso.legacy.txt").read_text()
     fast = _json_entries(text)
     assert fast is not None, "the recorder's own output must take the fast path"
-    assert _same_entries(fast, _ast_entries(text, REAL / "l_hand_torso.legacy.txt"))
+    assert _same_entries(fast, _ast_entries(text, real_dir / "l_hand_torso.legacy.txt"))
 
 
 def test_the_fast_reader_takes_what_the_recorder_writes_and_leaves_the_rest_to_python(tmp_path, skin):
@@ -399,10 +404,17 @@ def test_the_fast_reader_takes_what_the_recorder_writes_and_leaves_the_rest_to_p
 
 
 def test_a_broken_file_still_names_its_line_through_the_exact_reader(tmp_path, skin):
+    """A broken touch costs that touch, said with its line; a file without one complete touch is one line."""
     path = write(tmp_path, {"0": touch(), "1": touch(), "2": "[{0: {'cop': [1, 2,}}, {}]"})
     assert _json_entries(path.read_text()) is None
-    with pytest.raises(DataError, match=f"{path}:4: Python syntax error"):
-        read_legacy(path, skin)
+    touches, report = read_legacy(path, skin)
+    assert touches.keys == ["0", "1"] and report.skipped == {"damaged text": 1}
+    assert report.notes == [f"{path}: damaged text at line 4 (touch '2': unreadable text): 1 touch lost there;"
+                            f" every complete touch before it is read (each touch from its own key on)"]
+    broken = tmp_path / "broken.txt"
+    broken.write_text("{'0': [{0: {'cop': [0, 0,")
+    with pytest.raises(DataError, match=f"{broken}:1: Python syntax error"):
+        read_legacy(broken, skin)
 
 
 def test_the_bench_compares_both_readers_on_the_same_file(tmp_path, skin):
@@ -411,3 +423,110 @@ def test_the_bench_compares_both_readers_on_the_same_file(tmp_path, skin):
     path = write(tmp_path, {"0": touch(), "1": touch(hand_slots=(0, 384)), "2": touch()})
     t = legacy_read_times(path, skin, repeat=1)
     assert t["same_touches"] and t["touches"] == 2 and t["exact_s"] > 0 and t["fast_s"] > 0
+
+
+# ---------------------------------------------------------------------- damaged text
+def _pretty(tmp_path, n: int, name="data.txt"):
+    """``n`` touches as the recorder's pretty-printed file: each touch over several lines."""
+    import pprint
+
+    path = tmp_path / name
+    path.write_text(pprint.pformat({str(k): touch() for k in range(n)}, width=60) + "\n")
+    return path
+
+
+def test_a_garbage_line_costs_the_touch_it_falls_in_and_the_file_reads_on(tmp_path, skin):
+    """One garbage line had made the whole file a syntax error (0 touches): the touches before it and after it
+    are read from their keys on; one note names the lines and the touch lost."""
+    path = _pretty(tmp_path, 6)
+    lines = path.read_text().split("\n")
+    start = [i for i, line in enumerate(lines) if line.lstrip(" {").startswith("'3': [")][0]
+    nxt = [i for i, line in enumerate(lines) if line.lstrip(" {").startswith("'4': [")][0]
+    lines.insert(start + 2, "  @@ a garbage line ]] {{")
+    path.write_text("\n".join(lines))
+    touches, report = read_legacy(path, skin)
+    assert touches.keys == ["0", "1", "2", "4", "5"]
+    assert report.n_loaded == 5 and report.n_read == 6 and report.skipped == {"damaged text": 1}
+    assert report.notes == [f"{path}: damaged text at lines {start + 1}-{nxt + 1} (touch '3': unreadable text): 1 touch"
+                            f" lost there; every complete touch before and after it is read (each touch from its own"
+                            f" key on)"]
+    # between two touches it costs none
+    lines.pop(start + 2)
+    lines.insert(nxt, "  @@ a garbage line")
+    path.write_text("\n".join(lines))
+    touches, report = read_legacy(path, skin)
+    assert touches.n_touches == 6 and not report.skipped
+    assert report.notes[0].startswith(f"{path}: damaged text at line {nxt + 1} (after touch '3': unreadable text):"
+                                      f" 0 touches lost there")
+
+
+def test_a_file_cut_short_keeps_every_complete_touch(tmp_path, skin):
+    path = _pretty(tmp_path, 6)
+    text = path.read_text()
+    cut = text.index("'4': [") + 40
+    path.write_text(text[:cut])
+    touches, report = read_legacy(path, skin)
+    assert touches.keys == ["0", "1", "2", "3"] and report.skipped == {"damaged text": 1}
+    first, last = (text[:at].rstrip().count("\n") + 1 for at in (text.index("'4': [") + 1, cut))
+    lines = f"line {first}" if first == last else f"lines {first}-{last}"
+    assert report.notes == [f"{path}: damaged text at {lines} (touch '4': the file ends inside it (cut short?)):"
+                            f" 1 touch lost there; every complete touch before it is read (each touch from its own"
+                            f" key on)"]
+    # cut right after a whole touch: nothing lost, the missing end said
+    path.write_text(text[:text.index("'4': [")].rstrip().rstrip(","))
+    touches, report = read_legacy(path, skin)
+    assert touches.n_touches == 4 and not report.skipped
+    assert "(the file's end: no closing '}' (cut short?)): 0 touches lost there" in report.notes[0]
+
+
+def test_a_damaged_one_line_file_reads_on_after_the_damage(tmp_path, skin):
+    """write_thesis_file's files are one line (Python's repr): the touches after the damage are found there too."""
+    from thesis_format import write_thesis_file
+
+    from nao_skin.sim.params import load_params
+    from nao_skin.sim.simulate import simulate
+
+    sim = simulate(skin, load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 6}), seed=3).touches
+    path = tmp_path / "one_line.txt"
+    write_thesis_file(path, sim, skin)
+    text = path.read_text()
+    third = text.index(f"'{sim.stamps[2]:.6f}': [{{") + len(f"'{sim.stamps[2]:.6f}': [{{")
+    path.write_text(text[:third] + "@@ garbage ]" + text[third:])
+    touches, report = read_legacy(path, skin)
+    assert touches.n_touches == sim.n_touches - 1 and report.skipped == {"damaged text": 1}
+    assert f"{sim.stamps[2]:.6f}" not in touches.keys and f"{sim.stamps[3]:.6f}" in touches.keys
+    assert f"damaged text at line 1 (touch '{sim.stamps[2]:.6f}': unreadable text)" in report.notes[0]
+
+
+
+@pytest.mark.slow   # a calibration by the command
+def test_stats_and_calibrate_take_a_damaged_file(tmp_path, skin, capsys):
+    """A garbage line in the middle and a file cut short: both commands read every complete touch, say what was
+    lost, and the calibration is written."""
+    import json
+
+    from thesis_format import write_thesis_file
+
+    from nao_skin import cli
+    from nao_skin.sim.params import load_params
+    from nao_skin.sim.simulate import simulate
+
+    sim = simulate(skin, load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 150}), seed=4).touches
+    path = tmp_path / "damaged.txt"
+    write_thesis_file(path, sim, skin)
+    text = path.read_text()
+    middle = text.index(f"'{sim.stamps[70]:.6f}': [{{") + 40      # inside the touch's first contact
+    path.write_text(text[:middle] + "\n@@ garbage ]]\n" + text[middle:len(text) - 300])
+    written = len({f"{stamp:.6f}" for stamp in sim.stamps})    # touches at one printed stamp are one key
+    loaded = written - 2          # the one the garbage falls in, the last one (cut)
+    assert cli.main(["stats", str(path), "--json"]) == 0
+    said = capsys.readouterr()
+    assert json.loads(said.out)["touches"] == loaded
+    assert (f"{path}: damaged text at lines 1-3 (touch '{sim.stamps[70]:.6f}': unreadable text); line 3 (touch"
+            f" '{sim.stamps[-1]:.6f}': the file ends inside it (cut short?)): 2 touches lost there; every complete"
+            f" touch before and after it is read") in said.err
+    assert cli.main(["calibrate", str(path), "--out", str(tmp_path / "out"), "--quiet", "--no-plots"]) == 0
+    said = capsys.readouterr()
+    assert f"{path}: {loaded} touches loaded of {written} touches read; skipped: 2 damaged text" in said.err
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["input"]["touches_loaded"] == loaded

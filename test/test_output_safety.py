@@ -290,7 +290,7 @@ def test_a_readme_the_bench_cannot_write_whole_is_left_as_it_was(tmp_path):
     assert (tmp_path / "bench" / "bench_results.md").is_file()
 
 
-def test_a_bench_that_does_not_run_every_section_of_a_readme_block_leaves_the_readme(tmp_path):
+def test_a_bench_that_does_not_run_every_section_of_a_readme_block_leaves_the_readme(tmp_path, monkeypatch):
     """``bench --quick --only real --readme README.md`` replaced the whole results block with its one section:
     the speed table, the hard cases and the live update were gone (84 lines); a kinematics run with no block
     of its own went there too; and the plot beside the README replaced a file of that name."""
@@ -298,10 +298,12 @@ def test_a_bench_that_does_not_run_every_section_of_a_readme_block_leaves_the_re
     readme.write_text("# my robot\n\n<!-- BENCH:START -->\nspeed, real, hard cases, live\n<!-- BENCH:END -->\n")
     (tmp_path / "README-speed-vs-error.png").write_text("my own picture\n")
     (tmp_path / "touches.txt").write_text("not read: the README is checked first\n")
+    monkeypatch.delenv("NAO_SKIN_REAL_DATA", raising=False)     # else the real section reads the recording it names
     before = tree(tmp_path)
     for argv, says in ((BENCH_CHEAP, "this run has no live, real, speed, whose figures would be lost"),
                        (BENCH_KINEMATICS_CHEAP, "this run has no hard, live, real, speed"),
-                       (["bench", "--quick", "--seeds", "1"], "this run has no real (no --real)"),
+                       (["bench", "--quick", "--seeds", "1"],
+                        "this run has no real (no --real, NAO_SKIN_REAL_DATA unset)"),
                        (["bench", "--quick", "--seeds", "1", "--real", "touches.txt"],
                         "README-speed-vs-error.png exists and is no plot of an earlier bench")):
         err = refused(tmp_path, [*argv, "--out", "bench", "--readme", "README.md"], says)

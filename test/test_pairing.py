@@ -82,7 +82,7 @@ def check_against_oracle(touches, skin, calib, rows):
 def test_real_figures_under_identity_mount(real, real_skin):
     m = metrics(pair_touches(real, real_skin))
     assert m["n_touches"] == 810
-    assert 74.0 < m["cop_mean_mm"] < 80.0          # thesis data README: about 77 mm
+    assert 74.0 < m["cop_mean_mm"] < 80.0          # real_selftouch/README.md: about 77 mm
     assert 66.0 < m["taxel_mean_mm"] < 72.0        # about 69 mm
     assert m["taxel_mean_mm"] <= m["taxel5_mean_mm"]
     assert m["cop_median_mm"] <= m["cop_p90_mm"]

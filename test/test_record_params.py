@@ -212,9 +212,8 @@ def test_a_node_takes_an_empty_list_and_refuses_arguments_rcl_cannot_parse_in_on
     assert code == 2 and "Traceback" not in bad.stderr()
     assert ("error: the ROS arguments: Couldn't parse parameter override rule: '-p skin_config:={a: 1}'."
             " Error: Unknown YAML event") in bad.stderr().splitlines(), bad.stderr()
-    # a parameters file that is not there, or not YAML: our one line before rcl's two; a bare value, which
-    # rcl takes without a word (the node ran on its defaults)
-    for text in (None, "calibrate: [\n", "gate_mm 20\n"):
+    # a parameters file that is not there, or not YAML: our one line before rcl's two
+    for text in (None, "calibrate: [\n"):
         params = tmp_path / "params.yaml"
         if text is not None:
             params.write_text(text)
@@ -225,6 +224,18 @@ def test_a_node_takes_an_empty_list_and_refuses_arguments_rcl_cannot_parse_in_on
             code = node.stop()
         lines = node.stderr().strip().splitlines()
         assert code == 2 and len(lines) == 1 and lines[0].startswith(f"error: {params}: "), lines
+    # a bare value, which rcl takes without a word: the node runs on its defaults, and says the file gave nothing
+    params.write_text("gate_mm 20\n")
+    node = node_process("calibrate", {}, env, tmp_path, params_file=params)
+    try:
+        deadline = time.monotonic() + 120
+        while "gives no node any parameter" not in node.stderr() and node.popen.poll() is None \
+                and time.monotonic() < deadline:
+            time.sleep(0.1)
+    finally:
+        code = node.stop()
+    assert f"warning: {params}: gives no node any parameter" in node.stderr().splitlines(), node.stderr()
+    assert code == 0 and "Traceback" not in node.stderr(), node.stderr()
 
 
 def nao_skin(args, env=None, timeout=120) -> subprocess.CompletedProcess:
@@ -352,7 +363,7 @@ def _config_copy(tmp_path, edit) -> Path:
      "pairing_recorder.flush_period=-1.0: expected a number in (0"),
     (lambda t: t.replace("seed: 1 ", "seed: one ", 1), "sim_robot.seed=one: expected an integer"),
     # rcl refuses such a file in every node that reads it, in two lines each, after the bag was made
-    (lambda t: t + "extra_node: 5\n", "'extra_node' is an integer where a node name maps to its ros__parameters"),
+    (lambda t: t + "extra_node: 5\n", "'extra_node' is a value where a node name maps to its ros__parameters"),
     (lambda t: t.replace("joint_rate: 100.0", "joint_rate:", 1), "sim_robot.joint_rate has no value (ROS refuses"
                                                                   " the whole file)"),
 ], ids=["nan", "negative", "type", "structure", "no-value"])

@@ -1,7 +1,7 @@
 """The self-touch simulator: seeded bytes, realistic statistics, honest geometry, presets, bad input.
 
 Real parts throughout: the packaged robot and skin configs, the real recording
-in /work/shared (for the statistics), real rosbag2 files written and read back.
+(for the statistics; see real_data.py), real rosbag2 files written and read back.
 The robot's body is the only thing simulated, which is the point of the module.
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from real_data import REAL_DIR  # noqa: E402
+from real_data import LAYOUTS, RECORDING  # noqa: E402
 
 from nao_skin.calibration.pairing import activation_positions
 from nao_skin.cli import main as cli_main
@@ -23,10 +23,6 @@ from nao_skin.model.skin import SkinModel, load_skin
 from nao_skin.sim.params import SimParams, default_params_file, load_params, make_params, preset_names
 from nao_skin.sim.simulate import simulate
 from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST
-
-REAL = REAL_DIR / "l_hand_torso.legacy.txt"
-REAL_HAND_LAYOUT = REAL_DIR / "l_hand.taxels.txt"
-REAL_TORSO_LAYOUT = REAL_DIR / "torso.taxels.txt"
 
 
 @pytest.fixture(scope="module")
@@ -86,8 +82,8 @@ def test_bag_and_truth_files_read_back(tmp_path, skin):
 
 
 # ------------------------------------------------------------------------------ statistics
-def _real_stats() -> dict:
-    data = ast.literal_eval(REAL.read_text())
+def _real_stats(real_dir: Path) -> dict:
+    data = ast.literal_eval((real_dir / RECORDING).read_text())
     per_touch, per_contact, triangles = [], [], {"l_hand": set(), "torso": set()}
     for contacts, _joints in data.values():
         per_touch.append(len(contacts))
@@ -95,8 +91,8 @@ def _real_stats() -> dict:
             per_contact.append(len(contact["taxelInfo"]))
             triangles[contact["skinPart"]].update(int(s) // 12 for s in contact["taxelInfo"])
     layout_tris = 0
-    for path in (REAL_HAND_LAYOUT, REAL_TORSO_LAYOUT):
-        rows = np.loadtxt(path)
+    for name in LAYOUTS.values():
+        rows = np.loadtxt(real_dir / name)
         layout_tris += len(np.unique(np.flatnonzero(np.any(rows != 0, axis=1)) // 12))
     return {"touches": len(per_touch), "contacts per touch": float(np.mean(per_touch)),
             "taxels per contact": float(np.mean(per_contact)),
@@ -114,10 +110,10 @@ def _sim_stats(result, skin) -> dict:
 
 
 @pytest.mark.slow   # simulates a full recording and loads the real one
-def test_statistics_resemble_the_real_recording(skin):
+def test_statistics_resemble_the_real_recording(skin, real_dir):
     # the same pair as the real file, with as many touches as a tenth of it would take to cover the skin
     result = simulate(skin, load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 120}), seed=0)
-    real, sim = _real_stats(), _sim_stats(result, skin)
+    real, sim = _real_stats(real_dir), _sim_stats(result, skin)
     print(f"\n{'statistic':28s} {'real':>8s} {'simulated':>10s}")
     for key in real:
         print(f"{key:28s} {real[key]:8.2f} {sim[key]:10.2f}")
@@ -442,20 +438,21 @@ def test_bundled_recording_matches_the_simulator(skin, tmp_path):
     assert all(info["touches"] == 1000 for info in meta["pairs"].values())
 
 
-def test_simulate_and_nominal_take_the_skin_as_every_command_does(tmp_path):
+def test_simulate_and_nominal_take_the_skin_as_every_command_does(tmp_path, real_dir):
     """--skin, --taxels and --robot in simulate and nominal too: a robot's own layouts are simulated (and their
     nominal calibration written) without a skin config of their own."""
-    assert cli_main(["simulate", "--taxels", f"l_hand={REAL_HAND_LAYOUT}", "--touches-per-pair", "2",
+    hand_layout = real_dir / LAYOUTS["l_hand"]
+    assert cli_main(["simulate", "--taxels", f"l_hand={hand_layout}", "--touches-per-pair", "2",
                      "--params", str(tmp_path / "sim.yaml"), "--out", str(tmp_path / "sim")]) == 2    # no such file
     (tmp_path / "sim.yaml").write_text("defaults:\n  pairs: [[l_hand, torso]]\npresets: {}\n")
-    assert cli_main(["simulate", "--taxels", f"l_hand={REAL_HAND_LAYOUT}", "--touches-per-pair", "2",
+    assert cli_main(["simulate", "--taxels", f"l_hand={hand_layout}", "--touches-per-pair", "2",
                      "--params", str(tmp_path / "sim.yaml"), "--out", str(tmp_path / "sim")]) == 0
     meta = yaml.safe_load((tmp_path / "sim" / "simulation.yaml").read_text())
-    assert meta["skin"] == f"nao_skin.yaml + {REAL_HAND_LAYOUT.name}"
-    own = load_skin(taxel_files={"l_hand": REAL_HAND_LAYOUT})
+    assert meta["skin"] == f"nao_skin.yaml + {hand_layout.name}"
+    own = load_skin(taxel_files={"l_hand": hand_layout})
     truth = (tmp_path / "sim" / "truth_taxels" / "l_hand.txt").read_text()
     assert truth.count("\n") >= len(own.parts["l_hand"].slots)
-    assert cli_main(["nominal", "--taxels", f"l_hand={REAL_HAND_LAYOUT}", "--out", str(tmp_path / "nominal.yaml")]) == 0
+    assert cli_main(["nominal", "--taxels", f"l_hand={hand_layout}", "--out", str(tmp_path / "nominal.yaml")]) == 0
     nominal = yaml.safe_load((tmp_path / "nominal.yaml").read_text())
     ids = {int(t) for t in nominal["parts"]["l_hand"]["triangles"]}
     assert ids == {int(t) for t in own.parts["l_hand"].triangle_ids} != {int(t) for t in load_skin().parts["l_hand"].triangle_ids}

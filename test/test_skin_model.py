@@ -8,7 +8,6 @@ not from the model's frames, so a wrong frame convention makes them fail.
 import numpy as np
 import pytest
 import yaml
-from real_data import REAL_DIR as REAL  # noqa: E402
 
 from nao_skin import se3
 from nao_skin.errors import ConfigError, DataError
@@ -58,20 +57,20 @@ def test_nominal_corrections_reproduce_the_layout(skin, part):
     assert np.all(np.isnan(pos[~present]))
 
 
-def test_nominal_corrections_reproduce_the_real_layouts(tmp_path):
+def test_nominal_corrections_reproduce_the_real_layouts(tmp_path, real_dir):
     config = tmp_path / "real_skin.yaml"
     config.write_text(yaml.safe_dump({
         "robot": str(config_dir() / "nao_h25.yaml"),
-        "parts": {"l_hand": {"chain": "l_arm", "taxel_file": str(REAL / "l_hand.taxels.txt")},
-                  "torso": {"chain": None, "taxel_file": str(REAL / "torso.taxels.txt")}},
+        "parts": {"l_hand": {"chain": "l_arm", "taxel_file": str(real_dir / "l_hand.taxels.txt")},
+                  "torso": {"chain": None, "taxel_file": str(real_dir / "torso.taxels.txt")}},
         "self_touch": {"touching": ["l_hand"], "touched": ["torso"]}}))
     skin = SkinModel.from_yaml(config)
     for part, name in (("l_hand", "l_hand.taxels.txt"), ("torso", "torso.taxels.txt")):
-        taxels = read_taxel_file(REAL / name)
+        taxels = read_taxel_file(real_dir / name)
         pos, nor = skin.part(part).taxel_positions()
         np.testing.assert_allclose(pos[taxels.present], taxels.positions[taxels.present], atol=1e-15)
         np.testing.assert_allclose(nor[taxels.present], taxels.normals[taxels.present], atol=1e-15)
-        # README: patch = triangle // 16 (the default when a config lists no patches)
+        # real_selftouch/README.md: patch = triangle // 16 (the default when a config lists no patches)
         p = skin.part(part)
         np.testing.assert_array_equal(p.patch_ids[p.triangle_patch], p.triangle_ids // 16)
 
@@ -467,7 +466,7 @@ def test_bad_skin_config_fails_in_one_line(tmp_path, mutate, problem):
     assert str(err.value) == f"{path}: {problem}"
 
 
-def test_taxels_of_a_part_keep_the_configs_patch_table_where_it_places_every_triangle(tmp_path):
+def test_taxels_of_a_part_keep_the_configs_patch_table_where_it_places_every_triangle(tmp_path, real_dir):
     """``--taxels PART=FILE`` replaces a part's layout, not the config's patch table: the very layout of the
     config, given again, was regrouped 16 triangles per patch, and a calibration's patch corrections landed
     on other triangles (closest COP 5.60 -> 5.81 mm with exit 0). A layout the table does not cover (a
@@ -492,5 +491,5 @@ def test_taxels_of_a_part_keep_the_configs_patch_table_where_it_places_every_tri
     assert grouping(given_again) == grouping(configured) and grouping(configured)[1][0] == 0
     np.testing.assert_allclose(given_again.patch_nominal, configured.patch_nominal)
     assert given_again.layout_sha256 == configured.layout_sha256
-    real = load_skin(config, {"l_hand": REAL / "l_hand.taxels.txt"}).parts["l_hand"]
+    real = load_skin(config, {"l_hand": real_dir / "l_hand.taxels.txt"}).parts["l_hand"]
     assert grouping(real) == {p: [t for t in real.triangle_ids.tolist() if t // 16 == p] for p in (0, 1)}

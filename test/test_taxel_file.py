@@ -1,18 +1,19 @@
 """skinManager taxel position files: both forms round-trip, malformed files fail in one line.
 
 Real files: the project's default layouts (header form) and the real Nao
-layouts in /work/shared/data/real_selftouch/ (plain form), read in place.
+layouts beside the real recording (plain form; see real_data.py), read in place.
 """
+from pathlib import Path
 
 import numpy as np
 import pytest
-from real_data import REAL_DIR as REAL  # noqa: E402
+from real_data import LAYOUTS  # noqa: E402
 
 from nao_skin.errors import DataError
 from nao_skin.model.taxel_file import MAX_TAXEL_FILE_BYTES, SLOTS_PER_TRIANGLE, read_taxel_file, write_taxel_file
 from nao_skin.paths import config_dir
 
-REAL_FILES = [REAL / "l_hand.taxels.txt", REAL / "torso.taxels.txt"]
+REAL_LAYOUTS = sorted(LAYOUTS.values())       # names: found in the test, where a missing recording skips
 LAYOUT_FILES = sorted((config_dir() / "layouts").glob("*.txt"))
 
 
@@ -23,9 +24,10 @@ def assert_same(a, b):
 
 
 @pytest.mark.parametrize("with_header", [True, False], ids=["header", "plain"])
-@pytest.mark.parametrize("source", LAYOUT_FILES + list(REAL_FILES),
-                         ids=lambda p: p.name)
-def test_read_write_read_is_identical(tmp_path, source, with_header):
+@pytest.mark.parametrize("source", LAYOUT_FILES + REAL_LAYOUTS, ids=lambda p: Path(p).name)
+def test_read_write_read_is_identical(tmp_path, request, source, with_header):
+    if not isinstance(source, Path):
+        source = request.getfixturevalue("real_dir") / source
     first = read_taxel_file(source)
     out = tmp_path / "copy.txt"
     write_taxel_file(out, first.positions, first.normals, first.present, "l_hand", with_header=with_header)
@@ -54,10 +56,10 @@ def test_header_form_maps_unused_slots_and_thermal_pads(tmp_path):
     assert np.all(repr_ids[~first.present & (k != 6) & (k != 10)] == -1)
 
 
-def test_real_layouts_have_the_documented_taxel_counts():
-    # README: known slots: left hand 227 of 240 usable, torso 220 of 250 usable
-    assert read_taxel_file(REAL / "l_hand.taxels.txt").present.sum() == 227
-    assert read_taxel_file(REAL / "torso.taxels.txt").present.sum() == 220
+def test_real_layouts_have_the_documented_taxel_counts(real_dir):
+    # real_selftouch/README.md: known slots: left hand 227 of 240 usable, torso 220 of 250 usable
+    assert read_taxel_file(real_dir / "l_hand.taxels.txt").present.sum() == 227
+    assert read_taxel_file(real_dir / "torso.taxels.txt").present.sum() == 220
 
 
 def test_a_thermal_pad_or_an_empty_row_needs_no_normal(tmp_path):
@@ -79,10 +81,10 @@ def test_short_file_pads_missing_slots_with_zeros(tmp_path):
     assert taxels.present.sum() == 2
 
 
-def test_a_file_that_ends_inside_a_triangle_is_refused(tmp_path):
+def test_a_file_that_ends_inside_a_triangle_is_refused(tmp_path, real_dir):
     """A taxel file cut short (200 of its 384 rows, a copy interrupted) was read as a smaller skin: 38 of 60
     touches were then skipped as taxels the layout does not have, the cause unsaid."""
-    whole = (REAL / "l_hand.taxels.txt").read_text().splitlines(keepends=True)
+    whole = (real_dir / "l_hand.taxels.txt").read_text().splitlines(keepends=True)
     path = tmp_path / "cut.txt"
     path.write_text("".join(whole[:200]))
     with pytest.raises(DataError, match=r"cut.txt: 200 taxel rows, which ends inside triangle 16 \(12 rows per"

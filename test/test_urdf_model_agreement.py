@@ -246,6 +246,7 @@ def test_expand_xacro_with_a_missing_or_broken_file_is_one_line(tmp_path):
     assert "\n" not in str(err.value)
 
 
+@pytest.mark.middleware   # ROS's URDF parser: check_urdf comes with the middleware (setup_venv.sh --with-yarp)
 def test_urdfdom_parses_the_expanded_urdf(tmp_path):
     """urdfdom is the parser robot_state_publisher uses; its check_urdf comes with pip's cmeel-urdfdom."""
     exe = Path(sys.executable).with_name("check_urdf")

@@ -94,62 +94,6 @@ def read_yaml(path: str | Path, what: str):
         raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
 
 
-def read_ros_params_file(path: str | Path) -> dict:
-    """A ROS parameters file (node names mapped to ``ros__parameters``): rcl ignores a document that is a
-    bare value without a word, so the node would run on its defaults."""
-    from nao_skin.errors import ConfigError
-
-    doc = read_yaml(path, "ROS parameters file")
-    if doc is None:
-        return {}
-    if not isinstance(doc, dict):
-        raise ConfigError(f"{path}: a ROS parameters file maps node names to ros__parameters; this one is a"
-                          f" {type(doc).__name__}")
-    problem = _ros_params_problem(doc)
-    if problem:       # rcl refuses the whole file, in every node that reads it, in two lines each
-        raise ConfigError(f"{path}: {problem} (ROS refuses the whole file)")
-    return doc
-
-
-def _ros_params_problem(doc: dict, trail: tuple = ()) -> str | None:
-    """What rcl's parameter file parser refuses in ``doc`` (names down to ``ros__parameters`` mapping to
-    mappings, a value to every parameter, one type per list), or None."""
-    for key, value in doc.items():
-        name = "/".join(map(str, trail + (key,)))
-        if key == "ros__parameters":
-            if not isinstance(value, dict):
-                return f"'{name}' must map parameter names to values"
-            problem = _parameter_problem(value, trail)
-        elif not isinstance(value, dict):
-            return f"'{name}' is {_kind(value)} where a node name maps to its ros__parameters"
-        else:
-            problem = _ros_params_problem(value, trail + (key,))
-        if problem:
-            return problem
-    return None
-
-
-def _parameter_problem(params: dict, trail: tuple, prefix: str = "") -> str | None:
-    for key, value in params.items():
-        name = f"{'/'.join(map(str, trail))}.{prefix}{key}"
-        if value is None:
-            return f"{name} has no value"
-        if isinstance(value, dict):
-            problem = _parameter_problem(value, trail, f"{prefix}{key}.")
-            if problem:
-                return problem
-        elif isinstance(value, list):
-            kinds = {type(v) for v in value if isinstance(v, (bool, int, float, str))}
-            if len(kinds) > 1:
-                return f"{name} mixes {' and '.join(sorted(_kind(k()) for k in kinds))} in one list"
-    return None
-
-
-def _kind(value) -> str:
-    return {type(None): "empty", bool: "a boolean", int: "an integer", float: "a number", str: "a string",
-            list: "a list"}.get(type(value), type(value).__name__)
-
-
 class _DuplicateKey(Exception):
     pass
 
@@ -258,6 +202,19 @@ def installed_share_dir(package: str) -> Path | None:
         if (Path(prefix) / "share" / "ament_index" / "resource_index" / "packages" / package).is_file():
             return Path(prefix) / "share" / package
     return None
+
+
+# The real left hand-torso recording of the thesis is no part of the package (nor of the repository): a
+# directory holding it and its two layouts is named by this variable, for the bench and the tests.
+REAL_DATA_VARIABLE = "NAO_SKIN_REAL_DATA"
+REAL_RECORDING = "l_hand_torso.legacy.txt"
+REAL_LAYOUTS = {"l_hand": "l_hand.taxels.txt", "torso": "torso.taxels.txt"}
+REAL_DATA_FILES = (REAL_RECORDING, *REAL_LAYOUTS.values())
+
+
+def real_data_missing(directory: Path) -> list:
+    """The files of the real recording ``directory`` does not hold (each a regular file), in REAL_DATA_FILES order."""
+    return [name for name in REAL_DATA_FILES if not (Path(directory) / name).is_file()]
 
 
 def config_dir() -> Path:

@@ -5,10 +5,9 @@ starts all read the same rules, so a value out of range is the same one line whe
 """
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
-
-import numpy as np
 
 from nao_skin.errors import DataError
 
@@ -35,7 +34,7 @@ class Rule:
         if self.kind is str:
             return "one of " + ", ".join(self.choices) if self.choices else (self.why or f"a text like {self.pattern}")
         if self.kind is tuple and self.choices:
-            return "a list of " + ", ".join(self.choices)
+            return "a list of " + ", ".join(self.choices) + ", each at most once"
         if self.kind is tuple and self.pattern:
             return self.why or f"a list of distinct names like {self.pattern}"
         what = "a whole number" if self.kind is int else "a number"
@@ -60,7 +59,7 @@ class Rule:
                 raise ValueError
             return int(value)
         value = float(value)
-        if not np.isfinite(value):
+        if not math.isfinite(value):
             raise ValueError
         return value
 
@@ -79,7 +78,7 @@ class Rule:
             return value
         if self.kind is str:
             if isinstance(value, bool) and {"on", "off"} <= set(self.choices):
-                value = "on" if value else "off"   # YAML 1.1 (--set, parameter files) reads on/off as booleans
+                value = "on" if value else "off"   # a node's parameter file (YAML 1.1) reads on/off as booleans
             if (value not in self.choices if self.choices else
                     not isinstance(value, str) or not re.fullmatch(self.pattern or ".*", value)):
                 raise bad
@@ -87,8 +86,8 @@ class Rule:
         if self.kind is tuple:
             if isinstance(value, str) or not isinstance(value, (list, tuple)):
                 raise bad
-            if self.choices:
-                if any(v not in self.choices for v in value):
+            if self.choices:     # twice is no more than once, and would be run or reported twice
+                if any(v not in self.choices for v in value) or len(set(value)) != len(value):
                     raise bad
                 return tuple(value)
             if self.pattern:
@@ -121,7 +120,7 @@ def finite_float(value) -> float | None:
         value = float(value)
     except OverflowError:
         return None
-    return value if np.isfinite(value) else None
+    return value if math.isfinite(value) else None
 
 
 def did_you_mean(name: str, known) -> str:

@@ -10,7 +10,7 @@ moved when both say so: its taxels go at least ``tolerance_mm`` (median) and its
 pairs come at least ``MIN_GAIN`` closer at 95 % confidence. Either alone is not enough: a refit from a
 hundred touches wanders up to about a millimetre where nothing moved, and on one pair of parts (the
 real recording) several millimetres along what one pair cannot tell apart; a held-out gain of a few
-per cent is no reason to recalibrate (README, "Has the skin moved?").
+per cent is no reason to recalibrate (docs/method.md, "Has the skin moved?").
 
 Both calibrations are measured at the fabric surfaces of the fabric thickness the calibration was made with
 (its file's ``fabric_thickness``, the engine's estimate; the mount stages do not estimate it). Judged at
@@ -31,7 +31,7 @@ from scipy.stats import t as student_t
 
 from nao_skin.calibration.engine import CalibrationResult, calibrate, train_test
 from nao_skin.calibration.evaluation import fitted_touch_distances, paired_gain, truth_error
-from nao_skin.calibration.options import CalibrationOptions
+from nao_skin.calibration.options import DEFAULT_TOLERANCE_MM, CalibrationOptions
 from nao_skin.calibration.pairing import robot_joints
 from nao_skin.calibration.plan import Step, pair_poses
 from nao_skin.calibration.rows import pair_step
@@ -39,7 +39,6 @@ from nao_skin.calibration.stages import fitted_kinds
 from nao_skin.model.skin import SkinCalibration, SkinModel, pair_label, part_rank
 from nao_skin.touch.touches import TouchSet
 
-DEFAULT_TOLERANCE_MM = 1.0   # about what a calibration from a full recording is sure of (README, Results)
 CONFIDENCE = 0.95            # one-sided, Student's t over the held-out touches
 MIN_GAIN = 0.05              # the held-out gain's lower bound must reach it: a part that moved gains far more
 MIN_HELD_OUT = 10            # held-out touches of a part's pairs below which no verdict is given

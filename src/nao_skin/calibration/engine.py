@@ -202,6 +202,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
         report.kinematics = _fit_kinematics(train, test, skin, steps, schedule, start, options, fit, truth, say,
                                             report)
     report.final = _final_figures(train, test, skin, steps, options, fit, truth, explained_too=not warm)
+    _kept_apart(train, skin, steps, fit, report.final)
     report.fabric_thickness_mm = 1000.0 * fit.fabric
     fit.calibration.fabric_thickness = fit.fabric      # with the frames: what their closest pairs were measured at
     report.prior_sigma = fit.prior_sigma
@@ -215,7 +216,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
                         f" {skin.source}), calibrated one from the other without the plan's order: is it this"
                         f" robot's config?"] if outside else []) \
         + implausible(train, skin, fit.calibration, report.parts, len(fit.set_aside),
-                      report.final.get("train", {}).get("cop_mean_mm", float("nan")), options.gate_mm)
+                      report.final["train_kept"].get("cop_mean_mm", float("nan")), options.gate_mm)
     for line in report.warnings:
         say(f"warning: {line}")
     report.total_seconds = time.perf_counter() - t_start
@@ -354,7 +355,7 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
         # Fitted against a reference that is not calibrated yet, the fabric estimate takes up that reference's
         # offset along its normals too, which helps those stages; but it is no fabric, and a joint stage
         # starting there does not give it all back. The stages that free every part start the fabric over
-        # from the configured thickness (measured: README, Calibration, item 7).
+        # from the configured thickness (measured: docs/method.md, "7. The fabric over the taxels").
         fit.fabric, fit.fabric_stands_in = options.fabric_thickness, False
     kinds = fitted_kinds(options, levels)
     limit = (options.warm_repairings if warm else options.reference_repairings if refined and step.references
@@ -410,7 +411,7 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
 KINEMATICS_SETTLED = 2e-4   # rad / m: no kinematic correction moved more in a pass (0.01 deg, 0.2 mm)
 # auto asks the held-out gain to reach kinematics_min_gain at this one-sided confidence (1.645: 95 %): a
 # test split's gain has a spread, and extra unknowns always buy a little, also where the robot is the config
-# (the gains and bounds per preset: README, Kinematics)
+# (the gains and bounds per preset: docs/method.md, "Kinematics")
 KINEMATICS_GAIN_Z = 1.645
 
 
@@ -426,14 +427,14 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     closer by ``kinematics_min_gain``; otherwise the calibration is the skin-only one, unchanged, and
     every kinematic unknown is listed as held with the figures. ``on`` keeps it whatever the figures.
     """
-    # every stage of this path fits the rows of closing_pairs: its figures (README, Kinematics) are measured
+    # every stage of this path fits the rows of closing_pairs: its figures (docs/method.md, "Kinematics") are measured
     # so, and the COP rows first are not measured with kinematic unknowns
     options = options.in_place()
     step = Step(tuple(sorted({p for s in steps for p in s.targets + s.references}, key=part_rank)), ())
     test_before = _held_out_surface_mm(test, skin, fit, step)
     # The skin-only plan is no starting point: its patches and triangles have absorbed what the kinematics
-    # get wrong, and a kinematic stage after it only takes back what the mounts cannot (README,
-    # Kinematics). So a path of its own: the mounts alone (first guesses, the plan at mount level), then
+    # get wrong, and a kinematic stage after it only takes back what the mounts cannot (docs/method.md,
+    # "Kinematics"). So a path of its own: the mounts alone (first guesses, the plan at mount level), then
     # the kinematics with every mount, the patches and triangles still at their prior.
     kfit = _Fit(start.copy(), options.fabric_thickness, initial_prior_sigma(options), fit.inliers.copy(),
                 list(fit.set_aside))
@@ -549,6 +550,19 @@ def _final_figures(train: TouchSet, test: TouchSet, skin: SkinModel, steps: list
     if truth is not None:
         final["truth_taxel_error_mm"] = truth_error(skin, calib, truth, poses=fit.truth_poses)
     return final
+
+
+def _kept_apart(train: TouchSet, skin: SkinModel, steps: list, fit: _Fit, final: dict) -> None:
+    """``final["train_kept"]``: the figures of the training touches the calibration kept, and
+    ``final["train_set_aside"]`` those its gate set aside (experimenter's touches, stray activations: far apart
+    under any calibration), each measured apart. The calibration is judged by the touches it kept; the
+    training figures of every touch mix the two."""
+    aside = ~fit.inliers
+    if not aside.any():
+        final["train_kept"] = dict(final["train"])
+        return
+    final["train_kept"] = evaluate(train.subset(~aside), skin, fit.calibration, steps)
+    final["train_set_aside"] = evaluate(train.subset(aside), skin, fit.calibration, steps)
 
 
 def _check_enough(train: TouchSet, steps: list, options: CalibrationOptions) -> None:

@@ -7,9 +7,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nao_skin.calibration.kinds import LEVELS  # noqa: F401 - where the engine's modules read it
 from nao_skin.model.skin import SkinCalibration, SkinModel
 
-LEVELS = ("mount", "patch", "triangle")
 KINEMATICS = "kinematics"   # the level of a stage that frees kinematic corrections
 
 COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")   # of a 6-vector correction, as reports name them

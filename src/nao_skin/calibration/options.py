@@ -6,18 +6,20 @@ and the checks before any data is read all come from this one table
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from nao_skin.calibration.layout import LEVELS
-from nao_skin.calibration.pairing import (KIND_COP, KIND_PLANE_A, KIND_PLANE_B, KIND_TAXEL, KIND_TAXEL5, PLANE_WEIGHTS,
-                                          PlaneRows)
-from nao_skin.calibration.solver import SolveOptions
+from nao_skin.calibration.kinds import (KIND_COP, KIND_PLANE_A, KIND_PLANE_B, KIND_TAXEL, KIND_TAXEL5, LEVELS,
+                                        PLANE_WEIGHTS)
 from nao_skin.errors import DataError
 from nao_skin.paths import yaml_value
 from nao_skin.rules import Rule
+
+if TYPE_CHECKING:       # the engine's own types: imported where a run builds them, not for the help text
+    from nao_skin.calibration.pairing import PlaneRows
+    from nao_skin.calibration.solver import SolveOptions
 
 # what each value of the ``pairs`` and ``mount_pairs`` options puts into the residuals: rows of these kinds
 # ("plane": point-to-plane rows both ways, "plane_b" / "plane_a": one side's taxels against the other's surface)
@@ -25,6 +27,12 @@ KIND_ROWS = {"cop": (KIND_COP,), "taxel": (KIND_TAXEL,), "both": (KIND_COP, KIND
              "cop+taxel5": (KIND_COP, KIND_TAXEL5), "cop+plane": (KIND_COP, KIND_PLANE_B, KIND_PLANE_A),
              "cop+plane_b": (KIND_COP, KIND_PLANE_B), "cop+plane_a": (KIND_COP, KIND_PLANE_A),
              "both+plane": (KIND_COP, KIND_TAXEL, KIND_PLANE_B, KIND_PLANE_A)}
+
+
+# mm: how far a refit must carry a part's taxels for nao-skin check to call it moved; about what a
+# calibration from a full recording is sure of (docs/method.md, "Has the skin moved?"). Here beside the
+# table, as the check's help text reads it without the engine.
+DEFAULT_TOLERANCE_MM = 1.0
 
 
 def option(default, rule: Rule, help: str):
@@ -49,27 +57,27 @@ class CalibrationOptions:
     reference: str = option("fixed", Rule(str, ("fixed", "simultaneous")),
                             "fixed (one part is the reference while the other is fitted) or simultaneous")
     # the thesis boxes patch and triangle corrections in; on the real recording the box binds and costs
-    # accuracy, on the simulator it hardly binds, so the prior alone holds them by default (README,
-    # Calibration: the prior comparison)
+    # accuracy, on the simulator it hardly binds, so the prior alone holds them by default (docs/method.md,
+    # "9. The prior on patches and triangles")
     bounded: bool = option(False, Rule(bool), "bound patch and triangle corrections to patch_bounds and"
                                               " triangle_bounds (thesis); off: the Gaussian prior alone")
-    patch_bounds: tuple = option((0.003, np.pi / 30), Rule(tuple, low=1e-6, high=10.0, length=2),
+    patch_bounds: tuple = option((0.003, math.pi / 30), Rule(tuple, low=1e-6, high=10.0, length=2),
                                  "|translation| m, |rotation| rad per component of a patch correction: the box of"
                                  " bounded, the prior's scale (bound / prior_strength) either way")
-    triangle_bounds: tuple = option((0.0005, np.pi / 40), Rule(tuple, low=1e-6, high=10.0, length=2),
+    triangle_bounds: tuple = option((0.0005, math.pi / 40), Rule(tuple, low=1e-6, high=10.0, length=2),
                                     "|translation| m, |rotation| rad per component of a triangle correction: the box"
                                     " of bounded, the prior's scale (bound / prior_strength) either way")
     # a closest taxel pair carries the two taxel lattices' offset (1.3-1.6 mm even at the true skin) and,
     # while the frames are still off, wrong neighbours; a COP row averages a contact's taxels. So COP rows
     # estimate the frames, and the stages that start where they are nearly right (the closing stage, a live
-    # update's warm stages) add the taxel pairs (README, Calibration: "Which rows")
+    # update's warm stages) add the taxel pairs (docs/method.md, "Which rows")
     pairs: str = option("cop", Rule(str, _PAIRS), "paired points in the residuals of patch and triangle stages"
                                                   " (closing and warm stages: closing_pairs)")
     closing_pairs: str = option("both", Rule(str, _PAIRS), "paired points in the residuals of the closing stage"
                                                            " and of a live update's warm stages")
     mount_pairs: str = option("cop", Rule(str, _PAIRS), "paired points of the mount stages (robust while far off)")
     # "cop+plane" is not the default: the simulator's flat triangles meet exactly at the fabric, which
-    # flatters point-to-plane rows; the real skin's do not (README, Calibration: "Point-to-plane rows")
+    # flatters point-to-plane rows; the real skin's do not (docs/method.md, "Point-to-plane rows")
     plane_weight: str = option("touch", Rule(str, PLANE_WEIGHTS),
                                "weight of the point-to-plane rows (pairs with 'plane'): equal (1 each), touch"
                                " (a touch's rows weigh as one row) or pressure (as touch, by each taxel's share of"
@@ -100,20 +108,20 @@ class CalibrationOptions:
                                     "of the Jacobi-scaled normal equations: weaker directions are held")
     max_repairings: int = option(8, Rule(int, low=1, high=1000), "re-pairings of the touches per stage at most")
     # a fixed-reference step is where the joint refinement starts, not where the calibration ends: it need
-    # not settle its pairing (README, Calibration: "Inexact solves")
+    # not settle its pairing (docs/method.md, "Inexact solves")
     reference_repairings: int = option(3, Rule(int, low=1, high=1000),
                                        "re-pairings per stage at most in a fixed-reference step that a joint"
                                        " refinement follows (it frees the same frames again); at most"
                                        " max_repairings")
     # a warm update is one step of the pairing's fixed-point iteration, the next update the next step
-    # (README, Live calibration)
+    # (docs/method.md, "Live calibration")
     warm_repairings: int = option(1, Rule(int, low=1, high=1000),
                                   "re-pairings per stage at most in a live update warm-started from the last one")
     repair_tolerance: float = option(0.01, Rule(float, low=0.0, high=1.0),
                                      "stop re-pairing when fewer touches than this share change pairs")
     max_iterations: int = option(50, Rule(int, low=1, high=1e4), "solver iterations per solve at most")
     # alternating pairing and solving (as ICP does), a solve need not converge on a pairing the next
-    # step replaces (README, Calibration: "Inexact solves")
+    # step replaces (docs/method.md, "Inexact solves")
     repair_iterations: int = option(2, Rule(int, low=1, high=1e4),
                                     "solver iterations per solve before a stage's last allowed re-pairing (the"
                                     " pairing changes under it); that last one, and a warm update's, solves to"
@@ -131,7 +139,7 @@ class CalibrationOptions:
                            " 0.5 deg, one press sampled several times, on one side: the held-out figure meets no pose"
                            " it was trained on) or touch (each on its own)")
     # a recording samples one press held still many times: counted as independent touches, the presses
-    # held longest would pull the fit toward themselves (README, Calibration: "Presses held still")
+    # held longest would pull the fit toward themselves (docs/method.md, "Presses held still")
     pose_weight: float = option(0.5, Rule(float, low=0.0, high=1.0),
                                 "each training touch weighs n^-pose_weight, n the touches at its pose (joint"
                                 " angles within 0.5 deg: one press sampled several times): 0 every touch alike,"
@@ -153,13 +161,13 @@ class CalibrationOptions:
     residual_sigma: float = option(0.002, Rule(float, low=0.0, low_open=True, high=1.0),
                                    "m: noise per coordinate of a paired-point difference")
     # model only what the scene determines: a lab whose touches do not reach the triangles drops that
-    # level (README, Calibration: "Levels")
+    # level (docs/method.md, "Levels")
     levels: tuple = option(LEVELS, _LEVELS_RULE, "what the stages free, of mount, patch and triangle (the others"
                                                  " stay where they start)")
     joint_levels: tuple = option(LEVELS, _LEVELS_RULE, "what the joint refinement frees (of levels)")
     # the triangles once more from where the joint refinement left them, their prior centred there with the
-    # widths the touches gave it: the triangles were fitted while the patches still moved (README,
-    # Calibration: "Closing stage")
+    # widths the touches gave it: the triangles were fitted while the patches still moved (docs/method.md,
+    # "Closing stage")
     closing_levels: tuple = option(("triangle",), _LEVELS_RULE,
                                    "after the joint refinement, these levels (of levels) once more, one stage each,"
                                    " starting where it ended ([]: none; a live update, warm, runs none)")
@@ -174,7 +182,7 @@ class CalibrationOptions:
                              " taxel distance at the fabric surfaces improves by kinematics_min_gain at 95 %"
                              " confidence), on (kept whatever the figures) or off")
     # extra unknowns always buy a little on the test split too, even where they make the skin worse; a
-    # kinematic error the config lacks buys much more (README, Kinematics): auto asks for a clear gain
+    # kinematic error the config lacks buys much more (docs/method.md, "Kinematics"): auto asks for a clear gain
     kinematics_passes: int = option(3, Rule(int, low=0, high=100),
                                     "after the kinematic stage: passes of the skin plan on the corrected robot,"
                                     " each followed by the kinematic stage again, until they settle")
@@ -186,11 +194,15 @@ class CalibrationOptions:
     def solve_options(self, last: bool = True) -> SolveOptions:
         """The options of one solve: ``last`` the stage's last allowed re-pairing (else at most
         ``repair_iterations`` iterations)."""
+        from nao_skin.calibration.solver import SolveOptions
+
         iterations = self.max_iterations if last else min(self.repair_iterations, self.max_iterations)
         return SolveOptions(loss=self.loss, f_scale=self.f_scale, max_iterations=iterations,
                             jacobian=self.jacobian)
 
     def plane_rows(self) -> PlaneRows:
+        from nao_skin.calibration.pairing import PlaneRows
+
         return PlaneRows(self.plane_weight, self.plane_scale)
 
     def in_place(self) -> "CalibrationOptions":
@@ -240,7 +252,8 @@ def options_help(width: int = 79) -> str:
     """Every option of the table with its default and help, one paragraph each (``nao-skin calibrate --help``)."""
     import textwrap
 
-    lines = ["calibration options (--set OPTION=VALUE, the value in YAML):"]
+    lines = ["calibration options (--set OPTION=VALUE: a number or a list in YAML, a choice as its word, a"
+             " switch true or false):"]
     for name, spec in OPTION_FIELDS.items():
         default = list(spec.default) if isinstance(spec.default, tuple) else spec.default
         lines += textwrap.wrap(f"{name} (default {default}): {spec.metadata['help']}", width,
@@ -258,12 +271,26 @@ def set_once(options: CalibrationOptions, name: str, value, where: str, given: d
 
 
 def set_items(options: CalibrationOptions, items, given: dict | None = None) -> dict:
-    """Apply ``--set OPTION=VALUE`` items (the value in YAML) to ``options``, each checked by its rule and
-    given once (see :func:`set_once`); returns ``given`` with the items' options added."""
+    """Apply ``--set OPTION=VALUE`` items to ``options``, each read by its option's rule (:func:`option_value`),
+    checked by it and given once (see :func:`set_once`); returns ``given`` with the items' options added."""
     given = {} if given is None else given
     for item in items:
         key, sep, raw = item.partition("=")
         if not sep or not key:
             raise DataError(f"--set {item!r}: expected OPTION=VALUE, e.g. --set normal_weight=0.01")
-        set_once(options, key.strip(), yaml_value(raw), f"--set {item}", given)
+        spec = OPTION_FIELDS.get(key.strip())
+        value = option_value(spec.metadata["rule"], raw) if spec else raw
+        set_once(options, key.strip(), value, f"--set {item}", given)
     return given
+
+
+def option_value(rule: Rule, text: str):
+    """The value of an option given as text, read by the option's own rule: a choice is its word as written and
+    a switch ``true`` or ``false`` (YAML 1.1 took yes, on and ON for true, and kinematics=yes for on); a
+    number or list is YAML. What the rule does not take stays text, for the rule to refuse by name."""
+    text = text.strip()
+    if rule.kind is bool:
+        return {"true": True, "false": False}.get(text, text)
+    if rule.kind is str:
+        return text
+    return yaml_value(text)

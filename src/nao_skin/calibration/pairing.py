@@ -37,21 +37,15 @@ from itertools import combinations
 import numpy as np
 
 from nao_skin import se3
+from nao_skin.calibration.kinds import (KIND_CONTACT_TAXEL, KIND_COP, KIND_NORMAL, KIND_PLANE_A,  # noqa: F401
+                                        KIND_PLANE_B, KIND_TAXEL, KIND_TAXEL5, PLANE_WEIGHTS)
 from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.touch.contacts import activations_by_part, cop_weights, segment_mean
 from nao_skin.touch.touches import TouchSet
 
-KIND_COP, KIND_TAXEL, KIND_TAXEL5 = 0, 1, 2
-KIND_NORMAL = 3   # solver-only rows (rows.with_normal_rows): the two contacts' mean normals must cancel
-KIND_CONTACT_TAXEL = 4   # reported only: the closest taxel pair of the two selected contacts (kind 1 of "contacts")
-KIND_PLANE_B, KIND_PLANE_A = 5, 6   # solver-only: A's taxels against B's surface, B's against A's
 KIND_NAMES = {"cop": KIND_COP, "taxel": KIND_TAXEL, "taxel5": KIND_TAXEL5, "contact_taxel": KIND_CONTACT_TAXEL,
               "plane_b": KIND_PLANE_B, "plane_a": KIND_PLANE_A}
-# how a touch's point-to-plane rows are weighted: each 1; 1/sqrt(n) each (a touch's rows of one
-# direction weigh as much as one row, however many taxels fire); sqrt of the taxel's share of its
-# contact's pressure (the same total, central taxels more)
-PLANE_WEIGHTS = ("equal", "touch", "pressure")
 TAXEL_RULES = ("contacts", "thesis", "touch")
 METRIC_KINDS = ("cop", "taxel", "taxel5", "contact_taxel")
 METRIC_TAXEL_RULE = "touch"

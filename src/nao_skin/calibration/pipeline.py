@@ -147,6 +147,10 @@ def summary_line(result: CalibrationResult) -> str:
     if "truth_taxel_error_mm" in final:
         t = final["truth_taxel_error_mm"]["all"]
         line += f"; true taxel error median {t['median']:.2f} mm, p95 {t['p95']:.2f} mm"
+    aside = final.get("train_set_aside")
+    if aside:        # far apart under any calibration: the figures above count them, the judgement does not
+        line += (f"; {aside['n_touches']} training touches set aside (closest COP {aside['cop_mean_mm']:.1f} mm;"
+                 f" the {final['train_kept']['n_touches']} kept: {final['train_kept']['cop_mean_mm']:.2f} mm)")
     kin = result.report.kinematics
     if kin:
         line += (f"; kinematics {kin['mode']}: " + (f"{len(kin['corrections'])} corrected, {len(kin['held'])} held"

@@ -123,13 +123,23 @@ def kinematics_section(kin: dict) -> list:
     return lines
 
 
+def _set_aside_text(final: dict) -> str:
+    """How far apart the touches the gate set aside are, beside the kept ones (the warnings judge those)."""
+    aside, kept = final.get("train_set_aside"), final.get("train_kept")
+    if not aside or not kept:
+        return ""
+    return (f" (closest COP mean {_fmt(aside.get('cop_mean_mm'))} mm under the calibration; the"
+            f" {kept.get('n_touches', 0)} training touches kept: {_fmt(kept.get('cop_mean_mm'))} mm)")
+
+
 def markdown_report(report: dict, coverage: dict | None = None, pictures: bool = True) -> str:
     """report.md from the report's dict; ``coverage`` (:func:`report_coverage`) adds the coverage table;
     ``pictures``: the plots are written beside it (coverage.png is named only then)."""
     keys = ("cop_mean_mm", "taxel_mean_mm", "contact_taxel_mean_mm", "taxel5_mean_mm")
     lines = ["# Skin calibration report", "",
              f"Plan: {' → '.join(report['plan'])}", "",
-             f"Total time: {report['total_seconds']:.2f} s. Touches set aside: {report['n_set_aside']}.", "",
+             f"Total time: {report['total_seconds']:.2f} s. Touches set aside: {report['n_set_aside']}"
+             + _set_aside_text(report["final"]) + ".", "",
              *([f"**Warning: {w}.**" for w in report.get("warnings") or []] + [""] if report.get("warnings") else []),
              "Closest taxel: the closest pair among every activated taxel of the two touching parts; selected"
              " contacts': the closest pair of the two contacts whose COPs are closest (what the solver fits).", "",
@@ -141,13 +151,16 @@ def markdown_report(report: dict, coverage: dict | None = None, pictures: bool =
     rows += [("final", report["final"], None)]
     accepted = {"train": report["final"].get("train_accepted", {}), "test": report["final"].get("test_accepted", {})}
     rows += [("final, touches a self-contact explains", accepted, None)]
+    if report["final"].get("train_set_aside"):      # the gate's choice, apart: what the calibration is judged by
+        rows += [("final, touches kept", {"train": report["final"]["train_kept"]}, None),
+                 ("final, touches set aside", {"train": report["final"]["train_set_aside"]}, None)]
     unmeasured = 0
     for name, entry, secs in rows:
         if name != "final" and not any(entry.get(split) for split in ("train", "test")):
             unmeasured += 1            # a live update's warm start measures the final figures only
             continue
-        for split in ("train", "test"):
-            m = entry.get(split, {})
+        for split in (s for s in ("train", "test") if s in entry):
+            m = entry[split]
             lines.append(f"| {name} | {split} | {m.get('n_touches', 0)} | "
                          + " | ".join(_fmt(m.get(k)) for k in keys) + f" | {_fmt(secs) if split == 'train' else ''} |")
     if unmeasured:

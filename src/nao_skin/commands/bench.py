@@ -10,19 +10,25 @@ whole: a run stopped or failed leaves ``--out`` as it was.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import sys
 import time
 from pathlib import Path
 
 from nao_skin.commands import add_output_arguments, written_here
+from nao_skin.paths import REAL_DATA_VARIABLE
 
 NAME = "bench"
+REAL_LEFT_OUT = (f"real section left out: no --real PATH, and {REAL_DATA_VARIABLE} (a directory holding the real"
+                 f" recording and its layouts) is not set")
 HELP = "benchmark calibration strategies (seconds against error) and the simulator's hard cases"
 
 SECTIONS = ("speed", "real", "hard", "live", "kinematics")
 # what runs without --only: the kinematics section (presets x seeds x three calibrations) is asked for by name
 DEFAULT_SECTIONS = ("speed", "real", "hard", "live")
+# where the project keeps the tables `--readme` fills (between its BENCH markers), from the repository root
+RESULTS_DOC = "docs/results.md"
 LISTING = "<outlier listing>"      # long: written to the file, not printed
 OUTPUTS = ("bench_results.md", "bench_results.json", "speed_vs_error.png")
 QUICK = {"repeat": 1, "seeds": 2, "sweep": (50, 200), "sim_touches": 400, "hard_pairs": "l_hand-torso",
@@ -30,8 +36,9 @@ QUICK = {"repeat": 1, "seeds": 2, "sweep": (50, 200), "sim_touches": 400, "hard_
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--readme", metavar="README.md",
-                        help="also put the tables into this README's results section and the plot beside it")
+    parser.add_argument("--readme", metavar="FILE", nargs="?", const=RESULTS_DOC,
+                        help=f"also put the tables into this file's results blocks and the plot beside it (the"
+                             f" project's: {RESULTS_DOC}, also what --readme alone writes)")
     add_output_arguments(parser, "bench")
     parser.add_argument("--quick", action="store_true",
                         help=f"smoke run: {QUICK['repeat']} repetition, {QUICK['seeds']} seeds, sweep "
@@ -39,9 +46,10 @@ def add_arguments(parser) -> None:
                              f" hard cases on {QUICK['hard_pairs']} with {QUICK['hard_touches']} touches")
     parser.add_argument("--only", action="append", choices=SECTIONS, default=[],
                         help="run only this section (repeatable): speed = bundled simulated recording, "
-                             "real = the --real recordings, hard = simulator hard cases, live = one live update"
-                             " (warm-started) at 1000 and 4000 touches of the simulated recording, kinematics ="
-                             " presets calibrated with kinematics off / on / auto (only when asked for)")
+                             "real = the --real recordings (or $NAO_SKIN_REAL_DATA's), hard = simulator hard cases,"
+                             " live = one live update (warm-started) at 1000 and 4000 touches of the simulated"
+                             " recording, kinematics = presets calibrated with kinematics off / on / auto (only when"
+                             " asked for)")
     parser.add_argument("--repeat", type=int, help="timed repetitions per strategy, median quoted (default 3)")
     parser.add_argument("--seeds", type=int, help="seeds per hard-case preset (default 20)")
     parser.add_argument("--sim", help="simulated recording with truth_calibration.yaml (default: bags/sim_default)")
@@ -52,8 +60,9 @@ def add_arguments(parser) -> None:
                         help="random touches of the simulated recording to use, 0 = all (default 1200 of its ~4000:"
                              " all of them take ~35 s a calibration on 2 cores, x 3 repetitions x 12 strategies)")
     parser.add_argument("--real", action="append", default=[], metavar="PATH",
-                        help="a real recording (legacy .txt or bag); repeatable, e.g."
-                             " /work/shared/data/real_selftouch/l_hand_torso.legacy.txt")
+                        help="a real recording (legacy .txt or bag); repeatable. Without it the real section reads"
+                             " the directory $NAO_SKIN_REAL_DATA names (l_hand_torso.legacy.txt with its layouts"
+                             " l_hand.taxels.txt and torso.taxels.txt), and is left out, said, when that is unset")
     parser.add_argument("--taxels", action="append", default=[], metavar="PART=FILE",
                         help="taxel file of a part of the --real recordings; repeatable")
     parser.add_argument("--skin", help="skin config YAML for the --real recordings (default: the package's)")
@@ -125,7 +134,8 @@ def _check_readme_run(readme: Path, sections: set, real: bool) -> None:
     main = sections & set(DEFAULT_SECTIONS)
     # the kinematics go to a block of their own when the README has one, else into the main block
     writes_main = bool(main) or ("kinematics" in sections and README_KIN_START not in text)
-    missing = sorted(set(DEFAULT_SECTIONS) - main) + ([] if real or "real" not in main else ["real (no --real)"])
+    missing = sorted(set(DEFAULT_SECTIONS) - main) + ([] if real or "real" not in main else
+                                                      [f"real (no --real, {REAL_DATA_VARIABLE} unset)"])
     if writes_main and missing:
         raise DataError(f"--readme {readme}: its results section holds every section ({', '.join(DEFAULT_SECTIONS)});"
                         f" this run has no {', '.join(missing)}, whose figures would be lost: run them all, or"
@@ -168,6 +178,34 @@ def _sim_input(args, quick: bool, say, keep: int | None = None):
     return BenchInput(name, touches, skin, truth)
 
 
+def _real_from_environment(args, sections: set) -> Path | None:
+    """Without ``--real``, the real section reads the recording in the directory $NAO_SKIN_REAL_DATA names (its
+    layouts too, unless ``--taxels`` gives them): that directory, put into ``args``; None when the section
+    does not run, has its ``--real`` or the variable is unset (then the section is left out, said by
+    :data:`REAL_LEFT_OUT`). Asked for by name (``--only real``) without either, or the directory lacking a
+    file, it is one line."""
+    from nao_skin.errors import DataError
+    from nao_skin.paths import REAL_DATA_FILES, REAL_LAYOUTS, REAL_RECORDING, real_data_missing
+
+    if "real" not in sections or args.real:
+        return None
+    named = os.environ.get(REAL_DATA_VARIABLE)
+    if not named:
+        if "real" in args.only:
+            raise DataError(f"--only real needs a real recording: --real PATH (with --taxels PART=FILE of its"
+                            f" layouts), or {REAL_DATA_VARIABLE}=DIR holding {', '.join(REAL_DATA_FILES)}")
+        return None
+    directory = Path(named)
+    lacking = real_data_missing(directory)
+    if lacking:
+        raise DataError(f"{REAL_DATA_VARIABLE}={named}: no {', '.join(lacking)} there (expected a directory holding"
+                        f" {', '.join(REAL_DATA_FILES)}); set it to one, or give --real PATH")
+    args.real = [str(directory / REAL_RECORDING)]
+    if not args.taxels:
+        args.taxels = [f"{part}={directory / name}" for part, name in REAL_LAYOUTS.items()]
+    return directory
+
+
 def _real_inputs(args, say, skin) -> list:
     from nao_skin.bench.speed import BenchInput
     from nao_skin.formats.inputs import load_touches
@@ -193,8 +231,7 @@ def run(args) -> int:
 
     say = lambda msg: print(msg, flush=True)  # noqa: E731
     sections = set(args.only or DEFAULT_SECTIONS)
-    if "real" in sections and not args.real and args.only and "real" in args.only:
-        raise DataError("--only real needs at least one --real PATH")
+    real_dir = _real_from_environment(args, sections)
     repeat = args.repeat if args.repeat is not None else (QUICK["repeat"] if args.quick else 3)
     seeds = args.seeds if args.seeds is not None else (QUICK["seeds"] if args.quick else 20)
     sweep = QUICK["sweep"] if args.quick else speed.TOUCH_SWEEP
@@ -253,6 +290,12 @@ def run(args) -> int:
         argv = sys.argv[2:] + ([] if "--force" in sys.argv[2:] else ["--force"])
         md = [f"# nao-skin bench{' (quick)' if args.quick else ''}", "",
               f"Command: `nao-skin bench {' '.join(argv)}`", ""]
+        if real_dir is not None:         # the directory is this machine's: the variable is what to set elsewhere
+            md += [f"Real recording: `${REAL_DATA_VARIABLE}` ({Path(args.real[0]).name} with"
+                   f" {', '.join(Path(t.partition('=')[2]).name for t in args.taxels)})", ""]
+        elif "real" in sections and not args.real:
+            say(REAL_LEFT_OUT)
+            md += [REAL_LEFT_OUT[0].upper() + REAL_LEFT_OUT[1:] + ".", ""]
         results: dict = {"quick": args.quick, "repeat": repeat, "seeds": seeds}
         failures = 0
         listing = ""

@@ -42,8 +42,8 @@ def add_arguments(parser) -> None:
                         help="no bounds on patch and triangle corrections, the Gaussian prior alone (the default)")
     parser.add_argument("--no-first-guess", action="store_true", help="skip the closed-form mount fit")
     parser.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
-                        help="any calibration option (YAML value), e.g. --set normal_weight=0.01; repeatable (each"
-                             " option, its default and meaning: below)")
+                        help="any calibration option, e.g. --set normal_weight=0.01; repeatable (each option, its"
+                             " default, meaning and how its value is written: below)")
     parser.epilog = options_help()
     parser.formatter_class = argparse.RawDescriptionHelpFormatter     # the epilog's lines as they are
     parser.add_argument("--splits", type=int, default=1, metavar="K",

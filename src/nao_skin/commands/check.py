@@ -15,8 +15,7 @@ MAX_TOLERANCE_MM = 50.0     # beyond, no part of a Nao's skin could be said to h
 
 
 def add_arguments(parser) -> None:
-    from nao_skin.calibration.check import DEFAULT_TOLERANCE_MM
-    from nao_skin.calibration.options import OPTION_FIELDS
+    from nao_skin.calibration.options import DEFAULT_TOLERANCE_MM, OPTION_FIELDS
 
     parser.add_argument("inputs", nargs="+", metavar="INPUT",
                         help="new touches: rosbag2 recordings, simulator output folders or legacy .txt data sets")

@@ -6,7 +6,11 @@ skinManager contactId to a dict with ``cop``, ``geoCenter``, ``normal``,
 ``moment``, ``averagePressure`` (possibly None); ``joints`` maps NAOqi joint
 names to radians. The file is parsed with :mod:`ast` (never ``eval``), and
 each touch is evaluated on its own, so one bad touch is skipped with a
-one-line reason while the rest of the file still loads.
+one-line reason while the rest of the file still loads. A file whose text is
+damaged (a garbage line, cut short by a full disk or a killed recorder) is
+read touch by touch from each touch's key on (:func:`_salvaged_entries`):
+every complete touch before and after the damage is kept, and one line says
+which lines were lost.
 """
 from __future__ import annotations
 
@@ -199,17 +203,27 @@ def _literal_with_non_finite(node):
         return _NOT_A_LITERAL
 
 
-def _literal_entries(path: Path, exact: bool = False) -> list:
-    """``(line, key, value)`` per top-level entry; a value that is no literal is ``_NOT_A_LITERAL``.
+def _literal_entries(path: Path, exact: bool = False) -> tuple:
+    """``([(line, key, value)] per top-level entry, [damaged stretch])``; a value that is no literal is
+    ``_NOT_A_LITERAL``.
 
     Files as the thesis' recorder writes them (Python's repr of a dict: no
     escapes, no tuples) take the fast path, read as JSON; anything else a
     Python literal allows, or a broken file, takes the exact path through
     :mod:`ast`, which names the line of each problem. Both give the same entries.
+    A file that is no literal as a whole is read touch by touch (:func:`_salvaged_entries`).
     """
     text = read_text(path, "legacy dataset")
     entries = None if exact else _json_entries(text)
-    return entries if entries is not None else _ast_entries(text, path)
+    if entries is not None:
+        return entries, []
+    try:
+        return _ast_entries(text, path), []
+    except _SyntaxDamage as whole:
+        entries, damaged = _salvaged_entries(text)
+        if not entries:          # no complete touch anywhere: the file's own syntax error says where
+            raise DataError(str(whole)) from None
+        return entries, damaged
 
 
 def _json_entries(text: str) -> list | None:
@@ -263,8 +277,8 @@ def _ast_entries(text: str, path: Path) -> list:
         tree = ast.parse(text, filename=str(path), mode="eval")
     except SyntaxError as exc:
         line = f":{exc.lineno}" if exc.lineno else ""       # none for e.g. a NUL byte
-        raise DataError(f"{path}{line}: Python syntax error ({exc.msg});"
-                        f" a legacy dataset is one dict literal") from None
+        raise _SyntaxDamage(f"{path}{line}: Python syntax error ({exc.msg});"
+                            f" a legacy dataset is one dict literal") from None
     except (ValueError, MemoryError, RecursionError) as exc:
         raise DataError(f"{path}: cannot parse as a Python literal ({exc})") from None
     if not isinstance(tree.body, ast.Dict):
@@ -286,6 +300,105 @@ def _ast_entries(text: str, path: Path) -> list:
     return entries
 
 
+class _SyntaxDamage(DataError):
+    """The file is no Python literal as a whole (a garbage line, cut short)."""
+
+
+# where a touch begins: its key (a quoted text or a number) at a line's start or after the '{' or ',' before
+# it, then ': [' and the '{' of its skin contacts. Inside a touch no key is followed by '[{' (contact ids map
+# to dicts, slots to lists of numbers), so the text after damage is found again at the next touch.
+_TOUCH_START = re.compile(r"""(?:^|[{,])\s*('[^'\\\n]*'|"[^"\\\n]*"|[-+]?[0-9][0-9.eE+-]*)\s*:\s*\[\s*\{""",
+                          re.MULTILINE)
+
+
+class _Damage:
+    """A stretch of a file's text that could not be read: its lines, what it was (a touch, text between two
+    touches), why, and how many touches it cost."""
+
+    def __init__(self, first: int, last: int, what: str, why: str, lost: int, final: bool = False):
+        self.first, self.last, self.what, self.why, self.lost = first, last, what, why, lost
+        self.final = final      # at the file's end: no touch follows it
+
+    def __str__(self) -> str:
+        lines = f"line {self.first}" if self.first >= self.last else f"lines {self.first}-{self.last}"
+        return f"{lines} ({self.what}: {self.why})"
+
+
+def _segment_entries(text: str, first_line: int) -> tuple:
+    """``(entries, first unreadable line or None)`` of ``text``, a stretch of the file from a touch's key on
+    line ``first_line`` to the next touch's. Text that does not parse is read up to the line its syntax error
+    names: a garbage line after a complete touch costs no touch."""
+    body = text.rstrip()
+    entries = _stretch_entries(body)
+    if entries is not None:
+        return _shifted(entries, first_line), None
+    try:
+        ast.parse("{" + body + "}", mode="eval")
+        return [], first_line          # parses, yet holds no touches
+    except SyntaxError as exc:
+        bad = exc.lineno or 1
+    except (ValueError, MemoryError, RecursionError):
+        return [], first_line
+    before = "\n".join(body.split("\n")[:bad - 1]).rstrip()
+    entries = _stretch_entries(before) if before else None
+    if entries is None:
+        return [], first_line
+    return _shifted(entries, first_line), first_line + bad - 1
+
+
+def _stretch_entries(body: str) -> list | None:
+    """The entries of ``body``, text from a touch's key on, read as the whole file would be; None when it is
+    not one."""
+    literal = "{" + (body[:-1] if body.endswith(",") else body) + "}"
+    entries = _json_entries(literal)
+    if entries is not None:
+        return entries
+    try:
+        return _ast_entries(literal, Path("-"))
+    except DataError:
+        return None
+
+
+def _shifted(entries: list, first_line: int) -> list:
+    return [(line + first_line - 1 if isinstance(line, int) else line, key, value) for line, key, value in entries]
+
+
+def _salvaged_entries(text: str) -> tuple:
+    """``(entries, [_Damage])`` of a file that is no literal as a whole: each stretch from one touch's key to
+    the next read on its own, so a garbage line or a file cut short loses the touch it falls in, not the file."""
+    starts = [(m.start(1), m.group(1)) for m in _TOUCH_START.finditer(text)]
+    line_at, counted, line = [], 0, 1
+    for pos, _ in starts:
+        line += text.count("\n", counted, pos)
+        counted = pos
+        line_at.append(line)
+    n_lines = len(text.rstrip().split("\n"))
+    closed = text.rstrip().endswith("}")
+    entries, damaged = [], []
+    if starts and text[:starts[0][0]].strip().lstrip("\ufeff") != "{":
+        damaged.append(_Damage(1, max(1, line_at[0] - 1), "before the first touch", "not the dict's opening '{'",
+                               0))
+    for k, (pos, key) in enumerate(starts):
+        final = k + 1 == len(starts)
+        segment = text[pos:starts[k + 1][0] if not final else len(text)].rstrip()
+        if final and closed:
+            segment = segment[:-1]
+        got, bad = _segment_entries(segment, line_at[k])
+        entries += got
+        last = line_at[k] + segment.rstrip().count("\n")
+        if bad is None:
+            continue
+        if got:         # the touch is whole; what follows it is not
+            damaged.append(_Damage(bad, max(bad, last), f"after touch {key}", "unreadable text", 0, final))
+        else:
+            damaged.append(_Damage(line_at[k], max(line_at[k], last), f"touch {key}",
+                                   "the file ends inside it (cut short?)" if final and not closed
+                                   else "unreadable text", 1, final))
+    if entries and not closed and not (damaged and damaged[-1].final):
+        damaged.append(_Damage(n_lines, n_lines, "the file's end", "no closing '}' (cut short?)", 0, True))
+    return entries, damaged
+
+
 def read_legacy(path: str | Path, skin: SkinModel, exact: bool = False) -> tuple:
     """Read a legacy dataset: ``(TouchSet, LoadReport)``.
 
@@ -296,8 +409,17 @@ def read_legacy(path: str | Path, skin: SkinModel, exact: bool = False) -> tuple
     :class:`DataError` naming file and line; a bad touch is skipped and counted.
     """
     path = Path(path)
-    entries = _literal_entries(path, exact)
+    entries, damaged = _literal_entries(path, exact)
     report = LoadReport(str(path))
+    if damaged:
+        lost = sum(d.lost for d in damaged)
+        report.n_read += lost
+        if lost:        # counted in the summary; the note (said even by a quiet command) says where
+            report.skipped["damaged text"] += lost
+        after = " and after" if not all(d.final for d in damaged) else ""
+        report.notes.append(f"{path}: damaged text at {'; '.join(map(str, damaged))}: {lost} touch"
+                            f"{'' if lost == 1 else 'es'} lost there; every complete touch before{after} it is read"
+                            f" (each touch from its own key on)")
     robot = skin.robot
     part_names = tuple(skin.parts)
     part_index = {n: i for i, n in enumerate(part_names)}

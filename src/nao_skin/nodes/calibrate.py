@@ -19,6 +19,11 @@ that no frame has two publishers.
 
 Status on ``/nao_skin/calibration/status`` (std_msgs/String, JSON, latched); when a live session ends, a final
 update calibrates the touches since the last one, and the status says ``ended`` and where the calibration is.
+
+``~/calibrate`` (``std_srvs/srv/Trigger``, ``ros2 service call /calibrate/calibrate std_srvs/srv/Trigger``) is
+an empty request with an answer: whether a calibration started, and why not (one is running, no inputs). The
+live schedule (``live_every_touches``, ``live_period``), the guidance and ``plots`` apply when set
+(``ros2 param set``); the node's state is on ``/diagnostics``.
 """
 from __future__ import annotations
 
@@ -31,19 +36,23 @@ from pathlib import Path
 from rclpy.duration import Duration
 from rclpy.node import Node
 from std_msgs.msg import String
+from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from nao_skin.errors import NaoSkinError, one_line
 from nao_skin.formats.outdir import output_stamp
+from nao_skin.live.diagnostics import age_check, live_check
 from nao_skin.live.updates import Settling, UpdateSchedule
 from nao_skin.model.skin import SkinCalibration, skin_frame_transforms
+from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
 from nao_skin.nodes.topics import (GUIDANCE_TOPIC, LATCHED, MAX_SKIPPED_SAID, PROGRESS_TOPIC, REQUEST_TOPIC,
                                    STATUS_TOPIC)
 from nao_skin.plain import jsonable
 from nao_skin.session.live import LiveCalibration, request_out_dir, session_end_out_dir
-from nao_skin.session.params import CALIBRATE, guidance_pairs, options_from_params, skin_from_params
+from nao_skin.session.params import (CALIBRATE, changeable_params, guidance_pairs, options_from_params,
+                                     skin_from_params)
 
 
 FINAL_WAIT_S = 5.0      # at the session's end: how long the final update waits for the recorder to close the bag
@@ -53,7 +62,8 @@ FINAL_ACK_S = 1.0       # ... and how long the last status and frames may take t
 class CalibrateNode(Node):
     def __init__(self, **kwargs):
         super().__init__("calibrate", **kwargs)
-        self.p = declare(self, CALIBRATE)
+        self.p = declare(self, CALIBRATE, changeable=lambda values: changeable_params("calibrate", values),
+                         on_change=self._on_params)
         if self.p["out_dir"]:     # 'cal/' and './cal' are 'cal': its places beside are 'cal.new', never 'cal/.new'
             self.p["out_dir"] = os.path.normpath(self.p["out_dir"])
         self.options = options_from_params(self.p)      # a wrong value stops the node at start, in one line
@@ -76,6 +86,10 @@ class CalibrateNode(Node):
         self._live_generation = 1         # the generation of the last accepted live update (1: where it started)
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
+        self.create_service(Trigger, "~/calibrate", self._on_trigger)
+        self._progress_at = None          # monotonic time of the last progress message (live)
+        self._touch_at = None             # ... and of the last one that counted a new touch
+        self._update_at = None            # ... and when the last live update started
         self.guidance_pairs = guidance_pairs(self.p, self.skin)
         if self.p["live"]:
             self._check_live_out_dir()    # refused now, not after an hour at the robot
@@ -94,6 +108,7 @@ class CalibrateNode(Node):
             self._malformed = 0           # progress messages skipped
             self.create_subscription(String, PROGRESS_TOPIC, self._on_progress, 10)
             self.create_timer(0.5, self._maybe_update)
+        publish_diagnostics(self, self._diagnostics)
         inputs = [i for i in self.p["inputs"] if i]
         if self.p["calibrate_on_start"]:
             self._check_start(inputs)     # refused now, in one line and exit 2, not logged by a node that runs on
@@ -115,6 +130,10 @@ class CalibrateNode(Node):
         except (ValueError, AttributeError, RecursionError):
             touches = None
         if isinstance(touches, int) and not isinstance(touches, bool) and touches >= 0:
+            now = time.monotonic()
+            self._progress_at = now
+            if touches > self._recorded:
+                self._touch_at = now
             self._recorded = touches
             return
         self._malformed += 1              # the next one will do; said, as any message skipped is
@@ -156,6 +175,7 @@ class CalibrateNode(Node):
                 or not self._busy.acquire(blocking=False):     # a calibration is running: the next tick
             return
         self.schedule.started(self._recorded, now)
+        self._update_at = now
         self._ignored = 0                 # counted per calibration or update
         self._worker = threading.Thread(target=self._live_update, daemon=True, name="live calibration")
         self._worker.start()
@@ -225,6 +245,34 @@ class CalibrateNode(Node):
             paths = [i for i in self.p["inputs"] if i] or self._session_inputs()
         self._start(paths)
 
+    def _on_trigger(self, request, response):
+        """``~/calibrate``: an empty request (the node's inputs, else the session's bags), answered."""
+        response.success, response.message = self._start([i for i in self.p["inputs"] if i]
+                                                         or self._session_inputs())
+        return response
+
+    def _on_params(self, changed: dict) -> None:
+        """A changeable parameter set (``ros2 param set``): the live schedule takes it at its next check, the
+        guidance and plots at their next use."""
+        self.p.update(changed)
+        if "live_every_touches" in changed:
+            self.schedule.every_touches = int(changed["live_every_touches"])
+        if "live_period" in changed:
+            self.schedule.period = float(changed["live_period"])
+        self.get_logger().info("applied " + ", ".join(f"{k}:={v!r}" for k, v in sorted(changed.items())))
+
+    def _diagnostics(self, now: float) -> list:
+        """The node's state, and in a live session how long ago the recorder last reported and counted a touch
+        and the last update ran."""
+        checks = [live_check(self._latched, bool(self.p["live"]), self._busy.locked())]
+        if self.p["live"]:
+            def age(at):
+                return None if at is None else now - at
+
+            checks += [age_check("recorder progress", age(self._progress_at)), age_check("touch", age(self._touch_at)),
+                       age_check("live update", age(self._update_at))]
+        return checks
+
     def _session_inputs(self) -> list:
         """What an empty request calibrates in a record session: the recording, after the earlier sittings' bags
         it continues (before its first touch, those alone)."""
@@ -234,12 +282,13 @@ class CalibrateNode(Node):
         earlier = self._earlier()
         return [*earlier, recording] if not earlier or os.path.lexists(recording) else earlier
 
-    def _start(self, paths: list) -> None:
+    def _start(self, paths: list) -> tuple:
+        """A calibration of ``paths`` started in the background: ``(True, what)``, or ``(False, why not)``."""
         if not paths:
             error = "no input: set 'inputs' or 'recording', or name bags"
             self.get_logger().error(f"calibration request refused: {error}")
             self._status({"state": "failed", "error": error})
-            return
+            return False, error
         if not self._busy.acquire(blocking=False):
             # the latched state stays the one of what is running (a calibration, a live update); the refusal
             # is counted in it and logged
@@ -247,12 +296,13 @@ class CalibrateNode(Node):
             self._status({**self._latched, "ignored_requests": self._ignored})
             self.get_logger().warning(f"a calibration or live update is running; request for {' '.join(paths)}"
                                       f" ignored")
-            return
+            return False, f"a calibration or live update is running; request for {' '.join(paths)} ignored"
         self._ignored = 0
         self._status({"state": "running", "inputs": paths})
         self._worker = threading.Thread(target=self._run, args=(paths,), daemon=True,
                                         name=f"calibration of {' '.join(paths)}")
         self._worker.start()
+        return True, f"calibrating {' '.join(paths)} -> {self.p['out_dir']} (status on {STATUS_TOPIC})"
 
     def _run(self, paths: list) -> None:
         from nao_skin.calibration.pipeline import calibrate_recordings, check_output

@@ -18,12 +18,14 @@ from sensor_msgs.msg import JointState
 
 from nao_skin.errors import one_line
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC
+from nao_skin.live.diagnostics import ERROR, Check, RateWindow, count_check, rate_check
 from nao_skin.live.reconnect import Backoff
 from nao_skin.model.robot import MAX_JOINT_LIMIT
 from nao_skin.nodes.messages import joint_state_msg
+from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.rules import finite_float
-from nao_skin.session.params import NAOQI_BRIDGE, check_naoqi_bridge
+from nao_skin.session.params import NAOQI_BRIDGE, changeable_params, check_naoqi_bridge
 
 
 class ReadTimeout(Exception):
@@ -72,7 +74,8 @@ class MotionLink:
 class NaoqiBridge(Node):
     def __init__(self, **kwargs):
         super().__init__("naoqi_bridge", **kwargs)
-        p = declare(self, NAOQI_BRIDGE)
+        p = declare(self, NAOQI_BRIDGE, changeable=lambda values: changeable_params("naoqi_bridge", values),
+                    on_change=self._on_params)
         self.names = list(p["joint_names"])
         self.use_sensors = bool(p["use_sensors"])
         self.period = 1.0 / float(p["rate"])
@@ -88,6 +91,27 @@ class NaoqiBridge(Node):
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="naoqi_poll", daemon=True)
         self._thread.start()
+        self._rate = RateWindow()
+        publish_diagnostics(self, self._diagnostics, hardware_id=f"NAOqi {self.url}")
+
+    def _on_params(self, changed: dict) -> None:
+        """``rate``, ``use_sensors`` and ``read_timeout`` set while it runs: the poll thread's next read takes them."""
+        if "rate" in changed:
+            self.period = 1.0 / float(changed["rate"])
+        if "use_sensors" in changed:
+            self.use_sensors = bool(changed["use_sensors"])
+        if "read_timeout" in changed:
+            self.read_timeout = float(changed["read_timeout"])
+        self.get_logger().info("applied " + ", ".join(f"{k}:={v!r}" for k, v in sorted(changed.items())))
+
+    def _diagnostics(self, now: float) -> list:
+        """Joint states published against ``rate`` while NAOqi answers; ERROR while it does not."""
+        rate = self._rate.rate(self.stats["published"], now)
+        checks = [count_check("bad reads", self.stats["bad_reads"]),
+                  Check(values=(("outages", str(self.stats["outages"])),))]
+        if not self._answered:
+            return [Check(ERROR, f"no answer from NAOqi at {self.url} (reconnecting)"), *checks]
+        return [rate_check("joint states", rate, 1.0 / self.period), *checks]
 
     def _loop(self) -> None:
         next_tick = time.monotonic()

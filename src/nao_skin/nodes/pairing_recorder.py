@@ -18,11 +18,16 @@ its stamps lag the joint states' (``clock_skew_s``; beyond a quarter second the
 two come from different clocks, and the node says so once). It also says once
 per skin topic when a second publisher feeds it (another session on the same
 ROS_DOMAIN_ID).
+
+On ``/diagnostics`` (1 Hz): the joint states' rate against the one touch detection needs (one state per
+``joint_tolerance``), the skin samples' rate, the last touch's age, and the free disk where the bag is written
+(WARN below 1 GiB, ERROR below 100 MiB).
 """
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import time
 
 from rclpy.node import Node
@@ -32,7 +37,9 @@ from std_msgs.msg import String
 from nao_skin.errors import DataError
 from nao_skin.formats.bag import default_bag_name
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_topic, read_contacts, read_taxels, taxels_topic
+from nao_skin.live.diagnostics import Check, RateWindow, age_check, count_check, disk_check, rate_check
 from nao_skin.nodes.messages import header_stamp, joint_state_arrays
+from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.topics import PROGRESS_TOPIC
 from nao_skin.session.params import PAIRING_RECORDER, skin_from_params
@@ -59,6 +66,11 @@ class PairingRecorder(Node):
         self.progress_pub = self.create_publisher(String, PROGRESS_TOPIC, 10)
         self.create_timer(float(p["flush_period"]), self.recording.flush)
         self.create_timer(float(p["progress_period"]), self._publish_progress)
+        # the detector needs a joint state within joint_tolerance of each touch: at least that rate
+        self._joint_rate = 1.0 / p["joint_tolerance"] if p["joint_tolerance"] > 0 else 0.0
+        self._rates = {"joint states": RateWindow(), "skin samples": RateWindow()}
+        self._touches_seen, self._touch_at = 0, None
+        publish_diagnostics(self, self._diagnostics)
 
     # ------------------------------------------------------------------ input (one callback group: serial)
     def _on_joints(self, msg) -> None:
@@ -121,6 +133,26 @@ class PairingRecorder(Node):
             self.get_logger().warning(warning)
         self._check_publishers()
         self.progress_pub.publish(String(data=json.dumps(progress, sort_keys=True)))
+
+    def _diagnostics(self, now: float) -> list:
+        """Joint states against the rate touch detection needs, skin samples, the last touch, bad messages and
+        the free disk where the bag is written."""
+        received = self.recording.received
+        rates = {what: window.rate(received[what], now) for what, window in self._rates.items()}
+        if self.recording.n_touches > self._touches_seen:
+            self._touches_seen, self._touch_at = self.recording.n_touches, now
+        try:
+            usage = shutil.disk_usage(self.recording.bag_path if self.recording.bag_path.exists()
+                                      else self.recording.bag_path.parent)
+            disk = disk_check(str(self.recording.bag_path), usage.free, usage.total)
+        except OSError as exc:
+            disk = disk_check(str(self.recording.bag_path), None, None, error=str(exc))
+        return [rate_check("joint states", rates["joint states"], self._joint_rate),
+                rate_check("skin samples", rates["skin samples"], 0.0),
+                age_check("touch", None if self._touch_at is None else now - self._touch_at),
+                count_check("bad messages", sum(self.recording.errors.values())),
+                disk,
+                Check(values=(("touches", str(self.recording.n_touches)), ("bag", str(self.recording.bag_path))))]
 
     def close(self) -> None:
         """End of the session: what waits is written and the bag closed."""

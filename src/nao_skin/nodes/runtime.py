@@ -11,6 +11,7 @@ set) stops the same way when record is gone, however record ended.
 from __future__ import annotations
 
 import array
+import functools
 import os
 import re
 import signal
@@ -19,7 +20,7 @@ import threading
 from collections import Counter
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.exceptions import InvalidParameterTypeException, ParameterUninitializedException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -27,11 +28,12 @@ from rclpy.parameter import Parameter
 
 from nao_skin.errors import STOP_SIGNALS, ConfigError, DataError, NaoSkinError, ignore_stop_signals
 from nao_skin.rules import did_you_mean
+from nao_skin.session.params import rule_range
 from nao_skin.session.record import PARENT_ENV
 
 MAX_LOGGED_FAILURES = 5   # callback errors of one kind logged one by one (then every 100th)
 
-def declare(node, params: dict) -> dict:
+def declare(node, params: dict, changeable=(), on_change=None) -> dict:
     """Declare ``{name: (default, description[, rule])}`` and return ``{name: value}``.
 
     A float parameter (or list of floats) also takes integers, as people
@@ -40,6 +42,12 @@ def declare(node, params: dict) -> dict:
     Any other type mismatch, or a value its :class:`~nao_skin.rules.Rule`
     refuses (``rate:=0``), is a one-line ConfigError naming the parameter;
     later changes (``ros2 param set``) are held to the same.
+
+    Each parameter's descriptor (``ros2 param describe``) carries its help, its rule (``additional_constraints``,
+    and a range where the rule is one) and ``read_only`` unless it is in ``changeable`` (a set of names, or a
+    function of the values read returning one): those the node applies when they are set, in
+    ``on_change({name: value})``, called after the change was accepted; the others are refused, saying that
+    the node reads them when it starts.
     """
     out, numeric, rules = {}, {}, {}
     for name, (default, text, *rule) in params.items():
@@ -78,8 +86,82 @@ def declare(node, params: dict) -> dict:
                 rule[0].check(f"node '{node.get_name()}': parameter {name}:={out[name]!r}", out[name])
             except DataError as exc:
                 raise ConfigError(str(exc)) from None
-    node.add_on_set_parameters_callback(lambda changed: _checked(changed, numeric, rules, set(params)))
+    changeable = set(changeable(out) if callable(changeable) else changeable) & set(params)
+    for name, (default, text, *rule) in params.items():
+        _describe(node, name, default, text, rule[0] if rule else None, name not in changeable)
+    check = functools.partial(_checked, numeric=numeric, rules=rules, declared=set(params), changeable=changeable,
+                              node_name=node.get_name())
+    node.add_pre_set_parameters_callback(functools.partial(_as_declared, numeric=numeric))
+    _checks_first(node, check)
+    node.add_on_set_parameters_callback(check)
+    if on_change is not None and changeable:
+        def applied(changed):
+            values = {p.name: _plain(p.value) for p in changed if p.name in changeable}
+            if values:
+                on_change(values)
+        node.add_post_set_parameters_callback(applied)
     return out
+
+
+def _describe(node, name: str, default, text: str, rule, read_only: bool) -> None:
+    """The parameter's full descriptor: help, rule, range, read-only (declared first without them: an integer
+    for a float parameter is set back to float, and a value out of range is our one line, not rclpy's)."""
+    descriptor = ParameterDescriptor(description=text, read_only=read_only,
+                                     type=Parameter.Type.from_parameter_value(default).value)
+    said = [rule.describe()] if rule is not None else []
+    if read_only:
+        said.append(f"read when the node starts: -p {name}:=VALUE")
+    descriptor.additional_constraints = "; ".join(said)
+    bounds = rule_range(default, rule)
+    if bounds is not None and isinstance(default, int):
+        descriptor.integer_range = [IntegerRange(from_value=bounds[0], to_value=bounds[1], step=1)]
+    elif bounds is not None:
+        descriptor.floating_point_range = [FloatingPointRange(from_value=bounds[0], to_value=bounds[1], step=0.0)]
+    try:
+        node.set_descriptor(name, descriptor)
+    except ParameterUninitializedException:    # '-p name:=[]' (no type for rcl): its first descriptor stays
+        pass
+
+
+def _plain(value):
+    """A parameter's value as the node reads it at start (a double array arrives as array.array)."""
+    return list(value) if isinstance(value, array.array) else value
+
+
+def _as_declared(changed, numeric: dict) -> list:
+    """An integer given for a float parameter (``ros2 param set /calibrate live_period 20``) set as the float it
+    is declared as, as at start."""
+    out = []
+    for p in changed:
+        number = _as_float(p.value, numeric[p.name]) if p.name in numeric else None
+        if number is not None and p.type_ != Parameter.Type.from_parameter_value(numeric[p.name]):
+            p = Parameter(p.name, Parameter.Type.from_parameter_value(numeric[p.name]), number)
+        out.append(p)
+    return out
+
+
+def _checks_first(node, check) -> None:
+    """``check`` judges a later change before rclpy's own descriptor checks (read-only, range, type), so a
+    refusal says the parameter's rule, or how to give it at start, rather than rclpy's bare 'Trying to set a
+    read-only parameter'; rclpy's checks and the on-set callbacks run after it as ever. (rclpy has no public
+    hook ahead of its descriptors; without this one, its own reasons are said, nothing else changes.)"""
+    checks = getattr(node, "_nao_skin_checks", None)
+    if checks is None:
+        common = getattr(node, "_set_parameters_atomically_common", None)
+        if common is None:
+            return
+        checks = node._nao_skin_checks = []
+
+        def ours_first(parameter_list, descriptors=None, allow_not_set_type=False):
+            if descriptors is None:        # a change, not a declaration nor a new descriptor
+                for c in checks:
+                    result = c(parameter_list)
+                    if not result.successful:
+                        return result
+            return common(parameter_list, descriptors, allow_not_set_type)
+
+        node._set_parameters_atomically_common = ours_first
+    checks.append(check)
 
 
 def _is_float(default) -> bool:
@@ -99,35 +181,39 @@ def _as_float(value, default):
     return None
 
 
-def _checked(changed, numeric: dict, rules: dict, declared: set) -> SetParametersResult:
+def _checked(changed, numeric: dict, rules: dict, declared: set, changeable: set = frozenset(),
+             node_name: str = "NODE") -> SetParametersResult:
     """Later changes (``ros2 param set``): numbers only for a float parameter, and within its rule, as at
-    declaration; a valid value is refused too, saying so: the node read its parameters when it started,
-    and taking the value without using it would tell the user it did."""
+    declaration; a valid value of a parameter the node reads only when it starts is refused too, saying so:
+    taking the value without using it would tell the user it did."""
     for p in changed:
+        if p.name not in declared:
+            continue
         if p.name in numeric and _as_float(p.value, numeric[p.name]) is None:
             return SetParametersResult(successful=False, reason=f"'{p.name}' takes a number like {numeric[p.name]!r}")
         if p.name in rules:
-            value = list(p.value) if isinstance(p.value, array.array) else p.value   # a double array's values
+            value = _plain(p.value)   # a double array's values
             try:
                 rules[p.name].check(f"parameter {p.name}:={value!r}", value)
             except DataError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
-        if p.name in declared:
+        if p.name not in changeable:
             return SetParametersResult(successful=False,
                                        reason=f"'{p.name}' is read when the node starts: restart the node with"
-                                              f" -p {p.name}:=VALUE (nao-skin record: --param NODE.{p.name}=VALUE)")
+                                              f" -p {p.name}:=VALUE (nao-skin record: --param {node_name}.{p.name}=VALUE)")
     return SetParametersResult(successful=True)
 
 
 def _check_params_files(args) -> None:
-    """Each ``--params-file`` of the ROS arguments a readable mapping (rcl says so in two lines, one a log line,
-    or, for a bare value, not at all)."""
-    from nao_skin.paths import read_ros_params_file
+    """Each ``--params-file`` of the ROS arguments one that rcl reads (where it refuses one, it says so in two
+    lines, one a log line): the same rules as rcl's, so a file rcl takes is never refused here."""
+    from nao_skin.formats.ros_params import read_params_file
 
     args = list(args)
     for i, arg in enumerate(args[:-1]):
-        if arg == "--params-file":
-            read_ros_params_file(args[i + 1])
+        if arg == "--params-file" and not read_params_file(args[i + 1]):
+            # rcl takes a file that is a single value (or empty) without a word: the node runs on its defaults
+            print(f"warning: {args[i + 1]}: gives no node any parameter", file=sys.stderr)
 
 
 def _warn_undeclared(node) -> None:

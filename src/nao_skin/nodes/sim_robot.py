@@ -35,8 +35,10 @@ from std_msgs.msg import String
 from nao_skin.errors import DataError
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_array, contacts_topic, taxels_array, taxels_topic
 from nao_skin.guidance.capture import targets_from_json
+from nao_skin.live.diagnostics import Check, RateWindow, rate_check
 from nao_skin.live.playback import Playback
 from nao_skin.nodes.messages import cloud_from_array, joint_state_msg
+from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.topics import GUIDANCE_TOPIC, LATCHED, SIM_STATUS_TOPIC
 from nao_skin.session.params import SIM_ROBOT, check_sim_robot
@@ -79,6 +81,8 @@ class SimRobot(Node):
         self.wait_timeout = float(p["wait_timeout"])
         self.played = 0
         self.done = False
+        self.published = 0                # joint states published
+        self._joint_rate = RateWindow()
         self._empty = {n: (cloud_from_array(taxels_array([], []), self.skin.parts[n].parent_frame, None),
                            cloud_from_array(contacts_array([], []), self.skin.parts[n].parent_frame, None))
                        for n in self.parts}
@@ -86,6 +90,7 @@ class SimRobot(Node):
         self._thread = threading.Thread(target=self._play, name="sim_play", daemon=True)
         self._thread.start()
         self.create_timer(1.0, self._publish_status)
+        publish_diagnostics(self, self._diagnostics, hardware_id="simulated robot")
 
     def _subscribers_ready(self) -> bool:
         if self.wait_for <= 0:
@@ -186,6 +191,7 @@ class SimRobot(Node):
     def _publish(self, t: float, tick: int) -> int:
         stamp = self.get_clock().now().to_msg()
         self.joint_pub.publish(joint_state_msg(self.playback.joint_names, self.playback.joints_at(t), stamp))
+        self.published += 1
         if tick % self.skin_every:
             return -1
         k = self.playback.touch_at(t)
@@ -208,6 +214,12 @@ class SimRobot(Node):
         if self.guided:       # how the touches were chosen: aimed at the guidance, or random
             status.update(aimed=self.aimed, missed_aims=self.capture.missed)
         self.status_pub.publish(String(data=json.dumps(status)))
+
+    def _diagnostics(self, now: float) -> list:
+        """Joint states published against joint_rate (none while it waits for subscribers), touches played."""
+        rate = self._joint_rate.rate(self.published, now)
+        return [rate_check("joint states", rate if self.published else None, 1.0 / self.joint_period),
+                Check(values=(("played", f"{self.played} of {self.total}"), ("done", "yes" if self.done else "no")))]
 
     def close(self) -> None:
         self._stop.set()

@@ -35,8 +35,10 @@ from nao_skin.errors import DataError
 from nao_skin.formats.inputs import load_touches
 from nao_skin.formats.pointcloud import read_taxels, taxels_topic
 from nao_skin.guidance.capture import targets_from_json
+from nao_skin.live.diagnostics import RateWindow, count_check, rate_check
 from nao_skin.live.heatmap import (GUIDANCE_COLOUR, SCALE_LEVELS, ActivationCounts, palette, triangle_outline,
                                    triangle_slots)
+from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.topics import (GUIDANCE_MARKERS_TOPIC, GUIDANCE_TOPIC, HEATMAP_TOPIC, LATCHED, MAX_SKIPPED_SAID,
                                    STATUS_TOPIC)
@@ -81,6 +83,10 @@ class SkinHeatmap(Node):
         self.status_errors = 0            # status messages skipped
         self.published = 0
         self.create_timer(1.0 / float(p["rate"]), self._publish)
+        self.rate = float(p["rate"])
+        self.received = 0                 # skin samples read
+        self._rates = (RateWindow(), RateWindow())
+        publish_diagnostics(self, self._diagnostics)
         self.guidance_pub = self.create_publisher(MarkerArray, GUIDANCE_MARKERS_TOPIC, LATCHED)
         self.targets: list = []             # the guidance's targets, best first
         self.states: dict = {}              # part -> live calibration state
@@ -96,6 +102,7 @@ class SkinHeatmap(Node):
                 self.get_logger().warning(f"skipped: {exc}")
             return
         self.counts.update(part, slots, time.monotonic())
+        self.received += 1
 
     def _on_guidance(self, msg: String) -> None:
         try:
@@ -212,6 +219,13 @@ class SkinHeatmap(Node):
             m.header.stamp = stamp
         self.publisher.publish(MarkerArray(markers=[m for _, _, m in self.markers] + self.legend))
         self.published += 1
+
+
+    def _diagnostics(self, now: float) -> list:
+        """Marker updates against ``rate``, skin samples read, messages skipped."""
+        return [rate_check("marker updates", self._rates[0].rate(self.published, now), self.rate),
+                rate_check("skin samples", self._rates[1].rate(self.received, now), 0.0),
+                count_check("skipped messages", self.errors + self.status_errors)]
 
 
 def main(args=None) -> int:

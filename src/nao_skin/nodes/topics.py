@@ -21,3 +21,4 @@ MAX_SKIPPED_SAID = 5
 #: same QoS, joining at any time, gets the last message
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+DIAGNOSTICS_TOPIC = "/diagnostics"                     # diagnostic_msgs/DiagnosticArray, one status per node, 1 Hz

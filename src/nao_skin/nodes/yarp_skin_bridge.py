@@ -37,11 +37,13 @@ from std_msgs.msg import String
 from nao_skin.errors import ConfigError, DataError, one_line
 from nao_skin.formats.pointcloud import contacts_array, contacts_topic, taxels_array, taxels_topic
 from nao_skin.formats.skinmanager import activated_taxels, parse_skin_events, parts_by_id
+from nao_skin.live.diagnostics import ERROR, OK, Check, count_check
 from nao_skin.live.reconnect import Backoff
 from nao_skin.nodes.messages import cloud_from_array, stamp_to_msg
+from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.topics import BRIDGE_STATUS_TOPIC
-from nao_skin.session.params import YARP_SKIN_BRIDGE, per_part_params, skin_from_params
+from nao_skin.session.params import YARP_SKIN_BRIDGE, changeable_params, per_part_params, skin_from_params
 from nao_skin.session.record import YARP_HINT
 
 MAX_LOGGED_ERRORS = 5
@@ -50,7 +52,8 @@ MAX_LOGGED_ERRORS = 5
 class YarpSkinBridge(Node):
     def __init__(self, **kwargs):
         super().__init__("yarp_skin_bridge", **kwargs)
-        p = declare(self, YARP_SKIN_BRIDGE)
+        p = declare(self, YARP_SKIN_BRIDGE, changeable=lambda values: changeable_params("yarp_skin_bridge", values),
+                    on_change=self._on_params)
         self.skin = skin_from_params(p)
         self._receive_stamps = p["stamp"] == "receive"
         parts = list(self.skin.parts)
@@ -94,6 +97,22 @@ class YarpSkinBridge(Node):
         self._check_links()
         self.create_timer(float(p["reconnect_period"]), self._check_links)
         self.create_timer(float(p["status_period"]), self._publish_status)
+        publish_diagnostics(self, self._diagnostics, hardware_id=f"YARP {p['events_port']}")
+
+    def _on_params(self, changed: dict) -> None:
+        """``compensated_threshold`` set while it runs: the next compensated vector is read with it."""
+        self.threshold = float(changed["compensated_threshold"])
+        self.get_logger().info(f"applied compensated_threshold:={self.threshold:g}")
+
+    def _diagnostics(self, now: float) -> list:  # noqa: ARG002 - the counts are the bridge's own
+        """ERROR while a YARP link is down (nothing of it is bridged), WARN for malformed or failed bottles."""
+        with self._counts_lock:
+            counts = dict(self.counts)
+        down = [remote for remote, _, _, _, backoff in self.links if not backoff.connected]
+        values = tuple((f"connected {remote}", "no" if remote in down else "yes") for remote, *_ in self.links) \
+            + tuple((key, str(n)) for key, n in sorted(counts.items()))
+        return [Check(ERROR if down else OK, f"not connected: {', '.join(down)}" if down else "", values),
+                count_check("malformed bottles", counts.get("malformed", 0) + counts.get("failed bottles", 0))]
 
     # ------------------------------------------------------------------ YARP plumbing
     def _add_link(self, remote: str, local: str, handler) -> None:

@@ -22,6 +22,8 @@ from nao_skin.rules import (AT_LEAST_ONE, HOST, JOINT_NAMES, NON_NEGATIVE, PORT,
 from nao_skin.sim.params import check_pairs, default_params_file, load_params, pair_list
 from nao_skin.touch.events import LIVE_CONFIG
 
+MAX_FLOAT = 1.7976931348623157e308    # a float range's open side (sys.float_info.max)
+
 # every node that reads the skin builds it the way the commands do (model.skin.load_skin)
 SKIN_PARAMS = {
     "skin_config": ("", "skin config YAML (empty: the package's config/nao_skin.yaml)"),
@@ -163,6 +165,39 @@ YARP_SKIN_BRIDGE = {
 
 NODE_PARAMS = {"calibrate": CALIBRATE, "naoqi_bridge": NAOQI_BRIDGE, "pairing_recorder": PAIRING_RECORDER,
                "sim_robot": SIM_ROBOT, "skin_heatmap": SKIN_HEATMAP, "yarp_skin_bridge": YARP_SKIN_BRIDGE}
+
+
+# the parameters a node applies when they are set while it runs (ros2 param set), with the boolean parameter
+# they need on (None: always); every other one is read when the node starts (read-only, said so by its
+# descriptor and on a change)
+CHANGEABLE = {
+    "calibrate": {"live_every_touches": "live", "live_period": "live", "guidance": "live",
+                  "guidance_targets": "live", "plots": None},
+    "naoqi_bridge": {"rate": None, "use_sensors": None, "read_timeout": None},
+    "yarp_skin_bridge": {"compensated_threshold": None},
+}
+
+
+def changeable_params(executable: str, values: dict) -> set:
+    """The parameters ``executable``'s node applies when set, given its values at start (:data:`CHANGEABLE`)."""
+    return {name for name, needs in CHANGEABLE.get(executable, {}).items() if needs is None or values.get(needs)}
+
+
+def rule_range(default, rule: Rule | None) -> tuple | None:
+    """``(low, high)`` a number parameter's rule keeps it in, for its descriptor (a whole-number rule for an
+    integer parameter, a number rule for a float one; a missing side is the type's limit), else None. An open
+    side (``> 0``) is the closed one here: the rule itself refuses the edge."""
+    if rule is None or rule.optional or (rule.low is None and rule.high is None):
+        return None
+    if isinstance(default, bool):
+        return None
+    if isinstance(default, int) and rule.kind is int:
+        return (int(rule.low) if rule.low is not None else -(2 ** 63),
+                int(rule.high) if rule.high is not None else 2 ** 63 - 1)
+    if isinstance(default, float) and rule.kind is float:
+        return (float(rule.low) if rule.low is not None else -MAX_FLOAT,
+                float(rule.high) if rule.high is not None else MAX_FLOAT)
+    return None
 
 
 # nodes that declare parameters per configured skin part (:func:`per_part_params`)

@@ -24,9 +24,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from nao_skin.errors import ConfigError, NaoSkinError
+from nao_skin.formats.ros_params import parameters_for, read_params_file
 from nao_skin.model.skin import parse_taxel_files
 from nao_skin.model.urdf import expand_xacro
-from nao_skin.paths import (config_dir, default_skin_config, parse_yaml, read_ros_params_file, read_yaml,
+from nao_skin.paths import (config_dir, default_skin_config, parse_yaml, read_yaml,
                             yaml_value)
 from nao_skin.rules import did_you_mean
 from nao_skin.session.params import CHECKS, NODE_PARAMS, PER_PART_NODES, per_part_params, skin_from_params
@@ -284,27 +285,8 @@ def _start_values(spec: NodeSpec) -> dict:
 
 
 def _file_sections(spec: NodeSpec) -> list:
-    """``[(path, ros__parameters)]``: the sections of the node's parameter files that reach it."""
-    out = []
-    for path in spec.params_files:
-        doc = read_ros_params_file(path)
-        for key in ("/**", spec.name, f"/{spec.name}"):
-            section = doc.get(key)
-            given = section.get("ros__parameters") if isinstance(section, dict) else None
-            if isinstance(given, dict):
-                out.append((path, given))
-    return out
-
-
-def _flattened(params: dict, prefix: str = "") -> dict:
-    """A ``ros__parameters`` mapping with its nested names dotted, as rcl reads them (``part_ids: {torso: 7}``)."""
-    out = {}
-    for name, value in params.items():
-        if isinstance(value, dict):
-            out.update(_flattened(value, f"{prefix}{name}."))
-        else:
-            out[f"{prefix}{name}"] = value
-    return out
+    """``[(path, {name: value})]``: what each of the node's parameter files gives it, as rcl reads the file."""
+    return [(path, parameters_for(read_params_file(path), spec.name)) for path in spec.params_files]
 
 
 def _check_file_values(spec: NodeSpec) -> None:
@@ -313,7 +295,7 @@ def _check_file_values(spec: NodeSpec) -> None:
     override replaces, and names the node does not declare (it warns of those), are not checked."""
     known = _declared(spec)
     for path, given in _file_sections(spec):
-        for name, value in _flattened(given).items():
+        for name, value in given.items():
             if name not in known or name in spec.overrides:
                 continue
             _checked(value, *known[name], f"{path}: {spec.name}.{name}")
@@ -436,26 +418,31 @@ def _typed(value, default, where: str):
     """``value`` as the type of ``default``; a str is parsed as YAML unless the parameter is a string."""
     import yaml
 
+    shown = _text(value)     # as given: the text typed after --param, not what YAML made of it
     if isinstance(value, str) and isinstance(default, float) and not isinstance(default, bool):
         try:            # '1e3' as rcl reads it (YAML 1.1 wants '1.0e+3')
             return float(value)
         except ValueError:
             pass
+    if isinstance(value, str) and not isinstance(default, (str, list)) and not value.strip():
+        # as an empty value of an option is: no number or switch, and not a way to ask for the default
+        raise ConfigError(f"{where}={shown}: an empty value; give {_KIND[type(default)]}, or leave it out for the"
+                          f" node's default {param_text(default)}")
     if isinstance(value, str) and not isinstance(default, str):
         try:
-            value = parse_yaml(value) if value else ([""] if isinstance(default, list) else None)
+            value = parse_yaml(value) if value else [""]     # a list: no item, as rcl's '[]' (which has no type)
         except yaml.YAMLError:
-            raise ConfigError(f"{where}={value}: not a valid value (YAML flow syntax, e.g. [a, b])") from None
+            raise ConfigError(f"{where}={shown}: not a valid value (YAML flow syntax, e.g. [a, b])") from None
     if isinstance(default, list):
         items = value if isinstance(value, list) else [value]
         kind = type(default[0]) if default else str
         typed = [_scalar(v, kind) for v in items]
         if any(v is None for v in typed):
-            raise ConfigError(f"{where}={_text(value)}: expected a list like {param_text(default)}")
+            raise ConfigError(f"{where}={shown}: expected a list like {param_text(default)}")
         return typed
     typed = _scalar(value, type(default))
     if typed is None:
-        raise ConfigError(f"{where}={_text(value)}: expected {_KIND[type(default)]} like {param_text(default)}")
+        raise ConfigError(f"{where}={shown}: expected {_KIND[type(default)]} like {param_text(default)}")
     return typed
 
 

@@ -10,12 +10,14 @@ import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping
+from typing import TYPE_CHECKING, Mapping
 
 from nao_skin.errors import ConfigError
-from nao_skin.model.skin import MAX_JOINT_CORRECTION, MAX_LINK_CORRECTION, SkinModel
 from nao_skin.rules import known_keys
-from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST
+from nao_skin.touch import DEFAULT_MAX_NEIGHBOR_DIST
+
+if TYPE_CHECKING:    # the skin model (numpy) is imported where a simulation runs, not for the help's preset list
+    from nao_skin.model.skin import SkinModel
 
 
 @dataclass(kw_only=True)
@@ -199,6 +201,8 @@ def _metres(value) -> bool:
 
 
 def validate(p: SimParams, where: str = "simulation parameters") -> None:
+    from nao_skin.model.skin import MAX_JOINT_CORRECTION, MAX_LINK_CORRECTION
+
     def number(name):
         v = getattr(p, name)
         # far beyond any size or noise of the simulator, products overflow (warnings on stderr, then NaN)

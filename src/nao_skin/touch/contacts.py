@@ -22,9 +22,9 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.touch import DEFAULT_MAX_NEIGHBOR_DIST
 from nao_skin.touch.touches import TouchSet
 
-DEFAULT_MAX_NEIGHBOR_DIST = 0.012   # metres, skinManager's default maxNeighborDist
 _GROUP_SPACING = 1000.0             # metres between groups in the joint KD-tree: far beyond any skin
 
 
