@@ -1,4 +1,4 @@
-"""Calibrate recorded bags: ``ros2 launch nao_skin calibrate.launch.py inputs:="a.bag b.bag" out_dir:=DIR``.
+"""Calibrate recorded bags: ``ros2 launch nao_skin calibrate.launch.py inputs:="sitting1 sitting2" out_dir:=DIR``.
 
 Runs the calibrate node once on the inputs at start (options: config/record.yaml,
 section ``calibrate``), writes DIR/calibration.yaml and the report, and keeps
@@ -27,15 +27,18 @@ def _node(context):
     calibration = LaunchConfiguration("calibration").perform(context)
     if calibration:
         overrides["calibration"] = calibration
+    namespace = LaunchConfiguration("namespace").perform(context)
     return ending_the_launch(Node(package="nao_skin", executable="calibrate", name="calibrate", output="screen",
-                                  parameters=[str(config_dir() / "record.yaml"), overrides]))
+                                  namespace=namespace, parameters=[str(config_dir() / "record.yaml"), overrides]))
 
 
 def generate_launch_description():
     return LaunchDescription([
         DeclareLaunchArgument("inputs", description="bags (or legacy .txt), separated by spaces (quote a path"
-                                                    " with a space: inputs:=\"'my bag' b.bag\")"),
+                                                    " with a space: inputs:=\"'my sitting' sitting2\")"),
         DeclareLaunchArgument("out_dir", default_value="nao_skin_calibration", description="output directory"),
         DeclareLaunchArgument("calibration", default_value="", description="prior calibration (default: nominal)"),
+        DeclareLaunchArgument("namespace", default_value="", description="the node's ROS namespace (e.g. /nao2):"
+                                                                         " its topics under it, its frames prefixed"),
         OpaqueFunction(function=_node),
     ])

@@ -11,7 +11,9 @@ Starts (the same set as ``nao-skin record``, from nao_skin.session.record):
 * robot_state_publisher with the xacro URDF *without* skin frames, and
   rviz2 with config/nao_skin.rviz when rviz:=true;
 * continue_from:="BAG ...": the session continues earlier sittings' bags (the
-  calibrate node and the heat-map count their touches too).
+  calibrate node and the heat-map count their touches too);
+* namespace:=/nao2: every node in that namespace, TF frames prefixed with it
+  (a second robot on the same ROS domain).
 
 A nao_skin node that ends ends the session (exit code 1 when it failed, after its own line saying why);
 robot_state_publisher and rviz2 are left out, with a line, where they are not installed (as
@@ -48,6 +50,8 @@ ARGUMENTS = {
     "taxels": ("", "the robot's own taxel files, PART=FILE separated by spaces, shell quoting for a path with a"
                    " space (default: config/nao_skin.yaml's)"),
     "guided": ("false", "robot:=sim: the simulated robot's next touches follow /nao_skin/guidance"),
+    "namespace": ("", "every node in this ROS namespace (e.g. /nao2): topics under it, TF frames prefixed with it, so"
+                      " a second robot records on the same ROS domain"),
 }
 
 
@@ -60,11 +64,12 @@ def _nodes(context):
     specs = record_session(arg["robot"], nao_ip=arg["nao_ip"], naoqi=arg["naoqi"].lower() == "true",
                            events_port=arg["events_port"], bag_path=arg["bag"], calibration=arg["calibration"],
                            rviz=arg["rviz"].lower() == "true", taxels=shlex.split(arg["taxels"]),
-                           guided=arg["guided"].lower() == "true", continue_from=shlex.split(arg["continue_from"]))
+                           guided=arg["guided"].lower() == "true", continue_from=shlex.split(arg["continue_from"]),
+                           namespace=arg["namespace"])
     check_needs(specs)    # e.g. robot:=nao without YARP's Python bindings: one line before any node starts
-    # one session per ROS domain on this machine (two would record each other's touches): held as long as the
+    # one session per ROS domain and namespace on this machine (two would record each other's touches): held as long as the
     # launch context (the launch process) lives
-    claim = claim_domain()
+    claim = claim_domain(namespace=specs[0].namespace)
     if claim.problem:
         print(f"record.launch.py: {claim.problem}", file=sys.stderr)
     context.extend_globals({"nao_skin_domain_claim": claim})
@@ -79,7 +84,7 @@ def _nodes(context):
                 value = ParameterValue(robot_description(value[1], skin_frames=False), value_type=str)
             overrides[key] = value
         parameters = [str(f) for f in spec.params_files] + ([overrides] if overrides else [])
-        node = Node(package=spec.package, executable=spec.executable, name=spec.name,
+        node = Node(package=spec.package, executable=spec.executable, name=spec.name, namespace=spec.namespace,
                     parameters=parameters, arguments=list(spec.arguments), output="screen")
         actions += ending_the_launch(node) if spec.ours else [node]
     return actions

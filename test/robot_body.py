@@ -32,7 +32,7 @@ from nao_skin.touch.touches import TouchSet
 
 # skinManager's skinPart ids, as the bridge reads them (config/bridges.yaml: the thesis' Nao)
 PART_IDS = dict(yaml.safe_load((Path(__file__).resolve().parents[1] / "config" / "bridges.yaml").read_text())
-                ["yarp_skin_bridge"]["ros__parameters"]["part_ids"])
+                ["/**/yarp_skin_bridge"]["ros__parameters"]["part_ids"])
 # presses held still 0.4 s either side, as an operator holds the arm: NAOqi, polled at 50 Hz, stamps an angle
 # when its answer arrives, and on a loaded machine that can come late
 PLAY = {"period": 1.5, "press": 0.3, "hold": 0.4, "lead_in": 0.5}

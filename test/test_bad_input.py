@@ -564,7 +564,7 @@ def test_one_recording_named_twice_is_refused_before_its_touches_count_twice(tmp
         assert one_line(capsys) == (f"nao-skin calibrate: error: {again}: the same recording as the input"
                                     f" {tmp_path / 'touches.txt'}; give each input once (its touches would count twice)")
     bag = package_dir() / "bags" / "sim_default"
-    assert cli_main(["calibrate", str(bag), str(bag / "touches.bag" / "touches.bag.db3"),
+    assert cli_main(["calibrate", str(bag), str(bag / "touches" / "touches.bag.db3"),
                      "--out", str(tmp_path / "o")]) == 2
     assert "the same recording as the input" in one_line(capsys)
     assert not (tmp_path / "o").exists()
@@ -1031,8 +1031,8 @@ def test_yaml_nested_without_end_is_one_line_not_a_crash(tmp_path, capsys, monke
 def test_a_bag_whose_metadata_nests_without_end_is_read_from_its_storage_file(tmp_path, capsys):
     """A metadata.yaml of 500 nested '[' raised RecursionError from the YAML parser (a traceback, exit 1); it
     is unreadable metadata, which a closed bag's storage file holds a copy of."""
-    bag = tmp_path / "touches.bag"
-    shutil.copytree(package_dir() / "bags" / "sim_default" / "touches.bag", bag)
+    bag = tmp_path / "touches"
+    shutil.copytree(package_dir() / "bags" / "sim_default" / "touches", bag)
     (bag / "metadata.yaml").write_text("[" * 500 + "]" * 500 + "\n")
     assert cli_main(["stats", str(bag), "--json"]) == 0
     out = capsys.readouterr()

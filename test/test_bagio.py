@@ -80,7 +80,7 @@ def test_bag_metadata_is_jazzy_readable_and_self_describing(real, real_skin, tmp
     bag = tmp_path / "touches"
     write_touch_bag(bag, real.subset(np.arange(5)), real_skin)
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    assert info["version"] == 8 and info["storage_identifier"] == "sqlite3"
+    assert info["version"] == 9 and info["storage_identifier"] == "sqlite3"
     assert info["custom_data"] == {"nao_skin.bag_kind": "touches"}
     topics = {t["topic_metadata"]["name"]: (t["topic_metadata"]["type"], t["message_count"])
               for t in info["topics_with_message_count"]}
@@ -484,8 +484,8 @@ def test_two_touches_that_would_share_a_stamp_are_not_written(real, real_skin, t
     touches.keys = ["a", "0", "2"]
     touches.stamps = np.array([0.0, 0.0, 2.0])
     with pytest.raises(DataError) as err:
-        write_touch_bag(tmp_path / "bag", touches, real_skin, label="touches.bag")
-    assert str(err.value) == ("touches.bag: touches 'a' and '0' would be written at one stamp (0.000000000 s) and"
+        write_touch_bag(tmp_path / "bag", touches, real_skin, label="touches")
+    assert str(err.value) == ("touches: touches 'a' and '0' would be written at one stamp (0.000000000 s) and"
                               " read back as one touch; nothing written")
     assert not (tmp_path / "bag").exists()
 
@@ -602,7 +602,7 @@ def test_a_bag_is_never_written_into_another(tmp_path):
 
 
 def test_a_simulation_into_a_bag_names_the_place_given_not_its_staging_directory(tmp_path, capsys):
-    """``simulate --out <bag>/sim`` was refused naming ``<bag>/.sim.<pid>.<random>/touches.bag``, a directory the
+    """``simulate --out <bag>/sim`` was refused naming ``<bag>/.sim.<pid>.<random>/touches``, a directory the
     user never made nor sees (an adversarial review, 2026-11-28)."""
     from nao_skin.cli import main as cli_main
 
@@ -612,7 +612,7 @@ def test_a_simulation_into_a_bag_names_the_place_given_not_its_staging_directory
     before = sorted(p.name for p in outer.iterdir())
     assert cli_main(["simulate", "--seed", "1", "--touches-per-pair", "2", "--out", str(outer / "sim")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"nao-skin simulate: error: {outer / 'sim' / 'touches.bag'}: lies inside the bag {outer}; a bag"
+    assert err == [f"nao-skin simulate: error: {outer / 'sim' / 'touches'}: lies inside the bag {outer}; a bag"
                    f" is never written into another, choose a place outside it"], err
     assert sorted(p.name for p in outer.iterdir()) == before
 

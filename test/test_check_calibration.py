@@ -117,7 +117,16 @@ def test_the_command_says_fits_then_names_the_moved_part_with_exit_1(tmp_path, c
     assert {p: p.read_bytes() for p in (tmp_path / "cal").rglob("*") if p.is_file()} == before   # only read
 
 
-def test_one_pair_of_parts_on_the_real_recording(tmp_path, capsys, real_taxels, real_dir):
+@pytest.fixture(scope="module")
+def real_cal(tmp_path_factory, real_taxels, real_dir):
+    """The real recording's own calibration (nao-skin calibrate), made once for the tests that read it."""
+    out = tmp_path_factory.mktemp("real") / "cal"
+    assert cli_main(["calibrate", str(real_dir / "l_hand_torso.legacy.txt"), *real_taxels, "--out", str(out),
+                     "--quiet", "--no-plots"]) == 0
+    return out
+
+
+def test_one_pair_of_parts_on_the_real_recording(tmp_path, capsys, real_taxels, real_dir, real_cal):
     """Its own calibration fits it, judged at the fabric it was made with (the file holds it: at the
     configured 1 mm instead of the 0.05 mm that calibration estimated, the mounts move 2-4 mm to make up the
     difference and the check called both parts moved). A hand moved 5 mm, or the torso 3 mm along its normal,
@@ -126,13 +135,12 @@ def test_one_pair_of_parts_on_the_real_recording(tmp_path, capsys, real_taxels, 
     from nao_skin.model.skin import SkinCalibration, load_skin
 
     recording = str(real_dir / "l_hand_torso.legacy.txt")
-    assert cli_main(["calibrate", recording, *real_taxels, "--out", str(tmp_path / "cal"), "--quiet", "--no-plots"]) == 0
     capsys.readouterr()
-    cal = tmp_path / "cal" / "calibration.yaml"
+    cal = real_cal / "calibration.yaml"
     skin = load_skin(taxel_files={"l_hand": real_dir / "l_hand.taxels.txt", "torso": real_dir / "torso.taxels.txt"})
     made = SkinCalibration.load(cal, skin)
     assert made.fabric_thickness == pytest.approx(
-        json.loads((tmp_path / "cal" / "report.json").read_text())["fabric_thickness_mm"] / 1000.0, abs=1e-9)
+        json.loads((real_cal / "report.json").read_text())["fabric_thickness_mm"] / 1000.0, abs=1e-9)
     assert cli_main(["check", recording, *real_taxels, "--calibration", str(cal)]) == 0
     out = capsys.readouterr().out
     assert "the calibration's" in next(line for line in out.splitlines() if " held out; fabric " in line)
@@ -154,18 +162,17 @@ def test_one_pair_of_parts_on_the_real_recording(tmp_path, capsys, real_taxels, 
         assert f"--prior {moved / 'calibration.yaml'} {' '.join(real_taxels)} --out DIR" in out
 
 
-def test_a_calibration_written_before_it_kept_its_fabric(tmp_path, capsys, real_taxels, real_dir):
+def test_a_calibration_written_before_it_kept_its_fabric(tmp_path, capsys, real_taxels, real_dir, real_cal):
     """Such a file is judged at its report's fabric (found beside the file a link leads to), else at the one
     the new touches imply; a report that cannot be read is no reason to stop."""
     recording = str(real_dir / "l_hand_torso.legacy.txt")
-    assert cli_main(["calibrate", recording, *real_taxels, "--out", str(tmp_path / "cal"), "--quiet", "--no-plots"]) == 0
     capsys.readouterr()
     old = tmp_path / "old"
     old.mkdir()
-    lines = (tmp_path / "cal" / "calibration.yaml").read_text().splitlines(keepends=True)
+    lines = (real_cal / "calibration.yaml").read_text().splitlines(keepends=True)
     at = next(i for i, line in enumerate(lines) if line.startswith("fabric_thickness:"))
     (old / "calibration.yaml").write_text("".join(lines[:at] + lines[at + 3:]))     # as files were before
-    (old / "report.json").write_bytes((tmp_path / "cal" / "report.json").read_bytes())
+    (old / "report.json").write_bytes((real_cal / "report.json").read_bytes())
     (tmp_path / "link.yaml").symlink_to(old / "calibration.yaml")
     assert cli_main(["check", recording, *real_taxels, "--calibration", str(tmp_path / "link.yaml"), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)

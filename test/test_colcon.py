@@ -103,7 +103,7 @@ def test_colcon_build_installs_the_nodes_the_data_and_the_ament_index_marker(wor
     # the data, byte for byte: launch files, config and layouts, URDF, the bundled recording
     for must in ("launch/record.launch.py", "launch/calibrate.launch.py", "config/nao_skin.yaml",
                  "config/layouts/l_hand.txt", "config/layouts/torso.txt", "urdf/nao_skin.urdf.xacro",
-                 "bags/sim_default/touches.bag/metadata.yaml", "bags/sim_default/truth_calibration.yaml"):
+                 "bags/sim_default/touches/metadata.yaml", "bags/sim_default/truth_calibration.yaml"):
         assert (src / must).is_file(), f"the test's list is stale: {must} is not in the package"
     for sub in DATA_DIRS:
         files = _package_files(src, sub)
@@ -190,7 +190,8 @@ def test_the_installed_calibrate_node_calibrates_the_installed_recording(workspa
 # Python modules src/ and launch/ import that are not ROS packages: their rosdep keys, or None for the
 # pip-only ones package.xml names in a comment (no rosdep key)
 NOT_ROS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
-           "matplotlib": "python3-matplotlib", "rosbags": None, "threadpoolctl": None, "qi": None, "yarp": None}
+           "matplotlib": "python3-matplotlib", "rosbags": "python3-rosbags-pip", "threadpoolctl": "python3-threadpoolctl",
+           "qi": None, "yarp": None}
 
 
 def _imported_top_level_modules(paths) -> set:

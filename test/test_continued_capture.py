@@ -351,3 +351,25 @@ def test_earlier_touches_count_one_press_per_activation(skin):
     torso[3], torso[5], hand[3] = 1, 2, 1
     np.testing.assert_array_equal(counts.counts["torso"], torso)
     np.testing.assert_array_equal(counts.counts["r_hand"], hand)
+
+
+def test_an_update_stopped_between_its_stages_changes_nothing_and_the_next_one_runs(skin, touches, tmp_path):
+    """A session's end stops a live update it no longer needs, and a final one past its time, between two stages
+    of the calibration (the recording is read whole first): the update says 'stopped', the last accepted
+    calibration stays, and the next update calibrates every touch."""
+    bag = tmp_path / "sitting"
+    write_touch_bag(bag, touches.subset(np.arange(40)), skin)
+    calibration = live(skin, bag, [])
+    asked: list = []
+    out = calibration.update(stop=lambda: asked.append(1) or True)
+    assert out.status["state"] == "stopped" and out.status["touches"] == 40 and len(asked) == 1, out.status
+    assert out.accepted is None and calibration.last is None and out.touches.n_touches == 40
+    first = calibration.update()
+    assert first.status["state"] == "updated" and first.status["touches"] == 40 and calibration.last is not None
+    write_touch_bag(tmp_path / "more", touches.subset(np.arange(60)), skin)
+    later = live(skin, tmp_path / "more", [])
+    later.update()
+    accepted = later.last
+    out = later.update(stop=lambda: True)      # a warm update, stopped at its first stage's end
+    assert out.status["state"] == "stopped" and later.last is accepted
+    assert later.update().status["state"] == "updated" and later.last is not accepted

@@ -63,6 +63,11 @@ def test_a_domain_held_by_a_running_session_is_refused_and_a_killed_sessions_is_
         assert f"another nao-skin session (pid {holder.pid}) runs on ROS_DOMAIN_ID 41 on this machine" in line
         assert "ROS_DOMAIN_ID=42 nao-skin record" in line and "\n" not in line, line
         claim_domain(40, tmp_path).release()      # another domain is free
+        claim_domain(41, tmp_path, "/nao2").release()   # so is another namespace of the same domain
+        with pytest.raises(ConfigError, match="runs on ROS_DOMAIN_ID 41 in namespace /nao2"):
+            second = claim_domain(41, tmp_path, "/nao2")
+            claim_domain(41, tmp_path, "/nao2")
+        second.release()
     finally:
         holder.kill()                            # kill -9: no clean-up ran, the kernel released the lock
     claim = claim_domain(41, tmp_path)
@@ -108,7 +113,7 @@ def test_a_fifo_where_a_lock_file_goes_does_not_hold_up_a_refusal(tmp_path):
 def test_an_unwritable_lock_directory_leaves_the_session_unclaimed_and_says_so(tmp_path):
     claim = claim_domain(5, tmp_path / "no" / "such" / "dir")
     assert claim.fd is None and claim.problem.startswith("cannot claim ROS_DOMAIN_ID 5 (")
-    assert "a second session on this domain would not be refused" in claim.problem
+    assert "a second session there would not be refused" in claim.problem
 
 
 @pytest.mark.middleware

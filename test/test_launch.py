@@ -52,6 +52,54 @@ def output(proc: Proc) -> str:
     return proc.stdout() + proc.stderr()
 
 
+def live_parameters(listener: Listener, node: str, names, timeout: float = WAIT_S) -> dict:
+    """``{name: value}`` of a running node's parameters, asked over DDS (what ``ros2 param get`` does)."""
+    from rcl_interfaces.srv import GetParameters
+    from rclpy.parameter import parameter_value_to_python
+
+    client = listener.node.create_client(GetParameters, f"{node}/get_parameters")
+    try:
+        assert listener.spin_until(client.service_is_ready, timeout=timeout), f"{node}: no parameter service"
+        names = sorted(names)
+        future = client.call_async(GetParameters.Request(names=names))
+        assert listener.spin_until(future.done, timeout=timeout), f"{node}: no answer"
+        return {name: parameter_value_to_python(v) for name, v in zip(names, future.result().values)}
+    finally:
+        listener.node.destroy_client(client)
+
+
+def same_value(a, b) -> bool:
+    if isinstance(a, (list, tuple)) or isinstance(b, (list, tuple)):
+        return isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)) and len(a) == len(b) \
+            and all(map(same_value, a, b))
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool) \
+            and not isinstance(b, bool):
+        return float(a) == float(b)
+    return a == b
+
+
+def as_record_would(**session) -> list:
+    """What ``nao-skin record`` starts for these arguments (the one session description,
+    :func:`~nao_skin.session.record.record_session`), made before the session: it refuses a bag that exists."""
+    from nao_skin.session.record import record_session
+
+    return record_session(**session)
+
+
+def assert_started_as(listener: Listener, specs) -> None:
+    """Every nao_skin node the launch started runs with the parameters ``nao-skin record`` gives it (``specs``):
+    asked of the live nodes, so what launch_ros wrote into its parameter files and what rcl read from them is
+    what is compared."""
+    from nao_skin.session.record import _start_values
+
+    prefix = specs[0].namespace.rstrip("/")
+    for spec in (s for s in specs if s.ours):
+        want = _start_values(spec)
+        got = live_parameters(listener, f"{prefix}/{spec.name}", want)
+        differ = {k: (got[k], want[k]) for k in want if not same_value(got[k], want[k])}
+        assert not differ, (spec.name, differ)
+
+
 def frames_of(messages) -> set:
     return {t.child_frame_id for m in messages for t in m.transforms}
 
@@ -62,7 +110,7 @@ def recordings(tmp_path_factory):
     where = tmp_path_factory.mktemp("recordings")
     skin = load_skin()
     touches = simulate(skin, {"n_touches": 40, "pairs": [["l_hand", "torso"]]}, seed=5).touches
-    bag = where / "sitting.bag"
+    bag = where / "sitting"       # a rosbag2 directory: no ".bag", which AnyReader takes for ROS 1
     write_touch_bag(bag, touches, skin)
     text = where / "thesis sitting.txt"
     write_thesis_file(text, simulate(skin, {"n_touches": 40, "pairs": [["r_hand", "torso"]]}, seed=6).touches, skin)
@@ -103,7 +151,7 @@ def test_calibrate_launch_calibrates_a_bag_and_a_thesis_file(workspace, tmp_path
 
 def test_a_failing_node_ends_the_launch_with_its_reason_and_exit_code_1(workspace, tmp_path):  # noqa: F811
     ws, _, _ = workspace
-    missing = tmp_path / "no such.bag"
+    missing = tmp_path / "no such bag"
     launch = ros2_launch(ws, tmp_path, unique_domain_id(), "calibrate.launch.py", "calibrate_launch",
                          inputs=shlex.quote(str(missing)), out_dir=str(tmp_path / "out"))
     try:
@@ -125,7 +173,7 @@ def test_record_launch_records_the_simulated_robot_and_ends_cleanly_on_ctrl_c(wo
     ws, _, prefix = workspace
     share = prefix / "share" / "nao_skin"
     earlier, _ = recordings
-    bag = tmp_path / "session.bag"
+    bag = tmp_path / "session"
     taxels = " ".join(f"{part}={share / 'config' / 'layouts' / f'{part}.txt'}" for part in ("l_hand", "torso"))
     domain = unique_domain_id()
     listener = launch = None
@@ -134,6 +182,8 @@ def test_record_launch_records_the_simulated_robot_and_ends_cleanly_on_ctrl_c(wo
         listener = Listener(domain)
         status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
         frames = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=LATCHED)
+        specs = as_record_would(robot="sim", bag_path=str(bag), guided=True, continue_from=[str(earlier)],
+                                taxels=taxels.split(), calibration=str(share / "config" / "calibration_nominal.yaml"))
         launch = ros2_launch(ws, tmp_path, domain, "record.launch.py", "record_launch",
                              robot="sim", bag=str(bag), guided="true", rviz="false",
                              continue_from=shlex.quote(str(earlier)), taxels=taxels,
@@ -143,6 +193,7 @@ def test_record_launch_records_the_simulated_robot_and_ends_cleanly_on_ctrl_c(wo
         assert listener.spin_until(updated, timeout=WAIT_S, procs=[launch]), (status[-2:], output(launch)[-3000:])
         assert updated()[0]["earlier"] == 40, updated()[0]
         assert any("skin_mount" in f for f in frames_of(frames))
+        assert_started_as(listener, specs)
         code = launch.stop(signal.SIGINT, timeout=60)
     finally:
         if listener is not None:
@@ -154,16 +205,24 @@ def test_record_launch_records_the_simulated_robot_and_ends_cleanly_on_ctrl_c(wo
     assert "robot_state_publisher is not installed: the session runs without it" in err
     recorded, _ = read_touches(bag, load_skin())
     assert recorded.n_touches > 0
-    assert (tmp_path / "session.bag_calibration" / "calibration.yaml").is_file(), sorted(tmp_path.iterdir())
+    assert (tmp_path / "session_calibration" / "calibration.yaml").is_file(), sorted(tmp_path.iterdir())
 
 
-def test_record_launch_with_the_real_robot_refuses_or_starts_its_bridges(workspace, tmp_path):  # noqa: F811
-    """robot:=nao with its address and skin port: the NAOqi and YARP bridges start (no robot answers here, so
-    they wait for it), and Ctrl-C ends the session; where YARP's Python bindings are missing, the launch ends
-    before any node starts, with the one line saying what to install."""
+def test_record_launch_with_the_real_robot_in_a_namespace_starts_its_bridges(workspace, tmp_path):  # noqa: F811
+    """robot:=nao with its address and skin port, in a namespace: the NAOqi and YARP bridges start (no robot
+    answers here, so they wait for it) with the parameters ``nao-skin record`` would give them, the nodes'
+    topics and services are under the namespace and the skin frames carry it as a prefix; Ctrl-C ends the
+    session. Where YARP's Python bindings are missing, the launch ends before any node starts, with the one
+    line saying what to install."""
     ws, _, _ = workspace
-    bag = tmp_path / "robot.bag"
-    launch = ros2_launch(ws, tmp_path, unique_domain_id(), "record.launch.py", "record_launch", robot="nao",
+    bag = tmp_path / "robot"
+    domain = unique_domain_id()
+    listener = Listener(domain)
+    frames = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=LATCHED)
+    status = listener.subscribe(String, f"/nao9/{STATUS_TOPIC}", qos=LATCHED, keep=lambda m: json.loads(m.data))
+    specs = as_record_would(namespace="/nao9", robot="nao", nao_ip="127.0.0.1",
+                            events_port="/skinManager/skin_events:o", bag_path=str(bag))
+    launch = ros2_launch(ws, tmp_path, domain, "record.launch.py", "record_launch", robot="nao", namespace="/nao9",
                          nao_ip="127.0.0.1", naoqi="true", events_port="/skinManager/skin_events:o", bag=str(bag))
     try:
         if importlib.util.find_spec("yarp") is None:
@@ -174,8 +233,13 @@ def test_record_launch_with_the_real_robot_refuses_or_starts_its_bridges(workspa
         started = [re.compile(rf"\[{node}-\d+\]: process started") for node in
                    ("naoqi_bridge", "yarp_skin_bridge", "pairing_recorder", "calibrate", "skin_heatmap")]
         assert _wait_for_lines(launch, started), output(launch)[-3000:]
+        assert listener.spin_until(lambda: status, timeout=WAIT_S, procs=[launch]), output(launch)[-3000:]
+        assert listener.spin_until(lambda: frames_of(frames), timeout=60)
+        assert all(f.startswith("nao9/") for f in frames_of(frames)), sorted(frames_of(frames))[:5]
+        assert_started_as(listener, specs)
         code = launch.stop(signal.SIGINT, timeout=60)
     finally:
+        listener.close()
         if launch.alive():
             launch.stop(signal.SIGKILL)
     assert code == 0 and "Traceback" not in output(launch), output(launch)[-3000:]
@@ -192,3 +256,26 @@ def _wait_for_lines(proc: Proc, lines, timeout: float = WAIT_S) -> bool:
             return False
         time.sleep(0.2)
     return False
+
+
+def test_record_launch_is_refused_where_a_session_holds_its_domain(workspace, tmp_path):  # noqa: F811
+    """One session per ROS domain and namespace (two would record each other's touches): the launch file claims
+    it before any node starts, and ends with the one line when another session holds it."""
+    from test_domain_claim import Holder
+
+    from nao_skin.session.claim import LOCK_DIR
+
+    ws, _, _ = workspace
+    domain = unique_domain_id()
+    holder = Holder(domain, LOCK_DIR)
+    try:
+        launch = ros2_launch(ws, tmp_path, domain, "record.launch.py", "record_launch", bag=str(tmp_path / "b"))
+        try:
+            code = launch.popen.wait(timeout=WAIT_S)
+        finally:
+            launch.stop(signal.SIGKILL)
+    finally:
+        holder.end()
+    assert code == 1, output(launch)[-3000:]
+    assert f"another nao-skin session (pid {holder.pid}) runs on ROS_DOMAIN_ID {domain}" in output(launch)
+    assert not (tmp_path / "b").exists()

@@ -203,9 +203,9 @@ def test_a_node_stopped_during_a_calibration_says_it_is_not_written(tmp_path):
     request cannot carry."""
     from nao_skin.paths import package_dir
 
-    bag = tmp_path / "sp ace" / "touches.bag"
+    bag = tmp_path / "sp ace" / "touches"
     bag.parent.mkdir()
-    shutil.copytree(package_dir() / "bags" / "sim_default" / "touches.bag", bag)
+    shutil.copytree(package_dir() / "bags" / "sim_default" / "touches", bag)
     domain = unique_domain_id()
     listener = node = None
     try:

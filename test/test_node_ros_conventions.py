@@ -158,7 +158,9 @@ def test_trigger_diagnostics_and_parameters_of_a_running_session(tmp_path):
         calibrate = node_process("calibrate", {"live": True, "recording": str(bag), "live_every_touches": 1000,
                                                "live_period": 86400.0, "out_dir": str(tmp_path / "cal")},
                                  env, tmp_path)
-        recorder = node_process("pairing_recorder", {"bag_path": str(tmp_path / "recorded")}, env, tmp_path)
+        # the recorder's own progress ({"touches": 0}) would stand in the test's way: none in this test's time
+        recorder = node_process("pairing_recorder", {"bag_path": str(tmp_path / "recorded"),
+                                                     "progress_period": 86400.0}, env, tmp_path)
         procs = [calibrate, recorder]
         node = listener.node
         trigger = node.create_client(Trigger, "/calibrate/calibrate")

@@ -50,7 +50,9 @@ def test_params_files_match_the_nodes(config):
     parts = list(load_skin().parts)
     path = ROOT / "config" / config
     doc = yaml.safe_load(path.read_text())
-    for node, body in doc.items():
+    for key, body in doc.items():
+        node = key.removeprefix("/**/")      # a section for the node in any namespace
+        assert key == f"/**/{node}", f"{config}: {key} (a section that reaches the node in a namespace too)"
         given = flatten(body["ros__parameters"])
         defaults = declared(node, parts)
         assert given == set(defaults), f"{config}: {node}"

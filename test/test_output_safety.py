@@ -76,7 +76,7 @@ def tree(root: Path) -> dict:
 
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory) -> Path:
-    """A small simulated recording (touches.bag + truth, 25 touches a pair: calibrates in ~1 s)."""
+    """A small simulated recording (touches + truth, 25 touches a pair: calibrates in ~1 s)."""
     base = tmp_path_factory.mktemp("recording")
     ok(nao_skin("simulate", "--seed", "0", "--touches-per-pair", "25", "--out", "session", cwd=base))
     return base / "session"
@@ -110,11 +110,11 @@ def test_out_containing_the_current_directory_is_refused(work):
 
 # ------------------------------------------------------------------------------ inputs
 @pytest.mark.parametrize("inp, out, words", [
-    ("session/touches.bag", "session/touches.bag", ["is the input session/touches.bag"]),
-    ("session/touches.bag", "session", ["contains the input session/touches.bag"]),
+    ("session/touches", "session/touches", ["is the input session/touches"]),
+    ("session/touches", "session", ["contains the input session/touches"]),
     ("session", "session", ["is the input session"]),
     ("session", "session/calibration", ["lies inside the input session"]),
-    ("link/touches.bag", "session", ["contains the input link/touches.bag"]),    # through a symlink
+    ("link/touches", "session", ["contains the input link/touches"]),    # through a symlink
 ], ids=["bag-is-out", "out-holds-bag", "dir-is-out", "out-inside-input", "symlinked-input"])
 def test_calibrate_never_writes_over_or_into_its_input(work, inp, out, words):
     (work / "link").symlink_to("session")
@@ -221,7 +221,7 @@ def file_size_limit(size: int):
      "nao-skin simulate: error: sim: cannot write the simulated recording (File too large); nothing written"),
     # past the truth YAML (56 kB), in the bag: sqlite3 says "disk I/O error"
     (["simulate", "--out", "sim", "--touches-per-pair", "50"], 150_000,
-     "nao-skin simulate: error: sim: cannot write the simulated recording (sim/touches.bag: cannot write the bag (disk"
+     "nao-skin simulate: error: sim: cannot write the simulated recording (sim/touches: cannot write the bag (disk"
      " I/O error)); nothing written"),
 ])
 def test_a_full_disk_is_one_line_and_leaves_what_was_there(work, argv, limit, says):
@@ -353,8 +353,8 @@ def test_what_a_run_killed_outright_left_is_removed_by_the_next_run_and_nothing_
     dead = subprocess.Popen(["true"])
     dead.wait()                        # a pid no process has now
     left = work / f".cal.{dead.pid}.abcd_123"
-    (left / "touches.bag").mkdir(parents=True)
-    (left / "touches.bag" / "touches.bag_0.db3").write_bytes(b"\0" * 4096)
+    (left / "touches").mkdir(parents=True)
+    (left / "touches" / "touches.db3").write_bytes(b"\0" * 4096)
     kept = [work / ".cal.1.zzzz9999", work / ".cal.old.abcdefgh", work / ".cal.notes"]
     for path in kept:
         path.mkdir()
@@ -365,7 +365,7 @@ def test_what_a_run_killed_outright_left_is_removed_by_the_next_run_and_nothing_
     swapped = work / f".cal.old.{dead.pid}.abcd_123"
     (swapped / "cal").mkdir(parents=True)
     ok(nao_skin("simulate", "--touches-per-pair", "3", "--out", "cal", "--force", cwd=work))
-    assert not swapped.exists() and (work / "cal" / "touches.bag").is_dir()
+    assert not swapped.exists() and (work / "cal" / "touches").is_dir()
 
 
 def test_an_earlier_output_a_kill_left_aside_mid_swap_goes_back_before_anything_else(work):
@@ -479,7 +479,7 @@ def test_simulate_replaces_its_own_output_with_force_only(tmp_path):
     args = ["simulate", "--touches-per-pair", "3", "--out", "sim"]
     ok(nao_skin(*args, "--seed", "0", cwd=tmp_path))
     first = tree(tmp_path)
-    refused(tmp_path, [*args, "--seed", "1"], "--out sim", "touches.bag", "--force")
+    refused(tmp_path, [*args, "--seed", "1"], "--out sim", "touches", "--force")
     assert json.loads((tmp_path / "sim" / MARKER).read_text())["kind"] == "recording"
     ok(nao_skin(*args, "--seed", "1", "--force", cwd=tmp_path))
     second = tree(tmp_path)
@@ -644,7 +644,7 @@ def test_calibrate_node_refuses_an_out_dir_holding_its_input(work):
     pytest.importorskip("rclpy")
     from ros_harness import node_process, ros_env, unique_domain_id
 
-    bag = work / "session" / "touches.bag"
+    bag = work / "session" / "touches"
     (work / "logs").mkdir()
     before = tree(work / "session")
     node = node_process("calibrate", {"inputs": [str(bag)], "calibrate_on_start": True,

@@ -145,7 +145,7 @@ def test_the_live_calibrate_node_refuses_its_out_dir_at_start_not_when_the_sessi
     # the calibration the session starts from, in the directory its end would replace (on request the node
     # refused it; live it was replaced)
     previous = tmp_path / "previous"
-    assert cli.main(["calibrate", str(ROOT / "bags" / "sim_default" / "touches.bag"), "--out", str(previous),
+    assert cli.main(["calibrate", str(ROOT / "bags" / "sim_default" / "touches"), "--out", str(previous),
                      "--no-plots", "--quiet"]) == 0
     before = (previous / "calibration.yaml").read_bytes()
     proc = node_process("calibrate", {"live": True, "out_dir": str(previous),
@@ -364,8 +364,8 @@ def _config_copy(tmp_path, edit) -> Path:
     (lambda t: t.replace("seed: 1 ", "seed: one ", 1), "sim_robot.seed=one: expected an integer"),
     # rcl refuses such a file in every node that reads it, in two lines each, after the bag was made
     (lambda t: t + "extra_node: 5\n", "'extra_node' is a value where a node name maps to its ros__parameters"),
-    (lambda t: t.replace("joint_rate: 100.0", "joint_rate:", 1), "sim_robot.joint_rate has no value (ROS refuses"
-                                                                  " the whole file)"),
+    (lambda t: t.replace("joint_rate: 100.0", "joint_rate:", 1), "sim_robot.joint_rate has no value (line 13)"
+                                                                  " (ROS refuses the whole file)"),
 ], ids=["nan", "negative", "type", "structure", "no-value"])
 def test_record_refuses_a_bad_value_in_its_parameter_file_before_any_node_starts(tmp_path, edit, expected):
     """The same value refused given with --param went through when record.yaml held it: every node started,
@@ -507,7 +507,7 @@ def test_record_removes_its_temporary_directory(tmp_path):
 
 def test_the_calibrate_node_takes_the_warm_update_options_from_the_session_config():
     """record.yaml's warm_repairings reaches the engine: an operator can let each live update re-pair more."""
-    session = yaml.safe_load(RECORD_YAML.read_text())["calibrate"]["ros__parameters"]
+    session = yaml.safe_load(RECORD_YAML.read_text())["/**/calibrate"]["ros__parameters"]
     params = {name: value for name, (value, *_) in CALIBRATE.items()}
     assert options_from_params({**params, **session}).warm_repairings == session["warm_repairings"]
     assert options_from_params({**params, "warm_repairings": 3}).warm_repairings == 3

@@ -47,15 +47,15 @@ def test_same_seed_gives_same_bytes(tmp_path, capsys):
     assert cli_main(args + ["--out", str(tmp_path / "b")]) == 0
     assert cli_main(["simulate", "--seed", "8", "--touches-per-pair", "6", "--out", str(tmp_path / "c")]) == 0
     a, b, c = (_tree_bytes(tmp_path / d) for d in "abc")
-    assert set(a) >= {"touches.bag/metadata.yaml", "truth_calibration.yaml", "simulation.yaml",
+    assert set(a) >= {"touches/metadata.yaml", "truth_calibration.yaml", "simulation.yaml",
                       "truth_taxels/l_hand.txt", "truth_taxels/torso.txt"}
-    assert any(name.startswith("touches.bag/") and name != "touches.bag/metadata.yaml" for name in a)
+    assert any(name.startswith("touches/") and name != "touches/metadata.yaml" for name in a)
     assert a == b
     assert a["truth_calibration.yaml"] != c["truth_calibration.yaml"]
     # a second run into the same directory refuses to overwrite the bag, in one line
     assert cli_main(args + ["--out", str(tmp_path / "a")]) == 2
     err = capsys.readouterr().err.strip()
-    assert "touches.bag" in err and "--force" in err and len(err.splitlines()) == 1
+    assert "(simulation.yaml, touches, truth_" in err and "--force" in err and len(err.splitlines()) == 1
 
 
 def test_bag_and_truth_files_read_back(tmp_path, skin):
@@ -67,7 +67,7 @@ def test_bag_and_truth_files_read_back(tmp_path, skin):
     from nao_skin.sim.simulate import write_outputs
 
     write_outputs(result, skin, tmp_path)
-    back, _ = read_touches(tmp_path / "touches.bag", skin)
+    back, _ = read_touches(tmp_path / "touches", skin)
     ts = result.touches
     # a touch bag keeps every recorded touch (duplicates included) with its joints and taxels
     assert back.n_touches == ts.n_touches
@@ -431,7 +431,7 @@ def test_bundled_recording_matches_the_simulator(skin, tmp_path):
                   preset="default", with_bag=False)
     for name in ["truth_calibration.yaml"] + [f"truth_taxels/{p}.txt" for p in skin.parts]:
         assert (tmp_path / name).read_bytes() == (BUNDLE / name).read_bytes(), name
-    bag_meta = yaml.safe_load((BUNDLE / "touches.bag" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    bag_meta = yaml.safe_load((BUNDLE / "touches" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     joint_msgs = {t["topic_metadata"]["name"]: t["message_count"] for t in bag_meta["topics_with_message_count"]}
     recorded = sum(info["recorded"] for info in meta["pairs"].values())
     assert joint_msgs["/joint_states"] == recorded

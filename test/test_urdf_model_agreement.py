@@ -25,7 +25,7 @@ from nao_skin.paths import config_dir, default_skin_config
 TOL_M = 1e-9
 TOL_RAD = 1e-9
 NOMINAL = config_dir() / "calibration_nominal.yaml"
-BAG = Path(__file__).resolve().parents[1] / "bags" / "sim_default" / "touches.bag"
+BAG = Path(__file__).resolve().parents[1] / "bags" / "sim_default" / "touches"
 
 
 @pytest.fixture(scope="module")

@@ -15,6 +15,11 @@ domain, listens for ``--seconds`` and prints:
 ``--no-calibrate`` leaves the calibrate node out (the recorder's figures
 without live updates, to compare).
 
+``--record-stops N`` measures instead how long ``nao-skin record`` takes to
+end after Ctrl-C: N sessions of the simulated robot with live updates, each
+sent SIGINT once its calibrate node has made a live update and the robot has
+played on; SIGINT to exit, median and worst (target <= 5 s).
+
 The nodes' logs and the recorder's bag go to a temporary directory, removed
 when the command ends (also on error or Ctrl-C) unless ``--keep-temp``.
 """
@@ -47,6 +52,9 @@ def add_arguments(parser) -> None:
                              " young bag, e.g. bags/sim_default (4000 touches: the updates of a long session)")
     parser.add_argument("--no-calibrate", action="store_true",
                         help="without the calibrate node (no live updates), to compare the recorder's figures")
+    parser.add_argument("--record-stops", type=int, default=0, metavar="N",
+                        help="instead: N nao-skin record sessions stopped with Ctrl-C (SIGINT) while they record, and"
+                             " the seconds from SIGINT to record's exit (median and worst; target <= 5 s)")
     parser.add_argument("--keep-temp", action="store_true",
                         help="keep the temporary directory with the nodes' logs and the recorded bag"
                              " (default: removed when the command ends)")
@@ -77,6 +85,8 @@ def check_arguments(args) -> None:
             raise DataError(f"{flag} {value}: expected seconds above 0, at most {MAX_SECONDS:g}")
     robot = sim_robot_overrides(args)
     check_timing(robot["touch_period"], robot["press_duration"], robot["hold"], "--touch-period")
+    if not 0 <= args.record_stops <= 1000:
+        raise DataError(f"--record-stops {args.record_stops}: expected a whole number from 0 to 1000")
     if args.update_every < 1:
         raise DataError(f"--update-every {args.update_every}: expected a whole number >= 1")
     if args.domain not in DOMAINS:
@@ -103,7 +113,7 @@ def run(args) -> int:
     check_arguments(args)
     work = Path(tempfile.mkdtemp(prefix="nao_skin_bench_"))
     try:
-        return _measure(args, work)
+        return _record_stops(args, work) if args.record_stops else _measure(args, work)
     finally:
         if args.keep_temp:
             print(f"bench-live: nodes' logs and the recorded bag kept in {work}", file=sys.stderr)
@@ -126,6 +136,69 @@ def session_nodes(args, work: Path) -> list:
         next(spec for spec in specs if spec.name == "calibrate").overrides["recording"] = str(
             Path(args.update_input).resolve())
     return specs
+
+
+RECORD_STOP_TARGET_S = 5.0      # Ctrl-C of nao-skin record to its exit
+
+
+def _record_stops(args, work: Path) -> int:
+    """``--record-stops``: sessions of ``nao-skin record --robot sim`` (live updates every ``--update-every``
+    touches), each stopped by SIGINT 1 s after its calibrate node said a live update; the seconds to record's
+    exit."""
+    import numpy as np
+
+    from nao_skin.errors import STOP_SIGNALS
+
+    domain = args.domain or 10 + os.getpid() % 90
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               PYTHONUNBUFFERED="1")
+    interrupted = threading.Event()
+    previous_handlers = {s: signal.signal(s, lambda signum, frame: interrupted.set()) for s in STOP_SIGNALS}
+    period = args.touch_period
+    robot = [f"--param=sim_robot.{k}={v}" for k, v in {"touch_period": period, "press_duration": min(0.3, period / 2),
+                                                      "hold": 0.05, "touches_per_pair": 60, "loop": True}.items()]
+    seconds, codes = [], []
+    try:
+        for n in range(args.record_stops):
+            if interrupted.is_set():
+                raise KeyboardInterrupt
+            log = work / f"record_{n}.err"
+            argv = [sys.executable, "-m", "nao_skin.cli", "record", "--robot", "sim", "--bag", str(work / f"bag_{n}"),
+                    *robot, f"--param=calibrate.live_every_touches={args.update_every}",
+                    "--param=calibrate.live_period=1.0"]
+            with open(log, "wb") as err:
+                proc = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
+            try:
+                deadline = time.monotonic() + 120
+                while "] [calibrate]: live update" not in log.read_text(errors="replace"):
+                    if proc.poll() is not None or time.monotonic() > deadline or interrupted.is_set():
+                        break
+                    time.sleep(0.1)
+                if proc.poll() is not None or interrupted.is_set() or time.monotonic() > deadline:
+                    if not interrupted.is_set():
+                        print(f"bench-live: record session {n} made no live update (exit code {proc.poll()}):"
+                              f" {_last_line(log)}", file=sys.stderr)
+                        return 2
+                    raise KeyboardInterrupt
+                time.sleep(1.0)                     # the robot plays on, the next update may be running
+                t0 = time.monotonic()
+                proc.send_signal(signal.SIGINT)
+                codes.append(proc.wait())
+                seconds.append(time.monotonic() - t0)
+            finally:
+                if proc.poll() is None:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
+            print(f"bench-live: record session {n}: SIGINT to exit {seconds[-1]:.2f} s (exit code {codes[-1]})",
+                  file=sys.stderr)
+    finally:
+        for s, handler in previous_handlers.items():
+            signal.signal(s, handler)
+    worst = max(seconds)
+    met = "met" if worst <= RECORD_STOP_TARGET_S else "NOT met"
+    print(f"record Ctrl-C to exit: median {float(np.median(seconds)):.2f} s, worst {worst:.2f} s over"
+          f" {len(seconds)} sessions (target <= {RECORD_STOP_TARGET_S:g} s: {met}); exit codes {sorted(set(codes))}")
+    return 0 if all(c == 0 for c in codes) else 1
 
 
 def _measure(args, work: Path) -> int:

@@ -45,6 +45,9 @@ def add_arguments(parser) -> None:
                         help="the robot's own skinManager taxel file of a part, for every node that reads the skin;"
                              " repeatable")
     parser.add_argument("--rviz", action="store_true", help="also start rviz2 with config/nao_skin.rviz")
+    parser.add_argument("--namespace", default="", metavar="NS",
+                        help="every node in this ROS namespace (e.g. /nao2): its topics under it, its TF frames"
+                             " prefixed with it, so a second robot records on the same ROS domain")
     parser.add_argument("--guided", action="store_true",
                         help="robot sim: the simulated robot's next touches follow the guidance (/nao_skin/guidance)")
     parser.add_argument("--param", action="append", default=[], metavar="NODE.NAME=VALUE",
@@ -86,11 +89,12 @@ def run(args) -> int:
     specs = record_session(args.robot, nao_ip=args.nao_ip, naoqi=not args.no_naoqi, events_port=args.events_port,
                            bag_path=args.bag, calibration=args.calibration, rviz=args.rviz, taxels=args.taxels,
                            overrides=parse_overrides(args.param), guided=args.guided,
-                           continue_from=args.continue_from, spelling="command")
+                           continue_from=args.continue_from, namespace=args.namespace, spelling="command")
     claim = None
     if not args.print:
         check_needs(specs)
-        claim = claim_domain()         # one session per ROS domain: two would record each other's touches
+        # one session per ROS domain and namespace: two would record each other's touches
+        claim = claim_domain(namespace=specs[0].namespace)
         if claim.problem:
             _say(f"record: {claim.problem}")
     stop = {"signal": None}

@@ -1,6 +1,6 @@
 """``nao-skin simulate``: a simulated self-touch recording with its ground truth.
 
-Writes ``DIR/touches.bag`` (rosbag2 touch bag), ``DIR/truth_calibration.yaml``,
+Writes ``DIR/touches`` (rosbag2 touch bag directory), ``DIR/truth_calibration.yaml``,
 ``DIR/truth_taxels/<part>.txt`` and ``DIR/simulation.yaml``. The same seed and
 options give the same bytes on one machine and version (the bundled recording's
 command and why today's touches differ from it: bags/README.md)::
@@ -52,14 +52,14 @@ def run(args) -> int:
     from nao_skin.formats.bag import check_outside_bags
     from nao_skin.formats.outdir import RECORDING, as_checked, check_output_dir
     from nao_skin.sim.params import MAX_TOUCHES_PER_PAIR, check_pairs, default_params_file, load_params, pair_list
-    from nao_skin.sim.simulate import simulate, write_outputs
+    from nao_skin.sim.simulate import BAG_NAME, simulate, write_outputs
 
     skin = skin_from_args(args)
     check_output_dir(args.out, RECORDING, inputs=(args.params, skin_config_file(args), *skin.source_files()),
                      force=args.force)
     checked = as_checked(args.out)       # what --force agreed to replace, nothing written there meanwhile
     # refused here, not after minutes of simulating (the bag's own check stays where it is written)
-    check_outside_bags(Path(args.out) / "touches.bag")
+    check_outside_bags(Path(args.out) / BAG_NAME)
     if args.seed < 0:           # numpy's seed sequences take no negative entropy
         raise ConfigError(f"--seed {args.seed}: expected a whole number >= 0")
     overrides = {}

@@ -13,8 +13,11 @@ differ (:data:`~nao_skin.touch.events.TOUCH_BAG_CONFIG` for touch bags). A bag
 rosbags cannot open (never closed, or cut off) is read from its storage file
 (:mod:`nao_skin.formats.salvage`).
 
-Bags are written as rosbag2 metadata version 8 (what ROS 2 Jazzy writes and
-reads) with the Jazzy type store.
+Bags are written as rosbag2 metadata version 9 (what ROS 2 Jazzy's rosbag2 writes: QoS profiles as a
+YAML list, ``ros_distro``, ``custom_data``, each topic's ``type_description_hash``) with the Jazzy type
+store. A bag directory nao-skin names has no ``.bag`` suffix: rosbags' ``AnyReader`` (and ROS 1 tools) take a
+``*.bag`` path for a ROS 1 bag file. Reading goes through rosbags' rosbag2 ``Reader``, which takes any
+directory name, so a user's ``something.bag`` rosbag2 directory is read as any other.
 """
 from __future__ import annotations
 
@@ -49,7 +52,7 @@ SOURCE_KEY = "nao_skin.recorded_from"     # what a recorder was fed: a simulated
 SIMULATED = "the simulated robot (sim_robot)"
 CONTINUES_KEY = "nao_skin.continues"        # the earlier sittings' bags a record session continued: a JSON list
 CONTINUES_RELATIVE_KEY = "nao_skin.continues_relative"     # ... relative to the bag's folder (moved together)
-BAG_VERSION = 8              # rosbag2 metadata version of ROS 2 Jazzy
+BAG_VERSION = 9              # rosbag2 metadata version ROS 2 Jazzy's rosbag2 writes (rosbags writes 8 or 9)
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
 

@@ -18,7 +18,7 @@ from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, taxels_topic
-from nao_skin.nodes.topics import HEATMAP_TOPIC, LATCHED, PROGRESS_TOPIC, STATUS_TOPIC
+from nao_skin.nodes.topics import HEATMAP_TOPIC, LATCHED, PROGRESS_TOPIC, STATUS_TOPIC, relative
 
 
 class LiveProbe:
@@ -45,8 +45,8 @@ class LiveProbe:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         node = self.node
-        node.create_subscription(JointState, JOINT_STATES_TOPIC, lambda m: self._count("joints"), 200)
-        node.create_subscription(PointCloud2, taxels_topic(counted_part), lambda m: self._count("skin"), 200)
+        node.create_subscription(JointState, relative(JOINT_STATES_TOPIC), lambda m: self._count("joints"), 200)
+        node.create_subscription(PointCloud2, relative(taxels_topic(counted_part)), lambda m: self._count("skin"), 200)
         node.create_subscription(String, PROGRESS_TOPIC, lambda m: self.progress.append(json.loads(m.data)), 10)
         node.create_subscription(String, STATUS_TOPIC,
                                  lambda m: self.updates.append((time.monotonic(), json.loads(m.data))), LATCHED)

@@ -48,14 +48,19 @@ from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
 from nao_skin.nodes.topics import (GUIDANCE_TOPIC, LATCHED, MAX_SKIPPED_SAID, PROGRESS_TOPIC, REQUEST_TOPIC,
-                                   STATUS_TOPIC)
+                                   STATUS_TOPIC, frame_prefix)
 from nao_skin.plain import jsonable
 from nao_skin.session.live import LiveCalibration, request_out_dir, session_end_out_dir
 from nao_skin.session.params import (CALIBRATE, changeable_params, guidance_pairs, options_from_params,
                                      skin_from_params)
 
 
-FINAL_WAIT_S = 5.0      # at the session's end: how long the final update waits for the recorder to close the bag
+# The session's end (Ctrl-C of nao-skin record) is bounded, also on a busy machine: the last accepted live
+# calibration is written first; a live update still running is stopped at its next stage (the final update covers
+# its touches); the final update has its own time, past which it is abandoned and what was written stays.
+STOP_JOIN_S = 2.0       # at the session's end: how long a running live update or requested calibration may take to end
+FINAL_WAIT_S = 2.0      # ... how long the final update waits for the recorder to close the bag (it does as it stops)
+FINAL_BUDGET_S = 2.5    # ... how long the final update may calibrate
 FINAL_ACK_S = 1.0       # ... and how long the last status and frames may take to reach their subscribers
 
 
@@ -84,6 +89,7 @@ class CalibrateNode(Node):
         self._written_stamp = None        # output_stamp of what the session's end wrote first, to replace
         self._guidance_sequence = 0       # guidance messages published
         self._live_generation = 1         # the generation of the last accepted live update (1: where it started)
+        self._stopping = threading.Event()    # the session ends: a live update running stops at its next stage
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
         self.create_service(Trigger, "~/calibrate", self._on_trigger)
@@ -115,9 +121,11 @@ class CalibrateNode(Node):
             self._start(inputs)
 
     def publish_calibration(self, calib: SkinCalibration, source: str, quiet: bool = False) -> None:
-        """All skin frames in ONE latched TFMessage: late joiners get exactly this set."""
+        """All skin frames in ONE latched TFMessage: late joiners get exactly this set (in a namespace, the
+        frames carry it as a prefix, as robot_state_publisher's frame_prefix makes the body's)."""
         stamp = self.get_clock().now().to_msg()
-        self.tf_pub.publish(TFMessage(transforms=[to_transform_stamped(parent, child, t, stamp)
+        ns = frame_prefix(self)
+        self.tf_pub.publish(TFMessage(transforms=[to_transform_stamped(ns + parent, ns + child, t, stamp)
                                                   for parent, child, t in skin_frame_transforms(self.skin, calib)]))
         self.generation += 1
         if not quiet:                     # a live update says more in its own status
@@ -186,7 +194,9 @@ class CalibrateNode(Node):
         most now (also while waiting for a first calibration)."""
         log = self.get_logger()
         try:
-            out = self.live.update(log=log.debug)
+            out = self.live.update(log=log.debug, stop=self._stopping.is_set)
+            if out.status.get("state") == "stopped":     # the session ends: the final update covers its touches
+                return
             if not out.status:      # the bag has no touch since the last update yet (not flushed)
                 if not self._retried:       # once at the next tick; then the schedule as usual (a touch the
                     self._retried = True    # reading drops as a duplicate would keep the recorder's count ahead)
@@ -348,12 +358,14 @@ class CalibrateNode(Node):
     def close(self) -> None:
         """End of the session: the last accepted live calibration is written where users apply it, at once
         (whatever comes next: an update that takes long, ros2 launch's SIGKILL about 10 s after Ctrl-C); then the
-        touches recorded since it are calibrated too (a final update) and written over it."""
+        touches recorded since it are calibrated too (a final update) and written over it. Each step is bounded
+        (STOP_JOIN_S, FINAL_WAIT_S, FINAL_BUDGET_S): a live update still running is stopped, not waited for."""
+        self._stopping.set()
         session = self.p["live"] and self.p["recording"]     # a live record session (not calibrate.launch.py)
         written = self.live.last if session else None
         out = self._write_live(written) if written is not None else None
         if self._worker is not None:
-            self._worker.join(timeout=10.0)
+            self._worker.join(timeout=STOP_JOIN_S)
             if self._worker.is_alive():   # a daemon thread: it ends with the process, its output unwritten
                 self.get_logger().warning(f"stopped during the {self._worker.name}: it is written only if it had"
                                           f" got to its output (a staging directory it left beside out_dir is"
@@ -451,9 +463,19 @@ class CalibrateNode(Node):
         if not closed:
             log.warning(f"the recorder has not closed {self.p['recording']} after {FINAL_WAIT_S:g} s; the final"
                         f" update calibrates the touches it has written")
-        out = self.live.update(log=log.debug, final=True)
+        deadline = time.monotonic() + FINAL_BUDGET_S
+        out = self.live.update(log=log.debug, final=True, stop=lambda: time.monotonic() > deadline)
         if not out.status:          # no touch since the last accepted update
             return closed
+        if out.status["state"] == "stopped":
+            recording = " ".join([*self._earlier(), self.p["recording"]])
+            had = (f"the last accepted update's, over {self.live.last_count} touches, is written" if self.live.last
+                   is not None else "none is written")
+            log.warning(f"the final live update over {out.status['touches']} touches was stopped after"
+                        f" {out.status['seconds']:.1f} s (the session's end waits no longer); {had}; nao-skin"
+                        f" calibrate {recording} --out DIR calibrates every touch")
+            self._status({**out.status, "live": True, "generation": self.generation})
+            return False
         if out.accepted is not None:
             self.publish_calibration(out.accepted.calibration, "final live update", quiet=True)
             self._live_generation = self.generation

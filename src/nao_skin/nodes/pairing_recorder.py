@@ -41,7 +41,7 @@ from nao_skin.live.diagnostics import Check, RateWindow, age_check, count_check,
 from nao_skin.nodes.messages import header_stamp, joint_state_arrays
 from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.nodes.topics import PROGRESS_TOPIC
+from nao_skin.nodes.topics import PROGRESS_TOPIC, relative
 from nao_skin.session.params import PAIRING_RECORDER, skin_from_params
 from nao_skin.session.recording import TouchRecording
 from nao_skin.touch.events import EventConfig
@@ -59,10 +59,10 @@ class PairingRecorder(Node):
         self.get_logger().info(f"recording touches to {self.recording.bag_path}")
         self._crowded_said: set = set()
         self._started = time.monotonic()
-        self.create_subscription(JointState, JOINT_STATES_TOPIC, self._on_joints, 200)
+        self.create_subscription(JointState, relative(JOINT_STATES_TOPIC), self._on_joints, 200)
         for n in self.skin.parts:
-            self.create_subscription(PointCloud2, taxels_topic(n), lambda m, n=n: self._on_taxels(n, m), 200)
-            self.create_subscription(PointCloud2, contacts_topic(n), lambda m, n=n: self._on_contacts(n, m), 200)
+            self.create_subscription(PointCloud2, relative(taxels_topic(n)), lambda m, n=n: self._on_taxels(n, m), 200)
+            self.create_subscription(PointCloud2, relative(contacts_topic(n)), lambda m, n=n: self._on_contacts(n, m), 200)
         self.progress_pub = self.create_publisher(String, PROGRESS_TOPIC, 10)
         self.create_timer(float(p["flush_period"]), self.recording.flush)
         self.create_timer(float(p["progress_period"]), self._publish_progress)
@@ -116,7 +116,7 @@ class PairingRecorder(Node):
             for topic in (taxels_topic(part), contacts_topic(part)):
                 if topic in self._crowded_said:
                     continue
-                infos = self.get_publishers_info_by_topic(topic)
+                infos = self.get_publishers_info_by_topic(relative(topic))
                 if len(infos) > 1:
                     self._crowded_said.add(topic)
                     nodes = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos})

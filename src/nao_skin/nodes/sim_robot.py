@@ -40,7 +40,7 @@ from nao_skin.live.playback import Playback
 from nao_skin.nodes.messages import cloud_from_array, joint_state_msg
 from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.nodes.topics import GUIDANCE_TOPIC, LATCHED, SIM_STATUS_TOPIC
+from nao_skin.nodes.topics import GUIDANCE_TOPIC, LATCHED, SIM_STATUS_TOPIC, frame_prefix, relative
 from nao_skin.session.params import SIM_ROBOT, check_sim_robot
 from nao_skin.sim.capture import Aim, CaptureSim
 from nao_skin.sim.simulate import simulate
@@ -73,9 +73,9 @@ class SimRobot(Node):
         self.skin_every = max(1, round(float(p["joint_rate"]) / float(p["skin_rate"])))
         self.loop = bool(p["loop"])
         self.parts = list(self.skin.parts)
-        self.joint_pub = self.create_publisher(JointState, JOINT_STATES_TOPIC, 100)
-        self.taxel_pub = {n: self.create_publisher(PointCloud2, taxels_topic(n), 100) for n in self.parts}
-        self.contact_pub = {n: self.create_publisher(PointCloud2, contacts_topic(n), 100) for n in self.parts}
+        self.joint_pub = self.create_publisher(JointState, relative(JOINT_STATES_TOPIC), 100)
+        self.taxel_pub = {n: self.create_publisher(PointCloud2, relative(taxels_topic(n)), 100) for n in self.parts}
+        self.contact_pub = {n: self.create_publisher(PointCloud2, relative(contacts_topic(n)), 100) for n in self.parts}
         self.status_pub = self.create_publisher(String, SIM_STATUS_TOPIC, 10)
         self.wait_for = int(p["wait_for_subscribers"])
         self.wait_timeout = float(p["wait_timeout"])
@@ -83,8 +83,10 @@ class SimRobot(Node):
         self.done = False
         self.published = 0                # joint states published
         self._joint_rate = RateWindow()
-        self._empty = {n: (cloud_from_array(taxels_array([], []), self.skin.parts[n].parent_frame, None),
-                           cloud_from_array(contacts_array([], []), self.skin.parts[n].parent_frame, None))
+        self.frames = frame_prefix(self)
+        self._empty = {n: (cloud_from_array(taxels_array([], []), self.frames + self.skin.parts[n].parent_frame, None),
+                           cloud_from_array(contacts_array([], []), self.frames + self.skin.parts[n].parent_frame,
+                                            None))
                        for n in self.parts}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._play, name="sim_play", daemon=True)
@@ -197,7 +199,7 @@ class SimRobot(Node):
         k = self.playback.touch_at(t)
         pressed = self.playback.samples[k] if k >= 0 else {}
         for name in self.parts:
-            frame = self.skin.parts[name].parent_frame
+            frame = self.frames + self.skin.parts[name].parent_frame
             if name in pressed:
                 taxels, contacts = (cloud_from_array(points, frame, stamp) for points in pressed[name])
             else:

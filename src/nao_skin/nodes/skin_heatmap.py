@@ -41,7 +41,7 @@ from nao_skin.live.heatmap import (GUIDANCE_COLOUR, SCALE_LEVELS, ActivationCoun
 from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.topics import (GUIDANCE_MARKERS_TOPIC, GUIDANCE_TOPIC, HEATMAP_TOPIC, LATCHED, MAX_SKIPPED_SAID,
-                                   STATUS_TOPIC)
+                                   STATUS_TOPIC, frame_prefix, relative)
 from nao_skin.session.params import SKIN_HEATMAP, skin_from_params
 from nao_skin.touch.datasets import deduplicate
 
@@ -64,10 +64,11 @@ class SkinHeatmap(Node):
         d = float(p["taxel_diameter"])
         # Everything but the colours is fixed: build markers once, recolour them per update.
         self.markers = []          # (part, slots, marker)
+        self.frames = frame_prefix(self)
         for name, part in self.skin.parts.items():
             for tid, slots in triangle_slots(part):
                 m = Marker()
-                m.header.frame_id = part.triangle_frame(tid)
+                m.header.frame_id = self.frames + part.triangle_frame(tid)
                 m.ns, m.id, m.type, m.action = name, tid, Marker.SPHERE_LIST, Marker.ADD
                 m.pose.orientation.w = 1.0
                 m.scale.x = m.scale.y = m.scale.z = d
@@ -78,7 +79,7 @@ class SkinHeatmap(Node):
         self.legend = self._legend(np.asarray(p["legend_origin"], float), d)
         self.publisher = self.create_publisher(MarkerArray, HEATMAP_TOPIC, 10)
         for n in self.skin.parts:
-            self.create_subscription(PointCloud2, taxels_topic(n), lambda m, n=n: self._on_taxels(n, m), 200)
+            self.create_subscription(PointCloud2, relative(taxels_topic(n)), lambda m, n=n: self._on_taxels(n, m), 200)
         self.errors = 0                   # skin samples skipped
         self.status_errors = 0            # status messages skipped
         self.published = 0
@@ -169,10 +170,9 @@ class SkinHeatmap(Node):
             markers.append(text)
         self.guidance_pub.publish(MarkerArray(markers=markers))
 
-    @staticmethod
-    def _marker(frame: str, ns: str, mid: int, kind: int, stamp, colour: ColorRGBA) -> Marker:
+    def _marker(self, frame: str, ns: str, mid: int, kind: int, stamp, colour: ColorRGBA) -> Marker:
         m = Marker()
-        m.header.frame_id, m.header.stamp = frame, stamp
+        m.header.frame_id, m.header.stamp = self.frames + frame, stamp
         m.ns, m.id, m.type, m.action = ns, mid, kind, Marker.ADD
         m.pose.orientation.w = 1.0
         m.scale.x = m.scale.y = m.scale.z = 0.01
@@ -181,7 +181,7 @@ class SkinHeatmap(Node):
         return m
 
     def _legend(self, origin: np.ndarray, d: float) -> list:
-        base = self.skin.robot.base_frame
+        base = self.frames + self.skin.robot.base_frame
         bar = Marker()
         bar.header.frame_id = base
         bar.ns, bar.id, bar.type, bar.action = LEGEND_NS, 0, Marker.CUBE_LIST, Marker.ADD

@@ -42,7 +42,7 @@ from nao_skin.live.reconnect import Backoff
 from nao_skin.nodes.messages import cloud_from_array, stamp_to_msg
 from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.nodes.topics import BRIDGE_STATUS_TOPIC
+from nao_skin.nodes.topics import BRIDGE_STATUS_TOPIC, frame_prefix, relative
 from nao_skin.session.params import YARP_SKIN_BRIDGE, changeable_params, per_part_params, skin_from_params
 from nao_skin.session.record import YARP_HINT
 
@@ -64,9 +64,10 @@ class YarpSkinBridge(Node):
                              if key.startswith("compensated_ports.") and v}
         self.threshold = float(p["compensated_threshold"])
         self.bridged = sorted(set(self.part_of_id.values()) | set(self.comp_port_of), key=parts.index)
-        self.taxel_pub = {n: self.create_publisher(PointCloud2, taxels_topic(n), 50) for n in self.bridged}
-        self.contact_pub = {n: self.create_publisher(PointCloud2, contacts_topic(n), 50) for n in self.bridged}
+        self.taxel_pub = {n: self.create_publisher(PointCloud2, relative(taxels_topic(n)), 50) for n in self.bridged}
+        self.contact_pub = {n: self.create_publisher(PointCloud2, relative(contacts_topic(n)), 50) for n in self.bridged}
         self.status_pub = self.create_publisher(String, BRIDGE_STATUS_TOPIC, 10)
+        self.frames = frame_prefix(self)
         self.counts: Counter = Counter()
         self._counts_lock = threading.Lock()    # the reading threads count, the status timer copies
         self._logged_errors = 0
@@ -219,13 +220,13 @@ class YarpSkinBridge(Node):
             contacts = contacts_array(events.contact_id[rows], events.cop[rows], events.normal[rows],
                                       events.geo_center[rows], events.force[rows], events.moment[rows],
                                       events.pressure[rows])
-            self.contact_pub[part].publish(cloud_from_array(contacts, sp.parent_frame, msg_stamp))
+            self.contact_pub[part].publish(cloud_from_array(contacts, self.frames + sp.parent_frame, msg_stamp))
             if part in self.comp_port_of:
                 continue
             slots = events.taxel_id[taxels]
             owner = events.taxel_contact[taxels]
             points = taxels_array(slots, sp.positions[slots], events.pressure[owner], events.contact_id[owner])
-            self.taxel_pub[part].publish(cloud_from_array(points, sp.parent_frame, msg_stamp))
+            self.taxel_pub[part].publish(cloud_from_array(points, self.frames + sp.parent_frame, msg_stamp))
             self._count(f"messages {part}")
 
     def _on_compensated(self, part: str, bottle, msg_stamp) -> None:
@@ -237,7 +238,7 @@ class YarpSkinBridge(Node):
             raise DataError(f"{where}: not a vector of numbers") from None
         slots, vals = activated_taxels(values, self.threshold, where, sp.n_slots)
         points = taxels_array(slots, sp.positions[slots], vals)
-        self.taxel_pub[part].publish(cloud_from_array(points, sp.parent_frame, msg_stamp))
+        self.taxel_pub[part].publish(cloud_from_array(points, self.frames + sp.parent_frame, msg_stamp))
         self._count(f"messages {part}")
 
     def _publish_status(self) -> None:

@@ -1,10 +1,11 @@
-"""One record session per ROS domain on this machine.
+"""One record session per ROS domain and namespace on this machine.
 
 Two sessions on one ``ROS_DOMAIN_ID`` hear each other: each recorder takes
 the other robot's skin and joint states for its own, each calibrate node
 answers the other's requests, and both bags mix the two robots beyond
 repair. So ``nao-skin record`` and ``record.launch.py`` claim the domain
-before any node starts: an exclusive ``flock`` on
+(with the session's namespace: two robots in two namespaces hear only their own
+topics) before any node starts: an exclusive ``flock`` on
 ``/tmp/nao_skin_ros_domain_<id>.lock``, held as long as the claiming process
 runs. The kernel releases it when that process ends in any way (a
 ``kill -9`` too), so a claim never outlives its session and two sessions
@@ -38,8 +39,11 @@ def domain_id(environ=os.environ) -> int:
     return int(text)
 
 
-def lock_path(domain: int, lock_dir: Path | None = None) -> Path:
-    return (LOCK_DIR if lock_dir is None else Path(lock_dir)) / f"nao_skin_ros_domain_{domain}.lock"
+def lock_path(domain: int, lock_dir: Path | None = None, namespace: str = "/") -> Path:
+    """The lock of a domain's session outside a namespace, or in ``namespace`` (``/nao2``: ``..._nao2.lock``)."""
+    within = "_".join(p for p in namespace.split("/") if p)
+    name = f"nao_skin_ros_domain_{domain}{f'_ns_{within}' if within else ''}.lock"
+    return (LOCK_DIR if lock_dir is None else Path(lock_dir)) / name
 
 
 class DomainClaim:
@@ -62,27 +66,29 @@ class DomainClaim:
                 pass
 
 
-def claim_domain(domain: int | None = None, lock_dir: Path | None = None) -> DomainClaim:
+def claim_domain(domain: int | None = None, lock_dir: Path | None = None, namespace: str = "/") -> DomainClaim:
     """Claim ``domain`` (default :func:`domain_id`) for this process's record session, or raise
     :class:`~nao_skin.errors.ConfigError` naming the session that holds it. When the lock file cannot be
     opened at all (``/tmp`` not writable) the session goes on unclaimed: the returned claim's ``problem``
     says why, for the caller to say."""
     domain = domain_id() if domain is None else domain
-    path = lock_path(domain, lock_dir)
+    path = lock_path(domain, lock_dir, namespace)
+    where = f"ROS_DOMAIN_ID {domain}" + (f" in namespace {namespace}" if namespace != "/" else "")
     try:
         fd = _open(path)
     except OSError as exc:
-        return DomainClaim(path, domain, None, f"cannot claim ROS_DOMAIN_ID {domain} ({path}: {os_reason(exc)}):"
-                                               f" a second session on this domain would not be refused")
+        return DomainClaim(path, domain, None, f"cannot claim {where} ({path}: {os_reason(exc)}):"
+                                               f" a second session there would not be refused")
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         holder = _holder(fd)
         os.close(fd)
         raise ConfigError(
-            f"another nao-skin session{f' (pid {holder})' if holder else ''} runs on ROS_DOMAIN_ID {domain} on"
+            f"another nao-skin session{f' (pid {holder})' if holder else ''} runs on {where} on"
             f" this machine: the two would record each other's touches; stop it first, or give each robot its own"
-            f" domain (e.g. ROS_DOMAIN_ID={_free_neighbour(domain, lock_dir)} nao-skin record ...)") from None
+            f" domain (e.g. ROS_DOMAIN_ID={_free_neighbour(domain, lock_dir)} nao-skin record ...) or namespace"
+            f" (nao-skin record --namespace /nao2)") from None
     try:                              # the pid, for the line another session is refused with
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)

@@ -11,6 +11,9 @@ nothing: the last accepted calibration stays the one to publish and write.
 When the session ends, a final update (``final=True``, once the recorder has
 closed the bag: :meth:`LiveCalibration.wait_until_closed`) calibrates the
 touches recorded since the last one, so that what is written covers them all.
+An update can be stopped between two stages of its calibration (``stop``): a
+session's end does not wait for an update it no longer needs, nor for a
+final one past its time (the last accepted calibration stays the one written).
 A session that continues earlier sittings (``earlier``: their bags, read once
 at its start) calibrates their touches with the recording's, from the first
 update on, which needs no new touch.
@@ -36,6 +39,24 @@ from nao_skin.live.updates import LiveUpdates, Settling
 from nao_skin.model.skin import SkinCalibration, SkinModel, pair_label
 from nao_skin.paths import free_sibling
 from nao_skin.touch.touches import TouchSet
+
+
+class UpdateStopped(BaseException):
+    """Raised between two stages of an update's calibration when its ``stop`` says so (a BaseException: no
+    ``except Exception`` on the way takes it for a failure)."""
+
+
+def stoppable(log: Callable[[str], None], stop: Callable[[], bool] | None) -> Callable[[str], None]:
+    """``log``, that raises :class:`UpdateStopped` once ``stop()`` is true (the engine says each stage's end)."""
+    if stop is None:
+        return log
+
+    def said(msg: str) -> None:
+        if stop():
+            raise UpdateStopped
+        log(msg)
+
+    return said
 
 
 @dataclass
@@ -95,11 +116,14 @@ class LiveCalibration:
         """``{part: collecting | converging | done}``."""
         return self.updates.states(self.skin.parts)
 
-    def update(self, log: Callable[[str], None] | None = None, final: bool = False) -> LiveOutcome:
+    def update(self, log: Callable[[str], None] | None = None, final: bool = False,
+               stop: Callable[[], bool] | None = None) -> LiveOutcome:
         """Recalibrate on every touch recorded so far; never raises (a failure is a ``failed`` status).
 
         ``final``: the session's end; an update only when the recording holds a touch the last accepted
         update did not calibrate (empty status otherwise), so the calibration written covers every touch.
+        ``stop``: checked between the calibration's stages (never while the recording is read); once true the
+        update ends with a ``stopped`` status and changes nothing, the last accepted calibration stays.
         """
         log = log or (lambda msg: None)
         t0 = time.perf_counter()
@@ -119,8 +143,10 @@ class LiveCalibration:
                 # repeat the last one, and its 0 mm would count towards a part's 'done' (a closed bag, e.g.
                 # bench-live's --update-input, is calibrated again each time: that is what is asked)
                 return LiveOutcome({}, None, None)
+            calibration_log = stoppable(log, stop)
             result, moved, start = self.updates.update(
-                touches.n_touches, lambda args: calibrate_loaded(loaded, self.skin, self.options, log=log, **args))
+                touches.n_touches,
+                lambda args: calibrate_loaded(loaded, self.skin, self.options, log=calibration_log, **args))
             report = result.report
             self.last, self._last_touches, self.last_count = result, touches.n_touches, touches.n_touches
             return LiveOutcome({"state": "updated", "touches": touches.n_touches,
@@ -133,6 +159,10 @@ class LiveCalibration:
                                 "refresh": self.updates.warm_start.refreshed,
                                 "warnings": report.warnings,
                                 **({"earlier": self.earlier_count} if self.earlier else {})}, result, touches)
+        except UpdateStopped:             # the session ends: nothing accepted, the next update runs again
+            self._last_touches = -1
+            return LiveOutcome({"state": "stopped", "touches": touches.n_touches, "seconds": time.perf_counter() - t0,
+                                "parts": self.parts_state()}, None, touches)
         except TooFewTouches as exc:      # no pair has touches enough yet: wait for more
             self._last_touches = -1
             return LiveOutcome({"state": "waiting", "reason": str(exc), "parts": self.parts_state()}, None, touches)

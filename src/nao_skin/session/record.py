@@ -63,6 +63,7 @@ class NodeSpec:
     arguments: list = field(default_factory=list)
     optional: bool = False         # skipped by `nao-skin record` when the executable is not installed
     needs: dict = field(default_factory=dict)   # Python module the node imports -> what to install
+    namespace: str = "/"           # the session's namespace: its topics and (as a prefix) its frames
 
     @property
     def ours(self) -> bool:
@@ -77,7 +78,7 @@ def robot_description(calibration: str = "", skin_frames: bool = False) -> str:
 def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, events_port: str = "",
                    bag_path: str = "", calibration: str = "", rviz: bool = False, taxels=(),
                    overrides: dict | None = None, with_robot_state_publisher: bool = True,
-                   guided: bool = False, continue_from=(), spelling: str = "launch") -> list:
+                   guided: bool = False, continue_from=(), namespace: str = "", spelling: str = "launch") -> list:
     """The nodes of ``record.launch.py`` for these launch arguments.
 
     ``spelling``: how a message names the arguments, as the caller's user gave them: ``launch``
@@ -88,7 +89,10 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     ``continue_from``: bags of earlier sittings of this capture; the calibrate node calibrates their touches with
     the new recording's (live updates, guidance, the calibration written at the end).
     ``overrides``: ``{node name: {parameter: value}}`` applied last (tests, CLI ``--param``).
+    ``namespace``: every node's namespace (``/nao2``): a second robot's session on the same ROS domain, its
+    topics under the namespace and its TF frames prefixed with it (robot_state_publisher's ``frame_prefix``).
     """
+    namespace = _namespace(namespace, spelling)
     if robot not in ROBOTS:
         raise ConfigError(f"{_said('robot', repr(robot), spelling)}: expected one of {', '.join(ROBOTS)}")
     if robot == "sim":       # said, not ignored: an operator who gave the robot's address meant the robot
@@ -142,8 +146,9 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
         cal["calibration"] = calibration
     specs.append(NodeSpec("calibrate", "calibrate", [record_yaml], cal))
     if with_robot_state_publisher:
+        frames = {"frame_prefix": f"{namespace.strip('/')}/"} if namespace != "/" else {}
         specs.append(NodeSpec("robot_state_publisher", "robot_state_publisher",
-                              overrides={"robot_description": ("__urdf__", calibration)},
+                              overrides={"robot_description": ("__urdf__", calibration), **frames},
                               package="robot_state_publisher", optional=True))
     if rviz:
         specs.append(NodeSpec("rviz2", "rviz2", package="rviz2", optional=True,
@@ -153,6 +158,8 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
         for spec in specs:
             if spec.name in SKIN_NODES:
                 spec.overrides["taxels"] = resolved
+    for spec in specs:
+        spec.namespace = namespace
     by_name = {spec.name: spec for spec in specs}
     for node, values in (overrides or {}).items():
         # one bag for both: the calibrate node follows what the recorder writes, and the checks below (never
@@ -181,6 +188,20 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     _check_guided(by_name)
     _check_files(bag_path, calibration, by_name["calibrate"].overrides)
     return specs
+
+
+_NAMESPACE_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def _namespace(text: str, spelling: str) -> str:
+    """The session's namespace as ROS writes it (``/nao2``; ``/`` for none), or one line saying what rmw would
+    refuse in it (each part a letter or ``_`` then letters, digits or ``_``)."""
+    parts = [p for p in text.strip().split("/") if p] if text.strip() not in ("", "/") else []
+    bad = [p for p in parts if not _NAMESPACE_TOKEN.fullmatch(p)]
+    if bad or (text.strip() and "//" in text.strip()):
+        raise ConfigError(f"{_said('namespace', text, spelling)}: expected a ROS namespace such as /nao2 (each part"
+                          f" a letter or '_', then letters, digits or '_')")
+    return "/" + "/".join(parts)
 
 
 def _said(name: str, value: str, spelling: str) -> str:
@@ -286,7 +307,8 @@ def _start_values(spec: NodeSpec) -> dict:
 
 def _file_sections(spec: NodeSpec) -> list:
     """``[(path, {name: value})]``: what each of the node's parameter files gives it, as rcl reads the file."""
-    return [(path, parameters_for(read_params_file(path), spec.name)) for path in spec.params_files]
+    return [(path, parameters_for(read_params_file(path), spec.name, spec.namespace))
+            for path in spec.params_files]
 
 
 def _check_file_values(spec: NodeSpec) -> None:
@@ -490,6 +512,8 @@ def command_line(spec: NodeSpec, work_dir: Path) -> list | None:
         else:
             argv = [exe]
     argv += list(spec.arguments) + ["--ros-args", "-r", f"__node:={spec.name}"]
+    if spec.namespace != "/":
+        argv += ["-r", f"__ns:={spec.namespace}"]
     for f in spec.params_files:
         argv += ["--params-file", str(f)]
     extra = {}
@@ -502,6 +526,6 @@ def command_line(spec: NodeSpec, work_dir: Path) -> list | None:
         import yaml
 
         path = Path(work_dir) / f"{spec.name}.params.yaml"
-        path.write_text(yaml.safe_dump({spec.name: {"ros__parameters": extra}}))
+        path.write_text(yaml.safe_dump({"/**": {"ros__parameters": extra}}))      # the file is this node's alone
         argv += ["--params-file", str(path)]
     return argv

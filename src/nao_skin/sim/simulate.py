@@ -26,6 +26,8 @@ from nao_skin.sim.truth import draw_kinematics, draw_truth
 from nao_skin.touch.contacts import cluster_labels
 from nao_skin.touch.touches import TouchSet
 
+BAG_NAME = "touches"     # the touch bag in a simulator output directory: a rosbag2 directory is named without
+                         # ".bag", which rosbags' AnyReader (and ROS 1 tools) take for a ROS 1 bag file
 DUPLICATE_DELAY = (0.02, 0.1)   # s: a repeated message arrives right after the original
 NON_SELF_MIN_DISTANCE = 0.03    # m: activations this far from the contact are not explained by it
 OTHER_EVENT, STRAY_EVENT = 1000, 1001   # event numbers of the experimenter's hand and stray taxels
@@ -244,7 +246,8 @@ def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, prese
                   storage: str = "sqlite3", with_bag: bool = True, replacing=None) -> list:
     """Write the recording and its ground truth; returns the paths written.
 
-    ``touches.bag`` (rosbag2, via :mod:`nao_skin.formats.bag`), ``truth_calibration.yaml``
+    ``touches`` (rosbag2 directory, via :mod:`nao_skin.formats.bag`; named without ``.bag``, which rosbags'
+    ``AnyReader`` takes for a ROS 1 bag), ``truth_calibration.yaml``
     (the calibration format), ``truth_taxels/<part>.txt`` (true taxel positions,
     skinManager format) and ``simulation.yaml`` (parameters, seed, counts).
     Written into a temporary sibling and moved into place at the end (an
@@ -283,8 +286,8 @@ def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, prese
         if with_bag:
             from nao_skin.formats.bag import write_touch_bag  # the bag writer of the capture pipeline
 
-            bag = tmp / "touches.bag"
-            write_touch_bag(bag, result.touches, skin, storage=storage, label=out / "touches.bag")
+            bag = tmp / BAG_NAME
+            write_touch_bag(bag, result.touches, skin, storage=storage, label=out / BAG_NAME)
             written.append(bag)
         # no time in the marker: the same seed gives the same bytes, marker included
         write_marker(tmp, "simulate", RECORDING, stamp=False)
