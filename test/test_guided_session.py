@@ -23,7 +23,7 @@ from std_msgs.msg import String  # noqa: E402
 from test_record_session import record_cmd  # noqa: E402
 from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
-from nao_skin.nodes.topics import GUIDANCE_MARKERS_TOPIC, GUIDANCE_TOPIC, LATCHED, STATUS_TOPIC  # noqa: E402
+from nao_skin.nodes.topics import GUIDANCE_MARKERS_TOPIC, GUIDANCE_TOPIC, HEATMAP_TOPIC, LATCHED, STATUS_TOPIC  # noqa: E402
 
 pytestmark = [pytest.mark.middleware, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[1]
@@ -102,5 +102,5 @@ def test_rviz_shows_the_guidance_markers_as_published():
     doc = yaml.safe_load((ROOT / "config" / "nao_skin.rviz").read_text())
     displays = {d["Topic"]["Value"]: d["Topic"] for d in doc["Visualization Manager"]["Displays"]
                 if d.get("Class") == "rviz_default_plugins/MarkerArray"}
-    assert {"/nao_skin/heatmap", GUIDANCE_MARKERS_TOPIC} <= set(displays)
+    assert {HEATMAP_TOPIC, GUIDANCE_MARKERS_TOPIC} <= set(displays)     # relative: in the session's namespace
     assert displays[GUIDANCE_MARKERS_TOPIC]["Durability Policy"] == "Transient Local"

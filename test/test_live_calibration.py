@@ -26,7 +26,8 @@ from tf2_msgs.msg import TFMessage  # noqa: E402
 
 from nao_skin.formats.bag import continued_bags, write_touch_bag  # noqa: E402
 from nao_skin.model.skin import SkinCalibration, load_skin  # noqa: E402
-from nao_skin.nodes.topics import LATCHED, PROGRESS_TOPIC, SIM_STATUS_TOPIC, STATUS_TOPIC, TF_STATIC_TOPIC  # noqa: E402
+from nao_skin.nodes.topics import (GUIDANCE_TOPIC, LATCHED, PROGRESS_TOPIC, REQUEST_TOPIC,  # noqa: E402
+                                   SIM_STATUS_TOPIC, STATUS_TOPIC, TF_STATIC_TOPIC)
 from nao_skin.sim.simulate import simulate  # noqa: E402
 
 pytestmark = [pytest.mark.middleware, pytest.mark.slow]
@@ -44,7 +45,8 @@ def live_session_cmd(bag, seed: int, per_pair: int, pairs: str, every_touches: i
 def run_sitting(tmp_path, argv, name: str, until):
     """One record session, stopped with SIGINT 2 s after ``until(status, sim)`` holds (the recorder's last
     touches reported) and checked to end cleanly: the calibrate node's statuses, the session's stderr, and what
-    else it published (``frames`` on /tf_static, the recorder's ``progress``, the simulated robot's ``sim``)."""
+    else it published (``frames`` on /tf_static, the ``guidance``, the recorder's ``progress``, the simulated
+    robot's ``sim``)."""
     domain = unique_domain_id()
     listener = session = None
     code = None
@@ -52,6 +54,7 @@ def run_sitting(tmp_path, argv, name: str, until):
         listener = Listener(domain)
         status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
         seen = {"frames": listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=LATCHED),
+                "guidance": listener.subscribe(String, GUIDANCE_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data)),
                 "sim": listener.subscribe(String, SIM_STATUS_TOPIC, keep=lambda m: json.loads(m.data)),
                 "progress": listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))}
         session = Proc(argv, ros_env(domain), tmp_path, name)
@@ -124,7 +127,8 @@ def test_updates_arrive_while_touches_are_recorded(tmp_path):
 def test_the_session_end_calibrates_the_touches_since_the_last_update_and_says_where_it_went(tmp_path):
     """Updates every 20 touches, none by time: the touches recorded after the last update are calibrated when
     the session ends, so the calibration written covers every touch (it covered the last update's only); its
-    frames go out on /tf_static, and the latched status says the session ended and where the calibration is."""
+    frames go out on /tf_static and the guidance follows them (same generation, every touch), and the latched
+    status says the session ended and where the calibration is."""
     bag = tmp_path / "touches"
     argv = live_session_cmd(bag, 5, 32, "r_hand-torso", every_touches=20, period=86400)     # no update by time
     updated = lambda status: [s for s in status if s["state"] == "updated"]  # noqa: E731
@@ -146,6 +150,11 @@ def test_the_session_end_calibrates_the_touches_since_the_last_update_and_says_w
     assert_frames(frames[-1], load_skin(), written)
     report = json.loads((out / "report.json").read_text())
     assert report["final"]["train"]["n_touches"] + report["final"]["test"]["n_touches"] == recorded
+    # the guidance follows the frames, the final update's too (it stayed at the last live update's generation
+    # while /tf_static and the status went one further, issue 51 item 7): under them, over every touch
+    guidance = seen["guidance"][-1]
+    assert guidance["generation"] == end["generation"] and guidance["n_touches"] == recorded, \
+        (guidance["generation"], guidance["n_touches"], end)
 
 
 def test_a_failing_update_keeps_the_last_good_frames(tmp_path):
@@ -195,6 +204,47 @@ def test_a_failing_update_keeps_the_last_good_frames(tmp_path):
         write_touch_bag(bag, touches, skin)
         again = report(touches.n_touches + 6, "updated")
         assert again["generation"] == good["generation"] + 1
+    finally:
+        if listener is not None:
+            listener.close()
+        code = node.stop() if node is not None else None
+    assert code == 0, node.stderr()[-3000:]
+
+
+def test_the_guidance_follows_every_publication_of_frames_a_requested_calibration_too(tmp_path):
+    """The calibrate node alone, live, on a recording the test writes: a live update's frames and the guidance
+    under them share a generation; a calibration requested on /nao_skin/calibrate then publishes its frames,
+    and the guidance follows, under them (it stayed at the live update's generation, issue 51 item 7)."""
+    skin = load_skin()
+    touches = simulate(skin, {"pairs": [["r_hand", "torso"]], "n_touches": 40}, seed=6).touches
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, touches, skin)
+    domain = unique_domain_id()
+    listener = node = None
+    try:
+        listener = Listener(domain)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        advice = listener.subscribe(String, GUIDANCE_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        progress = listener.node.create_publisher(String, PROGRESS_TOPIC, 10)
+        request = listener.node.create_publisher(String, REQUEST_TOPIC, 10)
+        node = node_process("calibrate", {"live": True, "recording": str(bag), "live_every_touches": 1,
+                                          "live_period": 86400.0, "out_dir": str(tmp_path / "live_calibration")},
+                            ros_env(domain), tmp_path)
+        assert listener.spin_until(lambda: progress.get_subscription_count() >= 1 and request.get_subscription_count()
+                                   >= 1 and status, procs=[node])
+        progress.publish(String(data=json.dumps({"touches": touches.n_touches})))
+        assert listener.spin_until(lambda: any(s["state"] == "updated" for s in status), timeout=90, procs=[node]), \
+            status[-1:]
+        live = next(s for s in status if s["state"] == "updated")
+        assert listener.spin_until(lambda: advice and advice[-1]["generation"] == live["generation"], timeout=30,
+                                   procs=[node]), (advice[-1:], live["generation"])
+        request.publish(String(data=""))          # the session's recording, calibrated from the start
+        assert listener.spin_until(lambda: status[-1]["state"] == "done", timeout=90, procs=[node]), status[-1:]
+        done = status[-1]
+        assert done["generation"] == live["generation"] + 1, (done, live)
+        assert listener.spin_until(lambda: advice[-1]["generation"] == done["generation"], timeout=30,
+                                   procs=[node]), (advice[-1]["generation"], done["generation"])
+        assert advice[-1]["n_touches"] == live["touches"]         # the session's touches, under the frames published
     finally:
         if listener is not None:
             listener.close()
@@ -333,7 +383,9 @@ def test_the_session_end_writes_the_last_update_before_the_final_one_runs(tmp_pa
 def test_guidance_after_a_failed_update_says_it_comes_from_the_last_accepted_calibration(tmp_path):
     """After a refused update the guidance was published again under the last accepted calibration, with
     the same generation and nothing saying so (one target was repeated 46 times while no update was
-    accepted). It now says so, and counts its own messages. The node runs in the test's process."""
+    accepted). It now says so, and counts its own messages; a request's frames published after the live
+    update are the ones it is under then (its generation follows /tf_static's). The node runs in the test's
+    process."""
     from rclpy.parameter import Parameter
 
     from nao_skin.nodes.calibrate import CalibrateNode
@@ -365,11 +417,13 @@ def test_guidance_after_a_failed_update_says_it_comes_from_the_last_accepted_cal
         if listener is not None:
             listener.close()
     assert [g["sequence"] for g in published] == [1, 2]
-    assert published[0]["generation"] == published[1]["generation"]
     assert not any("failed" in n for n in published[0]["notes"])
-    live = published[0]["generation"]            # the live update's, not the request's published after it
-    assert any(n.startswith("the last live update failed (update over") and "these targets are under the last"
-               f" accepted calibration (generation {live})" in n for n in published[1]["notes"]), published[1]["notes"]
+    # under the frames on /tf_static, the request's published after the live update (the guidance's generation
+    # follows every publication of frames: issue 51 item 7), and said so
+    assert published[1]["generation"] == published[0]["generation"] + 1
+    assert any(n.startswith("the last live update failed (update over") and "these targets are under the"
+               f" calibration published last (generation {published[1]['generation']})" in n
+               for n in published[1]["notes"]), published[1]["notes"]
 
 
 def test_the_session_end_writes_the_last_update_at_once_while_a_live_update_still_runs(tmp_path):

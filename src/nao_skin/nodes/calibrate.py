@@ -88,7 +88,9 @@ class CalibrateNode(Node):
         self._ended = False               # the session's end is published: nothing is published after it
         self._written_stamp = None        # output_stamp of what the session's end wrote first, to replace
         self._guidance_sequence = 0       # guidance messages published
-        self._live_generation = 1         # the generation of the last accepted live update (1: where it started)
+        self._on_tf = None                # what the frames on /tf_static are (a result, or a calibration): the
+        #                                   guidance is computed under it
+        self._touches = None              # the session's touches the last live update read (the guidance's)
         self._stopping = threading.Event()    # the session ends: a live update running stops at its next stage
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
@@ -120,14 +122,16 @@ class CalibrateNode(Node):
             self._check_start(inputs)     # refused now, in one line and exit 2, not logged by a node that runs on
             self._start(inputs)
 
-    def publish_calibration(self, calib: SkinCalibration, source: str, quiet: bool = False) -> None:
+    def publish_calibration(self, calib: SkinCalibration, source: str, quiet: bool = False, result=None) -> None:
         """All skin frames in ONE latched TFMessage: late joiners get exactly this set (in a namespace, the
-        frames carry it as a prefix, as robot_state_publisher's frame_prefix makes the body's)."""
+        frames carry it as a prefix, as robot_state_publisher's frame_prefix makes the body's). ``result``: the
+        calibration's result (its held frames and parts), for the guidance that follows."""
         stamp = self.get_clock().now().to_msg()
         ns = frame_prefix(self)
         self.tf_pub.publish(TFMessage(transforms=[to_transform_stamped(ns + parent, ns + child, t, stamp)
                                                   for parent, child, t in skin_frame_transforms(self.skin, calib)]))
         self.generation += 1
+        self._on_tf = result if result is not None else calib
         if not quiet:                     # a live update says more in its own status
             self._status({"state": "published", "source": source, "generation": self.generation})
 
@@ -207,8 +211,7 @@ class CalibrateNode(Node):
                 return
             try:
                 if out.accepted is not None:
-                    self.publish_calibration(out.accepted.calibration, "live update", quiet=True)
-                    self._live_generation = self.generation
+                    self.publish_calibration(out.accepted.calibration, "live update", quiet=True, result=out.accepted)
                     for line in out.accepted.report.warnings:
                         log.warning(f"live update {self.generation}: {line}")
                     log.info(f"live update {self.generation}: {out.status['touches']} touches, taxels moved up to"
@@ -220,27 +223,41 @@ class CalibrateNode(Node):
                 log.error(f"live update not published: {one_line(exc)}")
                 self._status({"state": "failed", "live": True, "error": one_line(exc), "generation": self.generation,
                               "parts": self.live.parts_state()})
-            try:
-                if out.touches is not None and self.p["guidance"]:
-                    self._publish_guidance(out.touches, out.status)
-            except Exception as exc:  # noqa: BLE001 - guidance is advice: its failure never stops the session
-                log.warning(f"guidance not updated: {one_line(exc)}")
+            if out.touches is not None:
+                self._touches = out.touches
+                self._try_guidance(out.status)
         finally:
             self._busy.release()
 
+    def _try_guidance(self, status: dict) -> None:
+        """The guidance, after each live update and each publication of frames in a live session (the final
+        update's, a requested calibration's): its generation follows /tf_static's. Advice: its failure is a
+        warning, never the session's end."""
+        if not (self.p["live"] and self.p["guidance"]) or self._touches is None:
+            return
+        try:
+            self._publish_guidance(self._touches, status)
+        except Exception as exc:  # noqa: BLE001 - guidance is advice: its failure never stops the session
+            self.get_logger().warning(f"guidance not updated: {one_line(exc)}")
+
     def _publish_guidance(self, touches, status: dict) -> None:
-        """Where to touch next under the last accepted calibration (nominal before the first), latched JSON;
+        """Where to touch next under the calibration on /tf_static (the last accepted live update's, the one the
+        node started from before the first, or a requested calibration's published since), latched JSON;
         ``generation``: that calibration's on /tf_static, ``sequence``: this guidance's own count."""
         from nao_skin.guidance.capture import guidance
 
-        advice = guidance(touches, self.skin, self.live.last, self.options, pairs=self.guidance_pairs,
+        live = self._on_tf is self.live.last or isinstance(self._on_tf, SkinCalibration)
+        advice = guidance(touches, self.skin, self._on_tf, self.options, pairs=self.guidance_pairs,
                           max_targets=int(self.p["guidance_targets"]), seed=self.generation,
-                          calibrated_parts=self.live.updates.calibrated_parts)
+                          # a requested calibration's parts are its report's; else the live updates'
+                          calibrated_parts=self.live.updates.calibrated_parts if live else None)
         if status.get("state") == "failed":     # said: the targets come from an older calibration than the touches
-            advice.notes.append(f"the last live update failed ({status.get('error')}); these targets are under the"
-                                f" last accepted calibration (generation {self._live_generation})")
+            what = ("the last accepted calibration" if self._on_tf is self.live.last
+                    else "the calibration published last")
+            advice.notes.append(f"the last live update failed ({status.get('error')}); these targets are under"
+                                f" {what} (generation {self.generation})")
         self._guidance_sequence += 1
-        self.guidance_pub.publish(String(data=json.dumps({"generation": self._live_generation,
+        self.guidance_pub.publish(String(data=json.dumps({"generation": self.generation,
                                                           "sequence": self._guidance_sequence, **advice.to_dict()},
                                                          sort_keys=True)))
 
@@ -336,12 +353,13 @@ class CalibrateNode(Node):
                                        replacing=replacing, beside=".new")
             self._requested_out = (str(run.out_dir), output_stamp(run.out_dir))    # the node's own, to replace
             calibration = str(run.out_dir / "calibration.yaml")
-            self.publish_calibration(run.result.calibration, calibration)
+            self.publish_calibration(run.result.calibration, calibration, result=run.result)
             final = run.result.report.final
             self._status({"state": "done", "generation": self.generation, "out_dir": str(run.out_dir),
                           "calibration": calibration, "touches": run.n_touches,
                           "final": {k: final.get(k) for k in ("train", "test") if k in final},
                           "warnings": run.result.report.warnings})
+            self._try_guidance(self._latched)      # in a live session: under these frames
             log.info(f"calibrated from {len(paths)} input(s): {run.n_touches} touches -> {run.out_dir}")
             for line in run.result.report.warnings:
                 log.warning(line)
@@ -409,7 +427,7 @@ class CalibrateNode(Node):
         """The session's last status, delivered before the node goes (the process ends right after: a
         subscriber missed it now and then)."""
         self._status(info)
-        for publisher in (self.status_pub, self.tf_pub):
+        for publisher in (self.status_pub, self.tf_pub, self.guidance_pub):
             publisher.wait_for_all_acked(Duration(seconds=FINAL_ACK_S))
 
     def _write_live(self, result, written: Path | None = None) -> Path:
@@ -477,14 +495,16 @@ class CalibrateNode(Node):
             self._status({**out.status, "live": True, "generation": self.generation})
             return False
         if out.accepted is not None:
-            self.publish_calibration(out.accepted.calibration, "final live update", quiet=True)
-            self._live_generation = self.generation
+            self.publish_calibration(out.accepted.calibration, "final live update", quiet=True, result=out.accepted)
+            self._touches = out.touches
             log.info(f"final live update {self.generation}: {out.status['touches']} touches")
         elif self.live.last is not None:
             why = out.status.get("error") or out.status.get("reason")
             log.warning(f"the final live update over {self.live.read_count} touches was not accepted ({why});"
                         f" the last accepted update's is written")
         self._status({**out.status, "live": True, "generation": self.generation})
+        if out.accepted is not None:      # the guidance under the frames published last, as after every update
+            self._try_guidance(out.status)
         return closed and out.accepted is not None
 
 

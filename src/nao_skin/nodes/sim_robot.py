@@ -6,7 +6,8 @@ a test can recompute exactly what was played) and plays its touches with
 ``/skin/<part>/taxels`` and ``/skin/<part>/contacts`` for every part at
 ``skin_rate`` Hz (empty clouds = released, as the YARP bridge sends), one
 press per touch. Publishes ``/sim_robot/status`` (std_msgs/String, JSON:
-touches played / total, done) once per second.
+touches ``played`` of ``total``, ``done`` once every touch is played, ``stopped``
+when the node was stopped before: its last status says so) once per second.
 
 With ``wait_for_subscribers: N`` the play starts only when every skin taxels
 topic has N subscribers and the other topics at least one, and each of them
@@ -80,7 +81,8 @@ class SimRobot(Node):
         self.wait_for = int(p["wait_for_subscribers"])
         self.wait_timeout = float(p["wait_timeout"])
         self.played = 0
-        self.done = False
+        self.done = False                 # every touch played (with loop: never)
+        self.stopped = False              # stopped (Ctrl-C) before it was done
         self.published = 0                # joint states published
         self._joint_rate = RateWindow()
         self.frames = frame_prefix(self)
@@ -135,14 +137,17 @@ class SimRobot(Node):
 
     def _play(self) -> None:
         self._wait_for_subscribers()
+        finished = False                  # the playback ran to its end (not stopped part-way)
         while not self._stop.is_set():
-            self._play_once()
+            finished = self._play_once()
             if self.guided and self.played < self.total:
                 self.playback = Playback(self._next_batch(), self.skin, *self.timing)
                 continue
             if not self.loop:
                 break
-        self.done = True
+        # a Ctrl-C part-way is no 'done': the last status says how many of the touches were played
+        self.done = finished and not self.loop and (not self.guided or self.played >= self.total)
+        self.stopped = not self.done
         self._publish_status()
         # keep the arm where it is: joint states go on, the skin is released
         tick = 0
@@ -150,14 +155,15 @@ class SimRobot(Node):
             self._publish(self.playback.duration, tick)
             tick += 1
 
-    def _play_once(self) -> None:
+    def _play_once(self) -> bool:
+        """Play ``self.playback``; True when it ran to its end, False when the node was stopped part-way."""
         t0 = time.monotonic()
         tick = 0
         last_touch = -1
         while not self._stop.is_set():
             t = tick * self.joint_period
             if t > self.playback.duration:
-                break
+                return True
             delay = t0 + t - time.monotonic()
             if delay > 0:
                 self._stop.wait(delay)
@@ -166,6 +172,7 @@ class SimRobot(Node):
                 last_touch = k
                 self.played += 1
             tick += 1
+        return False
 
     def _on_guidance(self, msg: String) -> None:
         try:
@@ -213,6 +220,8 @@ class SimRobot(Node):
 
     def _publish_status(self) -> None:
         status = {"played": self.played, "total": self.total, "done": self.done}
+        if self.stopped:
+            status["stopped"] = True
         if self.guided:       # how the touches were chosen: aimed at the guidance, or random
             status.update(aimed=self.aimed, missed_aims=self.capture.missed)
         self.status_pub.publish(String(data=json.dumps(status)))
@@ -221,11 +230,17 @@ class SimRobot(Node):
         """Joint states published against joint_rate (none while it waits for subscribers), touches played."""
         rate = self._joint_rate.rate(self.published, now)
         return [rate_check("joint states", rate if self.published else None, 1.0 / self.joint_period),
-                Check(values=(("played", f"{self.played} of {self.total}"), ("done", "yes" if self.done else "no")))]
+                Check(values=(("played", f"{self.played} of {self.total}"),
+                             ("done", "yes" if self.done else "stopped" if self.stopped else "no")))]
 
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=2.0)
+        if not self._thread.is_alive():   # its last status (stopped, or done) reaches the subscribers
+            try:
+                self.status_pub.wait_for_all_acked(Duration(seconds=1.0))
+            except RCLError:              # the middleware cannot tell: as without the wait
+                pass
 
 
 def main(args=None) -> int:
