@@ -13,6 +13,8 @@ calibration's prior on patches and triangles (bound / prior_strength). A
 taxel's predicted error is the root of the trace of ``G C G^T``, ``G`` its
 position's derivative (chain-end frame) by the unknowns: what an efficient
 estimator would reach, had the pairing no wrong pairs and the noise no tails.
+The linearisation and the covariance are :mod:`nao_skin.calibration.uncertainty`'s,
+which every calibration evaluates at its estimate (its predicted taxel error).
 
 Two ways to choose ``N`` touches from the pool: **random**, and **greedy** -- the
 batches that lower the summed taxel variance most (A-optimal, one batch after
@@ -25,23 +27,16 @@ them).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
 
 import numpy as np
 import scipy.sparse
 
-from nao_skin.calibration.layout import LEVELS, ParameterLayout
 from nao_skin.calibration.options import CalibrationOptions
-from nao_skin.calibration.pairing import KIND_NAMES, chain_end_poses
-from nao_skin.calibration.plan import Step
-from nao_skin.calibration.residuals import ResidualModel
-from nao_skin.calibration.rows import pair_step, select_rows
-from nao_skin.calibration.stages import fitted_kinds, initial_prior_sigma, prior_group_columns
+from nao_skin.calibration.stages import initial_prior_sigma
+from nao_skin.calibration.uncertainty import (linearised_rows, prior_information, robust_sigma, taxel_jacobian,
+                                              taxel_rms)
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.touches import TouchSet
-
-DIFFERENCE_STEP = 1e-6      # m or rad: central differences of the taxel positions by the unknowns (linear there)
-UNCONSTRAINED = 1e-6        # prior information (1/m^2, 1/rad^2) of the mounts and the fabric: next to none
 
 
 @dataclass
@@ -53,7 +48,7 @@ class LinearisedCapture:
     n_touches: int
     sigma: float                         # m per coordinate
     prior: np.ndarray                    # prior information per unknown
-    taxel_jacobian: np.ndarray           # (3 per taxel, unknowns)
+    taxel_jacobian: scipy.sparse.csr_matrix   # (3 per taxel, unknowns)
     taxel_part: np.ndarray               # part of each taxel
     parts: tuple
 
@@ -64,10 +59,7 @@ class LinearisedCapture:
 
     def predicted_error(self, information: np.ndarray) -> dict:
         """Per part ``(median, p95)`` over its taxels of the predicted RMS error (mm)."""
-        cov = np.linalg.inv(information + np.diag(self.prior))
-        g = self.taxel_jacobian
-        var = np.einsum("ij,ij->i", g @ cov, g).reshape(-1, 3).sum(axis=1)
-        rms = 1000.0 * np.sqrt(np.maximum(var, 0.0))
+        rms = 1000.0 * taxel_rms(information, self.prior, self.taxel_jacobian)
         return {p: (float(np.median(rms[self.taxel_part == p])), float(np.percentile(rms[self.taxel_part == p], 95)))
                 for p in self.parts}
 
@@ -77,7 +69,7 @@ class LinearisedCapture:
         sizes = sorted(set(int(n) for n in sizes))
         chosen: list = []
         information = np.zeros((len(self.prior), len(self.prior)))
-        gtg = self.taxel_jacobian.T @ self.taxel_jacobian
+        gtg = (self.taxel_jacobian.T @ self.taxel_jacobian).toarray()
         out = {}
         while len(chosen) < sizes[-1]:
             cov = np.linalg.inv(information + np.diag(self.prior))
@@ -97,38 +89,13 @@ class LinearisedCapture:
 def linearise(skin: SkinModel, touches: TouchSet, truth: SkinCalibration, fabric: float,
               options: CalibrationOptions | None = None) -> LinearisedCapture:
     """The pool ``touches`` paired at the truth as the closing stage pairs them (``closing_pairs``), linearised
-    there."""
-    options = (options or CalibrationOptions()).in_place()
+    there (:mod:`nao_skin.calibration.uncertainty`, as a calibration's predicted error is at its estimate)."""
+    options = options or CalibrationOptions()
     parts = tuple(p for p in skin.parts if p in touches.part_names)
-    layout = ParameterLayout(skin, parts, ())
-    kinds = fitted_kinds(options, {"triangle"})
-    pairing = select_rows(pair_step(touches, skin, truth, Step(parts, ()), kinds, options.plane_rows()),
-                          tuple(KIND_NAMES[k] for k in kinds))
-    model = ResidualModel(skin, partial(chain_end_poses, touches, skin), pairing, touches.part_names, layout, truth,
-                          fabric=fabric)
-    jac = scipy.sparse.csr_matrix(model.jacobian(truth, {p: set(LEVELS) for p in parts}))
-    residuals = model.residuals(truth)
-    sigma = float(1.4826 * np.median(np.abs(residuals - np.median(residuals, axis=0))))
-    prior = np.full(layout.size, UNCONSTRAINED)
-    for group, std in initial_prior_sigma(options).items():
-        prior[prior_group_columns(layout, parts, group)] = 1.0 / std ** 2
-    x0 = layout.to_vector(truth, fabric)
-    blocks, taxel_part = [], []
-    for p in parts:
-        m, _, _, end = layout.offsets[p]
-        part = skin.parts[p]
-        g = np.zeros((3 * len(part.slots), layout.size))
-        for col in range(m, end):
-            moved = []
-            for sign in (1.0, -1.0):
-                x = x0.copy()
-                x[col] += sign * DIFFERENCE_STEP
-                moved.append(part.taxel_positions(layout.to_calibration(x, truth).parts[p])[0][part.slots])
-            g[:, col] = ((moved[0] - moved[1]) / (2 * DIFFERENCE_STEP)).ravel()
-        blocks.append(g)
-        taxel_part += [p] * len(part.slots)
-    return LinearisedCapture(jac, np.repeat(pairing.row_touch, 3), touches.n_touches, sigma, prior,
-                             np.vstack(blocks), np.array(taxel_part), parts)
+    layout, jac, row_touch, residuals = linearised_rows(skin, touches, truth, fabric, parts, options)
+    prior = prior_information(layout, parts, initial_prior_sigma(options))
+    g, taxel_part = taxel_jacobian(skin, layout, truth)
+    return LinearisedCapture(jac, row_touch, touches.n_touches, robust_sigma(residuals), prior, g, taxel_part, parts)
 
 
 def random_touches_for(error: float, random_errors: dict) -> float:

@@ -123,6 +123,26 @@ def kinematics_section(kin: dict) -> list:
     return lines
 
 
+def predicted_section(final: dict) -> list:
+    """report.md lines of the predicted taxel error per part (and the true one beside it, when known)."""
+    predicted = final.get("predicted_taxel_error_mm")
+    if not predicted:
+        return []
+    truth = final.get("truth_taxel_error_mm") or {}
+    lines = ["", "## Predicted taxel error (linearised posterior at the estimate)", "",
+             f"Each taxel's predicted RMS error from the kept touches' rows linearised at the calibration, their noise"
+             f" {_fmt(final.get('predicted_noise_mm'))} mm per coordinate (robust spread of their residuals), and the"
+             f" calibration's prior; held patches and triangles at their prior. What an efficient estimator reaches,"
+             f" had the pairing no wrong pairs and the noise no tails.", "",
+             "| part | predicted median (mm) | predicted p95 (mm) |"
+             + (" true median (mm) | true p95 (mm) |" if truth else ""),
+             "|---|---|---|" + ("---|---|" if truth else "")]
+    for part, v in predicted.items():
+        true = [_fmt(truth.get(part, {}).get(k)) for k in ("median", "p95")] if truth else []
+        lines.append(f"| {part} | {_fmt(v['median'])} | {_fmt(v['p95'])} |" + "".join(f" {t} |" for t in true))
+    return lines
+
+
 def _set_aside_text(final: dict) -> str:
     """How far apart the touches the gate set aside are, beside the kept ones (the warnings judge those)."""
     aside, kept = final.get("train_set_aside"), final.get("train_kept")
@@ -175,6 +195,7 @@ def markdown_report(report: dict, coverage: dict | None = None, pictures: bool =
         for part, v in truth.items():
             lines.append(f"| {part} | {_fmt(before.get(part, {}).get('median'))} | {_fmt(v['median'])} | "
                          f"{_fmt(v['p95'])} | {_fmt(v['max'])} |")
+    lines += predicted_section(report["final"])
     spread = report.get("splits")
     if spread:
         lines += ["", f"## Over {spread['k']} {spread['kind']} (seeds {spread['seeds'][0]}..{spread['seeds'][-1]},"

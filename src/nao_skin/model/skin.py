@@ -497,10 +497,14 @@ class SkinCalibration:
     # m: the pressed fabric over the taxels the calibration's touches implied (the engine's estimate), what
     # its closest pairs were measured at; None where nothing estimated it (nominal, older files)
     fabric_thickness: float | None = None
+    # part -> {median, p95} (mm): its taxels' predicted RMS error, the linearised posterior at the estimate
+    # (calibration/uncertainty.py); empty where nothing predicted it (nominal, older files)
+    predicted_error_mm: dict = field(default_factory=dict)
 
     def copy(self) -> "SkinCalibration":
         return SkinCalibration({k: v.copy() for k, v in self.parts.items()}, dict(self.kinematics),
-                               dict(self.kinematics_std), self.fabric_thickness)
+                               dict(self.kinematics_std), self.fabric_thickness,
+                               {k: dict(v) for k, v in self.predicted_error_mm.items()})
 
     # ------------------------------------------------------------------ YAML
     def to_dict(self, skin: SkinModel) -> dict:
@@ -541,6 +545,10 @@ class SkinCalibration:
                 **({"chain_sha256": skin.robot.chain_sha256(part.chain)} if part.chain else {}),
                 # the layout the corrections belong to: load() refuses another one
                 "layout": {"file": Path(part.layout_file).name, "sha256": part.layout_sha256},
+                # absent where nothing predicted it: such files read as before
+                **({"predicted_taxel_error_mm": {k: round(float(v), 4) for k, v in
+                                                 self.predicted_error_mm[name].items()}}
+                   if name in self.predicted_error_mm else {}),
                 "mount": entry(mount),
                 "patches": {f.number: entry(f) for f in others if f.kind == "patch"},
                 "triangles": {f.number: entry(f) for f in others if f.kind == "triangle"},
@@ -561,6 +569,9 @@ class SkinCalibration:
         if self.fabric_thickness is not None:
             header += ("# fabric_thickness: the pressed fabric over the taxels the touches implied (m); nao-skin\n"
                        "#   check judges new touches at it.\n")
+        if self.predicted_error_mm:
+            header += ("# predicted_taxel_error_mm: per part, the median and p95 over its taxels of the predicted RMS\n"
+                       "#   error (mm), from the linearised posterior at the estimate (not measured).\n")
         if self.kinematics:
             header += ("# kinematics: corrections of the robot config, a joint's (rad) added to the angle it\n"
                        "#   reports, a link's (m) to its DH parameter; std from the normal equations.\n")
@@ -623,6 +634,8 @@ class SkinCalibration:
             _check_chain(path, name, spec.get("chain_sha256"), part, skin.robot)
             _check_layout(path, name, spec.get("layout"), part)
             corr = calib.parts[name]
+            if "predicted_taxel_error_mm" in spec:
+                calib.predicted_error_mm[name] = _predicted_entry(path, name, spec["predicted_taxel_error_mm"])
             if "mount" in spec:
                 corr.mount = vec(spec["mount"], f"part '{name}' mount")
             rows = {int(p): i for i, p in enumerate(part.patch_ids)}
@@ -678,6 +691,20 @@ def _fabric_entry(path: Path, entry) -> float:
     if not ok:
         raise ConfigError(f"{path}: fabric_thickness must be {{value: metres from 0 to {MAX_FABRIC:g}, unit: m}}")
     return float(value)
+
+
+def _predicted_entry(path: Path, name: str, entry) -> dict:
+    """A part's ``predicted_taxel_error_mm`` in a calibration file: ``{median: mm, p95: mm}``, finite, >= 0."""
+    try:
+        values = {key: entry[key] for key in ("median", "p95")}
+        ok = set(entry) == set(values) and all(not isinstance(v, bool) and isinstance(v, (int, float))
+                                               and 0.0 <= float(v) < math.inf for v in values.values())
+    except (TypeError, KeyError, AttributeError, OverflowError):
+        ok = False
+    if not ok:
+        raise ConfigError(f"{path}: part '{name}': predicted_taxel_error_mm must be {{median: mm, p95: mm}}, finite"
+                          f" numbers >= 0")
+    return {key: float(v) for key, v in values.items()}
 
 
 ORIGIN_TOLERANCE = 1e-8   # m and rad; files hold origins rounded to 1e-10

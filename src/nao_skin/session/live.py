@@ -153,6 +153,7 @@ class LiveCalibration:
                                 "pairs": {pair_label(p): n for p, n in pair_counts(touches).items()},
                                 "final": {k: report.final.get(k) for k in ("train", "test")},
                                 "displacement_mm": moved, "held": report.held, "left_out": report.left_out,
+                                "predicted_taxel_error_mm": report.final.get("predicted_taxel_error_mm", {}),
                                 "parts": self.parts_state(), "seconds": time.perf_counter() - t0,
                                 "from_scratch": not start["warm"],
                                 # a refresh runs both (its seconds are theirs) and keeps the closer

@@ -1,0 +1,183 @@
+"""Predicted taxel error: the linearised posterior of the skin frames, per taxel its predicted RMS error.
+
+The touches' rows are linearised at a calibration ``x`` (the rows' Jacobian ``J``) and the posterior
+covariance of the unknowns is
+
+    C = (J^T J / sigma^2 + P)^-1
+
+with ``sigma`` the rows' noise per coordinate (a robust, MAD-based spread of their residuals there) and
+``P`` the calibration's prior on patches and triangles (1 / prior std^2 per component; the mounts and the
+fabric have next to none). A taxel's predicted RMS error is the root of the trace of ``G C G^T``, ``G``
+the derivative of its position (chain-end frame) by the unknowns: what an efficient estimator reaches,
+had the pairing no wrong pairs and the noise no tails.
+
+:func:`predicted_error` evaluates it at a calibration's estimate (the engine, after every calibration and
+live update); ``nao-skin bench-bound`` (:mod:`nao_skin.bench.bound`) at a simulated robot's truth, with
+the same functions. Frames the calibration held (not estimated): a held patch or triangle component keeps
+its prior uncertainty (the touches told the calibration nothing about it); a held mount component, the
+fabric when it is not estimated and the kinematic corrections (kinematics=on/auto) count as known: no
+prior bounds the first two (they would swamp the figure), and the taxel error is measured in the chain-end
+frame, where the kinematics do not enter.
+"""
+from __future__ import annotations
+
+from functools import partial
+
+import numpy as np
+import scipy.linalg.lapack
+import scipy.sparse
+
+from nao_skin.calibration.layout import LEVELS, ParameterLayout
+from nao_skin.calibration.pairing import KIND_NAMES, chain_end_poses
+from nao_skin.calibration.plan import Step
+from nao_skin.calibration.residuals import ResidualModel
+from nao_skin.calibration.rows import pair_step, select_rows
+from nao_skin.calibration.stages import PRIOR_GROUPS, fitted_kinds, prior_group_columns
+from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.touch.touches import TouchSet
+
+DIFFERENCE_STEP = 1e-6      # m or rad: central differences of the taxel positions by the unknowns (linear there)
+UNCONSTRAINED = 1e-6        # prior information (1/m^2, 1/rad^2) of the mounts and the fabric: next to none
+MAD_SCALE = 1.4826          # MAD -> standard deviation of a normal distribution
+
+
+def robust_sigma(residuals: np.ndarray) -> float:
+    """The rows' noise per coordinate (m): the MAD of the residual coordinates about their median, scaled."""
+    r = np.asarray(residuals)
+    return float(MAD_SCALE * np.median(np.abs(r - np.median(r, axis=0))))
+
+
+def prior_information(layout: ParameterLayout, parts, prior_sigma: dict) -> np.ndarray:
+    """Prior information per unknown: ``1 / std^2`` for the groups of ``prior_sigma`` (:data:`PRIOR_GROUPS`),
+    :data:`UNCONSTRAINED` for the rest."""
+    prior = np.full(layout.size, UNCONSTRAINED)
+    for group in PRIOR_GROUPS:
+        if prior_sigma.get(group):
+            prior[prior_group_columns(layout, parts, group)] = 1.0 / prior_sigma[group] ** 2
+    return prior
+
+
+def linearised_rows(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, fabric: float, parts: tuple,
+                    options, inliers: np.ndarray | None = None) -> tuple:
+    """``(layout, J, row of each Jacobian row's touch, residuals)``: the touches paired at ``calib`` as the
+    closing stage pairs them (every part of ``parts`` against every other, ``options.closing_pairs``; only the
+    ``inliers`` touches' rows when given), linearised there by every frame of ``parts`` and the fabric.
+    ``J`` is sparse (3 rows per paired row); ``None`` for all but the layout when nothing pairs."""
+    options = options.in_place()
+    layout = ParameterLayout(skin, parts, ())
+    kinds = fitted_kinds(options, {"triangle"})
+    pairing = pair_step(touches, skin, calib, Step(parts, ()), kinds, options.plane_rows())
+    if pairing is not None:
+        pairing = select_rows(pairing, tuple(KIND_NAMES[k] for k in kinds), inliers)
+    if pairing is None or len(pairing.row_touch) == 0:
+        return layout, None, None, None
+    # on the robot the calibration's kinematic corrections describe (none: the config's); they count as known
+    model = ResidualModel(skin, partial(chain_end_poses, touches, skin.with_kinematics(calib)), pairing,
+                          touches.part_names, layout, calib, fabric=fabric)
+    jac = scipy.sparse.csr_matrix(model.jacobian(calib, {p: set(LEVELS) for p in parts}))
+    return layout, jac, np.repeat(pairing.row_touch, 3), model.residuals(calib)
+
+
+def taxel_jacobian(skin: SkinModel, layout: ParameterLayout, calib: SkinCalibration) -> tuple:
+    """``(G, taxel_part)``: the derivative of every taxel's position (chain-end frame; 3 rows per taxel, the
+    parts of ``layout`` in turn, each part's slots) by the unknowns, sparse, and each taxel's part.
+
+    Central differences, one component of every frame of a level at a time: a taxel moves with its own
+    mount, patch and triangle only, so 18 differences per part give every column."""
+    rows, cols, vals, taxel_part = [], [], [], []
+    first = 0
+    for name in layout.part_names:
+        part = skin.parts[name]
+        slots = part.slots
+        tri = part.slot_triangle[slots]
+        m, p, t, _ = layout.offsets[name]
+        n = len(slots)
+        base = calib.parts[name]
+        for level, block in (("mount", np.full(n, m)), ("patch", p + 6 * part.triangle_patch[tri]),
+                             ("triangle", t + 6 * tri)):
+            for k in range(6):
+                moved = []
+                for sign in (1.0, -1.0):
+                    corr = base.copy()
+                    if level == "mount":
+                        corr.mount = corr.mount.copy()
+                        corr.mount[k] += sign * DIFFERENCE_STEP
+                    else:
+                        frames = getattr(corr, level + "es" if level == "patch" else level + "s").copy()
+                        frames[:, k] += sign * DIFFERENCE_STEP
+                        setattr(corr, level + "es" if level == "patch" else level + "s", frames)
+                    moved.append(part.taxel_positions(corr, normals=False)[slots])
+                d = (moved[0] - moved[1]) / (2 * DIFFERENCE_STEP)          # (n, 3)
+                rows.append(first + np.arange(3 * n))
+                cols.append(np.repeat(block + k, 3))
+                vals.append(d.ravel())
+        first += 3 * n
+        taxel_part += [name] * n
+    g = scipy.sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                shape=(first, layout.size))
+    return g, np.array(taxel_part)
+
+
+def covariance(information: np.ndarray) -> np.ndarray:
+    """The inverse of a symmetric positive definite ``information`` (Cholesky; LU if it is not)."""
+    factor, info = scipy.linalg.lapack.dpotrf(information, lower=1, clean=1)
+    if info == 0:
+        inv, info = scipy.linalg.lapack.dpotri(factor, lower=1)
+        if info == 0:
+            return np.tril(inv) + np.tril(inv, -1).T
+    return np.linalg.inv(information)
+
+
+def taxel_rms(information: np.ndarray, prior: np.ndarray, g) -> np.ndarray:
+    """Each taxel's predicted RMS error (m): ``sqrt(trace(G_i C G_i^T))``, ``C = (information + diag(prior))^-1``
+    (``g``: :func:`taxel_jacobian`'s, 3 rows per taxel)."""
+    cov = covariance(information + np.diag(prior))
+    gc = np.asarray(g @ cov)
+    var = (np.asarray(g.multiply(gc).sum(axis=1)).ravel() if scipy.sparse.issparse(g)
+           else np.einsum("ij,ij->i", gc, g))
+    return np.sqrt(np.maximum(var.reshape(-1, 3).sum(axis=1), 0.0))
+
+
+def per_part(rms_mm: np.ndarray, taxel_part: np.ndarray, parts) -> dict:
+    """``{part: {median, p95}, all: {...}}`` of per-taxel values (mm)."""
+    def figures(v):
+        return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95))}
+
+    out = {p: figures(rms_mm[taxel_part == p]) for p in parts if np.any(taxel_part == p)}
+    if len(rms_mm):
+        out["all"] = figures(rms_mm[np.isin(taxel_part, list(parts))])
+    return out
+
+
+def predicted_error(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, fabric: float, parts: tuple,
+                    reported, options, prior_sigma: dict, inliers: np.ndarray | None = None,
+                    estimated=None) -> tuple:
+    """``(figures, sigma)``: per part of ``reported`` (and ``all``) the predicted RMS taxel error's median and
+    p95 (mm) at the
+    estimate ``calib``: the rows the calibration kept (``inliers``) linearised there, their noise from their
+    residuals, the calibration's prior (``prior_sigma``). ``parts``: every part the touches pair (the
+    references of the reported ones too). ``estimated``: the ``part/frame/component`` names the calibration
+    estimated (None: every one); the others are held (see the module's text). ``sigma``: the rows' noise per
+    coordinate (m) it assumed. ``({}, nan)`` when no row pairs."""
+    layout, jac, _, residuals = linearised_rows(skin, touches, calib, fabric, parts, options, inliers)
+    sigma = robust_sigma(residuals) if jac is not None else float("nan")
+    if not sigma > 0:
+        return {}, sigma
+    prior = prior_information(layout, parts, prior_sigma)
+    keep = np.ones(layout.size, bool)           # the unknowns the touches informed
+    known = np.zeros(layout.size, bool)          # held without a prior: counted as known
+    if estimated is not None:
+        estimated = set(estimated)
+        for col in range(layout.fabric_col):
+            if layout.describe(col) not in estimated:
+                keep[col] = False
+                known[col] = prior[col] <= UNCONSTRAINED
+    if not options.estimate_fabric:
+        keep[layout.fabric_col], known[layout.fabric_col] = False, True
+    jac = jac[:, np.flatnonzero(keep)]
+    information = np.zeros((layout.size, layout.size))
+    information[np.ix_(keep, keep)] = (jac.T @ jac).toarray() / sigma ** 2
+    g, taxel_part = taxel_jacobian(skin, layout, calib)
+    free = np.flatnonzero(~known)
+    rms = taxel_rms(information[np.ix_(free, free)], prior[free], g[:, free])
+    return per_part(1000.0 * rms, taxel_part, [p for p in parts if p in reported]), sigma

@@ -1,0 +1,62 @@
+"""The predicted taxel error (nao_skin.calibration.uncertainty): at the estimate, in the report and calibration.yaml."""
+import numpy as np
+import pytest
+
+from nao_skin.calibration.engine import calibrate
+from nao_skin.calibration.options import CalibrationOptions
+from nao_skin.calibration.report import markdown_report
+from nao_skin.errors import ConfigError
+from nao_skin.model.skin import SkinCalibration, load_skin
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate
+from nao_skin.touch.datasets import deduplicate
+
+
+@pytest.fixture(scope="module")
+def skin():
+    return load_skin()
+
+
+@pytest.fixture(scope="module")
+def result(skin):
+    """300 simulated touches per pair (the four of the default preset), calibrated with the ground truth known."""
+    sim = simulate(skin, load_params("default", {"n_touches": 300}), seed=1)
+    touches, _ = deduplicate(sim.touches)
+    return calibrate(touches, skin, CalibrationOptions(), truth=sim.truth)
+
+
+def test_the_predicted_median_is_within_a_factor_of_two_of_the_true_one_for_every_calibrated_part(result):
+    final = result.report.final
+    predicted, true = final["predicted_taxel_error_mm"], final["truth_taxel_error_mm"]
+    assert set(predicted) == {*result.report.parts, "all"}
+    assert 0.2 < final["predicted_noise_mm"] < 3.0             # the paired taxels' residual noise
+    for part in result.report.parts:
+        ratio = predicted[part]["median"] / true[part]["median"]
+        assert 0.5 <= ratio <= 2.0, (part, predicted[part], true[part])
+        assert 0 < predicted[part]["median"] <= predicted[part]["p95"]
+
+
+def test_the_prediction_is_in_the_report_and_calibration_yaml_and_older_files_still_load(result, skin, tmp_path):
+    text = markdown_report(result.report.to_dict())
+    assert "## Predicted taxel error (linearised posterior at the estimate)" in text
+    part = result.report.parts[0]
+    predicted = result.report.final["predicted_taxel_error_mm"][part]
+    assert f"| {part} | {predicted['median']:.2f} | {predicted['p95']:.2f} |" in text
+    path = tmp_path / "calibration.yaml"
+    result.calibration.save(path, skin)
+    loaded = SkinCalibration.load(path, skin)
+    assert set(loaded.predicted_error_mm) == set(result.report.parts)
+    assert loaded.predicted_error_mm[part] == pytest.approx(predicted, abs=1e-4)
+    # a file without the key (older, or nominal) loads, with no prediction
+    bare = result.calibration.copy()
+    bare.predicted_error_mm = {}
+    bare.save(path, skin)
+    assert "predicted_taxel_error_mm" not in path.read_text()
+    assert SkinCalibration.load(path, skin).predicted_error_mm == {}
+    np.testing.assert_allclose(SkinCalibration.load(path, skin).parts[part].triangles,
+                               result.calibration.parts[part].triangles, atol=1e-9)
+    # a broken entry is said, naming the part
+    result.calibration.save(path, skin)
+    path.write_text(path.read_text().replace("      median: ", "      median: -", 1))
+    with pytest.raises(ConfigError, match=rf"part '{part}': predicted_taxel_error_mm must be"):
+        SkinCalibration.load(path, skin)
