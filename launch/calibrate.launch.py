@@ -7,8 +7,6 @@ code 1 (the node's own line says why). Do not run it next to a
 record session: that session's calibrate node already publishes the skin
 frames (calibrate there with ``ros2 topic pub --once /nao_skin/calibrate ...``).
 """
-import shlex
-
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
@@ -19,15 +17,16 @@ from launch.substitutions import LaunchConfiguration
 def _node(context):
     from nao_skin.nodes.launch_actions import ending_the_launch
     from nao_skin.paths import config_dir
+    from nao_skin.session.record import launch_namespace, launch_words
 
-    inputs = shlex.split(LaunchConfiguration("inputs").perform(context))
+    inputs = launch_words("inputs", LaunchConfiguration("inputs").perform(context))
     # record.yaml's calibrate section is a record session's: here no live updates (no recorder runs)
     overrides = {"inputs": inputs or [""], "calibrate_on_start": True, "live": False,
                  "out_dir": LaunchConfiguration("out_dir").perform(context)}
     calibration = LaunchConfiguration("calibration").perform(context)
     if calibration:
         overrides["calibration"] = calibration
-    namespace = LaunchConfiguration("namespace").perform(context)
+    namespace = launch_namespace(LaunchConfiguration("namespace").perform(context))    # one line for a bad one
     return ending_the_launch(Node(package="nao_skin", executable="calibrate", name="calibrate", output="screen",
                                   namespace=namespace, parameters=[str(config_dir() / "record.yaml"), overrides]))
 

@@ -27,7 +27,6 @@ calibrates on this session's bag). robot_state_publisher gets
 ``skin_frames:=false``, so the two never disagree about a frame.
 Parameters: config/record.yaml and config/bridges.yaml.
 """
-import shlex
 import sys
 
 from launch_ros.actions import Node
@@ -58,13 +57,14 @@ ARGUMENTS = {
 def _nodes(context):
     from nao_skin.nodes.launch_actions import ending_the_launch, installed
     from nao_skin.session.claim import claim_domain
-    from nao_skin.session.record import check_needs, record_session, robot_description
+    from nao_skin.session.record import check_needs, launch_flag, launch_words, record_session, robot_description
 
     arg = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
-    specs = record_session(arg["robot"], nao_ip=arg["nao_ip"], naoqi=arg["naoqi"].lower() == "true",
+    flag = {name: launch_flag(name, arg[name]) for name in ("naoqi", "rviz", "guided")}
+    specs = record_session(arg["robot"], nao_ip=arg["nao_ip"], naoqi=flag["naoqi"],
                            events_port=arg["events_port"], bag_path=arg["bag"], calibration=arg["calibration"],
-                           rviz=arg["rviz"].lower() == "true", taxels=shlex.split(arg["taxels"]),
-                           guided=arg["guided"].lower() == "true", continue_from=shlex.split(arg["continue_from"]),
+                           rviz=flag["rviz"], taxels=launch_words("taxels", arg["taxels"]),
+                           guided=flag["guided"], continue_from=launch_words("continue_from", arg["continue_from"]),
                            namespace=arg["namespace"])
     check_needs(specs)    # e.g. robot:=nao without YARP's Python bindings: one line before any node starts
     # one session per ROS domain and namespace on this machine (two would record each other's touches): held as long as the

@@ -3,14 +3,18 @@
 rcl's parser (rcl_yaml_param_parser) is not a YAML loader: it walks libyaml's events, ignores every tag
 but ``!!str`` (launch_ros writes a list as ``!!python/tuple``), types each plain scalar by its text
 (``y``/``on``/``off`` are booleans, ``0x1F`` and ``017`` integers, ``null`` and ``~`` strings), merges the
-documents of a file and a node name given twice, and refuses aliases, a value where a node name belongs
-and a list mixing types. A check of ours in front of a node must never refuse what rcl accepts, so this
+documents of a file and a node name given twice, and refuses aliases, a value where a node name belongs,
+a list mixing types, an empty name or document and a node name rmw refuses. Its libyaml takes tabs as white
+space where PyYAML refuses them, and refuses ``:`` inside a plain scalar of a flow collection and any ``%YAML``
+but 1.1. A check of ours in front of a node must never refuse what rcl accepts, so this
 module mirrors those rules; ``test/test_ros_params.py`` compares it with rcl itself on each of them.
 """
 from __future__ import annotations
 
 import math
 import re
+import sys
+from fractions import Fraction
 from pathlib import Path
 
 from nao_skin.errors import ConfigError
@@ -41,6 +45,52 @@ def _event_tags_loader():
         def resolve(self, kind, value, implicit):
             return None
 
+        # libyaml (rcl's scanner) differs from PyYAML's on white space and on ':' in a flow collection
+
+        def scan_to_next_token(self):
+            """libyaml's: a tab is white space between tokens, in a flow collection and after a simple key's ':'
+            or a scalar (not where an indentation or a block entry's item begins)."""
+            if self.index == 0 and self.peek() == "\ufeff":
+                self.forward()
+            while True:
+                while self.peek() == " " or (self.peek() == "\t" and (self.flow_level or not self.allow_simple_key)):
+                    self.forward()
+                if self.peek() == "#":
+                    while self.peek() not in "\0\r\n\x85\u2028\u2029":
+                        self.forward()
+                if not self.scan_line_break():
+                    return
+                if not self.flow_level:
+                    self.allow_simple_key = True
+
+        def scan_plain_spaces(self, indent, start_mark):
+            """libyaml's: tabs as well as spaces within a line of a plain scalar (``a: x\ty``, ``a: 1\t``)."""
+            length = 0
+            while self.peek(length) in " \t":
+                length += 1
+            if length and self.peek(length) not in "\r\n\x85\u2028\u2029":
+                whitespaces = self.prefix(length)
+                self.forward(length)
+                return [whitespaces]
+            self.forward(length)
+            return super().scan_plain_spaces(indent, start_mark)
+
+        def scan_plain(self):
+            """libyaml's: a plain scalar in a flow collection ends at ':', and one going on after it is refused
+            (``[x:y]``, ``[http://host]``), where PyYAML takes ``x:y``."""
+            token = super().scan_plain()
+            if self.flow_level and ":" in token.value:
+                raise yaml.scanner.ScannerError("while scanning a plain scalar", token.start_mark,
+                                                "found unexpected ':'", token.end_mark)
+            return token
+
+        def process_directives(self):
+            """libyaml's (rcl's version): ``%YAML 1.1`` only."""
+            value = super().process_directives()
+            if self.yaml_version not in (None, (1, 1)):
+                raise yaml.parser.ParserError(None, None, "found incompatible YAML document (version 1.1 is required)")
+            return value
+
     return EventTags
 
 
@@ -65,12 +115,28 @@ def scalar_value(text: str, quoted: bool = False):
         return _YAML_INF_NAN[text]
     if _C_FLOAT.fullmatch(text):
         number = text.strip()
-        value = float.fromhex(number) if re.match(r"[-+]?0[xX]", number) else float(number.split("(")[0])
-        tiny = value == 0.0 and re.search(r"[1-9]", number.split("e")[0].split("E")[0].split("p")[0])
+        hexadecimal = re.match(r"[-+]?0[xX]", number) is not None
+        value = float.fromhex(number) if hexadecimal else float(number.split("(")[0])
         if not math.isinf(value) or re.search(r"[iI][nN][fF]", number):
-            if not tiny:            # strtod's ERANGE (overflow or underflow): rcl takes the text instead
+            if not _underflows(number, value, hexadecimal):   # strtod's ERANGE: rcl takes the text instead
                 return value
     return text
+
+
+def _underflows(number: str, value: float, hexadecimal: bool) -> bool:
+    """Whether glibc's strtod says ERANGE for an underflow: a result below the smallest normal double that is
+    not exact (``1e-400`` as 0, ``4.9e-324``, ``2.2250738585072011e-308``; ``0x1p-1074`` is exact)."""
+    if math.isnan(value) or math.isinf(value) or abs(value) >= sys.float_info.min:
+        return False
+    match = re.fullmatch(r"[-+]?0[xX]([0-9a-fA-F]*)\.?([0-9a-fA-F]*)(?:[pP]([-+]?[0-9]+))?", number)
+    if value == 0.0:      # a zero written as one, or a number too small for a double
+        mantissa = match.group(1) + match.group(2) if hexadecimal else re.split(r"[eE]", number)[0]
+        return re.search(r"[1-9a-fA-F]", mantissa) is not None
+    if not hexadecimal:
+        return True
+    whole, fraction, exponent = match.groups()
+    exact = Fraction(int(whole + fraction or "0", 16)) * Fraction(2) ** (int(exponent or 0) - 4 * len(fraction))
+    return Fraction(abs(value)) != abs(exact)
 
 
 def parse_params(text: str, name: str = "parameters file") -> dict:
@@ -85,11 +151,18 @@ def parse_params(text: str, name: str = "parameters file") -> dict:
     except yaml.YAMLError as exc:
         raise ParamsFileError(f"{name}: not valid YAML ({str(exc).splitlines()[0]})") from None
     out: dict = {}
+    key_next = True     # rcl reads the documents as one stream of keys and values: a scalar document is a key
     for document in documents:
-        if document is None or isinstance(document, yaml.ScalarNode):
-            continue
         if isinstance(document, yaml.SequenceNode):
             raise ParamsFileError(f"{name}: a list where node names belong (line {_line(document)})")
+        if isinstance(document, yaml.ScalarNode) and document.value == "":
+            raise ParamsFileError(f"{name}: an empty document (line {_line(document)})")
+        if not key_next:
+            raise ParamsFileError(f"{name}: a document after a document that is a single value"
+                                  f" (line {_line(document)})")
+        if isinstance(document, yaml.ScalarNode):
+            key_next = False
+            continue
         _merge(out, _node_names(document, (), name))
     return out
 
@@ -162,7 +235,31 @@ def _key(node, name: str) -> str:
     if not isinstance(node, yaml.ScalarNode):
         raise ParamsFileError(f"{name}: a {'list' if isinstance(node, yaml.SequenceNode) else 'mapping'} as a key"
                               f" (line {_line(node)})")
+    if node.value == "":
+        raise ParamsFileError(f"{name}: an empty name (line {_line(node)})")
     return node.value
+
+
+_NAME_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_NODE_NAME_MAX, _NAMESPACE_MAX = 255, 245      # rmw's limits
+
+
+def _check_node_name(trail: tuple, line: int, name: str) -> None:
+    """rcl's check of the name whose ``ros__parameters`` follow: the keys ``trail`` joined by ``/`` (no second
+    one after a key ending in ``/``), a namespace, each part a ROS name (a letter or ``_``, then letters, digits
+    or ``_``) or ``*`` or ``**``, then the node's name or ``*`` or ``**``: no empty part (``//``, a name ending in
+    ``/``, a nested key starting with ``/``)."""
+    full = ""
+    for key in trail:
+        full += key if not full or full.endswith("/") else "/" + key
+    if full in ("/**", "/*"):
+        return
+    namespace, _, node = full.rpartition("/")
+    parts = namespace.removeprefix("/").split("/") if namespace else []
+    bad = [p for p in parts if p not in ("*", "**") and not (_NAME_TOKEN.fullmatch(p) and len(p) < _NAMESPACE_MAX)]
+    if bad or (node not in ("*", "**") and not (_NAME_TOKEN.fullmatch(node) and len(node) <= _NODE_NAME_MAX)):
+        raise ParamsFileError(f"{name}: '{full}' is not a ROS node name (a namespace and a name, each part a letter"
+                              f" or '_', then letters, digits or '_'; or * or **) (line {line})")
 
 
 def _pairs(node, name: str):
@@ -171,7 +268,10 @@ def _pairs(node, name: str):
     if node.tag == "tag:yaml.org,2002:merge" or any(k.tag == "tag:yaml.org,2002:merge" for k, _ in node.value):
         raise ParamsFileError(f"{name}: '<<' merges are not read by ROS (line {_line(node)})")
     for key_node, value_node in node.value:
-        if _is_alias(key_node) or _is_alias(value_node):
+        if _is_alias(key_node):
+            raise ParamsFileError(f"{name}: an alias (*name), which ROS does not read (line {_line(key_node)})")
+        _seen(key_node)
+        if _is_alias(value_node):
             raise ParamsFileError(f"{name}: an alias (*name), which ROS does not read (line {_line(key_node)})")
         yield _key(key_node, name), value_node
 
@@ -195,7 +295,9 @@ def _node_names(node, trail: tuple, name: str) -> dict:
     out: dict = {}
     for key, value in _pairs(node, name):
         where = "/".join(trail + (key,))
-        if key == PARAMETERS_KEY:
+        if key.startswith(PARAMETERS_KEY):      # rcl compares the key's start only
+            key = PARAMETERS_KEY
+            _check_node_name(trail, _line(value), name)
             if not isinstance(value, yaml.MappingNode):
                 raise ParamsFileError(f"{name}: '{where}' must map parameter names to values (line {_line(value)})")
             _merge(out, {key: _parameters(value, trail, "", name)})

@@ -201,7 +201,45 @@ def _namespace(text: str, spelling: str) -> str:
     if bad or (text.strip() and "//" in text.strip()):
         raise ConfigError(f"{_said('namespace', text, spelling)}: expected a ROS namespace such as /nao2 (each part"
                           f" a letter or '_', then letters, digits or '_')")
-    return "/" + "/".join(parts)
+    namespace = "/" + "/".join(parts)
+    if len(namespace) > NAMESPACE_MAX:    # else every node fails to start, on a name under it
+        raise ConfigError(f"{_said('namespace', text, spelling)}: {len(namespace)} characters; ROS names under it"
+                          f" (e.g. {namespace[:12]}...{_LONGEST_NAME_UNDER}) would exceed {_NAME_MAX}: at most"
+                          f" {NAMESPACE_MAX}")
+    return namespace
+
+
+# rmw's longest topic or service name (255 less the DDS prefix), and the longest a session's node makes under its
+# namespace (robot_state_publisher's parameter service): the longest namespace a session can have
+_NAME_MAX = 255 - 8
+_LONGEST_NAME_UNDER = "/robot_state_publisher/set_parameters_atomically"
+NAMESPACE_MAX = _NAME_MAX - len(_LONGEST_NAME_UNDER)
+
+
+def launch_namespace(text: str) -> str:
+    """A launch file's ``namespace:=`` as ROS writes it (``/`` for none), or one line saying what is wrong with it."""
+    return _namespace(text, "launch")
+
+
+def launch_words(name: str, text: str) -> list:
+    """A launch file's list argument, split as a shell splits (quotes for a path with a space); one line naming
+    the argument where a quote is not closed."""
+    import shlex
+
+    try:
+        return shlex.split(text)
+    except ValueError as exc:
+        raise ConfigError(f"{name}:={text}: {str(exc).lower()} (quote a path with a space: \"'my file' other\")")\
+            from None
+
+
+def launch_flag(name: str, text: str) -> bool:
+    """A launch file's true/false argument, as launch's own conditions read one (``true``/``1``, ``false``/``0``,
+    any case); one line for anything else: ``guided:=maybe`` (or a typo of ``false``) is not quietly false."""
+    value = text.strip().lower()
+    if value not in ("true", "1", "false", "0"):
+        raise ConfigError(f"{name}:={text}: expected true or false")
+    return value in ("true", "1")
 
 
 def _said(name: str, value: str, spelling: str) -> str:
