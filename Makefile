@@ -24,8 +24,9 @@ setup-test:
 demo: setup
 	cd $(ROOT) && $(VENV)/bin/nao-skin demo
 
-# The suite runs on two pytest-xdist workers; each test owns its ROS domain (test/ros_harness.py), ports
-# and temporary files, and the tests that must run alone are in one xdist_group (--dist loadgroup).
+# The suite runs on two pytest-xdist workers: each test owns its ROS domain (claimed in /tmp by
+# test/ros_harness.py for as long as it runs), its ports (free_port) and its temporary files (tmp_path);
+# tests that must not run beside one another would share an @pytest.mark.xdist_group (--dist loadgroup).
 PYTEST_PARALLEL ?= -n 2 --dist loadgroup
 
 ## test: run the test suite (in parallel: PYTEST_PARALLEL= runs it serially)

@@ -881,6 +881,7 @@ def test_a_command_run_from_a_removed_directory_says_so(tmp_path, capsys, monkey
     (["--touch-period", "1e-6"], "--touch-period: press_duration 5e-07 s + 2 x hold 0.05 s must be shorter than"
                                  " touch_period 1e-06 s (and press_duration > 0)"),
     (["--update-every", "0"], "--update-every 0: expected a whole number >= 1"),
+    (["--record-stops", "-1"], "--record-stops -1: expected a whole number from 0 to 1000"),
     (["--domain", "500"], "--domain 500: expected a ROS domain id in 0..232"),
     (["--update-input", "missing.bag"], "missing.bag: no such file or directory"),
 ])

@@ -455,7 +455,7 @@ def test_the_session_end_writes_the_last_update_at_once_while_a_live_update_stil
         node._worker.start()
         closing = threading.Thread(target=node.close)
         closing.start()
-        deadline = time.monotonic() + 5        # well before close() gives up waiting for the update (10 s)
+        deadline = time.monotonic() + 5        # the stand-in update outlives close()'s wait for it (STOP_JOIN_S)
         while not (out / "calibration.yaml").exists() and time.monotonic() < deadline:
             time.sleep(0.05)
         written_while_running = (out / "calibration.yaml").exists() and node._worker.is_alive()
@@ -507,3 +507,39 @@ def files_of(folder) -> dict:
     """Every file under ``folder``: its bytes and modification time."""
     return {p.relative_to(folder): (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(folder.rglob("*"))
             if p.is_file()}
+
+
+def test_a_live_update_running_when_the_session_ends_is_stopped_not_waited_for(tmp_path):
+    """Ctrl-C of a record session on a busy machine: the calibrate node waited up to 10 s for a running live
+    update, then ran the final one, and record was killed before it ended. Now the update stops at its next
+    stage, publishes nothing and frees the node for the final update, which covers its touches. The node runs in
+    the test's process."""
+    from rclpy.parameter import Parameter
+
+    from nao_skin.nodes.calibrate import CalibrateNode
+
+    skin = load_skin()
+    touches = simulate(skin, {"pairs": [["r_hand", "torso"]], "n_touches": 40}, seed=6).touches
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, touches, skin)
+    listener = node = None
+    try:
+        listener = Listener(unique_domain_id())
+        node = CalibrateNode(context=listener.context, parameter_overrides=[
+            Parameter("live", value=True), Parameter("recording", value=str(bag)),
+            Parameter("out_dir", value=str(tmp_path / "cal"))])
+        node._recorded = 40                                # the recorder's count
+        generation = node.generation
+        node._stopping.set()                              # as close() does first
+        assert node._busy.acquire(blocking=False)          # as the schedule's tick does
+        node._live_update()
+        assert node.generation == generation and node.live.last is None
+        assert node._busy.acquire(blocking=False)          # released: the final update can run
+        node._busy.release()
+        assert node._final_update() is True                # the final update calibrates every touch
+        assert node.live.last is not None and node.live.last_count == node.live.read_count
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if listener is not None:
+            listener.close()

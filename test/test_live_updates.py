@@ -228,6 +228,18 @@ def test_a_refresh_keeps_the_warm_update_when_its_held_out_touches_pair_closer(s
     assert ran == [True] and not updates.refreshed
 
 
+def test_a_final_update_goes_on_warm_where_a_refresh_was_due(skin, session):
+    """A session's end adds the touches since the last accepted update to it (warm, a fraction of a refresh's
+    time), also when the touches have doubled since the last update from scratch; a refresh comes after."""
+    _, _, first = session
+    updates = WarmStart(skin.zero_calibration(), refresh=2.0)
+    updates.accepted(first, 30, updates.arguments(30))
+    ran = []
+    result, arguments = updates.update(60, lambda args: ran.append(bool(args["warm"])) or first, warm_only=True)
+    assert ran == [True] and not updates.refreshed and arguments["prior"] is first.calibration
+    assert not updates.arguments(60)["warm"]                  # otherwise: 60 >= 2 x 30, a refresh
+
+
 def test_a_refresh_stands_alone_when_the_warm_update_fails(skin, session):
     touches, _, first = session
     updates = WarmStart(skin.zero_calibration(), refresh=2.0)

@@ -16,6 +16,8 @@
    ``nao-skin``) still imports: one line, exit 130, no traceback.
 7. Ctrl-C again and again while ``nao-skin`` exits after its work: its
    exit code and output stay as they were.
+8. A session stopped with Ctrl-C while its simulated robot plays: the robot's
+   last status says stopped, with the touches played, not done.
 
 Node processes are found by the pids record prints on stderr and checked
 by their command line in /proc, so no other test's process is matched.
@@ -282,17 +284,20 @@ def test_recorder_node_closes_its_bag_on_sighup(tmp_path):
     assert info["files"], "the recorder did not close its bag"
 
 
-def _wait_until_mapped(pid: int, library: str, timeout: float = 60.0) -> None:
-    """Until the process has ``library`` (a shared object's name) in its memory map, or is gone."""
+def _wait_until_mapped(popen, library: str, timeout: float = 60.0) -> None:
+    """Until the process has ``library`` (a shared object's name) in its memory map; an AssertionError when it
+    ended before (a process that ended and is not yet waited for has an empty map: that was a 60 s wait)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         try:
-            if library in Path(f"/proc/{pid}/maps").read_text():
+            if library in Path(f"/proc/{popen.pid}/maps").read_text():
                 return
-        except OSError:        # gone: the caller's wait says how it ended
-            return
+        except OSError:
+            pass
+        if popen.poll() is not None:
+            raise AssertionError(f"pid {popen.pid} ended (exit code {popen.returncode}) before it loaded {library}")
         time.sleep(0.001)
-    raise AssertionError(f"pid {pid} did not load {library} in {timeout:.0f} s")
+    raise AssertionError(f"pid {popen.pid} did not load {library} in {timeout:.0f} s")
 
 
 @pytest.mark.parametrize("after_s", [0.0, 0.2])
@@ -311,7 +316,7 @@ def test_a_ctrl_c_while_a_console_script_imports_ends_in_one_line(tmp_path, argv
     assert script.is_file(), f"{script}: the package's console scripts are not installed (pip install -e .)"
     proc = Proc([str(script), *argv[1:]], ros_env(unique_domain_id()), tmp_path, argv[0])
     try:
-        _wait_until_mapped(proc.popen.pid, "_multiarray_umath")
+        _wait_until_mapped(proc.popen, "_multiarray_umath")
         time.sleep(after_s)
         proc.popen.send_signal(signal.SIGINT)
         code = proc.popen.wait(timeout=30)
@@ -389,3 +394,29 @@ def test_a_simulated_robot_stopped_while_it_simulates_ends_without_playing(tmp_p
             robot.stop()
     assert code == 0, robot.stderr()[-2000:]
     assert "simulated" not in robot.stderr(), robot.stderr()[-2000:]
+
+
+def test_a_simulated_robot_stopped_part_way_says_stopped_not_done(tmp_path):
+    """A record session stopped with Ctrl-C while its simulated robot plays: its last status says how many of
+    the touches it played and that it was stopped, not ``done`` (it said done after a Ctrl-C with 191 of 240
+    touches played, issue 51 item 7)."""
+    domain = unique_domain_id()
+    listener = session = None
+    code = None
+    try:
+        listener = Listener(domain)
+        sim = listener.subscribe(String, "/sim_robot/status", keep=lambda m: json.loads(m.data))
+        session = Proc(record_cmd(tmp_path / "touches", seed=3, per_pair=20), ros_env(domain), tmp_path, "record")
+        assert listener.spin_until(lambda: sim and sim[-1]["played"] >= 2, timeout=120, procs=[session]), sim[-1:]
+        assert not sim[-1]["done"] and sim[-1]["played"] < sim[-1]["total"], sim[-1]
+        code = session.stop(signal.SIGINT)
+        listener.spin_for(1.0)       # what arrived while the session stopped
+    finally:
+        if listener is not None:
+            listener.close()
+        if session is not None and code is None:
+            session.stop(signal.SIGINT)
+    assert code == 0, session.stderr()[-3000:]
+    last = sim[-1]
+    assert last["done"] is False and last.get("stopped") is True, last
+    assert 2 <= last["played"] < last["total"], last

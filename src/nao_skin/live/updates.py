@@ -68,23 +68,25 @@ class WarmStart:
     state: object = None                    # the last accepted update's CalibrationResult.state
     refreshed: bool = False                 # the last update ran from scratch and warm, and kept the closer
 
-    def arguments(self, n_touches: int) -> dict:
+    def arguments(self, n_touches: int, warm_only: bool = False) -> dict:
         """``prior``, ``warm``, ``anchor`` and ``resume`` of :func:`~nao_skin.calibration.engine.calibrate`
-        for the next update."""
-        if self.last is None or not self.parts or n_touches >= self.refresh * self.scratch_touches:
+        for the next update; ``warm_only``: no refresh now (a session's final update: it goes on from the last
+        accepted one, in a fraction of a refresh's time)."""
+        if self.last is None or not self.parts or (n_touches >= self.refresh * self.scratch_touches
+                                                   and not warm_only):
             return {"prior": self.start, "warm": (), "anchor": None, "resume": None}
         return self._warm_arguments()
 
     def _warm_arguments(self) -> dict:
         return {"prior": self.last, "warm": self.parts, "anchor": self.start, "resume": self.state}
 
-    def update(self, n_touches: int, run: Callable[[dict], Any]) -> tuple:
+    def update(self, n_touches: int, run: Callable[[dict], Any], warm_only: bool = False) -> tuple:
         """The next update, ``(result, arguments)``: ``run(arguments)`` calibrates with :meth:`arguments`'
         keywords and returns its :class:`~nao_skin.calibration.engine.CalibrationResult`. At a refresh that
         follows an accepted update the warm update runs too, and the result whose test split's closest
         taxel pairs are closer (mean, mm) is returned; either way the refresh is done for ``refresh`` times
         more touches. Hand both to :meth:`accepted` when the result is published."""
-        arguments = self.arguments(n_touches)
+        arguments = self.arguments(n_touches, warm_only)
         self.refreshed = False
         result = run(arguments)
         if arguments["warm"] or self.last is None or not self.parts:
@@ -225,11 +227,11 @@ class LiveUpdates:
         """``{part: collecting | converging | done}``."""
         return self.settling.states(parts)
 
-    def update(self, n_touches: int, run: Callable[[dict], Any]) -> tuple:
-        """The next update over ``n_touches`` touches, ``(result, displacement_mm, arguments)``: ``run`` as
-        :meth:`WarmStart.update`'s. Raises :class:`~nao_skin.errors.DataError` when the result diverged (the
-        last accepted calibration stays), and whatever ``run`` raises."""
-        result, arguments = self.warm_start.update(n_touches, run)
+    def update(self, n_touches: int, run: Callable[[dict], Any], warm_only: bool = False) -> tuple:
+        """The next update over ``n_touches`` touches, ``(result, displacement_mm, arguments)``: ``run`` and
+        ``warm_only`` as :meth:`WarmStart.update`'s. Raises :class:`~nao_skin.errors.DataError` when the result
+        diverged (the last accepted calibration stays), and whatever ``run`` raises."""
+        result, arguments = self.warm_start.update(n_touches, run, warm_only)
         before = self.warm_start.last or self.warm_start.start
         held = self._hold_parts_left_out(result, before)
         moved = taxel_displacement_mm(self.skin, before, result.calibration, result.report.parts)

@@ -144,9 +144,12 @@ class LiveCalibration:
                 # bench-live's --update-input, is calibrated again each time: that is what is asked)
                 return LiveOutcome({}, None, None)
             calibration_log = stoppable(log, stop)
+            # the final update goes on from the last accepted one (warm), never a refresh from scratch: it adds the
+            # touches since, at a session's end that must not keep the user waiting
             result, moved, start = self.updates.update(
                 touches.n_touches,
-                lambda args: calibrate_loaded(loaded, self.skin, self.options, log=calibration_log, **args))
+                lambda args: calibrate_loaded(loaded, self.skin, self.options, log=calibration_log, **args),
+                warm_only=final)
             report = result.report
             self.last, self._last_touches, self.last_count = result, touches.n_touches, touches.n_touches
             return LiveOutcome({"state": "updated", "touches": touches.n_touches,
