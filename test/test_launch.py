@@ -10,22 +10,16 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import os
 import re
 import shlex
 import signal
 import sys
 
 import pytest
+from real_launch import require_launch
 from ros_harness import ROOT, Listener, Proc, unique_domain_id
 
-if importlib.util.find_spec("launch_ros") is None:
-    WHY = ("the real ROS 2 launch system (launch, launch_ros) is not installed: docker/setup_venv.sh installs it"
-           " from ../shared/wheels beside the checkout (or $NAO_SKIN_LAUNCH_WHEELS)")
-    if os.environ.get("CI") == "true":
-        pytest.fail(f"CI must run the real-launch tests: {WHY}", pytrace=False)
-    pytest.skip(WHY, allow_module_level=True)
-
+require_launch()
 pytest.importorskip("rclpy")
 from std_msgs.msg import String  # noqa: E402
 from test_colcon import _sourced_env, workspace  # noqa: E402,F401 - the workspace fixture

@@ -5,9 +5,10 @@ from __future__ import annotations
 import importlib.util
 
 import pytest
+from real_launch import require_launch
 from ros_harness import ROOT
 
-pytest.importorskip("launch")
+require_launch()
 from launch import LaunchContext  # noqa: E402
 
 from nao_skin.errors import ConfigError  # noqa: E402
