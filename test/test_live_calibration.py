@@ -157,15 +157,30 @@ def test_the_session_end_calibrates_the_touches_since_the_last_update_and_says_w
         (guidance["generation"], guidance["n_touches"], end)
 
 
+def alone_recording(tmp_path) -> tuple:
+    """``(skin, touches, bag)``: a recording the test writes for a calibrate node alone (the test stands in for
+    the recorder: it writes the bag and publishes the progress)."""
+    skin = load_skin()
+    touches = simulate(skin, {"pairs": [["r_hand", "torso"]], "n_touches": 40}, seed=6).touches
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, touches, skin)
+    return skin, touches, bag
+
+
+def calibrate_alone(tmp_path, domain: int, bag, live_period: float) -> Proc:
+    """The calibrate node alone, live on ``bag``: an update after every new touch the progress reports, or
+    ``live_period`` s after the last one."""
+    return node_process("calibrate", {"live": True, "recording": str(bag), "live_every_touches": 1,
+                                      "live_period": live_period, "out_dir": str(tmp_path / "live_calibration")},
+                        ros_env(domain), tmp_path)
+
+
 def test_a_failing_update_keeps_the_last_good_frames(tmp_path):
     """The calibrate node alone, live, on a recording the test writes (it stands in for the recorder: it
     writes the bag and publishes the progress). A good update is published; then the recording turns
     unreadable (a bad touch set): the update fails with a one-line `failed` status, /tf_static still holds
     the good update's frames; once the recording is good again, the next update goes through."""
-    skin = load_skin()
-    touches = simulate(skin, {"pairs": [["r_hand", "torso"]], "n_touches": 40}, seed=6).touches
-    bag = tmp_path / "touches"
-    write_touch_bag(bag, touches, skin)
+    skin, touches, bag = alone_recording(tmp_path)
     domain = unique_domain_id()
     listener = node = None
     try:
@@ -173,9 +188,7 @@ def test_a_failing_update_keeps_the_last_good_frames(tmp_path):
         status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
         frames = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=LATCHED)
         progress = listener.node.create_publisher(String, PROGRESS_TOPIC, 10)
-        node = node_process("calibrate", {"live": True, "recording": str(bag), "live_every_touches": 1,
-                                          "live_period": 0.5, "out_dir": str(tmp_path / "live_calibration")},
-                            ros_env(domain), tmp_path)
+        node = calibrate_alone(tmp_path, domain, bag, live_period=0.5)
         assert listener.spin_until(lambda: progress.get_subscription_count() >= 1 and status, procs=[node])
 
         def report(n: int, state: str):
@@ -215,10 +228,7 @@ def test_the_guidance_follows_every_publication_of_frames_a_requested_calibratio
     """The calibrate node alone, live, on a recording the test writes: a live update's frames and the guidance
     under them share a generation; a calibration requested on /nao_skin/calibrate then publishes its frames,
     and the guidance follows, under them (it stayed at the live update's generation, issue 51 item 7)."""
-    skin = load_skin()
-    touches = simulate(skin, {"pairs": [["r_hand", "torso"]], "n_touches": 40}, seed=6).touches
-    bag = tmp_path / "touches"
-    write_touch_bag(bag, touches, skin)
+    skin, touches, bag = alone_recording(tmp_path)
     domain = unique_domain_id()
     listener = node = None
     try:
@@ -227,9 +237,7 @@ def test_the_guidance_follows_every_publication_of_frames_a_requested_calibratio
         advice = listener.subscribe(String, GUIDANCE_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
         progress = listener.node.create_publisher(String, PROGRESS_TOPIC, 10)
         request = listener.node.create_publisher(String, REQUEST_TOPIC, 10)
-        node = node_process("calibrate", {"live": True, "recording": str(bag), "live_every_touches": 1,
-                                          "live_period": 86400.0, "out_dir": str(tmp_path / "live_calibration")},
-                            ros_env(domain), tmp_path)
+        node = calibrate_alone(tmp_path, domain, bag, live_period=86400.0)
         assert listener.spin_until(lambda: progress.get_subscription_count() >= 1 and request.get_subscription_count()
                                    >= 1 and status, procs=[node])
         progress.publish(String(data=json.dumps({"touches": touches.n_touches})))
