@@ -113,12 +113,14 @@ def random_touches_for(error: float, random_errors: dict) -> float:
     return float("nan")
 
 
-def bound_rows(skin: SkinModel, seed: int, pool_per_pair: int, sizes, batch: int, draws: int = 2) -> list:
-    """One seed: the simulated pool, then per size the random draws' and the greedy choice's predicted error."""
+def bound_rows(skin: SkinModel, seed: int, pool_per_pair: int, sizes, batch: int, draws: int = 2,
+               options: CalibrationOptions | None = None) -> list:
+    """One seed: the simulated pool, then per size the random draws' and the greedy choice's predicted error
+    (the rows ``options.closing_pairs`` names, linearised at the truth)."""
     from nao_skin.bench.hard import HardCaseSetup, simulate_case
 
     sim, touches, _ = simulate_case(skin, "default", seed, HardCaseSetup(n_touches=pool_per_pair))
-    lin = linearise(skin, touches, sim.truth, sim.params.fabric_thickness)
+    lin = linearise(skin, touches, sim.truth, sim.params.fabric_thickness, options)
     rng = np.random.default_rng(seed)
     worst = lambda err: (max(v[0] for v in err.values()), max(v[1] for v in err.values()))  # noqa: E731
     random_median = {}

@@ -107,6 +107,7 @@ def _errors(result, inp: BenchInput) -> dict:
         out[f"{split}_cop_mm"] = final[split].get("cop_mean_mm", float("nan"))
         out[f"{split}_taxel_mm"] = final[split].get("taxel_mean_mm", float("nan"))
         out[f"{split}_contact_taxel_mm"] = final[split].get("contact_taxel_mean_mm", float("nan"))
+        out[f"{split}_fired_f1"] = final[split].get("fired_f1", float("nan"))
         acc = final.get(f"{split}_accepted", {})
         out[f"{split}_cop_explained_mm"] = acc.get("cop_mean_mm", float("nan"))
         out[f"{split}_taxel_explained_mm"] = acc.get("taxel_mean_mm", float("nan"))
@@ -276,7 +277,7 @@ def speed_table(rows: list, input_name: str) -> str:
     else:
         head = ["strategy", "seconds (median)", "runs", "closest COP mm train / test",
                 "closest taxel mm train / test", "selected contacts' closest taxel mm train / test",
-                "explained: COP / taxel mm test", "iterations", "re-pairings", "status"]
+                "fired taxels predicted F1 % train / test", "explained: COP / taxel mm test", "iterations", "re-pairings", "status"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rs:
         runs = f"{r['runs']}" + (" (slow: once)" if r["single_run"] else "")
@@ -291,6 +292,7 @@ def speed_table(rows: list, input_name: str) -> str:
                      f"{fmt(r.get('train_cop_mm'))} / {fmt(r.get('test_cop_mm'))}",
                      f"{fmt(r.get('train_taxel_mm'))} / {fmt(r.get('test_taxel_mm'))}",
                      f"{fmt(r.get('train_contact_taxel_mm'))} / {fmt(r.get('test_contact_taxel_mm'))}",
+                     f"{fmt(r.get('train_fired_f1'), 1)} / {fmt(r.get('test_fired_f1'), 1)}",
                      f"{fmt(r.get('test_cop_explained_mm'))} / {fmt(r.get('test_taxel_explained_mm'))}",
                      fmt(r.get("iterations")), fmt(r.get("repairings")), status]
         lines.append("| " + " | ".join(cells) + " |")

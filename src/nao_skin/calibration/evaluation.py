@@ -5,8 +5,10 @@ from functools import partial
 
 import numpy as np
 
+from nao_skin.calibration.contact import predicted_firing
 from nao_skin.calibration.layout import ParameterLayout
-from nao_skin.calibration.pairing import METRIC_KINDS, METRIC_TAXEL_RULE, PlaneRows, chain_end_poses, metrics
+from nao_skin.calibration.pairing import (METRIC_KINDS, METRIC_TAXEL_RULE, PlaneRows, activation_normals,
+                                          activation_positions, chain_end_poses, metrics)
 from nao_skin.calibration.residuals import ResidualModel
 from nao_skin.calibration.rows import concat_pairings, pair_parts, pair_step
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
@@ -25,7 +27,36 @@ def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: 
     pairings = [p for p in pairings if len(p.row_touch)]
     if not pairings:
         return {"n_touches": 0}
-    return metrics(concat_pairings(pairings))
+    return {**metrics(concat_pairings(pairings)), **firing_prediction(touches, skin, calib, pairs)}
+
+
+def firing_prediction(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, pairs: list) -> dict:
+    """How well the calibrated skins predict which taxels fire, a figure that owes nothing to closest pairs.
+
+    In every touch where both parts of a pair fire, each part's fired taxels predict the other part's
+    (:func:`~nao_skin.calibration.contact.predicted_firing`); pooled over both directions, every pair and
+    every touch: ``fired_precision`` (the share of the predicted taxels that fired), ``fired_recall`` (the
+    share of the fired taxels predicted) and their harmonic mean ``fired_f1``, in percent. At the true skin
+    neither is 100 (a press fires the torso beyond the edge of a hand's skin, a curved hand touches where it
+    does not fire); a better calibration predicts more of what fired and less of what did not.
+    """
+    pos = activation_positions(touches, skin, calib)
+    normals = activation_normals(touches, skin, calib)
+    poses = partial(chain_end_poses, touches, skin.with_kinematics(calib))
+    hits = predicted = fired = 0
+    for a, b in pairs:
+        if a not in touches.part_names or b not in touches.part_names:
+            continue
+        ia, ib = touches.part_names.index(a), touches.part_names.index(b)
+        for own, other in ((ia, ib), (ib, ia)):
+            pred, fire = predicted_firing(touches, skin, calib, own, other, pos, normals, poses)
+            hits += int(np.isin(pred, fire, assume_unique=True).sum())
+            predicted += len(pred)
+            fired += len(fire)
+    precision = 100.0 * hits / predicted if predicted else float("nan")
+    recall = 100.0 * hits / fired if fired else float("nan")
+    f1 = (2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0) if predicted and fired else float("nan")
+    return {"fired_precision": precision, "fired_recall": recall, "fired_f1": f1}
 
 def plan_pairs(steps: list) -> list:
     """The part pairs that touch within the steps (each pair once, hands first): what :func:`evaluate` measures."""

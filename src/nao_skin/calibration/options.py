@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import TYPE_CHECKING
 
-from nao_skin.calibration.kinds import (KIND_COP, KIND_PLANE_A, KIND_PLANE_B, KIND_TAXEL, KIND_TAXEL5, LEVELS,
+from nao_skin.calibration.kinds import (KIND_COP, KIND_PLANE_A, KIND_PLANE_B, KIND_SURFACE, KIND_TAXEL, KIND_TAXEL5, LEVELS,
                                         PLANE_WEIGHTS)
 from nao_skin.errors import DataError
 from nao_skin.paths import yaml_value
@@ -26,7 +26,8 @@ if TYPE_CHECKING:       # the engine's own types: imported where a run builds th
 KIND_ROWS = {"cop": (KIND_COP,), "taxel": (KIND_TAXEL,), "both": (KIND_COP, KIND_TAXEL), "taxel5": (KIND_TAXEL5,),
              "cop+taxel5": (KIND_COP, KIND_TAXEL5), "cop+plane": (KIND_COP, KIND_PLANE_B, KIND_PLANE_A),
              "cop+plane_b": (KIND_COP, KIND_PLANE_B), "cop+plane_a": (KIND_COP, KIND_PLANE_A),
-             "both+plane": (KIND_COP, KIND_TAXEL, KIND_PLANE_B, KIND_PLANE_A)}
+             "both+plane": (KIND_COP, KIND_TAXEL, KIND_PLANE_B, KIND_PLANE_A),
+             "cop+surface": (KIND_COP, KIND_SURFACE), "both+surface": (KIND_COP, KIND_TAXEL, KIND_SURFACE)}
 
 
 # mm: how far a refit must carry a part's taxels for nao-skin check to call it moved; about what a

@@ -37,15 +37,16 @@ from itertools import combinations
 import numpy as np
 
 from nao_skin import se3
+from nao_skin.calibration.contact import surface_rows, touch_weights
 from nao_skin.calibration.kinds import (KIND_CONTACT_TAXEL, KIND_COP, KIND_NORMAL, KIND_PLANE_A,  # noqa: F401
-                                        KIND_PLANE_B, KIND_TAXEL, KIND_TAXEL5, PLANE_WEIGHTS)
+                                        KIND_PLANE_B, KIND_SURFACE, KIND_TAXEL, KIND_TAXEL5, PLANE_WEIGHTS)
 from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.touch.contacts import activations_by_part, cop_weights, segment_mean
 from nao_skin.touch.touches import TouchSet
 
 KIND_NAMES = {"cop": KIND_COP, "taxel": KIND_TAXEL, "taxel5": KIND_TAXEL5, "contact_taxel": KIND_CONTACT_TAXEL,
-              "plane_b": KIND_PLANE_B, "plane_a": KIND_PLANE_A}
+              "plane_b": KIND_PLANE_B, "plane_a": KIND_PLANE_A, "surface": KIND_SURFACE}
 TAXEL_RULES = ("contacts", "thesis", "touch")
 METRIC_KINDS = ("cop", "taxel", "taxel5", "contact_taxel")
 METRIC_TAXEL_RULE = "touch"
@@ -311,7 +312,7 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
         radius = _segment_max(se3.vector_norms(pos - cop[touches.act_contact]), touches.act_contact, n_c)
 
     plane_kinds = [k for k in (KIND_PLANE_B, KIND_PLANE_A) if k in want]
-    if plane_kinds:
+    if plane_kinds or KIND_SURFACE in want:
         if plane.weight not in PLANE_WEIGHTS:
             raise ValueError(f"plane weight must be one of {', '.join(PLANE_WEIGHTS)}, not {plane.weight!r}")
         normals = activation_normals(touches, skin, calib)
@@ -338,6 +339,8 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
                 np.concatenate((ga, gb)), np.concatenate((np.full(len(ga), pa), np.full(len(gb), pb))),
                 np.concatenate((touches.act_slot[act_a], touches.act_slot[act_b])),
                 np.concatenate((weight[act_a], -weight[act_b])))
+        if KIND_SURFACE in want:
+            _add_surface_rows(add, touches, skin, calib, pa, pb, pair_no * 10 + KIND_SURFACE, pos, normals)
         for kind in plane_kinds:
             _add_plane_rows(add, kind, group_touch, pa, pb, pair_no * 10 + kind, ga, act_a, gb, act_b, coords,
                             normals, weight, plane, touches.act_slot)
@@ -467,6 +470,26 @@ def _add_plane_rows(add, kind, group_touch, pa, pb, seq, ga, act_a, gb, act_b, c
     normal = normals[other]
     along = np.abs(np.einsum("ij,ij->i", coords[:, a_act].T - coords[:, b_act].T, normal))
     _add_taxel_rows(add, group_touch, kind, pa, pb, seq, group, a_act, b_act, along, act_slot, w, normal)
+
+
+def _add_surface_rows(add, touches, skin, calib, pa, pb, seq, pos, normals):
+    """The contact model's rows (:mod:`nao_skin.calibration.contact`) of one part pair, A's taxels first."""
+    poses = lambda name: chain_end_poses(touches, skin.with_kinematics(calib), name)  # noqa: E731
+    for own, other, act, slot, normal, along in surface_rows(touches, skin, calib, pa, pb, pos, normals, poses):
+        m = len(act)
+        if m == 0:
+            continue
+        order = np.argsort(touches.act_touch[act], kind="stable")
+        act, slot, normal, along = act[order], slot[order], normal[order], along[order]
+        row_touch = touches.act_touch[act]
+        w = touch_weights(row_touch, touches.n_touches)
+        local = np.arange(m)
+        parts = (np.full(m, own), np.full(m, other))
+        slots = (touches.act_slot[act], slot)
+        if own != pa:       # rows are (side A) - (side B)
+            parts, slots = parts[::-1], slots[::-1]
+        add(row_touch, KIND_SURFACE, pa, pb, np.abs(along), np.full(m, float(seq)), np.concatenate((local, local)),
+            np.concatenate(parts), np.concatenate(slots), np.concatenate((w, -w)), normal)
 
 
 def _assemble(rows, terms) -> Pairing:

@@ -142,7 +142,8 @@ def summary_line(result: CalibrationResult) -> str:
 
     line = (f"calibrated {', '.join(result.report.plan)}: "
             f"closest COP {train_test('cop_mean_mm')} mm, closest taxel {train_test('taxel_mean_mm')} mm"
-            f" (selected contacts' {train_test('contact_taxel_mean_mm')} mm)"
+            f" (selected contacts' {train_test('contact_taxel_mean_mm')} mm), fired taxels predicted"
+            f" F1 {train_test('fired_f1')} %"
             f" ({' / '.join(splits) if len(splits) > 1 else 'train; no touch held out'})")
     if "truth_taxel_error_mm" in final:
         t = final["truth_taxel_error_mm"]["all"]
@@ -161,7 +162,8 @@ def summary_line(result: CalibrationResult) -> str:
     spread = result.report.splits
     if spread:
         line += (f"; over {spread['k']} splits (mean ± std): closest COP {spread_text(spread, 'cop_mean_mm')} mm,"
-                 f" closest taxel {spread_text(spread, 'taxel_mean_mm')} mm")
+                 f" closest taxel {spread_text(spread, 'taxel_mean_mm')} mm,"
+                 f" fired taxels predicted F1 {spread_text(spread, 'fired_f1')} %")
         if kinematics_kept_text(spread):
             line += f", {kinematics_kept_text(spread)}"
     return line

@@ -155,17 +155,21 @@ def _set_aside_text(final: dict) -> str:
 def markdown_report(report: dict, coverage: dict | None = None, pictures: bool = True) -> str:
     """report.md from the report's dict; ``coverage`` (:func:`report_coverage`) adds the coverage table;
     ``pictures``: the plots are written beside it (coverage.png is named only then)."""
-    keys = ("cop_mean_mm", "taxel_mean_mm", "contact_taxel_mean_mm", "taxel5_mean_mm")
+    keys = ("cop_mean_mm", "taxel_mean_mm", "contact_taxel_mean_mm", "taxel5_mean_mm", "fired_f1")
     lines = ["# Skin calibration report", "",
              f"Plan: {' → '.join(report['plan'])}", "",
              f"Total time: {report['total_seconds']:.2f} s. Touches set aside: {report['n_set_aside']}"
              + _set_aside_text(report["final"]) + ".", "",
              *([f"**Warning: {w}.**" for w in report.get("warnings") or []] + [""] if report.get("warnings") else []),
              "Closest taxel: the closest pair among every activated taxel of the two touching parts; selected"
-             " contacts': the closest pair of the two contacts whose COPs are closest (what the solver fits).", "",
+             " contacts': the closest pair of the two contacts whose COPs are closest (what the solver fits)."
+             " Fired taxels predicted: each part's fired taxels predict the other part's facing taxels within"
+             " 4 mm; F1 of the predicted against the fired (percent; higher is better, owes nothing to closest"
+             " pairs).", "",
              "| stage | set | touches | closest COP mean (mm) | closest taxel mean (mm)"
-             " | selected contacts' closest taxel mean (mm) | 5 taxel pairs mean (mm) | seconds |",
-             "|---|---|---|---|---|---|---|---|"]
+             " | selected contacts' closest taxel mean (mm) | 5 taxel pairs mean (mm) | fired taxels predicted F1 (%)"
+             " | seconds |",
+             "|---|---|---|---|---|---|---|---|---|"]
     rows = [("before", report["before"], None)]
     rows += [(s["name"], s, s["seconds"]) for s in report["stages"]]
     rows += [("final", report["final"], None)]

@@ -17,7 +17,7 @@ from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.touches import TouchSet
 
 MAX_SPLITS = 100        # a calibration each: beyond, minutes of work for a spread that no longer moves
-FIGURES = ("cop_mean_mm", "taxel_mean_mm", "contact_taxel_mean_mm")    # of the report's final train/test
+FIGURES = ("cop_mean_mm", "taxel_mean_mm", "contact_taxel_mean_mm", "fired_f1")    # of the report's final train/test
 
 
 def split_spread(touches: TouchSet, skin: SkinModel, options: CalibrationOptions, k: int,
@@ -66,9 +66,10 @@ def spread_text(spread: dict, figure: str) -> str:
 
 def spread_table(spread: dict) -> list:
     """Markdown rows: each figure's train and test mean ± std (min–max) over the splits."""
-    lines = ["| figure | train mean ± std (min–max) mm | test mean ± std (min–max) mm |", "|---|---|---|"]
-    for figure, label in (("cop_mean_mm", "closest COP"), ("taxel_mean_mm", "closest taxel"),
-                          ("contact_taxel_mean_mm", "selected contacts' closest taxel")):
+    lines = ["| figure | train mean ± std (min–max) | test mean ± std (min–max) |", "|---|---|---|"]
+    for figure, label in (("cop_mean_mm", "closest COP (mm)"), ("taxel_mean_mm", "closest taxel (mm)"),
+                          ("contact_taxel_mean_mm", "selected contacts' closest taxel (mm)"),
+                          ("fired_f1", "fired taxels predicted, F1 (%)")):
         cells = [f"{spread[s][figure]['mean']:.2f} ± {spread[s][figure]['std']:.2f}"
                  f" ({spread[s][figure]['min']:.2f}–{spread[s][figure]['max']:.2f})" for s in ("train", "test")]
         lines.append(f"| {label} | {cells[0]} | {cells[1]} |")

@@ -29,6 +29,9 @@ def add_arguments(parser) -> None:
                         help="touches per pair in each robot's pool to choose from (default 1000: 4000 in all)")
     parser.add_argument("--sizes", default="250,500,1000", help="touches chosen, comma-separated (default 250,500,1000)")
     parser.add_argument("--batch", type=int, default=10, help="touches the greedy choice adds at a time (default 10)")
+    parser.add_argument("--rows", default=None,
+                        help="the rows linearised, as the calibration option closing_pairs takes them (default: that"
+                             " option's default; e.g. cop+surface for the contact model's rows beside the COP pairs)")
 
 
 def _sizes(text: str, pool: int) -> list:
@@ -57,6 +60,10 @@ def run(args) -> int:
             raise DataError(f"--{name} {getattr(args, name)}: expected a whole number >= {low}")
     if args.pool > MAX_TOUCHES_PER_PAIR:     # the simulator's limit, said of the option that asked for it
         raise DataError(f"--pool {args.pool}: expected at most {MAX_TOUCHES_PER_PAIR} touches per pair")
+    from nao_skin.calibration.options import CalibrationOptions
+
+    options = CalibrationOptions.from_mapping({} if args.rows is None else {"closing_pairs": args.rows},
+                                              where="--rows {value!r}")
     skin = load_skin()
     sizes = _sizes(args.sizes, 4 * args.pool)
     if args.batch > sizes[0]:     # the greedy choice adds this many at a time: beyond a size it never stops at it
@@ -67,7 +74,7 @@ def run(args) -> int:
     rows = []
     for seed in range(args.seeds):
         print(f"bench-bound: seed {seed}: {args.pool} touches per pair, sizes {sizes}", flush=True)
-        rows += bound_rows(skin, seed, args.pool, sizes, args.batch)
+        rows += bound_rows(skin, seed, args.pool, sizes, args.batch, options=options)
     argv = sys.argv[2:] + ([] if "--force" in sys.argv[2:] else ["--force"])
     seconds = time.perf_counter() - t0
     table = ["| seed | touches | random: worst part median / p95 mm | greedy: worst part median / p95 mm"
@@ -80,7 +87,7 @@ def run(args) -> int:
     sigmas = ", ".join(f"{r['sigma_mm']:.2f}" for r in rows if r["touches"] == sizes[0])
     md = ["# nao-skin bench-bound", "", f"Command: `nao-skin bench-bound {' '.join(argv)}`", "",
           f"Linearised Bayesian bound (see nao_skin.bench.bound): per seed a pool of {args.pool} simulated touches per"
-          f" pair (default preset), paired at the truth; predicted RMS error per taxel, worst part's median and"
+          f" pair (default preset), paired at the truth (rows: {options.closing_pairs}); predicted RMS error per taxel, worst part's median and"
           f" p95 over its taxels; random: mean of 2 draws; greedy: {args.batch} touches at a time, chosen with the"
           f" true robot's Jacobian. Noise per coordinate (robust spread of the residuals at the truth):"
           f" {sigmas} mm.", "", *table, "",

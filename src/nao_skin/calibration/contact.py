@@ -1,0 +1,126 @@
+"""The contact measurement model: a fired taxel lies on the other part's skin, at the fabric's distance.
+
+Two touching skins meet at their fabric surfaces, and a taxel fires where the other part presses it. So
+every activated taxel of one part has the other part's skin right beside it: the laterally nearest taxel
+of the other part (any of its taxels, fired or not: the skin is there whether or not it fired), facing
+it, lies across the two fabrics along the touched part's normal. One *surface row* per activated taxel:
+
+    r = n . (x_own - x_other)          (both points lifted by the fabric along their own normals)
+
+with ``n`` the touched part's normal (the part that is not a hand; side B of the pairing). Where both
+skins are flat there, ``r`` is zero at the true calibration, whatever the lattices' sideways offset;
+where one of them curves away, a taxel that fired can sit up to how far a press reaches beyond the
+touching point (the simulator: 2-5 mm), so the rows are one-sided there. Unlike a COP pair, the row does
+not compare the centroids of two different fired areas (a press at the edge of the hand's skin fires the
+torso beyond that edge), so it has no sideways bias; it says nothing sideways either, which is what the
+COP rows beside it are for (docs/method.md, "The contact model").
+
+A taxel whose nearest facing taxel of the other part lies more than ``lateral`` sideways has no skin of
+the other part beside it (beyond the edge of a hand's skin): it gets no row.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.spatial
+
+from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.touch.touches import TouchSet
+
+SURFACE_LATERAL = 0.004   # m: the other part's skin counts as beside a taxel up to this far sideways
+NEIGHBOURS = 6            # nearest taxels of the other part searched for one that faces the taxel
+# m: a fired taxel predicts that the other part's facing taxels this close to it fire. Touching taxels are
+# two fabrics apart (about 2 mm) and the lattices (pitch about 6 mm) offset sideways by up to half a pitch,
+# so at the true skin every fired taxel has one or two of the other's within it
+PREDICT_RADIUS = 0.004
+
+
+def _placed(skin: SkinModel, calib: SkinCalibration | None, name: str) -> tuple:
+    """The part's present slots and their calibrated positions and normals in its chain-end frame."""
+    part = skin.part(name)
+    pos, nor = part.taxel_positions(calib.parts.get(name) if calib is not None else None)
+    slots = part.slots
+    return slots, pos[slots], nor[slots]
+
+
+def _in_frame_of(touches: TouchSet, chain_poses, name: str, act: np.ndarray, pos: np.ndarray,
+                 normals: np.ndarray) -> tuple:
+    """``(rot, trans, x, n)``: the chain-end pose of part ``name`` in each activation's touch, and the
+    activations' positions and normals in that frame, where the part's taxels are one fixed cloud."""
+    fk = chain_poses(name)[touches.act_touch[act]]
+    rot, trans = fk[:, :3, :3], fk[:, :3, 3]
+    return rot, trans, np.einsum("aji,aj->ai", rot, pos[act] - trans), np.einsum("aji,aj->ai", rot, normals[act])
+
+
+def surface_rows(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None, pa: int, pb: int,
+                 pos: np.ndarray, normals: np.ndarray, chain_poses, lateral: float = SURFACE_LATERAL) -> list:
+    """Surface rows of the part pair ``(pa, pb)`` (indices into ``touches.part_names``; ``pb`` the touched
+    part) in the touches where both fire, both ways: ``[(own, other, act, slot, normal, along), ...]`` with
+    ``act`` the activations of ``own`` that get a row, ``slot`` the facing slot of ``other``, ``normal`` the
+    row's direction (base frame) and ``along`` its signed length under ``calib``.
+
+    ``pos``, ``normals``: every activation's calibrated base-frame position and normal; ``chain_poses(name)``
+    the (N, 4, 4) chain-end pose of a part in every touch (the robot ``calib`` describes).
+    """
+    fires = touches.parts_of_touch()
+    both = fires[:, pa] & fires[:, pb]
+    act_touch, act_part = touches.act_touch, touches.act_part
+    out = []
+    for own, other in ((pa, pb), (pb, pa)):
+        act = np.flatnonzero((act_part == own) & both[act_touch])
+        if len(act) == 0:
+            continue
+        slots, local, local_n = _placed(skin, calib, touches.part_names[other])
+        rot, _, x, n_own = _in_frame_of(touches, chain_poses, touches.part_names[other], act, pos, normals)
+        k = min(NEIGHBOURS, len(slots))
+        _, near = scipy.spatial.cKDTree(local).query(x, k=k)
+        near = near.reshape(len(act), k)
+        facing = np.einsum("ak,aik->ai", n_own, local_n[near]) < 0.0
+        first = np.argmax(facing, axis=1)
+        found = facing[np.arange(len(act)), first]
+        j = near[np.arange(len(act)), first]
+        # the touched part's normal: the other's taxel when it is the touched one, else the taxel's own
+        n = local_n[j] if other == pb else n_own
+        d = x - local[j]
+        along = np.einsum("ak,ak->a", d, n)
+        side = np.linalg.norm(d - along[:, None] * n, axis=1)
+        keep = found & (side <= lateral)
+        normal = np.einsum("aij,aj->ai", rot[keep], n[keep])
+        out.append((own, other, act[keep], slots[j[keep]], normal, along[keep]))
+    return out
+
+
+def touch_weights(act_touch: np.ndarray, n_touches: int) -> np.ndarray:
+    """``1 / sqrt(n)`` per row, ``n`` the rows of its touch and direction: a touch's surface rows of one
+    direction weigh as much together as one row of it, however many taxels fire."""
+    count = np.bincount(act_touch, minlength=n_touches)
+    return 1.0 / np.sqrt(np.maximum(count[act_touch], 1))
+
+
+
+def predicted_firing(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None, own: int, other: int,
+                     pos: np.ndarray, normals: np.ndarray, chain_poses, radius: float = PREDICT_RADIUS) -> tuple:
+    """Which taxels of part ``other`` the fired taxels of part ``own`` predict fire, in the touches where
+    both fire, against which did: ``(predicted, fired)``, each a sorted array of ``touch * S + slot`` codes
+    (``S`` the other part's slot count). A fired taxel predicts the other part's taxels that face it within
+    ``radius`` (:data:`PREDICT_RADIUS`). Arguments as :func:`surface_rows`'."""
+    fires = touches.parts_of_touch()
+    both = fires[:, own] & fires[:, other]
+    act_touch, act_part = touches.act_touch, touches.act_part
+    name = touches.part_names[other]
+    n_slots = skin.part(name).n_slots
+    theirs = np.flatnonzero((act_part == other) & both[act_touch])
+    fired = np.unique(act_touch[theirs] * n_slots + touches.act_slot[theirs])
+    act = np.flatnonzero((act_part == own) & both[act_touch])
+    if len(act) == 0:
+        return np.zeros(0, int), fired
+    slots, local, local_n = _placed(skin, calib, name)
+    _, _, x, n_own = _in_frame_of(touches, chain_poses, name, act, pos, normals)
+    k = min(NEIGHBOURS, len(slots))
+    dist, near = scipy.spatial.cKDTree(local).query(x, k=k, distance_upper_bound=radius)
+    dist, near = dist.reshape(len(act), k), near.reshape(len(act), k)
+    hit = np.isfinite(dist)
+    near = np.where(hit, near, 0)
+    hit &= np.einsum("ak,aik->ai", n_own, local_n[near]) < 0.0
+    row, col = np.nonzero(hit)
+    predicted = np.unique(act_touch[act[row]] * n_slots + slots[near[row, col]])
+    return predicted, fired
