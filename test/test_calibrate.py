@@ -494,13 +494,16 @@ def test_the_closing_stage_frees_the_triangles_once_more_from_where_the_refineme
 
 def test_cop_rows_bring_the_frames_near_and_the_stages_that_start_in_place_add_the_taxel_pairs(
         skin, left_hand_sim, left_hand_result):
-    """``pairs`` (COP) in the stages from the layout, ``mount_pairs`` in the mount stages, ``closing_pairs`` (COP
-    and closest taxel) in the closing stage and in a live update's warm stages; each stage reports its rows."""
+    """``pairs`` (COPs over the other skin) in the patch and triangle stages from the layout, ``mount_pairs``
+    (whole COPs) in the mount stages, ``closing_pairs`` (COP and closest taxel) in the closing stage and in a
+    live update's warm stages; each stage reports its rows."""
     touches, truth = left_hand_sim
     rows = {s["name"]: s["rows"] for s in left_hand_result.report.stages}
     closing = [n for n in rows if n.startswith("closing: ")]
     assert closing and all(rows[n] == ["cop", "taxel"] for n in closing)
-    assert all(r == ["cop"] for n, r in rows.items() if n not in closing), rows
+    mounts = [n for n in rows if n.endswith(": mount")]
+    assert mounts and all(rows[n] == ["cop"] for n in mounts), rows
+    assert all(r == ["cop_skin"] for n, r in rows.items() if n not in closing + mounts), rows
     warm = calibrate(touches, skin, CalibrationOptions(), prior=left_hand_result.calibration,
                      warm=("l_hand", "torso"), split=(left_hand_result.train, left_hand_result.test))
     assert all(s["rows"] == ["cop", "taxel"] for s in warm.report.stages if "mount" not in s["name"]), \

@@ -9,7 +9,7 @@ import pytest
 from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.calibration.evaluation import firing_prediction
 from nao_skin.calibration.layout import ParameterLayout
-from nao_skin.calibration.pairing import KIND_COP, KIND_SURFACE, chain_end_poses, pair_touches
+from nao_skin.calibration.pairing import KIND_COP, KIND_COP_SKIN, KIND_SURFACE, chain_end_poses, pair_touches
 from nao_skin.calibration.residuals import ResidualModel
 from nao_skin.cli import main as cli_main
 from nao_skin.model.skin import load_skin
@@ -64,6 +64,31 @@ def test_surface_rows_put_the_fired_taxels_on_the_other_skin_at_the_fabric(skin,
     assert np.median((thicker - along) / weight[surface]) == pytest.approx(-0.001, abs=5e-5)
     # a closest COP pair is millimetres long at the same truth (two different fired areas)
     assert np.median(np.linalg.norm(r[pairing.row_kind == KIND_COP], axis=1)) > 5e-4
+
+
+def test_cops_over_the_other_skin_leave_out_the_taxels_past_its_edge(skin, ideal_sim):
+    touches, truth = ideal_sim.touches, ideal_sim.truth
+    pairing = pair_touches(touches, skin, truth, ("cop", "cop_skin"))
+    whole, on_skin = pairing.row_kind == KIND_COP, pairing.row_kind == KIND_COP_SKIN
+    assert np.array_equal(np.unique(pairing.row_touch[on_skin]), np.unique(pairing.row_touch[whole]))
+    terms = {}
+    for kind in (KIND_COP, KIND_COP_SKIN):
+        rows = np.flatnonzero(pairing.row_kind == kind)
+        for row in rows:
+            t = np.flatnonzero(pairing.term_row == row)
+            w = pairing.term_weight[t]
+            # each side's weights sum to one: a COP
+            assert w[w > 0].sum() == pytest.approx(1.0) and w[w < 0].sum() == pytest.approx(-1.0)
+            terms[kind, pairing.row_touch[row]] = set(zip(pairing.term_part[t], pairing.term_slot[t]))
+    # the same two contacts, fewer of their taxels: those the other part's skin is not beside are left out
+    left_out = 0
+    for touch in np.unique(pairing.row_touch[on_skin]):
+        assert terms[KIND_COP_SKIN, touch] <= terms[KIND_COP, touch]
+        left_out += len(terms[KIND_COP, touch] - terms[KIND_COP_SKIN, touch])
+    assert left_out > 0
+    # and the two COPs of a touch lie closer at the truth than the whole contacts' do
+    r = np.linalg.norm(_model(skin, touches, pairing, truth, 0.001).residuals(truth), axis=1)
+    assert np.median(r[on_skin]) < 0.9 * np.median(r[whole])
 
 
 def test_surface_rows_jacobian_is_the_derivative_with_the_normals_held(skin, ideal_sim):

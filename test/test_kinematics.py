@@ -308,12 +308,14 @@ def test_the_held_out_gain_counts_only_with_its_spread():
 def test_auto_does_not_keep_kinematics_on_a_gain_the_test_split_cannot_vouch_for(skin):
     """Few touches (the bench's few-touches preset, seed 16; 30 test touches), a robot that is the config:
     the kinematic path brought the test split 11 % closer, past the 10 % asked, and auto kept it while the
-    true error grew from 0.97 to 1.25 mm. Over 30 touches that gain is not 10 % at 95 % confidence."""
+    true error grew from 0.97 to 1.25 mm. Over 30 touches that gain is not 10 % at 95 % confidence. (The rows
+    of that run, ``pairs=cop`` and ``kinematics_pairs=both``: the default rows since 2026-11-29 gain 2 % there.)"""
     from nao_skin.bench.hard import HardCaseSetup, simulate_case
 
     setup = HardCaseSetup()
     sim, touches, _ = simulate_case(skin, "few-touches", 16, setup)
-    auto = calibrate(touches, skin, replace(setup.options, kinematics="auto"), truth=sim.truth)
+    auto = calibrate(touches, skin, replace(setup.options, kinematics="auto", kinematics_pairs="both", pairs="cop"),
+                     truth=sim.truth)
     kin = auto.report.kinematics
     held_out = kin["test_taxel_surface_mm"]
     assert held_out["gain"] >= 0.1 > held_out["gain_low"], held_out

@@ -124,3 +124,24 @@ def predicted_firing(touches: TouchSet, skin: SkinModel, calib: SkinCalibration 
     row, col = np.nonzero(hit)
     predicted = np.unique(act_touch[act[row]] * n_slots + slots[near[row, col]])
     return predicted, fired
+
+
+def skin_beside(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None, other: int, act: np.ndarray,
+                pos: np.ndarray, normals: np.ndarray, chain_poses, lateral: float = SURFACE_LATERAL) -> np.ndarray:
+    """Per activation of ``act``: whether part ``other``'s skin lies beside it, a facing taxel of the other part
+    within ``lateral`` sideways (measured along that taxel's normal). A press at the edge of a hand's skin fires
+    the torso beyond the edge too; those torso taxels have no hand skin beside them, and a COP that counts them
+    is not the hand's (docs/method.md, "The contact model"). Arguments as :func:`surface_rows`'."""
+    if len(act) == 0:
+        return np.zeros(0, bool)
+    slots, local, local_n = _placed(skin, calib, touches.part_names[other])
+    _, _, x, n_own = _in_frame_of(touches, chain_poses, touches.part_names[other], act, pos, normals)
+    k = min(NEIGHBOURS, len(slots))
+    _, near = scipy.spatial.cKDTree(local).query(x, k=k)
+    near = near.reshape(len(act), k)
+    n = local_n[near]
+    d = x[:, None] - local[near]
+    along = np.einsum("aik,aik->ai", d, n)
+    side = np.linalg.norm(d - along[..., None] * n, axis=2)
+    facing = np.einsum("ak,aik->ai", n_own, n) < 0.0
+    return np.any(facing & (side <= lateral), axis=1)

@@ -28,15 +28,15 @@ Levenberg-Marquardt loop), :mod:`.evaluation` (metrics), :mod:`.report`
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Callable, Iterable
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from nao_skin.calibration.evaluation import (closest_cop_cost, evaluate, explained, fitted_pair_cost,
-                                             fitted_touch_distances, gate_touches, paired_gain, plan_pairs,
-                                             truth_error)
+from nao_skin.calibration.evaluation import (closest_cop_cost, evaluate, explained, firing_prediction,
+                                             fitted_pair_cost, fitted_touch_distances, gate_touches, paired_gain,
+                                             plan_pairs, truth_error)
 from nao_skin.calibration.first_guess import guess_targets, rigid_mount_guess
 from nao_skin.calibration.layout import KINEMATICS
 from nao_skin.calibration.options import LEVELS, CalibrationOptions
@@ -429,9 +429,8 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     closer by ``kinematics_min_gain``; otherwise the calibration is the skin-only one, unchanged, and
     every kinematic unknown is listed as held with the figures. ``on`` keeps it whatever the figures.
     """
-    # every stage of this path fits the rows of closing_pairs: its figures (docs/method.md, "Kinematics") are measured
-    # so, and the COP rows first are not measured with kinematic unknowns
-    options = options.in_place()
+    # every stage of this path fits the rows of kinematics_pairs (docs/method.md, "The contact model")
+    options = replace(options, pairs=options.kinematics_pairs)
     step = Step(tuple(sorted({p for s in steps for p in s.targets + s.references}, key=part_rank)), ())
     test_before = _held_out_surface_mm(test, skin, fit, step)
     # The skin-only plan is no starting point: its patches and triangles have absorbed what the kinematics
@@ -541,8 +540,12 @@ def _final_figures(train: TouchSet, test: TouchSet, skin: SkinModel, steps: list
     calib, (measured, pairs, m_train, m_test) = fit.calibration, fit.last_measured
     if measured is calib and pairs == plan_pairs(steps):
         final = {"train": dict(m_train), "test": dict(m_test)}     # the last stage measured this very calibration
+        for figures, touches in ((final["train"], train), (final["test"], test)):
+            if figures.get("n_touches"):
+                figures.update(firing_prediction(touches, skin, calib, pairs))
     else:
-        final = {"train": evaluate(train, skin, calib, steps), "test": evaluate(test, skin, calib, steps)}
+        final = {"train": evaluate(train, skin, calib, steps, fired=True),
+                 "test": evaluate(test, skin, calib, steps, fired=True)}
     # the same gate on both splits: touches whose closest COP pair stays farther than gate_mm
     # are not explained by a self-contact (experimenter's hand, stray activations)
     for split_name, ts in ((("train", train), ("test", test)) if explained_too else ()):

@@ -15,9 +15,11 @@ from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.touch.touches import TouchSet
 
 
-def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: list) -> dict:
+def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: list, fired: bool = False) -> dict:
     """Closest-COP / closest-taxel / 5-taxel distances (and the fitted pair of the selected contacts,
-    ``contact_taxel``) over every touching pair of the plan (:func:`pairing.pair_for_metrics`)."""
+    ``contact_taxel``) over every touching pair of the plan (:func:`pairing.pair_for_metrics`); with
+    ``fired``, :func:`firing_prediction`'s figures too (the final figures: every stage's would cost a fifth
+    of a calibration)."""
     if touches.n_touches == 0:
         return {"n_touches": 0}
     pairs = plan_pairs(steps)
@@ -27,7 +29,10 @@ def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: 
     pairings = [p for p in pairings if len(p.row_touch)]
     if not pairings:
         return {"n_touches": 0}
-    return {**metrics(concat_pairings(pairings)), **firing_prediction(touches, skin, calib, pairs)}
+    out = metrics(concat_pairings(pairings))
+    if fired:
+        out.update(firing_prediction(touches, skin, calib, pairs))
+    return out
 
 
 def firing_prediction(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, pairs: list) -> dict:
@@ -55,7 +60,10 @@ def firing_prediction(touches: TouchSet, skin: SkinModel, calib: SkinCalibration
             fired += len(fire)
     precision = 100.0 * hits / predicted if predicted else float("nan")
     recall = 100.0 * hits / fired if fired else float("nan")
-    f1 = (2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0) if predicted and fired else float("nan")
+    if not (predicted and fired):
+        f1 = float("nan")
+    else:
+        f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
     return {"fired_precision": precision, "fired_recall": recall, "fired_f1": f1}
 
 def plan_pairs(steps: list) -> list:

@@ -14,6 +14,7 @@ KIND_NORMAL = 3   # solver-only rows (rows.with_normal_rows): the two contacts' 
 KIND_CONTACT_TAXEL = 4   # reported only: the closest taxel pair of the two selected contacts (kind 1 of "contacts")
 KIND_PLANE_B, KIND_PLANE_A = 5, 6   # solver-only: A's taxels against B's surface, B's against A's
 KIND_SURFACE = 7   # solver-only: every activated taxel against the other part's skin (calibration.contact)
+KIND_COP_SKIN = 8  # the closest COP pair, each COP over its taxels with the other part's skin beside them
 # how a touch's point-to-plane rows are weighted: each 1; 1/sqrt(n) each (a touch's rows of one
 # direction weigh as much as one row, however many taxels fire); sqrt of the taxel's share of its
 # contact's pressure (the same total, central taxels more)

@@ -37,16 +37,18 @@ from itertools import combinations
 import numpy as np
 
 from nao_skin import se3
-from nao_skin.calibration.contact import surface_rows, touch_weights
-from nao_skin.calibration.kinds import (KIND_CONTACT_TAXEL, KIND_COP, KIND_NORMAL, KIND_PLANE_A,  # noqa: F401
-                                        KIND_PLANE_B, KIND_SURFACE, KIND_TAXEL, KIND_TAXEL5, PLANE_WEIGHTS)
+from nao_skin.calibration.contact import skin_beside, surface_rows, touch_weights
+from nao_skin.calibration.kinds import (KIND_CONTACT_TAXEL, KIND_COP, KIND_COP_SKIN, KIND_NORMAL,  # noqa: F401
+                                        KIND_PLANE_A, KIND_PLANE_B, KIND_SURFACE, KIND_TAXEL, KIND_TAXEL5,
+                                        PLANE_WEIGHTS)
 from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.touch.contacts import activations_by_part, cop_weights, segment_mean
 from nao_skin.touch.touches import TouchSet
 
 KIND_NAMES = {"cop": KIND_COP, "taxel": KIND_TAXEL, "taxel5": KIND_TAXEL5, "contact_taxel": KIND_CONTACT_TAXEL,
-              "plane_b": KIND_PLANE_B, "plane_a": KIND_PLANE_A, "surface": KIND_SURFACE}
+              "plane_b": KIND_PLANE_B, "plane_a": KIND_PLANE_A, "surface": KIND_SURFACE,
+              "cop_skin": KIND_COP_SKIN}
 TAXEL_RULES = ("contacts", "thesis", "touch")
 METRIC_KINDS = ("cop", "taxel", "taxel5", "contact_taxel")
 METRIC_TAXEL_RULE = "touch"
@@ -312,7 +314,7 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
         radius = _segment_max(se3.vector_norms(pos - cop[touches.act_contact]), touches.act_contact, n_c)
 
     plane_kinds = [k for k in (KIND_PLANE_B, KIND_PLANE_A) if k in want]
-    if plane_kinds or KIND_SURFACE in want:
+    if plane_kinds or want & {KIND_SURFACE, KIND_COP_SKIN}:
         if plane.weight not in PLANE_WEIGHTS:
             raise ValueError(f"plane weight must be one of {', '.join(PLANE_WEIGHTS)}, not {plane.weight!r}")
         normals = activation_normals(touches, skin, calib)
@@ -339,6 +341,9 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
                 np.concatenate((ga, gb)), np.concatenate((np.full(len(ga), pa), np.full(len(gb), pb))),
                 np.concatenate((touches.act_slot[act_a], touches.act_slot[act_b])),
                 np.concatenate((weight[act_a], -weight[act_b])))
+        if KIND_COP_SKIN in want:
+            _add_cop_skin_rows(add, touches, skin, calib, pa, pb, pair_no * 10 + KIND_COP_SKIN, group_touch,
+                               ga, act_a, gb, act_b, pos, normals, weight, coords)
         if KIND_SURFACE in want:
             _add_surface_rows(add, touches, skin, calib, pa, pb, pair_no * 10 + KIND_SURFACE, pos, normals)
         for kind in plane_kinds:
@@ -470,6 +475,32 @@ def _add_plane_rows(add, kind, group_touch, pa, pb, seq, ga, act_a, gb, act_b, c
     normal = normals[other]
     along = np.abs(np.einsum("ij,ij->i", coords[:, a_act].T - coords[:, b_act].T, normal))
     _add_taxel_rows(add, group_touch, kind, pa, pb, seq, group, a_act, b_act, along, act_slot, w, normal)
+
+
+def _add_cop_skin_rows(add, touches, skin, calib, pa, pb, seq, group_touch, ga, act_a, gb, act_b, pos, normals,
+                       weight, coords):
+    """The closest COP pair's contacts, each COP over its taxels with the other part's skin beside them
+    (:func:`~nao_skin.calibration.contact.skin_beside`). Where one side has no such taxel (the frames are
+    still far off, or the contacts lie apart), the whole contacts' COPs: no touch loses its row."""
+    poses = lambda name: chain_end_poses(touches, skin.with_kinematics(calib), name)  # noqa: E731
+    n_g = len(group_touch)
+    beside = [skin_beside(touches, skin, calib, other, act, pos, normals, poses)
+              for act, other in ((act_a, pb), (act_b, pa))]
+    on_skin = ((np.bincount(ga, weights=beside[0], minlength=n_g) > 0)
+               & (np.bincount(gb, weights=beside[1], minlength=n_g) > 0))
+    parts, slots, t_rows, t_weights, cops = [], [], [], [], []
+    for sign, part, g, act, near in ((1.0, pa, ga, act_a, beside[0]), (-1.0, pb, gb, act_b, beside[1])):
+        w = weight[act] * np.where(on_skin[g], near, True)
+        keep = w > 0
+        share = w[keep] / np.bincount(g, weights=w, minlength=n_g)[g[keep]]
+        t_rows.append(g[keep])
+        parts.append(np.full(keep.sum(), part))
+        slots.append(touches.act_slot[act[keep]])
+        t_weights.append(sign * share)
+        cops.append(np.stack([np.bincount(g[keep], weights=coords[d, act[keep]] * share, minlength=n_g)
+                              for d in range(3)], axis=1))
+    add(group_touch, KIND_COP_SKIN, pa, pb, np.linalg.norm(cops[0] - cops[1], axis=1), np.full(n_g, float(seq)),
+        np.concatenate(t_rows), np.concatenate(parts), np.concatenate(slots), np.concatenate(t_weights))
 
 
 def _add_surface_rows(add, touches, skin, calib, pa, pb, seq, pos, normals):

@@ -5,7 +5,7 @@ import dataclasses
 
 import numpy as np
 
-from nao_skin.calibration.pairing import KIND_COP, KIND_NORMAL, KIND_TAXEL, Pairing, PlaneRows, pair_touches
+from nao_skin.calibration.pairing import KIND_COP, KIND_COP_SKIN, KIND_NORMAL, KIND_TAXEL, Pairing, PlaneRows, pair_touches
 from nao_skin.calibration.plan import Step
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.touch.touches import TouchSet
@@ -47,7 +47,7 @@ def with_normal_rows(selected: Pairing, pairing: Pairing, weight: float, inliers
     """
     if weight <= 0:
         return selected
-    source = KIND_TAXEL if np.any(pairing.row_kind == KIND_TAXEL) else KIND_COP
+    source = next((k for k in (KIND_TAXEL, KIND_COP, KIND_COP_SKIN) if np.any(pairing.row_kind == k)), KIND_COP)
     src = select_rows(pairing, (source,), inliers)
     if len(src.row_touch) == 0:
         return selected
