@@ -1,39 +1,20 @@
 """The contact model (nao_skin.calibration.contact): surface rows, and the fired-taxel prediction that judges a
 calibration without closest pairs (report.json's ``fired_*``; ``bench-bound --rows``)."""
 import json
-from functools import partial
 
 import numpy as np
 import pytest
 
 from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.calibration.evaluation import firing_prediction
-from nao_skin.calibration.layout import ParameterLayout
-from nao_skin.calibration.pairing import KIND_COP, KIND_COP_SKIN, KIND_SURFACE, chain_end_poses, pair_touches
-from nao_skin.calibration.residuals import ResidualModel
+from nao_skin.calibration.pairing import KIND_COP, KIND_COP_SKIN, KIND_SURFACE, pair_touches
 from nao_skin.cli import main as cli_main
-from nao_skin.model.skin import load_skin
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 from nao_skin.touch.datasets import deduplicate
+from test_plane_rows import _model, ideal_sim, skin  # noqa: F401 - the same ideal scene and its fixtures
 
 PAIRS = [("r_hand", "torso"), ("l_hand", "torso"), ("r_hand", "head"), ("l_hand", "head")]
-
-
-@pytest.fixture(scope="module")
-def skin():
-    return load_skin()
-
-
-@pytest.fixture(scope="module")
-def ideal_sim(skin):
-    """Every pair, no noise and no defects: the true skins meet at their fabric surfaces."""
-    return simulate(skin, load_params("ideal", {"n_touches": 30}), seed=5)
-
-
-def _model(skin, touches, pairing, calib, fabric):
-    return ResidualModel(skin, partial(chain_end_poses, touches, skin), pairing, touches.part_names,
-                         ParameterLayout(skin, touches.part_names), calib, fabric=fabric)
 
 
 def test_surface_rows_put_the_fired_taxels_on_the_other_skin_at_the_fabric(skin, ideal_sim):
@@ -89,25 +70,6 @@ def test_cops_over_the_other_skin_leave_out_the_taxels_past_its_edge(skin, ideal
     # and the two COPs of a touch lie closer at the truth than the whole contacts' do
     r = np.linalg.norm(_model(skin, touches, pairing, truth, 0.001).residuals(truth), axis=1)
     assert np.median(r[on_skin]) < 0.9 * np.median(r[whole])
-
-
-def test_surface_rows_jacobian_is_the_derivative_with_the_normals_held(skin, ideal_sim):
-    touches, truth = ideal_sim.touches, ideal_sim.truth
-    pairing = pair_touches(touches, skin, truth, ("surface",), parts=("l_hand", "torso"))
-    model = _model(skin, touches, pairing, truth, 0.001)
-    layout = model.layout
-    x0 = layout.to_vector(truth, 0.001)
-    x0[:layout.fabric_col] += np.random.default_rng(1).normal(0.0, 0.003, layout.fabric_col)
-    cols = np.concatenate([np.arange(0, layout.fabric_col, 41), [layout.fabric_col]])
-    free = {p: {"mount", "patch", "triangle"} for p in touches.part_names}
-    jac = model.jacobian(layout.to_calibration(x0, truth), free, cols)
-    jac = jac.toarray() if hasattr(jac, "toarray") else jac
-    base = model.residuals(layout.to_calibration(x0, truth), x0[layout.fabric_col]).ravel()
-    for k, c in enumerate(cols):
-        x = x0.copy()
-        x[c] += 1e-7
-        step = (model.residuals(layout.to_calibration(x, truth), x[layout.fabric_col]).ravel() - base) / 1e-7
-        np.testing.assert_allclose(jac[:, k], step, atol=1e-6)
 
 
 def test_the_contact_rows_calibrate_as_an_option(skin, ideal_sim):

@@ -49,12 +49,14 @@ def test_plane_rows_vanish_at_the_truth_where_closest_taxels_do_not(skin, ideal_
 
 
 @pytest.mark.parametrize("dense", [True, False])
-def test_projected_jacobian_is_the_derivative_with_the_normals_held(skin, ideal_sim, monkeypatch, dense):
-    """ICP point-to-plane: the normals are fixed while a pairing is, so the Jacobian is the projected one."""
+@pytest.mark.parametrize("kinds", [KINDS, ("surface",)], ids=["plane", "surface"])
+def test_projected_jacobian_is_the_derivative_with_the_normals_held(skin, ideal_sim, monkeypatch, dense, kinds):
+    """ICP point-to-plane: the normals are fixed while a pairing is, so the Jacobian is the projected one (the
+    contact model's surface rows too, nao_skin.calibration.contact)."""
     touches, truth = ideal_sim.touches, ideal_sim.truth
     if not dense:
         monkeypatch.setattr(residuals_module, "DENSE_LIMIT", 0)
-    pairing = pair_touches(touches, skin, truth, KINDS, parts=("l_hand", "torso"), plane=PlaneRows("pressure"))
+    pairing = pair_touches(touches, skin, truth, kinds, parts=("l_hand", "torso"), plane=PlaneRows("pressure"))
     model = _model(skin, touches, pairing, truth, 0.001)
     layout = model.layout
     rng = np.random.default_rng(0)
@@ -72,9 +74,9 @@ def test_projected_jacobian_is_the_derivative_with_the_normals_held(skin, ideal_
         np.testing.assert_allclose(jac[:, k], step, atol=1e-6)
 
 
-def test_point_to_plane_recovers_the_truth_at_least_as_well_as_the_default(skin, ideal_sim):
+def test_point_to_plane_recovers_the_truth_at_least_as_well_as_the_whole_cops_alone(skin, ideal_sim):
     touches, truth = ideal_sim.touches, ideal_sim.truth
-    default = calibrate(touches, skin, CalibrationOptions(), truth=truth)
+    default = calibrate(touches, skin, CalibrationOptions(pairs="cop"), truth=truth)
     options = CalibrationOptions()
     options.set("pairs", "cop+plane")
     plane = calibrate(touches, skin, options, truth=truth)
