@@ -185,6 +185,7 @@ def test_outputs_are_written_where_users_apply_them(tmp_path, skin, left_hand_re
     np.testing.assert_allclose(calibrated.positions[present], pos[present], atol=1e-8)
     assert "| final |" in (out / "report.md").read_text()
     assert "coverage.png" in (out / "report.md").read_text() and (out / "coverage.png").is_file()
+    assert "uncertainty.png" in (out / "report.md").read_text() and (out / "uncertainty.png").is_file()
     # without plots (the live calibration's, --no-plots) report.md names no picture that is not there
     bare = write_outputs(left_hand_result, skin, tmp_path / "bare", plots=False)
     assert not list(bare.glob("*.png")) and ".png" not in (bare / "report.md").read_text()

@@ -18,12 +18,15 @@ from ros_harness import Listener, node_process, ros_env, unique_domain_id  # noq
 from scipy.spatial.transform import Rotation  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
+from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
+
+from nao_skin.live.uncertainty_map import colours  # noqa: E402
 
 from nao_skin.formats.bag import write_touch_bag  # noqa: E402
 from nao_skin.model.skin import SkinCalibration  # noqa: E402
 from nao_skin.model.skin import load_skin  # noqa: E402
 from nao_skin.model.skin import skin_frame_transforms  # noqa: E402
-from nao_skin.nodes.topics import LATCHED, REQUEST_TOPIC, STATUS_TOPIC, TF_STATIC_TOPIC  # noqa: E402
+from nao_skin.nodes.topics import LATCHED, REQUEST_TOPIC, STATUS_TOPIC, TF_STATIC_TOPIC, UNCERTAINTY_TOPIC  # noqa: E402
 from nao_skin.sim.simulate import simulate  # noqa: E402
 
 pytestmark = pytest.mark.middleware   # runs the calibrate node over DDS
@@ -81,6 +84,9 @@ def test_late_joiners_get_exactly_the_latest_calibration(tmp_path):
         listener.spin_for(0.5)                            # a second (wrong) message would show up here
         assert len(first) == 1
         assert_frames(first[0], skin, start)
+        no_map = listener.subscribe(MarkerArray, UNCERTAINTY_TOPIC, qos=LATCHED)
+        listener.spin_for(0.5)
+        assert no_map == []                               # a calibration given, not made: nothing predicted
 
         request = listener.node.create_publisher(String, REQUEST_TOPIC, 10)
         for run in (1, 2):
@@ -100,6 +106,20 @@ def test_late_joiners_get_exactly_the_latest_calibration(tmp_path):
                 assert_frames(j[0], skin, calib)
             assert_frames(first[-1], skin, calib)
         assert not np.allclose(calib.parts["l_hand"].mount, 0.0)   # the calibration really changed frames
+        # the uncertainty map of the last calibration: a disc per triangle of each calibrated part, in the
+        # triangle's frame, coloured by the predicted error report.json holds for it
+        predicted = json.loads((out_dir / "report.json").read_text())["final"]["predicted_triangle_error_mm"]
+        assert set(predicted) == {"r_hand", "l_hand", "torso", "head"}
+        maps = listener.subscribe(MarkerArray, UNCERTAINTY_TOPIC, qos=LATCHED)
+        assert listener.spin_until(lambda: len(maps) >= 1, procs=[node])
+        markers = maps[0].markers
+        assert markers[0].action == Marker.DELETEALL      # the last map's discs go with it
+        discs = {(m.ns, m.id): m for m in markers[1:]}
+        assert set(discs) == {(part, int(t)) for part, values in predicted.items() for t in values}
+        for (part, tid), m in discs.items():
+            assert m.type == Marker.CYLINDER and m.header.frame_id == skin.parts[part].triangle_frame(tid)
+            want = colours([predicted[part][str(tid)]])[0]
+            np.testing.assert_allclose([m.color.r, m.color.g, m.color.b, m.color.a], want, atol=1e-6)
     finally:
         if listener is not None:
             listener.close()

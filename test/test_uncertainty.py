@@ -60,3 +60,35 @@ def test_the_prediction_is_in_the_report_and_calibration_yaml_and_older_files_st
     path.write_text(path.read_text().replace("      median: ", "      median: -", 1))
     with pytest.raises(ConfigError, match=rf"part '{part}': predicted_taxel_error_mm must be"):
         SkinCalibration.load(path, skin)
+
+
+def test_the_uncertainty_map_has_every_triangle_and_falls_where_touches_land(skin):
+    """The map (final.predicted_triangle_error_mm, uncertainty.png, the calibrate node's markers): every triangle
+    of each calibrated part, and a triangle the new touches press is surer after them than the others."""
+    from nao_skin.live.uncertainty_map import colours, triangle_discs
+
+    sim = simulate(skin, load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 160}), seed=3)
+    touches, _ = deduplicate(sim.touches)
+    hand = skin.parts["l_hand"]
+    fired = [set(hand.triangle_ids[hand.slot_triangle[touches.act_slot[(touches.act_touch == t)
+                                                                         & (touches.act_part == touches.part_index(
+                                                                             "l_hand"))]]].tolist())
+             for t in range(touches.n_touches)]
+    first = np.arange(60)
+    # the triangle the first 60 touches pressed least that later touches press: the target
+    counts = {int(t): sum(int(t) in fired[i] for i in first) for t in hand.triangle_ids}
+    later = {int(t): [i for i in range(60, touches.n_touches) if int(t) in fired[i]] for t in hand.triangle_ids}
+    target = min((t for t in counts if len(later[t]) >= 25), key=lambda t: counts[t])
+    options = CalibrationOptions(test_fraction=0.0)
+    before = calibrate(touches.subset(first), skin, options).report.final["predicted_triangle_error_mm"]
+    after = calibrate(touches.subset(np.concatenate([first, later[target][:25]])), skin,
+                      options).report.final["predicted_triangle_error_mm"]
+    assert set(before) == {"l_hand", "torso"}
+    assert set(before["l_hand"]) == {int(t) for t in hand.triangle_ids}
+    gain = {t: after["l_hand"][t] / before["l_hand"][t] for t in before["l_hand"]}
+    assert gain[target] < 0.9 and gain[target] < np.median(list(gain.values())), (target, gain)
+    # on the map's scale: white where sure, darker where not; one disc per triangle, above its taxels
+    sure, unsure = colours([0.0, 5.0])
+    assert sure[:3].min() > 0.9 and unsure[:3].max() < 0.5
+    discs = triangle_discs(hand, after["l_hand"])
+    assert [d[0] for d in discs] == [int(t) for t in hand.triangle_ids] and all(d[1][2] > 0 for d in discs)

@@ -578,9 +578,10 @@ def _predicted(train: TouchSet, skin: SkinModel, steps: list, options: Calibrati
     t0 = time.perf_counter()
     parts = tuple(sorted({p for s in steps for p in s.targets + s.references if p in train.part_names},
                          key=part_rank))
-    figures, sigma = predicted_error(skin, train, fit.calibration, fit.fabric, parts, report.parts, options,
-                                     fit.prior_sigma, fit.inliers, fit.estimated)
+    figures, sigma, triangles = predicted_error(skin, train, fit.calibration, fit.fabric, parts, report.parts,
+                                                options, fit.prior_sigma, fit.inliers, fit.estimated)
     report.final["predicted_taxel_error_mm"] = figures
+    report.final["predicted_triangle_error_mm"] = triangles
     report.final["predicted_noise_mm"] = 1000.0 * sigma
     fit.calibration.predicted_error_mm = {p: dict(v) for p, v in figures.items() if p != "all"}
     if figures:

@@ -64,6 +64,8 @@ def write_outputs(result: CalibrationResult, skin: SkinModel, out_dir: str | Pat
         if plots:
             _plots(result, skin, prior or skin.zero_calibration(), tmp, calibrated)
             plot_coverage(coverage, skin, result.calibration, tmp / "coverage.png")
+            plot_uncertainty(result.report.final.get("predicted_triangle_error_mm") or {}, skin,
+                             result.calibration, tmp / "uncertainty.png")
         if extra is not None:
             extra(tmp)
         write_marker(tmp, command, CALIBRATION)
@@ -123,8 +125,9 @@ def kinematics_section(kin: dict) -> list:
     return lines
 
 
-def predicted_section(final: dict) -> list:
-    """report.md lines of the predicted taxel error per part (and the true one beside it, when known)."""
+def predicted_section(final: dict, pictures: bool = True) -> list:
+    """report.md lines of the predicted taxel error per part (and the true one beside it, when known);
+    ``pictures``: uncertainty.png is written beside (named only then)."""
     predicted = final.get("predicted_taxel_error_mm")
     if not predicted:
         return []
@@ -140,6 +143,10 @@ def predicted_section(final: dict) -> list:
     for part, v in predicted.items():
         true = [_fmt(truth.get(part, {}).get(k)) for k in ("median", "p95")] if truth else []
         lines.append(f"| {part} | {_fmt(v['median'])} | {_fmt(v['p95'])} |" + "".join(f" {t} |" for t in true))
+    if final.get("predicted_triangle_error_mm"):
+        lines += ["", "Per triangle (the median of its taxels): report.json's `final.predicted_triangle_error_mm`"
+                  + (", and the picture uncertainty.png (white: sure; orange to brown: up to 1 mm and more)" if pictures
+                     else "") + "; the calibrate node shows the same map in RViz."]
     return lines
 
 
@@ -199,7 +206,7 @@ def markdown_report(report: dict, coverage: dict | None = None, pictures: bool =
         for part, v in truth.items():
             lines.append(f"| {part} | {_fmt(before.get(part, {}).get('median'))} | {_fmt(v['median'])} | "
                          f"{_fmt(v['p95'])} | {_fmt(v['max'])} |")
-    lines += predicted_section(report["final"])
+    lines += predicted_section(report["final"], pictures)
     spread = report.get("splits")
     if spread:
         lines += ["", f"## Over {spread['k']} {spread['kind']} (seeds {spread['seeds'][0]}..{spread['seeds'][-1]},"
@@ -382,6 +389,43 @@ def coverage_lines(coverage: dict, picture: bool = True) -> list:
     return lines
 
 
+def _layout_xy(part, corr) -> np.ndarray:
+    """(S, 2) mm: a part's taxels (its present slots) projected on their best-fit plane, for a flat picture."""
+    pos, _ = part.taxel_positions(corr)
+    pts = pos[part.slots]
+    centre = pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
+    return (pts - centre) @ vt[:2].T * 1000.0
+
+
+def plot_uncertainty(triangles: dict, skin: SkinModel, calib: SkinCalibration, path: Path) -> None:
+    """The uncertainty map on each calibrated part's layout: its taxels coloured by their triangle's predicted
+    error (:mod:`nao_skin.live.uncertainty_map`'s scale, as in RViz)."""
+    from matplotlib.figure import Figure   # no pyplot: no backend or global figure state
+
+    from nao_skin.live.uncertainty_map import SCALE_MM, colour_map
+
+    names = [n for n in triangles if triangles[n]]
+    if not names:
+        return
+    fig = Figure(figsize=(4.6 * len(names), 4.4))
+    axes = fig.subplots(1, len(names), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        sp = skin.parts[name]
+        xy = _layout_xy(sp, calib.parts.get(name))
+        tids = sp.triangle_ids[sp.slot_triangle[sp.slots]]
+        values = np.array([triangles[name].get(int(t), np.nan) for t in tids])
+        sc = ax.scatter(*xy.T, s=8, c=values, cmap=colour_map(), vmin=0.0, vmax=SCALE_MM, edgecolors="0.6",
+                        linewidths=0.2)
+        ax.set_aspect("equal")
+        ax.set_title(f"{name}: predicted error per triangle (median {np.nanmedian(values):.2f} mm)", fontsize=8)
+        ax.set_xlabel("mm (best-fit plane of the taxels)", fontsize=7)
+        ax.tick_params(labelsize=6)
+        fig.colorbar(sc, ax=ax, shrink=0.7).set_label("predicted RMS error (mm)", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
 def plot_coverage(coverage: dict, skin: SkinModel, calib: SkinCalibration, path: Path) -> None:
     """Per calibrated part, its taxels on the layout (projected on their best-fit plane) coloured by the
     paired activations of their triangle (grey: none), held triangles crossed in red."""
@@ -397,12 +441,8 @@ def plot_coverage(coverage: dict, skin: SkinModel, calib: SkinCalibration, path:
     for ax, name in zip(axes[0], names):
         sp = skin.parts[name]
         c = coverage[name]
-        pos, _ = sp.taxel_positions(calib.parts.get(name))
         slots = sp.slots
-        pts = pos[slots]
-        centre = pts.mean(axis=0)
-        _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
-        xy = (pts - centre) @ vt[:2].T * 1000.0
+        xy = _layout_xy(sp, calib.parts.get(name))
         acts = np.array(c["activations"])[sp.slot_triangle[slots]]
         ax.scatter(*xy[acts == 0].T, s=6, c="0.7", label="no paired activation")
         sc = ax.scatter(*xy[acts > 0].T, s=6, c=acts[acts > 0], cmap="viridis",

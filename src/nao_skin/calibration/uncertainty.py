@@ -149,20 +149,37 @@ def per_part(rms_mm: np.ndarray, taxel_part: np.ndarray, parts) -> dict:
     return out
 
 
+def per_triangle(skin: SkinModel, rms_mm: np.ndarray, taxel_part: np.ndarray, parts) -> dict:
+    """``{part: {triangle id: mm}}``: the median predicted RMS error of each triangle's taxels (``rms_mm`` in
+    :func:`taxel_jacobian`'s order: each part's slots in turn), for the parts of ``parts``."""
+    out = {}
+    for name in parts:
+        sel = taxel_part == name
+        if not np.any(sel):
+            continue
+        part = skin.parts[name]
+        rows = part.slot_triangle[part.slots]
+        values = rms_mm[sel]
+        out[name] = {int(tid): float(np.median(values[rows == r])) for r, tid in enumerate(part.triangle_ids)
+                     if np.any(rows == r)}
+    return out
+
+
 def predicted_error(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, fabric: float, parts: tuple,
                     reported, options, prior_sigma: dict, inliers: np.ndarray | None = None,
                     estimated=None) -> tuple:
-    """``(figures, sigma)``: per part of ``reported`` (and ``all``) the predicted RMS taxel error's median and
-    p95 (mm) at the
+    """``(figures, sigma, triangles)``: per part of ``reported`` (and ``all``) the predicted RMS taxel error's
+    median and p95 (mm) at the
     estimate ``calib``: the rows the calibration kept (``inliers``) linearised there, their noise from their
     residuals, the calibration's prior (``prior_sigma``). ``parts``: every part the touches pair (the
     references of the reported ones too). ``estimated``: the ``part/frame/component`` names the calibration
     estimated (None: every one); the others are held (see the module's text). ``sigma``: the rows' noise per
-    coordinate (m) it assumed. ``({}, nan)`` when no row pairs."""
+    coordinate (m) it assumed; ``triangles``: :func:`per_triangle`'s, each triangle's median (the uncertainty
+    map). ``({}, nan, {})`` when no row pairs."""
     layout, jac, _, residuals = linearised_rows(skin, touches, calib, fabric, parts, options, inliers)
     sigma = robust_sigma(residuals) if jac is not None else float("nan")
     if not sigma > 0:
-        return {}, sigma
+        return {}, sigma, {}
     prior = prior_information(layout, parts, prior_sigma)
     keep = np.ones(layout.size, bool)           # the unknowns the touches informed
     known = np.zeros(layout.size, bool)          # held without a prior: counted as known
@@ -180,4 +197,6 @@ def predicted_error(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, 
     g, taxel_part = taxel_jacobian(skin, layout, calib)
     free = np.flatnonzero(~known)
     rms = taxel_rms(information[np.ix_(free, free)], prior[free], g[:, free])
-    return per_part(1000.0 * rms, taxel_part, [p for p in parts if p in reported]), sigma
+    shown = [p for p in parts if p in reported]
+    return (per_part(1000.0 * rms, taxel_part, shown), sigma,
+            per_triangle(skin, 1000.0 * rms, taxel_part, shown))

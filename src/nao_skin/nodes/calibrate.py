@@ -19,6 +19,9 @@ that no frame has two publishers.
 
 Status on ``/nao_skin/calibration/status`` (std_msgs/String, JSON, latched); when a live session ends, a final
 update calibrates the touches since the last one, and the status says ``ended`` and where the calibration is.
+With every calibration it publishes, the uncertainty map on ``/nao_skin/calibration/uncertainty``
+(visualization_msgs/MarkerArray, latched): a disc over each triangle of the calibrated parts, in the triangle's
+frame, coloured by its predicted error (:mod:`nao_skin.live.uncertainty_map`; namespace = part, id = triangle).
 
 ``~/calibrate`` (``std_srvs/srv/Trigger``, ``ros2 service call /calibrate/calibrate std_srvs/srv/Trigger``) is
 an empty request with an answer: whether a calibration started, and why not (one is running, no inputs). The
@@ -35,20 +38,22 @@ from pathlib import Path
 
 from rclpy.duration import Duration
 from rclpy.node import Node
-from std_msgs.msg import String
+from std_msgs.msg import ColorRGBA, String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import Marker, MarkerArray
 
 from nao_skin.errors import NaoSkinError, one_line
 from nao_skin.formats.outdir import output_stamp
 from nao_skin.live.diagnostics import age_check, live_check
+from nao_skin.live.uncertainty_map import colours, triangle_discs
 from nao_skin.live.updates import Settling, UpdateSchedule
 from nao_skin.model.skin import SkinCalibration, skin_frame_transforms
 from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.static_tf import latched_tf_static_publisher, to_transform_stamped
 from nao_skin.nodes.topics import (GUIDANCE_TOPIC, LATCHED, MAX_SKIPPED_SAID, PROGRESS_TOPIC, REQUEST_TOPIC,
-                                   STATUS_TOPIC, frame_prefix)
+                                   STATUS_TOPIC, UNCERTAINTY_TOPIC, frame_prefix)
 from nao_skin.plain import jsonable
 from nao_skin.session.live import LiveCalibration, request_out_dir, session_end_out_dir
 from nao_skin.session.params import (CALIBRATE, changeable_params, guidance_pairs, options_from_params,
@@ -81,6 +86,7 @@ class CalibrateNode(Node):
         self.tf_pub = latched_tf_static_publisher(self)
         self.status_pub = self.create_publisher(String, STATUS_TOPIC, LATCHED)
         self.guidance_pub = self.create_publisher(String, GUIDANCE_TOPIC, LATCHED)
+        self.uncertainty_pub = self.create_publisher(MarkerArray, UNCERTAINTY_TOPIC, LATCHED)
         self.generation = 0
         self._busy = threading.Lock()
         self._worker = None
@@ -135,10 +141,29 @@ class CalibrateNode(Node):
                                                   for parent, child, t in skin_frame_transforms(self.skin, calib)]))
         self.generation += 1
         self._on_tf = result if result is not None else calib
+        if result is not None:
+            self._publish_uncertainty(result.report.final.get("predicted_triangle_error_mm") or {}, stamp, ns)
         if not quiet:                     # a live update says more in its own status
             self._status({"state": "published", "source": source, "generation": self.generation})
 
     # ------------------------------------------------------------------ live updates
+    def _publish_uncertainty(self, triangles: dict, stamp, ns: str) -> None:
+        """The uncertainty map of the calibration just published (every marker of the last one replaced)."""
+        markers = [Marker(action=Marker.DELETEALL)]
+        for name, values in triangles.items():
+            part = self.skin.parts[name]
+            discs = triangle_discs(part, values)
+            for (tid, centre, diameter, _), rgba in zip(discs, colours([d[3] for d in discs])):
+                m = Marker(type=Marker.CYLINDER, action=Marker.ADD, ns=name, id=tid, frame_locked=True)
+                m.header.frame_id, m.header.stamp = ns + part.triangle_frame(tid), stamp
+                m.pose.position.x, m.pose.position.y, m.pose.position.z = (float(v) for v in centre)
+                m.pose.orientation.w = 1.0
+                m.scale.x = m.scale.y = float(diameter)
+                m.scale.z = 0.0005
+                m.color = ColorRGBA(r=float(rgba[0]), g=float(rgba[1]), b=float(rgba[2]), a=float(rgba[3]))
+                markers.append(m)
+        self.uncertainty_pub.publish(MarkerArray(markers=markers))
+
     def _on_progress(self, msg: String) -> None:
         try:
             touches = json.loads(msg.data).get("touches", 0)

@@ -17,6 +17,7 @@ STATUS_TOPIC = "nao_skin/calibration/status"          # std_msgs/String JSON, la
 GUIDANCE_TOPIC = "nao_skin/guidance"                  # std_msgs/String JSON, latched
 GUIDANCE_MARKERS_TOPIC = "nao_skin/guidance/markers"  # visualization_msgs/MarkerArray, latched
 HEATMAP_TOPIC = "nao_skin/heatmap"                    # visualization_msgs/MarkerArray
+UNCERTAINTY_TOPIC = "nao_skin/calibration/uncertainty"  # visualization_msgs/MarkerArray, latched
 PROGRESS_TOPIC = "nao_skin/recorder/progress"         # std_msgs/String JSON
 SIM_STATUS_TOPIC = "sim_robot/status"                 # std_msgs/String JSON
 BRIDGE_STATUS_TOPIC = "skin/bridge_status"            # std_msgs/String JSON
