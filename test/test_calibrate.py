@@ -496,8 +496,8 @@ def test_the_closing_stage_frees_the_triangles_once_more_from_where_the_refineme
 def test_cop_rows_bring_the_frames_near_and_the_stages_that_start_in_place_add_the_taxel_pairs(
         skin, left_hand_sim, left_hand_result):
     """``pairs`` (COPs over the other skin) in the patch and triangle stages from the layout, ``mount_pairs``
-    (whole COPs) in the mount stages, ``closing_pairs`` (COP and closest taxel) in the closing stage and in a
-    live update's warm stages; each stage reports its rows."""
+    (whole COPs) in the mount stages, ``closing_pairs`` (COP and closest taxel) in the closing stage,
+    ``warm_pairs`` (COPs over the other skin) in a live update's warm stages; each stage reports its rows."""
     touches, truth = left_hand_sim
     rows = {s["name"]: s["rows"] for s in left_hand_result.report.stages}
     closing = [n for n in rows if n.startswith("closing: ")]
@@ -507,7 +507,7 @@ def test_cop_rows_bring_the_frames_near_and_the_stages_that_start_in_place_add_t
     assert all(r == ["cop_skin"] for n, r in rows.items() if n not in closing + mounts), rows
     warm = calibrate(touches, skin, CalibrationOptions(), prior=left_hand_result.calibration,
                      warm=("l_hand", "torso"), split=(left_hand_result.train, left_hand_result.test))
-    assert all(s["rows"] == ["cop", "taxel"] for s in warm.report.stages if "mount" not in s["name"]), \
+    assert all(s["rows"] == ["cop_skin"] for s in warm.report.stages if "mount" not in s["name"]), \
         [(s["name"], s["rows"]) for s in warm.report.stages]
     # the option is the user's: taxel pairs in the closing stage alone
     taxel = calibrate(touches, skin, CalibrationOptions(closing_pairs="taxel", max_repairings=2), truth=truth)

@@ -320,9 +320,12 @@ def _stage_levels(step: Step, options: CalibrationOptions, prefix: str = ""):
 
 
 def _stage_options(options: CalibrationOptions, prefix: str, warm: bool) -> CalibrationOptions:
-    """The options of the stages of one schedule entry. A closing stage, and a warm one (its frames estimated
-    by an earlier update), starts with the frames nearly in place: it pairs as ``closing_pairs`` says."""
-    return options.in_place() if prefix == CLOSING or warm else options
+    """The options of the stages of one schedule entry. A closing stage starts with the frames nearly in place:
+    it pairs as ``closing_pairs`` says. A warm one (its frames estimated by an earlier update) frees mounts,
+    patches and triangles where they are: it pairs as ``warm_pairs`` says."""
+    if warm:
+        return replace(options, pairs=options.warm_pairs)
+    return options.in_place() if prefix == CLOSING else options
 
 
 def _first_guess(train: TouchSet, skin: SkinModel, step: Step, options: CalibrationOptions, fit: _Fit, say,
