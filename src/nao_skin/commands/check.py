@@ -99,7 +99,7 @@ def run(args) -> int:
     if not judged:      # nothing fits or moved: no verdict for a script to take as a pass
         raise DataError(f"{', '.join(map(str, args.inputs))}: no part of {args.calibration} could be judged"
                         + "".join(f"; {v}: {', '.join(n)}" for v, n in unjudged.items() if n)
-                        + " (record more touches of every pair: at least 10 held out per part)")
+                        + " (record more touches of every pair: each part's line above says what it lacks)")
     if not args.json:
         rest = "".join(f"; {v}: {', '.join(n)}" for v, n in unjudged.items() if n)
         print(f"every part checked fits the calibration ({', '.join(judged)}{rest})")
