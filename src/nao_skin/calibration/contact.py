@@ -34,21 +34,30 @@ NEIGHBOURS = 6            # nearest taxels of the other part searched for one th
 PREDICT_RADIUS = 0.004
 
 
-def _placed(skin: SkinModel, calib: SkinCalibration | None, name: str) -> tuple:
-    """The part's present slots and their calibrated positions and normals in its chain-end frame."""
-    part = skin.part(name)
-    pos, nor = part.taxel_positions(calib.parts.get(name) if calib is not None else None)
+def _facing_neighbours(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None, other: int,
+                       act: np.ndarray, pos: np.ndarray, normals: np.ndarray, chain_poses,
+                       radius: float = np.inf) -> tuple:
+    """The other part's :data:`NEIGHBOURS` nearest taxels to each activation of ``act`` (within ``radius``), in
+    that part's chain-end frame, where its taxels are one fixed cloud (one tree per call, every touch at once):
+    ``(slots, local, local_n, rot, x, n_own, near, facing)`` -- the other part's present slots with their
+    calibrated positions and normals there, its chain-end rotation in each activation's touch, the activations'
+    positions and normals in that frame, the neighbours' rows ``(A, k)`` and whether each faces its activation
+    (a neighbour past ``radius`` does not)."""
+    part = skin.part(touches.part_names[other])
+    pos_all, nor_all = part.taxel_positions(calib.parts.get(part.name) if calib is not None else None)
     slots = part.slots
-    return slots, pos[slots], nor[slots]
-
-
-def _in_frame_of(touches: TouchSet, chain_poses, name: str, act: np.ndarray, pos: np.ndarray,
-                 normals: np.ndarray) -> tuple:
-    """``(rot, trans, x, n)``: the chain-end pose of part ``name`` in each activation's touch, and the
-    activations' positions and normals in that frame, where the part's taxels are one fixed cloud."""
-    fk = chain_poses(name)[touches.act_touch[act]]
+    local, local_n = pos_all[slots], nor_all[slots]
+    fk = chain_poses(part.name)[touches.act_touch[act]]
     rot, trans = fk[:, :3, :3], fk[:, :3, 3]
-    return rot, trans, np.einsum("aji,aj->ai", rot, pos[act] - trans), np.einsum("aji,aj->ai", rot, normals[act])
+    x = np.einsum("aji,aj->ai", rot, pos[act] - trans)
+    n_own = np.einsum("aji,aj->ai", rot, normals[act])
+    k = min(NEIGHBOURS, len(slots))
+    dist, near = scipy.spatial.cKDTree(local).query(x, k=k, distance_upper_bound=radius)
+    dist, near = dist.reshape(len(act), k), near.reshape(len(act), k)
+    within = np.isfinite(dist)
+    near = np.where(within, near, 0)
+    facing = within & (np.einsum("ak,aik->ai", n_own, local_n[near]) < 0.0)
+    return slots, local, local_n, rot, x, n_own, near, facing
 
 
 def surface_rows(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None, pa: int, pb: int,
@@ -69,12 +78,8 @@ def surface_rows(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
         act = np.flatnonzero((act_part == own) & both[act_touch])
         if len(act) == 0:
             continue
-        slots, local, local_n = _placed(skin, calib, touches.part_names[other])
-        rot, _, x, n_own = _in_frame_of(touches, chain_poses, touches.part_names[other], act, pos, normals)
-        k = min(NEIGHBOURS, len(slots))
-        _, near = scipy.spatial.cKDTree(local).query(x, k=k)
-        near = near.reshape(len(act), k)
-        facing = np.einsum("ak,aik->ai", n_own, local_n[near]) < 0.0
+        slots, local, local_n, rot, x, n_own, near, facing = _facing_neighbours(touches, skin, calib, other, act,
+                                                                                pos, normals, chain_poses)
         first = np.argmax(facing, axis=1)
         found = facing[np.arange(len(act)), first]
         j = near[np.arange(len(act)), first]
@@ -96,7 +101,6 @@ def touch_weights(act_touch: np.ndarray, n_touches: int) -> np.ndarray:
     return 1.0 / np.sqrt(np.maximum(count[act_touch], 1))
 
 
-
 def predicted_firing(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None, own: int, other: int,
                      pos: np.ndarray, normals: np.ndarray, chain_poses, radius: float = PREDICT_RADIUS) -> tuple:
     """Which taxels of part ``other`` the fired taxels of part ``own`` predict fire, in the touches where
@@ -113,14 +117,8 @@ def predicted_firing(touches: TouchSet, skin: SkinModel, calib: SkinCalibration 
     act = np.flatnonzero((act_part == own) & both[act_touch])
     if len(act) == 0:
         return np.zeros(0, int), fired
-    slots, local, local_n = _placed(skin, calib, name)
-    _, _, x, n_own = _in_frame_of(touches, chain_poses, name, act, pos, normals)
-    k = min(NEIGHBOURS, len(slots))
-    dist, near = scipy.spatial.cKDTree(local).query(x, k=k, distance_upper_bound=radius)
-    dist, near = dist.reshape(len(act), k), near.reshape(len(act), k)
-    hit = np.isfinite(dist)
-    near = np.where(hit, near, 0)
-    hit &= np.einsum("ak,aik->ai", n_own, local_n[near]) < 0.0
+    slots, _, _, _, _, _, near, hit = _facing_neighbours(touches, skin, calib, other, act, pos, normals,
+                                                         chain_poses, radius)
     row, col = np.nonzero(hit)
     predicted = np.unique(act_touch[act[row]] * n_slots + slots[near[row, col]])
     return predicted, fired
@@ -134,14 +132,10 @@ def skin_beside(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | Non
     is not the hand's (docs/method.md, "The contact model"). Arguments as :func:`surface_rows`'."""
     if len(act) == 0:
         return np.zeros(0, bool)
-    slots, local, local_n = _placed(skin, calib, touches.part_names[other])
-    _, _, x, n_own = _in_frame_of(touches, chain_poses, touches.part_names[other], act, pos, normals)
-    k = min(NEIGHBOURS, len(slots))
-    _, near = scipy.spatial.cKDTree(local).query(x, k=k)
-    near = near.reshape(len(act), k)
+    _, local, local_n, _, x, _, near, facing = _facing_neighbours(touches, skin, calib, other, act, pos, normals,
+                                                                   chain_poses)
     n = local_n[near]
     d = x[:, None] - local[near]
     along = np.einsum("aik,aik->ai", d, n)
     side = np.linalg.norm(d - along[..., None] * n, axis=2)
-    facing = np.einsum("ak,aik->ai", n_own, n) < 0.0
     return np.any(facing & (side <= lateral), axis=1)
