@@ -20,7 +20,7 @@ from std_msgs.msg import String  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
 from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
-from nao_skin.live.uncertainty_map import colours  # noqa: E402
+from nao_skin.calibration.uncertainty_map import colours  # noqa: E402
 
 from nao_skin.formats.bag import write_touch_bag  # noqa: E402
 from nao_skin.model.skin import SkinCalibration  # noqa: E402

@@ -65,7 +65,7 @@ def test_the_prediction_is_in_the_report_and_calibration_yaml_and_older_files_st
 def test_the_uncertainty_map_has_every_triangle_and_falls_where_touches_land(skin):
     """The map (final.predicted_triangle_error_mm, uncertainty.png, the calibrate node's markers): every triangle
     of each calibrated part, and a triangle the new touches press is surer after them than the others."""
-    from nao_skin.live.uncertainty_map import colours, triangle_discs
+    from nao_skin.calibration.uncertainty_map import colours, triangle_discs
 
     sim = simulate(skin, load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 160}), seed=3)
     touches, _ = deduplicate(sim.touches)

@@ -400,10 +400,10 @@ def _layout_xy(part, corr) -> np.ndarray:
 
 def plot_uncertainty(triangles: dict, skin: SkinModel, calib: SkinCalibration, path: Path) -> None:
     """The uncertainty map on each calibrated part's layout: its taxels coloured by their triangle's predicted
-    error (:mod:`nao_skin.live.uncertainty_map`'s scale, as in RViz)."""
+    error (:mod:`nao_skin.calibration.uncertainty_map`'s scale, as in RViz)."""
     from matplotlib.figure import Figure   # no pyplot: no backend or global figure state
 
-    from nao_skin.live.uncertainty_map import SCALE_MM, colour_map
+    from nao_skin.calibration.uncertainty_map import SCALE_MM, colour_map
 
     names = [n for n in triangles if triangles[n]]
     if not names:

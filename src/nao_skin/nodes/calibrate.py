@@ -21,7 +21,7 @@ Status on ``/nao_skin/calibration/status`` (std_msgs/String, JSON, latched); whe
 update calibrates the touches since the last one, and the status says ``ended`` and where the calibration is.
 With every calibration it publishes, the uncertainty map on ``/nao_skin/calibration/uncertainty``
 (visualization_msgs/MarkerArray, latched): a disc over each triangle of the calibrated parts, in the triangle's
-frame, coloured by its predicted error (:mod:`nao_skin.live.uncertainty_map`; namespace = part, id = triangle).
+frame, coloured by its predicted error (:mod:`nao_skin.calibration.uncertainty_map`; namespace = part, id = triangle).
 
 ``~/calibrate`` (``std_srvs/srv/Trigger``, ``ros2 service call /calibrate/calibrate std_srvs/srv/Trigger``) is
 an empty request with an answer: whether a calibration started, and why not (one is running, no inputs). The
@@ -43,10 +43,10 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
+from nao_skin.calibration.uncertainty_map import colours, triangle_discs
 from nao_skin.errors import NaoSkinError, one_line
 from nao_skin.formats.outdir import output_stamp
 from nao_skin.live.diagnostics import age_check, live_check
-from nao_skin.live.uncertainty_map import colours, triangle_discs
 from nao_skin.live.updates import Settling, UpdateSchedule
 from nao_skin.model.skin import SkinCalibration, skin_frame_transforms
 from nao_skin.nodes.diagnostics import publish_diagnostics
