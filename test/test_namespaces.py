@@ -19,6 +19,13 @@ from nao_skin.formats.bag import read_touches  # noqa: E402
 from nao_skin.model.skin import load_skin  # noqa: E402
 from nao_skin.nodes.topics import LATCHED, SIM_STATUS_TOPIC, STATUS_TOPIC, TF_STATIC_TOPIC  # noqa: E402
 
+
+def replace_depth(qos, depth: int):
+    """``qos`` with another history depth (the rest as it is)."""
+    from rclpy.qos import QoSProfile
+
+    return QoSProfile(history=qos.history, depth=depth, reliability=qos.reliability, durability=qos.durability)
+
 pytestmark = [pytest.mark.middleware, pytest.mark.slow]
 ROBOTS = {"/nao1": ("l_hand-torso", {"l_hand", "torso"}), "/nao2": ("r_hand-head", {"r_hand", "head"})}
 PER_PAIR = 6
@@ -35,7 +42,8 @@ def test_two_robots_in_two_namespaces_on_one_domain_record_only_their_own_touche
                 for ns in ROBOTS}
         statuses = {ns: listener.subscribe(String, f"{ns}/{STATUS_TOPIC}", qos=LATCHED,
                                            keep=lambda m: json.loads(m.data)) for ns in ROBOTS}
-        frames = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=LATCHED)
+        # two writers' latched messages may land together: a reader history of 1 would keep only the later
+        frames = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=replace_depth(LATCHED, 10))
         for ns, (pair, _) in ROBOTS.items():
             argv = record_cmd(tmp_path / ns.strip("/"), seed=3, per_pair=PER_PAIR) + [
                 "--namespace", ns, "--param", f"sim_robot.pairs=[{pair}]"]
