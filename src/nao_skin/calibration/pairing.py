@@ -318,6 +318,7 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
         if plane.weight not in PLANE_WEIGHTS:
             raise ValueError(f"plane weight must be one of {', '.join(PLANE_WEIGHTS)}, not {plane.weight!r}")
         normals = activation_normals(touches, skin, calib)
+        poses = lambda name: chain_end_poses(touches, skin.with_kinematics(calib), name)  # noqa: E731
 
     fires = touches.parts_of_touch()
     for pair_no, (pa, pb) in enumerate(_part_order(touches, parts)):
@@ -343,9 +344,9 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
                 np.concatenate((weight[act_a], -weight[act_b])))
         if KIND_COP_SKIN in want:
             _add_cop_skin_rows(add, touches, skin, calib, pa, pb, pair_no * 10 + KIND_COP_SKIN, group_touch,
-                               ga, act_a, gb, act_b, pos, normals, weight, coords)
+                               ga, act_a, gb, act_b, pos, normals, poses, weight, coords)
         if KIND_SURFACE in want:
-            _add_surface_rows(add, touches, skin, calib, pa, pb, pair_no * 10 + KIND_SURFACE, pos, normals)
+            _add_surface_rows(add, touches, skin, calib, pa, pb, pair_no * 10 + KIND_SURFACE, pos, normals, poses)
         for kind in plane_kinds:
             _add_plane_rows(add, kind, group_touch, pa, pb, pair_no * 10 + kind, ga, act_a, gb, act_b, coords,
                             normals, weight, plane, touches.act_slot)
@@ -478,11 +479,11 @@ def _add_plane_rows(add, kind, group_touch, pa, pb, seq, ga, act_a, gb, act_b, c
 
 
 def _add_cop_skin_rows(add, touches, skin, calib, pa, pb, seq, group_touch, ga, act_a, gb, act_b, pos, normals,
-                       weight, coords):
+                       poses, weight, coords):
     """The closest COP pair's contacts, each COP over its taxels with the other part's skin beside them
     (:func:`~nao_skin.calibration.contact.skin_beside`). Where one side has no such taxel (the frames are
-    still far off, or the contacts lie apart), the whole contacts' COPs: no touch loses its row."""
-    poses = lambda name: chain_end_poses(touches, skin.with_kinematics(calib), name)  # noqa: E731
+    still far off, or the contacts lie apart), the whole contacts' COPs: no touch loses its row. ``poses(name)``:
+    a part's chain-end pose in every touch, on the robot ``calib`` describes."""
     n_g = len(group_touch)
     beside = [skin_beside(touches, skin, calib, other, act, pos, normals, poses)
               for act, other in ((act_a, pb), (act_b, pa))]
@@ -503,9 +504,8 @@ def _add_cop_skin_rows(add, touches, skin, calib, pa, pb, seq, group_touch, ga, 
         np.concatenate(t_rows), np.concatenate(parts), np.concatenate(slots), np.concatenate(t_weights))
 
 
-def _add_surface_rows(add, touches, skin, calib, pa, pb, seq, pos, normals):
+def _add_surface_rows(add, touches, skin, calib, pa, pb, seq, pos, normals, poses):
     """The contact model's rows (:mod:`nao_skin.calibration.contact`) of one part pair, A's taxels first."""
-    poses = lambda name: chain_end_poses(touches, skin.with_kinematics(calib), name)  # noqa: E731
     for own, other, act, slot, normal, along in surface_rows(touches, skin, calib, pa, pb, pos, normals, poses):
         m = len(act)
         if m == 0:
