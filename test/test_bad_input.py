@@ -787,7 +787,7 @@ def test_the_bench_takes_the_real_recording_from_an_argument_or_the_variable_els
     (["--median-mm", "nan"], "--median-mm nan: must be a finite number above 0"),
     (["--p95-mm", "inf"], "--p95-mm inf: must be a finite number above 0"),
     (["--first-seed", "-1"], "--first-seed -1: expected a whole number >= 0"),
-    (["--settle-mm", "0"], "--settle-mm 0.0: must be a finite number above 0"),
+    (["--done-margin", "0"], "--done-margin 0.0: must be a finite number above 0"),
     (["--until-done", "--cold"], "--until-done: the live status follows warm-started updates; not with --cold"),
     (["--start", "500", "--cap", "80"], "--start 500: more random touches than the cap of 80"),
     (["--strategies", "random,random"], "--strategies 'random,random': expected some of random, guided, oracle,"

@@ -19,7 +19,7 @@ from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.errors import ConfigError, DataError
 from nao_skin.formats.bag import SIMULATED, BagWriter, touch_messages, write_touch_bag
 from nao_skin.formats.salvage import write_lock
-from nao_skin.live.updates import Settling
+from nao_skin.live.updates import PartStates
 from nao_skin.model.taxel_file import write_taxel_file
 from nao_skin.session.live import LiveCalibration
 from nao_skin.session.record import record_session
@@ -36,7 +36,7 @@ def touches(skin):
 
 
 def live(skin, recording, earlier):
-    return LiveCalibration(skin, CalibrationOptions(), recording, skin.zero_calibration(), 2.0, Settling(), 20.0,
+    return LiveCalibration(skin, CalibrationOptions(), recording, skin.zero_calibration(), 2.0, PartStates(), 20.0,
                            earlier=earlier)
 
 
@@ -298,7 +298,7 @@ def test_continuing_the_last_sitting_continues_the_sittings_it_continued(skin, t
                 bag.write_touch(*args)
     assert earlier(y) == [str(z), str(y)]
     said: list = []
-    LiveCalibration(skin, CalibrationOptions(), tmp_path / "s3", skin.zero_calibration(), 2.0, Settling(), 20.0,
+    LiveCalibration(skin, CalibrationOptions(), tmp_path / "s3", skin.zero_calibration(), 2.0, PartStates(), 20.0,
                     earlier=[s2]).read_earlier(summary=said.append)
     assert [line for line in said if line.startswith(f"{s2}: continues the capture of {s1}")], said
 

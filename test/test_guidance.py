@@ -224,16 +224,22 @@ def test_an_aimed_touch_fires_its_target_far_more_often_than_a_random_touch(skin
 
 
 def test_the_capture_benchmark_follows_the_live_status_and_goes_on_until_done_only_when_asked(skin):
-    """The benchmark replays the calibrate node's updates: each trace entry carries the parts' live states.
-    With ``until_done`` a run met at its start goes on (the touches needed stay those of the first crossing)
-    until every part is done or the cap: here the cap, as the first update moved every frame from nominal
-    and "done" needs three settled updates."""
+    """The benchmark replays the calibrate node's updates: each trace entry carries the parts' live states and
+    their predicted error. With ``until_done`` a run met at its start goes on (the touches needed stay those of
+    the first crossing) until every part is done or the cap: here the cap, with a margin no prediction meets;
+    with the node's margin the loose target is predicted met at once, and the run stops at its first update."""
     loose = dict(start=60, batch=25, cap=110, median_mm=50.0, p95_mm=100.0, sim={"pairs": PAIRS})
     stops = run_capture(skin, 0, "random", CaptureSetup(**loose))
-    goes_on = run_capture(skin, 0, "random", CaptureSetup(**loose, until_done=True))
+    goes_on = run_capture(skin, 0, "random", CaptureSetup(**loose, until_done=True, done_margin=1000.0))
     assert stops["needed"] == goes_on["needed"] == stops["touches"] == 60
     assert goes_on["touches"] == 110 and [t["touches"] for t in goes_on["trace"]] == [60, 85, 110]
     assert goes_on["done_at"] is None and goes_on["done_worst_median_mm"] is None
     states = [t["states"] for t in goes_on["trace"]]
     assert all(set(s) == {"l_hand", "r_hand", "torso"} for s in states)
-    assert states[0] == {"l_hand": "converging", "r_hand": "converging", "torso": "converging"}, states
+    assert all(s == {"l_hand": "converging", "r_hand": "converging", "torso": "converging"} for s in states), states
+    predicted = goes_on["trace"][0]["predicted"]
+    assert set(predicted) == {"l_hand", "r_hand", "torso"}
+    assert all(0 < v["median"] < v["p95"] < 100.0 for v in predicted.values()), predicted
+    done = run_capture(skin, 0, "random", CaptureSetup(**loose, until_done=True))
+    assert done["done_at"] == done["touches"] == 60 and len(done["trace"]) == 1
+    assert done["done_worst_median_mm"] == done["trace"][0]["worst_median_mm"]

@@ -124,6 +124,42 @@ def test_updates_arrive_while_touches_are_recorded(tmp_path):
     assert_frames(joiner[0], load_skin(), written)      # what the late joiner got is what was written
 
 
+def test_done_arrives_when_the_predicted_error_meets_the_target_and_the_true_error_then_does(tmp_path):
+    """A seeded simulated session (one pair, a target loose enough to be met in the touches a test can play):
+    the status calls the pair's parts done once their predicted error, times the margin, meets the target, and
+    the calibration then is within the target against the simulated robot's truth (what no real session can
+    know). The seed's replay (LiveUpdates over the same touches, 10 at a time) is done at 50 touches with the
+    worst part's true median 1.56 mm and p95 2.17: the target is met with room, not by a hair."""
+    from nao_skin.calibration.evaluation import truth_error
+    from nao_skin.session.params import sim_overrides
+    from nao_skin.sim.params import load_params
+
+    bag = tmp_path / "touches"
+    seed, per_pair, median_mm, p95_mm, margin = 2, 60, 2.5, 6.0, 1.1
+    argv = live_session_cmd(bag, seed, per_pair, "r_hand-torso", every_touches=10, period=86400) + [
+        "--param", f"calibrate.live_done_median_mm={median_mm}", "--param", f"calibrate.live_done_p95_mm={p95_mm}",
+        "--param", f"calibrate.live_done_margin={margin}"]
+    pair_done = lambda s: s.get("parts", {}).get("r_hand") == s.get("parts", {}).get("torso") == "done"  # noqa: E731
+    status, err, seen = run_sitting(tmp_path, argv, "record",
+                                    lambda status, sim: any(s["state"] == "updated" and pair_done(s) for s in status))
+    updates = [s for s in status if s["state"] == "updated"]
+    first = next(i for i, s in enumerate(updates) if pair_done(s))
+    for s in updates[:first]:      # not done before the prediction met the target with the margin
+        predicted = s["predicted_taxel_error_mm"]
+        assert any(p not in predicted or predicted[p]["median"] * margin > median_mm
+                   or predicted[p]["p95"] * margin > p95_mm for p in ("r_hand", "torso")), s
+    done = updates[first]
+    assert all(done["predicted_taxel_error_mm"][p]["median"] * margin <= median_mm
+               and done["predicted_taxel_error_mm"][p]["p95"] * margin <= p95_mm for p in ("r_hand", "torso")), done
+    assert done["parts"]["l_hand"] == done["parts"]["head"] == "collecting"
+    # what the session wrote (every touch it recorded) against the truth
+    skin = load_skin()
+    truth = simulate(skin, load_params("default", sim_overrides(per_pair, ["r_hand-torso"])), seed).truth
+    written = SkinCalibration.load(tmp_path / "touches_calibration" / "calibration.yaml", skin)
+    error = truth_error(skin, written, truth, ["r_hand", "torso"])
+    assert all(error[p]["median"] <= median_mm and error[p]["p95"] <= p95_mm for p in ("r_hand", "torso")), error
+
+
 def test_the_session_end_calibrates_the_touches_since_the_last_update_and_says_where_it_went(tmp_path):
     """Updates every 20 touches, none by time: the touches recorded after the last update are calibrated when
     the session ends, so the calibration written covers every touch (it covered the last update's only); its

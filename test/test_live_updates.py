@@ -8,7 +8,7 @@ import pytest
 
 from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.errors import TooFewTouches
-from nao_skin.live.updates import Settling, WarmStart, rejection, taxel_displacement_mm
+from nao_skin.live.updates import PartStates, WarmStart, rejection, taxel_displacement_mm
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 from nao_skin.touch.datasets import deduplicate
@@ -152,36 +152,36 @@ def test_a_part_an_update_leaves_out_keeps_its_last_frames_and_stays_guarded(ski
         live.update(few_left.n_touches + 20, lambda args: dataclasses.replace(first, calibration=far))
 
 
-def test_done_needs_settled_taxels_and_a_flat_held_out_figure():
-    settling = Settling(settle_mm=0.1, updates=3, flat_percent=5.0)
-    assert settling.states(["r_hand", "l_hand"]) == {"r_hand": "collecting", "l_hand": "collecting"}
-    for figure in (3.0, 2.5, 2.2):               # taxels settled, but the figure still improves
-        settling.add({"r_hand": 0.05}, figure)
-    assert settling.states(["r_hand", "l_hand"]) == {"r_hand": "converging", "l_hand": "collecting"}
-    for figure in (2.20, 2.21, 2.19):
-        settling.add({"r_hand": 0.05}, figure)
-    assert settling.states(["r_hand"]) == {"r_hand": "done"}
-    settling.add({"r_hand": 0.5}, 2.2)             # moved again
-    assert settling.states(["r_hand"]) == {"r_hand": "converging"}
+def test_done_when_the_predicted_error_meets_the_target_with_margin():
+    states = PartStates(median_mm=0.5, p95_mm=1.5, margin=1.2)
+    assert states.states(["r_hand", "l_hand"]) == {"r_hand": "collecting", "l_hand": "collecting"}
+    states.add({"r_hand": {"median": 0.45, "p95": 1.0}, "all": {"median": 0.1, "p95": 0.2}})
+    # within the target, not within it with the margin (0.45 x 1.2 > 0.5); 'all' is no part
+    assert states.states(["r_hand", "l_hand", "all"]) == {"r_hand": "converging", "l_hand": "collecting",
+                                                          "all": "collecting"}
+    states.add({"r_hand": {"median": 0.41, "p95": 1.3}})          # median with margin, p95 not (1.56 > 1.5)
+    assert states.states(["r_hand"]) == {"r_hand": "converging"}
+    states.add({"r_hand": {"median": 0.41, "p95": 1.2}})
+    assert states.states(["r_hand"]) == {"r_hand": "done"}
+    states.add({"l_hand": {"median": 0.3, "p95": 0.9}})           # an update without r_hand: its state stays
+    assert states.states(["r_hand", "l_hand"]) == {"r_hand": "done", "l_hand": "done"}
 
 
-def test_a_done_part_stays_done_while_its_moves_hover_about_the_threshold():
-    """Moves hovering about settle_mm and a wavering held-out figure flipped a part between done and converging
-    20 times in a 2400-touch session (every part at once when the figure wavered): once done, a part is
-    converging again only when an update moves it twice settle_mm."""
-    settling = Settling(settle_mm=0.3, updates=3, flat_percent=5.0)
-    for _ in range(3):
-        settling.add({"r_hand": 0.2, "torso": 0.2}, 3.0)
-    assert settling.states(["r_hand", "torso"]) == {"r_hand": "done", "torso": "done"}
-    settling.add({"r_hand": 0.45, "torso": 0.1}, 3.6)      # above settle_mm, and the figure no longer flat
-    assert settling.states(["r_hand", "torso"]) == {"r_hand": "done", "torso": "done"}
-    settling.add({"r_hand": 0.6, "torso": 0.1}, 3.0)       # twice settle_mm: r_hand is moving again
-    assert settling.states(["r_hand", "torso"]) == {"r_hand": "converging", "torso": "done"}
-    for _ in range(2):
-        settling.add({"r_hand": 0.2}, 3.0)
-    assert settling.states(["r_hand"]) == {"r_hand": "converging"}       # the last 3 moves not all settled yet
-    settling.add({"r_hand": 0.2}, 3.0)
-    assert settling.states(["r_hand"]) == {"r_hand": "done"}
+def test_a_done_part_stays_done_until_its_prediction_misses_the_target_itself():
+    """The margin is a band: a prediction wavering about the threshold does not flip the state; one beyond the
+    target (a new touch contradicts the calibration, the rows' noise grew) does; NaN is no prediction met."""
+    states = PartStates(median_mm=0.5, p95_mm=1.5, margin=1.1)
+    states.add({"torso": {"median": 0.44, "p95": 1.0}})
+    assert states.states(["torso"]) == {"torso": "done"}
+    for median in (0.47, 0.5, 0.43):
+        states.add({"torso": {"median": median, "p95": 1.0}})
+        assert states.states(["torso"]) == {"torso": "done"}
+    states.add({"torso": {"median": 0.45, "p95": 1.51}})
+    assert states.states(["torso"]) == {"torso": "converging"}
+    states.add({"torso": {"median": 0.47, "p95": 1.0}})             # back within the target, not the margin
+    assert states.states(["torso"]) == {"torso": "converging"}
+    states.add({"torso": {"median": float("nan"), "p95": 1.0}})
+    assert states.states(["torso"]) == {"torso": "converging"} and states.updates == 7
 
 
 def test_an_update_from_scratch_whenever_the_touches_doubled(skin, session):
@@ -274,7 +274,7 @@ def test_a_live_session_updates_waits_and_fails_without_raising(skin, session, t
     recorded(n - 20)
 
     def live(recording, max_move_mm=20.0):
-        return LiveCalibration(skin, CalibrationOptions(), recording, skin.zero_calibration(), 2.0, Settling(),
+        return LiveCalibration(skin, CalibrationOptions(), recording, skin.zero_calibration(), 2.0, PartStates(),
                                max_move_mm)
 
     waiting = live(few).update()
@@ -297,14 +297,13 @@ def test_a_live_session_updates_waits_and_fails_without_raising(skin, session, t
     warm_md, cold_md = (markdown_report(o.accepted.report.to_dict()) for o in (second, first))
     assert "| before |" not in warm_md and "| final | test |" in warm_md and "measured on no split" in warm_md
     assert "| before | train |" in cold_md and "measured on no split" not in cold_md
-    accepted, settled = session_live.last, len(session_live.updates.settling.figures)
+    accepted, counted = session_live.last, session_live.updates.part_states.updates
     # no touch in the bag since, while it is being recorded (the recorder counted one it has not flushed yet):
-    # nothing runs, no status, and no 0 mm update counts towards a part's 'done' (a rehearsal showed 'taxels
-    # moved up to 0.00 mm')
+    # nothing runs, no status, and no update counted twice (a rehearsal showed 'taxels moved up to 0.00 mm')
     write_lock(bag)                                   # the bag open in its recorder: this process
     same = session_live.update()
     assert same.status == {} and same.accepted is None and session_live.last is accepted
-    assert len(session_live.updates.settling.figures) == settled
+    assert session_live.updates.part_states.updates == counted
     # a closed recording is calibrated again each time it is asked (bench-live's --update-input)
     (bag / LOCK_FILE).unlink()
     again = session_live.update()

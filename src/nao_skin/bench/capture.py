@@ -47,7 +47,7 @@ from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.calibration.evaluation import truth_error
 from nao_skin.errors import NaoSkinError, one_line
 from nao_skin.guidance.capture import guidance
-from nao_skin.live.updates import LiveUpdates, Settling, UpdateSchedule
+from nao_skin.live.updates import LiveUpdates, PartStates, UpdateSchedule
 from nao_skin.model.skin import SkinModel
 from nao_skin.sim.capture import Aim, CaptureSim
 from nao_skin.touch.datasets import deduplicate
@@ -67,7 +67,7 @@ class CaptureSetup:
     max_targets: int = 8            # guided: one aim at each of this many top targets per batch
     until_done: bool = False        # after the target, go on until the live status calls every part done (or
                                     # the cap): how far from the truth "done" is
-    settle_mm: float = Settling.settle_mm   # the status's "done" threshold (the node's live_settle_mm)
+    done_margin: float = PartStates.margin   # the status's "done" margin (the node's live_done_margin)
     warm_start: bool = True         # update as the live calibrate node does (live.updates.WarmStart); False: from
                                     # nominal each time
     sim: dict = field(default_factory=dict)     # simulator parameter overrides (e.g. pairs)
@@ -96,7 +96,8 @@ def run_capture(skin: SkinModel, seed: int, strategy: str, setup: CaptureSetup |
     t0 = time.perf_counter()
     batches = [cap.random(setup.start)]
     calib, result = None, None
-    live = LiveUpdates(skin, skin.zero_calibration(), settling=Settling(settle_mm=setup.settle_mm))
+    live = LiveUpdates(skin, skin.zero_calibration(),
+                       part_states=PartStates(setup.median_mm, setup.p95_mm, setup.done_margin))
     trace, needed, failures, guide_s, done = [], None, 0, [], None
     while True:
         touches, _ = deduplicate(TouchSet.concatenate(batches))
@@ -116,7 +117,10 @@ def run_capture(skin: SkinModel, seed: int, strategy: str, setup: CaptureSetup |
         states = live.states(parts) if setup.warm_start else None
         trace.append({"touches": touches.n_touches, "worst_median_mm": worst_med, "worst_p95_mm": worst_p95,
                       "per_part": {p: err[p] for p in parts if p in err},
-                      "held": len(result.report.held) if result is not None else None, "states": states})
+                      "held": len(result.report.held) if result is not None else None, "states": states,
+                      # the calibration's own predicted taxel error then (per part: median, p95, mm)
+                      "predicted": {p: dict(v) for p, v in (result.report.final.get("predicted_taxel_error_mm") or {}
+                                                            ).items() if p in parts} if result is not None else {}})
         if done is None and states and set(states.values()) == {"done"}:
             done = trace[-1]
         if needed is None and calib is not None and _met(err, parts, setup):

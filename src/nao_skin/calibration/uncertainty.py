@@ -12,7 +12,9 @@ the derivative of its position (chain-end frame) by the unknowns: what an effici
 had the pairing no wrong pairs and the noise no tails.
 
 :func:`predicted_error` evaluates it at a calibration's estimate (the engine, after every calibration and
-live update); ``nao-skin bench-bound`` (:mod:`nao_skin.bench.bound`) at a simulated robot's truth, with
+live update), as the figures a truth evaluation reports (each part's median and p95 over its taxels of
+their distance from the truth), scaled by the calibration's measured :data:`INEFFICIENCY`; ``nao-skin
+bench-bound`` (:mod:`nao_skin.bench.bound`) at a simulated robot's truth, with
 the same functions. Frames the calibration held (not estimated): a held patch or triangle component keeps
 its prior uncertainty (the touches told the calibration nothing about it); a held mount component, the
 fabric when it is not estimated and the kinematic corrections (kinematics=on/auto) count as known: no
@@ -39,6 +41,13 @@ from nao_skin.touch.touches import TouchSet
 DIFFERENCE_STEP = 1e-6      # m or rad: central differences of the taxel positions by the unknowns (linear there)
 UNCONSTRAINED = 1e-6        # prior information (1/m^2, 1/rad^2) of the mounts and the fabric: next to none
 MAD_SCALE = 1.4826          # MAD -> standard deviation of a normal distribution
+SAMPLES = 64                # draws of the posterior for the expected median and p95 of the taxels' distances
+# The calibration's true error over the efficient estimator's at the same touches, measured: the posterior
+# above is what an estimator without bias would reach; the calibration's rows (closest pairs, COPs over a
+# lattice of taxels) are biased per pose, and its true taxel error is 1.45 times the posterior's (the median
+# of the ratio over 1140 live updates of 20 simulated sessions, 100-1500 touches; docs/decisions.md, "The
+# prediction's honesty"). The prediction is the posterior scaled by it.
+INEFFICIENCY = 1.45
 
 
 def robust_sigma(residuals: np.ndarray) -> float:
@@ -128,14 +137,37 @@ def covariance(information: np.ndarray) -> np.ndarray:
     return np.linalg.inv(information)
 
 
-def taxel_rms(information: np.ndarray, prior: np.ndarray, g) -> np.ndarray:
+def taxel_rms(information: np.ndarray, prior: np.ndarray, g, cov: np.ndarray | None = None) -> np.ndarray:
     """Each taxel's predicted RMS error (m): ``sqrt(trace(G_i C G_i^T))``, ``C = (information + diag(prior))^-1``
-    (``g``: :func:`taxel_jacobian`'s, 3 rows per taxel)."""
-    cov = covariance(information + np.diag(prior))
+    (``g``: :func:`taxel_jacobian`'s, 3 rows per taxel; ``cov``: ``C`` when already at hand)."""
+    cov = covariance(information + np.diag(prior)) if cov is None else cov
     gc = np.asarray(g @ cov)
     var = (np.asarray(g.multiply(gc).sum(axis=1)).ravel() if scipy.sparse.issparse(g)
            else np.einsum("ij,ij->i", gc, g))
     return np.sqrt(np.maximum(var.reshape(-1, 3).sum(axis=1), 0.0))
+
+
+def distance_figures(cov: np.ndarray, g, taxel_part: np.ndarray, parts, samples: int = SAMPLES) -> dict:
+    """``{part: {median, p95}, all: {...}}`` (m): the expected median and p95 over each part's taxels of their
+    distance from the truth, were the unknowns' error ``N(0, cov)``: ``samples`` draws (a fixed seed: the same
+    calibration gives the same figures), each taxel's distance in each, the quantiles over the taxels per draw,
+    averaged over the draws. The figures a truth-error evaluation reports of one calibration
+    (:func:`~nao_skin.calibration.evaluation.truth_error`), with the taxels' errors as correlated as their
+    shared frames make them; a taxel's RMS error is larger than its typical distance (an isotropic one: the
+    median distance 0.89 times it, the 95th percentile 1.61 times)."""
+    factor = np.linalg.cholesky(cov + 1e-30 * np.eye(len(cov)))
+    draws = np.random.default_rng(0).standard_normal((len(cov), samples))
+    moved = np.asarray(g @ (factor @ draws))                                 # (3 per taxel, samples)
+    dist = np.linalg.norm(moved.reshape(-1, 3, samples), axis=1)             # (taxels, samples)
+
+    def figures(sel):
+        return {"median": float(np.mean(np.median(dist[sel], axis=0))),
+                "p95": float(np.mean(np.percentile(dist[sel], 95, axis=0)))}
+
+    out = {p: figures(taxel_part == p) for p in parts if np.any(taxel_part == p)}
+    if len(dist):
+        out["all"] = figures(np.isin(taxel_part, list(parts)))
+    return out
 
 
 def per_part(rms_mm: np.ndarray, taxel_part: np.ndarray, parts) -> dict:
@@ -168,14 +200,14 @@ def per_triangle(skin: SkinModel, rms_mm: np.ndarray, taxel_part: np.ndarray, pa
 def predicted_error(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, fabric: float, parts: tuple,
                     reported, options, prior_sigma: dict, inliers: np.ndarray | None = None,
                     estimated=None) -> tuple:
-    """``(figures, sigma, triangles)``: per part of ``reported`` (and ``all``) the predicted RMS taxel error's
-    median and p95 (mm) at the
-    estimate ``calib``: the rows the calibration kept (``inliers``) linearised there, their noise from their
-    residuals, the calibration's prior (``prior_sigma``). ``parts``: every part the touches pair (the
+    """``(figures, sigma, triangles)``: per part of ``reported`` (and ``all``) the predicted median and p95 over
+    its taxels of their distance from the truth (mm, :func:`distance_figures`) at the estimate ``calib``: the
+    rows the calibration kept (``inliers``) linearised there, their noise from their residuals, the
+    calibration's prior (``prior_sigma``), the posterior scaled by :data:`INEFFICIENCY`. ``parts``: every part the touches pair (the
     references of the reported ones too). ``estimated``: the ``part/frame/component`` names the calibration
     estimated (None: every one); the others are held (see the module's text). ``sigma``: the rows' noise per
-    coordinate (m) it assumed; ``triangles``: :func:`per_triangle`'s, each triangle's median (the uncertainty
-    map). ``({}, nan, {})`` when no row pairs."""
+    coordinate (m) it assumed; ``triangles``: :func:`per_triangle`'s, each triangle's median predicted RMS
+    error (the uncertainty map). ``({}, nan, {})`` when no row pairs."""
     layout, jac, _, residuals = linearised_rows(skin, touches, calib, fabric, parts, options, inliers)
     sigma = robust_sigma(residuals) if jac is not None else float("nan")
     if not sigma > 0:
@@ -196,7 +228,9 @@ def predicted_error(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, 
     information[np.ix_(keep, keep)] = (jac.T @ jac).toarray() / sigma ** 2
     g, taxel_part = taxel_jacobian(skin, layout, calib)
     free = np.flatnonzero(~known)
-    rms = taxel_rms(information[np.ix_(free, free)], prior[free], g[:, free])
+    cov = covariance(information[np.ix_(free, free)] + np.diag(prior[free])) * INEFFICIENCY ** 2
+    rms = taxel_rms(None, None, g[:, free], cov)
     shown = [p for p in parts if p in reported]
-    return (per_part(1000.0 * rms, taxel_part, shown), sigma,
-            per_triangle(skin, 1000.0 * rms, taxel_part, shown))
+    figures = {p: {k: 1000.0 * v for k, v in f.items()}
+               for p, f in distance_figures(cov, g[:, free], taxel_part, shown).items()}
+    return figures, sigma, per_triangle(skin, 1000.0 * rms, taxel_part, shown)

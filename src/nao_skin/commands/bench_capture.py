@@ -39,9 +39,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--until-done", action="store_true",
                         help="after the target, go on until the live status calls every part done (or the cap):"
                              " when 'done' comes and how far from the truth the parts are then")
-    parser.add_argument("--settle-mm", type=float,
-                        help="the live status's 'done' threshold to replay, mm (default: the calibrate node's"
-                             " live_settle_mm)")
+    parser.add_argument("--done-margin", type=float,
+                        help="the live status's 'done' margin to replay (default: the calibrate node's"
+                             " live_done_margin)")
     parser.add_argument("--strategies", default="random,guided,oracle",
                         help="comma-separated, of random, guided, oracle (default: all three; oracle splits random"
                              " touches over the pairs by the true error: an upper bound, not a capture policy)")
@@ -67,7 +67,7 @@ def run(args) -> int:
     from nao_skin.plain import jsonable
 
     setup = bench.QUICK_SETUP if args.quick else bench.CaptureSetup()
-    for name in ("start", "batch", "cap", "median_mm", "p95_mm", "settle_mm"):
+    for name in ("start", "batch", "cap", "median_mm", "p95_mm", "done_margin"):
         value = getattr(args, name)
         if value is not None:
             if not 0 < value < math.inf:       # NaN or inf: a target never or always met, runs up to the cap

@@ -1,13 +1,12 @@
-"""Live calibration's bookkeeping, pure: when an update is due, how far the taxels moved, which parts settled.
+"""Live calibration's bookkeeping, pure: when an update is due, how far the taxels moved, which parts are done.
 
 The calibrate node recalibrates in the background while touches arrive; these
 decide when (every ``every_touches`` new touches, or ``period`` seconds after
 the last update if any touch came since), whether an update is sane enough to
 publish, and say, per part, whether more touches still move it:
-``collecting`` (not calibrated yet), ``converging``, or ``done`` (its taxels
-moved less than ``settle_mm`` in each of the last ``updates`` updates, and
-the held-out figure stayed flat over them: within ``flat_percent`` of its
-mean, so a part is not called done while the fit still improves elsewhere).
+``collecting`` (not calibrated yet), ``converging``, or ``done`` (the
+calibration's own predicted taxel error meets the accuracy target with a
+margin: :class:`PartStates`).
 """
 from __future__ import annotations
 
@@ -150,57 +149,50 @@ def rejection(skin: SkinModel, calib: SkinCalibration, displacement_mm: dict, ca
     return None
 
 
-RELEASE = 2.0     # a done part is converging again once an update moves it this many times settle_mm
+# the accuracy target: a part is done when its predicted taxel error meets it (with a margin), and every
+# benchmark judges a simulated calibration by its true taxel error against it (median and p95, mm)
+TARGET_MM = {"median": 0.5, "p95": 1.5}
 
 
 @dataclass
-class Settling:
-    """Per part: the displacement of each update it was calibrated in; its state from the last few.
+class PartStates:
+    """Per part: ``collecting`` (not calibrated yet), ``converging``, or ``done``: the calibration's own
+    predicted taxel error (``report.final["predicted_taxel_error_mm"]``, :mod:`nao_skin.calibration.uncertainty`)
+    meets the target with ``margin``: median times ``margin`` <= ``median_mm`` and p95 times ``margin`` <=
+    ``p95_mm``. Once done, a part is converging again only when its prediction misses the target itself (the
+    margin is the band between the two, so a prediction wavering at the threshold does not flip the state).
 
-    ``settle_mm`` is measured, not a wish: an update re-pairs the touches, so even at 1500 touches a part's
-    largest taxel moves 0.15–0.3 mm from one update of 25 new touches to the next. At 0.1 mm every part was
-    done in none of 20 simulated sessions by 1500 touches (random capture, ``nao-skin bench-capture
-    --until-done --settle-mm 0.1 --strategies random --seeds 20``). At 0.3 mm, with the margin of
-    :meth:`add`, it was in 19 of them, at about 1060 touches, the worst part's true taxel error median then
-    0.51 mm (highest 0.65): the same without ``--settle-mm``. Fewer new touches per update (a slow
-    operator, every ``period`` seconds) move the taxels less, so "done" comes sooner there."""
+    The margin is measured (``nao-skin bench-capture --until-done --strategies random --seeds 20``, docs/
+    decisions.md): the prediction is within 0.89–1.10 of the true worst part's median (10th–90th percentile
+    over updates from 1000 touches); with 1.1, every part done left the true worst part within the target in
+    19 of 20 simulated sessions. It was once judged by how far the taxels moved between updates: that says how
+    much more touches change a part, not how far it is from the truth (done with the worst part's true median
+    up to 0.65 mm)."""
 
-    settle_mm: float = 0.3
-    updates: int = 3
-    flat_percent: float = 5.0
-    release: float = RELEASE
-    history: dict = field(default_factory=dict)     # part -> [mm per update]
-    figures: list = field(default_factory=list)     # held-out closest taxel mean (mm) per update
+    median_mm: float = TARGET_MM["median"]
+    p95_mm: float = TARGET_MM["p95"]
+    margin: float = 1.1
+    calibrated: set = field(default_factory=set)    # the parts an update has calibrated
     done: set = field(default_factory=set)          # the parts done now
+    updates: int = 0                                # updates added
 
-    def add(self, displacement_mm: dict, test_figure_mm: float = float("nan")) -> None:
-        """One accepted update: how far each part it calibrated moved (mm), and its held-out figure.
-
-        A part becomes done as the class says; once done it stays done until an update moves it ``release``
-        times ``settle_mm`` or more. Without that margin the state of a part whose moves hover about
-        ``settle_mm`` (0.19–3.7 mm, median 0.35, over 60 updates at 1200–2400 touches of a simulated
-        session) went back and forth 20 times, every part at once whenever the held-out figure wavered: no
-        signal an operator can stop on."""
-        for part, mm in displacement_mm.items():
-            self.history.setdefault(part, []).append(float(mm))
-        self.figures.append(float(test_figure_mm))
-        flat = self.figure_flat()
-        for part, mm in displacement_mm.items():
-            moved = self.history[part]
+    def add(self, predicted: dict) -> None:
+        """One accepted update: ``{part: {median, p95}}`` (mm), the predicted taxel error of each part it
+        calibrated (others keep their state; ``all`` is not a part)."""
+        self.updates += 1
+        for part, figures in predicted.items():
+            if part == "all":
+                continue
+            self.calibrated.add(part)
+            median, p95 = float(figures.get("median", np.nan)), float(figures.get("p95", np.nan))
             if part in self.done:
-                if mm >= self.release * self.settle_mm:
+                if not (median <= self.median_mm and p95 <= self.p95_mm):
                     self.done.discard(part)
-            elif flat and len(moved) >= self.updates and max(moved[-self.updates:]) < self.settle_mm:
+            elif median * self.margin <= self.median_mm and p95 * self.margin <= self.p95_mm:
                 self.done.add(part)
 
-    def figure_flat(self) -> bool:
-        last = np.array(self.figures[-self.updates:])
-        if len(last) < self.updates or not np.all(np.isfinite(last)):
-            return False
-        return bool(np.max(np.abs(last - last.mean())) <= self.flat_percent / 100.0 * last.mean())
-
     def states(self, parts) -> dict:
-        return {part: "done" if part in self.done else "converging" if self.history.get(part) else "collecting"
+        return {part: "done" if part in self.done else "converging" if part in self.calibrated else "collecting"
                 for part in parts}
 
 
@@ -209,23 +201,23 @@ class LiveUpdates:
     replays, so both see the same calibrations and the same part states.
 
     Each update starts where :class:`WarmStart` says; a result that diverged (:func:`rejection`) is
-    refused and the last accepted one stays; an accepted one adds its displacement and held-out figure
-    to :class:`Settling`. ``max_move_mm``: an update moving a part it had calibrated farther than this
+    refused and the last accepted one stays; an accepted one adds its predicted taxel error to
+    :class:`PartStates`. ``max_move_mm``: an update moving a part it had calibrated farther than this
     diverged.
     """
 
     MAX_MOVE_MM = 20.0      # a few more touches refine a part by tenths of a millimetre, never by centimetres
 
     def __init__(self, skin: SkinModel, start: SkinCalibration, refresh: float = WarmStart.refresh,
-                 settling: Settling | None = None, max_move_mm: float = MAX_MOVE_MM):
+                 part_states: PartStates | None = None, max_move_mm: float = MAX_MOVE_MM):
         self.skin = skin
         self.warm_start = WarmStart(start, refresh)
-        self.settling = Settling() if settling is None else settling
+        self.part_states = PartStates() if part_states is None else part_states
         self.max_move_mm = float(max_move_mm)
 
     def states(self, parts) -> dict:
         """``{part: collecting | converging | done}``."""
-        return self.settling.states(parts)
+        return self.part_states.states(parts)
 
     def update(self, n_touches: int, run: Callable[[dict], Any], warm_only: bool = False) -> tuple:
         """The next update over ``n_touches`` touches, ``(result, displacement_mm, arguments)``: ``run`` and
@@ -240,7 +232,7 @@ class LiveUpdates:
             raise DataError(f"update over {n_touches} touches not published: {why}")
         # the calibration holds them (written with their taxel files), as the update's warning says
         result.report.parts = [*result.report.parts, *held]
-        self.settling.add(moved, result.report.final.get("test", {}).get("taxel_mean_mm", float("nan")))
+        self.part_states.add(result.report.final.get("predicted_taxel_error_mm") or {})
         self.warm_start.accepted(result, n_touches, arguments)
         return result, moved, arguments
 

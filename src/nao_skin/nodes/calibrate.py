@@ -47,7 +47,7 @@ from nao_skin.calibration.uncertainty_map import colours, triangle_discs
 from nao_skin.errors import NaoSkinError, one_line
 from nao_skin.formats.outdir import output_stamp
 from nao_skin.live.diagnostics import age_check, live_check
-from nao_skin.live.updates import Settling, UpdateSchedule
+from nao_skin.live.updates import PartStates, UpdateSchedule
 from nao_skin.model.skin import SkinCalibration, skin_frame_transforms
 from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
@@ -113,8 +113,8 @@ class CalibrateNode(Node):
             self.schedule = UpdateSchedule(int(self.p["live_every_touches"]), float(self.p["live_period"]))
             self.live = LiveCalibration(self.skin, self.options, self.p["recording"], self.prior,
                                         float(self.p["live_refresh"]),
-                                        Settling(float(self.p["live_settle_mm"]), int(self.p["live_settle_updates"]),
-                                                 float(self.p["live_flat_percent"])),
+                                        PartStates(float(self.p["live_done_median_mm"]),
+                                                   float(self.p["live_done_p95_mm"]), float(self.p["live_done_margin"])),
                                         float(self.p["live_max_move_mm"]), earlier=self._earlier())
             # a bad bag: one line and exit 2, now; what is worth a look (skips, a sitting they continue left out)
             # as warnings

@@ -35,7 +35,7 @@ from nao_skin.formats.bag import GrowingBag
 from nao_skin.formats.inputs import ReadOnce, check_inputs, find_bag, read_sitting, recording_of
 from nao_skin.formats.outdir import is_free, output_stamp
 from nao_skin.formats.salvage import recording_lock
-from nao_skin.live.updates import LiveUpdates, Settling
+from nao_skin.live.updates import LiveUpdates, PartStates
 from nao_skin.model.skin import SkinCalibration, SkinModel, pair_label
 from nao_skin.paths import free_sibling
 from nao_skin.touch.touches import TouchSet
@@ -79,12 +79,12 @@ class LiveCalibration:
     """
 
     def __init__(self, skin: SkinModel, options: CalibrationOptions, recording: str | Path,
-                 start: SkinCalibration, refresh: float, settling: Settling, max_move_mm: float,
+                 start: SkinCalibration, refresh: float, part_states: PartStates, max_move_mm: float,
                  earlier: Sequence = ()):
         self.skin, self.options, self.recording = skin, options, str(recording)
         self.earlier = [str(p) for p in earlier]        # bags of earlier sittings: the session continues them
         self.earlier_count = 0                          # their touches (exact duplicates left out)
-        self.updates = LiveUpdates(skin, start, refresh, settling, max_move_mm)
+        self.updates = LiveUpdates(skin, start, refresh, part_states, max_move_mm)
         self.last: CalibrationResult | None = None     # the last accepted update's result
         self.last_count = 0                             # how many touches it calibrated
         self.read_count = 0                             # how many touches the recording held at the last read

@@ -6,7 +6,7 @@ record`` and the launch file check a session's parameter files and overrides
 against them before any node starts (:mod:`nao_skin.session.record`). No ROS
 import here: ``nao-skin record --print`` runs where rclpy is not installed.
 Defaults that belong to the engine, the live updates or the event detector are
-theirs (``CalibrationOptions``, ``UpdateSchedule``, ``Settling``, ``WarmStart``,
+theirs (``CalibrationOptions``, ``UpdateSchedule``, ``PartStates``, ``WarmStart``,
 ``LiveUpdates``, ``LIVE_CONFIG``), read from there.
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
 from nao_skin.errors import ConfigError, NaoSkinError
 from nao_skin.guidance.capture import MAX_READ_TARGETS
 from nao_skin.live.playback import check_timing
-from nao_skin.live.updates import LiveUpdates, Settling, UpdateSchedule, WarmStart
+from nao_skin.live.updates import LiveUpdates, PartStates, UpdateSchedule, WarmStart
 from nao_skin.model.skin import SkinModel, load_skin, parse_pairs, parse_taxel_files
 from nao_skin.rules import (AT_LEAST_ONE, HOST, JOINT_NAMES, NON_NEGATIVE, PORT, POSITIVE, RATE, SECONDS,
                             SECONDS_OR_ZERO, WHOLE, YARP_PORT, YARP_PORT_OR_NONE, Rule)
@@ -55,16 +55,17 @@ CALIBRATE = {
     "out_dir": ("nao_skin_calibration", "output directory (replaced when a run succeeds)"),
     "plots": (False, "write the report's plots too (slower)"),
     "live": (False, "recalibrate in the background while the recorder stores touches (on in a record session)"),
-    # the live defaults are the live module's (UpdateSchedule, Settling, WarmStart, LiveUpdates): defined once
+    # the live defaults are the live module's (UpdateSchedule, PartStates, WarmStart, LiveUpdates): defined once
     "live_every_touches": (UpdateSchedule.every_touches, "live: an update after this many new touches ...",
                            AT_LEAST_ONE),
     "live_period": (UpdateSchedule.period, "live: ... or this many seconds after the last one, if any touch came"
                                            " since", SECONDS),
-    "live_settle_mm": (Settling.settle_mm, "live: a part is done when its taxels moved less than this (mm; done"
-                                            " until an update moves it twice this) ...", POSITIVE),
-    "live_settle_updates": (Settling.updates, "live: ... in each of this many updates in a row, ...", AT_LEAST_ONE),
-    "live_flat_percent": (Settling.flat_percent, "live: ... and the held-out closest taxel figure stayed within this"
-                                                 " % of its mean", NON_NEGATIVE),
+    "live_done_median_mm": (PartStates.median_mm, "live: a part is done when its predicted taxel error's median"
+                                                  " (mm) ...", POSITIVE),
+    "live_done_p95_mm": (PartStates.p95_mm, "live: ... and p95 (mm), each times live_done_margin, are at most"
+                                            " these (done until the prediction itself exceeds one)", POSITIVE),
+    "live_done_margin": (PartStates.margin, "live: ... (how far the prediction may fall short of the true error, measured)",
+                         Rule(float, low=1.0, high=10.0)),
     "guidance": (True, "live: after each update, publish where touches would help most on /nao_skin/guidance"),
     "guidance_targets": (5, "live: how many targets the guidance names (its readers take the first 100)",
                          Rule(int, low=1, high=MAX_READ_TARGETS)),
