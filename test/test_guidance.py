@@ -38,8 +38,11 @@ def _row(part, tid):
 
 
 def test_held_triangle_ranks_above_well_covered(skin, captured):
+    """Without a posterior (a calibration file, nominal before the first update) the tiers rank the targets."""
     _, touches, result = captured
-    g = guidance(touches, skin, result, max_targets=200, poses=False, pairs=[tuple(p) for p in PAIRS])
+    g = guidance(touches, skin, result.calibration, held=result.report.held, calibrated_parts=result.report.parts,
+                 max_targets=200, poses=False, pairs=[tuple(p) for p in PAIRS])
+    assert all(t.gain_mm2 is None for t in g.targets)
     cov = g.coverage["torso"]
     acts = np.array(cov.activations)
     assert cov.total == len(skin.parts["torso"].triangle_ids) and cov.enough == int(np.sum(acts >= cov.needed))
@@ -194,9 +197,9 @@ def _activated(touches: TouchSet, part: str, triangle_row: int) -> np.ndarray:
 
 
 def test_an_aimed_touch_fires_its_target_far_more_often_than_a_random_touch(skin, captured):
-    """What following the guidance does: each aimed touch presses the triangle it was sent to. (That it
-    frees held triangles sooner or reaches an accuracy target in fewer touches than random capture, it
-    does not, measured: docs/decisions.md, "Guided capture against random capture"; ``nao-skin bench-capture``.)"""
+    """What following the guidance does: each aimed touch presses the triangle it was sent to. (How many fewer
+    touches it needs to an accuracy target than random capture is measured: docs/decisions.md, "Guidance by
+    expected gain"; ``nao-skin bench-capture``.)"""
     _, touches, result = captured
     g = guidance(touches, skin, result, max_targets=8, seed=3, pairs=[tuple(p) for p in PAIRS])
     targets = [t for t in g.targets if t.pose is not None and t.hand_triangle_id is not None]
@@ -219,8 +222,9 @@ def test_an_aimed_touch_fires_its_target_far_more_often_than_a_random_touch(skin
         by_chance.append(_activated(random, t.part, row).mean())
     assert len(fired) >= len(targets)     # aimed touches that fired both parts: one a target at least, on average
     # measured over simulator seeds 6-11: 0.62-0.75 of the aimed touches against 0.09-0.12 of the random
-    # ones (a press between two triangles can fire the neighbour alone)
-    assert np.mean(fired) >= 0.5 and np.mean(by_chance) <= 0.2, (np.mean(fired), np.mean(by_chance))
+    # ones (a press between two triangles can fire the neighbour alone); ranked by expected gain the targets
+    # include well-covered triangles, which random touches fire more often (0.20 here)
+    assert np.mean(fired) >= max(0.5, 3 * np.mean(by_chance)), (np.mean(fired), np.mean(by_chance))
 
 
 def test_the_capture_benchmark_follows_the_live_status_and_goes_on_until_done_only_when_asked(skin):

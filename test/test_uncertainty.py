@@ -92,3 +92,38 @@ def test_the_uncertainty_map_has_every_triangle_and_falls_where_touches_land(ski
     assert sure[:3].min() > 0.9 and unsure[:3].max() < 0.5
     discs = triangle_discs(hand, after["l_hand"])
     assert [d[0] for d in discs] == [int(t) for t in hand.triangle_ids] and all(d[1][2] > 0 for d in discs)
+
+
+def test_a_touch_s_variance_lowered_is_what_adding_its_rows_to_the_posterior_removes(result):
+    """The guidance's criterion (Posterior.variance_lowered) against the posterior recomputed with the rows added:
+    a touch's k rows of one contact, each of the rows' noise, taken off the summed variance of every taxel."""
+    from nao_skin.calibration.uncertainty import INEFFICIENCY
+
+    post = result.posterior
+    assert post is not None and post.cov.shape == (len(post.free), len(post.free))
+    assert post.rows_per_touch >= 1.0 and post.sigma == pytest.approx(result.report.final["predicted_noise_mm"] / 1e3)
+    g = post.taxel_jacobian.toarray()
+    hand, torso = post.taxels_of("r_hand")[20], post.taxels_of("torso")[100]
+    rotation = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    row = rotation @ g[3 * hand:3 * hand + 3] - g[3 * torso:3 * torso + 3]
+    noise = (INEFFICIENCY * post.sigma) ** 2 / post.rows_per_touch
+    after = np.linalg.inv(np.linalg.inv(post.cov) + row.T @ row / noise)
+    removed = np.trace(g @ post.cov @ g.T) - np.trace(g @ after @ g.T)
+    assert post.variance_lowered(row) == pytest.approx(removed, rel=1e-6)
+    assert post.variance_lowered(row) > post.variance_lowered(0.1 * row) > 0.0     # a row that says less
+
+
+def test_the_predicted_figures_are_those_of_a_distance_not_of_an_rms(skin):
+    """distance_figures: independent isotropic taxel errors of RMS r have a median distance of 0.888 r and a 95th
+    percentile of 1.614 r (the chi distribution with 3 degrees of freedom), not r."""
+    import scipy.sparse
+
+    from nao_skin.calibration.uncertainty import distance_figures
+
+    n = 1000
+    rms = 1e-3
+    cov = np.eye(3 * n) * rms ** 2 / 3
+    figures = distance_figures(cov, scipy.sparse.identity(3 * n, format="csr"), np.array(["torso"] * n), ["torso"])
+    assert figures["torso"]["median"] == pytest.approx(0.888 * rms, rel=0.02)
+    assert figures["torso"]["p95"] == pytest.approx(1.614 * rms, rel=0.03)
+    assert figures["all"] == figures["torso"]

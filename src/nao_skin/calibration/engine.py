@@ -46,7 +46,7 @@ from nao_skin.calibration.plan import (Step, left_out_pairs, pairs_outside_roles
 from nao_skin.calibration.plausibility import implausible
 from nao_skin.calibration.rows import pairing_key
 from nao_skin.calibration.stages import compress_held, fitted_kinds, initial_prior_sigma, run_stage
-from nao_skin.calibration.uncertainty import predicted_error
+from nao_skin.calibration.uncertainty import Posterior, predicted_error
 from nao_skin.errors import DataError, TooFewTouches
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.touch.datasets import pose_groups
@@ -109,6 +109,8 @@ class CalibrationResult:
     train: TouchSet
     test: TouchSet
     set_aside: list = field(default_factory=list)
+    # the linearised posterior the predicted error came from (what more touches would teach: the guidance)
+    posterior: Posterior | None = None
 
     @property
     def state(self) -> FitState:
@@ -204,7 +206,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
                                             report)
     report.final = _final_figures(train, test, skin, steps, options, fit, truth, explained_too=not warm)
     _kept_apart(train, skin, steps, fit, report.final)
-    _predicted(train, skin, steps, options, fit, report, say)
+    posterior = _predicted(train, skin, steps, options, fit, report, say)
     report.fabric_thickness_mm = 1000.0 * fit.fabric
     fit.calibration.fabric_thickness = fit.fabric      # with the frames: what their closest pairs were measured at
     report.prior_sigma = fit.prior_sigma
@@ -222,7 +224,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
     for line in report.warnings:
         say(f"warning: {line}")
     report.total_seconds = time.perf_counter() - t_start
-    return CalibrationResult(fit.calibration, report, train, test, fit.set_aside)
+    return CalibrationResult(fit.calibration, report, train, test, fit.set_aside, posterior)
 
 
 @dataclass
@@ -574,22 +576,24 @@ def _kept_apart(train: TouchSet, skin: SkinModel, steps: list, fit: _Fit, final:
 
 
 def _predicted(train: TouchSet, skin: SkinModel, steps: list, options: CalibrationOptions, fit: _Fit,
-               report: CalibrationReport, say) -> None:
+               report: CalibrationReport, say) -> Posterior | None:
     """The predicted taxel error at the estimate (:func:`~.uncertainty.predicted_error`): per calibrated part
     and ``all``, median and p95 (mm), in ``report.final`` (with the rows' noise it assumed) and on the
     calibration (calibration.yaml). The rows of the touches the gate kept, the prior the stages ended with."""
     t0 = time.perf_counter()
     parts = tuple(sorted({p for s in steps for p in s.targets + s.references if p in train.part_names},
                          key=part_rank))
-    figures, sigma, triangles = predicted_error(skin, train, fit.calibration, fit.fabric, parts, report.parts,
-                                                options, fit.prior_sigma, fit.inliers, fit.estimated)
+    prediction = predicted_error(skin, train, fit.calibration, fit.fabric, parts, report.parts, options,
+                                 fit.prior_sigma, fit.inliers, fit.estimated)
+    figures, sigma = prediction.figures, prediction.sigma
     report.final["predicted_taxel_error_mm"] = figures
-    report.final["predicted_triangle_error_mm"] = triangles
+    report.final["predicted_triangle_error_mm"] = prediction.triangles
     report.final["predicted_noise_mm"] = 1000.0 * sigma
     fit.calibration.predicted_error_mm = {p: dict(v) for p, v in figures.items() if p != "all"}
     if figures:
         say(f"predicted taxel error median {figures['all']['median']:.2f} mm, p95 {figures['all']['p95']:.2f} mm"
             f" (rows' noise {1000.0 * sigma:.2f} mm; {time.perf_counter() - t0:.2f} s)")
+    return prediction.posterior
 
 
 def _check_enough(train: TouchSet, steps: list, options: CalibrationOptions) -> None:

@@ -23,6 +23,7 @@ frame, where the kinematics do not enter.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
@@ -197,21 +198,70 @@ def per_triangle(skin: SkinModel, rms_mm: np.ndarray, taxel_part: np.ndarray, pa
     return out
 
 
+@dataclass
+class Posterior:
+    """The linearised posterior at a calibration, as its predicted error used it: handed on to whoever asks what
+    more touches would teach (the guidance)."""
+
+    layout: ParameterLayout              # the unknowns (every frame of ``layout.part_names``, the fabric)
+    free: np.ndarray                     # the columns of ``layout`` the covariance covers (the rest: known)
+    cov: np.ndarray                      # (free, free): m^2 and rad^2, scaled by INEFFICIENCY^2
+    sigma: float                         # the rows' noise per coordinate (m)
+    rows_per_touch: float                # 3-vector rows per paired touch (the kinds of the closing stage)
+    taxel_jacobian: scipy.sparse.csr_matrix   # (3 per taxel, free): each taxel's position by the unknowns
+    taxel_part: np.ndarray               # the part of each taxel (each part's slots in turn)
+
+    def taxels_of(self, part: str) -> np.ndarray:
+        """Rows of ``part``'s taxels (its slots in order) in :attr:`taxel_jacobian` (3 rows each)."""
+        return np.flatnonzero(self.taxel_part == part)
+
+    def taxel_information(self, part_weights: dict | None = None) -> np.ndarray:
+        """``G^T W G``: how the unknowns move the taxels, each taxel's part weighted by ``part_weights`` (None:
+        every taxel 1; a part not named: 0)."""
+        g = self.taxel_jacobian
+        if part_weights is not None:
+            w = np.array([part_weights.get(p, 0.0) for p in self.taxel_part])
+            g = scipy.sparse.diags(np.repeat(np.sqrt(w), 3)) @ g
+        return (g.T @ g).toarray()
+
+    def variance_lowered(self, row: np.ndarray, taxel_information: np.ndarray | None = None) -> float:
+        """The summed variance of every taxel (m^2) one more touch would remove, its contact's row having the
+        Jacobian ``row`` (3, free): the bound's greedy criterion (:mod:`nao_skin.bench.bound`) at the estimate;
+        with ``taxel_information`` (:meth:`taxel_information`'s) each part's taxels weighted so. A touch gives
+        :attr:`rows_per_touch` such rows (one per kind of the closing stage); they see the same contact, so
+        count as one row of that much less noise."""
+        h = self.taxel_information() if taxel_information is None else taxel_information
+        moved = row @ self.cov                                              # (3, free)
+        spread = moved @ row.T + np.eye(3) * self.sigma ** 2 * INEFFICIENCY ** 2 / max(self.rows_per_touch, 1.0)
+        return float(np.trace(np.linalg.solve(spread, moved @ h @ moved.T)))
+
+
+@dataclass
+class Prediction:
+    """:func:`predicted_error`'s result."""
+
+    figures: dict                        # part (and all) -> {median, p95} of the taxels' predicted distance, mm
+    sigma: float                         # the rows' noise per coordinate it assumed (m); NaN: nothing paired
+    triangles: dict                      # part -> {triangle id: median predicted RMS error of its taxels, mm}
+    posterior: Posterior | None = None
+
+
 def predicted_error(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, fabric: float, parts: tuple,
                     reported, options, prior_sigma: dict, inliers: np.ndarray | None = None,
-                    estimated=None) -> tuple:
-    """``(figures, sigma, triangles)``: per part of ``reported`` (and ``all``) the predicted median and p95 over
+                    estimated=None) -> Prediction:
+    """Per part of ``reported`` (and ``all``) the predicted median and p95 over
     its taxels of their distance from the truth (mm, :func:`distance_figures`) at the estimate ``calib``: the
     rows the calibration kept (``inliers``) linearised there, their noise from their residuals, the
-    calibration's prior (``prior_sigma``), the posterior scaled by :data:`INEFFICIENCY`. ``parts``: every part the touches pair (the
-    references of the reported ones too). ``estimated``: the ``part/frame/component`` names the calibration
-    estimated (None: every one); the others are held (see the module's text). ``sigma``: the rows' noise per
+    calibration's prior (``prior_sigma``), the posterior scaled by :data:`INEFFICIENCY`. ``parts``: every
+    part the touches pair (the references of the reported ones too). ``estimated``: the
+    ``part/frame/component`` names the calibration estimated (None: every one); the others are held (see the
+    module's text). ``sigma``: the rows' noise per
     coordinate (m) it assumed; ``triangles``: :func:`per_triangle`'s, each triangle's median predicted RMS
-    error (the uncertainty map). ``({}, nan, {})`` when no row pairs."""
-    layout, jac, _, residuals = linearised_rows(skin, touches, calib, fabric, parts, options, inliers)
+    error (the uncertainty map); the posterior they came from. Empty, NaN noise, when no row pairs."""
+    layout, jac, row_touch, residuals = linearised_rows(skin, touches, calib, fabric, parts, options, inliers)
     sigma = robust_sigma(residuals) if jac is not None else float("nan")
     if not sigma > 0:
-        return {}, sigma, {}
+        return Prediction({}, sigma, {})
     prior = prior_information(layout, parts, prior_sigma)
     keep = np.ones(layout.size, bool)           # the unknowns the touches informed
     known = np.zeros(layout.size, bool)          # held without a prior: counted as known
@@ -233,4 +283,6 @@ def predicted_error(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, 
     shown = [p for p in parts if p in reported]
     figures = {p: {k: 1000.0 * v for k, v in f.items()}
                for p, f in distance_figures(cov, g[:, free], taxel_part, shown).items()}
-    return figures, sigma, per_triangle(skin, 1000.0 * rms, taxel_part, shown)
+    posterior = Posterior(layout, free, cov, sigma, len(row_touch) / 3 / len(np.unique(row_touch)),
+                          scipy.sparse.csr_matrix(g[:, free]), taxel_part)
+    return Prediction(figures, sigma, per_triangle(skin, 1000.0 * rms, taxel_part, shown), posterior)

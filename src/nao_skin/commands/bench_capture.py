@@ -1,8 +1,9 @@
 """``nao-skin bench-capture``: touches needed until every part is calibrated well, random against guided capture.
 
 See :mod:`nao_skin.bench.capture` for the loop. Writes ``capture_results.md``
-(the tables), ``capture_results.json`` (every run with its trace) and
-``capture.png`` into ``--out`` and prints the tables. ``--out`` must be new,
+(the tables), ``capture_results.json`` (every run with its trace),
+``capture.png`` and ``honesty.png`` (the live status's predicted error
+against the true one, every update) into ``--out`` and prints the tables. ``--out`` must be new,
 empty, or an earlier bench-capture output (then with ``--force``); see
 :mod:`nao_skin.formats.outdir`.
 """
@@ -19,7 +20,7 @@ from nao_skin.commands import add_output_arguments
 NAME = "bench-capture"
 HELP = ("benchmark guided capture: touches until every part's true taxel error meets the target, random vs guided"
         " (and an oracle's split over the pairs)")
-OUTPUTS = ("capture_results.md", "capture_results.json", "capture.png")
+OUTPUTS = ("capture_results.md", "capture_results.json", "capture.png", "honesty.png")
 
 
 def add_arguments(parser) -> None:
@@ -39,6 +40,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--until-done", action="store_true",
                         help="after the target, go on until the live status calls every part done (or the cap):"
                              " when 'done' comes and how far from the truth the parts are then")
+    parser.add_argument("--to-cap", action="store_true",
+                        help="go on to the cap whatever is met: when the target was met for good (against when"
+                             " the status said done), and the prediction's honesty over every touch count")
     parser.add_argument("--done-margin", type=float,
                         help="the live status's 'done' margin to replay (default: the calibrate node's"
                              " live_done_margin)")
@@ -79,7 +83,7 @@ def run(args) -> int:
         if args.until_done:
             raise DataError("--until-done: the live status follows warm-started updates; not with --cold")
         setup = replace(setup, warm_start=False)
-    setup = replace(setup, until_done=args.until_done)
+    setup = replace(setup, until_done=args.until_done, to_cap=args.to_cap)
     options = CalibrationOptions()
     given = set_items(options, args.set)
     options.validate()
@@ -107,6 +111,7 @@ def run(args) -> int:
     # an earlier output goes only now: a run stopped before keeps it
     clear_for_writing(out, NAME, CAPTURE_BENCHMARK, OUTPUTS)
     bench.plot(rows, setup, out / "capture.png")
+    bench.plot_honesty(rows, out / "honesty.png")
     argv = sys.argv[2:] + ([] if "--force" in sys.argv[2:] else ["--force"])
     seconds = time.perf_counter() - t0
     md = [f"# nao-skin bench-capture{' (quick)' if args.quick else ''}", "",
@@ -123,13 +128,14 @@ def run(args) -> int:
           f" error is would buy by sending touches there; no capture at the robot has that knowledge.", "",
           *([f"Calibration options changed from the default: "
              f"{', '.join(f'{k}={v}' for k, v in setup.options.items())}.", ""] if setup.options else []),
-          bench.table(rows, setup), "", "![capture](capture.png)", "", f"Wall time: {seconds:.0f} s.", ""]
+          bench.table(rows, setup), "", "![capture](capture.png)", "",
+          "![the live status's predicted error against the truth](honesty.png)", "", f"Wall time: {seconds:.0f} s.", ""]
     text = "\n".join(md)
     (out / "capture_results.md").write_text(text)
     results = {"setup": bench.setup_dict(setup), "seeds": seed_list, "summary": bench.summary(rows, setup),
                "rows": rows, "seconds": seconds}
     (out / "capture_results.json").write_text(json.dumps(jsonable(results), indent=1) + "\n")
     print(text)
-    print(f"-> {out / 'capture_results.md'}, {out / 'capture.png'}")
+    print(f"-> {out / 'capture_results.md'}, {out / 'capture.png'}, {out / 'honesty.png'}")
     return 0
 

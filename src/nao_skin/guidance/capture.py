@@ -70,7 +70,7 @@ from nao_skin.sim.params import SimParams, make_params
 from nao_skin.sim.poses import Spots, choose_spots, idle_joints, solve_poses
 from nao_skin.touch.touches import TouchSet
 
-TIER_NEW, TIER_HELD, TIER_WEAK = 3, 2, 1
+TIER_NEW, TIER_HELD, TIER_WEAK, TIER_COVERED = 3, 2, 1, 0
 DEFICIT_SPAN = 0.99     # a tier's scores stay below the next tier's
 # the pose search of a suggestion: fewer restarts than the simulator, it runs after every live update
 GUIDANCE_POSE = {"pose_restarts": 6, "pose_iterations": 40}
@@ -97,6 +97,7 @@ class Target:
     touched_triangle_id: int | None = None  # the triangle pressed on ``touched``
     touched_point: list | None = None      # spot on ``touched``, its chain-end frame, m
     pose_error_mm: float | None = None      # the solver's spot-to-spot residual (current calibration)
+    gain_mm2: float | None = None           # the summed taxel variance a press there is predicted to remove (mm^2)
 
     def to_dict(self) -> dict:
         return jsonable(dataclasses.asdict(self))
@@ -188,14 +189,16 @@ def _pair_touches(touches: TouchSet, pairs) -> dict:
 
 # ---------------------------------------------------------------------------- ranking
 def _state(state):
-    """``(calibration, held, calibrated parts or None, fabric m or None)`` of a result, a calibration or None."""
+    """``(calibration, held, calibrated parts or None, fabric m or None, posterior or None)`` of a result, a
+    calibration or None."""
     if state is None:
-        return None, [], set(), None
+        return None, [], set(), None, None
     if isinstance(state, SkinCalibration):
-        return state, [], None, None
+        return state, [], None, None, None
     report = state.report
     fabric = getattr(report, "fabric_thickness_mm", float("nan"))
-    return state.calibration, list(report.held), set(report.parts), (fabric / 1000.0 if np.isfinite(fabric) else None)
+    return (state.calibration, list(report.held), set(report.parts),
+            (fabric / 1000.0 if np.isfinite(fabric) else None), getattr(state, "posterior", None))
 
 
 def guidance(touches: TouchSet, skin: SkinModel, state=None, options: CalibrationOptions | None = None, *,
@@ -213,7 +216,7 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
     t0 = time.perf_counter()
     options = options or CalibrationOptions()
     rng = np.random.default_rng(seed)
-    calib, rep_held, rep_parts, fabric = _state(state)
+    calib, rep_held, rep_parts, fabric, posterior = _state(state)
     calib = calib or skin.zero_calibration()
     held_map = held_frames(held if held is not None else rep_held)
     pairs = [(h, b) for h, b in (skin.self_touch.pairs() if pairs is None else pairs)
@@ -230,6 +233,11 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
               else {p: np.zeros(len(skin.parts[p].triangle_ids), int) for p in skin.parts})
     pair_n = _pair_touches(touches, pairs)
 
+    # with the calibration's posterior, every triangle of the parts it covers is a candidate, ranked by what a
+    # press there would teach; without (nothing calibrated yet, a calibration file) by the tiers alone
+    triangle_error = (state.report.final.get("predicted_triangle_error_mm") or {}) if posterior is not None else {}
+    gain_parts = set(posterior.layout.part_names) & rep_parts if posterior is not None else set()
+    ranked_by_gain = bool(gain_parts)
     coverage, cands = {}, []
     for name in parts:
         sp = skin.parts[name]
@@ -254,6 +262,8 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
                 tier, goal, reason = TIER_HELD, 2 * needed, f"patch {pid} held"
             elif c[row] < 2 * needed or comps:
                 tier, goal, reason = TIER_WEAK, 2 * needed, ("weak" if not comps else f"held ({','.join(comps)})")
+            elif ranked_by_gain and name in gain_parts:
+                tier, goal, reason = TIER_COVERED, 2 * needed, "covered"
             else:
                 continue
             share = min(1.0, max(0.0, (goal - c[row]) / goal))        # still missing
@@ -274,7 +284,14 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
                 cands.append(dict(part=body, row=int(row), tier=TIER_NEW, score=TIER_NEW + DEFICIT_SPAN * deficit,
                                   reason=f"pair {hand}-{body} left out ({n} touches < {needed_pair})",
                                   forced=(hand, body)))
-    cands.sort(key=lambda d: (-d["score"], counts[d["part"]][d["row"]], part_rank(d["part"]), d["row"]))
+    if ranked_by_gain:     # the pose solve is the cost: the triangles the calibration is least sure of first
+        for d in cands:
+            d["predicted"] = triangle_error.get(d["part"], {}).get(int(skin.parts[d["part"]].triangle_ids[d["row"]]),
+                                                                    0.0)
+        cands.sort(key=lambda d: (d["tier"] < TIER_NEW, -d["score"] if d["tier"] == TIER_NEW else -d["predicted"],
+                                  counts[d["part"]][d["row"]], part_rank(d["part"]), d["row"]))
+    else:
+        cands.sort(key=lambda d: (-d["score"], counts[d["part"]][d["row"]], part_rank(d["part"]), d["row"]))
     if candidates is not None:
         cands = cands[:max(candidates, max_targets)]
     targets = [_target(d, skin, counts, needed, pair_n, pairs) for d in cands]
@@ -285,12 +302,60 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
             p = dataclasses.replace(p, fabric_thickness=fabric)
         _solve(targets, skin, calib, counts, p, rng, pairs)
         reachable = [t for t in targets if t.pose is not None]
+        if ranked_by_gain:
+            _expected_gains(reachable, skin, calib, posterior, _focus(state.report.final, posterior))
+            reachable = ([t for t in reachable if t.gain_mm2 is None]
+                         + sorted((t for t in reachable if t.gain_mm2 is not None), key=lambda t: -t.gain_mm2))
         unreachable = [t for t in targets if t.pose is None]
         if unreachable:
             notes.append(f"{len(unreachable)} of {len(targets)} candidate targets unreachable under the current"
                          f" calibration")
         targets = reachable + unreachable
     return Guidance(targets[:max_targets], coverage, pair_n, touches.n_touches, time.perf_counter() - t0, notes)
+
+
+def _expected_gains(targets: list, skin: SkinModel, calib: SkinCalibration, posterior,
+                    part_weights: dict | None = None) -> None:
+    """Each target's :attr:`Target.gain_mm2` (a tier-3 one, or one whose pair the posterior does not cover,
+    keeps None): its press at its pose, the contact row's Jacobian the taxels nearest its two spots give (the
+    hand's in the base frame at the pose, minus the touched part's), and what that row removes from the
+    posterior (:meth:`~nao_skin.calibration.uncertainty.Posterior.variance_lowered`)."""
+    covered = set(posterior.layout.part_names)
+    robot = skin.robot
+    positions: dict = {}
+    information = posterior.taxel_information(part_weights)
+    for t in targets:
+        if t.score >= TIER_NEW or t.hand not in covered or t.touched not in covered or t.pose is None:
+            continue
+        q = np.zeros(len(robot.joint_names))
+        for name, value in t.pose.items():
+            q[robot.joint_index[name]] = value
+        row = np.zeros((3, len(posterior.free)))
+        for part, point, sign in ((t.hand, t.hand_point, 1.0), (t.touched, t.touched_point, -1.0)):
+            sp = skin.parts[part]
+            if part not in positions:
+                positions[part] = sp.taxel_positions(calib.parts.get(part), normals=False)[sp.slots]
+            nearest = int(np.argmin(np.linalg.norm(positions[part] - np.asarray(point), axis=1)))
+            taxel = posterior.taxels_of(part)[nearest]
+            rotation = robot.fk(sp.chain, q)[0, :3, :3]
+            row += sign * rotation @ posterior.taxel_jacobian[3 * taxel:3 * taxel + 3].toarray()
+        t.gain_mm2 = 1e6 * posterior.variance_lowered(row, information)
+
+
+FOCUS_POWER = 0.0
+
+
+def _focus(final: dict, posterior) -> dict | None:
+    """Each covered part's weight in the gain: its predicted median to the power :data:`FOCUS_POWER`
+    (relative to the largest), so the part farthest from the target counts most (0: every taxel alike)."""
+    if not FOCUS_POWER:
+        return None
+    predicted = final.get("predicted_taxel_error_mm") or {}
+    medians = {p: predicted[p]["median"] for p in posterior.layout.part_names if p in predicted}
+    if not medians:
+        return None
+    top = max(medians.values())
+    return {p: (m / top) ** FOCUS_POWER for p, m in medians.items()}
 
 
 def _target(d: dict, skin: SkinModel, counts: dict, needed: int, pair_n: dict, pairs) -> Target:

@@ -64,7 +64,8 @@ CALIBRATE = {
                                                   " (mm) ...", POSITIVE),
     "live_done_p95_mm": (PartStates.p95_mm, "live: ... and p95 (mm), each times live_done_margin, are at most"
                                             " these (done until the prediction itself exceeds one)", POSITIVE),
-    "live_done_margin": (PartStates.margin, "live: ... (how far the prediction may fall short of the true error, measured)",
+    "live_done_margin": (PartStates.margin, "live: ... (how far the prediction may fall short of the true error,"
+                                            " measured)",
                          Rule(float, low=1.0, high=10.0)),
     "guidance": (True, "live: after each update, publish where touches would help most on /nao_skin/guidance"),
     "guidance_targets": (5, "live: how many targets the guidance names (its readers take the first 100)",
