@@ -37,7 +37,7 @@ def touches(skin):
 
 def live(skin, recording, earlier):
     return LiveCalibration(skin, CalibrationOptions(), recording, skin.zero_calibration(), 2.0, PartStates(), 20.0,
-                           earlier=earlier)
+                           earlier=earlier, scratch_below=0)
 
 
 def test_a_session_continuing_an_earlier_bag_calibrates_its_touches_first_then_with_the_new_ones(skin, touches,

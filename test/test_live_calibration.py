@@ -23,11 +23,12 @@ from std_msgs.msg import String  # noqa: E402
 from test_node_calibrate import assert_frames  # noqa: E402
 from test_record_session import record_cmd  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
+from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 from nao_skin.formats.bag import continued_bags, write_touch_bag  # noqa: E402
 from nao_skin.model.skin import SkinCalibration, load_skin  # noqa: E402
 from nao_skin.nodes.topics import (GUIDANCE_TOPIC, LATCHED, PROGRESS_TOPIC, REQUEST_TOPIC,  # noqa: E402
-                                   SIM_STATUS_TOPIC, STATUS_TOPIC, TF_STATIC_TOPIC)
+                                   SIM_STATUS_TOPIC, STATUS_TOPIC, TF_STATIC_TOPIC, UNCERTAINTY_TOPIC)
 from nao_skin.sim.simulate import simulate  # noqa: E402
 
 pytestmark = [pytest.mark.middleware, pytest.mark.slow]
@@ -56,7 +57,8 @@ def run_sitting(tmp_path, argv, name: str, until):
         seen = {"frames": listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=LATCHED),
                 "guidance": listener.subscribe(String, GUIDANCE_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data)),
                 "sim": listener.subscribe(String, SIM_STATUS_TOPIC, keep=lambda m: json.loads(m.data)),
-                "progress": listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))}
+                "progress": listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data)),
+                "uncertainty": listener.subscribe(MarkerArray, UNCERTAINTY_TOPIC, qos=LATCHED)}
         session = Proc(argv, ros_env(domain), tmp_path, name)
         assert listener.spin_until(lambda: until(status, seen["sim"]), timeout=120, procs=[session]), \
             (status[-2:], seen["sim"][-1:])
@@ -152,6 +154,10 @@ def test_done_arrives_when_the_predicted_error_meets_the_target_and_the_true_err
     assert all(done["predicted_taxel_error_mm"][p]["median"] * margin <= median_mm
                and done["predicted_taxel_error_mm"][p]["p95"] * margin <= p95_mm for p in ("r_hand", "torso")), done
     assert done["parts"]["l_hand"] == done["parts"]["head"] == "collecting"
+    # the uncertainty map came with the updates, a disc per triangle of both parts (its colours saturate at 1 mm:
+    # at these few touches every triangle is there; that it falls where touches land: test_uncertainty.py)
+    maps = [m for m in seen["uncertainty"] if {d.ns for d in m.markers} >= {"r_hand", "torso"}]
+    assert len(maps) >= 2, len(seen["uncertainty"])
     # what the session wrote (every touch it recorded) against the truth
     skin = load_skin()
     truth = simulate(skin, load_params("default", sim_overrides(per_pair, ["r_hand-torso"])), seed).truth

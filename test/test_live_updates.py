@@ -129,7 +129,7 @@ def test_a_part_an_update_leaves_out_keeps_its_last_frames_and_stays_guarded(ski
     fired = touches.parts_of_touch()
     left = np.flatnonzero(fired[:, touches.part_index("l_hand")])
     few_left = touches.subset(np.concatenate([np.flatnonzero(~fired[:, touches.part_index("l_hand")]), left[:5]]))
-    live = LiveUpdates(skin, skin.zero_calibration())
+    live = LiveUpdates(skin, skin.zero_calibration(), scratch_below=0)
     live.update(30, lambda args: first)
 
     def from_scratch_only(args):
@@ -189,7 +189,7 @@ def test_an_update_from_scratch_whenever_the_touches_doubled(skin, session):
     prior is centred there too (not on the last update, which the same touches made)."""
     touches, _, first = session
     start = skin.zero_calibration()
-    updates = WarmStart(start, refresh=2.0)
+    updates = WarmStart(start, refresh=2.0, scratch_below=0)
     assert updates.arguments(30) == {"prior": start, "warm": (), "anchor": None, "resume": None}
     updates.accepted(first, 30, updates.arguments(30))
     warm = updates.arguments(45)
@@ -202,11 +202,32 @@ def test_an_update_from_scratch_whenever_the_touches_doubled(skin, session):
     assert all(s["name"].startswith("joint refinement") for s in result.report.stages)
 
 
+def test_below_scratch_below_touches_every_update_is_the_calibration_from_scratch_alone(skin, session):
+    """As nao-skin calibrate on the same touches (live equals offline): no warm update beside it, the final one
+    of a session too; from scratch_below touches on the warm chain and its refreshes take over."""
+    touches, _, first = session
+    updates = WarmStart(skin.zero_calibration(), refresh=2.0, scratch_below=50)
+    updates.accepted(first, 30, updates.arguments(30))
+    ran = []
+
+    def run(args):
+        ran.append(bool(args["warm"]))
+        return first
+
+    for n, final in ((35, False), (40, True), (49, False)):
+        result, arguments = updates.update(n, run, warm_only=final)
+        assert ran == [False] and not updates.refreshed and arguments["prior"] is updates.start, (n, final)
+        updates.accepted(result, n, arguments)
+        ran.clear()
+    updates.update(50, run)              # 50 < 2 x 49: warm from here on
+    assert ran == [True]
+
+
 def test_a_refresh_keeps_the_warm_update_when_its_held_out_touches_pair_closer(skin, session):
     """At a refresh the warm update runs beside the one from scratch and the closer on the test split wins;
     either way the next refresh waits for the touches to double again."""
     touches, _, first = session
-    updates = WarmStart(skin.zero_calibration(), refresh=2.0)
+    updates = WarmStart(skin.zero_calibration(), refresh=2.0, scratch_below=0)
     updates.accepted(first, 30, updates.arguments(30))
     ran = []
 
@@ -232,7 +253,7 @@ def test_a_final_update_goes_on_warm_where_a_refresh_was_due(skin, session):
     """A session's end adds the touches since the last accepted update to it (warm, a fraction of a refresh's
     time), also when the touches have doubled since the last update from scratch; a refresh comes after."""
     _, _, first = session
-    updates = WarmStart(skin.zero_calibration(), refresh=2.0)
+    updates = WarmStart(skin.zero_calibration(), refresh=2.0, scratch_below=0)
     updates.accepted(first, 30, updates.arguments(30))
     ran = []
     result, arguments = updates.update(60, lambda args: ran.append(bool(args["warm"])) or first, warm_only=True)
@@ -242,7 +263,7 @@ def test_a_final_update_goes_on_warm_where_a_refresh_was_due(skin, session):
 
 def test_a_refresh_stands_alone_when_the_warm_update_fails(skin, session):
     touches, _, first = session
-    updates = WarmStart(skin.zero_calibration(), refresh=2.0)
+    updates = WarmStart(skin.zero_calibration(), refresh=2.0, scratch_below=0)
     updates.accepted(first, 30, updates.arguments(30))
 
     def run(args):
@@ -275,7 +296,7 @@ def test_a_live_session_updates_waits_and_fails_without_raising(skin, session, t
 
     def live(recording, max_move_mm=20.0):
         return LiveCalibration(skin, CalibrationOptions(), recording, skin.zero_calibration(), 2.0, PartStates(),
-                               max_move_mm)
+                               max_move_mm, scratch_below=0)
 
     waiting = live(few).update()
     assert waiting.status["state"] == "waiting" and waiting.accepted is None and waiting.touches.n_touches == 8

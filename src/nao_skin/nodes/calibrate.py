@@ -115,7 +115,8 @@ class CalibrateNode(Node):
                                         float(self.p["live_refresh"]),
                                         PartStates(float(self.p["live_done_median_mm"]),
                                                    float(self.p["live_done_p95_mm"]), float(self.p["live_done_margin"])),
-                                        float(self.p["live_max_move_mm"]), earlier=self._earlier())
+                                        float(self.p["live_max_move_mm"]), earlier=self._earlier(),
+                                        scratch_below=int(self.p["live_scratch_below"]))
             # a bad bag: one line and exit 2, now; what is worth a look (skips, a sitting they continue left out)
             # as warnings
             if self.live.read_earlier(log=self.get_logger().info, summary=self.get_logger().warning):

@@ -35,7 +35,7 @@ from nao_skin.formats.bag import GrowingBag
 from nao_skin.formats.inputs import ReadOnce, check_inputs, find_bag, read_sitting, recording_of
 from nao_skin.formats.outdir import is_free, output_stamp
 from nao_skin.formats.salvage import recording_lock
-from nao_skin.live.updates import LiveUpdates, PartStates
+from nao_skin.live.updates import LiveUpdates, PartStates, WarmStart
 from nao_skin.model.skin import SkinCalibration, SkinModel, pair_label
 from nao_skin.paths import free_sibling
 from nao_skin.touch.touches import TouchSet
@@ -74,17 +74,17 @@ class LiveCalibration:
     """The live calibration of one recording, update after update.
 
     ``start``: where the session started (nominal, or the calibration given);
-    ``refresh``: :class:`~nao_skin.live.updates.WarmStart`'s; ``max_move_mm``:
+    ``refresh``, ``scratch_below``: :class:`~nao_skin.live.updates.WarmStart`'s; ``max_move_mm``:
     an update moving a part it had calibrated farther than this diverged.
     """
 
     def __init__(self, skin: SkinModel, options: CalibrationOptions, recording: str | Path,
                  start: SkinCalibration, refresh: float, part_states: PartStates, max_move_mm: float,
-                 earlier: Sequence = ()):
+                 earlier: Sequence = (), scratch_below: int = WarmStart.scratch_below):
         self.skin, self.options, self.recording = skin, options, str(recording)
         self.earlier = [str(p) for p in earlier]        # bags of earlier sittings: the session continues them
         self.earlier_count = 0                          # their touches (exact duplicates left out)
-        self.updates = LiveUpdates(skin, start, refresh, part_states, max_move_mm)
+        self.updates = LiveUpdates(skin, start, refresh, part_states, max_move_mm, scratch_below)
         self.last: CalibrationResult | None = None     # the last accepted update's result
         self.last_count = 0                             # how many touches it calibrated
         self.read_count = 0                             # how many touches the recording held at the last read
@@ -140,12 +140,13 @@ class LiveCalibration:
             self.read_count, self.duplicates = touches.n_touches, loaded.n_duplicates
             if touches.n_touches == self._last_touches and (final or self._being_recorded()):
                 # the recorder counts a touch before its next flush puts it in the bag: an update now would
-                # repeat the last one, and its 0 mm would count towards a part's 'done' (a closed bag, e.g.
-                # bench-live's --update-input, is calibrated again each time: that is what is asked)
+                # repeat the last one (a closed bag, e.g. bench-live's --update-input, is calibrated again each
+                # time: that is what is asked)
                 return LiveOutcome({}, None, None)
             calibration_log = stoppable(log, stop)
             # the final update goes on from the last accepted one (warm), never a refresh from scratch: it adds the
-            # touches since, at a session's end that must not keep the user waiting
+            # touches since, at a session's end that must not keep the user waiting (below live_scratch_below
+            # touches it is from scratch, as every update there: under a second)
             result, moved, start = self.updates.update(
                 touches.n_touches,
                 lambda args: calibrate_loaded(loaded, self.skin, self.options, log=calibration_log, **args),

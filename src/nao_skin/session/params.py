@@ -76,6 +76,8 @@ CALIBRATE = {
                                         " the touches grew this many times since the last such; the one the held-out"
                                         " touches pair closer is published (1: every update from scratch)",
                      Rule(float, low=1.0)),
+    "live_scratch_below": (WarmStart.scratch_below, "live: below this many touches every update is from scratch (the"
+                                                    " whole plan, as nao-skin calibrate on the same touches)", WHOLE),
     "live_max_move_mm": (LiveUpdates.MAX_MOVE_MM, "live: an update moving a calibrated part's taxels farther than this (mm) diverged:"
                                " not published", POSITIVE),
     # engine options (their defaults, help and rules come from CalibrationOptions' table, OPTION_FIELDS)
