@@ -59,6 +59,23 @@ def test_held_triangle_ranks_above_well_covered(skin, captured):
     json.dumps(g.to_dict())     # JSON-ready
 
 
+def test_with_the_calibration_s_posterior_the_reachable_targets_are_ranked_by_expected_gain(skin, captured):
+    """A calibration result carries its posterior: the targets a pose reaches come by the taxel variance a press
+    there removes, highest first; the same seed, the same advice."""
+    _, touches, result = captured
+    pairs = [tuple(p) for p in PAIRS]
+    assert result.posterior is not None
+    g = guidance(touches, skin, result, max_targets=30, seed=4, pairs=pairs)
+    reachable = [t for t in g.targets if t.pose is not None]
+    gains = [t.gain_mm2 for t in reachable]
+    assert len(reachable) >= 10 and all(v is not None and v > 0 for v in gains), gains
+    assert gains == sorted(gains, reverse=True)
+    assert g.targets.index(reachable[-1]) == len(reachable) - 1       # unreachable ones after them
+    again = guidance(touches, skin, result, max_targets=30, seed=4, pairs=pairs)
+    assert [(t.part, t.triangle_id, t.gain_mm2) for t in again.targets] == [
+        (t.part, t.triangle_id, t.gain_mm2) for t in g.targets]
+
+
 def test_guidance_changes_after_its_targets_are_touched(skin, captured):
     cap, touches, result = captured
     pairs = [tuple(p) for p in PAIRS]

@@ -277,6 +277,7 @@ def _done_summary(rows: list, setup: CaptureSetup) -> dict:
                    # done / the touches from which the target stayed met (runs that went on to the cap)
                    "done_over_kept_median": float(np.median(late)) if late and setup.to_cap else None,
                    "done_within_1_25x_kept": int(sum(x <= 1.25 for x in late)) if setup.to_cap else None,
+                   "kept_runs": len(late),
                    "touches_median": float(np.median([r["done_at"] for r in done])) if done else None,
                    "worst_median_mm_median": float(np.median(med)) if done else None,
                    "worst_median_mm_max": float(med.max()) if done else None,
@@ -331,7 +332,8 @@ def table(rows: list, setup: CaptureSetup) -> str:
                          f" {d['worst_median_mm_median']:.2f} mm (highest {d['worst_median_mm_max']:.2f}), p95 at most"
                          f" {d['worst_p95_mm_max']:.2f} mm; within the target in {d['within_target']}/{d['done']}."
                          + (f" Done / the touches from which the target stayed met: median"
-                            f" {d['done_over_kept_median']:.2f}, within 1.25x in {d['done_within_1_25x_kept']} runs."
+                            f" {d['done_over_kept_median']:.2f}, within 1.25x in {d['done_within_1_25x_kept']} of"
+                            f" {d['kept_runs']} runs whose target stayed met by the cap."
                             if d.get("done_over_kept_median") is not None else ""))
         else:
             lines.append(f"Live status 'done' for every part ({st}): in none of {d['runs']} runs by {setup.cap}"

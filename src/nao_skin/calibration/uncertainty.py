@@ -215,19 +215,14 @@ class Posterior:
         """Rows of ``part``'s taxels (its slots in order) in :attr:`taxel_jacobian` (3 rows each)."""
         return np.flatnonzero(self.taxel_part == part)
 
-    def taxel_information(self, part_weights: dict | None = None) -> np.ndarray:
-        """``G^T W G``: how the unknowns move the taxels, each taxel's part weighted by ``part_weights`` (None:
-        every taxel 1; a part not named: 0)."""
-        g = self.taxel_jacobian
-        if part_weights is not None:
-            w = np.array([part_weights.get(p, 0.0) for p in self.taxel_part])
-            g = scipy.sparse.diags(np.repeat(np.sqrt(w), 3)) @ g
-        return (g.T @ g).toarray()
+    def taxel_information(self) -> np.ndarray:
+        """``G^T G``: how the unknowns move the taxels (the summed taxel variance is ``trace(G C G^T)``)."""
+        return (self.taxel_jacobian.T @ self.taxel_jacobian).toarray()
 
     def variance_lowered(self, row: np.ndarray, taxel_information: np.ndarray | None = None) -> float:
         """The summed variance of every taxel (m^2) one more touch would remove, its contact's row having the
-        Jacobian ``row`` (3, free): the bound's greedy criterion (:mod:`nao_skin.bench.bound`) at the estimate;
-        with ``taxel_information`` (:meth:`taxel_information`'s) each part's taxels weighted so. A touch gives
+        Jacobian ``row`` (3, free): the bound's greedy criterion (:mod:`nao_skin.bench.bound`) at the estimate
+        (``taxel_information``: :meth:`taxel_information`'s, made once for many rows). A touch gives
         :attr:`rows_per_touch` such rows (one per kind of the closing stage); they see the same contact, so
         count as one row of that much less noise."""
         h = self.taxel_information() if taxel_information is None else taxel_information

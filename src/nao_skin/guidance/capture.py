@@ -48,6 +48,14 @@ The top ``candidates`` (48; None: all) are solved, in one batch per
 touching pair (a triangle no touch has reached yet is often one no pose
 reaches: the hand's back, the torso's sides); reachable targets come first
 (in score order), the unreachable ones after them, marked ``pose=None``.
+
+Ranking by expected gain. When the state is a calibration result with its
+linearised posterior (:class:`~nao_skin.calibration.uncertainty.Posterior`),
+the tier-3 targets still come first; every other triangle of the calibrated
+parts (well-covered ones too) is a candidate, a uniform draw of them (seeded)
+is solved, and the reachable ones are ranked by :attr:`Target.gain_mm2`, the
+summed taxel variance a press there is predicted to remove
+(:func:`_expected_gains`): the bound's greedy criterion at the estimate.
 """
 from __future__ import annotations
 
@@ -75,6 +83,10 @@ DEFICIT_SPAN = 0.99     # a tier's scores stay below the next tier's
 # the pose search of a suggestion: fewer restarts than the simulator, it runs after every live update
 GUIDANCE_POSE = {"pose_restarts": 6, "pose_iterations": 40}
 MAX_READ_TARGETS = 100   # targets a consumer of the guidance message reads, best first
+# targets that get a pose: by tier, or (ranked by expected gain) a uniform draw of the triangles, as the bound
+# draws its pool; 96 or 144 drawn bought nothing measurable at two to four times the guidance's time
+# (docs/decisions.md, "Guidance by expected gain")
+CANDIDATES = 48
 
 
 @dataclass
@@ -203,7 +215,8 @@ def _state(state):
 
 def guidance(touches: TouchSet, skin: SkinModel, state=None, options: CalibrationOptions | None = None, *,
              held=None, calibrated_parts=None, max_targets: int = 8, seed: int = 0, pairs=None,
-             poses: bool = True, pose_params: SimParams | None = None, candidates: int | None = 48) -> Guidance:
+             poses: bool = True, pose_params: SimParams | None = None,
+             candidates: int | None = CANDIDATES) -> Guidance:
     """Where to press next; see the module docstring for the counting and the ranking rule.
 
     ``state``: a :class:`~nao_skin.calibration.engine.CalibrationResult` (its
@@ -235,7 +248,6 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
 
     # with the calibration's posterior, every triangle of the parts it covers is a candidate, ranked by what a
     # press there would teach; without (nothing calibrated yet, a calibration file) by the tiers alone
-    triangle_error = (state.report.final.get("predicted_triangle_error_mm") or {}) if posterior is not None else {}
     gain_parts = set(posterior.layout.part_names) & rep_parts if posterior is not None else set()
     ranked_by_gain = bool(gain_parts)
     coverage, cands = {}, []
@@ -284,11 +296,11 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
                 cands.append(dict(part=body, row=int(row), tier=TIER_NEW, score=TIER_NEW + DEFICIT_SPAN * deficit,
                                   reason=f"pair {hand}-{body} left out ({n} touches < {needed_pair})",
                                   forced=(hand, body)))
-    if ranked_by_gain:     # the pose solve is the cost: the triangles the calibration is least sure of first
-        for d in cands:
-            d["predicted"] = triangle_error.get(d["part"], {}).get(int(skin.parts[d["part"]].triangle_ids[d["row"]]),
-                                                                    0.0)
-        cands.sort(key=lambda d: (d["tier"] < TIER_NEW, -d["score"] if d["tier"] == TIER_NEW else -d["predicted"],
+    if ranked_by_gain:     # the pose solve is the cost: a uniform draw of the triangles gets poses (the pool)
+        draw = rng.permutation(len(cands))
+        for d, order in zip(cands, draw):
+            d["draw"] = int(order)
+        cands.sort(key=lambda d: (d["tier"] < TIER_NEW, -d["score"] if d["tier"] == TIER_NEW else d["draw"],
                                   counts[d["part"]][d["row"]], part_rank(d["part"]), d["row"]))
     else:
         cands.sort(key=lambda d: (-d["score"], counts[d["part"]][d["row"]], part_rank(d["part"]), d["row"]))
@@ -303,7 +315,7 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
         _solve(targets, skin, calib, counts, p, rng, pairs)
         reachable = [t for t in targets if t.pose is not None]
         if ranked_by_gain:
-            _expected_gains(reachable, skin, calib, posterior, _focus(state.report.final, posterior))
+            _expected_gains(reachable, skin, calib, posterior)
             reachable = ([t for t in reachable if t.gain_mm2 is None]
                          + sorted((t for t in reachable if t.gain_mm2 is not None), key=lambda t: -t.gain_mm2))
         unreachable = [t for t in targets if t.pose is None]
@@ -314,8 +326,7 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
     return Guidance(targets[:max_targets], coverage, pair_n, touches.n_touches, time.perf_counter() - t0, notes)
 
 
-def _expected_gains(targets: list, skin: SkinModel, calib: SkinCalibration, posterior,
-                    part_weights: dict | None = None) -> None:
+def _expected_gains(targets: list, skin: SkinModel, calib: SkinCalibration, posterior) -> None:
     """Each target's :attr:`Target.gain_mm2` (a tier-3 one, or one whose pair the posterior does not cover,
     keeps None): its press at its pose, the contact row's Jacobian the taxels nearest its two spots give (the
     hand's in the base frame at the pose, minus the touched part's), and what that row removes from the
@@ -323,7 +334,7 @@ def _expected_gains(targets: list, skin: SkinModel, calib: SkinCalibration, post
     covered = set(posterior.layout.part_names)
     robot = skin.robot
     positions: dict = {}
-    information = posterior.taxel_information(part_weights)
+    information = posterior.taxel_information()
     for t in targets:
         if t.score >= TIER_NEW or t.hand not in covered or t.touched not in covered or t.pose is None:
             continue
@@ -340,22 +351,6 @@ def _expected_gains(targets: list, skin: SkinModel, calib: SkinCalibration, post
             rotation = robot.fk(sp.chain, q)[0, :3, :3]
             row += sign * rotation @ posterior.taxel_jacobian[3 * taxel:3 * taxel + 3].toarray()
         t.gain_mm2 = 1e6 * posterior.variance_lowered(row, information)
-
-
-FOCUS_POWER = 0.0
-
-
-def _focus(final: dict, posterior) -> dict | None:
-    """Each covered part's weight in the gain: its predicted median to the power :data:`FOCUS_POWER`
-    (relative to the largest), so the part farthest from the target counts most (0: every taxel alike)."""
-    if not FOCUS_POWER:
-        return None
-    predicted = final.get("predicted_taxel_error_mm") or {}
-    medians = {p: predicted[p]["median"] for p in posterior.layout.part_names if p in predicted}
-    if not medians:
-        return None
-    top = max(medians.values())
-    return {p: (m / top) ** FOCUS_POWER for p, m in medians.items()}
 
 
 def _target(d: dict, skin: SkinModel, counts: dict, needed: int, pair_n: dict, pairs) -> Target:
