@@ -170,7 +170,7 @@ class PartStates:
 
     The margin is measured (``nao-skin bench-capture --strategies random --seeds 20 --to-cap --cap 2000``;
     docs/decisions.md, "The prediction's honesty and done"): over 40 simulated sessions the prediction is
-    0.85–1.12 times the true worst part's median (10th–90th percentile of the updates from 100 touches); with
+    0.85–1.15 times the true worst part's median (10th–90th percentile of the updates from 100 touches); with
     1.15, every part done left the true worst part within the target in 36 of the 40. It was once judged by how
     far the taxels moved between updates: that says how much more touches change a part, not how far it is from
     the truth (the worst part then within the target in 14 of 20 sessions).
