@@ -171,16 +171,23 @@ def _kept_at(trace: list, parts, setup: CaptureSetup):
 HONEST = (0.77, 1.3)     # the issue's band for predicted / true
 
 
-def honesty(rows: list) -> dict:
-    """The live status's prediction against the truth, per update of every run: the worst part's predicted
-    median over its true median (updates where every part was calibrated and predicted), overall and by touches:
-    ``{band: {updates, median, p10, p90, within}}``, ``within`` the share (%) inside :data:`HONEST`."""
-    pairs = []
+def _predicted_against_true(rows: list) -> list:
+    """``[(strategy, touches, true worst part's median, predicted worst part's median)]`` of every update of every
+    run where every part was calibrated and predicted."""
+    out = []
     for r in rows:
         for t in r.get("trace", []):
             pred, true = t.get("predicted") or {}, t.get("per_part") or {}
             if true and set(true) <= set(pred):
-                pairs.append((t["touches"], max(v["median"] for v in pred.values()) / t["worst_median_mm"]))
+                out.append((r["strategy"], t["touches"], t["worst_median_mm"], max(v["median"] for v in pred.values())))
+    return out
+
+
+def honesty(rows: list) -> dict:
+    """The live status's prediction against the truth, per update of every run: the worst part's predicted
+    median over its true median (updates where every part was calibrated and predicted), overall and by touches:
+    ``{band: {updates, median, p10, p90, within}}``, ``within`` the share (%) inside :data:`HONEST`."""
+    pairs = [(n, predicted / true) for _, n, true, predicted in _predicted_against_true(rows)]
     out = {}
     for label, lo, hi in (("all", 0, np.inf), ("< 300", 0, 300), ("300-999", 300, 1000), (">= 1000", 1000, np.inf)):
         v = np.array([ratio for n, ratio in pairs if lo <= n < hi])
@@ -393,9 +400,7 @@ def plot_honesty(rows: list, path) -> None:
     ax = fig.subplots()
     colours = {"random": "tab:gray", "guided": "tab:blue", "oracle": "tab:green"}
     for st in STRATEGIES:
-        pts = [(t["worst_median_mm"], max(v["median"] for v in t["predicted"].values()), t["touches"])
-               for r in rows if r["strategy"] == st for t in r.get("trace", [])
-               if t.get("per_part") and t.get("predicted") and set(t["per_part"]) <= set(t["predicted"])]
+        pts = [(true, predicted, n) for s, n, true, predicted in _predicted_against_true(rows) if s == st]
         if pts:
             x, y, n = np.array(pts).T
             ax.scatter(x, y, s=6 + 14 * n / n.max(), color=colours[st], alpha=0.5, label=f"{st} ({len(pts)} updates)")

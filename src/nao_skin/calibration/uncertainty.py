@@ -47,7 +47,7 @@ SAMPLES = 64                # draws of the posterior for the expected median and
 # above is what an estimator without bias would reach; the calibration's rows (closest pairs, COPs over a
 # lattice of taxels) are biased per pose, and its true taxel error is 1.45 times the posterior's (the median
 # of the ratio over 1140 live updates of 20 simulated sessions, 100-1500 touches; docs/decisions.md, "The
-# prediction's honesty"). The prediction is the posterior scaled by it.
+# prediction's honesty and done"). The prediction is the posterior scaled by it.
 INEFFICIENCY = 1.45
 
 
@@ -138,10 +138,14 @@ def covariance(information: np.ndarray) -> np.ndarray:
     return np.linalg.inv(information)
 
 
-def taxel_rms(information: np.ndarray, prior: np.ndarray, g, cov: np.ndarray | None = None) -> np.ndarray:
+def taxel_rms(information: np.ndarray, prior: np.ndarray, g) -> np.ndarray:
     """Each taxel's predicted RMS error (m): ``sqrt(trace(G_i C G_i^T))``, ``C = (information + diag(prior))^-1``
-    (``g``: :func:`taxel_jacobian`'s, 3 rows per taxel; ``cov``: ``C`` when already at hand)."""
-    cov = covariance(information + np.diag(prior)) if cov is None else cov
+    (``g``: :func:`taxel_jacobian`'s, 3 rows per taxel)."""
+    return rms_of(covariance(information + np.diag(prior)), g)
+
+
+def rms_of(cov: np.ndarray, g) -> np.ndarray:
+    """Each taxel's RMS error (m) were the unknowns' error of covariance ``cov`` (``g`` as :func:`taxel_rms`'s)."""
     gc = np.asarray(g @ cov)
     var = (np.asarray(g.multiply(gc).sum(axis=1)).ravel() if scipy.sparse.issparse(g)
            else np.einsum("ij,ij->i", gc, g))
@@ -156,7 +160,11 @@ def distance_figures(cov: np.ndarray, g, taxel_part: np.ndarray, parts, samples:
     (:func:`~nao_skin.calibration.evaluation.truth_error`), with the taxels' errors as correlated as their
     shared frames make them; a taxel's RMS error is larger than its typical distance (an isotropic one: the
     median distance 0.89 times it, the 95th percentile 1.61 times)."""
-    factor = np.linalg.cholesky(cov + 1e-30 * np.eye(len(cov)))
+    try:
+        factor = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:     # not quite positive definite (covariance() fell back to LU): its square root
+        w, v = np.linalg.eigh((cov + cov.T) / 2)
+        factor = v * np.sqrt(np.clip(w, 0.0, None))
     draws = np.random.default_rng(0).standard_normal((len(cov), samples))
     moved = np.asarray(g @ (factor @ draws))                                 # (3 per taxel, samples)
     dist = np.linalg.norm(moved.reshape(-1, 3, samples), axis=1)             # (taxels, samples)
@@ -274,7 +282,7 @@ def predicted_error(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, 
     g, taxel_part = taxel_jacobian(skin, layout, calib)
     free = np.flatnonzero(~known)
     cov = covariance(information[np.ix_(free, free)] + np.diag(prior[free])) * INEFFICIENCY ** 2
-    rms = taxel_rms(None, None, g[:, free], cov)
+    rms = rms_of(cov, g[:, free])
     shown = [p for p in parts if p in reported]
     figures = {p: {k: 1000.0 * v for k, v in f.items()}
                for p, f in distance_figures(cov, g[:, free], taxel_part, shown).items()}
