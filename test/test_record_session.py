@@ -7,12 +7,16 @@
 2. The recorder killed with SIGKILL mid-session: the bag still opens and
    holds every touch the recorder had reported before its last flush, equal
    to the simulator's first touches.
+3. The simulated robot stalled mid-press (SIGSTOP, as a busy machine holds a
+   process): every touch is still recorded once, not twice.
 """
 from __future__ import annotations
 
 import json
+import os
 import signal
 import sys
+import time
 from collections import Counter
 
 import numpy as np
@@ -27,8 +31,11 @@ from nao_skin.sim.params import load_params  # noqa: E402
 from nao_skin.sim.simulate import simulate  # noqa: E402
 
 pytest.importorskip("rclpy")
+from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
+
+from nao_skin.formats.pointcloud import taxels_topic  # noqa: E402
 
 pytestmark = pytest.mark.middleware   # runs nao-skin record and its nodes over DDS
 
@@ -163,3 +170,46 @@ def test_recorder_killed_keeps_flushed_touches(tmp_path):
     assert_same_touches(got, want.subset(np.arange(got.n_touches)))
     assert Counter(report.skipped) == Counter({"truncated bag": report.skipped["truncated bag"]})
 
+
+
+def test_a_robot_stalled_mid_press_still_gives_every_touch_once(tmp_path):
+    """A stall of the machine (here SIGSTOP of the simulated robot for 0.4 s, twice, each while a press is
+    held) delays the robot's messages; its stamps stay on the robot's timeline, so the recorder sees no
+    gap in a press and no release: each touch is in the bag once (it was twice: CI, 2026-11-29)."""
+    skin = load_skin()
+    seed, per_pair = 5, 1
+    want = expected_touches(skin, per_pair, seed)
+    domain = unique_domain_id()
+    env = ros_env(domain)
+    bag = tmp_path / "touches"
+    listener = recorder = sim = None
+    params_file = ROOT / "config" / "record.yaml"
+    try:
+        listener = Listener(domain)
+        pressed: list = []
+        for name in skin.parts:
+            listener.subscribe(PointCloud2, taxels_topic(name), keep=lambda m: pressed.append(m.width > 0))
+        status = listener.subscribe(String, "/sim_robot/status", keep=lambda m: json.loads(m.data))
+        recorder = node_process("pairing_recorder", {"bag_path": str(bag)}, env, tmp_path, params_file=params_file)
+        sim = node_process("sim_robot", {"seed": seed, "touches_per_pair": per_pair, "wait_for_subscribers": 2,
+                                         "touch_period": 1.6, "press_duration": 1.2, "hold": 0.1},
+                           env, tmp_path, params_file=params_file)
+        for _ in range(2):
+            assert listener.spin_until(lambda: any(pressed), timeout=60, procs=[recorder, sim]), "no press seen"
+            os.kill(sim.popen.pid, signal.SIGSTOP)
+            time.sleep(0.4)
+            os.kill(sim.popen.pid, signal.SIGCONT)
+            assert listener.spin_until(lambda: not pressed[-1], timeout=60, procs=[recorder, sim])  # released
+            pressed.clear()
+        assert listener.spin_until(lambda: status and status[-1]["done"], timeout=60, procs=[recorder, sim])
+        listener.spin_for(0.5)
+    finally:
+        if listener is not None:
+            listener.close()
+        for p in (sim, recorder):
+            if p is not None:
+                p.stop(signal.SIGINT, timeout=30)
+    assert recorder.popen.returncode == 0, recorder.stderr()[-3000:]
+    got, report = read_touches(bag, skin)
+    assert not report.skipped, report.lines()
+    assert_same_touches(got, want)

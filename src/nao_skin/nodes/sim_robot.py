@@ -5,7 +5,11 @@ a test can recompute exactly what was played) and plays its touches with
 :class:`nao_skin.live.playback.Playback`: ``/joint_states`` at ``joint_rate`` Hz,
 ``/skin/<part>/taxels`` and ``/skin/<part>/contacts`` for every part at
 ``skin_rate`` Hz (empty clouds = released, as the YARP bridge sends), one
-press per touch. Publishes ``/sim_robot/status`` (std_msgs/String, JSON:
+press per touch. Every message of a playback is stamped on its timeline (the
+clock at its start plus the tick's time), not when the thread got to send it:
+a stall of the machine delays messages but never opens a gap between the
+samples of one press, which a detector would rightly take for a release and
+a second press (a touch recorded twice). Publishes ``/sim_robot/status`` (std_msgs/String, JSON:
 touches ``played`` of ``total``, ``done`` once every touch is played, ``stopped``
 when the node was stopped before: its last status says so) once per second.
 
@@ -158,6 +162,7 @@ class SimRobot(Node):
     def _play_once(self) -> bool:
         """Play ``self.playback``; True when it ran to its end, False when the node was stopped part-way."""
         t0 = time.monotonic()
+        start = self.get_clock().now()
         tick = 0
         last_touch = -1
         while not self._stop.is_set():
@@ -167,7 +172,7 @@ class SimRobot(Node):
             delay = t0 + t - time.monotonic()
             if delay > 0:
                 self._stop.wait(delay)
-            k = self._publish(t, tick)
+            k = self._publish(t, tick, start + Duration(nanoseconds=round(t * 1e9)))
             if k > last_touch:
                 last_touch = k
                 self.played += 1
@@ -197,8 +202,9 @@ class SimRobot(Node):
         self.get_logger().info(f"next {touches.n_touches} touches: {how}")
         return touches
 
-    def _publish(self, t: float, tick: int) -> int:
-        stamp = self.get_clock().now().to_msg()
+    def _publish(self, t: float, tick: int, at=None) -> int:
+        """The streams at playback time ``t``, stamped ``at`` (rclpy Time; now when None); the touch pressed."""
+        stamp = (self.get_clock().now() if at is None else at).to_msg()
         self.joint_pub.publish(joint_state_msg(self.playback.joint_names, self.playback.joints_at(t), stamp))
         self.published += 1
         if tick % self.skin_every:
