@@ -6,6 +6,7 @@ stands in for the robot's body), the real recorder and the calibrate node recali
   other hand is still collecting (and, once it has a few touches, is left out and said so);
 * a late joiner of /tf_static gets exactly the latest update, and when the session ends the last
   accepted calibration is written beside the recording.
+* the uncertainty map the node publishes lightens where the touches land.
 """
 from __future__ import annotations
 
@@ -264,6 +265,55 @@ def test_a_failing_update_keeps_the_last_good_frames(tmp_path):
             listener.close()
         code = node.stop() if node is not None else None
     assert code == 0, node.stderr()[-3000:]
+
+
+def test_the_uncertainty_map_lightens_where_touches_land(tmp_path):
+    """The calibrate node alone, live, on a recording the test writes: 60 touches of the left hand on the torso,
+    then 25 more that all press one hand triangle, the one the first 60 pressed least (what a guidance target
+    asks for). In the map the node publishes after the second update that triangle has lightened more than the
+    hand's median triangle (the map's green channel falls monotonically with the predicted error)."""
+    from nao_skin.touch.datasets import deduplicate
+
+    skin = load_skin()
+    touches, _ = deduplicate(simulate(skin, {"pairs": [["l_hand", "torso"]], "n_touches": 160}, seed=3).touches)
+    hand = skin.parts["l_hand"]
+    pressed = [set(hand.triangle_ids[hand.slot_triangle[touches.act_slot[
+        (touches.act_touch == t) & (touches.act_part == touches.part_index("l_hand"))]]].tolist())
+        for t in range(touches.n_touches)]
+    later = {int(t): [i for i in range(60, touches.n_touches) if t in pressed[i]] for t in hand.triangle_ids}
+    target = min((t for t in later if len(later[t]) >= 25), key=lambda t: sum(t in p for p in pressed[:60]))
+    steps = [np.arange(60), np.concatenate([np.arange(60), later[target][:25]])]
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, touches.subset(steps[0]), skin)
+    domain = unique_domain_id()
+    listener = node = None
+    maps = []
+    try:
+        listener = Listener(domain)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        published = listener.subscribe(MarkerArray, UNCERTAINTY_TOPIC, qos=LATCHED)
+        progress = listener.node.create_publisher(String, PROGRESS_TOPIC, 10)
+        node = calibrate_alone(tmp_path, domain, bag, live_period=86400.0)
+        assert listener.spin_until(lambda: progress.get_subscription_count() >= 1 and status, procs=[node])
+        for k, chosen in enumerate(steps):
+            if k:
+                shutil.rmtree(bag)
+                write_touch_bag(bag, touches.subset(chosen), skin)
+            seen = len(published)
+            progress.publish(String(data=json.dumps({"touches": len(chosen)})))
+            assert listener.spin_until(lambda: [s for s in status if s["state"] == "updated"][k:]
+                                       and any("l_hand" in {d.ns for d in m.markers} for m in published[seen:]),
+                                       timeout=90, procs=[node]), status[-1:]
+            maps.append(next(m for m in published[seen:] if "l_hand" in {d.ns for d in m.markers}))
+    finally:
+        if listener is not None:
+            listener.close()
+        code = node.stop() if node is not None else None
+    assert code == 0, node.stderr()[-3000:]
+    green = [{d.id: d.color.g for d in m.markers if d.ns == "l_hand"} for m in maps]
+    assert set(green[0]) == set(green[1]) == {int(t) for t in hand.triangle_ids}
+    lighter = {t: green[1][t] - green[0][t] for t in green[0]}
+    assert lighter[target] > 0 and lighter[target] > np.median(list(lighter.values())), (target, lighter)
 
 
 def test_the_guidance_follows_every_publication_of_frames_a_requested_calibration_too(tmp_path):

@@ -403,7 +403,7 @@ def plot_uncertainty(triangles: dict, skin: SkinModel, calib: SkinCalibration, p
     error (:mod:`nao_skin.calibration.uncertainty_map`'s scale, as in RViz)."""
     from matplotlib.figure import Figure   # no pyplot: no backend or global figure state
 
-    from nao_skin.calibration.uncertainty_map import SCALE_MM, colour_map
+    from nao_skin.calibration.uncertainty_map import colour_map
 
     names = [n for n in triangles if triangles[n]]
     if not names:
@@ -415,8 +415,8 @@ def plot_uncertainty(triangles: dict, skin: SkinModel, calib: SkinCalibration, p
         xy = _layout_xy(sp, calib.parts.get(name))
         tids = sp.triangle_ids[sp.slot_triangle[sp.slots]]
         values = np.array([triangles[name].get(int(t), np.nan) for t in tids])
-        sc = ax.scatter(*xy.T, s=8, c=values, cmap=colour_map(), vmin=0.0, vmax=SCALE_MM, edgecolors="0.6",
-                        linewidths=0.2)
+        cmap, norm = colour_map()
+        sc = ax.scatter(*xy.T, s=8, c=values, cmap=cmap, norm=norm, edgecolors="0.6", linewidths=0.2)
         ax.set_aspect("equal")
         ax.set_title(f"{name}: predicted error per triangle (median {np.nanmedian(values):.2f} mm)", fontsize=8)
         ax.set_xlabel("mm (best-fit plane of the taxels)", fontsize=7)
