@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from nao_skin import se3
-from nao_skin.bench.capture import CaptureSetup, run_capture
+from nao_skin.bench.capture import CaptureSetup, honesty, run_capture
 from nao_skin.calibration.engine import calibrate
 from nao_skin.calibration.report import coverage_lines, markdown_report, report_coverage
 from nao_skin.guidance.capture import guidance
@@ -261,6 +261,10 @@ def test_the_capture_benchmark_follows_the_live_status_and_goes_on_until_done_on
     predicted = goes_on["trace"][0]["predicted"]
     assert set(predicted) == {"l_hand", "r_hand", "torso"}
     assert all(0 < v["median"] < v["p95"] < 100.0 for v in predicted.values()), predicted
+    # and, per update, how far the truth may lie from that prediction were the posterior exact (its own draws)
+    exact = goes_on["trace"][0]["exact"]
+    assert 0.5 < exact["p10"] < 1.0 < exact["p90"] < 2.0 and 0.0 < exact["within"] <= 1.0, exact
+    assert "exact" in honesty([goes_on])["all"]
     done = run_capture(skin, 0, "random", CaptureSetup(**loose, until_done=True))
     assert done["done_at"] == done["touches"] == 60 and len(done["trace"]) == 1
     assert done["done_worst_median_mm"] == done["trace"][0]["worst_median_mm"]

@@ -94,6 +94,20 @@ def test_the_uncertainty_map_has_every_triangle_and_falls_where_touches_land(ski
     assert [d[0] for d in discs] == [int(t) for t in hand.triangle_ids] and all(d[1][2] > 0 for d in discs)
 
 
+def test_the_posterior_s_draws_average_to_the_predicted_figures_and_scatter_about_them(result):
+    """Posterior.median_draws: each part's median taxel distance per draw of the posterior. Averaged over the
+    draws the prediction gives (the same 64), they are the predicted medians; their scatter is what the truth
+    of any one calibration may do about the prediction (bench-capture's "were each posterior exact")."""
+    post = result.posterior
+    predicted = result.report.final["predicted_taxel_error_mm"]
+    parts = [p for p in predicted if p != "all"]
+    draws = post.median_draws(parts, samples=64)
+    for p in parts:
+        assert np.mean(draws[p]) * 1e3 == pytest.approx(predicted[p]["median"], rel=1e-9)
+    worst = np.max([draws[p] for p in parts], axis=0)
+    assert 0.05 < np.std(worst) / np.mean(worst) < 0.3          # a real scatter, not a point, not a guess
+
+
 def test_a_touch_s_variance_lowered_is_what_adding_its_rows_to_the_posterior_removes(result):
     """The guidance's criterion (Posterior.variance_lowered) against the posterior recomputed with the rows added:
     a touch's k rows of one contact, each of the rows' noise, taken off the summed variance of every taxel."""

@@ -122,7 +122,8 @@ def run_capture(skin: SkinModel, seed: int, strategy: str, setup: CaptureSetup |
                       "held": len(result.report.held) if result is not None else None, "states": states,
                       # the calibration's own predicted taxel error then (per part: median, p95, mm)
                       "predicted": {p: dict(v) for p, v in (result.report.final.get("predicted_taxel_error_mm") or {}
-                                                            ).items() if p in parts} if result is not None else {}})
+                                                            ).items() if p in parts} if result is not None else {},
+                      "exact": _exact_spread(result, parts)})
         if done is None and states and set(states.values()) == {"done"}:
             done = trace[-1]
         if needed is None and calib is not None and _met(err, parts, setup):
@@ -159,6 +160,23 @@ def run_capture(skin: SkinModel, seed: int, strategy: str, setup: CaptureSetup |
             "guidance_ms_median": 1000 * float(np.median(guide_s)) if guide_s else None, "trace": trace}
 
 
+def _exact_spread(result, parts) -> dict | None:
+    """Were the calibration's posterior exact: its predicted worst part's median over the worst part's median in
+    each of its draws (:meth:`~nao_skin.calibration.uncertainty.Posterior.median_draws`), as
+    ``{p10, p90, within}`` (``within``: the share inside :data:`HONEST`). The spread of predicted / true that
+    no prediction from the touches removes: the truth's own scatter about what the touches say."""
+    post = getattr(result, "posterior", None)
+    if post is None:
+        return None
+    draws = post.median_draws(parts, samples=128)
+    if set(draws) != set(parts):
+        return None
+    meds = np.array([draws[p] for p in parts])
+    ratio = meds.mean(axis=1).max() / meds.max(axis=0)
+    return {"p10": float(np.percentile(ratio, 10)), "p90": float(np.percentile(ratio, 90)),
+            "within": float(np.mean((ratio >= HONEST[0]) & (ratio <= HONEST[1])))}
+
+
 def _kept_at(trace: list, parts, setup: CaptureSetup):
     """The touches from which every later update of the run met the target (None: the last one did not)."""
     kept = None
@@ -172,14 +190,15 @@ HONEST = (0.77, 1.3)     # the issue's band for predicted / true
 
 
 def _predicted_against_true(rows: list) -> list:
-    """``[(strategy, touches, true worst part's median, predicted worst part's median)]`` of every update of every
-    run where every part was calibrated and predicted."""
+    """``[(strategy, touches, true worst part's median, predicted worst part's median, exact spread or None)]``
+    of every update of every run where every part was calibrated and predicted."""
     out = []
     for r in rows:
         for t in r.get("trace", []):
             pred, true = t.get("predicted") or {}, t.get("per_part") or {}
             if true and set(true) <= set(pred):
-                out.append((r["strategy"], t["touches"], t["worst_median_mm"], max(v["median"] for v in pred.values())))
+                out.append((r["strategy"], t["touches"], t["worst_median_mm"], max(v["median"] for v in pred.values()),
+                            t.get("exact")))
     return out
 
 
@@ -187,14 +206,19 @@ def honesty(rows: list) -> dict:
     """The live status's prediction against the truth, per update of every run: the worst part's predicted
     median over its true median (updates where every part was calibrated and predicted), overall and by touches:
     ``{band: {updates, median, p10, p90, within}}``, ``within`` the share (%) inside :data:`HONEST`."""
-    pairs = [(n, predicted / true) for _, n, true, predicted in _predicted_against_true(rows)]
+    pairs = [(n, predicted / true, exact) for _, n, true, predicted, exact in _predicted_against_true(rows)]
     out = {}
     for label, lo, hi in (("all", 0, np.inf), ("< 300", 0, 300), ("300-999", 300, 1000), (">= 1000", 1000, np.inf)):
-        v = np.array([ratio for n, ratio in pairs if lo <= n < hi])
+        v = np.array([ratio for n, ratio, _ in pairs if lo <= n < hi])
         if len(v):
             out[label] = {"updates": int(len(v)), "median": float(np.median(v)), "p10": float(np.percentile(v, 10)),
                           "p90": float(np.percentile(v, 90)),
                           "within": float(100.0 * np.mean((v >= HONEST[0]) & (v <= HONEST[1])))}
+            exact = [e for n, _, e in pairs if lo <= n < hi and e]
+            if exact:       # the same, were each update's posterior exact: the floor of the spread
+                out[label]["exact"] = {"p10": float(np.median([e["p10"] for e in exact])),
+                                       "p90": float(np.median([e["p90"] for e in exact])),
+                                       "within": float(100.0 * np.mean([e["within"] for e in exact]))}
     return out
 
 
@@ -348,7 +372,9 @@ def table(rows: list, setup: CaptureSetup) -> str:
     for band, h in sm["honesty"].items():
         lines.append(f"Predicted / true worst part's median ({band} touches, {h['updates']} updates): median"
                      f" {h['median']:.2f} (10th–90th percentile {h['p10']:.2f}–{h['p90']:.2f}), within"
-                     f" {HONEST[0]}–{HONEST[1]} in {h['within']:.0f} %.")
+                     f" {HONEST[0]}–{HONEST[1]} in {h['within']:.0f} %."
+                     + (f" Were each posterior exact (its own draws): {h['exact']['p10']:.2f}–{h['exact']['p90']:.2f},"
+                        f" within in {h['exact']['within']:.0f} %." if "exact" in h else ""))
     if "oracle" in sm and "random" in sm:
         o = [_needed(rows, st, setup) for st in ("random", "oracle")]
         ratios = [a / b for a, b in zip(*o)]
@@ -400,7 +426,7 @@ def plot_honesty(rows: list, path) -> None:
     ax = fig.subplots()
     colours = {"random": "tab:gray", "guided": "tab:blue", "oracle": "tab:green"}
     for st in STRATEGIES:
-        pts = [(true, predicted, n) for s, n, true, predicted in _predicted_against_true(rows) if s == st]
+        pts = [(true, predicted, n) for s, n, true, predicted, _ in _predicted_against_true(rows) if s == st]
         if pts:
             x, y, n = np.array(pts).T
             ax.scatter(x, y, s=6 + 14 * n / n.max(), color=colours[st], alpha=0.5, label=f"{st} ({len(pts)} updates)")

@@ -152,14 +152,12 @@ def rms_of(cov: np.ndarray, g) -> np.ndarray:
     return np.sqrt(np.maximum(var.reshape(-1, 3).sum(axis=1), 0.0))
 
 
-def distance_figures(cov: np.ndarray, g, taxel_part: np.ndarray, parts, samples: int = SAMPLES) -> dict:
-    """``{part: {median, p95}, all: {...}}`` (m): the expected median and p95 over each part's taxels of their
-    distance from the truth, were the unknowns' error ``N(0, cov)``: ``samples`` draws (a fixed seed: the same
-    calibration gives the same figures), each taxel's distance in each, the quantiles over the taxels per draw,
-    averaged over the draws. The figures a truth-error evaluation reports of one calibration
-    (:func:`~nao_skin.calibration.evaluation.truth_error`), with the taxels' errors as correlated as their
-    shared frames make them; a taxel's RMS error is larger than its typical distance (an isotropic one: the
-    median distance 0.89 times it, the 95th percentile 1.61 times)."""
+def distance_draws(cov: np.ndarray, g, taxel_part: np.ndarray, parts, samples: int = SAMPLES) -> dict:
+    """``{part: (medians, p95s)}`` (m, each ``(samples,)``): over each part's taxels, the median and p95 of their
+    distance from the truth in each of ``samples`` draws of the unknowns' error from ``N(0, cov)`` (a fixed
+    seed: the same calibration gives the same draws); ``all`` over the taxels of ``parts``. What one
+    calibration's truth-error evaluation (:func:`~nao_skin.calibration.evaluation.truth_error`) would report,
+    were its error one of the draws, the taxels' errors as correlated as their shared frames make them."""
     try:
         factor = np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:     # not quite positive definite (covariance() fell back to LU): its square root
@@ -169,14 +167,22 @@ def distance_figures(cov: np.ndarray, g, taxel_part: np.ndarray, parts, samples:
     moved = np.asarray(g @ (factor @ draws))                                 # (3 per taxel, samples)
     dist = np.linalg.norm(moved.reshape(-1, 3, samples), axis=1)             # (taxels, samples)
 
-    def figures(sel):
-        return {"median": float(np.mean(np.median(dist[sel], axis=0))),
-                "p95": float(np.mean(np.percentile(dist[sel], 95, axis=0)))}
+    def quantiles(sel):
+        return np.median(dist[sel], axis=0), np.percentile(dist[sel], 95, axis=0)
 
-    out = {p: figures(taxel_part == p) for p in parts if np.any(taxel_part == p)}
+    out = {p: quantiles(taxel_part == p) for p in parts if np.any(taxel_part == p)}
     if len(dist):
-        out["all"] = figures(np.isin(taxel_part, list(parts)))
+        out["all"] = quantiles(np.isin(taxel_part, list(parts)))
     return out
+
+
+def distance_figures(cov: np.ndarray, g, taxel_part: np.ndarray, parts, samples: int = SAMPLES) -> dict:
+    """``{part: {median, p95}, all: {...}}`` (m): the expected median and p95 over each part's taxels of their
+    distance from the truth, were the unknowns' error ``N(0, cov)``: :func:`distance_draws`' quantiles averaged
+    over the draws. A taxel's RMS error is larger than its typical distance (an isotropic one: the median
+    distance 0.89 times it, the 95th percentile 1.61 times)."""
+    return {p: {"median": float(np.mean(med)), "p95": float(np.mean(p95))}
+            for p, (med, p95) in distance_draws(cov, g, taxel_part, parts, samples).items()}
 
 
 def per_part(rms_mm: np.ndarray, taxel_part: np.ndarray, parts) -> dict:
@@ -222,6 +228,13 @@ class Posterior:
     def taxels_of(self, part: str) -> np.ndarray:
         """Rows of ``part``'s taxels (its slots in order) in :attr:`taxel_jacobian` (3 rows each)."""
         return np.flatnonzero(self.taxel_part == part)
+
+    def median_draws(self, parts, samples: int = 256) -> dict:
+        """``{part: (samples,)}`` m: each of ``parts``' median taxel distance in draws of the posterior: how far
+        the truth's figures may lie from the predicted ones were the posterior exact (a spread no prediction
+        of the error from the touches can remove)."""
+        draws = distance_draws(self.cov, self.taxel_jacobian, self.taxel_part, parts, samples)
+        return {p: draws[p][0] for p in parts if p in draws}
 
     def taxel_information(self) -> np.ndarray:
         """``G^T G``: how the unknowns move the taxels (the summed taxel variance is ``trace(G C G^T)``)."""
