@@ -171,7 +171,6 @@ def test_recorder_killed_keeps_flushed_touches(tmp_path):
     assert Counter(report.skipped) == Counter({"truncated bag": report.skipped["truncated bag"]})
 
 
-
 def test_a_robot_stalled_mid_press_still_gives_every_touch_once(tmp_path):
     """A stall of the machine (here SIGSTOP of the simulated robot for 0.4 s, twice, each while a press is
     held) delays the robot's messages; its stamps stay on the robot's timeline, so the recorder sees no
