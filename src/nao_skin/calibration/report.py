@@ -421,7 +421,12 @@ def plot_uncertainty(triangles: dict, skin: SkinModel, calib: SkinCalibration, p
         ax.set_title(f"{name}: predicted error per triangle (median {np.nanmedian(values):.2f} mm)", fontsize=8)
         ax.set_xlabel("mm (best-fit plane of the taxels)", fontsize=7)
         ax.tick_params(labelsize=6)
-        fig.colorbar(sc, ax=ax, shrink=0.7).set_label("predicted RMS error (mm)", fontsize=7)
+        bar = fig.colorbar(sc, ax=ax, shrink=0.7)
+        bar.set_label("predicted RMS error (mm)", fontsize=7)
+        ticks = [v for v in (0.25, 0.5, 1.0, 2.0, 4.0) if norm.vmin <= v <= norm.vmax]
+        bar.set_ticks(ticks, labels=[f"{v:g}" for v in ticks])
+        bar.ax.minorticks_off()
+        bar.ax.tick_params(labelsize=6)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
