@@ -9,9 +9,10 @@ press per touch. Every message of a playback is stamped on its timeline (the
 clock at its start plus the tick's time), not when the thread got to send it:
 a stall of the machine delays messages but never opens a gap between the
 samples of one press, which a detector would rightly take for a release and
-a second press (a touch recorded twice). Publishes ``/sim_robot/status`` (std_msgs/String, JSON:
-touches ``played`` of ``total``, ``done`` once every touch is played, ``stopped``
-when the node was stopped before: its last status says so) once per second.
+a second press (a touch recorded twice). Publishes ``/sim_robot/status``
+(std_msgs/String, JSON: touches ``played`` of ``total``, ``done`` once every
+touch is played, ``stopped`` when the node was stopped before: its last status
+says so) once per second.
 
 With ``wait_for_subscribers: N`` the play starts only when every skin taxels
 topic has N subscribers and the other topics at least one, and each of them
