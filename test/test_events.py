@@ -9,7 +9,7 @@ import pytest
 
 from nao_skin.model.skin import SkinModel
 from nao_skin.paths import default_skin_config
-from nao_skin.touch.events import EventConfig, EventDetector, touchset_from_records
+from nao_skin.touch.events import RECOVERED, EventConfig, EventDetector, touchset_from_records
 
 
 @pytest.fixture(scope="module")
@@ -93,9 +93,10 @@ def test_changing_pattern_during_a_press_is_rate_limited(skin):
 
 
 def test_stale_or_missing_joints_drop_and_count(skin):
+    # a press held wholly inside a gap of the joint states: lost, counted once (not once per moment tried)
     det = EventDetector.for_skin(skin, EventConfig(joint_tolerance=0.05))
-    assert run(det, skin, 1.0, hand_and_torso(skin), joint_gap=(0.1, 0.4)) == []
-    assert det.counts["stale joints"] == 1
+    assert run(det, skin, 1.0, hand_and_torso(skin, 0.2, 0.35), joint_gap=(0.1, 0.4)) == []
+    assert det.drops() == {"stale joints": 1}
     assert "more than 0.05 s away" in det.notes[0] and "\n" not in det.notes[0]
 
     det = EventDetector.for_skin(skin)
@@ -104,6 +105,20 @@ def test_stale_or_missing_joints_drop_and_count(skin):
     # a joint no touching part needs may be missing
     det = EventDetector.for_skin(skin)
     assert len(run(det, skin, 1.0, hand_and_torso(skin), drop_joint="HeadYaw")) == 1
+
+
+@pytest.mark.parametrize("gap", [(0.1, 0.4), (0.0, 0.4)])
+def test_a_press_held_through_a_gap_in_the_joint_states_is_recorded_once_they_are_back(skin, gap):
+    """A press starting while the joint states stall (a WiFi hiccup of NAOqi; from 0.0: the joint stream starts
+    late) was lost whole: its first moment was dropped and every later one, of the same pattern, counted as
+    the same press. Now the press's next moment min_interval on is tried again: one touch, at the first moment
+    with joint states around it, with that moment's angles; nothing counted as dropped."""
+    det = EventDetector.for_skin(skin, EventConfig(joint_tolerance=0.05))
+    (touch,) = run(det, skin, 1.0, hand_and_torso(skin, 0.2, 0.6), joint_gap=gap)
+    assert 0.4 <= touch.stamp < 0.45
+    np.testing.assert_allclose(touch.joints, angles(skin.robot.joint_names, touch.stamp), atol=1e-12)
+    assert det.drops() == {} and det.counts[RECOVERED] == 1 and det.counts["touches"] == 1
+    assert "tried again" in det.notes[0]
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf, 1e300, -100.0])

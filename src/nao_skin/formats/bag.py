@@ -751,9 +751,8 @@ class _Feed:
 
     def account(self, touches: TouchSet) -> None:
         """The load report of these messages, ``touches`` being what they gave."""
-        for reason, count in self.detector.counts.items():
-            if reason not in ("touches", "continued press"):
-                self.report.skipped[reason] += count
+        for reason, count in self.detector.drops().items():
+            self.report.skipped[reason] += count
         self.report.messages.extend(f"{self.report.source}: {note}" for note in self.detector.notes)
         if touches.n_touches == 0 and self.n_msgs and not self.detector.counts and not self.report.skipped:
             # nothing was dropped, so nothing was ever a moment of two parts pressed together: say why

@@ -163,8 +163,7 @@ class TouchRecording:
 
     def dropped(self) -> dict:
         """What the detector dropped, and the messages that could not be read, by reason."""
-        return {k: v for k, v in self.detector.counts.items() if k not in ("touches", "continued press")} \
-            | dict(self.errors)
+        return self.detector.drops() | dict(self.errors)
 
     # ------------------------------------------------------------------ what the operator is told
     def progress(self) -> dict:

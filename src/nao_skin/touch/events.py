@@ -20,7 +20,13 @@ Rules (each drop is counted in ``counts`` under its reason, never guessed):
   every part of a combination stays pressed (no empty sample, no silence
   longer than ``release_gap``), a new touch is emitted only when the set of
   activated taxels changed, and at most once per ``min_interval``. A release
-  and a new press always give a new touch.
+  and a new press always give a new touch;
+* a moment dropped for want of joint states (stale, or none yet: a joint
+  stream that stalled or started late) does not end its press's chances: the
+  press's next moment ``min_interval`` later is tried again, however its
+  pattern stands, so a press held through a gap in the joint states is
+  recorded once the joints are back. The drop is counted once per press, and
+  taken back when a later moment of the press is recorded.
 
 Touch bags (one sample per part and one joint state per touch, all at the
 touch stamp) are read with :data:`TOUCH_BAG_CONFIG`: zero tolerances and
@@ -43,6 +49,8 @@ from nao_skin.touch.touches import TouchSet
 
 MAX_NOTES = 50            # one-line drop explanations kept (counts are always complete)
 MAX_PENDING = 1000        # events waiting for joints before the oldest is dropped
+RECOVERED = "joints late, press recorded later"     # a count of presses kept, like "touches": no drop
+NOT_DROPS = ("touches", "continued press", RECOVERED)
 
 
 @dataclass(frozen=True)
@@ -91,6 +99,7 @@ class _Sample:
 class _Candidate:
     stamp: float
     samples: dict                   # part index -> _Sample
+    press: tuple = ()               # (part combination, press starts): which press this moment is of
 
 
 class EventDetector:
@@ -115,6 +124,7 @@ class EventDetector:
         self._open: _Candidate | None = None
         self._pending: deque = deque()        # finalised candidates waiting for a later joint state
         self._last_emit: dict = {}            # part combination -> (stamp, pattern, press)
+        self._retrying: dict = {}             # part combination -> (press, drop reason): a moment lacked joints
         self._summaries: dict = {}            # (part, stamp) -> contacts summary arriving before its taxels
         self._behind: dict = {}               # part index -> stamp of the last sample ignored as stamped far back
         self._part_stamp: dict = {}           # part index -> latest stamp of its samples (released ones too)
@@ -130,6 +140,10 @@ class EventDetector:
         return cls(tuple(skin.parts), tuple(robot.joint_names), needed, config)
 
     # ------------------------------------------------------------------ bookkeeping
+    def drops(self) -> dict:
+        """``{reason: count}`` of what was dropped (``counts`` without the touches and presses kept)."""
+        return {k: v for k, v in self.counts.items() if k not in NOT_DROPS}
+
     def _drop(self, reason: str, note: str) -> None:
         self.counts[reason] += 1
         if len(self.notes) < MAX_NOTES:
@@ -278,6 +292,7 @@ class EventDetector:
             self.counts["continued press"] += 1     # the same touch still held: not a new one
             return []
         self._last_emit[combo] = (cand.stamp, pattern, press)
+        cand.press = (combo, press)
         self._pending.append(cand)
         if len(self._pending) > MAX_PENDING:
             old = self._pending.popleft()
@@ -307,11 +322,13 @@ class EventDetector:
                                                      f" joint state, older than the {self.config.joint_history} s"
                                                      f" of joint states kept (stamps out of order?)")
                 else:
-                    self._drop("no joint state before", f"touch at {t:.6f}: no joint state at or before it")
+                    self._joints_missing(cand, "no joint state before",
+                                         f"touch at {t:.6f}: no joint state at or before it")
                 continue
             if t - stamps[before] > tol or stamps[after] - t > tol:
-                self._drop("stale joints", f"touch at {t:.6f}: bracketing joint states at {stamps[before]:.6f}"
-                                           f" and {stamps[after]:.6f} are more than {tol} s away")
+                self._joints_missing(cand, "stale joints", f"touch at {t:.6f}: bracketing joint states at"
+                                                           f" {stamps[before]:.6f} and {stamps[after]:.6f} are more"
+                                                           f" than {tol} s away")
                 continue
             q0, q1 = self._joint_values[before], self._joint_values[after]
             span = stamps[after] - stamps[before]
@@ -321,7 +338,30 @@ class EventDetector:
             record = self._record(cand, q)
             if record is not None:
                 out.append(record)
+                self._recovered(cand)
         return out
+
+    def _joints_missing(self, cand: _Candidate, reason: str, note: str) -> None:
+        """A moment without joint states around it: dropped (counted once per press), and its press tried
+        again at its next moment ``min_interval`` on, whatever its pattern (the pattern was never recorded)."""
+        combo, press = cand.press
+        if self._retrying.get(combo, (None,))[0] != press:
+            self._drop(reason, f"{note}; its press is tried again at its next moment")
+            self._retrying[combo] = (press, reason)
+        last = self._last_emit.get(combo)
+        if last is not None and last[0] == cand.stamp and last[2] == press:    # no later moment of it is on its way
+            self._last_emit[combo] = (last[0], None, press)
+
+    def _recovered(self, cand: _Candidate) -> None:
+        """A press whose earlier moment lacked joint states is recorded after all: that drop is taken back."""
+        combo, press = cand.press
+        retry = self._retrying.get(combo)
+        if retry is not None and retry[0] == press:
+            del self._retrying[combo]
+            self.counts[retry[1]] -= 1
+            if self.counts[retry[1]] <= 0:
+                del self.counts[retry[1]]
+            self.counts[RECOVERED] += 1
 
     def _per_joint(self, t: float, q: np.ndarray) -> np.ndarray:
         """``q`` with each joint the bracketing states left NaN interpolated from the nearest states that
