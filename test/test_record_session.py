@@ -134,40 +134,58 @@ def test_record_session_bag_and_heatmap(tmp_path):
         assert touched_seen == activated, f"{name}: heat-map shows other taxels than were activated"
 
 
+class RecorderAndRobot:
+    """The recorder and the simulated robot as node processes (``config/record.yaml``'s parameters) on a domain
+    of their own, and a listener there: ``with RecorderAndRobot(tmp_path, seed, per_pair) as run:``, subscribe
+    on ``run.listener``, then ``run.start(**robot parameters)``; ``run.want`` are the touches the robot plays.
+    On leaving, the listener is closed and both nodes are stopped (SIGINT), whatever happened."""
+
+    def __init__(self, tmp_path, seed: int, per_pair: int):
+        self.tmp_path, self.seed, self.per_pair = tmp_path, seed, per_pair
+        self.skin = load_skin()
+        self.want = expected_touches(self.skin, per_pair, seed)
+        self.bag = tmp_path / "touches"
+        self.domain = unique_domain_id()
+        self.listener = self.recorder = self.robot = None
+
+    def __enter__(self) -> "RecorderAndRobot":
+        self.listener = Listener(self.domain)
+        return self
+
+    def start(self, **robot) -> None:
+        env, params_file = ros_env(self.domain), ROOT / "config" / "record.yaml"
+        self.recorder = node_process("pairing_recorder", {"bag_path": str(self.bag)}, env, self.tmp_path,
+                                     params_file=params_file)
+        self.robot = node_process("sim_robot", {"seed": self.seed, "touches_per_pair": self.per_pair, **robot}, env,
+                                  self.tmp_path, params_file=params_file)
+
+    def __exit__(self, *exc) -> None:
+        try:
+            self.listener.close()
+        finally:
+            for p in (self.robot, self.recorder):
+                if p is not None:
+                    p.stop(signal.SIGINT, timeout=30)
+
+
 def test_recorder_killed_keeps_flushed_touches(tmp_path):
-    skin = load_skin()
-    seed, per_pair = 11, 3
-    want = expected_touches(skin, per_pair, seed)
-    domain = unique_domain_id()
-    env = ros_env(domain)
-    bag = tmp_path / "touches"
-    listener = recorder = sim = None
-    params_file = ROOT / "config" / "record.yaml"
-    try:
-        listener = Listener(domain)
-        progress = listener.subscribe(String, "/nao_skin/recorder/progress", keep=lambda m: json.loads(m.data))
-        recorder = node_process("pairing_recorder", {"bag_path": str(bag)}, env, tmp_path, params_file=params_file)
-        sim = node_process("sim_robot", {"seed": seed, "touches_per_pair": per_pair, "wait_for_subscribers": 1,
-                                         **FAST_PLAY}, env, tmp_path, params_file=params_file)
-        assert listener.spin_until(lambda: progress and progress[-1]["touches"] >= 4, timeout=60,
-                                   procs=[recorder, sim]), "recorder reported no touches"
+    with RecorderAndRobot(tmp_path, seed=11, per_pair=3) as run:
+        progress = run.listener.subscribe(String, "/nao_skin/recorder/progress", keep=lambda m: json.loads(m.data))
+        run.start(wait_for_subscribers=1, **FAST_PLAY)
+        nodes = [run.recorder, run.robot]
+        assert run.listener.spin_until(lambda: progress and progress[-1]["touches"] >= 4, timeout=60, procs=nodes), \
+            "recorder reported no touches"
         reported = progress[-1]["touches"]
         n_msgs = len(progress)
         # two more progress periods: the flush (every 1 s) has written what was reported
-        assert listener.spin_until(lambda: len(progress) >= n_msgs + 2, procs=[recorder])
-        assert progress[-1]["touches"] < want.n_touches, "the play ended before the kill; use more touches"
-        recorder.stop(signal.SIGKILL)
-    finally:
-        if listener is not None:
-            listener.close()
-        for p in (sim, recorder):
-            if p is not None:
-                p.stop()
-    assert recorder.popen.returncode == -signal.SIGKILL
-    got, report = read_touches(bag, skin)
-    assert reported <= got.n_touches < want.n_touches
+        assert run.listener.spin_until(lambda: len(progress) >= n_msgs + 2, procs=[run.recorder])
+        assert progress[-1]["touches"] < run.want.n_touches, "the play ended before the kill; use more touches"
+        run.recorder.stop(signal.SIGKILL)
+    assert run.recorder.popen.returncode == -signal.SIGKILL
+    got, report = read_touches(run.bag, run.skin)
+    assert reported <= got.n_touches < run.want.n_touches
     assert "truncated bag" in report.skipped             # it says the bag was cut
-    assert_same_touches(got, want.subset(np.arange(got.n_touches)))
+    assert_same_touches(got, run.want.subset(np.arange(got.n_touches)))
     assert Counter(report.skipped) == Counter({"truncated bag": report.skipped["truncated bag"]})
 
 
@@ -175,40 +193,23 @@ def test_a_robot_stalled_mid_press_still_gives_every_touch_once(tmp_path):
     """A stall of the machine (here SIGSTOP of the simulated robot for 0.4 s, twice, each while a press is
     held) delays the robot's messages; its stamps stay on the robot's timeline, so the recorder sees no
     gap in a press and no release: each touch is in the bag once (it was twice: CI, 2026-11-29)."""
-    skin = load_skin()
-    seed, per_pair = 5, 1
-    want = expected_touches(skin, per_pair, seed)
-    domain = unique_domain_id()
-    env = ros_env(domain)
-    bag = tmp_path / "touches"
-    listener = recorder = sim = None
-    params_file = ROOT / "config" / "record.yaml"
-    try:
-        listener = Listener(domain)
+    with RecorderAndRobot(tmp_path, seed=5, per_pair=1) as run:
         pressed: list = []
-        for name in skin.parts:
-            listener.subscribe(PointCloud2, taxels_topic(name), keep=lambda m: pressed.append(m.width > 0))
-        status = listener.subscribe(String, "/sim_robot/status", keep=lambda m: json.loads(m.data))
-        recorder = node_process("pairing_recorder", {"bag_path": str(bag)}, env, tmp_path, params_file=params_file)
-        sim = node_process("sim_robot", {"seed": seed, "touches_per_pair": per_pair, "wait_for_subscribers": 2,
-                                         "touch_period": 1.6, "press_duration": 1.2, "hold": 0.1},
-                           env, tmp_path, params_file=params_file)
+        for name in run.skin.parts:
+            run.listener.subscribe(PointCloud2, taxels_topic(name), keep=lambda m: pressed.append(m.width > 0))
+        status = run.listener.subscribe(String, "/sim_robot/status", keep=lambda m: json.loads(m.data))
+        run.start(wait_for_subscribers=2, touch_period=1.6, press_duration=1.2, hold=0.1)
+        nodes = [run.recorder, run.robot]
         for _ in range(2):
-            assert listener.spin_until(lambda: any(pressed), timeout=60, procs=[recorder, sim]), "no press seen"
-            os.kill(sim.popen.pid, signal.SIGSTOP)
+            assert run.listener.spin_until(lambda: any(pressed), timeout=60, procs=nodes), "no press seen"
+            os.kill(run.robot.popen.pid, signal.SIGSTOP)
             time.sleep(0.4)
-            os.kill(sim.popen.pid, signal.SIGCONT)
-            assert listener.spin_until(lambda: not pressed[-1], timeout=60, procs=[recorder, sim])  # released
+            os.kill(run.robot.popen.pid, signal.SIGCONT)
+            assert run.listener.spin_until(lambda: not pressed[-1], timeout=60, procs=nodes)   # released
             pressed.clear()
-        assert listener.spin_until(lambda: status and status[-1]["done"], timeout=60, procs=[recorder, sim])
-        listener.spin_for(0.5)
-    finally:
-        if listener is not None:
-            listener.close()
-        for p in (sim, recorder):
-            if p is not None:
-                p.stop(signal.SIGINT, timeout=30)
-    assert recorder.popen.returncode == 0, recorder.stderr()[-3000:]
-    got, report = read_touches(bag, skin)
+        assert run.listener.spin_until(lambda: status and status[-1]["done"], timeout=60, procs=nodes)
+        run.listener.spin_for(0.5)
+    assert run.recorder.popen.returncode == 0, run.recorder.stderr()[-3000:]
+    got, report = read_touches(run.bag, run.skin)
     assert not report.skipped, report.lines()
-    assert_same_touches(got, want)
+    assert_same_touches(got, run.want)
