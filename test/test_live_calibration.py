@@ -272,17 +272,12 @@ def test_the_uncertainty_map_lightens_where_touches_land(tmp_path):
     then 25 more that all press one hand triangle, the one the first 60 pressed least (what a guidance target
     asks for). In the map the node publishes after the second update that triangle has lightened more than the
     hand's median triangle (the map's green channel falls monotonically with the predicted error)."""
-    from nao_skin.touch.datasets import deduplicate
+    from test_uncertainty import touches_on_one_triangle
 
     skin = load_skin()
-    touches, _ = deduplicate(simulate(skin, {"pairs": [["l_hand", "torso"]], "n_touches": 160}, seed=3).touches)
+    touches, first, more, target = touches_on_one_triangle(skin)
     hand = skin.parts["l_hand"]
-    pressed = [set(hand.triangle_ids[hand.slot_triangle[touches.act_slot[
-        (touches.act_touch == t) & (touches.act_part == touches.part_index("l_hand"))]]].tolist())
-        for t in range(touches.n_touches)]
-    later = {int(t): [i for i in range(60, touches.n_touches) if t in pressed[i]] for t in hand.triangle_ids}
-    target = min((t for t in later if len(later[t]) >= 25), key=lambda t: sum(t in p for p in pressed[:60]))
-    steps = [np.arange(60), np.concatenate([np.arange(60), later[target][:25]])]
+    steps = [first, more]
     bag = tmp_path / "touches"
     write_touch_bag(bag, touches.subset(steps[0]), skin)
     domain = unique_domain_id()

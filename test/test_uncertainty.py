@@ -62,27 +62,32 @@ def test_the_prediction_is_in_the_report_and_calibration_yaml_and_older_files_st
         SkinCalibration.load(path, skin)
 
 
+def touches_on_one_triangle(skin) -> tuple:
+    """``(touches, first, more, target)``: 160 simulated touches of the left hand on the torso (seed 3); ``first``
+    the indices of the first 60, ``more`` those and 25 later ones that all press ``target``, the hand triangle
+    the first 60 pressed least (what a guidance target asks for). Here and over DDS (test_live_calibration)."""
+    sim = simulate(skin, load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 160}), seed=3)
+    touches, _ = deduplicate(sim.touches)
+    hand = skin.parts["l_hand"]
+    on_hand = touches.act_part == touches.part_index("l_hand")
+    pressed = [set(hand.triangle_ids[hand.slot_triangle[touches.act_slot[(touches.act_touch == t) & on_hand]]]
+                   .tolist()) for t in range(touches.n_touches)]
+    first = np.arange(60)
+    later = {int(t): [i for i in range(60, touches.n_touches) if t in pressed[i]] for t in hand.triangle_ids}
+    target = min((t for t in later if len(later[t]) >= 25), key=lambda t: sum(t in p for p in pressed[:60]))
+    return touches, first, np.concatenate([first, later[target][:25]]), target
+
+
 def test_the_uncertainty_map_has_every_triangle_and_falls_where_touches_land(skin):
     """The map (final.predicted_triangle_error_mm, uncertainty.png, the calibrate node's markers): every triangle
     of each calibrated part, and a triangle the new touches press is surer after them than the others."""
     from nao_skin.calibration.uncertainty_map import colours, triangle_discs
 
-    sim = simulate(skin, load_params("default", {"pairs": [["l_hand", "torso"]], "n_touches": 160}), seed=3)
-    touches, _ = deduplicate(sim.touches)
+    touches, first, more, target = touches_on_one_triangle(skin)
     hand = skin.parts["l_hand"]
-    fired = [set(hand.triangle_ids[hand.slot_triangle[touches.act_slot[(touches.act_touch == t)
-                                                                         & (touches.act_part == touches.part_index(
-                                                                             "l_hand"))]]].tolist())
-             for t in range(touches.n_touches)]
-    first = np.arange(60)
-    # the triangle the first 60 touches pressed least that later touches press: the target
-    counts = {int(t): sum(int(t) in fired[i] for i in first) for t in hand.triangle_ids}
-    later = {int(t): [i for i in range(60, touches.n_touches) if int(t) in fired[i]] for t in hand.triangle_ids}
-    target = min((t for t in counts if len(later[t]) >= 25), key=lambda t: counts[t])
     options = CalibrationOptions(test_fraction=0.0)
     before = calibrate(touches.subset(first), skin, options).report.final["predicted_triangle_error_mm"]
-    after = calibrate(touches.subset(np.concatenate([first, later[target][:25]])), skin,
-                      options).report.final["predicted_triangle_error_mm"]
+    after = calibrate(touches.subset(more), skin, options).report.final["predicted_triangle_error_mm"]
     assert set(before) == {"l_hand", "torso"}
     assert set(before["l_hand"]) == {int(t) for t in hand.triangle_ids}
     gain = {t: after["l_hand"][t] / before["l_hand"][t] for t in before["l_hand"]}
