@@ -73,6 +73,8 @@ def strategy_variants(sweep=TOUCH_SWEEP) -> list:
                 {"pairs": "both+plane", "closing_pairs": "both+plane"}),
         Variant("surface rows beside the closing stage's COPs (closing_pairs=cop+surface)",
                 {"closing_pairs": "cop+surface"}),
+        Variant("press model (the plan again, on the COP rows less what a press is expected to put between them)",
+                {"press_model": True}),
         Variant("bounded (the thesis' box on patch and triangle corrections)", {"bounded": True}),
         Variant("wider prior (starts at the bound: prior_strength=1)", {"prior_strength": 1.0}),
         Variant("fixed prior (bound/3, not widened by the touches)", {"prior_scale": "fixed"}),

@@ -122,15 +122,16 @@ def closest_cop_cost(touches, skin, calib, step, inliers) -> float:
 
 
 def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float, pairing=None,
-                     plane: PlaneRows = PlaneRows()) -> float:
+                     plane: PlaneRows = PlaneRows(), press: dict | None = None) -> float:
     """What a stage fits, measured as it fits it: the touches paired under ``calib`` for ``kinds``,
     distances between the paired points lifted to the fabric surfaces (``fabric`` m over the
     taxels), each kind's capped mean (50 mm), averaged over the kinds.
 
     Taxel-centre distances alone grow when the fabric estimate grows, however good the fit.
-    ``pairing``: that pairing, when a stage already made it (:attr:`StageResult.pairings`).
+    ``pairing``: that pairing, when a stage already made it (:attr:`StageResult.pairings`); ``press``: the
+    rows' expectations the stage fitted them with (:func:`~nao_skin.calibration.press.press_offsets`).
     """
-    fitted = _fitted_distances(touches, skin, calib, step, kinds, fabric, pairing, plane)
+    fitted = _fitted_distances(touches, skin, calib, step, kinds, fabric, pairing, plane, press)
     if fitted is None:
         return np.inf
     dist, pairing = fitted
@@ -152,10 +153,11 @@ def fitted_touch_distances(touches, skin, calib, step, kinds, fabric: float, pai
     return np.divide(total, rows, out=np.full(touches.n_touches, np.nan), where=rows > 0)
 
 
-def _fitted_distances(touches, skin, calib, step, kinds, fabric, pairing=None, plane: PlaneRows = PlaneRows()):
+def _fitted_distances(touches, skin, calib, step, kinds, fabric, pairing=None, plane: PlaneRows = PlaneRows(),
+                      press: dict | None = None):
     """``(distance per row capped at 50 mm, pairing)``, or None when nothing pairs."""
     if pairing is None:
-        pairing = pair_step(touches, skin, calib, step, kinds, plane)
+        pairing = pair_step(touches, skin, calib, step, kinds, plane, press)
     if pairing is None or len(pairing.row_touch) == 0:
         return None
     parts = tuple(p for p in step.targets + step.references if p in touches.part_names)

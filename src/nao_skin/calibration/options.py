@@ -183,6 +183,11 @@ class CalibrationOptions:
     # a part fitted to a fixed reference inherits that reference's error, which a joint solve of all
     # parts removes (measured on simulated truth)
     joint_refinement: bool = option(True, Rule(bool), "finish with every part free at once")
+    # a COP row is not zero at the true skin: the two parts sample the pressed spot at their own taxels; the press
+    # model predicts that part at the calibration reached, and the plan is run again on the rows less it
+    # (docs/method.md, "The press model")
+    press_model: bool = option(False, Rule(bool), "calibrate again, fitting the COP rows less what the simulator's"
+                                                  " press model expects of them at the calibration first reached")
     # a constant mount correction cannot absorb a joint-angle offset or a link length upstream of it
     kinematics: str = option("off", Rule(str, ("off", "on", "auto")),
                              "also estimate the arm and head joint-angle offsets and link lengths the touches"

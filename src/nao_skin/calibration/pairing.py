@@ -79,6 +79,9 @@ class Pairing:
     # (M, 3) unit normal along which a row is measured (point-to-plane rows), NaN for rows measured in
     # full; None when no row is projected
     row_normal: np.ndarray | None = None
+    # (M, 3) what a row is expected to be at the true skin (the press model's, calibration/press.py), subtracted
+    # from it; None when no row has one
+    row_offset: np.ndarray | None = None
 
     @property
     def n_rows(self) -> int:
@@ -267,7 +270,7 @@ def activation_normals(touches: TouchSet, skin: SkinModel, calib: SkinCalibratio
 def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,
                  kinds=("cop", "taxel", "taxel5"), parts: tuple | None = None, *,
                  taxel_rule: str = "contacts", cop_radius: float = DEFAULT_COP_RADIUS,
-                 placed: dict | None = None, plane: PlaneRows = PlaneRows()) -> Pairing:
+                 placed: dict | None = None, plane: PlaneRows = PlaneRows(), press: dict | None = None) -> Pairing:
     """Pair every touch under ``calib`` (None: nominal layout).
 
     ``taxel_rule`` chooses the closest taxel pair (kind 1): ``"contacts"`` -
@@ -279,7 +282,9 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
     (any taxel of B's contact if none is that close). Kind 2 is always
     searched in the selected contacts, and kind 4 is the ``"contacts"`` kind 1
     whatever the rule. ``placed``: see :func:`activation_positions`.
-    ``plane``: how point-to-plane rows (kinds 5, 6) are made.
+    ``plane``: how point-to-plane rows (kinds 5, 6) are made. ``press``: ``{(part A, part B): (N, 3)}``, each
+    touch's expected ``cop_skin`` row (:func:`~nao_skin.calibration.press.press_offsets`), its
+    :attr:`Pairing.row_offset`.
     """
     want = {KIND_NAMES[k] if isinstance(k, str) else int(k) for k in kinds}
     if taxel_rule not in TAXEL_RULES:
@@ -293,11 +298,12 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
     terms = []   # per block: local row, part, slot, weight  (row numbers offset later)
     n_rows = 0
 
-    def add(block_touch, kind, pa, pb, dist, seq, t_row, t_part, t_slot, t_weight, normal=None):
+    def add(block_touch, kind, pa, pb, dist, seq, t_row, t_part, t_slot, t_weight, normal=None, offset=None):
         nonlocal n_rows
         m = len(block_touch)
         normal = np.full((m, 3), np.nan) if normal is None else normal
-        rows.append((block_touch, np.full(m, kind), np.full(m, pa), np.full(m, pb), dist, seq, normal))
+        offset = np.zeros((m, 3)) if offset is None else offset
+        rows.append((block_touch, np.full(m, kind), np.full(m, pa), np.full(m, pb), dist, seq, normal, offset))
         terms.append((t_row + n_rows, t_part, t_slot, t_weight))
         n_rows += m
 
@@ -343,8 +349,10 @@ def pair_touches(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | No
                 np.concatenate((touches.act_slot[act_a], touches.act_slot[act_b])),
                 np.concatenate((weight[act_a], -weight[act_b])))
         if KIND_COP_SKIN in want:
+            expected = (press or {}).get((touches.part_names[pa], touches.part_names[pb]))
             _add_cop_skin_rows(add, touches, skin, calib, pa, pb, pair_no * 10 + KIND_COP_SKIN, group_touch,
-                               ga, act_a, gb, act_b, pos, normals, poses, weight, coords)
+                               ga, act_a, gb, act_b, pos, normals, poses, weight, coords,
+                               None if expected is None else np.nan_to_num(expected[group_touch]))
         if KIND_SURFACE in want:
             _add_surface_rows(add, touches, skin, calib, pa, pb, pair_no * 10 + KIND_SURFACE, pos, normals, poses)
         for kind in plane_kinds:
@@ -479,11 +487,12 @@ def _add_plane_rows(add, kind, group_touch, pa, pb, seq, ga, act_a, gb, act_b, c
 
 
 def _add_cop_skin_rows(add, touches, skin, calib, pa, pb, seq, group_touch, ga, act_a, gb, act_b, pos, normals,
-                       poses, weight, coords):
+                       poses, weight, coords, expected=None):
     """The closest COP pair's contacts, each COP over its taxels with the other part's skin beside them
     (:func:`~nao_skin.calibration.contact.skin_beside`). Where one side has no such taxel (the frames are
     still far off, or the contacts lie apart), the whole contacts' COPs: no touch loses its row. ``poses(name)``:
-    a part's chain-end pose in every touch, on the robot ``calib`` describes."""
+    a part's chain-end pose in every touch, on the robot ``calib`` describes. ``expected``: each row's
+    expectation at the true skin (the rows' :attr:`Pairing.row_offset`), None for none."""
     n_g = len(group_touch)
     beside = [skin_beside(touches, skin, calib, other, act, pos, normals, poses)
               for act, other in ((act_a, pb), (act_b, pa))]
@@ -501,7 +510,8 @@ def _add_cop_skin_rows(add, touches, skin, calib, pa, pb, seq, group_touch, ga, 
         cops.append(np.stack([np.bincount(g[keep], weights=coords[d, act[keep]] * share, minlength=n_g)
                               for d in range(3)], axis=1))
     add(group_touch, KIND_COP_SKIN, pa, pb, np.linalg.norm(cops[0] - cops[1], axis=1), np.full(n_g, float(seq)),
-        np.concatenate(t_rows), np.concatenate(parts), np.concatenate(slots), np.concatenate(t_weights))
+        np.concatenate(t_rows), np.concatenate(parts), np.concatenate(slots), np.concatenate(t_weights),
+        offset=expected)
 
 
 def _add_surface_rows(add, touches, skin, calib, pa, pb, seq, pos, normals, poses):
@@ -527,7 +537,7 @@ def _assemble(rows, terms) -> Pairing:
     if not rows:
         z = np.zeros(0, dtype=int)
         return Pairing(z, z.astype(np.int8), np.zeros((0, 2), int), z, z, z, np.zeros(0), np.zeros(0))
-    touch, kind, pa, pb, dist, seq, normal = (np.concatenate(c) for c in zip(*rows))
+    touch, kind, pa, pb, dist, seq, normal, offset = (np.concatenate(c) for c in zip(*rows))
     t_row, t_part, t_slot, t_weight = (np.concatenate(c) for c in zip(*terms))
     order = np.lexsort((np.arange(len(touch)), seq, touch))       # by touch, then part pair and kind
     new_row = np.empty(len(order), dtype=int)
@@ -538,7 +548,8 @@ def _assemble(rows, terms) -> Pairing:
                    np.stack([pa[order], pb[order]], axis=1).astype(int),
                    t_row[t_order], t_part[t_order].astype(int), t_slot[t_order].astype(int),
                    t_weight[t_order].astype(float), dist[order].astype(float),
-                   normal[order] if np.isfinite(normal).any() else None)
+                   normal[order] if np.isfinite(normal).any() else None,
+                   offset[order] if np.any(offset) else None)
 
 
 # ---------------------------------------------------------------------- evaluation

@@ -121,6 +121,8 @@ class ResidualModel:
         self._projected = (np.zeros(0, int) if normal is None
                            else np.flatnonzero(np.all(np.isfinite(normal), axis=1)))
         self._projection_normal = normal[self._projected] if len(self._projected) else None
+        # what a row is expected to be at the true skin (the press model's): the residual is the row minus it
+        self._offset = getattr(pairing, "row_offset", None)
 
     def _row_blocks(self, key: tuple, term_row: np.ndarray, block_rows: np.ndarray):
         """``(first, inverse, n)`` of the unique (row, block) combinations of one group's terms."""
@@ -209,6 +211,8 @@ class ResidualModel:
                 x = self._group_positions(g, calib) * self.term_weight[sel]
                 for d in range(3):
                     out[:, d] += np.bincount(self.term_row[sel], weights=x[d], minlength=self.n_rows)
+        if self._offset is not None:
+            out -= self._offset
         return self._project(out)
 
     def _project(self, rows: np.ndarray) -> np.ndarray:

@@ -22,7 +22,8 @@ def select_rows(pairing: Pairing, kinds: tuple, inliers: np.ndarray | None = Non
                    row_parts=pairing.row_parts[keep], term_row=new_index[pairing.term_row[tkeep]],
                    term_part=pairing.term_part[tkeep], term_slot=pairing.term_slot[tkeep],
                    term_weight=pairing.term_weight[tkeep], distance=pairing.distance[keep],
-                   row_normal=_normals_of(pairing, keep))
+                   row_normal=_normals_of(pairing, keep),
+                   row_offset=None if pairing.row_offset is None else pairing.row_offset[keep])
 
 
 def _normals_of(pairing: Pairing, keep: np.ndarray) -> np.ndarray | None:
@@ -77,20 +78,22 @@ def _pair_subset(touches: TouchSet, pa: str, pb: str):
 
 def pair_parts(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, pa: str, pb: str,
                kinds=("cop", "taxel", "taxel5"), taxel_rule: str = "contacts", placed: dict | None = None,
-               plane: PlaneRows = PlaneRows()) -> Pairing:
+               plane: PlaneRows = PlaneRows(), press: dict | None = None) -> Pairing:
     """``pair_touches`` for one pair of parts, computed on the touches where both fire only
-    (``placed``: see :func:`~nao_skin.calibration.pairing.activation_positions`)."""
+    (``placed``: see :func:`~nao_skin.calibration.pairing.activation_positions`; ``press``: the expected
+    ``cop_skin`` rows of every touch of ``touches``, see :func:`~nao_skin.calibration.pairing.pair_touches`)."""
     sub, rows = _pair_subset(touches, pa, pb)
     p = pair_touches(sub, skin, calib, kinds=kinds, parts=(pa, pb), taxel_rule=taxel_rule, placed=placed,
-                     plane=plane)
+                     plane=plane, press=None if press is None else {k: v[rows] for k, v in press.items()})
     remap = np.array([touches.part_index(n) for n in sub.part_names], dtype=int)
     return Pairing(row_touch=rows[p.row_touch], row_kind=p.row_kind, row_parts=remap[p.row_parts],
                    term_row=p.term_row, term_part=remap[p.term_part], term_slot=p.term_slot,
-                   term_weight=p.term_weight, distance=p.distance, row_normal=p.row_normal)
+                   term_weight=p.term_weight, distance=p.distance, row_normal=p.row_normal, row_offset=p.row_offset)
 
 def pair_step(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, step: Step,
-               kinds=("cop", "taxel", "taxel5"), plane: PlaneRows = PlaneRows()) -> Pairing:
-    """Pair the touches of every (target, reference) combination of a step."""
+               kinds=("cop", "taxel", "taxel5"), plane: PlaneRows = PlaneRows(), press: dict | None = None) -> Pairing:
+    """Pair the touches of every (target, reference) combination of a step (``press``: see
+    :func:`~nao_skin.calibration.pairing.pair_touches`)."""
     names = step.targets + step.references
     parts = []
     placed: dict = {}   # each part's slots placed once for all its part pairs
@@ -100,7 +103,7 @@ def pair_step(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, step: 
                 continue
             pa, pb = sorted((a, b), key=part_rank)
             if pa in touches.part_names and pb in touches.part_names:
-                p = pair_parts(touches, skin, calib, pa, pb, kinds, placed=placed, plane=plane)
+                p = pair_parts(touches, skin, calib, pa, pb, kinds, placed=placed, plane=plane, press=press)
                 if len(p.row_touch):
                     parts.append(p)
     if not parts:
@@ -131,7 +134,9 @@ def concat_pairings(pairings: list) -> Pairing:
         term_weight=np.concatenate([p.term_weight for p in pairings]),
         distance=np.concatenate([p.distance for p in pairings]),
         row_normal=(None if all(p.row_normal is None for p in pairings) else np.concatenate(
-            [np.full((p.n_rows, 3), np.nan) if p.row_normal is None else p.row_normal for p in pairings])))
+            [np.full((p.n_rows, 3), np.nan) if p.row_normal is None else p.row_normal for p in pairings])),
+        row_offset=(None if all(p.row_offset is None for p in pairings) else np.concatenate(
+            [np.zeros((p.n_rows, 3)) if p.row_offset is None else p.row_offset for p in pairings])))
 
 def touch_hashes(pairing: Pairing, n_touches: int) -> np.ndarray:
     """A number per touch that changes when the pairing of that touch changes."""

@@ -62,7 +62,7 @@ class StageResult:
 
 def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, say, fabric,
               prior_sigma: dict | None = None, anchor: SkinCalibration | None = None,
-              max_repairings: int | None = None, condition: bool = True) -> StageResult:
+              max_repairings: int | None = None, condition: bool = True, press: dict | None = None) -> StageResult:
     """One stage: pair, solve, re-pair under the new calibration, until the pairing settles.
 
     ``prior_sigma``: prior std per group (:data:`PRIOR_GROUPS`); with
@@ -76,7 +76,8 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     ``options.reference_repairings``); the last of them solves to ``options.max_iterations``, the others
     stop after ``options.repair_iterations``. ``condition``: report the
     condition number of the final normal equations (a Jacobian and an eigendecomposition more: a live
-    update, which reports no stage, skips it).
+    update, which reports no stage, skips it). ``press``: each touch's expected ``cop_skin`` row at the true
+    skin (:func:`~nao_skin.calibration.press.press_offsets`), subtracted from the rows.
     """
     t0 = time.perf_counter()
     name = f"{step.name}: {'+'.join(sorted(levels, key=['mount', 'patch', 'triangle', KINEMATICS].index))}"
@@ -107,7 +108,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     touch_weight = pose_weights(touches, options.pose_weight)
     for repairings in range(1, limit + 1):
         current = layout.to_calibration(x, calib)
-        pairing_all = pair_step(touches, skin, current, step, pair_kinds, options.plane_rows())
+        pairing_all = pair_step(touches, skin, current, step, pair_kinds, options.plane_rows(), press)
         if pairing_all is None:
             raise DataError(f"{name}: no touch pairs the parts {', '.join(parts_in)}")
         pairing = select_rows(pairing_all, kinds, inliers)

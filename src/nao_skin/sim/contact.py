@@ -22,20 +22,10 @@ import numpy as np
 
 from nao_skin import se3
 from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.touch.press import PRESSURE_MAX, contact_frame, nearest_lateral, press_pressure, separation
 
-NEAREST = 96             # taxels per part and touch considered (nearest to the contact, laterally)
-NEIGHBOUR_REACH = 0.008  # lateral distance (m) up to which the other part's nearest taxel stands for its surface
 CHUNK = 256              # touches per vectorised block (bounds memory at ~N * 96 * 96 floats)
-PRESSURE_MAX = 255.0     # skinManager compensated scale
 SPOT_SEPARATION = 0.6    # spot centres at least this times the sum of their radii apart
-
-
-def tangent_basis(normal: np.ndarray):
-    """Two unit vectors spanning the plane orthogonal to each ``(N, 3)`` normal."""
-    helper = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    e1 = np.cross(normal, helper)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    return e1, np.cross(normal, e1)
 
 
 def taxels_in_base(skin: SkinModel, part: str, q: np.ndarray, truth: SkinCalibration):
@@ -66,20 +56,8 @@ def draw_spots(n: int, p, rng: np.random.Generator):
     return centres, radius
 
 
-def _local_frame(points, contact, e1, e2, normal):
-    rel = points - contact[:, None]
-    lat = np.stack([np.einsum("nsk,nk->ns", rel, e1), np.einsum("nsk,nk->ns", rel, e2)], axis=2)
-    return lat, np.einsum("nsk,nk->ns", rel, normal)
-
-
-def _nearest(lat, height, count):
-    """Keep the ``count`` taxels laterally nearest to the contact (per touch), with their columns."""
-    dist = np.linalg.norm(lat, axis=2)
-    count = min(count, dist.shape[1])
-    cols = np.argpartition(dist, count - 1, axis=1)[:, :count]
-    cols.sort(axis=1)
-    take = lambda a: np.take_along_axis(a, cols if a.ndim == 2 else cols[..., None], axis=1)  # noqa: E731
-    return take(lat), take(height), cols
+def _take(a, cols):
+    return np.take_along_axis(a, cols if a.ndim == 2 else cols[..., None], axis=1)
 
 
 def fire(skin: SkinModel, truth: SkinCalibration, hand: str, target: str, q: np.ndarray,
@@ -97,30 +75,22 @@ def fire(skin: SkinModel, truth: SkinCalibration, hand: str, target: str, q: np.
         return empty, empty, empty, np.zeros(0), empty
     centres, radius = draw_spots(n, p, rng)
     reach = rng.uniform(*p.press_reach, size=n)
-    e1, e2 = tangent_basis(normal)
     out = []
     sides = []
     for side, part in enumerate((hand, target)):
         pos, nor, slots = taxels_in_base(skin, part, q, truth)
-        lat, height = _local_frame(pos, contact, e1, e2, normal)
+        lat, height = contact_frame(pos, contact, normal)
         # only the surface facing the other part can stand for it (not the far side of the hand)
         facing = np.einsum("nsk,nk->ns", nor, normal) * (1.0 if side == 1 else -1.0) > 0.0
-        lat_near, height_near, cols = _nearest(lat, height, NEAREST)
-        sides.append((lat_near, height_near, cols, slots, np.take_along_axis(facing, cols, axis=1)))
+        cols = nearest_lateral(lat)
+        sides.append((_take(lat, cols), _take(height, cols), cols, slots, _take(facing, cols)))
     for side in (0, 1):
         lat, height, cols, slots, _ = sides[side]
         o_lat, o_height, _, _, o_facing = sides[1 - side]
         for start in range(0, n, CHUNK):
             sl = slice(start, min(start + CHUNK, n))
             # the other part's surface height under each taxel: its laterally nearest taxel
-            d = np.linalg.norm(lat[sl][:, :, None] - o_lat[sl][:, None], axis=3)
-            d = np.where(o_facing[sl][:, None], d, np.inf)
-            nn = np.argmin(d, axis=2)
-            near = np.take_along_axis(d, nn[..., None], axis=2)[..., 0] <= NEIGHBOUR_REACH
-            other = np.take_along_axis(o_height[sl], nn, axis=1)
-            own = height[sl]
-            sep = np.where(side == 0, own - other, other - own)
-            sep = np.where(near, sep, 2.0 * np.abs(own))   # no taxel of the other part there: mirror image
+            sep, _ = separation(lat[sl], height[sl], o_lat[sl], o_height[sl], o_facing[sl], touched=side == 1)
             # under which spot, and how central
             sd = np.linalg.norm(lat[sl][:, :, None] - centres[sl][:, None], axis=3)
             rad = radius[sl][:, None]
@@ -131,8 +101,7 @@ def fire(skin: SkinModel, truth: SkinCalibration, hand: str, target: str, q: np.
             depth = 1.0 - slack / reach[sl, None]
             firing = (central > 0) & (depth > 0)
             t, s = np.nonzero(firing)
-            pressure = np.clip(PRESSURE_MAX * np.minimum(depth[t, s], 1.0) * (0.3 + 0.7 * central[t, s]),
-                               1.0, PRESSURE_MAX)
+            pressure = press_pressure(depth[t, s], central[t, s])
             out.append((t + start, np.full(len(t), side), slots[cols[sl][t, s]], np.round(pressure), spot[t, s]))
     touch, side, slot, pressure, event = (np.concatenate(a) for a in zip(*out))
     order = np.lexsort((slot, side, touch))
