@@ -8,7 +8,7 @@ import pytest
 from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.calibration.evaluation import truth_error
 from nao_skin.calibration.layout import ParameterLayout
-from nao_skin.calibration.pairing import KIND_COP, KIND_COP_SKIN, chain_end_poses, pair_touches
+from nao_skin.calibration.pairing import KIND_COP, KIND_COP_SKIN, chain_end_poses, pair_touches, robot_joints
 from nao_skin.calibration.press import press_offsets
 from nao_skin.calibration.residuals import ResidualModel
 from nao_skin.errors import DataError
@@ -85,3 +85,18 @@ def test_calibrating_with_the_press_model_comes_closer_to_the_truth(skin):
 def test_an_unknown_press_model_is_refused_in_one_line():
     with pytest.raises(DataError, match="press_model='sometimes'"):
         CalibrationOptions.from_mapping({"press_model": "sometimes"})
+
+
+def test_the_kinematic_path_is_run_again_on_the_rows_less_their_expectation(skin):
+    """kinematics=on: the press model's expectations are taken at the kinematic path's calibration (on the robot
+    it describes) and the path runs again on them; the arm's unknowns come closer to the truth with the skin."""
+    sim = simulate(skin, load_params("kinematic-error", {"n_touches": 200}), seed=1)
+    touches, _ = deduplicate(sim.touches)
+    worst = {}
+    for mode in (False, True):
+        result = calibrate(touches, skin, CalibrationOptions(kinematics="on", press_model=mode), truth=sim.truth)
+        error = truth_error(skin, result.calibration, sim.truth, result.report.parts,
+                            robot_joints(result.train, skin))
+        worst[mode] = max(error[p]["median"] for p in result.report.parts)
+    # measured: 1.253 mm off, 0.863 mm with the press model (seeds 0-5: 0.798 against 0.642 on average)
+    assert worst[True] < 0.85 * worst[False]

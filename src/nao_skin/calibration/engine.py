@@ -204,20 +204,23 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
                                                 truth, say, measure=not warm, anchor=anchor,
                                                 warm=warm_step, refined=refined))
 
-    run(schedule, fit)
+    def run_all(fit, label=""):
+        run(schedule, fit, label)
+        if options.kinematics != "off":
+            report.kinematics = _fit_kinematics(train, test, skin, steps, schedule, start, options, fit, truth, say,
+                                                report)
+
+    run_all(fit)
     if options.press_model and not warm:
-        # the whole plan again, from the start: the rows' expectations at the calibration just reached are a fixed
-        # part of each row (run from the joint refinement on only, it loses on the real recording:
-        # docs/decisions.md, "The press model's expectation")
+        # the whole plan again, from the start: the rows' expectations at the calibration just reached (on the
+        # robot it describes) are a fixed part of each row (run from the joint refinement on only, it loses on
+        # the real recording: docs/decisions.md, "The press model's expectation")
         t0 = time.perf_counter()
         press = press_offsets(train, skin, fit.calibration, fit.fabric, tuple(report.parts))
         say(f"press model: the rows' expectations at this calibration ({time.perf_counter() - t0:.2f} s)")
         fit = _Fit(start, options.fabric_thickness, initial_prior_sigma(options), np.ones(train.n_touches, bool),
                    truth_poses=fit.truth_poses, press=press)
-        run(schedule, fit, "press model: ")
-    if options.kinematics != "off":
-        report.kinematics = _fit_kinematics(train, test, skin, steps, schedule, start, options, fit, truth, say,
-                                            report)
+        run_all(fit, "press model: ")
     report.final = _final_figures(train, test, skin, steps, options, fit, truth, explained_too=not warm)
     _kept_apart(train, skin, steps, fit, report.final)
     posterior = _predicted(train, skin, steps, options, fit, report, say)
@@ -459,7 +462,7 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     # "Kinematics"). So a path of its own: the mounts alone (first guesses, the plan at mount level), then
     # the kinematics with every mount, the patches and triangles still at their prior.
     kfit = _Fit(start.copy(), options.fabric_thickness, initial_prior_sigma(options), fit.inliers.copy(),
-                list(fit.set_aside))
+                list(fit.set_aside), press=fit.press)
     entries = []
     refined = _refines(schedule)
     for round_no, st, stage_prefix in schedule:
