@@ -9,7 +9,7 @@ from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.calibration.evaluation import truth_error
 from nao_skin.calibration.layout import ParameterLayout
 from nao_skin.calibration.pairing import KIND_COP, KIND_COP_SKIN, chain_end_poses, pair_touches, robot_joints
-from nao_skin.calibration.press import press_offsets
+from nao_skin.calibration.press import expected_cop_difference, press_offsets
 from nao_skin.calibration.residuals import ResidualModel
 from nao_skin.errors import DataError
 from nao_skin.sim.params import load_params
@@ -26,7 +26,8 @@ def _residuals(skin, touches, pairing, calib, fabric):
 
 def test_the_press_model_expects_most_of_a_cop_row_at_the_true_skin(skin, ideal_sim):
     """No noise: at the true skin a COP row is a millimetre long (two parts sample the pressed spot at their own
-    taxels); the press model, knowing only the calibration and the two COPs, predicts a good part of it."""
+    taxels); the press model, knowing only the calibration, the two COPs and which taxels other contacts of the
+    touch fired, predicts a good part of it."""
     touches, truth = ideal_sim.touches, ideal_sim.truth
     fabric = load_params("ideal").fabric_thickness
     press = press_offsets(touches, skin, truth, fabric, touches.part_names)
@@ -35,8 +36,8 @@ def test_the_press_model_expects_most_of_a_cop_row_at_the_true_skin(skin, ideal_
     fitted = _residuals(skin, touches, pair_touches(touches, skin, truth, ("cop_skin",), press=press), truth, fabric)
     row = np.median(np.linalg.norm(raw, axis=1))
     assert row > 5e-4
-    # measured: 1.02 mm, 0.73 mm less the expectation
-    assert np.median(np.linalg.norm(fitted, axis=1)) < 0.8 * row
+    # measured: 1.02 mm, 0.55 mm less the expectation (0.73 mm without leaving out what other contacts fired)
+    assert np.median(np.linalg.norm(fitted, axis=1)) < 0.65 * row
 
 
 def test_a_row_carries_its_touchs_expectation_and_its_residual_is_less_by_it(skin, ideal_sim):
@@ -98,5 +99,35 @@ def test_the_kinematic_path_is_run_again_on_the_rows_less_their_expectation(skin
         error = truth_error(skin, result.calibration, sim.truth, result.report.parts,
                             robot_joints(result.train, skin))
         worst[mode] = max(error[p]["median"] for p in result.report.parts)
-    # measured: 1.253 mm off, 0.863 mm with the press model (seeds 0-5: 0.798 against 0.642 on average)
+    # measured: 1.253 mm off, 0.891 mm with the press model (seeds 0-5: 0.798 against 0.626 on average)
     assert worst[True] < 0.85 * worst[False]
+
+
+def _flat_skins(fabric=0.001, pitch=0.005, offset=(0.002, 0.001)):
+    """Two flat lattices facing each other across two fabrics at the origin: the hand above (normals down), the
+    touched part below (normals up), the touched lattice offset sideways; one row."""
+    g = np.arange(-6, 7) * pitch
+    x, y = np.meshgrid(g, g)
+    grid = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    hand = grid + [0.0, 0.0, 2.0 * fabric]
+    touched = grid + [offset[0], offset[1], 0.0]
+    down, up = np.tile([0.0, 0.0, -1.0], (len(grid), 1)), np.tile([0.0, 0.0, 1.0], (len(grid), 1))
+    return (hand[None], down[None]), (touched[None], up[None])
+
+
+def test_two_flat_skins_pressed_together_are_expected_to_meet_and_another_contacts_taxels_are_not_this_ones():
+    hand, touched = _flat_skins()
+    contact, normal = np.array([[0.0, 0.0, 0.001]]), np.array([[0.0, 0.0, 1.0]])
+    both = expected_cop_difference(hand, touched, contact, normal, 0.001)
+    # flat skins at the fabrics' gap: the lifted surfaces meet, and a spot centred between them is sampled
+    # evenly by both lattices (within the lattices' offset)
+    assert abs(both[0, 2]) < 1e-9
+    assert np.linalg.norm(both[0, :2]) < 0.001
+    # the hand's taxels on the +x side fired in another contact: the row's spot did not press them, its
+    # expected COP on the hand lies on the -x side
+    elsewhere = hand[0][0][:, 0] > 0.0
+    moved = expected_cop_difference((*hand, elsewhere[None]), touched, contact, normal, 0.001)
+    assert moved[0, 0] < both[0, 0] - 0.002
+    # the hand held 1 mm off the touched skin by the calibration: the expectation is taken with the skins touching
+    apart = expected_cop_difference((hand[0] + [0.0, 0.0, 0.001], hand[1]), touched, contact, normal, 0.001)
+    np.testing.assert_allclose(apart, both, atol=1e-12)

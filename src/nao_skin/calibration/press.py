@@ -49,26 +49,28 @@ def expected_cop_difference(hand: tuple, touched: tuple, contact: np.ndarray, no
     taxels with the other's skin beside them (within ``lateral`` in the contact plane; the whole fired area
     where none is), every taxel lifted by ``fabric`` along its normal, as the COP rows measure them.
 
-    ``hand``, ``touched``: ``(positions, normals)``, each ``(R, S, 3)`` in the base frame, every taxel of
-    the part at each row's pose; ``contact`` ``(R, 3)`` the spot's centre; ``normal`` ``(R, 3)`` the touched
-    part's outward normal. The expectation is the ratio of the expected pressure-weighted sums over the
-    grid of spot radii and reaches (``model``)."""
+    ``hand``, ``touched``: ``(positions, normals[, elsewhere])``, positions and normals ``(R, S, 3)`` in the
+    base frame, every taxel of the part at each row's pose, ``elsewhere`` ``(R, S)`` the taxels another
+    contact of the touch fired (another spot pressed them: not this one's); ``contact`` ``(R, 3)`` the
+    spot's centre; ``normal`` ``(R, 3)`` the touched part's outward normal. The expectation is the ratio of
+    the expected pressure-weighted sums over the grid of spot radii and reaches (``model``)."""
     out = np.zeros((len(contact), 3))
     radii, reaches = model.radii(), model.reaches()
     for start in range(0, len(contact), CHUNK):
         sl = slice(start, min(start + CHUNK, len(contact)))
         sides = []
-        for is_touched, (pos, nor) in enumerate((hand, touched)):
-            pos, nor = pos[sl], nor[sl]
+        for is_touched, cloud in enumerate((hand, touched)):
+            pos, nor = cloud[0][sl], cloud[1][sl]
+            free = np.ones(pos.shape[:2], bool) if len(cloud) < 3 else ~cloud[2][sl]
             lat, height = contact_frame(pos, contact[sl], normal[sl])
             facing = np.einsum("nsk,nk->ns", nor, normal[sl]) * (1.0 if is_touched else -1.0) > 0.0
             cols = nearest_lateral(lat, NEAREST)
             sides.append([_take(lat, cols), _take(height, cols), _take(facing, cols),
-                          _take(pos + fabric * nor, cols)])
+                          _take(pos + fabric * nor, cols), _take(free, cols)])
         # the skins as they touch: the hand moved along the normal until its facing taxel nearest the
         # contact lies two fabrics above the touched part's (the calibration may hold them apart)
         surface = []
-        for lat, height, facing, _ in sides:
+        for lat, height, facing, *_ in sides:
             nearest = np.argmin(np.where(facing, np.linalg.norm(lat, axis=2), np.inf), axis=1)
             surface.append(np.take_along_axis(height, nearest[:, None], axis=1)[:, 0])
         shift = 2.0 * fabric - (surface[0] - surface[1])
@@ -76,8 +78,8 @@ def expected_cop_difference(hand: tuple, touched: tuple, contact: np.ndarray, no
         sides[0][3] = sides[0][3] + shift[:, None, None] * normal[sl][:, None]
         cops = []
         for is_touched in (0, 1):
-            lat, height, _, lifted = sides[is_touched]
-            o_lat, o_height, o_facing, _ = sides[1 - is_touched]
+            lat, height, _, lifted, free_c = sides[is_touched]
+            o_lat, o_height, o_facing, _, _ = sides[1 - is_touched]
             sep, dist = separation(lat, height, o_lat, o_height, o_facing, touched=bool(is_touched))
             slack = sep - 2.0 * fabric
             centre = np.linalg.norm(lat, axis=2)
@@ -87,12 +89,29 @@ def expected_cop_difference(hand: tuple, touched: tuple, contact: np.ndarray, no
                 for reach in reaches:
                     depth = 1.0 - slack / reach
                     weight += np.where((central > 0) & (depth > 0), press_pressure(depth, central), 0.0)
-            beside = weight * (dist <= lateral)
+            near_ok = dist <= lateral
+            weight = weight * free_c       # a taxel another contact of the touch fired is another spot's
+            beside = weight * near_ok
             weight = np.where((beside.sum(axis=1) > 0)[:, None], beside, weight)
             total = weight.sum(axis=1)
             cops.append(np.einsum("ns,nsk->nk", weight, lifted) / np.where(total > 0, total, 1.0)[:, None])
         out[sl] = cops[0] - cops[1]
     return out
+
+
+def _fired_elsewhere(touches: TouchSet, pairing, rows: np.ndarray, part: int, slots: np.ndarray) -> np.ndarray:
+    """``(len(rows), len(slots))``: which of the part's taxels fired in the row's touch but are not among the
+    row's terms: another contact's, another spot's, which the row's spot did not press."""
+    fired = np.zeros((len(rows), int(slots.max()) + 1), bool)
+    where = np.full(pairing.n_rows, -1)
+    where[rows] = np.arange(len(rows))
+    in_touch = np.full(touches.n_touches, -1)
+    in_touch[pairing.row_touch[rows]] = np.arange(len(rows))
+    mine = (touches.act_part == part) & (in_touch[touches.act_touch] >= 0)
+    fired[in_touch[touches.act_touch[mine]], touches.act_slot[mine]] = True
+    terms = np.flatnonzero((pairing.term_part == part) & (where[pairing.term_row] >= 0))
+    fired[where[pairing.term_row[terms]], pairing.term_slot[terms]] = False
+    return fired[:, slots]
 
 
 def press_offsets(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, fabric: float, parts: tuple,
@@ -135,7 +154,8 @@ def press_offsets(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, fa
             pos, nor = skin.part(names[p]).taxel_positions(calib.parts.get(names[p]))
             slots = skin.part(names[p]).slots
             fk = poses(names[p])[touch][:, None]
-            clouds.append((se3.transform_points(fk, pos[slots][None]), se3.rotate_vectors(fk, nor[slots][None])))
+            clouds.append((se3.transform_points(fk, pos[slots][None]), se3.rotate_vectors(fk, nor[slots][None]),
+                           _fired_elsewhere(touches, pairing, rows, p, slots)))
         table = np.full((touches.n_touches, 3), np.nan)
         table[touch] = expected_cop_difference(clouds[0], clouds[1], 0.5 * (side[0, rows] + side[1, rows]),
                                                normal[rows], fabric, model)
