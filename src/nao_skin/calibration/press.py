@@ -3,15 +3,15 @@
 A COP row (``cop_skin``) compares the centroids of two fired areas, and at the true skin they do not
 coincide: each part samples the pressed spot at its own taxels, the hand's skin curves away from the
 touched surface, the pressure falls off differently on the two sides. Measured on the simulator (seed 0,
-250 touches per pair, no noise): 0.78 of a row's 1.0 mm (median) at the true skin is fixed by the pose,
-the same over every draw of the press's spots, and it moves the calibration (docs/decisions.md, "The
-press model's expectation").
+250 touches per pair, no noise): a row is 1.09 mm long at the true skin (median), and its mean over
+redraws of the press's spots at the same poses 0.78 mm: most of it is fixed by the pose, and it moves the
+calibration (docs/decisions.md, "The press model's expectation").
 
 :func:`press_offsets` predicts that part for every touch, at a calibration: a spot centred between the
 row's two COPs, its radius and the press's reach averaged over :class:`~nao_skin.touch.press.PressModel`,
 the hand moved along the touched part's normal until the two skins touch there, each taxel fired by the
-simulator's rule (:mod:`nao_skin.touch.press`). The rows then fit the COP difference minus that
-expectation (:attr:`~nao_skin.calibration.pairing.Pairing.row_offset`).
+simulator's rule (:mod:`nao_skin.touch.press`) unless another contact of the touch fired it. The rows then
+fit the COP difference minus that expectation (:attr:`~nao_skin.calibration.pairing.Pairing.row_offset`).
 """
 from __future__ import annotations
 
@@ -89,9 +89,8 @@ def expected_cop_difference(hand: tuple, touched: tuple, contact: np.ndarray, no
                 for reach in reaches:
                     depth = 1.0 - slack / reach
                     weight += np.where((central > 0) & (depth > 0), press_pressure(depth, central), 0.0)
-            near_ok = dist <= lateral
             weight = weight * free_c       # a taxel another contact of the touch fired is another spot's
-            beside = weight * near_ok
+            beside = weight * (dist <= lateral)
             weight = np.where((beside.sum(axis=1) > 0)[:, None], beside, weight)
             total = weight.sum(axis=1)
             cops.append(np.einsum("ns,nsk->nk", weight, lifted) / np.where(total > 0, total, 1.0)[:, None])
@@ -99,10 +98,12 @@ def expected_cop_difference(hand: tuple, touched: tuple, contact: np.ndarray, no
     return out
 
 
-def _fired_elsewhere(touches: TouchSet, pairing, rows: np.ndarray, part: int, slots: np.ndarray) -> np.ndarray:
-    """``(len(rows), len(slots))``: which of the part's taxels fired in the row's touch but are not among the
-    row's terms: another contact's, another spot's, which the row's spot did not press."""
-    fired = np.zeros((len(rows), int(slots.max()) + 1), bool)
+def _fired_elsewhere(touches: TouchSet, pairing, rows: np.ndarray, part: int, n_slots: int,
+                     slots: np.ndarray) -> np.ndarray:
+    """``(len(rows), len(slots))``: which of the part's taxels (``slots`` of its ``n_slots``) fired in the row's
+    touch but are not among the row's terms: another contact's, another spot's, which the row's spot did not
+    press. One row per touch (``rows``: one part pair's)."""
+    fired = np.zeros((len(rows), n_slots), bool)
     where = np.full(pairing.n_rows, -1)
     where[rows] = np.arange(len(rows))
     in_touch = np.full(touches.n_touches, -1)
@@ -151,11 +152,12 @@ def press_offsets(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, fa
         touch = pairing.row_touch[rows]
         clouds = []
         for p in (pa, pb):
-            pos, nor = skin.part(names[p]).taxel_positions(calib.parts.get(names[p]))
-            slots = skin.part(names[p]).slots
+            part = skin.part(names[p])
+            pos, nor = part.taxel_positions(calib.parts.get(names[p]))
             fk = poses(names[p])[touch][:, None]
-            clouds.append((se3.transform_points(fk, pos[slots][None]), se3.rotate_vectors(fk, nor[slots][None]),
-                           _fired_elsewhere(touches, pairing, rows, p, slots)))
+            clouds.append((se3.transform_points(fk, pos[part.slots][None]),
+                           se3.rotate_vectors(fk, nor[part.slots][None]),
+                           _fired_elsewhere(touches, pairing, rows, p, part.n_slots, part.slots)))
         table = np.full((touches.n_touches, 3), np.nan)
         table[touch] = expected_cop_difference(clouds[0], clouds[1], 0.5 * (side[0, rows] + side[1, rows]),
                                                normal[rows], fabric, model)
