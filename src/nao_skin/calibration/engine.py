@@ -218,7 +218,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
         t0 = time.perf_counter()
         press = press_offsets(train, skin, fit.calibration, fit.fabric, tuple(report.parts))
         say(f"press model: the rows' expectations at this calibration ({time.perf_counter() - t0:.2f} s)")
-        fit = _Fit(start, options.fabric_thickness, initial_prior_sigma(options), np.ones(train.n_touches, bool),
+        fit = _Fit(start.copy(), options.fabric_thickness, initial_prior_sigma(options), np.ones(train.n_touches, bool),
                    truth_poses=fit.truth_poses, press=press)
         run_all(fit, "press model: ")
     report.final = _final_figures(train, test, skin, steps, options, fit, truth, explained_too=not warm)

@@ -185,7 +185,7 @@ class CalibrationOptions:
     joint_refinement: bool = option(True, Rule(bool), "finish with every part free at once")
     # a COP row is not zero at the true skin: the two parts sample the pressed spot at their own taxels; the press
     # model predicts that part at the calibration reached, and the plan is run again on the rows less it
-    # (docs/method.md, "The press model")
+    # (docs/method.md, "The contact model")
     press_model: bool = option(False, Rule(bool), "calibrate again, fitting the COP rows less what the simulator's"
                                                   " press model expects of them at the calibration first reached")
     # a constant mount correction cannot absorb a joint-angle offset or a link length upstream of it
