@@ -18,9 +18,6 @@
    exit code and output stay as they were.
 8. A session stopped with Ctrl-C while its simulated robot plays: the robot's
    last status says stopped, with the touches played, not done.
-9. A recorder held by the machine (SIGSTOP) while a touch was pressed and
-   stopped before it read it: it reads on what was sent before the signal, and
-   the touch is in the bag.
 
 Node processes are found by the pids record prints on stderr and checked
 by their command line in /proc, so no other test's process is matched.
@@ -425,65 +422,3 @@ def test_a_simulated_robot_stopped_part_way_says_stopped_not_done(tmp_path):
     last = sim[-1]
     assert last["done"] is False and last.get("stopped") is True, last
     assert 2 <= last["played"] < last["total"], last
-
-
-def test_a_touch_still_queued_for_a_stopped_recorder_is_recorded(tmp_path):
-    """9. The machine held the recorder while a touch was pressed (SIGSTOP) and Ctrl-C came before it read
-    the touch: the recorder reads on what was sent to it before the signal, and the touch is in the bag (it
-    stopped reading at once before: an empty bag)."""
-    from sensor_msgs.msg import JointState, PointCloud2
-
-    from nao_skin.formats.bag import touch_parts
-    from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, contacts_array, contacts_topic, taxels_array,
-                                             taxels_topic)
-    from nao_skin.nodes.messages import cloud_from_array, joint_state_msg, stamp_to_msg
-    from nao_skin.sim.params import load_params
-    from nao_skin.sim.simulate import simulate
-
-    skin = load_skin()
-    sim = simulate(skin, load_params("ideal", {"pairs": [["l_hand", "torso"]], "n_touches": 1}), seed=3)
-    pressed = touch_parts(sim.touches, skin)[0]
-    domain = unique_domain_id()
-    bag = tmp_path / "touches"
-    listener = recorder = None
-    try:
-        listener = Listener(domain)
-        progress = listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))
-        recorder = node_process("pairing_recorder", {"bag_path": str(bag)}, ros_env(domain), tmp_path,
-                                params_file=ROOT / "config" / "record.yaml")
-        node = listener.node
-        joints = node.create_publisher(JointState, JOINT_STATES_TOPIC, 500)
-        taxels = {p: node.create_publisher(PointCloud2, taxels_topic(p), 500) for p in ("l_hand", "torso")}
-        contacts = {p: node.create_publisher(PointCloud2, contacts_topic(p), 500) for p in ("l_hand", "torso")}
-        names, q = list(sim.touches.joint_names), sim.touches.joints[0]
-        released = {p: (taxels_array(np.zeros(0, int), np.zeros((0, 3))), contacts_array(np.zeros(0, int), np.zeros((0, 3))))
-                    for p in taxels}
-
-        def publish(seconds: float, skin_now: dict) -> None:
-            end = time.monotonic() + seconds
-            while time.monotonic() < end:
-                stamp = stamp_to_msg(time.time())
-                joints.publish(joint_state_msg(names, q, stamp))
-                for part in taxels:
-                    points, cops = skin_now.get(part, released[part])
-                    frame = skin.parts[part].parent_frame
-                    contacts[part].publish(cloud_from_array(cops, frame, stamp))
-                    taxels[part].publish(cloud_from_array(points, frame, stamp))
-                listener.spin_for(0.02)
-
-        assert listener.spin_until(lambda: len(progress) >= 1, timeout=60, procs=[recorder]), "recorder did not start"
-        publish(1.0, {})                                     # joint states and released skin: no touch yet
-        recorder.popen.send_signal(signal.SIGSTOP)
-        publish(0.5, {part.name: (points, cops) for part, points, cops in pressed})
-        publish(0.5, {})                                     # released, the arm held
-        recorder.popen.send_signal(signal.SIGINT)
-        recorder.popen.send_signal(signal.SIGCONT)
-        code = recorder.popen.wait(timeout=30)
-    finally:
-        if listener is not None:
-            listener.close()
-        if recorder is not None:
-            recorder.stop()
-    assert code == 0, recorder.stderr()[-2000:]
-    got, _ = read_touches(bag, skin)
-    assert got.n_touches == 1, recorder.stderr()[-2000:]

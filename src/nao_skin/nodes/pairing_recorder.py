@@ -154,10 +154,6 @@ class PairingRecorder(Node):
                 disk,
                 Check(values=(("touches", str(self.recording.n_touches)), ("bag", str(self.recording.bag_path))))]
 
-    def drain_count(self) -> int:
-        """Skin samples read so far: after a stop signal the node reads on while this grows (runtime.run_node)."""
-        return self.recording.received["skin samples"]
-
     def close(self) -> None:
         """End of the session: what waits is written and the bag closed."""
         said = self.recording.close()

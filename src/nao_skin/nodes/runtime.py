@@ -17,7 +17,6 @@ import re
 import signal
 import sys
 import threading
-import time
 from collections import Counter
 
 import rclpy
@@ -33,11 +32,6 @@ from nao_skin.session.params import rule_range
 from nao_skin.session.record import PARENT_ENV
 
 MAX_LOGGED_FAILURES = 5   # callback errors of one kind logged one by one (then every 100th)
-# after a stop signal a node that counts what it reads (``drain_count``) goes on taking what was sent before
-# the signal until nothing new came for DRAIN_QUIET_S, DRAIN_MAX_S at most: on a busy machine the recorder
-# runs behind its topics, and the touch pressed just before Ctrl-C still waits in its subscriptions
-DRAIN_QUIET_S = 0.3
-DRAIN_MAX_S = 3.0
 
 def declare(node, params: dict, changeable=(), on_change=None) -> dict:
     """Declare ``{name: (default, description[, rule])}`` and return ``{name: value}``.
@@ -267,12 +261,12 @@ def _parent_gone():
     return gone
 
 
-def _spin_once(executor, node, failures: Counter, timeout: float = 0.1) -> None:
+def _spin_once(executor, node, failures: Counter) -> None:
     """One turn of the executor. Any other error of a callback (a request rclpy's own parameter service
     cannot parse, a bug) is said in a line and skipped: a node that ended for it would end the whole
     recording session for one bad message. The first few of each kind are logged, then every 100th."""
     try:
-        executor.spin_once(timeout_sec=timeout)
+        executor.spin_once(timeout_sec=0.1)
     except (ExternalShutdownException, NaoSkinError):
         raise
     except Exception as exc:     # noqa: BLE001 - whatever a callback raised, the node goes on
@@ -282,19 +276,6 @@ def _spin_once(executor, node, failures: Counter, timeout: float = 0.1) -> None:
         if n <= MAX_LOGGED_FAILURES or n % 100 == 0:
             node.get_logger().error(f"a callback failed and was skipped ({kind}: {exc}); the node goes on"
                                     + (f" ({n} so far)" if n > 1 else ""))
-
-
-def _drain(executor, node, failures: Counter) -> None:
-    """Spin on after a stop signal while ``node.drain_count()`` grows (see :data:`DRAIN_QUIET_S`)."""
-    count = getattr(node, "drain_count", None)
-    if count is None:
-        return
-    start = quiet_since = time.monotonic()
-    last = count()
-    while time.monotonic() - quiet_since < DRAIN_QUIET_S and time.monotonic() - start < DRAIN_MAX_S:
-        _spin_once(executor, node, failures, timeout=0.05)
-        if count() != last:
-            last, quiet_since = count(), time.monotonic()
 
 
 class _StoppedWhileStarting(Exception):
@@ -353,8 +334,6 @@ def run_node(factory, args=None, interruptible_start: bool = False) -> int:
                 if parent_gone is not None and parent_gone():
                     node.get_logger().warning(f"nao-skin record (pid {os.environ[PARENT_ENV]}) is gone; stopping")
                     break
-            if rclpy.ok():
-                _drain(executor, node, failures)
         except ExternalShutdownException:
             pass
         except NaoSkinError as exc:      # a callback that cannot go on (e.g. its disk is full) said why
