@@ -1,13 +1,20 @@
 """Fixtures shared by the test files: the default skin and the real recording (see real_data.py: it is not in
 the repository; a test that asks for it skips without it, and fails under CI=true)."""
+import os
 import sys
 
-import pytest
-import real_data
+# Two test workers share the two cores with the nodes their sessions start (those inherit this): a
+# calibration's OpenBLAS threads (one per core, spinning while they wait) in one worker can take both cores
+# from the other's recorder, which then falls behind its topics. One BLAS thread per process.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
-from nao_skin.formats.legacy import read_legacy
-from nao_skin.model.skin import SkinModel, load_skin
-from nao_skin.paths import default_skin_config
+import pytest  # noqa: E402
+import real_data  # noqa: E402
+
+from nao_skin.formats.legacy import read_legacy  # noqa: E402
+from nao_skin.model.skin import SkinModel, load_skin  # noqa: E402
+from nao_skin.paths import default_skin_config  # noqa: E402
 
 
 @pytest.fixture(scope="session")
