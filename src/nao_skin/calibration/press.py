@@ -28,8 +28,8 @@ from nao_skin.calibration.plan import Step
 from nao_skin.calibration.residuals import ResidualModel
 from nao_skin.calibration.rows import pair_step, select_rows
 from nao_skin.model.skin import SkinCalibration, SkinModel
-from nao_skin.touch.press import (PressModel, contact_frame, nearest_lateral, press_pressure,
-                                  separation)
+from nao_skin.touch.press import (PressModel, contact_frame, nearest_lateral, press_pressure, separation,
+                                  take_columns)
 from nao_skin.touch.touches import TouchSet
 
 CHUNK = 128    # rows per vectorised block (bounds memory at ~CHUNK * NEAREST**2 floats)
@@ -37,10 +37,6 @@ CHUNK = 128    # rows per vectorised block (bounds memory at ~CHUNK * NEAREST**2
 # (13 mm at most), and a part's surface within 8 mm of those is what their separation is measured to.
 # Measured on the simulator: the same expectations as with the simulator's 96, in half the time
 NEAREST = 64
-
-
-def _take(a: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    return np.take_along_axis(a, cols if a.ndim == 2 else cols[..., None], axis=1)
 
 
 def expected_cop_difference(hand: tuple, touched: tuple, contact: np.ndarray, normal: np.ndarray, fabric: float,
@@ -65,8 +61,8 @@ def expected_cop_difference(hand: tuple, touched: tuple, contact: np.ndarray, no
             lat, height = contact_frame(pos, contact[sl], normal[sl])
             facing = np.einsum("nsk,nk->ns", nor, normal[sl]) * (1.0 if is_touched else -1.0) > 0.0
             cols = nearest_lateral(lat, NEAREST)
-            sides.append([_take(lat, cols), _take(height, cols), _take(facing, cols),
-                          _take(pos + fabric * nor, cols), _take(free, cols)])
+            sides.append([take_columns(lat, cols), take_columns(height, cols), take_columns(facing, cols),
+                          take_columns(pos + fabric * nor, cols), take_columns(free, cols)])
         # the skins as they touch: the hand moved along the normal until its facing taxel nearest the
         # contact lies two fabrics above the touched part's (the calibration may hold them apart)
         surface = []

@@ -22,7 +22,8 @@ import numpy as np
 
 from nao_skin import se3
 from nao_skin.model.skin import SkinCalibration, SkinModel
-from nao_skin.touch.press import PRESSURE_MAX, contact_frame, nearest_lateral, press_pressure, separation
+from nao_skin.touch.press import (PRESSURE_MAX, contact_frame, nearest_lateral, press_pressure, separation,
+                                  take_columns)
 
 CHUNK = 256              # touches per vectorised block (bounds memory at ~N * 96 * 96 floats)
 SPOT_SEPARATION = 0.6    # spot centres at least this times the sum of their radii apart
@@ -56,10 +57,6 @@ def draw_spots(n: int, p, rng: np.random.Generator):
     return centres, radius
 
 
-def _take(a, cols):
-    return np.take_along_axis(a, cols if a.ndim == 2 else cols[..., None], axis=1)
-
-
 def fire(skin: SkinModel, truth: SkinCalibration, hand: str, target: str, q: np.ndarray,
          contact: np.ndarray, normal: np.ndarray, gap: np.ndarray, p, rng: np.random.Generator):
     """Activations of both parts for N touches (true joints ``q``, true skin).
@@ -83,7 +80,7 @@ def fire(skin: SkinModel, truth: SkinCalibration, hand: str, target: str, q: np.
         # only the surface facing the other part can stand for it (not the far side of the hand)
         facing = np.einsum("nsk,nk->ns", nor, normal) * (1.0 if side == 1 else -1.0) > 0.0
         cols = nearest_lateral(lat)
-        sides.append((_take(lat, cols), _take(height, cols), cols, slots, _take(facing, cols)))
+        sides.append((take_columns(lat, cols), take_columns(height, cols), cols, slots, take_columns(facing, cols)))
     for side in (0, 1):
         lat, height, cols, slots, _ = sides[side]
         o_lat, o_height, _, _, o_facing = sides[1 - side]

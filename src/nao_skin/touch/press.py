@@ -70,6 +70,11 @@ def nearest_lateral(lat: np.ndarray, count: int = NEAREST) -> np.ndarray:
     return cols
 
 
+def take_columns(a: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``a`` ``(N, S[, k])`` at the per-touch columns ``cols`` ``(N, C)`` (e.g. :func:`nearest_lateral`'s)."""
+    return np.take_along_axis(a, cols if a.ndim == 2 else cols[..., None], axis=1)
+
+
 def separation(lat: np.ndarray, height: np.ndarray, o_lat: np.ndarray, o_height: np.ndarray,
                o_facing: np.ndarray, touched: bool) -> tuple:
     """``(separation, lateral distance)`` of each point ``(N, S)`` from the other part's surface: the
