@@ -315,7 +315,8 @@ def test_a_bench_that_does_not_run_every_section_of_a_readme_block_leaves_the_re
     # the bundled 4000 touches: seconds of calibration after its first progress line
     (["calibrate", str(package_dir() / "bags" / "sim_default"), "--out", "cal", "--no-plots", "--force"],
      "first guess", signal.SIGTERM),
-    (["simulate", "--touches-per-pair", "300", "--out", "cal", "--force"], None, signal.SIGTERM),   # ~20 s
+    # ~12 s of simulating after its handlers are in place, and no line until the end
+    (["simulate", "--touches-per-pair", "1000", "--out", "cal", "--force"], None, signal.SIGTERM),
     # the terminal closed (an ssh session dropped): Python's default for SIGHUP skipped every cleanup too
     (["calibrate", str(package_dir() / "bags" / "sim_default"), "--out", "cal", "--no-plots", "--force"],
      "first guess", signal.SIGHUP),
@@ -336,7 +337,7 @@ def test_a_kill_mid_run_keeps_the_earlier_output_and_leaves_nothing_half_written
                 if started in line:
                     break
         else:
-            time.sleep(4.0)
+            _wait_until_it_catches(proc, stop)
         assert proc.poll() is None, "the command ended before the signal: give it more work"
         proc.send_signal(stop)
     finally:
@@ -384,6 +385,19 @@ def test_an_earlier_output_a_kill_left_aside_mid_swap_goes_back_before_anything_
     assert run.returncode == 2 and len(err.splitlines()) == 1, (run.returncode, err)
     assert "holds the outputs of an earlier nao-skin simulate run" in err, err
     assert tree(work / "cal") == earlier and not aside.exists()
+
+
+def _wait_until_it_catches(proc: subprocess.Popen, signum: int) -> None:
+    """Until the process has a handler for ``signum`` (Linux: the caught-signals mask in /proc): the
+    command's own handling, not a fixed sleep that a fast machine outran (the run was over at 4 s) and a
+    busy one may not reach (still importing: the default action, no line)."""
+    bit = 1 << (signum - 1)
+    while proc.poll() is None:
+        with open(f"/proc/{proc.pid}/status") as status:
+            caught = next(int(line.split()[1], 16) for line in status if line.startswith("SigCgt:"))
+        if caught & bit:
+            return
+        time.sleep(0.01)
 
 
 def _ended(proc: subprocess.Popen) -> str:
