@@ -3,9 +3,9 @@ the repository; a test that asks for it skips without it, and fails under CI=tru
 import os
 import sys
 
-# Two test workers share the two cores with the nodes their sessions start (those inherit this): a
-# calibration's OpenBLAS threads (one per core, spinning while they wait) in one worker can take both cores
-# from the other's recorder, which then falls behind its topics. One BLAS thread per process.
+# Two test workers share the two cores with the nodes their sessions start (those inherit this). numpy
+# outside a calibration (which limits itself to one) runs OpenBLAS with a spinning thread per core, so one
+# worker's simulation could take both cores from the other's nodes: one BLAS thread per process.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 

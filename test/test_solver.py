@@ -1,5 +1,4 @@
 """Solver core: analytic Jacobian equals finite differences (point and normal rows); a known correction is recovered."""
-import types
 import warnings
 
 import numpy as np
@@ -7,7 +6,7 @@ import pytest
 
 from nao_skin import se3
 from nao_skin.calibration.layout import ParameterLayout
-from nao_skin.calibration.pairing import KIND_NORMAL
+from nao_skin.calibration.pairing import KIND_NORMAL, Pairing
 from nao_skin.calibration.residuals import ResidualModel
 from nao_skin.calibration.solver import SolveOptions, solve
 from nao_skin.model.skin import load_skin
@@ -30,9 +29,10 @@ def _random_rows(skin, n, rng, normal_rows=0):
         for s in rng.choice(torso, 2, replace=False):
             rows.append(m), parts.append(1), slots.append(s), weights.append(sign / 2)
     kind = np.r_[np.zeros(n, np.int8), np.full(normal_rows, KIND_NORMAL, np.int8)]
-    return types.SimpleNamespace(row_touch=np.r_[np.arange(n), np.arange(normal_rows) % n], row_kind=kind,
-                                 term_row=np.array(rows), term_part=np.array(parts),
-                                 term_slot=np.array(slots), term_weight=np.array(weights))
+    m = n + normal_rows
+    return Pairing(row_touch=np.r_[np.arange(n), np.arange(normal_rows) % n], row_kind=kind,
+                   row_parts=np.tile([0, 1], (m, 1)), term_row=np.array(rows), term_part=np.array(parts),
+                   term_slot=np.array(slots), term_weight=np.array(weights), distance=np.zeros(m))
 
 
 def test_right_jacobian_matches_definition():
@@ -107,9 +107,9 @@ def test_solver_recovers_a_mount_correction(skin):
     slots = rng.choice(hand.slots, n)
     target = skin.taxels_in_base("l_hand", q, truth, slots[:, None])[:, 0]
     # express targets as torso taxels is not possible; use a single-part model and subtract targets
-    pairing = types.SimpleNamespace(row_touch=np.arange(n), row_kind=np.zeros(n, np.int8), term_row=np.arange(n),
-                                    term_part=np.zeros(n, int),
-                                    term_slot=slots, term_weight=np.ones(n))
+    pairing = Pairing(row_touch=np.arange(n), row_kind=np.zeros(n, np.int8), row_parts=np.zeros((n, 2), int),
+                      term_row=np.arange(n), term_part=np.zeros(n, int), term_slot=slots, term_weight=np.ones(n),
+                      distance=np.zeros(n))
     layout = ParameterLayout(skin, ("l_hand",))
     model = ResidualModel(skin, lambda part: skin.chain_poses(part, q), pairing, ("l_hand",), layout, skin.zero_calibration())
     original = model.residuals

@@ -117,12 +117,12 @@ class ResidualModel:
         self._last_jacobian = None   # (key, J): the hold check and the first solve step share it
         # point-to-plane rows count only along their normal: residual and Jacobian rows are projected
         # by n n^T (fixed while the pairing is, as in ICP), so the robust loss sees |n . r|
-        normal = getattr(pairing, "row_normal", None)   # rows built without the field: none projected
+        normal = pairing.row_normal
         self._projected = (np.zeros(0, int) if normal is None
                            else np.flatnonzero(np.all(np.isfinite(normal), axis=1)))
         self._projection_normal = normal[self._projected] if len(self._projected) else None
         # what a row is expected to be at the true skin (the press model's): the residual is the row minus it
-        self._offset = getattr(pairing, "row_offset", None)
+        self._offset = pairing.row_offset
 
     def _row_blocks(self, key: tuple, term_row: np.ndarray, block_rows: np.ndarray):
         """``(first, inverse, n)`` of the unique (row, block) combinations of one group's terms."""

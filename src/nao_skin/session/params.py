@@ -32,9 +32,9 @@ SKIN_PARAMS = {
 }
 
 # the calibration options a calibrate node parameter sets, by the option's own name
-NODE_OPTIONS = ("strategy", "reference", "pairs", "closing_pairs", "press_model", "bounded", "loss", "jacobian", "initial_guess",
-                "gate_mm", "pose_weight", "prior_scale", "estimate_fabric", "fabric_thickness", "test_fraction", "seed",
-                "warm_pairs", "warm_repairings")
+NODE_OPTIONS = ("strategy", "reference", "pairs", "closing_pairs", "press_model", "bounded", "loss", "jacobian",
+                "initial_guess", "gate_mm", "pose_weight", "prior_scale", "estimate_fabric", "fabric_thickness",
+                "test_fraction", "seed", "warm_pairs", "warm_repairings")
 
 DEFAULT_JOINTS = ["HeadYaw", "HeadPitch",
                   "LShoulderPitch", "LShoulderRoll", "LElbowYaw", "LElbowRoll", "LWristYaw",
