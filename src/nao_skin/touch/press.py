@@ -11,7 +11,7 @@ centre (:func:`press_pressure`).
 
 The simulator draws spots, reach and gap per touch (:mod:`nao_skin.sim.contact`); a calibration
 expects a spot centred on the contact with radius and reach uniform over :class:`PressModel`'s
-ranges (:func:`nao_skin.calibration.contact.expected_cop_offsets`).
+ranges (:func:`nao_skin.calibration.press.expected_cop_difference`).
 """
 from __future__ import annotations
 
