@@ -24,7 +24,7 @@ from nao_skin.model.robot import MAX_JOINT_LIMIT
 from nao_skin.nodes.messages import joint_state_msg
 from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.nodes.topics import relative
+from nao_skin.nodes.topics import STREAM_DEPTH, relative
 from nao_skin.rules import finite_float
 from nao_skin.session.params import NAOQI_BRIDGE, changeable_params, check_naoqi_bridge
 
@@ -84,7 +84,7 @@ class NaoqiBridge(Node):
         self.link = MotionLink(self.url)
         check_naoqi_bridge(p)
         self.backoff = Backoff(f"NAOqi at {self.url}", p["reconnect_min"], p["reconnect_max"])
-        self.publisher = self.create_publisher(JointState, relative(JOINT_STATES_TOPIC), 10)
+        self.publisher = self.create_publisher(JointState, relative(JOINT_STATES_TOPIC), STREAM_DEPTH)
         self.read_timeout = float(p["read_timeout"])
         self.stats = {"published": 0, "bad_reads": 0, "outages": 0}
         self._logged_reasons: set = set()

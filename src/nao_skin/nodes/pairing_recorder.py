@@ -41,7 +41,7 @@ from nao_skin.live.diagnostics import Check, RateWindow, age_check, count_check,
 from nao_skin.nodes.messages import header_stamp, joint_state_arrays
 from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.nodes.topics import PROGRESS_TOPIC, relative
+from nao_skin.nodes.topics import PROGRESS_TOPIC, STREAM_DEPTH, relative
 from nao_skin.session.params import PAIRING_RECORDER, skin_from_params
 from nao_skin.session.recording import TouchRecording
 from nao_skin.touch.events import EventConfig
@@ -59,12 +59,12 @@ class PairingRecorder(Node):
         self.get_logger().info(f"recording touches to {self.recording.bag_path}")
         self._crowded_said: set = set()
         self._started = time.monotonic()
-        self.create_subscription(JointState, relative(JOINT_STATES_TOPIC), self._on_joints, 200)
+        self.create_subscription(JointState, relative(JOINT_STATES_TOPIC), self._on_joints, STREAM_DEPTH)
         for n in self.skin.parts:
-            self.create_subscription(PointCloud2, relative(taxels_topic(n)), lambda m, n=n: self._on_taxels(n, m), 200)
-            self.create_subscription(PointCloud2, relative(contacts_topic(n)), lambda m, n=n: self._on_contacts(n, m), 200)
+            self.create_subscription(PointCloud2, relative(taxels_topic(n)), lambda m, n=n: self._on_taxels(n, m), STREAM_DEPTH)
+            self.create_subscription(PointCloud2, relative(contacts_topic(n)), lambda m, n=n: self._on_contacts(n, m), STREAM_DEPTH)
         self.progress_pub = self.create_publisher(String, PROGRESS_TOPIC, 10)
-        self.create_timer(float(p["flush_period"]), self.recording.flush)
+        self.create_timer(float(p["flush_period"]), lambda: self.recording.flush(self._now()))
         self.create_timer(float(p["progress_period"]), self._publish_progress)
         # the detector needs a joint state within joint_tolerance of each touch: at least that rate
         self._joint_rate = 1.0 / p["joint_tolerance"] if p["joint_tolerance"] > 0 else 0.0
@@ -97,7 +97,7 @@ class PairingRecorder(Node):
             contact_ids, cops = read_contacts(msg, self.skin.parts[part], contacts_topic(part))
         except DataError as exc:
             return self._bad(exc)
-        self.recording.contacts(part, stamp, contact_ids, cops)
+        self.recording.contacts(part, stamp, contact_ids, cops, self._now())
         self.recording.skin_ms.append((time.perf_counter() - t0) * 1e3)
 
     def _now(self) -> float:

@@ -46,7 +46,7 @@ from nao_skin.live.playback import Playback
 from nao_skin.nodes.messages import cloud_from_array, joint_state_msg
 from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.nodes.topics import GUIDANCE_TOPIC, LATCHED, SIM_STATUS_TOPIC, frame_prefix, relative
+from nao_skin.nodes.topics import GUIDANCE_TOPIC, LATCHED, SIM_STATUS_TOPIC, STREAM_DEPTH, frame_prefix, relative
 from nao_skin.session.params import SIM_ROBOT, check_sim_robot
 from nao_skin.sim.capture import Aim, CaptureSim
 from nao_skin.sim.simulate import simulate
@@ -79,9 +79,9 @@ class SimRobot(Node):
         self.skin_every = max(1, round(float(p["joint_rate"]) / float(p["skin_rate"])))
         self.loop = bool(p["loop"])
         self.parts = list(self.skin.parts)
-        self.joint_pub = self.create_publisher(JointState, relative(JOINT_STATES_TOPIC), 100)
-        self.taxel_pub = {n: self.create_publisher(PointCloud2, relative(taxels_topic(n)), 100) for n in self.parts}
-        self.contact_pub = {n: self.create_publisher(PointCloud2, relative(contacts_topic(n)), 100) for n in self.parts}
+        self.joint_pub = self.create_publisher(JointState, relative(JOINT_STATES_TOPIC), STREAM_DEPTH)
+        self.taxel_pub = {n: self.create_publisher(PointCloud2, relative(taxels_topic(n)), STREAM_DEPTH) for n in self.parts}
+        self.contact_pub = {n: self.create_publisher(PointCloud2, relative(contacts_topic(n)), STREAM_DEPTH) for n in self.parts}
         self.status_pub = self.create_publisher(String, SIM_STATUS_TOPIC, 10)
         self.wait_for = int(p["wait_for_subscribers"])
         self.wait_timeout = float(p["wait_timeout"])

@@ -41,7 +41,7 @@ from nao_skin.live.heatmap import (GUIDANCE_COLOUR, SCALE_LEVELS, ActivationCoun
 from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.topics import (GUIDANCE_MARKERS_TOPIC, GUIDANCE_TOPIC, HEATMAP_TOPIC, LATCHED, MAX_SKIPPED_SAID,
-                                   STATUS_TOPIC, frame_prefix, relative)
+                                   STATUS_TOPIC, STREAM_DEPTH, frame_prefix, relative)
 from nao_skin.session.params import SKIN_HEATMAP, skin_from_params
 from nao_skin.touch.datasets import deduplicate
 
@@ -79,7 +79,7 @@ class SkinHeatmap(Node):
         self.legend = self._legend(np.asarray(p["legend_origin"], float), d)
         self.publisher = self.create_publisher(MarkerArray, HEATMAP_TOPIC, 10)
         for n in self.skin.parts:
-            self.create_subscription(PointCloud2, relative(taxels_topic(n)), lambda m, n=n: self._on_taxels(n, m), 200)
+            self.create_subscription(PointCloud2, relative(taxels_topic(n)), lambda m, n=n: self._on_taxels(n, m), STREAM_DEPTH)
         self.errors = 0                   # skin samples skipped
         self.status_errors = 0            # status messages skipped
         self.published = 0

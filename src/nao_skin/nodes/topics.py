@@ -25,6 +25,12 @@ TF_STATIC_TOPIC = "/tf_static"                         # tf2_msgs/TFMessage, lat
 # a node says the first of the malformed messages it skips on a topic, not every one of a stream of them
 MAX_SKIPPED_SAID = 5
 
+#: how deep the sensor streams (joint states, skin taxels and contacts) are kept at both ends, publisher and
+#: recorder: a recorder held up for seconds (a busy machine, a slow disk, a stopped process) still gets
+#: every message once it runs again; 10 s of joint states at 100 Hz. At 200 (2 s) and the publishers' 10-100,
+#: a recorder stopped for 3 s lost 4 of 20 touches, 2 of them without a word (docs/decisions.md)
+STREAM_DEPTH = 1000
+
 #: a latched topic (as tf2_ros' StaticTransformBroadcaster publishes /tf_static): a subscriber with the
 #: same QoS, joining at any time, gets the last message
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,

@@ -42,7 +42,7 @@ from nao_skin.live.reconnect import Backoff
 from nao_skin.nodes.messages import cloud_from_array, stamp_to_msg
 from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
-from nao_skin.nodes.topics import BRIDGE_STATUS_TOPIC, frame_prefix, relative
+from nao_skin.nodes.topics import BRIDGE_STATUS_TOPIC, STREAM_DEPTH, frame_prefix, relative
 from nao_skin.session.params import YARP_SKIN_BRIDGE, changeable_params, per_part_params, skin_from_params
 from nao_skin.session.record import YARP_HINT
 
@@ -64,8 +64,8 @@ class YarpSkinBridge(Node):
                              if key.startswith("compensated_ports.") and v}
         self.threshold = float(p["compensated_threshold"])
         self.bridged = sorted(set(self.part_of_id.values()) | set(self.comp_port_of), key=parts.index)
-        self.taxel_pub = {n: self.create_publisher(PointCloud2, relative(taxels_topic(n)), 50) for n in self.bridged}
-        self.contact_pub = {n: self.create_publisher(PointCloud2, relative(contacts_topic(n)), 50) for n in self.bridged}
+        self.taxel_pub = {n: self.create_publisher(PointCloud2, relative(taxels_topic(n)), STREAM_DEPTH) for n in self.bridged}
+        self.contact_pub = {n: self.create_publisher(PointCloud2, relative(contacts_topic(n)), STREAM_DEPTH) for n in self.bridged}
         self.status_pub = self.create_publisher(String, BRIDGE_STATUS_TOPIC, 10)
         self.frames = frame_prefix(self)
         self.counts: Counter = Counter()

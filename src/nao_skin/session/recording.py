@@ -22,11 +22,12 @@ import numpy as np
 
 from nao_skin.errors import BagMoved, DiskFull, OutputError
 from nao_skin.formats.bag import SIMULATED, BagWriter, detected_touch_messages
-from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, taxels_topic
+from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_topic, taxels_topic
 from nao_skin.live.clocks import SKEW_LIMIT_S, ArrivalLags
 from nao_skin.live.heatmap import ActivationCounts
 from nao_skin.model.skin import SkinModel, pair_label
 from nao_skin.touch.events import EventConfig, EventDetector
+from nao_skin.touch.inorder import InOrder
 
 MAX_LOGGED_ERRORS = 5        # bad messages said one by one (all are counted)
 SILENCE_S = 10.0             # s without a joint state, or without any skin sample, before the operator is told
@@ -51,6 +52,7 @@ class TouchRecording:
                  recorded_from: str = "", continues=()):
         self.skin = skin
         self.detector = EventDetector.for_skin(skin, config)
+        self.in_order = InOrder()    # the streams to the detector in the order of their stamps
         self.parts = list(skin.parts)
         self.joint_names = list(skin.robot.joint_names)
         self.bag_path = Path(bag_path).expanduser().resolve()
@@ -80,12 +82,14 @@ class TouchRecording:
     def joint_state(self, stamp: float, names, positions, arrived: float) -> None:
         self._arrived("joint states", arrived)
         self.lags.add(JOINT_STATES_TOPIC, stamp, arrived)
-        self._write(self.detector.add_joint_state(stamp, names, positions))
+        self._detect(self.in_order.push(JOINT_STATES_TOPIC, stamp, arrived,
+                                        (self.detector.add_joint_state, (stamp, names, positions))))
 
     def taxels(self, part: str, stamp: float, slots, pressures, contacts, arrived: float) -> None:
         self._arrived("skin samples", arrived)
         self.lags.add(taxels_topic(part), stamp, arrived)
-        self._write(self.detector.add_skin(stamp, part, slots.tolist(), pressures.tolist(), contacts.tolist()))
+        self._detect(self.in_order.push(taxels_topic(part), stamp, arrived, (
+            self.detector.add_skin, (stamp, part, slots.tolist(), pressures.tolist(), contacts.tolist()))))
 
     def _arrived(self, stream: str, arrived: float) -> None:
         self.received[stream] += 1
@@ -93,8 +97,13 @@ class TouchRecording:
         if stream in self._gap_open:
             self._resumed.append((stream, arrived - self._gap_open.pop(stream)))
 
-    def contacts(self, part: str, stamp: float, contact_ids, cops) -> None:
-        self._write(self.detector.add_contacts(stamp, part, contact_ids, cops))
+    def contacts(self, part: str, stamp: float, contact_ids, cops, arrived: float) -> None:
+        self._detect(self.in_order.push(contacts_topic(part), stamp, arrived,
+                                        (self.detector.add_contacts, (stamp, part, contact_ids, cops))))
+
+    def _detect(self, messages) -> None:
+        for add, args in messages:
+            self._write(add(*args))
 
     def bad_message(self) -> bool:
         """Count a message that could not be read; True while it is still to be said (the first few)."""
@@ -119,8 +128,11 @@ class TouchRecording:
             self.n_touches += 1
             self._dirty = True
 
-    def flush(self) -> None:
-        """Make what was written durable: a recorder killed outright loses at most what came since."""
+    def flush(self, now: float | None = None) -> None:
+        """Make what was written durable: a recorder killed outright loses at most what came since. ``now`` (the
+        clock of the ``arrived`` times): first detect in what waited its time for a quiet stream."""
+        if now is not None and not self.closed:
+            self._detect(self.in_order.ready(now))
         if self._dirty and not self.closed:
             try:
                 self.bag.flush()
@@ -149,6 +161,7 @@ class TouchRecording:
         the bag holds (None: closed before)."""
         if self.closed:
             return None
+        self._detect(self.in_order.drain())
         self._write(self.detector.flush())
         self.closed = True
         try:
