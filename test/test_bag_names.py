@@ -12,7 +12,6 @@ import os
 import shutil
 from pathlib import Path
 
-import numpy as np
 import pytest
 import yaml
 
@@ -20,13 +19,13 @@ from nao_skin.cli import main as cli_main
 from nao_skin.formats.bag import SIMULATED, BagWriter, default_bag_name, read_touches, write_touch_bag
 from nao_skin.formats.inputs import find_bag, recording_of
 from nao_skin.formats.outdir import MARKER, RECORDING, read_marker, write_marker
-from nao_skin.formats.pointcloud import xyz
 from nao_skin.live.playback import Playback
 from nao_skin.paths import package_dir
 from nao_skin.session.recording import TouchRecording
 from nao_skin.sim.simulate import BAG_NAME, simulate
 from nao_skin.touch.datasets import deduplicate
 from nao_skin.touch.events import LIVE_CONFIG
+from recorded_touches import play_streams
 
 PAIR = {"pairs": [["l_hand", "torso"]], "n_touches": 4}
 
@@ -85,25 +84,7 @@ def test_a_record_sessions_bag_under_its_default_name_opens_with_any_reader(skin
     monkeypatch.chdir(tmp_path)
     touches, _ = deduplicate(simulate(skin, PAIR, seed=5).touches)
     recording = TouchRecording(skin, LIVE_CONFIG, default_bag_name(), "sqlite3", recorded_from=SIMULATED)
-    playback = Playback(touches, skin, period=0.6, press=0.2, hold=0.05)
-    start = 1.7e9
-    times = sorted([(t, "joints") for t in np.arange(0.0, playback.duration, 0.01)]
-                   + [(t, "skin") for t in np.arange(0.003, playback.duration, 0.02)])
-    for t, kind in times:
-        stamp = start + float(t)
-        if kind == "joints":
-            recording.joint_state(stamp, playback.joint_names, playback.joints_at(t), arrived=stamp)
-            continue
-        k = playback.touch_at(t)
-        for part in playback.part_names:
-            sample = playback.samples[k].get(part) if k >= 0 else None
-            if sample is None:
-                recording.taxels(part, stamp, np.zeros(0, int), np.zeros(0), np.zeros(0, int), arrived=stamp)
-                continue
-            taxels, contacts = sample
-            recording.contacts(part, stamp, contacts["contact"], xyz(contacts))
-            recording.taxels(part, stamp, taxels["slot"].astype(int), taxels["pressure"].astype(float),
-                             taxels["contact"].astype(int), arrived=stamp)
+    play_streams(recording, Playback(touches, skin, period=0.6, press=0.2, hold=0.05), start=1.7e9)
     assert recording.close().startswith(f"wrote {touches.n_touches} touches to ")
     [bag] = [p for p in tmp_path.iterdir() if p.name.startswith("nao_skin_touches_")]
     assert recording.bag_path == bag.resolve()

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from nao_skin.formats.bag import read_touches
-from nao_skin.formats.pointcloud import contacts_topic, taxels_topic, xyz
+from nao_skin.formats.pointcloud import xyz
 from nao_skin.live.clocks import MIN_MESSAGES, SKEW_LIMIT_S
 from nao_skin.live.playback import Playback
 from nao_skin.session.recording import MAX_LOGGED_ERRORS, TouchRecording
@@ -17,56 +17,14 @@ from nao_skin.sim.simulate import simulate
 from nao_skin.touch.datasets import deduplicate
 from nao_skin.touch.events import LIVE_CONFIG
 from nao_skin.touch.inorder import WAIT_S
-
-
-def _play(recording: TouchRecording, playback: Playback, start: float, skin_hz: float = 50.0,
-          joint_hz: float = 100.0, held: tuple | None = None) -> float:
-    """The streams a robot sends while ``playback`` plays, in the order they arrive (stamps from ``start``); the
-    last arrival. ``held`` ``(t0, t1, {topic: s})``: what would arrive from ``t0`` to ``t1`` (s of the play)
-    arrives at ``t1``, a topic's that many s later still (a recorder held up, its topics' backlogs delivered one
-    after another); each topic keeps its order."""
-    times = sorted([(t, "joints") for t in np.arange(0.0, playback.duration, 1.0 / joint_hz)]
-                   + [(t, "skin") for t in np.arange(0.003, playback.duration, 1.0 / skin_hz)])
-    sent = []                      # (arrival, topic, call, args)
-    for t, kind in times:
-        stamp = start + float(t)
-        if kind == "joints":
-            sent.append((stamp + 0.002, "/joint_states", recording.joint_state,
-                         (stamp, playback.joint_names, playback.joints_at(t))))
-            continue
-        k = playback.touch_at(t)
-        for part in playback.part_names:
-            sample = playback.samples[k].get(part) if k >= 0 else None
-            if sample is None:
-                sent.append((stamp + 0.003, taxels_topic(part), recording.taxels,
-                             (part, stamp, np.zeros(0, int), np.zeros(0), np.zeros(0, int))))
-                continue
-            taxels, contacts = sample          # what a skin driver sends of this press
-            sent.append((stamp + 0.003, contacts_topic(part), recording.contacts,
-                         (part, stamp, contacts["contact"], xyz(contacts))))
-            sent.append((stamp + 0.003, taxels_topic(part), recording.taxels,
-                         (part, stamp, taxels["slot"].astype(int), taxels["pressure"].astype(float),
-                          taxels["contact"].astype(int))))
-    if held is not None:
-        t0, t1, later = held
-        last: dict = {}           # a topic's messages come in order: none before its backlog
-        for i, (arrived, topic, call, args) in enumerate(sent):
-            if start + t0 <= arrived < start + t1:
-                arrived = start + t1 + later.get(topic, 0.0)
-            last[topic] = arrived = max(arrived, last.get(topic, arrived))
-            sent[i] = (arrived, topic, call, args)
-    order = sorted(range(len(sent)), key=lambda i: (sent[i][0], i))
-    for i in order:
-        arrived, _, call, args = sent[i]
-        call(*args, arrived=arrived)
-    return sent[order[-1]][0]
+from recorded_touches import play_streams
 
 
 def test_the_touches_played_are_the_touches_in_the_bag(skin, tmp_path):
     sim = simulate(skin, {"pairs": [["l_hand", "torso"], ["r_hand", "head"]], "n_touches": 6}, seed=1)
     touches, _ = deduplicate(sim.touches)
     recording = TouchRecording(skin, LIVE_CONFIG, tmp_path / "touches", "mcap")
-    last = _play(recording, Playback(touches, skin, period=0.6, press=0.2, hold=0.05), start=1.7e9)
+    last = play_streams(recording, Playback(touches, skin, period=0.6, press=0.2, hold=0.05), start=1.7e9)
     # the contacts come only while pressed (as some drivers send them): what came after the last press waits for
     # them, until the node's flush timer finds it waited its time
     recording.flush(now=last + WAIT_S)
@@ -91,7 +49,7 @@ def test_a_recorder_held_up_for_seconds_records_every_touch_once(skin, tmp_path)
     sim = simulate(skin, {"pairs": [["l_hand", "torso"], ["r_hand", "head"]], "n_touches": 6}, seed=1)
     touches, _ = deduplicate(sim.touches)
     recording = TouchRecording(skin, LIVE_CONFIG, tmp_path / "touches", "sqlite3")
-    last = _play(recording, Playback(touches, skin, period=0.6, press=0.2, hold=0.05), start=1.7e9,
+    last = play_streams(recording, Playback(touches, skin, period=0.6, press=0.2, hold=0.05), start=1.7e9,
                  held=(1.5, 4.0, {"/skin/torso/taxels": 1.5, "/skin/torso/contacts": 1.5}))
     recording.flush(now=last + WAIT_S)
     assert recording.progress()["dropped"] == {}
@@ -199,7 +157,7 @@ def test_a_bag_of_the_simulated_robot_says_so_on_every_read(skin, tmp_path):
     notes = {}
     for name, source in (("sim", SIMULATED), ("robot", "the robot"), ("unsaid", "")):
         recording = TouchRecording(skin, LIVE_CONFIG, tmp_path / name, "mcap", source)
-        _play(recording, Playback(touches, skin, period=0.6, press=0.2, hold=0.05), start=1.7e9)
+        play_streams(recording, Playback(touches, skin, period=0.6, press=0.2, hold=0.05), start=1.7e9)
         recording.flush()
         _, growing = GrowingBag(tmp_path / name, skin).read()
         recording.close()
