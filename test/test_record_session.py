@@ -170,6 +170,14 @@ class RecorderAndRobot:
                     p.stop(signal.SIGINT, timeout=30)
 
 
+def assert_the_bag_holds_what_was_played(run: RecorderAndRobot) -> None:
+    """The recorder ended well and its bag holds every touch the robot played, once, nothing skipped."""
+    assert run.recorder.popen.returncode == 0, run.recorder.stderr()[-3000:]
+    got, report = read_touches(run.bag, run.skin)
+    assert not report.skipped, report.lines()
+    assert_same_touches(got, run.want)
+
+
 def test_recorder_killed_keeps_flushed_touches(tmp_path):
     with RecorderAndRobot(tmp_path, seed=11, per_pair=3) as run:
         progress = run.listener.subscribe(String, "/nao_skin/recorder/progress", keep=lambda m: json.loads(m.data))
@@ -211,10 +219,7 @@ def test_a_robot_stalled_mid_press_still_gives_every_touch_once(tmp_path):
             pressed.clear()
         assert run.listener.spin_until(lambda: status and status[-1]["done"], timeout=60, procs=nodes)
         run.listener.spin_for(0.5)
-    assert run.recorder.popen.returncode == 0, run.recorder.stderr()[-3000:]
-    got, report = read_touches(run.bag, run.skin)
-    assert not report.skipped, report.lines()
-    assert_same_touches(got, run.want)
+    assert_the_bag_holds_what_was_played(run)
 
 
 def test_a_recorder_held_up_for_seconds_still_records_every_touch_once(tmp_path):
@@ -233,8 +238,5 @@ def test_a_recorder_held_up_for_seconds_still_records_every_touch_once(tmp_path)
         os.kill(run.recorder.popen.pid, signal.SIGCONT)
         assert run.listener.spin_until(lambda: status and status[-1]["done"], timeout=60, procs=nodes)
         run.listener.spin_for(0.5)
-    assert run.recorder.popen.returncode == 0, run.recorder.stderr()[-3000:]
-    got, report = read_touches(run.bag, run.skin)
-    assert not report.skipped, report.lines()
-    assert_same_touches(got, run.want)
+    assert_the_bag_holds_what_was_played(run)
     assert "not recorded" not in run.recorder.stderr()

@@ -61,8 +61,10 @@ class PairingRecorder(Node):
         self._started = time.monotonic()
         self.create_subscription(JointState, relative(JOINT_STATES_TOPIC), self._on_joints, STREAM_DEPTH)
         for n in self.skin.parts:
-            self.create_subscription(PointCloud2, relative(taxels_topic(n)), lambda m, n=n: self._on_taxels(n, m), STREAM_DEPTH)
-            self.create_subscription(PointCloud2, relative(contacts_topic(n)), lambda m, n=n: self._on_contacts(n, m), STREAM_DEPTH)
+            self.create_subscription(PointCloud2, relative(taxels_topic(n)), lambda m, n=n: self._on_taxels(n, m),
+                                     STREAM_DEPTH)
+            self.create_subscription(PointCloud2, relative(contacts_topic(n)), lambda m, n=n: self._on_contacts(n, m),
+                                     STREAM_DEPTH)
         self.progress_pub = self.create_publisher(String, PROGRESS_TOPIC, 10)
         self.create_timer(float(p["flush_period"]), lambda: self.recording.flush(self._now()))
         self.create_timer(float(p["progress_period"]), self._publish_progress)

@@ -80,8 +80,10 @@ class SimRobot(Node):
         self.loop = bool(p["loop"])
         self.parts = list(self.skin.parts)
         self.joint_pub = self.create_publisher(JointState, relative(JOINT_STATES_TOPIC), STREAM_DEPTH)
-        self.taxel_pub = {n: self.create_publisher(PointCloud2, relative(taxels_topic(n)), STREAM_DEPTH) for n in self.parts}
-        self.contact_pub = {n: self.create_publisher(PointCloud2, relative(contacts_topic(n)), STREAM_DEPTH) for n in self.parts}
+        self.taxel_pub = {n: self.create_publisher(PointCloud2, relative(taxels_topic(n)), STREAM_DEPTH)
+                          for n in self.parts}
+        self.contact_pub = {n: self.create_publisher(PointCloud2, relative(contacts_topic(n)), STREAM_DEPTH)
+                            for n in self.parts}
         self.status_pub = self.create_publisher(String, SIM_STATUS_TOPIC, 10)
         self.wait_for = int(p["wait_for_subscribers"])
         self.wait_timeout = float(p["wait_timeout"])

@@ -79,7 +79,8 @@ class SkinHeatmap(Node):
         self.legend = self._legend(np.asarray(p["legend_origin"], float), d)
         self.publisher = self.create_publisher(MarkerArray, HEATMAP_TOPIC, 10)
         for n in self.skin.parts:
-            self.create_subscription(PointCloud2, relative(taxels_topic(n)), lambda m, n=n: self._on_taxels(n, m), STREAM_DEPTH)
+            self.create_subscription(PointCloud2, relative(taxels_topic(n)), lambda m, n=n: self._on_taxels(n, m),
+                                     STREAM_DEPTH)
         self.errors = 0                   # skin samples skipped
         self.status_errors = 0            # status messages skipped
         self.published = 0

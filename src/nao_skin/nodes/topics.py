@@ -26,9 +26,9 @@ TF_STATIC_TOPIC = "/tf_static"                         # tf2_msgs/TFMessage, lat
 MAX_SKIPPED_SAID = 5
 
 #: how deep the sensor streams (joint states, skin taxels and contacts) are kept at both ends, publisher and
-#: recorder: a recorder held up for seconds (a busy machine, a slow disk, a stopped process) still gets
-#: every message once it runs again; 10 s of joint states at 100 Hz. At 200 (2 s) and the publishers' 10-100,
-#: a recorder stopped for 3 s lost 4 of 20 touches, 2 of them without a word (docs/decisions.md)
+#: recorder: what a recorder held up for seconds (a busy machine, a slow disk, a stopped process) was sent
+#: meanwhile waits there until it runs again, 10 s of joint states at 100 Hz (docs/decisions.md, "A recorder
+#: held up for seconds")
 STREAM_DEPTH = 1000
 
 #: a latched topic (as tf2_ros' StaticTransformBroadcaster publishes /tf_static): a subscriber with the

@@ -64,8 +64,10 @@ class YarpSkinBridge(Node):
                              if key.startswith("compensated_ports.") and v}
         self.threshold = float(p["compensated_threshold"])
         self.bridged = sorted(set(self.part_of_id.values()) | set(self.comp_port_of), key=parts.index)
-        self.taxel_pub = {n: self.create_publisher(PointCloud2, relative(taxels_topic(n)), STREAM_DEPTH) for n in self.bridged}
-        self.contact_pub = {n: self.create_publisher(PointCloud2, relative(contacts_topic(n)), STREAM_DEPTH) for n in self.bridged}
+        self.taxel_pub = {n: self.create_publisher(PointCloud2, relative(taxels_topic(n)), STREAM_DEPTH)
+                          for n in self.bridged}
+        self.contact_pub = {n: self.create_publisher(PointCloud2, relative(contacts_topic(n)), STREAM_DEPTH)
+                            for n in self.bridged}
         self.status_pub = self.create_publisher(String, BRIDGE_STATUS_TOPIC, 10)
         self.frames = frame_prefix(self)
         self.counts: Counter = Counter()
