@@ -361,6 +361,43 @@ def test_stream_bag_gives_one_touch_per_press_with_clustered_contacts(skin, tmp_
     np.testing.assert_allclose(touches.act_pressure, 2.0)
 
 
+def test_a_stream_bag_whose_recorder_was_held_up_gives_every_press_once(skin, tmp_path):
+    """Seven presses of the hand on the torso, recorded by a recorder held up from 1.0 to 2.5 s: it got what was
+    sent meanwhile at 2.5 s, the torso's 1 s later still (DDS delivers each topic's backlog on its own), so
+    the bag holds the torso's samples of two presses after the hand's. Read in the bag's order, their
+    moments never met (3 of 7 presses, nothing counted); read in the order of their stamps, as the live
+    recorder reads them, every press is one touch."""
+    hand, torso = skin.parts["l_hand"].slots[:3], skin.parts["torso"].slots[:3]
+    names = skin.robot.joint_names
+    held, later = (1.0, 2.5), {"torso": 1.0}
+    sent = []           # (received s, topic, write)
+    for k in range(400):
+        t = k * 0.01
+        sent.append((t, "joints", lambda bag, t=t, r=None: bag.write_joint_state(
+            int(t * 1e9), names, np.full(len(names), 0.05 * t), received_ns=r)))
+        if k % 2:
+            continue
+        on = 20 <= k % 60 < 40                               # a press from 0.2 to 0.4 s of every 0.6
+        for part, slots in (("l_hand", hand), ("torso", torso)):
+            s = slots if on else slots[:0]
+            sent.append((t + 0.003, part, lambda bag, t=t, part=part, s=s, r=None: bag.write_taxels(
+                int(t * 1e9), part, skin.parts[part].parent_frame, skin.parts[part].positions[s], s,
+                np.full(len(s), 2.0), np.full(len(s), -1), received_ns=r)))
+    last: dict = {}
+    for i, (received, topic, write) in enumerate(sent):
+        if held[0] <= received < held[1]:
+            received = held[1] + later.get(topic, 0.0)
+        last[topic] = received = max(received, last.get(topic, received))   # each topic in its order
+        sent[i] = (received, topic, write)
+    with BagWriter(tmp_path / "held", "sqlite3") as bag:
+        for received, _, write in sorted(sent, key=lambda m: m[0]):
+            write(bag, r=int(received * 1e9))
+    touches, report = read_touches(tmp_path / "held", skin)
+    assert report.n_skipped == 0 and not report.skipped
+    assert touches.n_touches == 7
+    np.testing.assert_allclose(touches.stamps, 0.01 * (20 + 60 * np.arange(7)), atol=1e-9)
+
+
 def test_bad_slot_unknown_part_and_nan_joints_are_counted(skin, tmp_path):
     stream_bag(tmp_path / "bad", skin, storage="mcap", bad_slot=True, extra_part=True)
     touches, report = read_touches(tmp_path / "bad", skin)

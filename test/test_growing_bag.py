@@ -46,15 +46,15 @@ def assert_same_read(got: tuple, want: tuple) -> None:
 
 @pytest.fixture
 def decoded(monkeypatch):
-    """How many messages the bag module decodes (each goes through ``_feed`` once)."""
+    """How many messages the bag module decodes (each goes through ``_decoded`` once)."""
     count = [0]
-    original = bagmod._feed
+    original = bagmod._decoded
 
     def counting(*args, **kwargs):
         count[0] += 1
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(bagmod, "_feed", counting)
+    monkeypatch.setattr(bagmod, "_decoded", counting)
     return count
 
 

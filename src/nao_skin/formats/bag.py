@@ -9,7 +9,9 @@ touch one JointState (angles already at the touch stamp) and the skin messages
 of the touching parts, all at that stamp; a *stream* bag holds the same topics
 at their own rates. Both are read by :func:`read_touches` through the same
 :class:`~nao_skin.touch.events.EventDetector` as live capture; only its tolerances
-differ (:data:`~nao_skin.touch.events.TOUCH_BAG_CONFIG` for touch bags). A bag
+differ (:data:`~nao_skin.touch.events.TOUCH_BAG_CONFIG` for touch bags), and a stream
+bag's topics are read in the order of their stamps, as the live recorder reads them
+(:class:`~nao_skin.touch.inorder.InOrder`). A bag
 rosbags cannot open (never closed, or cut off) is read from its storage file
 (:mod:`nao_skin.formats.salvage`).
 
@@ -45,6 +47,7 @@ from nao_skin.touch.contacts import DEFAULT_MAX_NEIGHBOR_DIST, cluster_contacts,
 from nao_skin.touch.datasets import LoadReport
 from nao_skin.touch.events import (LIVE_CONFIG, TOUCH_BAG_CONFIG, EventConfig, EventDetector,
                                    touchset_from_records)
+from nao_skin.touch.inorder import InOrder
 from nao_skin.touch.touches import TouchSet
 
 BAG_KIND_KEY = "nao_skin.bag_kind"
@@ -295,21 +298,27 @@ class BagWriter:
         except WRITE_ERRORS as exc:
             raise self._cannot_write(exc) from None
 
-    def _write_cloud(self, topic: str, stamp_ns: int, frame: str, points: np.ndarray) -> None:
+    def _write_cloud(self, topic: str, stamp_ns: int, frame: str, points: np.ndarray,
+                     received_ns: int | None = None) -> None:
         cloud = encode_cloud(points)
         cloud["fields"] = [self._Field(name=n, offset=o, datatype=d, count=k) for n, o, d, k in cloud["fields"]]
         cloud["data"] = np.frombuffer(cloud["data"], dtype=np.uint8)
-        self._write(topic, POINT_CLOUD, self._Cloud(header=self._header(stamp_ns, frame), **cloud), stamp_ns)
+        self._write(topic, POINT_CLOUD, self._Cloud(header=self._header(stamp_ns, frame), **cloud),
+                    stamp_ns if received_ns is None else received_ns)
 
-    def write_joint_state(self, stamp_ns: int, names, positions) -> None:
+    def write_joint_state(self, stamp_ns: int, names, positions, received_ns: int | None = None) -> None:
+        """A JointState; ``received_ns``: when a recorder got it (the bag's own time), the stamp if None."""
         msg = self._JointState(header=self._header(stamp_ns, ""), name=list(names),
                                position=np.asarray(positions, dtype=np.float64),
                                velocity=np.zeros(0), effort=np.zeros(0))
-        self._write(JOINT_STATES_TOPIC, JOINT_STATE, msg, stamp_ns)
+        self._write(JOINT_STATES_TOPIC, JOINT_STATE, msg, stamp_ns if received_ns is None else received_ns)
 
-    def write_taxels(self, stamp_ns: int, part: str, frame: str, positions, slots, pressures, contact_ids) -> None:
-        """One skin sample of a stream: the part's activated taxels (none: released)."""
-        self._write_cloud(taxels_topic(part), stamp_ns, frame, taxels_array(slots, positions, pressures, contact_ids))
+    def write_taxels(self, stamp_ns: int, part: str, frame: str, positions, slots, pressures, contact_ids,
+                     received_ns: int | None = None) -> None:
+        """One skin sample of a stream: the part's activated taxels (none: released); ``received_ns`` as in
+        :meth:`write_joint_state`."""
+        self._write_cloud(taxels_topic(part), stamp_ns, frame, taxels_array(slots, positions, pressures, contact_ids),
+                          received_ns)
 
     def write_touch(self, stamp_ns: int, joint_names, joints, parts) -> None:
         """One touch of a touch bag: its JointState, then per touching part its taxels and contacts messages.
@@ -631,7 +640,8 @@ class GrowingBag:
         self._touches = self._finish(self._feed, self._feed.records[done:], self._touches)
         now = self._feed.fork()
         ends = now.add(tail.provisional)
-        extra = now.records[len(self._feed.records):] + now.detector.flush()
+        now.finish()
+        extra = now.records[len(self._feed.records):]
         report = now.report
         _skip_unknown_parts(report, self.path, now.unknown, self.skin)
         lost = bag.lost(now.n_msgs, ends)
@@ -680,7 +690,7 @@ class GrowingBag:
                                              f" ({one_line(exc)}); the rest of the bag is lost")
             else:
                 _skip_unread(report, self.path, wanted, read)
-            feed.records += feed.detector.flush()
+            feed.finish()
         finally:
             try:
                 reader.close()
@@ -697,6 +707,11 @@ class _Feed:
     def __init__(self, path: Path, skin: SkinModel, config: EventConfig, report: LoadReport):
         self.path, self.skin, self.report = path, skin, report
         self.detector = EventDetector.for_skin(skin, config)
+        # a stream bag holds each topic as its recorder got it, and a recorder held up gets the topics' backlogs
+        # one after another: read in the order of their stamps, as the live recorder reads them (a touch bag is
+        # written in order); the clock that says how long a message waited is the newest stamp read
+        self.in_order = InOrder() if config.skin_tolerance > 0 else None
+        self.clock = float("-inf")
         self.store = _typestore()
         self.records: list = []
         self.n_msgs = 0
@@ -717,16 +732,32 @@ class _Feed:
                 continue
             self.n_msgs += 1
             try:
-                self.records += _feed(self.detector, self.store, topic, msgtype, data, self.skin, self.path,
-                                      self.joint_states)
+                stamp, call = _decoded(self.store, topic, msgtype, data, self.skin, self.path, self.joint_states)
             except DataError as exc:
                 _skip_bad(self.report, exc)
+                continue
+            if self.in_order is None:
+                self._detect([call])
+            else:
+                self.clock = max(self.clock, stamp)
+                self._detect(self.in_order.push(topic, stamp, self.clock, call))
         return "ends cleanly"
+
+    def _detect(self, calls) -> None:
+        for method, args in calls:
+            self.records += getattr(self.detector, method)(*args)
+
+    def finish(self) -> None:
+        """The end of the messages: what still waited for another stream, then for joint states."""
+        if self.in_order is not None:
+            self._detect(self.in_order.drain())
+        self.records += self.detector.flush()
 
     def fork(self) -> "_Feed":
         """A copy to feed and finish while this one goes on (the type store is shared: it never changes)."""
         other = copy.copy(self)
         other.detector, other.report = copy.deepcopy(self.detector), copy.deepcopy(self.report)
+        other.in_order = copy.deepcopy(self.in_order)
         other.records, other.unknown = list(self.records), Counter(self.unknown)
         other.joint_states = None if self.joint_states is None else Counter(self.joint_states)
         return other
@@ -770,10 +801,10 @@ class _Feed:
         self.report.unit = "messages"
 
 
-def _feed(detector: EventDetector, store, topic: str, msgtype: str, raw, skin: SkinModel, path: Path,
-          joint_states: Counter | None) -> list:
-    """Decode one message and hand it to the detector (a joint state counted at its stamp in
-    ``joint_states``, when given); DataError names bag, topic and stamp."""
+def _decoded(store, topic: str, msgtype: str, raw, skin: SkinModel, path: Path,
+             joint_states: Counter | None) -> tuple:
+    """One message decoded: ``(stamp, (the detector's method, its arguments))`` (a joint state counted at its
+    stamp in ``joint_states``, when given); DataError names bag, topic and stamp."""
     try:
         msg = store.deserialize_cdr(raw, msgtype)
     except Exception as exc:  # noqa: BLE001 - CDR decoding raises assorted errors on bad bytes
@@ -783,9 +814,9 @@ def _feed(detector: EventDetector, store, topic: str, msgtype: str, raw, skin: S
     if topic == JOINT_STATES_TOPIC:
         if joint_states is not None:
             joint_states[stamp] += 1
-        return detector.add_joint_state(stamp, msg.name, msg.position)
+        return stamp, ("add_joint_state", (stamp, msg.name, msg.position))
     part, what = skin_topic(topic)
     if what == "contacts":
-        return detector.add_contacts(stamp, part, *read_contacts(msg, skin.parts[part], where))
+        return stamp, ("add_contacts", (stamp, part, *read_contacts(msg, skin.parts[part], where)))
     slots, pressures, contacts = read_taxels(msg, skin.parts[part], where)
-    return detector.add_skin(stamp, part, slots.tolist(), pressures.tolist(), contacts.tolist())
+    return stamp, ("add_skin", (stamp, part, slots.tolist(), pressures.tolist(), contacts.tolist()))

@@ -1,15 +1,15 @@
-"""The live streams back in the order of their stamps, however they arrive.
+"""The sensor streams back in the order of their stamps, however they arrive.
 
 Each stream (a topic: the joint states, one part's taxels, one part's contacts) arrives in its own order, but
 not in step with the others: a recorder held up for seconds (a busy machine, a slow disk, a stopped process)
-gets each topic's backlog when DDS delivers or repairs it, one topic up to seconds after another. The touch
-detector makes a moment of the parts' samples as it reads them, so read out of step it loses touches
-without a word (docs/decisions.md, "A recorder held up for seconds"). :class:`InOrder` merges the streams
-by stamp. A message goes on once every stream heard from in the last ``forget`` s has a message waiting
-(none of them can still bring an earlier one), or once a message has waited ``wait`` s since it arrived (a
-stream that is quiet for a while, as a driver that sends only while pressed, holds the others up no longer
-than that). Each stream keeps its own order, whatever its stamps: a mis-stamped message is the detector's
-to judge, as before.
+gets each topic's backlog when DDS delivers or repairs it, one topic up to seconds after another, and a
+stream bag (``ros2 bag record``) holds them as its recorder got them. The touch detector makes a moment of
+the parts' samples as it reads them, so read out of step it loses touches without a word (docs/decisions.md,
+"A recorder held up for seconds"). :class:`InOrder` merges the streams by stamp. A message goes on once
+every stream heard from in the last ``forget`` s has a message waiting (none of them can still bring an
+earlier one), or once a message has waited ``wait`` s since it arrived (a stream that is quiet for a while,
+as a driver that sends only while pressed, holds the others up no longer than that). Each stream keeps its
+own order, whatever its stamps: a mis-stamped message is the detector's to judge, as before.
 """
 from __future__ import annotations
 
@@ -27,7 +27,8 @@ FORGET_S = 30.0
 
 class InOrder:
     """``push(stream, stamp, arrived, item)`` returns the items that may go on, in stamp order (ties in
-    arrival order); ``ready(now)`` those whose wait ran out with no message since; ``drain()`` the rest."""
+    arrival order); ``ready(now)`` those whose wait ran out with no message since; ``drain()`` the rest.
+    ``arrived`` and ``now`` are one clock: the live recorder's, or a bag's newest stamp read so far."""
 
     def __init__(self, wait: float = WAIT_S, forget: float = FORGET_S):
         self.wait, self.forget = wait, forget
