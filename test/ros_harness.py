@@ -29,6 +29,7 @@ from nao_skin.session.record import param_text
 
 ROOT = Path(__file__).resolve().parents[1]
 WAIT_S = 20.0                      # generous upper bound for a 2-core CI machine; polls end much earlier
+ASK_AGAIN_S = 2.0                  # a service request unanswered this long is sent again (Listener.ask)
 _counter = itertools.count()
 TEST_DOMAINS = range(10, 100)      # their DDS ports (7400 + 250 * id ...) stay below the ephemeral ports
 _held_domains: dict[int, int] = {}   # domain id -> descriptor of its flocked test lock file
@@ -198,6 +199,22 @@ class Listener:
         deadline = time.monotonic() + duration
         while time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=0.05)
+
+    def ask(self, client, request, procs=(), timeout: float = 60.0):
+        """The reply to ``request`` (one a node may answer twice: asking is all it does, as GetParameters)
+        through ``client``, sent again while unanswered. A service counts as ready once the client's request
+        reaches it, which can be before its reply writer has found the client: the reply then goes to
+        nobody (a pairing_recorder's get_parameters unanswered for 20 s, CI-like run of 2026-11-29), and only
+        asking again gets one."""
+        deadline = time.monotonic() + timeout
+        assert self.spin_until(client.service_is_ready, timeout=timeout, procs=procs), f"{client.srv_name}: no service"
+        while True:
+            future = client.call_async(request)
+            if self.spin_until(future.done, timeout=min(ASK_AGAIN_S, max(0.0, deadline - time.monotonic())),
+                               procs=procs):
+                return future.result()
+            client.remove_pending_request(future)
+            assert time.monotonic() < deadline, f"{client.srv_name}: no answer in {timeout:g} s"
 
     def close(self) -> None:
         try:

@@ -53,11 +53,9 @@ def live_parameters(listener: Listener, node: str, names, timeout: float = WAIT_
 
     client = listener.node.create_client(GetParameters, f"{node}/get_parameters")
     try:
-        assert listener.spin_until(client.service_is_ready, timeout=timeout), f"{node}: no parameter service"
         names = sorted(names)
-        future = client.call_async(GetParameters.Request(names=names))
-        assert listener.spin_until(future.done, timeout=timeout), f"{node}: no answer"
-        return {name: parameter_value_to_python(v) for name, v in zip(names, future.result().values)}
+        values = listener.ask(client, GetParameters.Request(names=names), timeout=timeout).values
+        return {name: parameter_value_to_python(v) for name, v in zip(names, values)}
     finally:
         listener.node.destroy_client(client)
 

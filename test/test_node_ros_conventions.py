@@ -212,14 +212,14 @@ def test_trigger_diagnostics_and_parameters_of_a_running_session(tmp_path):
         assert {"free disk (MiB)", "joint states rate (Hz)", "touch age (s)"} <= set(values(rec))
 
         # descriptors: the rule as a range, read-only where a change cannot apply
-        described = answer(describe.call_async(DescribeParameters.Request(names=["gate_mm", "live_every_touches"])))
+        described = listener.ask(describe, DescribeParameters.Request(names=["gate_mm", "live_every_touches"]), procs)
         gate, every = described.descriptors
         assert gate.read_only and [(r.from_value, r.to_value) for r in gate.floating_point_range] == [(0.0, 1e4)]
         assert not every.read_only and every.integer_range[0].from_value == 1
 
         def set_param(name, value: ParameterValue):
             request = SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)])
-            return answer(setter.call_async(request)).results[0]
+            return listener.ask(setter, request, procs).results[0]      # the same value twice is one change
 
         refused = set_param("gate_mm", ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=5.0))
         assert not refused.successful and "'gate_mm' is read when the node starts" in refused.reason, refused.reason
@@ -235,7 +235,7 @@ def test_trigger_diagnostics_and_parameters_of_a_running_session(tmp_path):
         result = set_param("live_every_touches", ParameterValue(type=ParameterType.PARAMETER_INTEGER,
                                                                integer_value=1))
         assert result.successful, result.reason
-        got = answer(getter.call_async(GetParameters.Request(names=["live_every_touches"])))
+        got = listener.ask(getter, GetParameters.Request(names=["live_every_touches"]), procs)
         assert got.values[0].integer_value == 1
         assert listener.spin_until(lambda: any(s.get("live") for s in status[seen:]), timeout=120, procs=procs)
         again = next(s for s in status[seen:] if s.get("live"))

@@ -45,10 +45,7 @@ RECORD_YAML = ROOT / "config" / "record.yaml"
 def get_parameters(listener: Listener, node: str, names: list, procs) -> list:
     """The node's parameter values through its real parameter service."""
     client = listener.node.create_client(GetParameters, f"/{node}/get_parameters")
-    assert listener.spin_until(client.service_is_ready, timeout=60, procs=procs), f"{node}: no parameter service"
-    future = client.call_async(GetParameters.Request(names=names))
-    assert listener.spin_until(future.done, procs=procs), f"{node}: get_parameters unanswered"
-    return future.result().values
+    return listener.ask(client, GetParameters.Request(names=names), procs).values
 
 
 def test_nodes_take_integers_for_float_parameters(tmp_path):

@@ -103,7 +103,8 @@ class _Candidate:
 
 
 class EventDetector:
-    """Incremental touch detection. Feed messages in (roughly) time order; collect emitted touches."""
+    """Incremental touch detection. Feed messages in (roughly) time order (the recorder and the stream-bag
+    reader put them in it: :class:`~nao_skin.touch.inorder.InOrder`); collect emitted touches."""
 
     def __init__(self, part_names: Sequence[str], joint_names: Sequence[str],
                  needed_joints: Mapping[str, Sequence[str]] | None = None, config: EventConfig = LIVE_CONFIG):
