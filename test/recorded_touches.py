@@ -54,15 +54,24 @@ def play_streams(recording, playback, start: float, skin_hz: float = 50.0, joint
                          (part, stamp, taxels["slot"].astype(int), taxels["pressure"].astype(float),
                           taxels["contact"].astype(int))))
     if held is not None:
-        t0, t1, later = held
-        last: dict = {}           # a topic's messages come in order: none before its backlog
-        for i, (arrived, topic, call, args) in enumerate(sent):
-            if start + t0 <= arrived < start + t1:
-                arrived = start + t1 + later.get(topic, 0.0)
-            last[topic] = arrived = max(arrived, last.get(topic, arrived))
-            sent[i] = (arrived, topic, call, args)
+        sent = held_up(sent, held, start)
     order = sorted(range(len(sent)), key=lambda i: (sent[i][0], i))
     for i in order:
         arrived, _, call, args = sent[i]
         call(*args, arrived=arrived)
     return sent[order[-1]][0]
+
+
+def held_up(sent: list, held: tuple, start: float = 0.0) -> list:
+    """``sent`` (``(arrival, topic, ...)`` in the order sent) as a recorder held up gets it: what would arrive
+    from ``t0`` to ``t1`` s after ``start`` (``held``: ``(t0, t1, {topic: s})``) arrives at ``t1``, a topic's
+    that many s later still (DDS delivers each topic's backlog on its own); each topic keeps its order."""
+    t0, t1, later = held
+    last: dict = {}           # a topic's messages come in order: none before its backlog
+    out = []
+    for arrived, topic, *rest in sent:
+        if start + t0 <= arrived < start + t1:
+            arrived = start + t1 + later.get(topic, 0.0)
+        last[topic] = arrived = max(arrived, last.get(topic, arrived))
+        out.append((arrived, topic, *rest))
+    return out

@@ -16,6 +16,7 @@ from nao_skin.calibration.pairing import metrics, pair_touches
 from nao_skin.errors import DataError
 from nao_skin.formats.bag import BagWriter, detected_touch_messages, read_touches, touch_messages, write_touch_bag
 from nao_skin.touch.events import LIVE_CONFIG, ContactRecord, TouchRecord
+from recorded_touches import held_up
 
 
 def canonical_pairs(touches, pairing):
@@ -369,7 +370,6 @@ def test_a_stream_bag_whose_recorder_was_held_up_gives_every_press_once(skin, tm
     recorder reads them, every press is one touch."""
     hand, torso = skin.parts["l_hand"].slots[:3], skin.parts["torso"].slots[:3]
     names = skin.robot.joint_names
-    held, later = (1.0, 2.5), {"torso": 1.0}
     sent = []           # (received s, topic, write)
     for k in range(400):
         t = k * 0.01
@@ -383,12 +383,7 @@ def test_a_stream_bag_whose_recorder_was_held_up_gives_every_press_once(skin, tm
             sent.append((t + 0.003, part, lambda bag, t=t, part=part, s=s, r=None: bag.write_taxels(
                 int(t * 1e9), part, skin.parts[part].parent_frame, skin.parts[part].positions[s], s,
                 np.full(len(s), 2.0), np.full(len(s), -1), received_ns=r)))
-    last: dict = {}
-    for i, (received, topic, write) in enumerate(sent):
-        if held[0] <= received < held[1]:
-            received = held[1] + later.get(topic, 0.0)
-        last[topic] = received = max(received, last.get(topic, received))   # each topic in its order
-        sent[i] = (received, topic, write)
+    sent = held_up(sent, (1.0, 2.5, {"torso": 1.0}))
     with BagWriter(tmp_path / "held", "sqlite3") as bag:
         for received, _, write in sorted(sent, key=lambda m: m[0]):
             write(bag, r=int(received * 1e9))
