@@ -83,13 +83,13 @@ class TouchRecording:
         self._arrived("joint states", arrived)
         self.lags.add(JOINT_STATES_TOPIC, stamp, arrived)
         self._detect(self.in_order.push(JOINT_STATES_TOPIC, stamp, arrived,
-                                        (self.detector.add_joint_state, (stamp, names, positions))))
+                                        ("add_joint_state", (stamp, names, positions))))
 
     def taxels(self, part: str, stamp: float, slots, pressures, contacts, arrived: float) -> None:
         self._arrived("skin samples", arrived)
         self.lags.add(taxels_topic(part), stamp, arrived)
         self._detect(self.in_order.push(taxels_topic(part), stamp, arrived, (
-            self.detector.add_skin, (stamp, part, slots.tolist(), pressures.tolist(), contacts.tolist()))))
+            "add_skin", (stamp, part, slots.tolist(), pressures.tolist(), contacts.tolist()))))
 
     def _arrived(self, stream: str, arrived: float) -> None:
         self.received[stream] += 1
@@ -99,11 +99,12 @@ class TouchRecording:
 
     def contacts(self, part: str, stamp: float, contact_ids, cops, arrived: float) -> None:
         self._detect(self.in_order.push(contacts_topic(part), stamp, arrived,
-                                        (self.detector.add_contacts, (stamp, part, contact_ids, cops))))
+                                        ("add_contacts", (stamp, part, contact_ids, cops))))
 
-    def _detect(self, messages) -> None:
-        for add, args in messages:
-            self._write(add(*args))
+    def _detect(self, calls) -> None:
+        """The detector's ``(method, arguments)`` calls the merge let through, in order; their touches written."""
+        for method, args in calls:
+            self._write(getattr(self.detector, method)(*args))
 
     def bad_message(self) -> bool:
         """Count a message that could not be read; True while it is still to be said (the first few)."""
