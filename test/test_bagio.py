@@ -16,6 +16,7 @@ from nao_skin.calibration.pairing import metrics, pair_touches
 from nao_skin.errors import DataError
 from nao_skin.formats.bag import BagWriter, detected_touch_messages, read_touches, touch_messages, write_touch_bag
 from nao_skin.touch.events import LIVE_CONFIG, ContactRecord, TouchRecord
+from nao_skin.touch.inorder import InOrder
 from recorded_touches import held_up
 
 
@@ -391,6 +392,42 @@ def test_a_stream_bag_whose_recorder_was_held_up_gives_every_press_once(skin, tm
     assert report.n_skipped == 0 and not report.skipped
     assert touches.n_touches == 7
     np.testing.assert_allclose(touches.stamps, 0.01 * (20 + 60 * np.arange(7)), atol=1e-9)
+
+
+def test_one_joint_state_stamped_far_ahead_makes_nothing_wait_to_the_end_of_a_stream_bag(skin, tmp_path, monkeypatch):
+    """A stream bag whose hand skin sends only while pressed and stops after 4 s, and one joint state in it
+    stamped 1000 s ahead (where its recorder got it). Taken as the bag's clock, that stamp made every later
+    message wait for the quiet hand to the end of the bag (3902 messages held at once here); the clock moves
+    at most a second per message, so at most the 10 s a message waits are held."""
+    most = [0]
+    push = InOrder.push
+
+    def counted(self, *args):
+        out = push(self, *args)
+        most[0] = max(most[0], len(self))
+        return out
+
+    monkeypatch.setattr(InOrder, "push", counted)
+    hand, torso = skin.parts["l_hand"].slots[:3], skin.parts["torso"].slots[:3]
+    names = skin.robot.joint_names
+    with BagWriter(tmp_path / "ahead", "sqlite3") as bag:
+        for k in range(3000):                                # 30 s: joints at 100 Hz, skin at 50 Hz
+            t = k * 0.01
+            bag.write_joint_state(int(t * 1e9), names, np.full(len(names), 0.001 * t))
+            if k == 50:
+                bag.write_joint_state(int(1000e9), names, np.zeros(len(names)), received_ns=int(t * 1e9))
+            if k % 2:
+                continue
+            on = 20 <= k % 60 < 40
+            for part, slots in (("l_hand", hand), ("torso", torso)):
+                if part == "l_hand" and (not on or k > 400):
+                    continue
+                s = slots if on else slots[:0]
+                bag.write_taxels(int(t * 1e9), part, skin.parts[part].parent_frame, skin.parts[part].positions[s],
+                                 s, np.full(len(s), 2.0), np.full(len(s), -1))
+    touches, report = read_touches(tmp_path / "ahead", skin)
+    assert touches.n_touches == 7 and dict(report.skipped) == {"joint state stamped ahead": 1}
+    assert most[0] <= 1600                                  # 10 s of 150 messages a second, and a few
 
 
 def test_bad_slot_unknown_part_and_nan_joints_are_counted(skin, tmp_path):

@@ -51,6 +51,7 @@ from nao_skin.touch.inorder import InOrder
 from nao_skin.touch.touches import TouchSet
 
 BAG_KIND_KEY = "nao_skin.bag_kind"
+CLOCK_STEP_S = 1.0     # s a stream bag's clock moves at most per message read (_Feed)
 SOURCE_KEY = "nao_skin.recorded_from"     # what a recorder was fed: a simulated robot is said on every read
 SIMULATED = "the simulated robot (sim_robot)"
 CONTINUES_KEY = "nao_skin.continues"        # the earlier sittings' bags a record session continued: a JSON list
@@ -709,7 +710,9 @@ class _Feed:
         self.detector = EventDetector.for_skin(skin, config)
         # a stream bag holds each topic as its recorder got it, and a recorder held up gets the topics' backlogs
         # one after another: read in the order of their stamps, as the live recorder reads them (a touch bag is
-        # written in order); the clock that says how long a message waited is the newest stamp read
+        # written in order); the clock that says how long a message waited is the newest stamp read, moved at
+        # most CLOCK_STEP_S per message (one message stamped far ahead must not make every later one wait for
+        # a quiet stream to the end of the bag)
         self.in_order = InOrder() if config.skin_tolerance > 0 else None
         self.clock = float("-inf")
         self.store = _typestore()
@@ -739,7 +742,8 @@ class _Feed:
             if self.in_order is None:
                 self._detect([call])
             else:
-                self.clock = max(self.clock, stamp)
+                self.clock = stamp if self.clock == float("-inf") else max(self.clock,
+                                                                           min(stamp, self.clock + CLOCK_STEP_S))
                 self._detect(self.in_order.push(topic, stamp, self.clock, call))
         return "ends cleanly"
 

@@ -64,3 +64,7 @@ class InOrder:
 
     def drain(self) -> list:
         return self.ready(float("inf"))
+
+    def __len__(self) -> int:
+        """How many messages wait."""
+        return sum(len(queue) for queue in self._queues.values())
