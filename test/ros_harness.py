@@ -204,8 +204,7 @@ class Listener:
         """The reply to ``request`` (one a node may answer twice: asking is all it does, as GetParameters)
         through ``client``, sent again while unanswered. A service counts as ready once the client's request
         reaches it, which can be before its reply writer has found the client: the reply then goes to
-        nobody (a pairing_recorder's get_parameters unanswered for 20 s, CI-like run of 2026-11-29), and only
-        asking again gets one."""
+        nobody, and only asking again gets one (docs/decisions.md, "A service reply that went to nobody")."""
         deadline = time.monotonic() + timeout
         assert self.spin_until(client.service_is_ready, timeout=timeout, procs=procs), f"{client.srv_name}: no service"
         while True:
