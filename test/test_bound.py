@@ -60,3 +60,24 @@ def test_bench_bound_writes_its_table_and_refuses_sizes_beyond_the_pool(tmp_path
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and says in err[0], err
     assert not (tmp_path / "b3").exists()
+
+
+def test_bench_bound_with_the_kinematics_free_holds_what_the_frames_stand_for_and_costs_accuracy(tmp_path, capsys):
+    out = tmp_path / "kinematics"
+    assert cli_main(["bench-bound", "--kinematics", "30", "--seeds", "1", "--out", str(out)]) == 0
+    (row,) = json.loads((out / "bound_results.json").read_text())["rows"]
+    # the last joint of each chain turns its part as the part's mount does: no information of its own
+    assert sorted(row["held"]) == ["HeadPitch", "LWristYaw", "RWristYaw"]
+    assert sorted(row["link_std_mm"]) == ["LElbowOffsetY", "RElbowOffsetY"]
+    assert "LShoulderPitch" in row["joint_std_deg"] and "HeadYaw" in row["joint_std_deg"]
+    # unknowns the touches must also tell apart: the frames' error grows (1.7x at 30 per pair, 1.3-1.4x at 200)
+    assert row["kinematics_free_mm"] > 1.2 * row["kinematics_known_mm"]
+    assert row["ratio"] == pytest.approx(row["kinematics_free_mm"] / row["skin_only_mm"])
+    assert 0.0 < row["links_within"] < 1.0 and 0.0 < row["joints_within"] < 1.0
+    assert "| 0 | 30 (" in (out / "bound_results.md").read_text()
+    capsys.readouterr()
+    for bad in ("5", "30,x", "200000"):
+        assert cli_main(["bench-bound", "--kinematics", bad, "--out", str(tmp_path / "k2")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"--kinematics '{bad}': expected touches per pair from 10 to" in err[0], err
+    assert not (tmp_path / "k2").exists()

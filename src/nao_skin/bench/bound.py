@@ -23,6 +23,11 @@ robot knows: a bound on what any guidance choosing among these touches can
 buy over random capture. How many random touches reach the greedy choice's
 error follows from the random errors at the sizes measured (log-log between
 them).
+
+With the kinematics free (:func:`kinematic_bound_row`), the unknowns are the frames and the robot config's
+joint offsets and links of every chain, the rows the same; a draw of the posterior is a calibration, judged
+as one is (:func:`~nao_skin.calibration.evaluation.truth_error` at the training poses, the base frame), so
+the figure is the one the kinematic calibration's goals compare, on the same touches.
 """
 from __future__ import annotations
 
@@ -31,10 +36,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
+from nao_skin.calibration.layout import ParameterLayout
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.stages import initial_prior_sigma
-from nao_skin.calibration.uncertainty import (linearised_rows, prior_information, robust_sigma, taxel_jacobian,
-                                              taxel_rms)
+from nao_skin.calibration.uncertainty import (covariance, linearised_rows, prior_information, robust_sigma,
+                                              taxel_jacobian, taxel_rms)
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.touches import TouchSet
 
@@ -138,3 +144,126 @@ def bound_rows(skin: SkinModel, seed: int, pool_per_pair: int, sizes, batch: int
         row["random_touches_for_greedy"] = random_touches_for(row["greedy_median_mm"], random_median)
         row["ratio"] = row["random_touches_for_greedy"] / n
     return rows
+
+
+# ------------------------------------------------------------------------------ the bound with the kinematics free
+KINEMATIC_PRESET = "kinematic-error"
+# rad or m: a kinematic unknown whose posterior std exceeds this has no information of its own -- the frames stand
+# for it exactly (the last joint of a chain turns its part as the part's mount does); the engine holds it at
+# nominal, where the mount absorbs it, and so does the bound
+HELD_STD = 1.0
+# the recovered kinematic corrections' tolerances the estimator is judged by: a link (mm), a joint offset (deg)
+OFFSET_TOLERANCE = {"link_mm": 0.3, "joint_deg": 0.1}
+DRAWS = 48      # posterior draws per bound (each one truth-error evaluation at the training poses)
+
+
+def _held_kinematics(information: np.ndarray, layout: ParameterLayout) -> tuple:
+    """``(covariance, held names)``: the posterior covariance with every kinematic unknown the frames stand for
+    held (its row and column zero), the unknown of largest std first until none exceeds :data:`HELD_STD`."""
+    keep = np.ones(len(information), bool)
+    cols = layout.kinematic_cols
+    held = []
+    while True:
+        idx = np.flatnonzero(keep)
+        cov = np.zeros_like(information)
+        cov[np.ix_(idx, idx)] = covariance(information[np.ix_(idx, idx)])
+        free = {name: np.sqrt(cov[col, col]) for name, col in cols.items() if keep[col]}
+        if not free or max(free.values()) <= HELD_STD:
+            return cov, held
+        name = max(free, key=free.get)
+        keep[cols[name]] = False
+        held.append(name)
+
+
+def _drawn_worst_median(skin: SkinModel, layout: ParameterLayout, truth: SkinCalibration, fabric: float,
+                        cov: np.ndarray, parts, poses: np.ndarray, seed: int) -> float:
+    """The worst part's median true taxel error (mm), as :func:`~nao_skin.calibration.evaluation.truth_error`
+    measures a calibration at ``poses``, averaged over :data:`DRAWS` calibrations drawn from ``N(truth, cov)``."""
+    from nao_skin.calibration.evaluation import truth_error
+
+    x0 = layout.to_vector(truth, fabric)
+    w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+    root = v * np.sqrt(np.maximum(w, 0.0))
+    rng = np.random.default_rng(seed)
+    worst = []
+    for _ in range(DRAWS):
+        err = truth_error(skin, layout.to_calibration(x0 + root @ rng.standard_normal(len(x0)), truth), truth,
+                          parts, poses)
+        worst.append(max(err[p]["median"] for p in parts))
+    return float(np.mean(worst))
+
+
+def _within(std: np.ndarray, tolerance: float) -> float:
+    """The expected share of unknowns within ``tolerance`` of the truth, each error ``N(0, std^2)``."""
+    from scipy.special import erf
+
+    return float(np.mean(erf(tolerance / (np.sqrt(2.0) * np.maximum(std, 1e-300))))) if len(std) else float("nan")
+
+
+@dataclass
+class _AtTruth:
+    """One simulated robot's training touches linearised at its truth."""
+
+    truth: SkinCalibration
+    fabric: float
+    parts: tuple
+    poses: np.ndarray           # the training touches' joint angles (robot order): where the error is measured
+    layout: ParameterLayout
+    information: np.ndarray     # J^T J / sigma^2 plus the prior
+    sigma: float
+    n_train: int
+
+    def worst_median(self, skin: SkinModel, cov: np.ndarray, seed: int) -> float:
+        return _drawn_worst_median(skin, self.layout, self.truth, self.fabric, cov, self.parts, self.poses, seed)
+
+
+def _at_truth(skin: SkinModel, preset: str, seed: int, per_pair: int, options: CalibrationOptions,
+              kinematics_free: bool) -> _AtTruth:
+    from nao_skin.bench.hard import HardCaseSetup, simulate_case
+    from nao_skin.calibration.engine import train_test
+    from nao_skin.calibration.pairing import robot_joints
+
+    sim, touches, _ = simulate_case(skin, preset, seed, HardCaseSetup(n_touches=per_pair))
+    train, _ = train_test(touches, options)
+    parts = tuple(p for p in skin.parts if p in train.part_names)
+    chains = sorted({skin.parts[p].chain for p in parts} - {None})
+    kinematic = tuple(skin.robot.kinematic_names(chains)) if kinematics_free else ()
+    fabric = sim.params.fabric_thickness
+    layout, jac, _, residuals = linearised_rows(skin, train, sim.truth, fabric, parts, options, kinematic=kinematic)
+    sigma = robust_sigma(residuals)
+    information = (jac.T @ jac).toarray() / sigma ** 2 + np.diag(prior_information(layout, parts,
+                                                                                      initial_prior_sigma(options)))
+    return _AtTruth(sim.truth, fabric, parts, robot_joints(train, skin), layout, information, sigma, train.n_touches)
+
+
+def kinematic_bound_row(skin: SkinModel, seed: int, per_pair: int, options: CalibrationOptions | None = None) -> dict:
+    """One seed: what an efficient estimator reaches with the arm and head kinematics free, against the skin alone.
+
+    ``per_pair`` touches per pair simulated on the default preset and on :data:`KINEMATIC_PRESET` (joints off by up
+    to 2 deg, the elbow offsets 15 mm off), each split as a calibration splits it (``options``: test_fraction,
+    seed) and its training touches linearised at the truth (rows ``options.closing_pairs``). Figures as the
+    calibration is judged: the worst part's median true taxel error at the training poses (mean over posterior
+    draws): the default preset's skin-only bound, the kinematic preset's with its kinematics known (its skin
+    frames only) and free (joint offsets and links of every chain, what the frames stand for held); the free
+    unknowns' posterior std, and the share of them an efficient estimator brings within
+    :data:`OFFSET_TOLERANCE`."""
+    options = options or CalibrationOptions()
+    plain = _at_truth(skin, "default", seed, per_pair, options, kinematics_free=False)
+    kin = _at_truth(skin, KINEMATIC_PRESET, seed, per_pair, options, kinematics_free=True)
+    frames = np.arange(kin.layout.fabric_col + 1)
+    known = np.zeros_like(kin.information)
+    known[np.ix_(frames, frames)] = covariance(kin.information[np.ix_(frames, frames)])
+    free, held = _held_kinematics(kin.information, kin.layout)
+    std = {name: float(np.sqrt(free[col, col])) for name, col in kin.layout.kinematic_cols.items() if name not in held}
+    links = {n: 1000.0 * s for n, s in std.items() if n in skin.robot.links}
+    joints = {n: float(np.degrees(s)) for n, s in std.items() if n not in skin.robot.links}
+    row = {"seed": int(seed), "per_pair": int(per_pair), "train_touches": plain.n_train,
+           "kinematic_train_touches": kin.n_train, "sigma_mm": 1000.0 * plain.sigma,
+           "skin_only_mm": plain.worst_median(skin, covariance(plain.information), seed),
+           "kinematics_known_mm": kin.worst_median(skin, known, seed),
+           "kinematics_free_mm": kin.worst_median(skin, free, seed),
+           "held": sorted(held), "link_std_mm": links, "joint_std_deg": joints,
+           "links_within": _within(np.array(list(links.values())), OFFSET_TOLERANCE["link_mm"]),
+           "joints_within": _within(np.array(list(joints.values())), OFFSET_TOLERANCE["joint_deg"])}
+    row["ratio"] = row["kinematics_free_mm"] / row["skin_only_mm"]
+    return row

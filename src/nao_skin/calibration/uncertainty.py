@@ -68,13 +68,14 @@ def prior_information(layout: ParameterLayout, parts, prior_sigma: dict) -> np.n
 
 
 def linearised_rows(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, fabric: float, parts: tuple,
-                    options, inliers: np.ndarray | None = None) -> tuple:
+                    options, inliers: np.ndarray | None = None, kinematic: tuple = ()) -> tuple:
     """``(layout, J, row of each Jacobian row's touch, residuals)``: the touches paired at ``calib`` as the
     closing stage pairs them (every part of ``parts`` against every other, ``options.closing_pairs``; only the
-    ``inliers`` touches' rows when given), linearised there by every frame of ``parts`` and the fabric.
+    ``inliers`` touches' rows when given), linearised there by every frame of ``parts``, the fabric and the
+    ``kinematic`` corrections (names of the robot config's joints and links; none by default: known).
     ``J`` is sparse (3 rows per paired row); ``None`` for all but the layout when nothing pairs."""
     options = options.in_place()
-    layout = ParameterLayout(skin, parts, ())
+    layout = ParameterLayout(skin, parts, tuple(kinematic))
     kinds = fitted_kinds(options, {"triangle"})
     pairing = pair_step(touches, skin, calib, Step(parts, ()), kinds, options.plane_rows())
     if pairing is not None:
@@ -83,7 +84,9 @@ def linearised_rows(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, 
         return layout, None, None, None
     # on the robot the calibration's kinematic corrections describe (none: the config's); they count as known
     model = ResidualModel(skin, partial(chain_end_poses, touches, skin.with_kinematics(calib)), pairing,
-                          touches.part_names, layout, calib, fabric=fabric)
+                          touches.part_names, layout, calib, fabric=fabric,
+                          kinematic_poses=(lambda c: partial(chain_end_poses, touches, skin.with_kinematics(c)))
+                          if kinematic else None)
     jac = scipy.sparse.csr_matrix(model.jacobian(calib, {p: set(LEVELS) for p in parts}))
     return layout, jac, np.repeat(pairing.row_touch, 3), model.residuals(calib)
 
