@@ -602,8 +602,12 @@ def _predicted(train: TouchSet, skin: SkinModel, steps: list, options: Calibrati
     t0 = time.perf_counter()
     parts = tuple(sorted({p for s in steps for p in s.targets + s.references if p in train.part_names},
                          key=part_rank))
+    # the kinematic corrections the calibration estimated are unknowns of the prediction too
+    kin = report.kinematics or {}
+    held = {h["name"] for h in kin.get("held", [])}
+    kinematic = tuple(n for n in kin.get("corrections", {}) if n not in held) if kin.get("accepted") else ()
     prediction = predicted_error(skin, train, fit.calibration, fit.fabric, parts, report.parts, options,
-                                 fit.prior_sigma, fit.inliers, fit.estimated)
+                                 fit.prior_sigma, fit.inliers, fit.estimated, kinematic)
     figures, sigma = prediction.figures, prediction.sigma
     report.final["predicted_taxel_error_mm"] = figures
     report.final["predicted_triangle_error_mm"] = prediction.triangles
