@@ -158,8 +158,9 @@ def posed_taxel_jacobian(skin: SkinModel, layout: ParameterLayout, calib: SkinCa
         cols = np.repeat(3 * np.arange(n), 9) + np.tile(np.tile(np.arange(3), 3), n)
         turn = scipy.sparse.csr_matrix((blocks.ravel(), (rows, cols)), shape=(3 * n, 3 * n))
         turned.append(turn @ g)
-    out = scipy.sparse.vstack(turned).tolil()
-    for name, col in layout.kinematic_cols.items():
+    out = scipy.sparse.vstack(turned).tocsr()       # its kinematic columns are empty: g's are
+    columns = []
+    for name in layout.kinematic_cols:
         moved = []
         for sign in (1.0, -1.0):
             kin = dict(calib.kinematics)
@@ -167,7 +168,12 @@ def posed_taxel_jacobian(skin: SkinModel, layout: ParameterLayout, calib: SkinCa
             on = skin.with_kinematics(SkinCalibration(calib.parts, kin))
             moved.append(np.concatenate([on.taxels_in_base(p, poses, calib)[:, skin.parts[p].slots] for p in names],
                                         axis=1))                                  # (poses, taxels, 3)
-        out[:, col] = ((moved[0] - moved[1]) / (2 * DIFFERENCE_STEP)).reshape(-1, 1)
+        columns.append(((moved[0] - moved[1]) / (2 * DIFFERENCE_STEP)).ravel())
+    if columns:
+        block = np.stack(columns, axis=1)                                          # (rows, kinematic unknowns)
+        rows, which = np.nonzero(block)
+        cols = np.array(list(layout.kinematic_cols.values()))[which]
+        out = out + scipy.sparse.csr_matrix((block[rows, which], (rows, cols)), shape=out.shape)
     return out.tocsr(), np.tile(taxel_part, len(poses))
 
 
