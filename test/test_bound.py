@@ -43,6 +43,11 @@ def test_bench_bound_writes_its_table_and_refuses_sizes_beyond_the_pool(tmp_path
     result = json.loads((out / "bound_results.json").read_text())
     assert [r["touches"] for r in result["rows"]] == [20, 40]
     assert "| 0 | 40 |" in (out / "bound_results.md").read_text()
+    # one size: no count of random touches to interpolate, said so rather than printed as nan
+    assert cli_main(["bench-bound", "--seeds", "1", "--pool", "20", "--sizes", "40", "--out", str(out), "--force"]) == 0
+    text = (out / "bound_results.md").read_text()
+    assert "nan" not in text and "for the same predicted error: not measured" in text
+    assert "Worst part's median, mean over the seeds (mm): 40: random " in text
     capsys.readouterr()
     assert cli_main(["bench-bound", "--pool", "20", "--sizes", "20,81", "--out", str(tmp_path / "b2")]) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -12,6 +12,7 @@ an earlier bench-bound output with ``--force``) and prints the table.
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -71,18 +72,27 @@ def _choice_table(rows: list, args, options, sizes: list) -> list:
     table = ["| seed | touches | random: worst part median / p95 mm | greedy: worst part median / p95 mm"
              " | random touches for greedy's median | random / greedy touches |",
              "|---|---|---|---|---|---|"]
+    def cell(value, digits):    # NaN: random touches are interpolated between two sizes, and one was measured
+        return f"{value:.{digits}f}" if math.isfinite(value) else "-"
+
     table += [f"| {r['seed']} | {r['touches']} | {r['random_median_mm']:.3f} / {r['random_p95_mm']:.3f}"
-              f" | {r['greedy_median_mm']:.3f} / {r['greedy_p95_mm']:.3f} | {r['random_touches_for_greedy']:.0f}"
-              f" | {r['ratio']:.2f} |" for r in rows]
-    ratios = [r["ratio"] for r in rows]
+              f" | {r['greedy_median_mm']:.3f} / {r['greedy_p95_mm']:.3f} | {cell(r['random_touches_for_greedy'], 0)}"
+              f" | {cell(r['ratio'], 2)} |" for r in rows]
+    ratios = sorted(r["ratio"] for r in rows if math.isfinite(r["ratio"]))
     sigmas = ", ".join(f"{r['sigma_mm']:.2f}" for r in rows if r["touches"] == sizes[0])
+    means = "; ".join(f"{n}: random {sum(r['random_median_mm'] for r in rows if r['touches'] == n) / args.seeds:.3f},"
+                      f" greedy {sum(r['greedy_median_mm'] for r in rows if r['touches'] == n) / args.seeds:.3f}"
+                      for n in sizes)
     return [f"Linearised Bayesian bound (see nao_skin.bench.bound): per seed a pool of {args.pool} simulated touches"
             f" per pair (default preset), paired at the truth (rows: {options.closing_pairs}); predicted RMS error per"
             f" taxel, worst part's median and p95 over its taxels; random: mean of 2 draws; greedy: {args.batch}"
             f" touches at a time, chosen with the true robot's Jacobian. Noise per coordinate (robust spread of the"
             f" residuals at the truth): {sigmas} mm.", "", *table, "",
-            f"Random / greedy touches for the same predicted error: {min(ratios):.2f}-{max(ratios):.2f}"
-            f" (median {float(sorted(ratios)[len(ratios) // 2]):.2f})."]
+            f"Worst part's median, mean over the seeds (mm): {means}.",
+            f"Random / greedy touches for the same predicted error: {ratios[0]:.2f}-{ratios[-1]:.2f}"
+            f" (median {ratios[len(ratios) // 2]:.2f})." if ratios else
+            "Random / greedy touches for the same predicted error: not measured (random touches' error is"
+            " interpolated between two sizes or more)."]
 
 
 def _kinematic_table(rows: list, options) -> list:
