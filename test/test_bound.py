@@ -85,4 +85,7 @@ def test_bench_bound_with_the_kinematics_free_holds_what_the_frames_stand_for_an
         assert cli_main(["bench-bound", "--kinematics", bad, "--out", str(tmp_path / "k2")]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and f"--kinematics '{bad}': expected touches per pair from 10 to" in err[0], err
+    assert cli_main(["bench-bound", "--kinematics", "30", "--sizes", "40", "--out", str(tmp_path / "k2")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--kinematics '30' with --sizes: those choose touches from a pool" in err[0], err
     assert not (tmp_path / "k2").exists()

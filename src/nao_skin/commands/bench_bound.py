@@ -23,15 +23,17 @@ NAME = "bench-bound"
 HELP = ("benchmark what any choice of touches could buy: linearised bound on the true taxel error, random against"
         " the best (greedy, truth-informed) choice; or what the kinematics free cost (--kinematics)")
 OUTPUTS = ("bound_results.md", "bound_results.json")
+# what the choice from a pool takes unless told (--pool, --sizes, --batch); --kinematics chooses nothing
+CHOICE_DEFAULTS = {"pool": 1000, "sizes": "250,500,1000", "batch": 10}
 
 
 def add_arguments(parser) -> None:
     add_output_arguments(parser, "bench-bound")
     parser.add_argument("--seeds", type=int, default=2, help="simulated robots (default 2)")
-    parser.add_argument("--pool", type=int, default=1000,
+    parser.add_argument("--pool", type=int, default=None,
                         help="touches per pair in each robot's pool to choose from (default 1000: 4000 in all)")
-    parser.add_argument("--sizes", default="250,500,1000", help="touches chosen, comma-separated (default 250,500,1000)")
-    parser.add_argument("--batch", type=int, default=10, help="touches the greedy choice adds at a time (default 10)")
+    parser.add_argument("--sizes", default=None, help="touches chosen, comma-separated (default 250,500,1000)")
+    parser.add_argument("--batch", type=int, default=None, help="touches the greedy choice adds at a time (default 10)")
     parser.add_argument("--kinematics", default=None, metavar="PER_PAIR",
                         help="instead: what an efficient estimator reaches with the arm and head kinematics free"
                              " (kinematic-error preset) against the skin alone (default preset), at these touches per"
@@ -135,6 +137,15 @@ def run(args) -> int:
 
     from nao_skin.sim.params import MAX_TOUCHES_PER_PAIR
 
+    if args.kinematics is not None:
+        given = [f"--{name}" for name in CHOICE_DEFAULTS if getattr(args, name) is not None]
+        if given:
+            raise DataError(f"--kinematics {args.kinematics!r} with {', '.join(given)}: those choose touches from a pool,"
+                            f" and --kinematics chooses none (it simulates PER_PAIR touches per pair and takes the"
+                            f" training split)")
+    for name, value in CHOICE_DEFAULTS.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
     for name, low in (("seeds", 1), ("pool", 10), ("batch", 1)):
         if getattr(args, name) < low:
             raise DataError(f"--{name} {getattr(args, name)}: expected a whole number >= {low}")
