@@ -140,9 +140,9 @@ def run(args) -> int:
     if args.kinematics is not None:
         given = [f"--{name}" for name in CHOICE_DEFAULTS if getattr(args, name) is not None]
         if given:
-            raise DataError(f"--kinematics {args.kinematics!r} with {', '.join(given)}: those choose touches from a pool,"
-                            f" and --kinematics chooses none (it simulates PER_PAIR touches per pair and takes the"
-                            f" training split)")
+            raise DataError(f"--kinematics {args.kinematics!r} with {', '.join(given)}: those choose touches from a"
+                            f" pool, and --kinematics chooses none (it simulates PER_PAIR touches per pair and takes"
+                            f" the training split)")
     for name, value in CHOICE_DEFAULTS.items():
         if getattr(args, name) is None:
             setattr(args, name, value)
