@@ -152,11 +152,12 @@ def posed_taxel_jacobian(skin: SkinModel, layout: ParameterLayout, calib: SkinCa
     turned = []
     rotations = {name: robot_skin.chain_poses(name, poses)[:, :3, :3] for name in names}
     index = np.array([names.index(p) for p in taxel_part])
+    # each taxel's 3x3 block on the diagonal: its chain end's rotation at the pose
+    block_rows = np.repeat(3 * np.arange(n), 9) + np.tile(np.repeat(np.arange(3), 3), n)
+    block_cols = np.repeat(3 * np.arange(n), 9) + np.tile(np.tile(np.arange(3), 3), n)
     for k in range(len(poses)):
         blocks = np.stack([rotations[name][k] for name in names])[index]             # (taxels, 3, 3)
-        rows = np.repeat(3 * np.arange(n), 9) + np.tile(np.repeat(np.arange(3), 3), n)
-        cols = np.repeat(3 * np.arange(n), 9) + np.tile(np.tile(np.arange(3), 3), n)
-        turn = scipy.sparse.csr_matrix((blocks.ravel(), (rows, cols)), shape=(3 * n, 3 * n))
+        turn = scipy.sparse.csr_matrix((blocks.ravel(), (block_rows, block_cols)), shape=(3 * n, 3 * n))
         turned.append(turn @ g)
     out = scipy.sparse.vstack(turned).tocsr()       # its kinematic columns are empty: g's are
     columns = []
@@ -320,7 +321,8 @@ def predicted_error(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, 
     calibration's prior (``prior_sigma``), the posterior scaled by :data:`INEFFICIENCY`. ``parts``: every
     part the touches pair (the references of the reported ones too). ``estimated``: the
     ``part/frame/component`` names the calibration estimated (None: every one); the others are held (see the
-    module's text). ``sigma``: the rows' noise per
+    module's text). ``kinematic``: the kinematic corrections it estimated (names); with any, the distances are
+    measured in the base frame at :data:`PREDICTION_POSES` of the touches' poses. ``sigma``: the rows' noise per
     coordinate (m) it assumed; ``triangles``: :func:`per_triangle`'s, each triangle's median predicted RMS
     error (the uncertainty map); the posterior they came from. Empty, NaN noise, when no row pairs."""
     layout, jac, row_touch, residuals = linearised_rows(skin, touches, calib, fabric, parts, options, inliers,
