@@ -25,9 +25,9 @@ error follows from the random errors at the sizes measured (log-log between
 them).
 
 With the kinematics free (:func:`kinematic_bound_row`), the unknowns are the frames and the robot config's
-joint offsets and links of every chain, the rows the same; a draw of the posterior is a calibration, judged
-as one is (:func:`~nao_skin.calibration.evaluation.truth_error` at the training poses, the base frame), so
-the figure is the one the kinematic calibration's goals compare, on the same touches.
+joint offsets and links of every chain, the rows the same, and the taxels are judged where they are: in the
+base frame at the training poses, as a calibration with kinematic corrections is judged and predicts its
+error (:func:`~nao_skin.calibration.uncertainty.judged_taxel_jacobian`).
 """
 from __future__ import annotations
 
@@ -39,8 +39,8 @@ import scipy.sparse
 from nao_skin.calibration.layout import ParameterLayout
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.stages import initial_prior_sigma
-from nao_skin.calibration.uncertainty import (covariance, linearised_rows, prior_information, robust_sigma,
-                                              taxel_jacobian, taxel_rms)
+from nao_skin.calibration.uncertainty import (covariance, distance_draws, judged_taxel_jacobian, linearised_rows,
+                                              prior_information, robust_sigma, taxel_jacobian, taxel_rms)
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.touches import TouchSet
 
@@ -154,7 +154,6 @@ KINEMATIC_PRESET = "kinematic-error"
 HELD_STD = 1.0
 # the recovered kinematic corrections' tolerances the estimator is judged by: a link (mm), a joint offset (deg)
 OFFSET_TOLERANCE = {"link_mm": 0.3, "joint_deg": 0.1}
-DRAWS = 48      # posterior draws per bound (each one truth-error evaluation at the training poses)
 
 
 def _held_kinematics(information: np.ndarray, layout: ParameterLayout) -> tuple:
@@ -175,24 +174,6 @@ def _held_kinematics(information: np.ndarray, layout: ParameterLayout) -> tuple:
         held.append(name)
 
 
-def _drawn_worst_median(skin: SkinModel, layout: ParameterLayout, truth: SkinCalibration, fabric: float,
-                        cov: np.ndarray, parts, poses: np.ndarray, seed: int) -> float:
-    """The worst part's median true taxel error (mm), as :func:`~nao_skin.calibration.evaluation.truth_error`
-    measures a calibration at ``poses``, averaged over :data:`DRAWS` calibrations drawn from ``N(truth, cov)``."""
-    from nao_skin.calibration.evaluation import truth_error
-
-    x0 = layout.to_vector(truth, fabric)
-    w, v = np.linalg.eigh(0.5 * (cov + cov.T))
-    root = v * np.sqrt(np.maximum(w, 0.0))
-    rng = np.random.default_rng(seed)
-    worst = []
-    for _ in range(DRAWS):
-        err = truth_error(skin, layout.to_calibration(x0 + root @ rng.standard_normal(len(x0)), truth), truth,
-                          parts, poses)
-        worst.append(max(err[p]["median"] for p in parts))
-    return float(np.mean(worst))
-
-
 def _within(std: np.ndarray, tolerance: float) -> float:
     """The expected share of unknowns within ``tolerance`` of the truth, each error ``N(0, std^2)``."""
     from scipy.special import erf
@@ -204,24 +185,25 @@ def _within(std: np.ndarray, tolerance: float) -> float:
 class _AtTruth:
     """One simulated robot's training touches linearised at its truth."""
 
-    truth: SkinCalibration
-    fabric: float
     parts: tuple
-    poses: np.ndarray           # the training touches' joint angles (robot order): where the error is measured
     layout: ParameterLayout
     information: np.ndarray     # J^T J / sigma^2 plus the prior
     sigma: float
     n_train: int
+    taxels: tuple               # (G, taxel part): where the taxels are judged (uncertainty.judged_taxel_jacobian)
 
-    def worst_median(self, skin: SkinModel, cov: np.ndarray, seed: int) -> float:
-        return _drawn_worst_median(skin, self.layout, self.truth, self.fabric, cov, self.parts, self.poses, seed)
+    def worst_median(self, cov: np.ndarray) -> float:
+        """The worst part's median distance from the truth (mm), expected over calibrations whose error is
+        ``N(0, cov)`` (uncertainty.distance_draws, as a calibration's predicted error is figured): each draw's
+        worst part, as each calibration's worst part is what the goals average over seeds."""
+        draws = distance_draws(cov, *self.taxels, self.parts)
+        return 1000.0 * float(np.mean(np.max([draws[p][0] for p in self.parts], axis=0)))
 
 
 def _at_truth(skin: SkinModel, preset: str, seed: int, per_pair: int, options: CalibrationOptions,
               kinematics_free: bool) -> _AtTruth:
     from nao_skin.bench.hard import HardCaseSetup, simulate_case
     from nao_skin.calibration.engine import train_test
-    from nao_skin.calibration.pairing import robot_joints
 
     sim, touches, _ = simulate_case(skin, preset, seed, HardCaseSetup(n_touches=per_pair))
     train, _ = train_test(touches, options)
@@ -233,7 +215,9 @@ def _at_truth(skin: SkinModel, preset: str, seed: int, per_pair: int, options: C
     sigma = robust_sigma(residuals)
     information = (jac.T @ jac).toarray() / sigma ** 2 + np.diag(prior_information(layout, parts,
                                                                                       initial_prior_sigma(options)))
-    return _AtTruth(sim.truth, fabric, parts, robot_joints(train, skin), layout, information, sigma, train.n_touches)
+    g, taxel_part = taxel_jacobian(skin, layout, sim.truth)
+    taxels = judged_taxel_jacobian(skin, layout, sim.truth, g, taxel_part, train) if kinematic else (g, taxel_part)
+    return _AtTruth(parts, layout, information, sigma, train.n_touches, taxels)
 
 
 def kinematic_bound_row(skin: SkinModel, seed: int, per_pair: int, options: CalibrationOptions | None = None) -> dict:
@@ -241,10 +225,12 @@ def kinematic_bound_row(skin: SkinModel, seed: int, per_pair: int, options: Cali
 
     ``per_pair`` touches per pair simulated on the default preset and on :data:`KINEMATIC_PRESET` (joints off by up
     to 2 deg, the elbow offsets 15 mm off), each split as a calibration splits it (``options``: test_fraction,
-    seed) and its training touches linearised at the truth (rows ``options.closing_pairs``). Figures as the
-    calibration is judged: the worst part's median true taxel error at the training poses (mean over posterior
-    draws): the default preset's skin-only bound, the kinematic preset's with its kinematics known (its skin
-    frames only) and free (joint offsets and links of every chain, what the frames stand for held); the free
+    seed) and its training touches linearised at the truth (rows ``options.closing_pairs``). Figures as a
+    calibration predicts its error (:func:`~nao_skin.calibration.uncertainty.judged_taxel_jacobian`: with
+    kinematic unknowns, in the base frame at its training poses), the worst part's median expected over the
+    posterior's draws: the default
+    preset's skin-only bound, the kinematic preset's with its kinematics known (its skin frames only) and free
+    (joint offsets and links of every chain, what the frames stand for held); the free
     unknowns' posterior std, and the share of them an efficient estimator brings within
     :data:`OFFSET_TOLERANCE`."""
     options = options or CalibrationOptions()
@@ -259,9 +245,9 @@ def kinematic_bound_row(skin: SkinModel, seed: int, per_pair: int, options: Cali
     joints = {n: float(np.degrees(s)) for n, s in std.items() if n not in skin.robot.links}
     row = {"seed": int(seed), "per_pair": int(per_pair), "train_touches": plain.n_train,
            "kinematic_train_touches": kin.n_train, "sigma_mm": 1000.0 * plain.sigma,
-           "skin_only_mm": plain.worst_median(skin, covariance(plain.information), seed),
-           "kinematics_known_mm": kin.worst_median(skin, known, seed),
-           "kinematics_free_mm": kin.worst_median(skin, free, seed),
+           "skin_only_mm": plain.worst_median(covariance(plain.information)),
+           "kinematics_known_mm": kin.worst_median(known),
+           "kinematics_free_mm": kin.worst_median(free),
            "held": sorted(held), "link_std_mm": links, "joint_std_deg": joints,
            "links_within": _within(np.array(list(links.values())), OFFSET_TOLERANCE["link_mm"]),
            "joints_within": _within(np.array(list(joints.values())), OFFSET_TOLERANCE["joint_deg"])}

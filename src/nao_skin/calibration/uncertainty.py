@@ -178,6 +178,21 @@ def posed_taxel_jacobian(skin: SkinModel, layout: ParameterLayout, calib: SkinCa
     return out.tocsr(), np.tile(taxel_part, len(poses))
 
 
+def judged_taxel_jacobian(skin: SkinModel, layout: ParameterLayout, calib: SkinCalibration, g, taxel_part: np.ndarray,
+                          touches: TouchSet) -> tuple:
+    """``(G, taxel_part)`` where a calibration with kinematic unknowns has its taxels judged: in the base frame at
+    :data:`PREDICTION_POSES` of the touches' poses, evenly spaced (:func:`posed_taxel_jacobian`); ``g`` and
+    ``taxel_part`` themselves (the chain-end frames) when no touch reads every joint of the parts' chains."""
+    q = robot_joints(touches, skin)
+    chains = {skin.parts[p].chain for p in layout.part_names} - {None}
+    read = [skin.robot.joint_index[j] for c in sorted(chains) for j in skin.robot.chain_joint_names(c)]
+    q = q[np.all(np.isfinite(q[:, read]), axis=1)]
+    if not len(q):
+        return g, taxel_part
+    q = q[np.unique(np.linspace(0, len(q) - 1, min(PREDICTION_POSES, len(q))).astype(int))]
+    return posed_taxel_jacobian(skin, layout, calib, g, taxel_part, q)
+
+
 def covariance(information: np.ndarray) -> np.ndarray:
     """The inverse of a symmetric positive definite ``information`` (Cholesky; LU if it is not)."""
     factor, info = scipy.linalg.lapack.dpotrf(information, lower=1, clean=1)
@@ -349,15 +364,8 @@ def predicted_error(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, 
     cov = covariance(information[np.ix_(free, free)] + np.diag(prior[free])) * INEFFICIENCY ** 2
     rms = rms_of(cov, g[:, free])
     shown = [p for p in parts if p in reported]
-    where, where_part = g, taxel_part
-    if kinematic:
-        q = robot_joints(touches, skin)
-        chains = {skin.parts[p].chain for p in layout.part_names} - {None}
-        read = [skin.robot.joint_index[j] for c in sorted(chains) for j in skin.robot.chain_joint_names(c)]
-        q = q[np.all(np.isfinite(q[:, read]), axis=1)]
-        if len(q):
-            q = q[np.unique(np.linspace(0, len(q) - 1, min(PREDICTION_POSES, len(q))).astype(int))]
-            where, where_part = posed_taxel_jacobian(skin, layout, calib, g, taxel_part, q)
+    where, where_part = judged_taxel_jacobian(skin, layout, calib, g, taxel_part, touches) if kinematic \
+        else (g, taxel_part)
     figures = {p: {k: 1000.0 * v for k, v in f.items()}
                for p, f in distance_figures(cov, where[:, free], where_part, shown).items()}
     posterior = Posterior(layout, free, cov, sigma, len(row_touch) / 3 / len(np.unique(row_touch)),

@@ -101,7 +101,8 @@ def _kinematic_table(rows: list, options) -> list:
     """Markdown lines of the bound with the kinematics free against the skin alone, per seed and count."""
     import numpy as np
 
-    from nao_skin.bench.bound import DRAWS, KINEMATIC_PRESET, OFFSET_TOLERANCE
+    from nao_skin.bench.bound import KINEMATIC_PRESET, OFFSET_TOLERANCE
+    from nao_skin.calibration.uncertainty import PREDICTION_POSES, SAMPLES
 
     link_tol, joint_tol = OFFSET_TOLERANCE["link_mm"], OFFSET_TOLERANCE["joint_deg"]
     table = ["| seed | touches per pair (training) | skin only, default preset mm | kinematics known / free mm"
@@ -121,8 +122,10 @@ def _kinematic_table(rows: list, options) -> list:
                        f"{ratios.max():.2f}), at most 1.15 in {int(np.sum(ratios <= 1.15))} of {len(ratios)}")
     return [f"Linearised Bayesian bound with the kinematics free (see nao_skin.bench.bound, kinematic_bound_row): per"
             f" seed and count the default preset and {KINEMATIC_PRESET} simulated, the training split's touches"
-            f" paired at the truth (rows: {options.closing_pairs}); the worst part's median true taxel error at the"
-            f" training poses, mean of {DRAWS} posterior draws, as a calibration is judged. Known: the skin's frames"
+            f" paired at the truth (rows: {options.closing_pairs}); in each of {SAMPLES} posterior draws the worst"
+            f" part's median distance of its taxels from the truth, averaged, the taxels judged in the base frame at"
+            f" {PREDICTION_POSES} of the training poses (as a calibration with kinematic corrections predicts its"
+            f" error). Known: the skin's frames"
             f" alone free; free: the joint offsets and links of every chain too (what the frames stand for exactly is"
             f" held, as the engine holds it). Within: the share of the free unknowns an efficient estimator brings"
             f" within the tolerance (its error normal with the std shown).", "", *table, "", "; ".join(summary) + "."]
