@@ -228,10 +228,9 @@ def kinematic_bound_row(skin: SkinModel, seed: int, per_pair: int, options: Cali
     seed) and its training touches linearised at the truth (rows ``options.closing_pairs``). Figures as a
     calibration predicts its error (:func:`~nao_skin.calibration.uncertainty.judged_taxel_jacobian`: with
     kinematic unknowns, in the base frame at its training poses), the worst part's median expected over the
-    posterior's draws: the default
-    preset's skin-only bound, the kinematic preset's with its kinematics known (its skin frames only) and free
-    (joint offsets and links of every chain, what the frames stand for held); the free
-    unknowns' posterior std, and the share of them an efficient estimator brings within
+    posterior's draws: the default preset's skin-only bound, the kinematic preset's with its kinematics known
+    (its skin frames only) and free (joint offsets and links of every chain, what the frames stand for held);
+    the free unknowns' posterior std, and the share of them an efficient estimator brings within
     :data:`OFFSET_TOLERANCE`."""
     options = options or CalibrationOptions()
     plain = _at_truth(skin, "default", seed, per_pair, options, kinematics_free=False)
