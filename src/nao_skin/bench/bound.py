@@ -152,7 +152,9 @@ KINEMATIC_PRESET = "kinematic-error"
 # for it exactly (the last joint of a chain turns its part as the part's mount does); the engine holds it at
 # nominal, where the mount absorbs it, and so does the bound
 HELD_STD = 1.0
-# the recovered kinematic corrections' tolerances the estimator is judged by: a link (mm), a joint offset (deg)
+# the kinematic calibration's goals: its worst part within this ratio of the skin-only figure, and the recovered
+# corrections within these tolerances, a link (mm) and a joint offset (deg)
+RATIO_GOAL = 1.15
 OFFSET_TOLERANCE = {"link_mm": 0.3, "joint_deg": 0.1}
 
 

@@ -101,7 +101,7 @@ def _kinematic_table(rows: list, options) -> list:
     """Markdown lines of the bound with the kinematics free against the skin alone, per seed and count."""
     import numpy as np
 
-    from nao_skin.bench.bound import KINEMATIC_PRESET, OFFSET_TOLERANCE
+    from nao_skin.bench.bound import KINEMATIC_PRESET, OFFSET_TOLERANCE, RATIO_GOAL
     from nao_skin.calibration.uncertainty import PREDICTION_POSES, SAMPLES
 
     link_tol, joint_tol = OFFSET_TOLERANCE["link_mm"], OFFSET_TOLERANCE["joint_deg"]
@@ -119,15 +119,14 @@ def _kinematic_table(rows: list, options) -> list:
     for n in sorted({r["per_pair"] for r in rows}):
         ratios = np.array([r["ratio"] for r in rows if r["per_pair"] == n])
         summary.append(f"{n} per pair: free / skin only median {np.median(ratios):.2f} ({ratios.min():.2f}-"
-                       f"{ratios.max():.2f}), at most 1.15 in {int(np.sum(ratios <= 1.15))} of {len(ratios)}")
+                       f"{ratios.max():.2f}), at most {RATIO_GOAL:g} in {int(np.sum(ratios <= RATIO_GOAL))} of {len(ratios)}")
     return [f"Linearised Bayesian bound with the kinematics free (see nao_skin.bench.bound, kinematic_bound_row): per"
             f" seed and count the default preset and {KINEMATIC_PRESET} simulated, the training split's touches"
             f" paired at the truth (rows: {options.closing_pairs}); in each of {SAMPLES} posterior draws the worst"
             f" part's median distance of its taxels from the truth, averaged, the taxels judged in the base frame at"
             f" {PREDICTION_POSES} of the training poses (as a calibration with kinematic corrections predicts its"
-            f" error). Known: the skin's frames"
-            f" alone free; free: the joint offsets and links of every chain too (what the frames stand for exactly is"
-            f" held, as the engine holds it). Within: the share of the free unknowns an efficient estimator brings"
+            f" error). Known: the skin's frames alone free; free: the joint offsets and links of every chain too"
+            f" (what the frames stand for exactly is held, as the engine holds it). Within: the share of the free unknowns an efficient estimator brings"
             f" within the tolerance (its error normal with the std shown).", "", *table, "", "; ".join(summary) + "."]
 
 
