@@ -969,6 +969,7 @@ def test_a_layout_replaces_a_configured_part_and_never_adds_one(tmp_path, real_d
     config = yaml.safe_load(default_skin_config().read_text())
     del config["parts"]["head"]
     config["self_touch"]["touched"] = ["torso"]
+    config["fingertip_touch"]["touched"] = ["torso", "l_hand", "r_hand"]
     for part in config["parts"].values():
         part["taxel_file"] = str(default_skin_config().parent / part["taxel_file"])
     config["robot"] = str(default_skin_config().parent / config["robot"])
@@ -1051,7 +1052,12 @@ def test_a_robot_config_without_a_chain_says_which_chain_is_missing(tmp_path, ca
     assert cli_main(["stats", str(real_recording), "--robot", str(path), *real_taxels]) == 2
     assert one_line(capsys) == (f"nao-skin stats: error: {path}: link 'LElbowOffsetY' is on chain 'l_arm', which"
                                 f" the file does not describe (chains: head, r_arm)")
-    path.write_text("\n".join(line for line in no_arm.splitlines() if not line.startswith("  LElbowOffsetY:")))
+    no_link = "\n".join(line for line in no_arm.splitlines() if not line.startswith("  LElbowOffsetY:"))
+    path.write_text(no_link)
+    assert cli_main(["stats", str(real_recording), "--robot", str(path), *real_taxels]) == 2
+    assert one_line(capsys) == (f"nao-skin stats: error: {path}: fingertip 'l_finger': chain 'l_arm' is not a chain"
+                                f" of this robot (chains: head, r_arm)")
+    path.write_text("\n".join(line for line in no_link.splitlines() if not line.startswith("  l_finger:")))
     assert cli_main(["stats", str(real_recording), "--robot", str(path), *real_taxels]) == 2
     assert "part 'l_hand': unknown chain 'l_arm' (robot has head, r_arm)" in one_line(capsys)
 

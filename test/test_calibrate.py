@@ -269,11 +269,11 @@ def test_a_joint_stream_that_never_moved_is_said(skin, left_hand_sim):
     touches, _ = left_hand_sim
     still = replace(touches, joints=np.repeat(touches.joints[:1], touches.n_touches, axis=0))
     calib = skin.zero_calibration()
-    said = implausible(still, skin, calib, ["l_hand", "torso"], 0, 3.0, 15.0)
+    said = implausible(still, skin, calib, ["l_hand", "torso"], 0, ("closest COP", 3.0), 15.0)
     assert said == [f"part 'l_hand': the joints of its chain (l_arm) did not move over its {touches.n_touches}"
                     f" training touches (every touch one pose: a stuck joint stream?): the touches pin the skin at"
                     f" one spot only"]
-    assert implausible(touches, skin, calib, ["l_hand", "torso"], 0, 3.0, 15.0) == []
+    assert implausible(touches, skin, calib, ["l_hand", "torso"], 0, ("closest COP", 3.0), 15.0) == []
 
 
 def test_command_fails_with_one_line_on_a_bad_input(tmp_path):
@@ -692,6 +692,6 @@ def test_kept_touches_far_apart_are_still_a_warning(skin, left_hand_sim):
     from nao_skin.calibration.plausibility import implausible
 
     touches, _ = left_hand_sim
-    said = implausible(touches, skin, skin.zero_calibration(), ["l_hand", "torso"], 3, 20.0, 15.0)
+    said = implausible(touches, skin, skin.zero_calibration(), ["l_hand", "torso"], 3, ("closest COP", 20.0), 15.0)
     assert said == ["the kept touches' closest COP pairs end 20.0 mm apart (besides the 3 set aside), more than the"
                     " gate (15 mm): the calibration does not explain the recording"]

@@ -301,11 +301,12 @@ BAD_KINEMATICS = "needs a finite numeric correction (at most 0.1 m) and, if give
      "kinematics: 'HeadYaw' needs a finite numeric correction (at most 0.5 rad) and, if given, a finite std >= 0"),
     ({"format": "nao_skin/simulation/1"},
      "format 'nao_skin/simulation/1', not nao_skin/calibration/1: another kind of file or a newer nao_skin's"),
-    ({"contents": {"frames": -1}}, "contents must be a mapping of frames and (optional) kinematics, each a whole"
-                                   " number >= 0"),
-    ({"contents": {"frames": 1.5}}, "contents must be a mapping of frames and (optional) kinematics, each a whole"
-                                    " number >= 0"),
-    ({"contents": 3}, "contents must be a mapping of frames and (optional) kinematics, each a whole number >= 0"),
+    ({"contents": {"frames": -1}}, "contents must be a mapping of frames and (optional) kinematics and fingertips,"
+                                   " each a whole number >= 0"),
+    ({"contents": {"frames": 1.5}}, "contents must be a mapping of frames and (optional) kinematics and fingertips,"
+                                    " each a whole number >= 0"),
+    ({"contents": 3}, "contents must be a mapping of frames and (optional) kinematics and fingertips, each a whole"
+                      " number >= 0"),
     ({"contents": {"frames": 2}}, "holds 0 frames and 0 kinematic corrections where its contents line says 2 and"
                                   " 0: the file was cut short or edited; restore it, or after a deliberate edit"
                                   " correct that line"),
@@ -431,7 +432,7 @@ BAD_MOUNT = "xyz and rotvec must be 3 finite numbers each, metres (at most 10) a
     (lambda d: d["parts"]["head"].update(mount={"xyz": [0, 0, 0], "rpy": [0, 0, 1]}),
      "part 'head': mount: unknown key 'rpy'; it takes xyz, rotvec"),
     (lambda d: d.update(robots="x.yaml"),
-     "unknown key 'robots' (did you mean 'robot'?); it takes robot, parts, self_touch"),
+     "unknown key 'robots' (did you mean 'robot'?); it takes robot, parts, self_touch, fingertip_touch"),
     (lambda d: d["parts"]["torso"]["patches"][0].append(40), "part 'torso' patch 0: triangle 40 is not in 0..31"),
     # YAML's true is Python's 1: it was "triangle 1 is listed in patch 0 and in patch 0"
     (lambda d: d["parts"]["torso"]["patches"][0].__setitem__(0, True),

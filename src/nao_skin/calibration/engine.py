@@ -34,14 +34,14 @@ from typing import Callable, Iterable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from nao_skin.calibration.evaluation import (closest_cop_cost, evaluate, explained, firing_prediction,
+from nao_skin.calibration.evaluation import (closest_cop_cost, contact_figure, evaluate, explained, firing_prediction,
                                              fitted_pair_cost, fitted_touch_distances, gate_touches, paired_gain,
-                                             plan_pairs, truth_error)
+                                             plan_fingertips, plan_pairs, truth_error)
 from nao_skin.calibration.first_guess import guess_targets, rigid_mount_guess
 from nao_skin.calibration.layout import KINEMATICS
 from nao_skin.calibration.options import LEVELS, CalibrationOptions
 from nao_skin.calibration.pairing import robot_joints
-from nao_skin.calibration.plan import (Step, left_out_pairs, pairs_outside_roles, plan_steps, too_few,
+from nao_skin.calibration.plan import (Step, joint_step, left_out_pairs, pairs_outside_roles, plan_steps, too_few,
                                        touching_pairs)
 from nao_skin.calibration.plausibility import implausible
 from nao_skin.calibration.rows import pairing_key
@@ -195,7 +195,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
     def run(entries, fit, label=""):
         for round_no, step, prefix in entries:
             if options.initial_guess == "rigid-fit" and round_no == 0 and not warm.issuperset(step.targets) \
-                    and (step.references or options.reference == "simultaneous"):
+                    and (step.references or step.fingertips or options.reference == "simultaneous"):
                 _first_guess(train, skin, step, options, fit, say, label + prefix)
             warm_step = bool(warm) and warm.issuperset(step.targets)
             for levels in _stage_levels(step, options, prefix):
@@ -237,7 +237,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
                         f" {skin.source}), calibrated one from the other without the plan's order: is it this"
                         f" robot's config?"] if outside else []) \
         + implausible(train, skin, fit.calibration, report.parts, len(fit.set_aside),
-                      report.final["train_kept"].get("cop_mean_mm", float("nan")), options.gate_mm)
+                      contact_figure(report.final["train_kept"]), options.gate_mm)
     for line in report.warnings:
         say(f"warning: {line}")
     report.total_seconds = time.perf_counter() - t_start
@@ -300,13 +300,13 @@ def _schedule(steps: list, options: CalibrationOptions, warm: frozenset = frozen
               and bool(set(options.joint_levels) & set(options.levels)))
     schedule = [(r, step) for r in range(max(1, options.rounds)) for step in steps
                 if not (refine and step.references and warm.issuperset(step.targets))]
-    joint = Step(tuple(sorted({p for s in steps for p in s.targets + s.references}, key=part_rank)), ())
+    joint = joint_step(steps)
     if refine:
         schedule.append((options.rounds, joint))
     out = []
     for round_no, step in schedule:
         prefix = f"round {round_no + 1}: " if options.rounds > 1 and step.references else ""
-        if not step.references and options.reference == "fixed":
+        if not step.references and options.reference == "fixed" and (step is joint or not step.fingertips):
             prefix = JOINT
         out.append((round_no, step, prefix))
     # a warm update leaves them out: it continues from the last update's frames anyway, within its time
@@ -353,13 +353,13 @@ def _first_guess(train: TouchSet, skin: SkinModel, step: Step, options: Calibrat
                  prefix: str) -> None:
     """Closed-form first guess of each mount that has a reference to be fitted to, kept if it pairs closer."""
     t0 = time.perf_counter()
-    for target, refs in guess_targets(step, skin.self_touch):
-        guess_step = Step((target,), refs)
+    for target, refs, tips in guess_targets(step, skin.self_touch):
+        guess_step = Step((target,), refs, tuple((f, target) for f in tips))
         before = closest_cop_cost(train, skin, fit.calibration, guess_step, fit.inliers)
         if before * 1000.0 < options.gate_mm / 2:
             continue   # already in the basin (e.g. the torso): the local solver takes it from here
         guess = fit.calibration.copy()
-        guess.parts[target].mount = rigid_mount_guess(train, skin, fit.calibration, target, refs)
+        guess.parts[target].mount = rigid_mount_guess(train, skin, fit.calibration, target, refs, fingertips=tips)
         if closest_cop_cost(train, skin, guess, guess_step, fit.inliers) < before:
             fit.calibration = guess
     say(f"{prefix}{step.name}: rigid-fit first guess ({time.perf_counter() - t0:.2f} s)")
@@ -428,7 +428,8 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
     fit.last_measured = (fit.calibration, plan_pairs([step]), entry["train"], entry["test"])
     if truth is not None:
         entry["truth_taxel_error_mm"] = truth_error(skin, fit.calibration, truth, step.targets, fit.truth_poses)
-    say(f"{entry['name']}: train closest COP {entry['train'].get('cop_mean_mm', float('nan')):.2f} mm,"
+    label, near = contact_figure(entry["train"])
+    say(f"{entry['name']}: train {label} {near:.2f} mm,"
         f" taxel {entry['train'].get('taxel_mean_mm', float('nan')):.2f} mm"
         f" ({entry['iterations']} iterations, {entry['repairings']} pairings, {entry['seconds']:.2f} s)")
     return entry
@@ -455,7 +456,7 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     """
     # every stage of this path fits the rows of kinematics_pairs (docs/method.md, "The contact model")
     options = replace(options, pairs=options.kinematics_pairs)
-    step = Step(tuple(sorted({p for s in steps for p in s.targets + s.references}, key=part_rank)), ())
+    step = joint_step(steps)
     test_before = _held_out_surface_mm(test, skin, fit, step)
     # The skin-only plan is no starting point: its patches and triangles have absorbed what the kinematics
     # get wrong, and a kinematic stage after it only takes back what the mounts cannot (docs/method.md,
@@ -467,7 +468,8 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     refined = _refines(schedule)
     for round_no, st, stage_prefix in schedule:
         prefix = "kinematics, mounts: " + stage_prefix
-        if options.initial_guess == "rigid-fit" and round_no == 0 and (st.references or options.reference == "simultaneous"):
+        if options.initial_guess == "rigid-fit" and round_no == 0 and (st.references or st.fingertips
+                                                                       or options.reference == "simultaneous"):
             _first_guess(train, skin, st, options, kfit, say, prefix)
         if any("mount" in levels for levels in _stage_levels(st, options, stage_prefix)):
             entries.append(_fit_stage(train, test, skin, st, {"mount"}, round_no, prefix, options, kfit, truth, say,
@@ -566,7 +568,7 @@ def _final_figures(train: TouchSet, test: TouchSet, skin: SkinModel, steps: list
         final = {"train": dict(m_train), "test": dict(m_test)}     # the last stage measured this very calibration
         for figures, touches in ((final["train"], train), (final["test"], test)):
             if figures.get("n_touches"):
-                figures.update(firing_prediction(touches, skin, calib, pairs))
+                figures.update(firing_prediction(touches, skin, calib, pairs, plan_fingertips(steps)))
     else:
         final = {"train": evaluate(train, skin, calib, steps, fired=True),
                  "test": evaluate(test, skin, calib, steps, fired=True)}
@@ -623,11 +625,16 @@ def _check_enough(train: TouchSet, steps: list, options: CalibrationOptions) -> 
     """Stop before solving when the touches cannot determine what is asked (one line)."""
     fired = train.parts_of_touch()
     groups = pose_groups(train)
+    tip = train.fingertip_of_touch
     for step in steps:
         for target in step.targets:
             others = [p for p in step.targets + step.references if p != target]
+            others += [f for f, p in step.fingertips if p == target]
             t = train.part_index(target)
-            with_ref = fired[:, t] & np.any(fired[:, [train.part_index(o) for o in others]], axis=1)
+            with_ref = fired[:, t] & (np.any(fired[:, [train.part_index(o) for o in others if o in train.part_names]],
+                                             axis=1)
+                                      | np.isin(tip, [train.fingertips.index(o) for o in others
+                                                      if o in train.fingertips]))
             n = int(with_ref.sum())
             poses = len(np.unique(groups[with_ref]))
             need = options.min_mount_touches

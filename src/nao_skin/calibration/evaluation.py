@@ -6,13 +6,36 @@ from functools import partial
 import numpy as np
 
 from nao_skin.calibration.contact import predicted_firing
+from nao_skin.calibration.fingertip import fingertip_firing, fingertip_rows
 from nao_skin.calibration.layout import ParameterLayout
-from nao_skin.calibration.pairing import (METRIC_KINDS, METRIC_TAXEL_RULE, PlaneRows, activation_normals,
+from nao_skin.calibration.pairing import (COP_LIKE, METRIC_KINDS, METRIC_TAXEL_RULE, PlaneRows, activation_normals,
                                           activation_positions, chain_end_poses, metrics)
 from nao_skin.calibration.residuals import ResidualModel
 from nao_skin.calibration.rows import concat_pairings, pair_parts, pair_step
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.touch.touches import TouchSet
+
+
+# The figures a calibration reports, in order, as reports name them: a self-touch's closest pairs, a fingertip
+# touch's distance from the fingertip to its contact, and how well the skin predicts which taxels fire. A figure
+# no touch measures (no fingertip scene; no self-touch) is NaN, and left out where figures are listed.
+FIGURES = {"cop_mean_mm": "closest COP (mm)", "taxel_mean_mm": "closest taxel (mm)",
+           "contact_taxel_mean_mm": "selected contacts' closest taxel (mm)",
+           "fingertip_mean_mm": "fingertip to its contact (mm)", "fired_f1": "fired taxels predicted, F1 (%)"}
+
+
+def contact_figure(figures: dict) -> tuple:
+    """``(label, mean mm)`` of how far apart a calibration leaves the touches' contacts: the closest COP pairs
+    where self-touches measure them, else the fingertips' distance (NaN: neither)."""
+    for name, label in (("cop_mean_mm", "closest COP"), ("fingertip_mean_mm", "fingertip to its contact")):
+        if name in measured(figures, (name,)):
+            return label, float(figures[name])
+    return "closest COP", float("nan")
+
+
+def measured(figures: dict, names=tuple(FIGURES)) -> list:
+    """The ``names`` whose value in ``figures`` is a number (what the touches measured)."""
+    return [n for n in names if isinstance(figures.get(n), (int, float)) and np.isfinite(figures[n])]
 
 
 def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: list, fired: bool = False) -> dict:
@@ -26,16 +49,18 @@ def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: 
     placed: dict = {}   # each part's slots placed once for all its part pairs
     pairings = [pair_parts(touches, skin, calib, p[0], p[1], METRIC_KINDS, METRIC_TAXEL_RULE, placed) for p in pairs
                 if p[0] in touches.part_names and p[1] in touches.part_names]
+    pairings += [fingertip_rows(touches, skin, calib, tip, part, placed) for tip, part in plan_fingertips(steps)]
     pairings = [p for p in pairings if len(p.row_touch)]
     if not pairings:
         return {"n_touches": 0}
     out = metrics(concat_pairings(pairings))
     if fired:
-        out.update(firing_prediction(touches, skin, calib, pairs))
+        out.update(firing_prediction(touches, skin, calib, pairs, plan_fingertips(steps)))
     return out
 
 
-def firing_prediction(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, pairs: list) -> dict:
+def firing_prediction(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, pairs: list,
+                      fingertips: list = ()) -> dict:
     """How well the calibrated skins predict which taxels fire, a figure that owes nothing to closest pairs.
 
     In every touch where both parts of a pair fire, each part's fired taxels predict the other part's
@@ -43,7 +68,9 @@ def firing_prediction(touches: TouchSet, skin: SkinModel, calib: SkinCalibration
     every touch: ``fired_precision`` (the share of the predicted taxels that fired), ``fired_recall`` (the
     share of the fired taxels predicted) and their harmonic mean ``fired_f1``, in percent. At the true skin
     neither is 100 (a press fires the torso beyond the edge of a hand's skin, a curved hand touches where it
-    does not fire); a better calibration predicts more of what fired and less of what did not.
+    does not fire); a better calibration predicts more of what fired and less of what did not. In the touches
+    of each fingertip scene ``(fingertip, part)``, the fingertip's sphere predicts the part's
+    (:func:`~nao_skin.calibration.fingertip.fingertip_firing`), pooled with the rest.
     """
     pos = activation_positions(touches, skin, calib)
     normals = activation_normals(touches, skin, calib)
@@ -58,6 +85,11 @@ def firing_prediction(touches: TouchSet, skin: SkinModel, calib: SkinCalibration
             hits += int(np.isin(pred, fire, assume_unique=True).sum())
             predicted += len(pred)
             fired += len(fire)
+    for tip, part in fingertips:
+        pred, fire = fingertip_firing(touches, skin, calib, tip, part)
+        hits += int(np.isin(pred, fire, assume_unique=True).sum())
+        predicted += len(pred)
+        fired += len(fire)
     precision = 100.0 * hits / predicted if predicted else float("nan")
     recall = 100.0 * hits / fired if fired else float("nan")
     if not (predicted and fired):
@@ -65,6 +97,11 @@ def firing_prediction(touches: TouchSet, skin: SkinModel, calib: SkinCalibration
     else:
         f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
     return {"fired_precision": precision, "fired_recall": recall, "fired_f1": f1}
+
+def plan_fingertips(steps: list) -> list:
+    """The fingertip scenes ``(fingertip, part)`` of the steps, each once."""
+    return list(dict.fromkeys(fp for s in steps for fp in s.fingertips))
+
 
 def plan_pairs(steps: list) -> list:
     """The part pairs that touch within the steps (each pair once, hands first): what :func:`evaluate` measures."""
@@ -117,7 +154,7 @@ def closest_cop_cost(touches, skin, calib, step, inliers) -> float:
     pairing = pair_step(touches, skin, calib, step, ("cop",))
     if pairing is None or len(pairing.row_touch) == 0:
         return np.inf
-    rows = (pairing.row_kind == 0) & inliers[pairing.row_touch]
+    rows = np.isin(pairing.row_kind, COP_LIKE) & inliers[pairing.row_touch]
     return float(np.mean(np.minimum(pairing.distance[rows], 0.05))) if np.any(rows) else np.inf
 
 
@@ -163,7 +200,7 @@ def _fitted_distances(touches, skin, calib, step, kinds, fabric, pairing=None, p
     parts = tuple(p for p in step.targets + step.references if p in touches.part_names)
     skin = skin.with_kinematics(calib)
     model = ResidualModel(skin, partial(chain_end_poses, touches, skin), pairing, touches.part_names,
-                          ParameterLayout(skin, parts), calib, fabric=fabric)
+                          ParameterLayout(skin, parts), calib, fabric=fabric, fingertip_names=touches.fingertips)
     return np.minimum(np.linalg.norm(model.residuals(calib), axis=1), 0.05), pairing
 
 
@@ -202,7 +239,7 @@ def gate_touches(touches, skin, calib, step, gate_mm, inliers, pairing=None) -> 
     COP pairs under ``calib``, when at hand)."""
     if pairing is None:
         pairing = pair_step(touches, skin, calib, step, ("cop",))
-    rows = pairing.row_kind == 0
+    rows = np.isin(pairing.row_kind, COP_LIKE)
     worst = np.full(touches.n_touches, -np.inf)
     np.maximum.at(worst, pairing.row_touch[rows], pairing.distance[rows] * 1000.0)
     far = np.flatnonzero(inliers & (worst > gate_mm))

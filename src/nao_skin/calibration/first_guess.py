@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from nao_skin import se3
-from nao_skin.calibration.pairing import Pairing, chain_end_poses
+from nao_skin.calibration.fingertip import fingertip_centres
+from nao_skin.calibration.pairing import KIND_COP, KIND_FINGERTIP, Pairing, chain_end_poses
 from nao_skin.calibration.plan import Step
 from nao_skin.calibration.rows import pair_step, select_rows
 from nao_skin.errors import DataError
@@ -19,12 +20,15 @@ from nao_skin.touch.touches import TouchSet
 
 
 def guess_targets(step: Step, roles: SelfTouch) -> list:
-    """(target, references) for the closed-form mount fit: a fixed step's targets, or in a
-    simultaneous step each touching part (``roles``) against the touched parts."""
+    """(target, references, fingertips) for the closed-form mount fit: a fixed step's targets, or in a
+    simultaneous step each touching part (``roles``) against the touched parts; and every part a fingertip of the
+    step presses, against that fingertip (with the references, if any)."""
+    tips = {t: tuple(f for f, p in step.fingertips if p == t) for t in step.targets}
     if step.references:
-        return [(t, step.references) for t in step.targets]
+        return [(t, step.references, tips[t]) for t in step.targets]
     bodies = tuple(p for p in step.targets if p in roles.touched)
-    return [(h, bodies) for h in step.targets if h in roles.touching and bodies]
+    guessed = [(h, bodies, tips[h]) for h in step.targets if h in roles.touching and bodies]
+    return guessed + [(t, (), tips[t]) for t in step.targets if tips[t] and t not in {g[0] for g in guessed}]
 
 # Surface normals enter the rigid fit with this weight (m^2 per touch, i.e. like points spread
 # over ~10 mm): negligible against contacts spread over a part, decisive about the axis that
@@ -52,8 +56,9 @@ def _touch_centroids(touches: TouchSet, skin: SkinModel, calib: SkinCalibration,
             counts > 0)
 
 def rigid_mount_guess(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, target: str,
-                      references: tuple, iterations: int = 6, trim: float = 0.25) -> np.ndarray:
-    """Closed-form mount correction of ``target``: rigid fit of its touch points onto the references'.
+                      references: tuple, iterations: int = 6, trim: float = 0.25, fingertips: tuple = ()) -> np.ndarray:
+    """Closed-form mount correction of ``target``: rigid fit of its touch points onto the references' (and, in the
+    touches of ``fingertips``, onto the fingertip's sphere centre, which gives no normal).
 
     First per-touch centroids of all activations (pairing is meaningless while
     the mount is far off), then a few ICP rounds on the closest COP pairs
@@ -69,6 +74,10 @@ def rigid_mount_guess(touches: TouchSet, skin: SkinModel, calib: SkinCalibration
         use = ok & ~ref_ok
         ref_sum[use], ref_nor[use] = c[use], n[use]
         ref_ok |= ok
+    for tip in fingertips:
+        use = (touches.fingertip_of_touch == touches.fingertips.index(tip)) & ~ref_ok
+        ref_sum[use] = fingertip_centres(touches, skin, calib, tip, np.flatnonzero(use))[0]
+        ref_ok |= use
     own, own_nor, own_ok = _touch_centroids(touches, skin, calib, target, "local")
     both = np.flatnonzero(ref_ok & own_ok)
     if len(both) < 3:
@@ -89,12 +98,12 @@ def rigid_mount_guess(touches: TouchSet, skin: SkinModel, calib: SkinCalibration
     corr = calib.copy()
     corr.parts[target].mount = se3.pose_vector(se3.invert(part.mount_nominal) @ fit)
     # ICP on closest COP pairs: pairing becomes meaningful once the mount is near
-    step = Step((target,), tuple(references))
+    step = Step((target,), tuple(references), tuple((f, target) for f in fingertips))
     for _ in range(iterations):
         pairing = pair_step(touches, skin, corr, step, ("cop",))
         if pairing is None:
             break
-        rows = select_rows(pairing, (0,))
+        rows = select_rows(pairing, (KIND_COP, KIND_FINGERTIP))
         src, dst, src_n, dst_n = _cop_points(rows, touches, skin, corr, target)
         if len(src) < 3:
             break
@@ -109,7 +118,8 @@ def rigid_mount_guess(touches: TouchSet, skin: SkinModel, calib: SkinCalibration
 
 def _cop_points(rows: Pairing, touches: TouchSet, skin: SkinModel, calib: SkinCalibration, target: str):
     """For COP rows: the target's COP and mean normal in its chain-end frame, and the
-    reference COP and mean normal in the same frame."""
+    reference COP and mean normal in the same frame (for a fingertip row, the fingertip's sphere centre, and
+    no normal)."""
     tidx = touches.part_index(target)
     part = skin.parts[target]
     local, local_n = part.taxel_positions(calib.parts[target])
@@ -126,6 +136,10 @@ def _cop_points(rows: Pairing, touches: TouchSet, skin: SkinModel, calib: SkinCa
         fk = chain_end_poses(touches, skin, name)[rows.row_touch[row]]
         other += segment_mean(se3.transform_points(fk, loc[slot]), row, m, w)
         other_n += segment_mean(se3.rotate_vectors(fk, loc_n[slot]), row, m, w)
+    tip = rows.row_fingertip if rows.row_fingertip is not None else np.full(m, -1)
+    for f in np.unique(tip[tip >= 0]):
+        sel = np.flatnonzero(tip == f)
+        other[sel] = fingertip_centres(touches, skin, calib, touches.fingertips[f], rows.row_touch[sel])[0]
     to_chain = se3.invert(chain_end_poses(touches, skin, target)[rows.row_touch])
     return (own, se3.transform_points(to_chain, other), _unit(own_n),
             _unit(se3.rotate_vectors(to_chain, other_n)))

@@ -15,6 +15,7 @@ KIND_CONTACT_TAXEL = 4   # reported only: the closest taxel pair of the two sele
 KIND_PLANE_B, KIND_PLANE_A = 5, 6   # solver-only: A's taxels against B's surface, B's against A's
 KIND_SURFACE = 7   # solver-only: every activated taxel against the other part's skin (calibration.contact)
 KIND_COP_SKIN = 8  # the closest COP pair, each COP over its taxels with the other part's skin beside them
+KIND_FINGERTIP = 9  # a fingertip touch: the COP of the contact nearest the fingertip, at the fingertip's sphere
 # how a touch's point-to-plane rows are weighted: each 1; 1/sqrt(n) each (a touch's rows of one
 # direction weigh as much as one row, however many taxels fire); sqrt of the taxel's share of its
 # contact's pressure (the same total, central taxels more)

@@ -1,6 +1,7 @@
 """The unknowns of a solve as one vector: a 6-vector correction ``[t, rotvec]`` per mount, patch and triangle
-of every part being calibrated, the fabric thickness, and the kinematic corrections a stage estimates
-(joint-angle offsets and link lengths of the robot config, :meth:`RobotModel.corrected`)."""
+of every part being calibrated, the fabric thickness, the kinematic corrections a stage estimates
+(joint-angle offsets and link lengths of the robot config, :meth:`RobotModel.corrected`) and the corrections of
+the fingertips' contact spheres (centre x, y, z and radius, m)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -13,6 +14,8 @@ from nao_skin.model.skin import SkinCalibration, SkinModel
 KINEMATICS = "kinematics"   # the level of a stage that frees kinematic corrections
 
 COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")   # of a 6-vector correction, as reports name them
+FINGERTIP_COMPONENTS = ("x", "y", "z", "radius")    # of a fingertip sphere's correction
+FINGERTIPS = "fingertips"   # how a fingertip's columns are named (fingertips/<name>/<component>)
 
 
 @dataclass
@@ -26,6 +29,7 @@ class ParameterLayout:
     skin: SkinModel
     part_names: tuple
     kinematic_names: tuple = ()                   # joint / link names of the robot config, after the fabric
+    fingertip_names: tuple = ()                   # fingertips of the robot config, 4 columns each, after those
     offsets: dict = field(default_factory=dict)   # part -> (mount col, patch col, triangle col, end)
 
     def __post_init__(self):
@@ -41,7 +45,9 @@ class ParameterLayout:
         # last column: the fabric thickness over the taxels (m), shared by every part
         self.fabric_col = col
         self.kinematic_cols = {name: col + 1 + i for i, name in enumerate(self.kinematic_names)}
-        self.size = col + 1 + len(self.kinematic_names)
+        first = col + 1 + len(self.kinematic_names)
+        self.fingertip_cols = {name: first + 4 * i for i, name in enumerate(self.fingertip_names)}
+        self.size = first + 4 * len(self.fingertip_names)
 
     def block_columns(self, part: str, level: str, rows: np.ndarray) -> np.ndarray:
         """First column of each block (``rows`` index patches/triangles; ignored for mounts)."""
@@ -53,8 +59,11 @@ class ParameterLayout:
     def describe(self, col: int) -> str:
         if col == self.fabric_col:
             return "fabric_thickness"
+        for name, first in self.fingertip_cols.items():
+            if first <= col < first + 4:
+                return f"{FINGERTIPS}/{name}/{FINGERTIP_COMPONENTS[col - first]}"
         if col > self.fabric_col:
-            return f"kinematics/{self.kinematic_names[col - self.fabric_col - 1]}"
+            return f"{KINEMATICS}/{self.kinematic_names[col - self.fabric_col - 1]}"
         for name, (m, p, t, end) in self.offsets.items():
             if m <= col < end:
                 part = self.skin.parts[name]
@@ -71,6 +80,8 @@ class ParameterLayout:
         x[self.fabric_col] = fabric
         for name, col in self.kinematic_cols.items():
             x[col] = calib.kinematics.get(name, 0.0)
+        for name, col in self.fingertip_cols.items():
+            x[col:col + 4] = calib.fingertips.get(name, np.zeros(4))
         for name, (m, p, t, end) in self.offsets.items():
             corr = calib.parts[name]
             x[m:p] = corr.mount
@@ -87,4 +98,6 @@ class ParameterLayout:
             corr.triangles = x[t:end].reshape(-1, 6).copy()
         for name, col in self.kinematic_cols.items():
             out.kinematics[name] = float(x[col])
+        for name, col in self.fingertip_cols.items():
+            out.fingertips[name] = x[col:col + 4].copy()
         return out

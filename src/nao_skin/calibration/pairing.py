@@ -31,16 +31,16 @@ repeat after every calibration step.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from itertools import combinations
 
 import numpy as np
 
 from nao_skin import se3
 from nao_skin.calibration.contact import skin_beside, surface_rows, touch_weights
-from nao_skin.calibration.kinds import (KIND_CONTACT_TAXEL, KIND_COP, KIND_COP_SKIN, KIND_NORMAL,  # noqa: F401
-                                        KIND_PLANE_A, KIND_PLANE_B, KIND_SURFACE, KIND_TAXEL, KIND_TAXEL5,
-                                        PLANE_WEIGHTS)
+from nao_skin.calibration.kinds import (KIND_CONTACT_TAXEL, KIND_COP, KIND_COP_SKIN, KIND_FINGERTIP,  # noqa: F401
+                                        KIND_NORMAL, KIND_PLANE_A, KIND_PLANE_B, KIND_SURFACE, KIND_TAXEL,
+                                        KIND_TAXEL5, PLANE_WEIGHTS)
 from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.touch.contacts import activations_by_part, cop_weights, segment_mean
@@ -48,7 +48,10 @@ from nao_skin.touch.touches import TouchSet
 
 KIND_NAMES = {"cop": KIND_COP, "taxel": KIND_TAXEL, "taxel5": KIND_TAXEL5, "contact_taxel": KIND_CONTACT_TAXEL,
               "plane_b": KIND_PLANE_B, "plane_a": KIND_PLANE_A, "surface": KIND_SURFACE,
-              "cop_skin": KIND_COP_SKIN}
+              "cop_skin": KIND_COP_SKIN, "fingertip": KIND_FINGERTIP}
+# the rows that say where a touch's contact lies against what touched it: the closest COP pair of two skins, a
+# fingertip's contact (the gate, the first guess and the cost that judges one measure touches by them)
+COP_LIKE = (KIND_COP, KIND_FINGERTIP)
 TAXEL_RULES = ("contacts", "thesis", "touch")
 METRIC_KINDS = ("cop", "taxel", "taxel5", "contact_taxel")
 METRIC_TAXEL_RULE = "touch"
@@ -82,10 +85,65 @@ class Pairing:
     # (M, 3) what a row is expected to be at the true skin (the press model's, calibration/press.py), subtracted
     # from it; None when no row has one
     row_offset: np.ndarray | None = None
+    # (M,) int: the fingertip (index into the touches' ``fingertips``) whose contact sphere is side B of a fingertip
+    # row (:mod:`~nao_skin.calibration.fingertip`), -1 for rows of two skin parts; None when no row has one
+    row_fingertip: np.ndarray | None = None
+    # (M, 3) unit normal of the pressed skin at a fingertip row's contact, fixed while the pairing is: the
+    # sphere's centre lies its radius along it (NaN for other rows); None when no row has one
+    row_direction: np.ndarray | None = None
 
     @property
     def n_rows(self) -> int:
         return len(self.row_touch)
+
+    def take_rows(self, keep: np.ndarray) -> "Pairing":
+        """The rows ``keep`` (a boolean mask, in order) with their terms."""
+        new_index = np.cumsum(keep) - 1
+        tkeep = keep[self.term_row]
+        extras = {name: _optional(getattr(self, name)[keep], fill) for name, fill in ROW_EXTRAS.items()
+                  if getattr(self, name) is not None}
+        return Pairing(row_touch=self.row_touch[keep], row_kind=self.row_kind[keep], row_parts=self.row_parts[keep],
+                       term_row=new_index[self.term_row[tkeep]], term_part=self.term_part[tkeep],
+                       term_slot=self.term_slot[tkeep], term_weight=self.term_weight[tkeep],
+                       distance=self.distance[keep], **extras)
+
+
+# the optional per-row arrays of a Pairing, each with what it holds on a row without one (None: no row has one)
+ROW_EXTRAS = {"row_normal": np.nan, "row_offset": 0.0, "row_fingertip": -1, "row_direction": np.nan}
+
+
+def _optional(values: np.ndarray, fill) -> np.ndarray | None:
+    """``values`` of an optional row array, None when every row holds ``fill`` (no row has one)."""
+    if isinstance(fill, float) and np.isnan(fill):
+        return values if np.isfinite(values).any() else None
+    return values if np.any(values != fill) else None
+
+
+def row_extra(pairing: Pairing, name: str) -> np.ndarray:
+    """Optional row array ``name`` of ``pairing`` (:data:`ROW_EXTRAS`) on every row, filled where it has none."""
+    value = getattr(pairing, name)
+    if value is not None:
+        return value
+    shape = (pairing.n_rows,) if name == "row_fingertip" else (pairing.n_rows, 3)
+    return np.full(shape, ROW_EXTRAS[name], dtype=int if name == "row_fingertip" else float)
+
+
+def concat_pairings(pairings: list) -> Pairing:
+    """The rows of every pairing, one after the other (term rows renumbered)."""
+    if len(pairings) == 1:
+        return pairings[0]
+    offs = np.cumsum([0] + [len(p.row_touch) for p in pairings[:-1]])
+    extras = {name: _optional(np.concatenate([row_extra(p, name) for p in pairings]), fill)
+              for name, fill in ROW_EXTRAS.items() if any(getattr(p, name) is not None for p in pairings)}
+    return Pairing(
+        row_touch=np.concatenate([p.row_touch for p in pairings]),
+        row_kind=np.concatenate([p.row_kind for p in pairings]),
+        row_parts=np.concatenate([p.row_parts for p in pairings]),
+        term_row=np.concatenate([p.term_row + o for p, o in zip(pairings, offs)]),
+        term_part=np.concatenate([p.term_part for p in pairings]),
+        term_slot=np.concatenate([p.term_slot for p in pairings]),
+        term_weight=np.concatenate([p.term_weight for p in pairings]),
+        distance=np.concatenate([p.distance for p in pairings]), **extras)
 
 
 # ---------------------------------------------------------------------- segment helpers
@@ -192,13 +250,13 @@ def robot_joints(touches: TouchSet, skin: SkinModel) -> np.ndarray:
 
 
 def chain_end_poses(touches: TouchSet, skin: SkinModel, part: str) -> np.ndarray:
-    """(N, 4, 4) pose of the part's chain end in every touch.
+    """(N, 4, 4) pose of the chain end a part (or a fingertip of the robot config) hangs off, in every touch.
 
     One batched FK per touch set and chain: pairing and solving re-use it
     under every new calibration (joint angles never change while calibrating,
     only the skin's corrections do).
     """
-    chain = skin.parts[part].chain
+    chain = skin.parts[part].chain if part in skin.parts else skin.robot.fingertip(part).chain
     return touches.derived(("fk", chain), lambda: skin.robot.fk(chain, robot_joints(touches, skin)), (skin.robot,))
 
 
@@ -584,10 +642,12 @@ def metrics(pairing: Pairing) -> dict:
     """Mean / median / 90th percentile (mm) of per-touch distances for each kind, and the touch count.
 
     For kind 2 a touch's distance is the mean over its (up to 5) pairs first.
-    A touch with several firing part pairs counts once per pair.
+    A touch with several firing part pairs counts once per pair. Fingertip rows (``fingertip``: the distance
+    from the fingertip to its contact) where the pairing has any.
     """
     out = {}
-    for name in METRIC_KINDS:
+    fingertip = ("fingertip",) if np.any(pairing.row_kind == KIND_FINGERTIP) else ()
+    for name in METRIC_KINDS + fingertip:
         kind = KIND_NAMES[name]
         sel = pairing.row_kind == kind
         dist = pairing.distance[sel]

@@ -13,7 +13,8 @@ from typing import Callable, Sequence
 from nao_skin.calibration.engine import CalibrationResult, FitState, calibrate
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.report import write_outputs
-from nao_skin.calibration.splits import kinematics_kept_text, split_spread, spread_text
+from nao_skin.calibration.evaluation import contact_figure, measured
+from nao_skin.calibration.splits import kinematics_kept_text, split_spread, spread_figures, spread_text
 from nao_skin.errors import DataError
 from nao_skin.formats.inputs import load_touches
 from nao_skin.formats.outdir import CALIBRATION, as_checked, check_output_dir
@@ -140,18 +141,21 @@ def summary_line(result: CalibrationResult) -> str:
     def train_test(key):
         return " / ".join(f"{final[split].get(key, float('nan')):.2f}" for split in splits)
 
+    said = {"cop_mean_mm": "closest COP {} mm", "taxel_mean_mm": "closest taxel {} mm",
+            "contact_taxel_mean_mm": "(selected contacts' {} mm)", "fingertip_mean_mm": "fingertip to its contact {} mm",
+            "fired_f1": "fired taxels predicted F1 {} %"}
+    figures = [said[f].format(train_test(f)) for f in measured(final["train"], said)]
     line = (f"calibrated {', '.join(result.report.plan)}: "
-            f"closest COP {train_test('cop_mean_mm')} mm, closest taxel {train_test('taxel_mean_mm')} mm"
-            f" (selected contacts' {train_test('contact_taxel_mean_mm')} mm), fired taxels predicted"
-            f" F1 {train_test('fired_f1')} %"
-            f" ({' / '.join(splits) if len(splits) > 1 else 'train; no touch held out'})")
+            + ", ".join(figures).replace(", (", " (")
+            + f" ({' / '.join(splits) if len(splits) > 1 else 'train; no touch held out'})")
     if "truth_taxel_error_mm" in final:
         t = final["truth_taxel_error_mm"]["all"]
         line += f"; true taxel error median {t['median']:.2f} mm, p95 {t['p95']:.2f} mm"
     aside = final.get("train_set_aside")
     if aside:        # far apart under any calibration: the figures above count them, the judgement does not
-        line += (f"; {aside['n_touches']} training touches set aside (closest COP {aside['cop_mean_mm']:.1f} mm;"
-                 f" the {final['train_kept']['n_touches']} kept: {final['train_kept']['cop_mean_mm']:.2f} mm)")
+        label, far = contact_figure(aside)
+        line += (f"; {aside['n_touches']} training touches set aside ({label} {far:.1f} mm;"
+                 f" the {final['train_kept']['n_touches']} kept: {contact_figure(final['train_kept'])[1]:.2f} mm)")
     kin = result.report.kinematics
     if kin:
         line += (f"; kinematics {kin['mode']}: " + (f"{len(kin['corrections'])} corrected, {len(kin['held'])} held"
@@ -161,9 +165,9 @@ def summary_line(result: CalibrationResult) -> str:
                                                              for e in result.report.left_out)
     spread = result.report.splits
     if spread:
-        line += (f"; over {spread['k']} splits (mean ± std): closest COP {spread_text(spread, 'cop_mean_mm')} mm,"
-                 f" closest taxel {spread_text(spread, 'taxel_mean_mm')} mm,"
-                 f" fired taxels predicted F1 {spread_text(spread, 'fired_f1')} %")
+        shown = [f for f in spread_figures(spread) if f != "contact_taxel_mean_mm"]
+        line += (f"; over {spread['k']} splits (mean ± std): "
+                 + ", ".join(said[f].format(spread_text(spread, f)) for f in shown))
         if kinematics_kept_text(spread):
             line += f", {kinematics_kept_text(spread)}"
     return line

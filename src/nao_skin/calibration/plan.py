@@ -16,14 +16,23 @@ if TYPE_CHECKING:   # only for annotations: calibrate imports this module
 
 @dataclass
 class Step:
-    """Fit ``targets`` against touches with ``references`` (fixed unless simultaneous)."""
+    """Fit ``targets`` against touches with ``references`` (fixed unless simultaneous) and, in ``fingertips``,
+    against the ``(fingertip, part)`` pairs whose fingertip touches press a target (each fingertip's contact
+    sphere free with the targets)."""
 
     targets: tuple
     references: tuple
+    fingertips: tuple = ()
 
     @property
     def name(self) -> str:
-        return "+".join(self.targets) + (" from " + "+".join(self.references) if self.references else "")
+        against = self.references + tuple(dict.fromkeys(f for f, _ in self.fingertips))
+        return "+".join(self.targets) + (" from " + "+".join(against) if against else "")
+
+    @property
+    def fingertip_names(self) -> tuple:
+        """The fingertips whose spheres the step frees, each once."""
+        return tuple(dict.fromkeys(f for f, _ in self.fingertips))
 
 def pair_counts(touches: TouchSet) -> dict:
     """``{frozenset(part names): touches where both fire}`` of every pair that fires together at least once."""
@@ -36,6 +45,16 @@ def pair_counts(touches: TouchSet) -> dict:
             if n:
                 out[frozenset((names[i], names[j]))] = n
     return out
+
+
+def fingertip_poses(touches: TouchSet) -> dict:
+    """``{(fingertip, part): distinct poses}`` of the fingertip touches that fire the part (as :func:`pair_poses`)."""
+    from nao_skin.calibration.fingertip import fingertip_pairs
+
+    groups = pose_groups(touches)
+    fired, tip = touches.parts_of_touch(), touches.fingertip_of_touch
+    return {(f, p): len(np.unique(groups[(tip == touches.fingertips.index(f)) & fired[:, touches.part_index(p)]]))
+            for f, p in fingertip_pairs(touches)}
 
 
 def pair_poses(touches: TouchSet) -> dict:
@@ -67,11 +86,21 @@ def touching_pairs(touches: TouchSet) -> set:
 
 
 def left_out_pairs(touches: TouchSet, options: "CalibrationOptions") -> list:
-    """The pairs too few poses connect to calibrate from (yet): ``[(pair name, touches, poses)]``."""
+    """The pairs (and fingertip scenes) too few poses connect to calibrate from (yet): ``[(pair name, touches,
+    poses)]``."""
+    from nao_skin.calibration.fingertip import fingertip_pairs
+
     poses = pair_poses(touches)
     counts = sorted(pair_counts(touches).items(), key=lambda kv: sorted(kv[0], key=part_rank))
-    return [(pair_label(p), n, poses[p]) for p, n in counts
-            if poses[p] < options.min_mount_touches]
+    tip_poses = fingertip_poses(touches)
+    return ([(pair_label(p), n, poses[p]) for p, n in counts if poses[p] < options.min_mount_touches]
+            + [(scene_label(*k), n, tip_poses[k]) for k, n in fingertip_pairs(touches).items()
+               if tip_poses[k] < options.min_mount_touches])
+
+
+def scene_label(fingertip: str, part: str) -> str:
+    """The name of a fingertip scene in reports and status messages: 'r_finger-torso'."""
+    return f"{fingertip}-{part}"
 
 
 def pairs_outside_roles(touches: TouchSet, options: "CalibrationOptions", roles: SelfTouch) -> list:
@@ -88,20 +117,48 @@ def plan_steps(touches: TouchSet, options: "CalibrationOptions", roles: SelfTouc
 
     ``roles`` (the skin's :class:`~nao_skin.model.skin.SelfTouch`): which parts touch and which are
     touched. A pair with touches at fewer than ``min_mount_touches`` poses is left out (its parts
-    stay at their prior unless another pair calibrates them): partial is fine.
+    stay at their prior unless another pair calibrates them): partial is fine. Fingertip scenes join the
+    step whose target they press (its fingertip's sphere free there), or are a step of their own.
     """
     counts = pair_counts(touches)
-    if not counts:
-        raise TooFewTouches("no touch has two skin parts active together: nothing to calibrate from")
+    tip_poses = fingertip_poses(touches)
+    if not counts and not tip_poses:
+        one = touches.n_touches and touches.parts_of_touch().sum(axis=1).max() == 1
+        raise TooFewTouches("no touch has two skin parts active together: nothing to calibrate from"
+                            + ("; each fires one part, as a fingertip's touches do: name the fingertip that pressed"
+                               " them (--fingertip NAME)" if one else ""))
     poses = pair_poses(touches)
-    pairs = {p for p in counts if poses[p] >= options.min_mount_touches}
-    if not pairs:
-        pair = max(counts, key=lambda p: (poses[p], counts[p]))
-        need = options.min_mount_touches
-        raise TooFewTouches(f"parts {' and '.join(sorted(pair, key=part_rank))} together: "
-                            f"{too_few(counts[pair], poses[pair], need)} (about"
+    need = options.min_mount_touches
+    pairs = {p for p in counts if poses[p] >= need}
+    tips = sorted((k for k, n in tip_poses.items() if n >= need), key=lambda k: (part_rank(k[1]), k[0]))
+    if not pairs and not tips:
+        from nao_skin.calibration.fingertip import fingertip_pairs
+
+        tip_counts = fingertip_pairs(touches)
+        best = max([(poses[p], counts[p], " and ".join(sorted(p, key=part_rank)) + " together") for p in counts]
+                   + [(tip_poses[k], n, f"part {k[1]} under fingertip {k[0]}") for k, n in tip_counts.items()])
+        raise TooFewTouches(f"{'parts ' if 'together' in best[2] else ''}{best[2]}: "
+                            f"{too_few(best[1], best[0], need)} (about"
                             f" {int(np.ceil(need / (1 - options.test_fraction)))} before the"
                             f" {int(options.test_fraction * 100)} % test split)")
+    steps = _self_touch_steps(pairs, options, roles) if pairs else []
+    for tip, part in tips:
+        at = next((s for s in steps if part in s.targets), None)
+        if at is None:
+            steps.append(Step((part,), (), ((tip, part),)))
+        else:
+            steps[steps.index(at)] = Step(at.targets, at.references, at.fingertips + ((tip, part),))
+    return steps
+
+
+def joint_step(steps: list) -> Step:
+    """Every part of the plan's steps free at once, against every fingertip scene: the joint refinement's step."""
+    return Step(tuple(sorted({p for s in steps for p in s.targets + s.references}, key=part_rank)), (),
+                tuple(dict.fromkeys(fp for s in steps for fp in s.fingertips)))
+
+
+def _self_touch_steps(pairs: set, options: "CalibrationOptions", roles: SelfTouch) -> list:
+    """The plan's steps of the self-touch pairs with enough poses."""
     present = sorted({p for pair in pairs for p in pair}, key=part_rank)
     if options.reference == "simultaneous":
         return [Step(tuple(present), ())]

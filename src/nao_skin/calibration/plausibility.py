@@ -22,19 +22,22 @@ STILL_RAD = 1e-3                         # a joint moving less than this over ev
 
 
 def implausible(train: TouchSet, skin: SkinModel, calib: SkinCalibration, parts, n_set_aside: int,
-                kept_cop_mm: float, gate_mm: float) -> list:
+                kept: tuple, gate_mm: float) -> list:
     """One sentence per reason the calibration of ``parts`` from ``train`` cannot be the skin's pose.
-    ``kept_cop_mm``: the closest COP mean of the training touches the gate kept (those set aside are far
-    apart under any calibration: with them, a recording with a fifth of experimenter's touches looked unexplained
-    by a calibration that was right)."""
+    ``kept``: ``(label, mean mm)`` of the training touches the gate kept (:func:`~.evaluation.contact_figure`:
+    the closest COP pairs, or for fingertip touches alone the fingertips' distance) (those set aside are far apart under any calibration: with them, a recording with a
+    fifth of experimenter's touches looked unexplained by a calibration that was right)."""
     out = []
     if train.n_touches and n_set_aside > SET_ASIDE_SHARE * train.n_touches:
         out.append(f"{n_set_aside} of {train.n_touches} training touches were set aside as farther apart than"
                    f" the gate ({gate_mm:g} mm) after the mount fit: the recording does not fit the robot config,"
                    f" the taxel files or the starting calibration")
-    if gate_mm > 0 and kept_cop_mm > gate_mm:
+    label, kept_mm = kept
+    if gate_mm > 0 and kept_mm > gate_mm:
         aside = f" (besides the {n_set_aside} set aside)" if n_set_aside else ""
-        out.append(f"the kept touches' closest COP pairs end {kept_cop_mm:.1f} mm apart{aside}, more than the gate"
+        what = (f"closest COP pairs end {kept_mm:.1f} mm apart{aside}," if label == "closest COP"
+                else f"fingertips end {kept_mm:.1f} mm from their contacts{aside},")
+        out.append(f"the kept touches' {what} more than the gate"
                    f" ({gate_mm:g} mm): the calibration does not explain the recording")
     q = robot_joints(train, skin)
     fired = train.parts_of_touch()

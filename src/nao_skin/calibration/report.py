@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from nao_skin.calibration.engine import CalibrationResult
+from nao_skin.calibration.evaluation import FIGURES, contact_figure, measured
 from nao_skin.calibration.layout import COMPONENTS
 from nao_skin.calibration.options import KIND_ROWS, CalibrationOptions
 from nao_skin.calibration.pairing import KIND_NAMES, pair_for_metrics
@@ -155,8 +156,9 @@ def _set_aside_text(final: dict) -> str:
     aside, kept = final.get("train_set_aside"), final.get("train_kept")
     if not aside or not kept:
         return ""
-    return (f" (closest COP mean {_fmt(aside.get('cop_mean_mm'))} mm under the calibration; the"
-            f" {kept.get('n_touches', 0)} training touches kept: {_fmt(kept.get('cop_mean_mm'))} mm)")
+    label, far = contact_figure(aside)
+    return (f" ({label} mean {_fmt(far)} mm under the calibration; the"
+            f" {kept.get('n_touches', 0)} training touches kept: {_fmt(contact_figure(kept)[1])} mm)")
 
 
 def markdown_report(report: dict, coverage: dict | None = None, pictures: bool = True) -> str:

@@ -24,8 +24,13 @@ rotations (about 160 degrees) real hands start from.
 Kinematic corrections (joint-angle offsets, link lengths: the layout's ``kinematic_names``) move the
 chain ends themselves: their few columns are forward differences of the residuals, each one batched
 forward kinematics over the touches.
+
+A fingertip row (:mod:`~nao_skin.calibration.fingertip`) has the fingertip's contact sphere as its side B:
+``r n - T(q) c``, affine in the sphere's centre ``c`` and radius ``r`` (its four columns: ``-R(q)`` and ``n``).
 """
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 import scipy.linalg.blas
@@ -73,7 +78,7 @@ class ResidualModel:
 
     def __init__(self, skin: SkinModel, chain_poses, pairing, part_names: tuple,
                  layout: ParameterLayout, base: SkinCalibration, variable_parts=None,
-                 fabric: float = 0.0, kinematic_poses=None):
+                 fabric: float = 0.0, kinematic_poses=None, fingertip_names: tuple = ()):
         self.skin = skin
         # touching skins meet at their fabric surfaces, not at the taxel centres: each taxel
         # is lifted along its normal (fixed in its triangle frame) by the fabric thickness,
@@ -106,6 +111,18 @@ class ResidualModel:
             fk = chain_poses(name)[term_touch[sel]]
             self.groups.append((sel, name, part, fk, slots, tri, part.triangle_patch[tri]))
         self._term_touch = term_touch
+        # fingertip rows: per fingertip, its rows, their touches' chain-end poses, the rows' directions and the
+        # weight the row's skin side carries (its terms' weights sum to it: 1, or the touch's weight), which the
+        # fingertip's side carries too
+        self._tips = []
+        if pairing.row_fingertip is not None:
+            side_a = np.bincount(pairing.term_row, weights=pairing.term_weight, minlength=self.n_rows)
+            for f in np.unique(pairing.row_fingertip[pairing.row_fingertip >= 0]):
+                rows = np.flatnonzero(pairing.row_fingertip == f)
+                name = fingertip_names[f]
+                self._tips.append((name, rows, chain_poses(name)[pairing.row_touch[rows]],
+                                   pairing.row_direction[rows], side_a[rows]))
+        self._row_touch = pairing.row_touch
         # terms of normal rows carry a direction (rotated, never translated, no fabric)
         self.term_is_dir = pairing.row_kind[pairing.term_row] == KIND_NORMAL
         self.has_dirs = bool(np.any(self.term_is_dir))
@@ -143,6 +160,8 @@ class ResidualModel:
         chain_poses = self._kinematic_poses(calib)
         self.groups = [(sel, name, part, chain_poses(name)[self._term_touch[sel]], *rest)
                        for sel, name, part, _, *rest in self.groups]
+        self._tips = [(name, rows, chain_poses(name)[self._row_touch[rows]], *rest)
+                      for name, rows, _, *rest in self._tips]
         self._kinematic_key = key
         self._constant = np.zeros((self.n_rows, 3))
         self._constant_done = False
@@ -213,6 +232,9 @@ class ResidualModel:
                     out[:, d] += np.bincount(self.term_row[sel], weights=x[d], minlength=self.n_rows)
         if self._offset is not None:
             out -= self._offset
+        for name, rows, poses, direction, weight in self._tips:
+            centre, radius = calib.fingertip_sphere(self.skin.robot, name)
+            out[rows] += weight[:, None] * (radius * direction - se3.transform_points(poses, centre))
         return self._project(out)
 
     def _project(self, rows: np.ndarray) -> np.ndarray:
@@ -242,9 +264,11 @@ class ResidualModel:
         if self._last_jacobian is not None and self._last_jacobian[0] == key:
             return self._last_jacobian[1]
         jac = self._project_jacobian(self._jacobian(calib, free_levels, cols))
-        kinematic = np.flatnonzero(cols > self.layout.fabric_col)
+        kinematic = np.flatnonzero(np.isin(cols, list(self.layout.kinematic_cols.values())))
         if len(kinematic):
             jac = self._with_kinematic_columns(jac, calib, cols, kinematic)
+        if self._tips and self.layout.fingertip_cols:
+            jac = self._with_fingertip_columns(jac, cols)
         self._last_jacobian = (key, jac)
         return jac
 
@@ -271,7 +295,7 @@ class ResidualModel:
         names = self.layout.kinematic_names
         block = np.empty((len(base), len(kinematic)))
         for k, j in enumerate(kinematic):     # a handful of unknowns, each one batched FK and residual
-            moved = SkinCalibration(calib.parts, dict(calib.kinematics))
+            moved = replace(calib, kinematics=dict(calib.kinematics))
             name = names[cols[j] - self.layout.fabric_col - 1]
             moved.kinematics[name] = moved.kinematics.get(name, 0.0) + KINEMATIC_STEP
             block[:, k] = (self.residuals(moved).ravel() - base) / KINEMATIC_STEP
@@ -282,6 +306,36 @@ class ResidualModel:
             return (jac + extra).tocsr()
         jac = jac.copy()
         jac[:, kinematic] = block
+        return jac
+
+    def _with_fingertip_columns(self, jac, cols: np.ndarray):
+        """``jac`` with the columns of the fingertips' spheres (centre: ``-R(q)`` of each row's touch, radius: the
+        row's direction), where ``cols`` asks for them; fingertip rows are never projected."""
+        col_of = {int(c): j for j, c in enumerate(cols)}
+        rows_all, cols_all, vals_all = [], [], []
+        for name, rows, poses, direction, weight in self._tips:
+            first = self.layout.fingertip_cols.get(name)
+            if first is None:
+                continue
+            coords = 3 * rows[:, None] + np.arange(3)[None, :]           # (m, 3) Jacobian rows
+            for k in range(3):
+                j = col_of.get(first + k)
+                if j is not None:
+                    rows_all.append(coords.ravel())
+                    cols_all.append(np.full(coords.size, j))
+                    vals_all.append((-weight[:, None] * poses[:, :3, k]).ravel())
+            j = col_of.get(first + 3)
+            if j is not None:
+                rows_all.append(coords.ravel())
+                cols_all.append(np.full(coords.size, j))
+                vals_all.append((weight[:, None] * direction).ravel())
+        if not rows_all:
+            return jac
+        r, c, v = (np.concatenate(a) for a in (rows_all, cols_all, vals_all))
+        if scipy.sparse.issparse(jac):
+            return (jac + scipy.sparse.csr_matrix((v, (r, c)), shape=jac.shape)).tocsr()
+        jac = jac.copy()
+        jac[r, c] = v
         return jac
 
     def _jacobian(self, calib: SkinCalibration, free_levels: dict, cols: np.ndarray):

@@ -5,7 +5,8 @@ import dataclasses
 
 import numpy as np
 
-from nao_skin.calibration.pairing import KIND_COP, KIND_COP_SKIN, KIND_NORMAL, KIND_TAXEL, Pairing, PlaneRows, pair_touches
+from nao_skin.calibration.pairing import (KIND_COP, KIND_COP_SKIN, KIND_NORMAL, KIND_TAXEL, Pairing, PlaneRows,  # noqa: F401
+                                          concat_pairings, pair_touches)
 from nao_skin.calibration.plan import Step
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.touch.touches import TouchSet
@@ -16,22 +17,7 @@ def select_rows(pairing: Pairing, kinds: tuple, inliers: np.ndarray | None = Non
     keep = np.isin(pairing.row_kind, kinds)
     if inliers is not None:
         keep &= inliers[pairing.row_touch]
-    new_index = np.cumsum(keep) - 1
-    tkeep = keep[pairing.term_row]
-    return Pairing(row_touch=pairing.row_touch[keep], row_kind=pairing.row_kind[keep],
-                   row_parts=pairing.row_parts[keep], term_row=new_index[pairing.term_row[tkeep]],
-                   term_part=pairing.term_part[tkeep], term_slot=pairing.term_slot[tkeep],
-                   term_weight=pairing.term_weight[tkeep], distance=pairing.distance[keep],
-                   row_normal=_normals_of(pairing, keep),
-                   row_offset=None if pairing.row_offset is None else pairing.row_offset[keep])
-
-
-def _normals_of(pairing: Pairing, keep: np.ndarray) -> np.ndarray | None:
-    """The kept rows' projection normals, None when none of them is projected."""
-    if pairing.row_normal is None:
-        return None
-    normal = pairing.row_normal[keep]
-    return normal if np.isfinite(normal).any() else None
+    return pairing.take_rows(keep)
 
 def with_normal_rows(selected: Pairing, pairing: Pairing, weight: float, inliers: np.ndarray | None = None) -> Pairing:
     """``selected`` plus one normal row per closest-taxel row of ``pairing`` (closest-COP
@@ -86,14 +72,16 @@ def pair_parts(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, pa: s
     p = pair_touches(sub, skin, calib, kinds=kinds, parts=(pa, pb), taxel_rule=taxel_rule, placed=placed,
                      plane=plane, press=None if press is None else {k: v[rows] for k, v in press.items()})
     remap = np.array([touches.part_index(n) for n in sub.part_names], dtype=int)
-    return Pairing(row_touch=rows[p.row_touch], row_kind=p.row_kind, row_parts=remap[p.row_parts],
-                   term_row=p.term_row, term_part=remap[p.term_part], term_slot=p.term_slot,
-                   term_weight=p.term_weight, distance=p.distance, row_normal=p.row_normal, row_offset=p.row_offset)
+    return dataclasses.replace(p, row_touch=rows[p.row_touch], row_parts=remap[p.row_parts],
+                               term_part=remap[p.term_part])
 
 def pair_step(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, step: Step,
                kinds=("cop", "taxel", "taxel5"), plane: PlaneRows = PlaneRows(), press: dict | None = None) -> Pairing:
     """Pair the touches of every (target, reference) combination of a step (``press``: see
-    :func:`~nao_skin.calibration.pairing.pair_touches`)."""
+    :func:`~nao_skin.calibration.pairing.pair_touches`), and its fingertip scenes' touches
+    (:func:`~nao_skin.calibration.fingertip.fingertip_rows`, whatever ``kinds``)."""
+    from nao_skin.calibration.fingertip import fingertip_rows
+
     names = step.targets + step.references
     parts = []
     placed: dict = {}   # each part's slots placed once for all its part pairs
@@ -106,6 +94,10 @@ def pair_step(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, step: 
                 p = pair_parts(touches, skin, calib, pa, pb, kinds, placed=placed, plane=plane, press=press)
                 if len(p.row_touch):
                     parts.append(p)
+    for tip, part in step.fingertips:
+        p = fingertip_rows(touches, skin, calib, tip, part, placed)
+        if len(p.row_touch):
+            parts.append(p)
     if not parts:
         return None
     return concat_pairings(parts)
@@ -113,30 +105,13 @@ def pair_step(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, step: 
 def pairing_key(calib: SkinCalibration) -> tuple:
     """What pairing reads from a calibration, as bytes: equal keys, equal pairings of the same touches.
 
-    Every part's corrections and the kinematic corrections that are not zero (a zero one is the
-    robot without it, :meth:`SkinModel.with_kinematics`).
+    Every part's corrections, the kinematic corrections that are not zero (a zero one is the
+    robot without it, :meth:`SkinModel.with_kinematics`) and the fingertips' spheres.
     """
     parts = tuple((name, c.mount.tobytes(), c.patches.tobytes(), c.triangles.tobytes())
                   for name, c in sorted(calib.parts.items()))
-    return parts, tuple(sorted((k, float(v)) for k, v in calib.kinematics.items() if v != 0.0))
-
-def concat_pairings(pairings: list) -> Pairing:
-    if len(pairings) == 1:
-        return pairings[0]
-    offs = np.cumsum([0] + [len(p.row_touch) for p in pairings[:-1]])
-    return Pairing(
-        row_touch=np.concatenate([p.row_touch for p in pairings]),
-        row_kind=np.concatenate([p.row_kind for p in pairings]),
-        row_parts=np.concatenate([p.row_parts for p in pairings]),
-        term_row=np.concatenate([p.term_row + o for p, o in zip(pairings, offs)]),
-        term_part=np.concatenate([p.term_part for p in pairings]),
-        term_slot=np.concatenate([p.term_slot for p in pairings]),
-        term_weight=np.concatenate([p.term_weight for p in pairings]),
-        distance=np.concatenate([p.distance for p in pairings]),
-        row_normal=(None if all(p.row_normal is None for p in pairings) else np.concatenate(
-            [np.full((p.n_rows, 3), np.nan) if p.row_normal is None else p.row_normal for p in pairings])),
-        row_offset=(None if all(p.row_offset is None for p in pairings) else np.concatenate(
-            [np.zeros((p.n_rows, 3)) if p.row_offset is None else p.row_offset for p in pairings])))
+    return (parts, tuple(sorted((k, float(v)) for k, v in calib.kinematics.items() if v != 0.0)),
+            tuple((k, np.asarray(v, float).tobytes()) for k, v in sorted(calib.fingertips.items())))
 
 def touch_hashes(pairing: Pairing, n_touches: int) -> np.ndarray:
     """A number per touch that changes when the pairing of that touch changes."""

@@ -12,12 +12,12 @@ from dataclasses import replace
 import numpy as np
 
 from nao_skin.calibration.engine import CalibrationResult, calibrate
+from nao_skin.calibration.evaluation import FIGURES, measured
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.touches import TouchSet
 
 MAX_SPLITS = 100        # a calibration each: beyond, minutes of work for a spread that no longer moves
-FIGURES = ("cop_mean_mm", "taxel_mean_mm", "contact_taxel_mean_mm", "fired_f1")    # of the report's final train/test
 
 
 def split_spread(touches: TouchSet, skin: SkinModel, options: CalibrationOptions, k: int,
@@ -59,6 +59,11 @@ def kinematics_kept_text(spread: dict) -> str:
     return f"kinematics kept on {spread['kinematics_kept']} of {spread['k']}" if "kinematics_kept" in spread else ""
 
 
+def spread_figures(spread: dict) -> list:
+    """The figures the splits measured (:data:`~nao_skin.calibration.evaluation.FIGURES`, in order)."""
+    return measured({f: spread["train"][f]["mean"] for f in FIGURES})
+
+
 def spread_text(spread: dict, figure: str) -> str:
     """``mean ± std`` train / test of one figure, e.g. ``4.54 ± 0.05 / 4.50 ± 0.20``."""
     return " / ".join(f"{spread[s][figure]['mean']:.2f} ± {spread[s][figure]['std']:.2f}" for s in ("train", "test"))
@@ -67,9 +72,8 @@ def spread_text(spread: dict, figure: str) -> str:
 def spread_table(spread: dict) -> list:
     """Markdown rows: each figure's train and test mean ± std (min–max) over the splits."""
     lines = ["| figure | train mean ± std (min–max) | test mean ± std (min–max) |", "|---|---|---|"]
-    for figure, label in (("cop_mean_mm", "closest COP (mm)"), ("taxel_mean_mm", "closest taxel (mm)"),
-                          ("contact_taxel_mean_mm", "selected contacts' closest taxel (mm)"),
-                          ("fired_f1", "fired taxels predicted, F1 (%)")):
+    for figure in spread_figures(spread):
+        label = FIGURES[figure]
         cells = [f"{spread[s][figure]['mean']:.2f} ± {spread[s][figure]['std']:.2f}"
                  f" ({spread[s][figure]['min']:.2f}–{spread[s][figure]['max']:.2f})" for s in ("train", "test")]
         lines.append(f"| {label} | {cells[0]} | {cells[1]} |")

@@ -10,14 +10,15 @@ import numpy as np
 import scipy.linalg
 import scipy.linalg.lapack
 
-from nao_skin.calibration.layout import COMPONENTS, KINEMATICS, ParameterLayout
+from nao_skin.calibration.layout import COMPONENTS, FINGERTIPS, KINEMATICS, ParameterLayout
 from nao_skin.calibration.options import KIND_ROWS
-from nao_skin.calibration.pairing import KIND_NAMES, Pairing, chain_end_poses
+from nao_skin.calibration.pairing import KIND_FINGERTIP, KIND_NAMES, Pairing, chain_end_poses
 from nao_skin.calibration.residuals import ResidualModel, condition_number, gram
 from nao_skin.calibration.rows import (pair_step, pairing_key, select_rows, touch_hashes, weighted_by_touch,
                                       with_normal_rows)
 from nao_skin.calibration.solver import solve
 from nao_skin.errors import DataError
+from nao_skin.model.robot import MAX_FINGERTIP_RADIUS
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.datasets import pose_weights
 from nao_skin.touch.touches import TouchSet
@@ -52,6 +53,7 @@ class StageResult:
     # the touches (all of them) paired for the kinds it fits, where it started and, when the pairing
     # settled, where it ended: rows.pairing_key of the calibration -> Pairing
     pairings: dict = field(default_factory=dict)
+    fingertips_held: list = ()       # fingertip sphere components it held ('<fingertip>/<component>')
 
     def report(self, name: str | None = None) -> dict:
         """The stage's entry in the calibration report (``name``: with the plan's prefix)."""
@@ -85,9 +87,10 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     # kinematic unknowns: the joint offsets and named links of the chains the stage's parts hang off
     kinematic = (tuple(skin.robot.kinematic_names(sorted({skin.parts[p].chain for p in parts_in} - {None})))
                  if KINEMATICS in levels else ())
-    layout = ParameterLayout(skin, parts_in, kinematic)
+    layout = ParameterLayout(skin, parts_in, kinematic, tuple(f for f in step.fingertip_names if f in touches.fingertips))
     kind_names = fitted_kinds(options, levels)
-    kinds = tuple(KIND_NAMES[k] for k in kind_names)
+    # a step's fingertip scenes are fitted in each of its stages, whatever the options' rows of two parts
+    kinds = tuple(KIND_NAMES[k] for k in kind_names) + ((KIND_FINGERTIP,) if layout.fingertip_names else ())
     # normal rows are built from the closest taxel (or COP) pairs: pair COPs too if neither is fitted
     normal_weight = options.normal_weight if set(levels) & set(options.normal_levels) else 0.0
     pair_kinds = (kind_names if normal_weight <= 0 or {"cop", "taxel"} & set(kind_names)
@@ -106,6 +109,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     pairings = {}
     limit = max_repairings or options.max_repairings
     touch_weight = pose_weights(touches, options.pose_weight)
+    result = None
     for repairings in range(1, limit + 1):
         current = layout.to_calibration(x, calib)
         pairing_all = pair_step(touches, skin, current, step, pair_kinds, options.plane_rows(), press)
@@ -132,15 +136,21 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
         model = ResidualModel(skin, partial(chain_end_poses, touches, on_robot), pairing, touches.part_names, layout,
                               calib, variable_parts=free_parts, fabric=x[layout.fabric_col],
                               kinematic_poses=(lambda c: partial(chain_end_poses, touches, skin.with_kinematics(c)))
-                              if kinematic else None)
+                              if kinematic else None, fingertip_names=touches.fingertips)
         if free is None:   # what the data determines is decided once, on the first pairing
             free, lower, upper = _bounds(layout, free_parts, levels, x, options)
-            # the fabric is a property of the whole skin: estimated once the mounts are in place
-            free[layout.fabric_col] = options.estimate_fabric and levels != {"mount"}
+            # the fabric is a property of the whole skin: estimated once the mounts are in place, from rows of two
+            # skins (against a fingertip alone it is one unknown with the fingertip's radius)
+            free[layout.fabric_col] = (options.estimate_fabric and levels != {"mount"}
+                                       and bool(np.any(pairing.row_kind != KIND_FINGERTIP)))
             lower[layout.fabric_col], upper[layout.fabric_col] = options.fabric_bounds
             for kname, col in layout.kinematic_cols.items():
                 bound = KINEMATIC_BOUNDS[kname in skin.robot.links]
                 lower[col], upper[col] = min(-bound, x[col]), max(bound, x[col])
+            for fname, col in layout.fingertip_cols.items():    # a sphere of a radius >= 0, near the config's
+                radius = skin.robot.fingertip(fname).radius
+                lower[col:col + 4] = np.minimum([-FINGERTIP_SHIFT] * 3 + [-radius], x[col:col + 4])
+                upper[col:col + 4] = np.maximum([FINGERTIP_SHIFT] * 3 + [MAX_FINGERTIP_RADIUS - radius], x[col:col + 4])
             if "patch" in levels:   # patches need about twice the mount's data (thesis 2.5)
                 for p in free_parts:
                     pidx = touches.part_index(p)
@@ -184,7 +194,8 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     kinematics_held = [h.split("/", 1)[1] for h in held_names if h.startswith(f"{KINEMATICS}/")]
     for kname in kinematics_held:   # held at nominal: not a correction of the calibration
         calib_out.kinematics.pop(kname, None)
-    held = [h for h in held_names if h != "fabric_thickness" and not h.startswith(f"{KINEMATICS}/")]
+    fingertips_held = [h.split("/", 1)[1] for h in held_names if h.startswith(f"{FINGERTIPS}/")]
+    held = [h for h in held_names if h != "fabric_thickness" and not h.startswith((f"{KINEMATICS}/", f"{FINGERTIPS}/"))]
     estimated = ({layout.describe(c) for c in np.flatnonzero(free_mask(layout, free_parts, levels) & free)
                   if c <= layout.fabric_col} if free is not None else set())
     std = (_kinematic_std(model, calib_out, free, layout, result, options) if kinematic and free is not None
@@ -192,21 +203,28 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     if std:
         calib_out.kinematics_std = {**{k: v for k, v in calib.kinematics_std.items() if k in calib_out.kinematics},
                                     **std}
+    if layout.fingertip_names and free is not None and result is not None and result.normal_matrix is not None:
+        calib_out.fingertips_std = {**calib.fingertips_std,
+                                    **_fingertip_std(model, calib_out, free, layout, result, options)}
+    calib_out.fabric_thickness = float(x[layout.fabric_col])    # what its fingertip rows are measured at
     return StageResult(name, calib_out, iterations, repairings, cond, compress_held(held), set(held), estimated,
                        1000.0 * float(x[layout.fabric_col]), prior_sigma, time.perf_counter() - t0,
-                       kinematics_held, std, pairings)
+                       kinematics_held, std, pairings, fingertips_held)
 
 
 # how far a kinematic correction may go: (m of a link length, rad of a joint offset); a real error is
 # a few mm and degrees, anything near these is the solver trading the kinematics for a wrong pairing
 KINEMATIC_BOUNDS = {True: 0.03, False: 0.2}
+# m: how far a fingertip's sphere centre may move from the robot config's (the real hand's fitted point lies 1-2.5 cm
+# from the CTU group's model's)
+FINGERTIP_SHIFT = 0.05
 
 
-def _kinematic_std(model: ResidualModel, calib: SkinCalibration, free: np.ndarray, layout: ParameterLayout,
-                   result, options) -> dict:
-    """Standard deviation of each estimated kinematic unknown: the inverse of the last solve's normal
-    matrix (robust row weights) times the residual variance per coordinate. Rows of one touch are
-    not independent (its taxel pairs share the pose), so read it as a lower bound."""
+def _posterior_std(model: ResidualModel, calib: SkinCalibration, free: np.ndarray, result, options,
+                   columns: np.ndarray) -> np.ndarray | None:
+    """Standard deviation of the unknowns in ``columns`` (NaN where held): the inverse of the last solve's normal
+    matrix (robust row weights) times the residual variance per coordinate; None when it is singular. Rows of one
+    touch are not independent (its taxel pairs share the pose), so read it as a lower bound."""
     cols = np.flatnonzero(free)
     dist = np.linalg.norm(model.residuals(calib), axis=1)
     w = np.where(dist <= options.f_scale, 1.0, options.f_scale / np.maximum(dist, 1e-15))
@@ -215,12 +233,28 @@ def _kinematic_std(model: ResidualModel, calib: SkinCalibration, free: np.ndarra
     try:
         cov = np.linalg.inv(result.normal_matrix) * s2
     except np.linalg.LinAlgError:
-        return {}
+        return None
+    pos = np.searchsorted(cols, columns)
+    found = (pos < len(cols)) & (cols[np.minimum(pos, len(cols) - 1)] == columns)
+    return np.where(found, np.sqrt(np.maximum(np.diag(cov)[np.minimum(pos, len(cols) - 1)], 0.0)), np.nan)
+
+
+def _kinematic_std(model: ResidualModel, calib: SkinCalibration, free: np.ndarray, layout: ParameterLayout,
+                   result, options) -> dict:
+    """Standard deviation of each estimated kinematic unknown (:func:`_posterior_std`)."""
+    names = list(layout.kinematic_cols)
+    std = _posterior_std(model, calib, free, result, options, np.array([layout.kinematic_cols[n] for n in names]))
+    return {} if std is None else {n: float(v) for n, v in zip(names, std) if np.isfinite(v)}
+
+
+def _fingertip_std(model: ResidualModel, calib: SkinCalibration, free: np.ndarray, layout: ParameterLayout,
+                   result, options) -> dict:
+    """Standard deviations of each fingertip sphere's correction (4,) (:func:`_posterior_std`; NaN: held)."""
     out = {}
-    for name, col in layout.kinematic_cols.items():
-        pos = np.flatnonzero(cols == col)
-        if len(pos):
-            out[name] = float(np.sqrt(max(cov[pos[0], pos[0]], 0.0)))
+    for name, first in layout.fingertip_cols.items():
+        std = _posterior_std(model, calib, free, result, options, np.arange(first, first + 4))
+        if std is not None:
+            out[name] = std
     return out
 
 def _anchored(layout: ParameterLayout, prior_x: np.ndarray, anchor: SkinCalibration) -> np.ndarray:
@@ -421,6 +455,8 @@ def free_mask(layout, parts, levels):
             mask[t:end] = True
     if KINEMATICS in levels:
         mask[list(layout.kinematic_cols.values())] = True
+    for first in layout.fingertip_cols.values():     # a fingertip scene's sphere is free wherever it is fitted
+        mask[first:first + 4] = True
     return mask
 
 def compress_held(names: list) -> list:

@@ -7,7 +7,7 @@ import sys
 from nao_skin.commands import add_skin_arguments, skin_from_args, wall_seconds
 
 NAME = "calibrate"
-HELP = "calibrate skin mounts, patches and triangles from self-touch recordings (bags or legacy .txt)"
+HELP = "calibrate skin mounts, patches and triangles from self-touch and fingertip recordings (bags or legacy .txt)"
 
 
 CHOICE_FLAGS = {"--strategy": "strategy", "--reference": "reference", "--pairs": "pairs", "--loss": "loss",
@@ -26,6 +26,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--force", action="store_true",
                         help="replace the outputs of an earlier run in --out (never a file nao-skin did not write)")
     add_skin_arguments(parser)
+    parser.add_argument("--fingertip", action="append", default=[], metavar="[INPUT=]NAME",
+                        help="the fingertip (robot config, e.g. r_finger) whose touches a text input holds (one skin"
+                             " part fires per touch); NAME alone: every text input; repeatable")
     parser.add_argument("--prior", help="start from this calibration.yaml instead of the nominal skin")
     parser.add_argument("--truth", help="ground-truth calibration (simulation) to report true taxel errors")
     for flag, name in CHOICE_FLAGS.items():
@@ -79,6 +82,7 @@ def run(args) -> int:
     from nao_skin.calibration.options import OPTION_FIELDS
     from nao_skin.calibration.pipeline import calibrate_recordings, summary_line
     from nao_skin.calibration.splits import MAX_SPLITS
+    from nao_skin.formats.inputs import Inputs, parse_fingertips
     from nao_skin.model.skin import SkinCalibration
 
     from nao_skin.errors import DataError
@@ -97,7 +101,8 @@ def run(args) -> int:
     skin = skin_from_args(args)
     prior = SkinCalibration.load(args.prior, skin) if args.prior else None
     truth = SkinCalibration.load(args.truth, skin) if args.truth else None
-    run = calibrate_recordings(args.inputs, skin, options, args.out, prior=prior, truth=truth, force=args.force,
+    inputs = Inputs(tuple(args.inputs), parse_fingertips(args.fingertip, args.inputs))
+    run = calibrate_recordings(inputs, skin, options, args.out, prior=prior, truth=truth, force=args.force,
                                plots=not args.no_plots, log=log, splits=args.splits,
                                protected=[args.skin, args.robot, args.prior, args.truth,
                                           *(item.partition("=")[2] for item in args.taxels)],

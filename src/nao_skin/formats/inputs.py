@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,28 @@ from nao_skin.touch.touches import TouchSet
 
 TRUTH_FILE = "truth_calibration.yaml"      # written by `nao-skin simulate` next to its bag
 WHAT = "a rosbag2 recording, a simulator output directory or a legacy .txt data set"
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """The recordings a calibration reads, as given (a sequence of paths), and the fingertip that pressed each text
+    input whose touches a fingertip made (:func:`parse_fingertips`; a bag says so of its touches itself)."""
+
+    paths: tuple
+    fingertips: dict = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, inputs) -> "Inputs":
+        return inputs if isinstance(inputs, Inputs) else cls(tuple(inputs))
+
+    def __iter__(self):
+        return iter(self.paths)
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def __getitem__(self, i):
+        return self.paths[i]
 
 
 def is_text_input(path: str | Path) -> bool:
@@ -129,11 +152,14 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
     read is lost because of a bad touch elsewhere. ``followed``: bags read again
     and again while they are recorded, by input path, each a
     :class:`~nao_skin.formats.bag.GrowingBag` that decodes only what is new (or a :class:`ReadOnce`).
+    ``paths`` may be :class:`Inputs`: its text inputs a fingertip pressed are read as that fingertip's touches
+    (:func:`as_fingertip_touches`).
     """
     from nao_skin.formats.bag import read_touches
     from nao_skin.formats.legacy import read_legacy
 
     followed = followed or {}
+    fingertips = Inputs.of(paths).fingertips
     held = {raw for raw in paths if getattr(followed.get(raw), "held", False)}     # read before, in memory
     if len(held) < len(paths) or not paths:
         check_inputs([raw for raw in paths if raw not in held])
@@ -148,6 +174,8 @@ def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None)
             truths[raw] = None
         elif is_text_input(path):
             touches, rep = read_legacy(path, skin)
+            if str(raw) in fingertips:
+                touches = as_fingertip_touches(touches, rep, skin, fingertips[str(raw)], str(path))
             truths[raw] = None
         else:
             bag = find_bag(path)
@@ -287,6 +315,77 @@ def cop_layout_notes(touches: TouchSet, skin, source: str) -> list:
                        f" the taxels they name in {part.layout_file} (a few mm with the layout skinManager used):"
                        f" is that this robot's taxel file of this part?")
     return out
+
+
+def parse_fingertips(items, inputs) -> dict:
+    """``--fingertip [INPUT=]NAME`` items as ``{input: fingertip}``: an ``INPUT=NAME`` item names the fingertip that
+    pressed one text input's touches, a bare ``NAME`` every text input no item names (the thesis' text format
+    does not say which fingertip pressed; a bag does)."""
+    named, default = {}, None
+    texts = [str(p) for p in inputs if is_text_input(p)]
+    for item in items:
+        path, sep, name = str(item).rpartition("=")
+        if not name:
+            raise DataError(f"--fingertip {item!r}: expected NAME or INPUT=NAME, e.g. r_finger")
+        if not sep:
+            if default is not None:
+                raise DataError(f"--fingertip {item!r}: a fingertip for every text input is given twice ({default},"
+                                f" {name}); name each input's with INPUT=NAME")
+            default = name
+            continue
+        if path not in [str(p) for p in inputs]:
+            raise DataError(f"--fingertip {item!r}: {path} is not among the inputs ({', '.join(map(str, inputs))})")
+        if path not in texts:
+            raise DataError(f"--fingertip {item!r}: {path} is a bag; a bag says which fingertip pressed each of its"
+                            f" touches, --fingertip names a text input's")
+        if path in named:
+            raise DataError(f"--fingertip {item!r}: {path} is given a fingertip twice")
+        named[path] = name
+    if default is not None:
+        if not texts:
+            raise DataError(f"--fingertip {default}: no text input to name it for (a bag says which fingertip pressed"
+                            f" each of its touches)")
+        named.update({p: default for p in texts if p not in named})
+    return named
+
+
+def as_fingertip_touches(touches: TouchSet, report: LoadReport, skin: SkinModel, fingertip: str,
+                         source: str) -> TouchSet:
+    """A text input's touches as touches of ``fingertip`` (a fingertip of the robot config): each fires one skin
+    part that the skin config's ``fingertip_touch`` has it press. One line, naming the input, where they do not
+    fit: a self-touch recording (two parts fire), or a part that fingertip does not press. A touch whose
+    fingertip chain's joint angles are missing is skipped (counted in ``report``)."""
+    from nao_skin.errors import ConfigError
+
+    try:
+        tip = skin.robot.fingertip(fingertip)
+    except ConfigError as exc:
+        raise DataError(f"{source}: --fingertip {fingertip}: {exc}") from None
+    fired = touches.parts_of_touch()
+    two = np.flatnonzero(fired.sum(axis=1) >= 2)
+    if len(two):
+        first = touches.keys[two[0]]
+        names = [n for n, f in zip(touches.part_names, fired[two[0]]) if f]
+        raise DataError(f"{source}: {len(two)} of {touches.n_touches} touches fire two skin parts (touch {first!r}:"
+                        f" {', '.join(names)}): a self-touch recording, not touches of fingertip {fingertip}; name"
+                        f" no fingertip for it")
+    pressed = {touches.part_names[i] for i in np.flatnonzero(fired.any(axis=0))}
+    allowed = {p for f, p in skin.fingertip_touch.pairs() if f == fingertip}
+    if pressed - allowed:
+        raise DataError(f"{source}: its touches fire {', '.join(sorted(pressed - allowed))}, which fingertip"
+                        f" {fingertip} does not press ({skin.source}, fingertip_touch: it presses"
+                        f" {', '.join(sorted(allowed)) or 'nothing'}; its chain is {tip.chain})")
+    cols = [touches.joint_names.index(j) for j in skin.robot.chain_joint_names(tip.chain) if j in touches.joint_names]
+    missing = ~np.all(np.isfinite(touches.joints[:, cols]), axis=1) if cols else np.zeros(touches.n_touches, bool)
+    if len(cols) < len(skin.robot.chain_joint_names(tip.chain)):
+        missing[:] = True
+    if missing.any():
+        report.skip("missing joint", f"{source}: {int(missing.sum())} touches lack a joint angle of chain {tip.chain}"
+                                     f" (fingertip {fingertip}), e.g. touch {touches.keys[np.flatnonzero(missing)[0]]!r}",
+                    count=int(missing.sum()))
+        report.n_loaded -= int(missing.sum())
+        touches = touches.subset(~missing)
+    return touches.with_fingertip(fingertip)
 
 
 def joint_limit_note(touches: TouchSet, robot, source: str) -> str | None:

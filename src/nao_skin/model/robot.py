@@ -50,7 +50,8 @@ def _finite(number: float, value, where: str) -> float:
 MAX_LINK_LENGTH = 10.0
 
 
-ROBOT_KEYS = ("name", "base_frame", "joints", "chains", "links", "body")
+ROBOT_KEYS = ("name", "base_frame", "joints", "chains", "links", "body", "fingertips")
+FINGERTIP_KEYS = ("chain", "point", "radius")
 BODY_KEYS = ("rest_posture", "box", "hand_end")
 DH_ROW_KEYS = ("joint", "a", "d", "alpha", "offset", "frame")
 DH_PARAMS = ("a", "d")   # the DH columns a named link length may be (translations along x and z of a row)
@@ -88,6 +89,42 @@ class Chain:
 
 
 MAX_JOINT_LIMIT = 4 * np.pi    # rad: a humanoid's joint turns less than this either way
+MAX_FINGERTIP_RADIUS = 0.1     # m: a fingertip's contact sphere is centimetres across
+
+
+@dataclass(frozen=True)
+class Fingertip:
+    """The end of an arm with no skin on it (a robot config's ``fingertips``): what presses a skin part in a
+    fingertip touch, where only that part fires.
+
+    Its contact is a sphere: ``point`` (3,) its centre in the chain's end frame (m), ``radius`` (m). The point
+    of the fingertip that meets the skin moves over the sphere with the direction of approach, as on the real
+    hand, which does not press with one point. A calibration estimates the centre and the radius where its
+    fingertip touches determine them.
+    """
+
+    name: str
+    chain: str
+    point: np.ndarray
+    radius: float
+
+
+def _fingertip(name, spec, chains, where: str) -> Fingertip:
+    if not isinstance(spec, dict) or "chain" not in spec or "point" not in spec:
+        raise ConfigError(f"{where}: expected {{chain: an arm chain, point: [x, y, z] m in its end frame,"
+                          f" radius: m}}")
+    known_keys(spec, FINGERTIP_KEYS, where)
+    if spec["chain"] not in chains:
+        raise ConfigError(f"{where}: chain {spec['chain']!r} is not a chain of this robot (chains: {', '.join(chains)})")
+    point = spec["point"]
+    if not (isinstance(point, (list, tuple)) and len(point) == 3):
+        raise ConfigError(f"{where}: point: expected [x, y, z] metres in the end frame of chain {spec['chain']}")
+    point = np.array([parse_angle(v, f"{where}: point") for v in point])
+    radius = parse_angle(spec.get("radius", 0.0), f"{where}: radius")
+    if np.any(np.abs(point) > MAX_LINK_LENGTH) or not 0.0 <= radius <= MAX_FINGERTIP_RADIUS:
+        raise ConfigError(f"{where}: point within {MAX_LINK_LENGTH:g} m and radius 0 to {MAX_FINGERTIP_RADIUS:g} m"
+                          f" (metres)")
+    return Fingertip(frame_name(name, where, "fingertip name"), str(spec["chain"]), point, float(radius))
 
 
 @dataclass(frozen=True)
@@ -151,8 +188,9 @@ class RobotModel:
 
     def __init__(self, name: str, base_frame: str, joint_limits: Mapping[str, Sequence[float]],
                  chains: Mapping[str, Chain], source: str = "<memory>", links: Mapping[str, Link] | None = None,
-                 body: Body | None = None):
+                 body: Body | None = None, fingertips: Mapping[str, Fingertip] | None = None):
         self.name = name
+        self.fingertips = dict(fingertips or {})
         self.body = body or Body({})
         self.base_frame = base_frame
         self.joint_names = list(joint_limits)
@@ -239,8 +277,17 @@ class RobotModel:
             known_keys(spec, ("chain", "row", "param"), f"{path}: link '{lname}'")
             links[str(lname)] = Link(str(spec["chain"]), int(spec["row"]), str(spec["param"]))
         body = _body(doc["body"], limits, f"{path}: body") if "body" in doc else None
-        return cls(frame_name(doc.get("name", path.stem), f"{path}: name", "robot name"), base_frame,
-                   limits, chains, source=str(path), links=links, body=body)
+        robot = cls(frame_name(doc.get("name", path.stem), f"{path}: name", "robot name"), base_frame,
+                    limits, chains, source=str(path), links=links, body=body)
+        fingertips = doc.get("fingertips") or {}
+        if not isinstance(fingertips, dict):
+            raise ConfigError(f"{path}: 'fingertips' must map fingertip names to {{chain, point, radius}}")
+        robot.fingertips = {str(n): _fingertip(n, spec, chains, f"{path}: fingertip '{n}'")
+                            for n, spec in fingertips.items()}
+        for n in robot.fingertips:
+            if n in named or n in chains or n in limits:
+                raise ConfigError(f"{path}: fingertip '{n}' has the name of a frame, chain or joint of the robot")
+        return robot
 
     # ------------------------------------------------------------------ corrections
     def kinematic_names(self, chains) -> list:
@@ -268,7 +315,16 @@ class RobotModel:
                                   f" (links: {', '.join(self.links) or 'none'})")
         chains = {name: Chain(name, dh[name], chain.joints, chain.frames) for name, chain in self.chains.items()}
         limits = {n: tuple(self.limits[i]) for i, n in enumerate(self.joint_names)}
-        return RobotModel(self.name, self.base_frame, limits, chains, self.source, self.links, self.body)
+        return RobotModel(self.name, self.base_frame, limits, chains, self.source, self.links, self.body,
+                          self.fingertips)
+
+    # ------------------------------------------------------------------ fingertips
+    def fingertip(self, name: str) -> Fingertip:
+        try:
+            return self.fingertips[name]
+        except KeyError:
+            raise ConfigError(f"{self.source}: unknown fingertip '{name}' (fingertips:"
+                              f" {', '.join(self.fingertips) or 'none'})") from None
 
     # ------------------------------------------------------------------ joints
     def chain_joint_names(self, chain: str) -> list:

@@ -56,6 +56,21 @@ class SelfTouch:
         return tuple((a, b) for a in self.touching for b in self.touched)
 
 
+@dataclass(frozen=True)
+class FingertipTouch:
+    """Which fingertips (of the robot config) press which skin parts: a skin config's ``fingertip_touch``.
+    Only the pressed part fires. A fingertip never presses the skin of its own arm: those pairs are not
+    among :meth:`pairs`."""
+
+    touching: tuple = ()
+    touched: tuple = ()
+    same_arm: frozenset = frozenset()     # (fingertip, part) pairs on one chain
+
+    def pairs(self) -> tuple:
+        """Every ``(fingertip, touched part)`` pair."""
+        return tuple((f, p) for f in self.touching for p in self.touched if (f, p) not in self.same_arm)
+
+
 def part_rank(name: str) -> tuple:
     """Order of parts everywhere: r_hand, l_hand, torso, head, then others by name (a total order: what
     follows it, a plan's steps or a joint stage's parameters, never hangs on a set's order)."""
@@ -378,7 +393,7 @@ def _plausible_pose(vector: np.ndarray) -> bool:
 
 
 PART_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
-SKIN_CONFIG_KEYS = ("robot", "parts", "self_touch")
+SKIN_CONFIG_KEYS = ("robot", "parts", "self_touch", "fingertip_touch")
 MAX_PATCH_NUMBER = 65535   # patch numbers are labels (frame names), skinManager's are small
 
 PART_KEYS = ("chain", "taxel_file", "slots", "patches", "mount")
@@ -387,11 +402,13 @@ PART_KEYS = ("chain", "taxel_file", "slots", "patches", "mount")
 class SkinModel:
     """The robot plus its skin parts: taxel positions in the base frame for batches of poses."""
 
-    def __init__(self, robot: RobotModel, parts: Mapping[str, SkinPart], source: str, self_touch: SelfTouch):
+    def __init__(self, robot: RobotModel, parts: Mapping[str, SkinPart], source: str, self_touch: SelfTouch,
+                 fingertip_touch: FingertipTouch = FingertipTouch()):
         self.robot = robot
         self.parts = dict(parts)
         self.source = source
         self.self_touch = self_touch
+        self.fingertip_touch = fingertip_touch
         # the last skin on a corrected robot (with_kinematics): the same corrections give the same
         # object, so what touch sets derive from it (forward kinematics) is computed once
         self._corrected: tuple = ((), self)
@@ -436,7 +453,9 @@ class SkinModel:
             raise ConfigError(f"{path}: names no 'self_touch' (which parts touch which, e.g. touching: [r_hand,"
                               f" l_hand], touched: [torso, head])")
         self_touch = _self_touch(doc["self_touch"], parts, f"{path}: self_touch")
-        return cls(robot, parts, str(path), self_touch)
+        fingertip_touch = (_fingertip_touch(doc["fingertip_touch"], parts, robot, f"{path}: fingertip_touch")
+                           if doc.get("fingertip_touch") is not None else FingertipTouch())
+        return cls(robot, parts, str(path), self_touch, fingertip_touch)
 
     def source_files(self) -> list:
         """The files this model was read from: the skin config, the robot config and every part's layout
@@ -458,7 +477,7 @@ class SkinModel:
             return self
         if self._corrected[0] != key:
             self._corrected = (key, SkinModel(self.robot.corrected(dict(key)), self.parts, self.source,
-                                              self.self_touch))
+                                              self.self_touch, self.fingertip_touch))
         return self._corrected[1]
 
     def zero_calibration(self) -> "SkinCalibration":
@@ -500,11 +519,26 @@ class SkinCalibration:
     # part -> {median, p95} (mm): its taxels' predicted RMS error, the linearised posterior at the estimate
     # (calibration/uncertainty.py); empty where nothing predicted it (nominal, older files)
     predicted_error_mm: dict = field(default_factory=dict)
+    # fingertip (robot config) -> (4,) correction of its contact sphere: centre (m, in its chain's end frame)
+    # and radius (m), added to the robot config's; a fingertip without touches has none
+    fingertips: dict = field(default_factory=dict)
+    fingertips_std: dict = field(default_factory=dict)   # (4,) standard deviations where estimated
 
     def copy(self) -> "SkinCalibration":
         return SkinCalibration({k: v.copy() for k, v in self.parts.items()}, dict(self.kinematics),
                                dict(self.kinematics_std), self.fabric_thickness,
-                               {k: dict(v) for k, v in self.predicted_error_mm.items()})
+                               {k: dict(v) for k, v in self.predicted_error_mm.items()},
+                               {k: np.array(v, dtype=float) for k, v in self.fingertips.items()},
+                               {k: np.array(v, dtype=float) for k, v in self.fingertips_std.items()})
+
+    def fingertip_sphere(self, robot: RobotModel, name: str) -> tuple:
+        """``(centre (3,), radius)`` of a fingertip's contact sphere under this calibration, in its chain's end
+        frame."""
+        tip = robot.fingertip(name)
+        corr = self.fingertips.get(name)
+        if corr is None:
+            return tip.point.copy(), tip.radius
+        return tip.point + corr[:3], tip.radius + float(corr[3])
 
     # ------------------------------------------------------------------ YAML
     def to_dict(self, skin: SkinModel) -> dict:
@@ -533,7 +567,8 @@ class SkinCalibration:
         # elsewhere) is refused by load() instead of read as a calibration with frames at nominal
         n_frames = sum(1 + len(part.patch_ids) + len(part.triangle_ids) for part in skin.parts.values())
         out = {"format": CALIBRATION_FORMAT, "robot": skin.robot.name, "base_frame": skin.robot.base_frame,
-               "contents": {"frames": n_frames, **({"kinematics": len(self.kinematics)} if self.kinematics else {})}}
+               "contents": {"frames": n_frames, **({"kinematics": len(self.kinematics)} if self.kinematics else {}),
+                            **({"fingertips": len(self.fingertips)} if self.fingertips else {})}}
         if self.fabric_thickness is not None:   # ahead of the parts: a file cut short loses the frames first
             out["fabric_thickness"] = {"value": round(float(self.fabric_thickness), 9), "unit": "m"}
         out["parts"] = {}
@@ -558,6 +593,18 @@ class SkinCalibration:
                 name: {"correction": round(float(v), 10), "unit": "m" if name in skin.robot.links else "rad",
                        **({"std": round(float(self.kinematics_std[name]), 10)} if name in self.kinematics_std else {})}
                 for name, v in self.kinematics.items()}
+        if self.fingertips:   # absent without fingertip touches: such files read as before
+            out["fingertips"] = {}
+            for name, corr in self.fingertips.items():
+                centre, radius = self.fingertip_sphere(skin.robot, name)
+                std = self.fingertips_std.get(name)
+                out["fingertips"][name] = {
+                    "chain": skin.robot.fingertip(name).chain,
+                    "correction": {"point": [_written(v) for v in corr[:3]], "radius": _written(corr[3])},
+                    # the contact sphere it gives, in the chain's end frame (what a user reads)
+                    "point": [_written(v) for v in centre], "radius": _written(radius),
+                    **({"std": {"point": [_written(v) for v in std[:3]], "radius": _written(std[3])}}
+                       if std is not None else {})}
         return out
 
     def save(self, path: str | Path, skin: SkinModel, comment: str = "") -> None:
@@ -572,6 +619,9 @@ class SkinCalibration:
         if self.predicted_error_mm:
             header += ("# predicted_taxel_error_mm: per part, the median and p95 over its taxels of the predicted RMS\n"
                        "#   error (mm), from the linearised posterior at the estimate (not measured).\n")
+        if self.fingertips:
+            header += ("# fingertips: per fingertip of the robot config, its contact sphere's centre (m, in its chain's\n"
+                       "#   end frame) and radius (m): the correction added to the config's and the result.\n")
         if self.kinematics:
             header += ("# kinematics: corrections of the robot config, a joint's (rad) added to the angle it\n"
                        "#   reports, a link's (m) to its DH parameter; std from the normal equations.\n")
@@ -671,6 +721,10 @@ class SkinCalibration:
             calib.kinematics[str(name)] = correction
             if std is not None:
                 calib.kinematics_std[str(name)] = std
+        for name, entry in entries(doc, "fingertips", "calibration").items():
+            calib.fingertips[str(name)], std = _fingertip_entry(path, name, entry, skin.robot)
+            if std is not None:
+                calib.fingertips_std[str(name)] = std
         if "fabric_thickness" in doc:
             calib.fabric_thickness = _fabric_entry(path, doc["fabric_thickness"])
         check_origins(path, doc, calib, skin)
@@ -705,6 +759,38 @@ def _predicted_entry(path: Path, name: str, entry) -> dict:
         raise ConfigError(f"{path}: part '{name}': predicted_taxel_error_mm must be {{median: mm, p95: mm}}, finite"
                           f" numbers >= 0")
     return {key: float(v) for key, v in values.items()}
+
+
+def _fingertip_entry(path: Path, name, entry, robot: RobotModel) -> tuple:
+    """A fingertip of a calibration file: ``(correction (4,), std (4,) or None)``; its ``point`` and ``radius``
+    must be what the correction gives (one of the two edited: nao-skin reads the correction)."""
+    where = f"{path}: fingertips: '{name}'"
+    if name not in robot.fingertips:
+        raise ConfigError(f"{where}: not a fingertip of {robot.source} (fingertips:"
+                          f" {', '.join(robot.fingertips) or 'none'})")
+
+    def numbers(value, n):
+        try:
+            ok = (isinstance(value, list) and len(value) == n and not any(isinstance(v, (bool, str)) for v in value))
+            out = np.array(value, dtype=float) if ok else None
+        except (TypeError, ValueError, OverflowError):
+            out = None
+        return out if out is not None and np.all(np.isfinite(out)) else None
+
+    try:
+        corr = numbers([*entry["correction"]["point"], entry["correction"]["radius"]], 4)
+        std = numbers([*entry["std"]["point"], entry["std"]["radius"]], 4) if "std" in entry else None
+    except (KeyError, TypeError, AttributeError):
+        corr = std = None
+    if corr is None or np.abs(corr).max() > MAX_LINK_CORRECTION or ("std" in entry and std is None):
+        raise ConfigError(f"{where}: needs correction: {{point: [x, y, z], radius: r}}, finite metres (at most"
+                          f" {MAX_LINK_CORRECTION:g}), and, if given, std of the same shape")
+    tip = robot.fingertips[name]
+    given = numbers([*entry.get("point", tip.point + corr[:3]), entry.get("radius", tip.radius + corr[3])], 4)
+    if given is None or np.abs(given - np.append(tip.point + corr[:3], tip.radius + corr[3])).max() > ORIGIN_TOLERANCE:
+        raise ConfigError(f"{where}: point/radius are not what the correction gives the robot config's fingertip:"
+                          f" one of the two was edited (nao-skin reads the correction); make them agree")
+    return corr, std
 
 
 ORIGIN_TOLERANCE = 1e-8   # m and rad; files hold origins rounded to 1e-10
@@ -767,20 +853,27 @@ def _check_contents(path: Path, doc: dict) -> None:
         return
     said = doc["contents"]
     if isinstance(said, dict):
-        said = {"kinematics": 0, **said}    # without kinematic corrections the count is left out
-    if not (isinstance(said, dict) and set(said) == {"frames", "kinematics"}
+        said = {"kinematics": 0, "fingertips": 0, **said}    # without such corrections the counts are left out
+    if not (isinstance(said, dict) and set(said) == {"frames", "kinematics", "fingertips"}
             and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in said.values())):
-        raise ConfigError(f"{path}: contents must be a mapping of frames and (optional) kinematics, each a whole"
-                          f" number >= 0")
+        raise ConfigError(f"{path}: contents must be a mapping of frames and (optional) kinematics and fingertips, each"
+                          f" a whole number >= 0")
     frames = 0
     for spec in doc["parts"].values():
         if isinstance(spec, dict):       # anything else is said by load(), naming the part
             frames += ("mount" in spec) + sum(len(spec[key]) for key in ("patches", "triangles")
                                               if isinstance(spec.get(key), dict))
     kinematics = len(doc["kinematics"]) if isinstance(doc.get("kinematics"), dict) else 0
-    if (frames, kinematics) != (said["frames"], said["kinematics"]):
-        raise ConfigError(f"{path}: holds {frames} frames and {kinematics} kinematic corrections where its contents"
-                          f" line says {said['frames']} and {said['kinematics']}: the file was cut short or edited;"
+    fingertips = len(doc["fingertips"]) if isinstance(doc.get("fingertips"), dict) else 0
+    if (frames, kinematics, fingertips) != (said["frames"], said["kinematics"], said["fingertips"]):
+        holds, says = f"{frames} frames and {kinematics}", f"{said['frames']} and {said['kinematics']}"
+        if fingertips or said["fingertips"]:
+            holds, says = (f"{frames} frames, {kinematics} kinematic corrections and {fingertips} fingertips",
+                           f"{said['frames']}, {said['kinematics']} and {said['fingertips']}")
+        else:
+            holds += " kinematic corrections"
+        raise ConfigError(f"{path}: holds {holds} where its contents line says {says}: the file was cut short or"
+                          f" edited;"
                           f" restore it, or after a deliberate edit correct that line")
 
 
@@ -854,6 +947,27 @@ def _self_touch(spec, parts: Mapping, where: str) -> SelfTouch:
     if both:
         raise ConfigError(f"{where}: {', '.join(sorted(both))} both touching and touched")
     return SelfTouch(**roles)
+
+
+def _fingertip_touch(spec, parts: Mapping, robot: RobotModel, where: str) -> FingertipTouch:
+    """A skin config's ``fingertip_touch``: ``{touching: [fingertips of the robot config], touched: [parts]}``."""
+    if not isinstance(spec, dict) or set(spec) != {"touching", "touched"}:
+        raise ConfigError(f"{where}: expected {{touching: [fingertips], touched: [parts]}}, e.g. touching: [r_finger]"
+                          f" and touched: [torso, head, l_hand]")
+    for role, known, what in (("touching", robot.fingertips, f"a fingertip of {robot.source}"),
+                              ("touched", parts, "a part of this config")):
+        names = spec[role]
+        if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+            raise ConfigError(f"{where}: {role} must be a non-empty list of names, got {names!r}")
+        unknown = [n for n in names if n not in known]
+        if unknown:
+            raise ConfigError(f"{where}: {role}: {', '.join(unknown)} {'is' if len(unknown) == 1 else 'are'} not"
+                              f" {what} (known: {', '.join(known) or 'none'})")
+        if len(set(names)) < len(names):
+            raise ConfigError(f"{where}: {role}: a name is listed twice, got {names}")
+    same_arm = frozenset((f, p) for f in spec["touching"] for p in spec["touched"]
+                         if parts[p].chain == robot.fingertips[f].chain)
+    return FingertipTouch(tuple(spec["touching"]), tuple(spec["touched"]), same_arm)
 
 
 def parse_pairs(items, parts=None, where: str = "pair") -> tuple:
@@ -931,4 +1045,4 @@ def load_skin(skin_config: str | Path | None = None, taxel_files: Mapping[str, s
     if not taxel_files:
         return skin
     return SkinModel(skin.robot, parts, f"{skin.source} + " + ", ".join(str(p) for p in taxel_files.values()),
-                     skin.self_touch)
+                     skin.self_touch, skin.fingertip_touch)

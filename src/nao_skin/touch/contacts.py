@@ -181,4 +181,4 @@ def cluster_contacts(touches: TouchSet, skin: SkinModel, calib: SkinCalibration 
     return TouchSet(touches.part_names, touches.joint_names, touches.stamps, list(touches.keys), touches.joints,
                     touches.contact_touch[src], touches.contact_part[src], cid, cop,
                     act_contact[act_order], touches.act_slot[act_order], touches.act_pressure[act_order],
-                    dict(touches.labels))
+                    dict(touches.labels), touches.fingertips, touches.touch_fingertip)

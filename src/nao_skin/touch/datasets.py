@@ -62,7 +62,8 @@ class LoadReport:
 
 
 def _touch_signatures(touches: TouchSet) -> np.ndarray:
-    """(N, L) int64 rows that are equal exactly when two touches have the same angles and part/slot sets."""
+    """(N, L) int64 rows that are equal exactly when two touches have the same angles, part/slot sets and
+    fingertip."""
     n = touches.n_touches
     joints = np.where(np.isnan(touches.joints), np.inf, touches.joints + 0.0)  # -0.0 == 0.0, NaN == NaN
     joint_bits = np.ascontiguousarray(joints, dtype=np.float64).view(np.int64)
@@ -74,7 +75,8 @@ def _touch_signatures(touches: TouchSet) -> np.ndarray:
     padded = np.full((n, width), -1, dtype=np.int64)
     start = np.cumsum(counts) - counts
     padded[pairs[:, 0], np.arange(len(pairs)) - start[pairs[:, 0]]] = pairs[:, 1]
-    return np.concatenate([joint_bits, counts[:, None], padded], axis=1)
+    return np.concatenate([joint_bits, touches.fingertip_of_touch[:, None].astype(np.int64), counts[:, None], padded],
+                          axis=1)
 
 
 def duplicate_mask(touches: TouchSet) -> np.ndarray:

@@ -1,7 +1,8 @@
 """Touches as flat arrays: the one data structure capture, simulation and calibration share.
 
-A *touch* is a moment when two (or more) skin parts fire together, with the
-robot's joint angles at that moment. Its skin data is a list of skinManager
+A *touch* is a moment when two (or more) skin parts fire together (a self-touch), or when one part fires
+under a fingertip of the robot (a fingertip touch: ``touch_fingertip`` names which), with the robot's joint
+angles at that moment. Its skin data is a list of skinManager
 *contacts* (clusters of activated taxels), each on one part. Everything is
 stored flat ("struct of arrays") so that re-pairing and residuals run
 vectorised over all touches: an activation knows its contact, a contact its
@@ -9,7 +10,7 @@ touch and part.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
@@ -30,6 +31,9 @@ class TouchSet:
     act_slot: np.ndarray              # (A,) int: taxel slot on its part
     act_pressure: np.ndarray          # (A,) float: pressure (NaN when the source has none)
     labels: dict = field(default_factory=dict)   # optional per-touch arrays, e.g. simulator truth
+    fingertips: tuple = ()            # fingertip names (robot config); touch_fingertip indexes into it
+    # (N,) int: the fingertip that pressed each touch, -1 for a self-touch; None: every touch a self-touch
+    touch_fingertip: np.ndarray | None = None
     # what calibration derives from these touches again and again (FK, pair subsets, COP weights):
     # kept with the touch set, so it lives as long as the touches and is never another set's
     _derived: dict = field(default_factory=dict, init=False, repr=False, compare=False)
@@ -64,6 +68,15 @@ class TouchSet:
         self._derived[key] = (owners, value)
         return value
 
+    @property
+    def fingertip_of_touch(self) -> np.ndarray:
+        """(N,) int: the fingertip (index into ``fingertips``) of each touch, -1 for a self-touch."""
+        return self.touch_fingertip if self.touch_fingertip is not None else np.full(self.n_touches, -1)
+
+    def with_fingertip(self, name: str) -> "TouchSet":
+        """These touches as fingertip touches of ``name`` (every one)."""
+        return replace(self, fingertips=(name,), touch_fingertip=np.zeros(self.n_touches, int))
+
     def part_index(self, name: str) -> int:
         try:
             return self.part_names.index(name)
@@ -96,7 +109,8 @@ class TouchSet:
             self.joints[touches], new_row[self.contact_touch[keep_c]], self.contact_part[keep_c],
             self.contact_id[keep_c], self.contact_cop[keep_c], new_c[self.act_contact[keep_a]],
             self.act_slot[keep_a], self.act_pressure[keep_a],
-            {k: np.asarray(v)[touches] for k, v in self.labels.items()})
+            {k: np.asarray(v)[touches] for k, v in self.labels.items()}, self.fingertips,
+            None if self.touch_fingertip is None else self.touch_fingertip[touches])
 
     @staticmethod
     def concatenate(sets: Sequence["TouchSet"]) -> "TouchSet":
@@ -118,6 +132,13 @@ class TouchSet:
             n_off += s.n_touches
             c_off += len(s.contact_touch)
         label_keys = set.intersection(*(set(s.labels) for s in sets)) if sets else set()
+        fingertips = tuple(dict.fromkeys(f for s in sets for f in s.fingertips))
+        touch_fingertip = None
+        if fingertips:
+            touch_fingertip = np.concatenate([
+                np.where(s.fingertip_of_touch >= 0,
+                         np.array([fingertips.index(f) for f in s.fingertips] + [-1], int)[s.fingertip_of_touch], -1)
+                for s in sets]).astype(int)
         return TouchSet(
             tuple(parts), joint_names,
             np.concatenate([s.stamps for s in sets]),
@@ -130,7 +151,8 @@ class TouchSet:
             np.concatenate([s.act_contact + c for s, _, c, _ in out]).astype(int),
             np.concatenate([s.act_slot for s in sets]).astype(int),
             np.concatenate([s.act_pressure for s in sets]),
-            {k: np.concatenate([np.asarray(s.labels[k]) for s in sets]) for k in label_keys})
+            {k: np.concatenate([np.asarray(s.labels[k]) for s in sets]) for k in label_keys},
+            fingertips, touch_fingertip)
 
     def parts_of_touch(self) -> np.ndarray:
         """(N, P) bool: which parts have at least one activation in each touch."""

@@ -1,0 +1,137 @@
+"""Fingertip rows: where a fingertip of the robot pressed a skin part, the part's contact and the fingertip meet.
+
+In a fingertip touch only the pressed part fires. The fingertip is a sphere in its chain's end frame
+(:class:`~nao_skin.model.robot.Fingertip`: centre ``c``, radius ``r``, each corrected by the calibration), and
+it meets the skin at the fabric surface over the contact. One row per touch::
+
+    row = (COP + fabric * normals) + r * n - T_chain(q) c
+
+``COP`` the pressure-weighted mean of the contact's taxels (the contact of the touch nearest the fingertip, chosen
+as pairing chooses the closest COP pair), each taxel lifted by the fabric along its own normal as in every row of
+:class:`~nao_skin.calibration.residuals.ResidualModel`, and ``n`` the contact's calibrated mean normal in the base
+frame, fixed while the pairing is (as a point-to-plane row's normal, ICP's rule). Side A of the row is the
+contact's taxels (terms, as any row's), side B the fingertip: :attr:`Pairing.row_fingertip` names it and
+:attr:`Pairing.row_direction` holds ``n``. The distance of a row is the fingertip's contact point (on its sphere,
+facing the skin) from the contact's COP at the fabric surface: what a fingertip scene reports.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from nao_skin import se3
+from nao_skin.calibration.kinds import KIND_FINGERTIP
+from nao_skin.calibration.pairing import (Pairing, _argmin_per_group, _contact_activations, activation_normals,
+                                          activation_positions, chain_end_poses)
+from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.touch.contacts import cop_weights, segment_mean
+from nao_skin.touch.touches import TouchSet
+
+DEFAULT_FABRIC = 0.001      # m: a calibration that has not estimated the fabric (CalibrationOptions' default)
+
+
+def fabric_of(calib: SkinCalibration | None) -> float:
+    """The fabric thickness a calibration's fingertip rows lift the taxels by (its estimate, else the default)."""
+    return DEFAULT_FABRIC if calib is None or calib.fabric_thickness is None else float(calib.fabric_thickness)
+
+
+def fingertip_centres(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None, fingertip: str,
+                      rows: np.ndarray | None = None) -> tuple:
+    """``(centres (K, 3), radius)``: the fingertip's sphere centre in the base frame in each touch of ``rows``
+    (all by default), on the robot ``calib``'s kinematic corrections describe."""
+    centre, radius = (calib or SkinCalibration()).fingertip_sphere(skin.robot, fingertip)
+    poses = chain_end_poses(touches, skin.with_kinematics(calib), fingertip)
+    poses = poses if rows is None else poses[rows]
+    return se3.transform_points(poses, centre), radius
+
+
+def fingertip_rows(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None, fingertip: str,
+                   part: str, placed: dict | None = None) -> Pairing:
+    """One row per touch of ``fingertip`` that fires ``part``: its contact nearest the fingertip against the
+    fingertip's sphere (module docstring); ``placed``: see :func:`~nao_skin.calibration.pairing.activation_positions`."""
+    if fingertip not in touches.fingertips or part not in touches.part_names:
+        return _empty()
+    f, p = touches.fingertips.index(fingertip), touches.part_index(part)
+    contacts = np.flatnonzero((touches.contact_part == p)
+                              & (touches.fingertip_of_touch[touches.contact_touch] == f))
+    if len(contacts) == 0:
+        return _empty()
+    fabric = fabric_of(calib)
+    pos = activation_positions(touches, skin, calib, placed)
+    normals = activation_normals(touches, skin, calib)
+    group, act = _contact_activations(touches, contacts)
+    weight = cop_weights(touches)[act]
+    lifted = segment_mean(pos[act] + fabric * normals[act], group, len(contacts), weight)
+    normal = segment_mean(normals[act], group, len(contacts), weight)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    touch = touches.contact_touch[contacts]
+    centre, radius = fingertip_centres(touches, skin, calib, fingertip, touch)
+    residual = lifted + radius * normal - centre
+    distance = np.linalg.norm(residual, axis=1)
+    best = _argmin_per_group(touch, distance)          # the contact nearest the fingertip, per touch
+    keep = np.isin(group, best)
+    row_of = np.full(len(contacts), -1)
+    row_of[best] = np.arange(len(best))
+    m = len(best)
+    return Pairing(row_touch=touch[best], row_kind=np.full(m, KIND_FINGERTIP, np.int8),
+                   row_parts=np.column_stack([np.full(m, p), np.full(m, -1)]), term_row=row_of[group[keep]],
+                   term_part=np.full(int(keep.sum()), p), term_slot=touches.act_slot[act[keep]],
+                   term_weight=weight[keep], distance=distance[best], row_fingertip=np.full(m, f),
+                   row_direction=normal[best])
+
+
+def _empty() -> Pairing:
+    z = np.zeros(0, dtype=int)
+    return Pairing(z, z.astype(np.int8), np.zeros((0, 2), int), z, z, z, np.zeros(0), np.zeros(0))
+
+
+def fingertip_pairs(touches: TouchSet) -> dict:
+    """``{(fingertip, part): touches}`` of every fingertip and the part its touches fire."""
+    f = touches.fingertip_of_touch
+    fired = touches.parts_of_touch()
+    out = {}
+    for i, name in enumerate(touches.fingertips):
+        for p, part in enumerate(touches.part_names):
+            n = int(np.sum((f == i) & fired[:, p]))
+            if n:
+                out[(name, part)] = n
+    return out
+
+
+# m: a fingertip presses the taxels of the pressed part within this of its contact point (the point of its sphere
+# facing the skin, at the fabric surface): the taxel pitch (about 6 mm) less a little, as a fired skin taxel
+# predicts the other part's within PREDICT_RADIUS (calibration.contact)
+FINGERTIP_PREDICT_RADIUS = 0.005
+
+
+def fingertip_firing(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None, fingertip: str,
+                     part: str, radius: float = FINGERTIP_PREDICT_RADIUS) -> tuple:
+    """Which taxels of ``part`` the fingertip's sphere predicts fire in its touches, against which did:
+    ``(predicted, fired)``, sorted ``touch * S + slot`` codes (``S`` the part's slot count), as
+    :func:`~nao_skin.calibration.contact.predicted_firing` gives them for two skins. A taxel is predicted when its
+    fabric surface lies within ``radius`` of the sphere's surface and faces the fingertip."""
+    import scipy.spatial
+
+    if fingertip not in touches.fingertips or part not in touches.part_names:
+        return np.zeros(0, int), np.zeros(0, int)
+    f, p = touches.fingertips.index(fingertip), touches.part_index(part)
+    sp = skin.part(part)
+    act = np.flatnonzero((touches.act_part == p) & (touches.fingertip_of_touch[touches.act_touch] == f))
+    fired = np.unique(touches.act_touch[act] * sp.n_slots + touches.act_slot[act])
+    rows = np.unique(touches.act_touch[act])
+    if len(rows) == 0:
+        return np.zeros(0, int), fired
+    fabric = fabric_of(calib)
+    pos, nor = sp.taxel_positions(calib.parts.get(part) if calib is not None else None)
+    slots = sp.slots
+    surface = pos[slots] + fabric * nor[slots]
+    # the sphere's centre in the part's chain-end frame, per touch
+    centre, r = fingertip_centres(touches, skin, calib, fingertip, rows)
+    to_part = se3.invert(chain_end_poses(touches, skin.with_kinematics(calib), part)[rows])
+    local = se3.transform_points(to_part, centre)
+    near = scipy.spatial.cKDTree(surface).query_ball_point(local, r + radius)
+    counts = np.array([len(n) for n in near])
+    k = np.repeat(np.arange(len(rows)), counts)
+    taxel = np.concatenate([np.asarray(n, int) for n in near]) if counts.sum() else np.zeros(0, int)
+    facing = np.einsum("ij,ij->i", local[k] - surface[taxel], nor[slots][taxel]) > 0.0
+    predicted = np.unique(rows[k[facing]] * sp.n_slots + slots[taxel[facing]])
+    return predicted, fired
