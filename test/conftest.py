@@ -24,6 +24,12 @@ def real_dir():
 
 
 @pytest.fixture(scope="session")
+def real_fingertip_dir(real_dir):
+    """The directory holding the real fingertip recordings (read with ``real_dir``'s layouts)."""
+    return real_data.require_fingertip()
+
+
+@pytest.fixture(scope="session")
 def real_recording(real_dir):
     """The real left hand-torso recording (the thesis' text format)."""
     return real_dir / real_data.RECORDING

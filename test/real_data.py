@@ -13,7 +13,8 @@ from nao_skin.paths import REAL_LAYOUTS as LAYOUTS
 from nao_skin.paths import REAL_RECORDING as RECORDING
 from nao_skin.paths import real_data_missing
 
-__all__ = ["FILES", "LAYOUTS", "RECORDING", "VARIABLE", "missing_line", "require", "taxel_args", "where"]
+__all__ = ["FILES", "LAYOUTS", "RECORDING", "VARIABLE", "missing_line", "require", "require_fingertip", "taxel_args",
+           "where"]
 
 
 def where() -> Path:
@@ -30,6 +31,20 @@ def missing_line(directory: Path):
         return None
     looked = f"{VARIABLE}={directory}" if os.environ.get(VARIABLE) else f"{VARIABLE} unset, looked in {directory}"
     return f"real recording missing ({', '.join(lacking)}; {looked}): set {VARIABLE}=DIR holding {', '.join(FILES)}"
+
+
+def require_fingertip() -> Path:
+    """The directory of the real fingertip recordings (``$NAO_SKIN_REAL_FINGERTIP``, else ``real_fingertip`` beside
+    the self-touch recording's); else the test skips, or fails under ``CI=true``."""
+    from nao_skin.paths import REAL_FINGERTIP, REAL_FINGERTIP_VARIABLE
+
+    named = os.environ.get(REAL_FINGERTIP_VARIABLE)
+    directory = Path(named) if named else where().parent / "real_fingertip"
+    lacking = [name for name in REAL_FINGERTIP if not (directory / name).is_file()]
+    if lacking:
+        skip_outside_ci(f"real fingertip recordings missing ({', '.join(lacking)} in {directory}): set"
+                        f" {REAL_FINGERTIP_VARIABLE}=DIR holding {', '.join(REAL_FINGERTIP)}")
+    return directory
 
 
 def in_ci() -> bool:

@@ -48,8 +48,8 @@ def test_the_recorder_writes_the_messages_a_touch_bag_holds(real, real_skin):
     recorded = list(detected_touch_messages(records, real_skin, touches.part_names, touches.joint_names))
     written = list(touch_messages(touches, real_skin))
     assert len(recorded) == len(written) == 40
-    for (stamp, names, joints, parts), (stamp_w, names_w, joints_w, parts_w) in zip(recorded, written):
-        assert (stamp, tuple(names)) == (stamp_w, tuple(names_w))
+    for (stamp, names, joints, parts, tip), (stamp_w, names_w, joints_w, parts_w, tip_w) in zip(recorded, written):
+        assert (stamp, tuple(names), tip) == (stamp_w, tuple(names_w), tip_w) and tip is None
         np.testing.assert_array_equal(joints, joints_w)
         assert [part.name for part, _, _ in parts] == [part.name for part, _, _ in parts_w]
         for (_, taxels, contacts), (_, taxels_w, contacts_w) in zip(parts, parts_w):

@@ -217,6 +217,14 @@ def real_data_missing(directory: Path) -> list:
     return [name for name in REAL_DATA_FILES if not (Path(directory) / name).is_file()]
 
 
+# The same robot's fingertip recordings (its right fingertip pressed on the torso and on the left hand, the thesis'
+# text format), read with the self-touch recording's layouts: named by this variable, else the directory
+# ``real_fingertip`` beside the self-touch recording's.
+REAL_FINGERTIP_VARIABLE = "NAO_SKIN_REAL_FINGERTIP"
+# recording -> (the fingertip that pressed, the part it pressed)
+REAL_FINGERTIP = {"r_finger_torso.legacy.txt": ("r_finger", "torso"), "r_finger_l_hand.legacy.txt": ("r_finger", "l_hand")}
+
+
 def config_dir() -> Path:
     """``config/`` of the package, or $NAO_SKIN_CONFIG."""
     env = os.environ.get("NAO_SKIN_CONFIG")

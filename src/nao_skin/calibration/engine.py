@@ -36,9 +36,9 @@ from threadpoolctl import threadpool_limits
 
 from nao_skin.calibration.evaluation import (closest_cop_cost, contact_figure, evaluate, explained, firing_prediction,
                                              fitted_pair_cost, fitted_touch_distances, gate_touches, paired_gain,
-                                             plan_fingertips, plan_pairs, truth_error)
+                                             fingertip_truth_error, plan_fingertips, plan_pairs, truth_error)
 from nao_skin.calibration.first_guess import guess_targets, rigid_mount_guess
-from nao_skin.calibration.layout import KINEMATICS
+from nao_skin.calibration.layout import FINGERTIP_COMPONENTS, KINEMATICS
 from nao_skin.calibration.options import LEVELS, CalibrationOptions
 from nao_skin.calibration.pairing import robot_joints
 from nao_skin.calibration.plan import (Step, joint_step, left_out_pairs, pairs_outside_roles, plan_steps, too_few,
@@ -76,6 +76,7 @@ class CalibrationReport:
     set_aside: list = field(default_factory=list)       # touches no self-contact explains, with the reason
     held: list = field(default_factory=list)            # what no stage estimated
     kinematics: dict = field(default_factory=dict)      # kinematic corrections: estimated, held and why
+    fingertips: dict = field(default_factory=dict)      # fingertips' contact spheres: estimated, std, held
     left_out: list = field(default_factory=list)        # pairs too few touches connect, held at the prior
     total_seconds: float = 0.0                          # the engine's, from touches to calibration
     input: dict = field(default_factory=dict)           # what was read (set by the pipeline)
@@ -231,6 +232,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
     # held: what no stage estimated (a triangle held while fitted to one reference and freed by the
     # joint refinement, where both references reach ten activations, was estimated: not listed)
     report.held = sorted(compress_held(sorted(fit.held - fit.estimated)))
+    report.fingertips = _fingertips_entry(skin, fit)
     outside = pairs_outside_roles(train, options, skin.self_touch)
     report.warnings = ([f"touches of {', '.join(outside)}: no pair of the skin config's self_touch (touching"
                         f" {', '.join(skin.self_touch.touching)}; touched {', '.join(skin.self_touch.touched)};"
@@ -255,6 +257,8 @@ class _Fit:
     set_aside: list = field(default_factory=list)
     held: set = field(default_factory=set)              # 'part/frame/comp' some stage held
     estimated: set = field(default_factory=set)         # 'part/frame/comp' some accepted stage estimated
+    fingertips_held: set = field(default_factory=set)   # '<fingertip>/<component>' some stage held ...
+    fingertips_estimated: set = field(default_factory=set)   # ... and some stage estimated
     # the fitted cost the last stage ended at: the next stage of the same step starts from it
     last_cost: tuple = (None, (), -1, np.inf)           # (step, kinds, n inliers, cost)
     # the last stage's figures and what they measured: the final figures when nothing changed since
@@ -263,6 +267,19 @@ class _Fit:
     # each touch's expected cop_skin row at the true skin, subtracted from the rows (calibration/press.py)
     press: dict | None = None
     fabric_stands_in: bool = False                      # the fabric so far was fitted to a fixed reference
+
+
+def _fingertips_entry(skin: SkinModel, fit: _Fit) -> dict:
+    """``report.fingertips``: per fingertip the stages fitted, its contact sphere (m, in its chain's end frame), the
+    std of each component where estimated and the components held at the robot config (FINGERTIP_COMPONENTS)."""
+    out = {}
+    for name in sorted({key.split("/")[0] for key in fit.fingertips_held | fit.fingertips_estimated}):
+        centre, radius = fit.calibration.fingertip_sphere(skin.robot, name)
+        std = fit.calibration.fingertips_std.get(name)
+        held = [c for c in FINGERTIP_COMPONENTS if f"{name}/{c}" in fit.fingertips_held - fit.fingertips_estimated]
+        out[name] = {"chain": skin.robot.fingertip(name).chain, "point": centre.tolist(), "radius": radius,
+                     "std": None if std is None else [float(v) for v in std], "held": held}
+    return out
 
 
 def _check_parts(touches: TouchSet, skin: SkinModel) -> None:
@@ -401,6 +418,9 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
     if KINEMATICS in levels:
         entry["kinematics_held"] = list(stage.kinematics_held)
     fit.held |= stage.held_components
+    fitted = {f"{f}/{c}" for f in step.fingertip_names if f in train.fingertips for c in FINGERTIP_COMPONENTS}
+    fit.fingertips_held |= set(stage.fingertips_held)
+    fit.fingertips_estimated |= fitted - set(stage.fingertips_held)
     cost_after = fitted_pair_cost(train, skin, stage.calibration, step, fit.inliers, kinds,
                                   stage.fabric_thickness_mm / 1000.0, ended, options.plane_rows(), fit.press)
     if cost_after > 1.25 * cost_before and not (round_no == 0 and "mount" in levels):
@@ -493,7 +513,7 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
         if moved < KINEMATICS_SETTLED:
             break
     held_out = paired_gain(test_before, _held_out_surface_mm(test, skin, kfit, step), KINEMATICS_GAIN_Z)
-    candidates = skin.robot.kinematic_names(sorted({skin.parts[p].chain for p in step.targets} - {None}))
+    candidates = skin.robot.kinematic_names(step.chains(skin))
     out = {"mode": options.kinematics, "test_taxel_surface_mm": held_out}
     if options.kinematics == "auto" and not held_out["gain_low"] >= options.kinematics_min_gain:
         asked = f"{100 * options.kinematics_min_gain:.0f} %"
@@ -557,8 +577,13 @@ def _figures(train: TouchSet, test: TouchSet, skin: SkinModel, calib: SkinCalibr
              truth_poses) -> dict:
     out = {"train": evaluate(train, skin, calib, steps), "test": evaluate(test, skin, calib, steps)}
     if truth is not None:
-        out["truth_taxel_error_mm"] = truth_error(skin, calib, truth, poses=truth_poses)
+        out["truth_taxel_error_mm"] = truth_error(skin, calib, truth, _targets(steps), truth_poses)
     return out
+
+
+def _targets(steps: list) -> list:
+    """The parts the plan calibrates (their true error is the calibration's; the others are held where they start)."""
+    return sorted({p for s in steps for p in s.targets}, key=part_rank)
 
 
 def _final_figures(train: TouchSet, test: TouchSet, skin: SkinModel, steps: list, options: CalibrationOptions,
@@ -579,7 +604,9 @@ def _final_figures(train: TouchSet, test: TouchSet, skin: SkinModel, steps: list
         final[f"{split_name}_accepted"] = evaluate(ts.subset(ok), skin, calib, steps)
         final[f"{split_name}_accepted"]["n_not_explained"] = int((~ok).sum())
     if truth is not None:
-        final["truth_taxel_error_mm"] = truth_error(skin, calib, truth, poses=fit.truth_poses)
+        final["truth_taxel_error_mm"] = truth_error(skin, calib, truth, _targets(steps), fit.truth_poses)
+        if calib.fingertips:
+            final["truth_fingertip_error_mm"] = fingertip_truth_error(skin, calib, truth)
     return final
 
 

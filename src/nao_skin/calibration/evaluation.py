@@ -148,6 +148,18 @@ def truth_error(skin: SkinModel, calib: SkinCalibration, truth: SkinCalibration,
     return out
 
 
+def fingertip_truth_error(skin: SkinModel, calib: SkinCalibration, truth: SkinCalibration) -> dict:
+    """``{fingertip: {"centre": mm, "radius": mm}}``: how far each fingertip sphere the calibration holds is from
+    the true one (the centre's distance, the radius' difference)."""
+    out = {}
+    for name in calib.fingertips:
+        centre, radius = calib.fingertip_sphere(skin.robot, name)
+        true_centre, true_radius = truth.fingertip_sphere(skin.robot, name)
+        out[name] = {"centre": 1000.0 * float(np.linalg.norm(centre - true_centre)),
+                     "radius": 1000.0 * abs(radius - true_radius)}
+    return out
+
+
 def closest_cop_cost(touches, skin, calib, step, inliers) -> float:
     """Mean closest-COP distance (m) of the inlier touches, each capped at 50 mm (a far-off
     minority must not decide)."""

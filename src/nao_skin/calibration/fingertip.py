@@ -107,8 +107,9 @@ def fingertip_firing(touches: TouchSet, skin: SkinModel, calib: SkinCalibration 
                      part: str, radius: float = FINGERTIP_PREDICT_RADIUS) -> tuple:
     """Which taxels of ``part`` the fingertip's sphere predicts fire in its touches, against which did:
     ``(predicted, fired)``, sorted ``touch * S + slot`` codes (``S`` the part's slot count), as
-    :func:`~nao_skin.calibration.contact.predicted_firing` gives them for two skins. A taxel is predicted when its
-    fabric surface lies within ``radius`` of the sphere's surface and faces the fingertip."""
+    :func:`~nao_skin.calibration.contact.predicted_firing` gives them for two skins. The fingertip presses where its
+    sphere comes nearest the part's fabric surface (its contact point); a taxel is predicted when its fabric surface
+    lies within ``radius`` of that point and faces the fingertip."""
     import scipy.spatial
 
     if fingertip not in touches.fingertips or part not in touches.part_names:
@@ -120,15 +121,17 @@ def fingertip_firing(touches: TouchSet, skin: SkinModel, calib: SkinCalibration 
     rows = np.unique(touches.act_touch[act])
     if len(rows) == 0:
         return np.zeros(0, int), fired
-    fabric = fabric_of(calib)
     pos, nor = sp.taxel_positions(calib.parts.get(part) if calib is not None else None)
     slots = sp.slots
-    surface = pos[slots] + fabric * nor[slots]
-    # the sphere's centre in the part's chain-end frame, per touch
+    surface = pos[slots] + fabric_of(calib) * nor[slots]
+    tree = scipy.spatial.cKDTree(surface)
+    # the sphere's centre in the part's chain-end frame, per touch, and its point nearest the skin
     centre, r = fingertip_centres(touches, skin, calib, fingertip, rows)
-    to_part = se3.invert(chain_end_poses(touches, skin.with_kinematics(calib), part)[rows])
-    local = se3.transform_points(to_part, centre)
-    near = scipy.spatial.cKDTree(surface).query_ball_point(local, r + radius)
+    local = se3.transform_points(se3.invert(chain_end_poses(touches, skin.with_kinematics(calib), part)[rows]), centre)
+    _, nearest = tree.query(local)
+    towards = surface[nearest] - local
+    point = local + r * towards / np.maximum(np.linalg.norm(towards, axis=1, keepdims=True), 1e-12)
+    near = tree.query_ball_point(point, radius)
     counts = np.array([len(n) for n in near])
     k = np.repeat(np.arange(len(rows)), counts)
     taxel = np.concatenate([np.asarray(n, int) for n in near]) if counts.sum() else np.zeros(0, int)

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from nao_skin.errors import TooFewTouches
-from nao_skin.model.skin import SelfTouch, pair_label, part_rank
+from nao_skin.model.skin import SelfTouch, pair_label, part_rank, scene_label
 from nao_skin.touch.datasets import pose_groups
 from nao_skin.touch.touches import TouchSet
 
@@ -28,6 +28,11 @@ class Step:
     def name(self) -> str:
         against = self.references + tuple(dict.fromkeys(f for f, _ in self.fingertips))
         return "+".join(self.targets) + (" from " + "+".join(against) if against else "")
+
+    def chains(self, skin) -> list:
+        """The chains the step's parts and fingertips hang off (what its kinematic unknowns are of), sorted."""
+        parts = {skin.parts[p].chain for p in self.targets + self.references}
+        return sorted((parts | {skin.robot.fingertip(f).chain for f in self.fingertip_names}) - {None})
 
     @property
     def fingertip_names(self) -> tuple:
@@ -97,10 +102,6 @@ def left_out_pairs(touches: TouchSet, options: "CalibrationOptions") -> list:
             + [(scene_label(*k), n, tip_poses[k]) for k, n in fingertip_pairs(touches).items()
                if tip_poses[k] < options.min_mount_touches])
 
-
-def scene_label(fingertip: str, part: str) -> str:
-    """The name of a fingertip scene in reports and status messages: 'r_finger-torso'."""
-    return f"{fingertip}-{part}"
 
 
 def pairs_outside_roles(touches: TouchSet, options: "CalibrationOptions", roles: SelfTouch) -> list:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from nao_skin.calibration.engine import CalibrationResult
-from nao_skin.calibration.evaluation import FIGURES, contact_figure, measured
+from nao_skin.calibration.evaluation import contact_figure, measured
 from nao_skin.calibration.layout import COMPONENTS
 from nao_skin.calibration.options import KIND_ROWS, CalibrationOptions
 from nao_skin.calibration.pairing import KIND_NAMES, pair_for_metrics
@@ -126,6 +126,25 @@ def kinematics_section(kin: dict) -> list:
     return lines
 
 
+def fingertips_section(tips: dict, truth: dict) -> list:
+    """report.md lines of the fingertips' contact spheres: centre (mm, in the chain's end frame) and radius with
+    their std, what was held at the robot config; the distance from the true sphere where known."""
+    if not tips:
+        return []
+    lines = ["", "## Fingertips (contact spheres, in the end frame of their chains)", "",
+             "| fingertip | chain | centre x, y, z (mm) | radius (mm) | std x, y, z, radius (mm) | held |"
+             + (" true centre off (mm) | true radius off (mm) |" if truth else ""),
+             "|---|---|---|---|---|---|" + ("---|---|" if truth else "")]
+    for name, t in tips.items():
+        std = " ".join(_fmt(1000.0 * v) for v in t["std"]) if t.get("std") else "–"
+        off = ([_fmt(truth[name]["centre"]), _fmt(truth[name]["radius"])] if name in truth else ["–", "–"]) \
+            if truth else []
+        lines.append(f"| {name} | {t['chain']} | {', '.join(_fmt(1000.0 * v) for v in t['point'])} |"
+                     f" {_fmt(1000.0 * t['radius'])} | {std} | {', '.join(t['held']) or 'none'} |"
+                     + "".join(f" {v} |" for v in off))
+    return lines
+
+
 def predicted_section(final: dict, pictures: bool = True) -> list:
     """report.md lines of the predicted taxel error per part (and the true one beside it, when known);
     ``pictures``: uncertainty.png is written beside (named only then)."""
@@ -164,7 +183,16 @@ def _set_aside_text(final: dict) -> str:
 def markdown_report(report: dict, coverage: dict | None = None, pictures: bool = True) -> str:
     """report.md from the report's dict; ``coverage`` (:func:`report_coverage`) adds the coverage table;
     ``pictures``: the plots are written beside it (coverage.png is named only then)."""
-    keys = ("cop_mean_mm", "taxel_mean_mm", "contact_taxel_mean_mm", "taxel5_mean_mm", "fired_f1")
+    labels = {"cop_mean_mm": "closest COP mean (mm)", "taxel_mean_mm": "closest taxel mean (mm)",
+              "contact_taxel_mean_mm": "selected contacts' closest taxel mean (mm)",
+              "taxel5_mean_mm": "5 taxel pairs mean (mm)", "fingertip_mean_mm": "fingertip to its contact mean (mm)",
+              "fired_f1": "fired taxels predicted F1 (%)"}
+    final_train = report["final"].get("train", {})
+    # the self-touch columns where self-touches are measured (or nothing is), the fingertip's where fingertips are
+    fingertip = bool(measured(final_train, ("fingertip_mean_mm",)))
+    keys = ([k for k in labels if k not in ("fingertip_mean_mm", "fired_f1")]
+            if measured(final_train, ("cop_mean_mm",)) or not fingertip else [])
+    keys += ["fingertip_mean_mm"] * fingertip + ["fired_f1"]
     lines = ["# Skin calibration report", "",
              f"Plan: {' → '.join(report['plan'])}", "",
              f"Total time: {report['total_seconds']:.2f} s. Touches set aside: {report['n_set_aside']}"
@@ -172,13 +200,13 @@ def markdown_report(report: dict, coverage: dict | None = None, pictures: bool =
              *([f"**Warning: {w}.**" for w in report.get("warnings") or []] + [""] if report.get("warnings") else []),
              "Closest taxel: the closest pair among every activated taxel of the two touching parts; selected"
              " contacts': the closest pair of the two contacts whose COPs are closest (what the solver fits)."
-             " Fired taxels predicted: each part's fired taxels predict the other part's facing taxels within"
-             " 4 mm; F1 of the predicted against the fired (percent; higher is better, owes nothing to closest"
-             " pairs).", "",
-             "| stage | set | touches | closest COP mean (mm) | closest taxel mean (mm)"
-             " | selected contacts' closest taxel mean (mm) | 5 taxel pairs mean (mm) | fired taxels predicted F1 (%)"
-             " | seconds |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             + (" Fingertip to its contact: from the point of the fingertip's contact sphere facing the skin to the"
+                " COP of its nearest contact, at the fabric surface." if "fingertip_mean_mm" in keys else "")
+             + " Fired taxels predicted: each part's fired taxels predict the other part's facing taxels within"
+             " 4 mm (a fingertip's sphere the taxels within 5 mm of its contact point); F1 of the predicted against"
+             " the fired (percent; higher is better, owes nothing to closest pairs).", "",
+             "| stage | set | touches | " + " | ".join(labels[k] for k in keys) + " | seconds |",
+             "|---|---|---|" + "---|" * len(keys) + "---|"]
     rows = [("before", report["before"], None)]
     rows += [(s["name"], s, s["seconds"]) for s in report["stages"]]
     rows += [("final", report["final"], None)]
@@ -225,6 +253,7 @@ def markdown_report(report: dict, coverage: dict | None = None, pictures: bool =
         unit, scale = ("mm", 1000.0) if group.endswith("translation") else ("deg", np.degrees(1.0))
         lines.append(f"- prior std of {group.replace('_', ' ')}: {_fmt(scale * value)} {unit}")
     lines += kinematics_section(report.get("kinematics") or {})
+    lines += fingertips_section(report.get("fingertips") or {}, report["final"].get("truth_fingertip_error_mm") or {})
     if report.get("left_out"):
         lines += ["", "## Left out: too few touches (held at the prior)", ""]
         lines += [f"- {e['pair']}: {e['reason']}" for e in report["left_out"]]

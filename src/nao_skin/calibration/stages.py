@@ -85,8 +85,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     name = f"{step.name}: {'+'.join(sorted(levels, key=['mount', 'patch', 'triangle', KINEMATICS].index))}"
     parts_in = tuple(p for p in step.targets + step.references if p in touches.part_names)
     # kinematic unknowns: the joint offsets and named links of the chains the stage's parts hang off
-    kinematic = (tuple(skin.robot.kinematic_names(sorted({skin.parts[p].chain for p in parts_in} - {None})))
-                 if KINEMATICS in levels else ())
+    kinematic = tuple(skin.robot.kinematic_names(step.chains(skin))) if KINEMATICS in levels else ()
     layout = ParameterLayout(skin, parts_in, kinematic, tuple(f for f in step.fingertip_names if f in touches.fingertips))
     kind_names = fitted_kinds(options, levels)
     # a step's fingertip scenes are fitted in each of its stages, whatever the options' rows of two parts
@@ -170,6 +169,9 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
         # Held means at the prior: what an earlier solve of this stage moved there goes back.
         newly_held = _hold_unobservable(model, current, free, free_levels, options.condition_limit,
                                         prefer=set(layout.kinematic_cols.values()))
+        free[newly_held] = False
+        newly_held += _hold_undetermined_fingertips(model, current, free, free_levels, layout, options,
+                                                    _prior_weights(layout, free_parts, options, prior_sigma))
         free[newly_held] = False
         x[newly_held] = prior_x[newly_held]
         held_names = [layout.describe(c) for c in np.flatnonzero(free_mask(layout, free_parts, levels) & ~free)]
@@ -337,6 +339,31 @@ def _hold_unobservable(model: ResidualModel, calib: SkinCalibration, free: np.nd
         held |= {int(cols[i]) for i in drop}
         idx = np.array([i for i in idx if i not in drop], dtype=int)
     return sorted(held)
+
+# m: a fingertip sphere's component the touches determine less well than this (posterior std at the rows' noise)
+# is held at the robot config's: pressed on a flat part alone, the radius and the part's place along its normal are
+# one unknown, and the fit would trade one for the other (simulator, fingertip-torso: radius 1.1 mm for a true 5,
+# the torso 5 mm off)
+FINGERTIP_DETERMINED = 0.001
+
+
+def _hold_undetermined_fingertips(model: ResidualModel, calib: SkinCalibration, free: np.ndarray, free_levels: dict,
+                                  layout: ParameterLayout, options, prior_weights: np.ndarray) -> list:
+    """The free fingertip sphere columns whose posterior std (the free columns' normal equations with the patches'
+    and triangles' prior, at ``options.residual_sigma`` per coordinate) exceeds :data:`FINGERTIP_DETERMINED`."""
+    tips = [c for first in layout.fingertip_cols.values() for c in range(first, first + 4) if free[c]]
+    if not tips:
+        return []
+    cols = np.flatnonzero(free)
+    h = gram(model.jacobian(calib, free_levels, cols)) + np.diag(prior_weights[cols])
+    try:
+        var = inverse_diagonal(h)
+    except np.linalg.LinAlgError:
+        return tips
+    std = options.residual_sigma * np.sqrt(np.maximum(var, 0.0))
+    pos = np.searchsorted(cols, tips)
+    return [c for c, k in zip(tips, pos) if not std[k] <= FINGERTIP_DETERMINED]
+
 
 def _clearly_conditioned(scaled: np.ndarray, limit: float) -> bool:
     """Whether the eigenvalues of the symmetric ``scaled`` satisfy ``smallest >= largest / limit``

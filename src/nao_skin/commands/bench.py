@@ -24,8 +24,8 @@ REAL_LEFT_OUT = (f"real section left out: no --real PATH, and {REAL_DATA_VARIABL
                  f" recording and its layouts) is not set")
 HELP = "benchmark calibration strategies (seconds against error) and the simulator's hard cases"
 
-SECTIONS = ("speed", "real", "hard", "live", "kinematics")
-# what runs without --only: the kinematics section (presets x seeds x three calibrations) is asked for by name
+SECTIONS = ("speed", "real", "hard", "live", "kinematics", "fingertip")
+# what runs without --only: the kinematics and fingertip sections (seeds x sizes x calibrations) are asked for by name
 DEFAULT_SECTIONS = ("speed", "real", "hard", "live")
 # where the project keeps the tables `--readme` fills (between its BENCH markers), from the repository root
 RESULTS_DOC = "docs/results.md"
@@ -48,8 +48,10 @@ def add_arguments(parser) -> None:
                         help="run only this section (repeatable): speed = bundled simulated recording, "
                              "real = the --real recordings (or $NAO_SKIN_REAL_DATA's), hard = simulator hard cases,"
                              " live = one live update (warm-started) at 1000 and 4000 touches of the simulated"
-                             " recording, kinematics = presets calibrated with kinematics off / on / auto (only when"
-                             " asked for)")
+                             " recording, kinematics = presets calibrated with kinematics off / on / auto, fingertip ="
+                             " the real fingertip recordings ($NAO_SKIN_REAL_FINGERTIP, else real_fingertip beside"
+                             " $NAO_SKIN_REAL_DATA) and the simulator's fingertip scenes, alone and mixed with"
+                             " self-touches (the last two only when asked for)")
     parser.add_argument("--repeat", type=int, help="timed repetitions per strategy, median quoted (default 3)")
     parser.add_argument("--seeds", type=int, help="seeds per hard-case preset (default 20)")
     parser.add_argument("--sim", help="simulated recording with truth_calibration.yaml (default: bags/sim_default)")
@@ -204,6 +206,30 @@ def _real_from_environment(args, sections: set) -> Path | None:
     if not args.taxels:
         args.taxels = [f"{part}={directory / name}" for part, name in REAL_LAYOUTS.items()]
     return directory
+
+
+FINGERTIP_LEFT_OUT = (f"{REAL_DATA_VARIABLE} (the self-touch recording's directory, whose layouts they are read"
+                      f" with) is unset, or neither $NAO_SKIN_REAL_FINGERTIP nor real_fingertip beside it holds them")
+
+
+def _fingertip_directory() -> Path | None:
+    """The real fingertip recordings' directory: $NAO_SKIN_REAL_FINGERTIP, else ``real_fingertip`` beside the
+    directory $NAO_SKIN_REAL_DATA names (whose layouts they are read with); None when that is unset or neither
+    holds them."""
+    from nao_skin.paths import REAL_FINGERTIP, REAL_FINGERTIP_VARIABLE
+
+    if not os.environ.get(REAL_DATA_VARIABLE):
+        return None
+    named = Path(os.environ.get(REAL_FINGERTIP_VARIABLE) or Path(os.environ[REAL_DATA_VARIABLE]).parent / "real_fingertip")
+    return named if all((named / name).is_file() for name in REAL_FINGERTIP) else None
+
+
+def _real_layouts() -> dict:
+    """The real recordings' layouts, part -> file, from $NAO_SKIN_REAL_DATA's directory (the fingertip recordings
+    are read with the self-touch recording's)."""
+    from nao_skin.paths import REAL_LAYOUTS
+
+    return {part: Path(os.environ.get(REAL_DATA_VARIABLE, "")) / name for part, name in REAL_LAYOUTS.items()}
 
 
 def _real_inputs(args, say, skin) -> list:
@@ -389,6 +415,25 @@ def run(args) -> int:
                    *live.update_table(timings), "", f"- {target}", ""]
             _write(results_dir(), md, results, listing)
             failures += "NOT met" in target
+
+        if "fingertip" in sections:
+            from nao_skin.bench import fingertip
+
+            directory = _fingertip_directory()
+            real = []
+            if directory is not None:
+                say(f"fingertip: the real fingertip recordings in {directory}, {fingertip.REAL_SPLITS} splits each")
+                real = fingertip.real_rows(directory, _real_layouts(), say=say)
+            else:
+                md += [f"Real fingertip recordings left out: {FINGERTIP_LEFT_OUT}.", ""]
+            say(f"fingertip: simulated, {seeds} seeds x {len(fingertip.SIM_SIZES)} sizes, alone and mixed")
+            sim_rows = fingertip.sim_rows(load_skin(), range(seeds), say=say)
+            mixed = fingertip.mixed_rows(load_skin(), range(seeds), say=say)
+            results["fingertip"] = {"real": real, "sim": sim_rows, "mixed": mixed}
+            md += ["## Fingertip scenes", "", fingertip.__doc__.split("\n\n", 1)[1].replace("\n", " ").strip(), "",
+                   *fingertip.tables(real, sim_rows, mixed)]
+            failures += sum(not r["met"] for r in real)
+            _write(results_dir(), md, results, listing)
 
         if "kinematics" in sections:
             setup, scene = _hard_setup(args, hard_pairs)

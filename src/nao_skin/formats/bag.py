@@ -36,7 +36,8 @@ import numpy as np
 
 from nao_skin.errors import BagMoved, DataError, DiskFull, NaoSkinError, OutputError, one_line, os_reason
 from nao_skin.formats.outdir import staging_dir
-from nao_skin.formats.pointcloud import (JOINT_STATES_TOPIC, LAST_STAMP, contacts_array, contacts_topic, encode_cloud,
+from nao_skin.formats.pointcloud import (FINGERTIP_TOUCH_TOPIC, JOINT_STATES_TOPIC, LAST_STAMP, contacts_array,
+                                         contacts_topic, encode_cloud,
                                          header_seconds, read_contacts, read_taxels, skin_topic, taxels_array,
                                          taxels_topic)
 from nao_skin.formats.salvage import (LOCK_FILE, RESCUED_FROM_KEY, bag_metadata, check_storage_files, cut_mcap,
@@ -59,6 +60,7 @@ CONTINUES_RELATIVE_KEY = "nao_skin.continues_relative"     # ... relative to the
 BAG_VERSION = 9              # rosbag2 metadata version ROS 2 Jazzy's rosbag2 writes (rosbags writes 8 or 9)
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
+POINT_STAMPED = "geometry_msgs/msg/PointStamped"
 
 
 def _typestore():
@@ -145,6 +147,7 @@ class BagWriter:
         t = self.store.types
         self._Header, self._Time = t["std_msgs/msg/Header"], t["builtin_interfaces/msg/Time"]
         self._JointState, self._Cloud, self._Field = t[JOINT_STATE], t[POINT_CLOUD], t["sensor_msgs/msg/PointField"]
+        self._PointStamped, self._Point = t[POINT_STAMPED], t["geometry_msgs/msg/Point"]
 
     def __enter__(self) -> "BagWriter":
         from rosbags.rosbag2 import WriterError
@@ -321,25 +324,32 @@ class BagWriter:
         self._write_cloud(taxels_topic(part), stamp_ns, frame, taxels_array(slots, positions, pressures, contact_ids),
                           received_ns)
 
-    def write_touch(self, stamp_ns: int, joint_names, joints, parts) -> None:
-        """One touch of a touch bag: its JointState, then per touching part its taxels and contacts messages.
+    def write_touch(self, stamp_ns: int, joint_names, joints, parts, fingertip: str | None = None) -> None:
+        """One touch of a touch bag: its JointState, the fingertip that pressed it (a fingertip touch), then per
+        touching part its taxels and contacts messages.
 
         ``parts``: ``(SkinPart, taxel points, contact points)`` per touching part
         (:func:`~nao_skin.formats.pointcloud.taxels_array`, :func:`~nao_skin.formats.pointcloud.contacts_array`);
         every message is stamped ``stamp_ns`` and the skin ones are in the part's chain-end frame.
         """
         self.write_joint_state(stamp_ns, joint_names, joints)
+        if fingertip is not None:
+            self._write(FINGERTIP_TOUCH_TOPIC, POINT_STAMPED,
+                        self._PointStamped(header=self._header(stamp_ns, fingertip), point=self._Point(x=0.0, y=0.0,
+                                                                                                      z=0.0)),
+                        stamp_ns)
         for part, taxels, contacts in parts:
             self._write_cloud(taxels_topic(part.name), stamp_ns, part.parent_frame, taxels)
             self._write_cloud(contacts_topic(part.name), stamp_ns, part.parent_frame, contacts)
 
 
-def detected_touch_messages(records, skin: SkinModel, part_names, joint_names, where: str | Path = "touches"):
+def detected_touch_messages(records, skin: SkinModel, part_names, joint_names, where: str | Path = "touches",
+                            fingertips=()):
     """:func:`touch_messages` of touches a detector emitted (``part_names``, ``joint_names``: the detector's): a
     recorder's bag holds the same messages as one :func:`write_touch_bag` writes."""
     if not records:
         return iter(())
-    return touch_messages(touchset_from_records(records, part_names, joint_names), skin, where)
+    return touch_messages(touchset_from_records(records, part_names, joint_names, fingertips=fingertips), skin, where)
 
 
 def _stamp_ns(stamp: float, where: str) -> int:
@@ -410,9 +420,10 @@ def write_touch_bag(path: str | Path, touches: TouchSet, skin: SkinModel, storag
 def touch_messages(touches: TouchSet, skin: SkinModel, where: str | Path = "touches"):
     """The arguments of :meth:`BagWriter.write_touch` for every touch, in stamp order (see :func:`write_touch_bag`)."""
     parts = touch_parts(touches, skin)
+    tip = touches.fingertip_of_touch
     for t in np.argsort(touches.stamps, kind="stable"):
         yield (_stamp_ns(touches.stamps[t], f"{where}: touch {touches.keys[t]!r}"), touches.joint_names,
-               touches.joints[t], parts[t])
+               touches.joints[t], parts[t], touches.fingertips[tip[t]] if tip[t] >= 0 else None)
 
 
 def touch_parts(touches: TouchSet, skin: SkinModel) -> list:
@@ -530,11 +541,12 @@ def _provisional_custom(path: Path) -> dict:
 def _is_read(topic: str, msgtype: str) -> bool:
     """A topic touches are read from, with its message type."""
     return ((topic == JOINT_STATES_TOPIC and msgtype == JOINT_STATE)
+            or (topic == FINGERTIP_TOUCH_TOPIC and msgtype == POINT_STAMPED)
             or (msgtype == POINT_CLOUD and skin_topic(topic) is not None))
 
 
 def _of_unknown_part(topic: str, skin: SkinModel) -> bool:
-    return topic != JOINT_STATES_TOPIC and skin_topic(topic)[0] not in skin.parts
+    return topic not in (JOINT_STATES_TOPIC, FINGERTIP_TOUCH_TOPIC) and skin_topic(topic)[0] not in skin.parts
 
 
 def _skip_unknown_parts(report: LoadReport, path: Path, unknown: dict, skin: SkinModel) -> None:
@@ -546,7 +558,7 @@ def _skip_unknown_parts(report: LoadReport, path: Path, unknown: dict, skin: Ski
 
 def _skip_other_type(report: LoadReport, path: Path, conn) -> None:
     """Say a topic touches are read from whose messages are of another type (another tool's, a mistake)."""
-    expected = (JOINT_STATE if conn.topic == JOINT_STATES_TOPIC
+    expected = (JOINT_STATE if conn.topic == JOINT_STATES_TOPIC else POINT_STAMPED if conn.topic == FINGERTIP_TOUCH_TOPIC
                 else POINT_CLOUD if skin_topic(conn.topic) is not None else None)
     if expected is not None and conn.msgtype != expected:
         report.skip("unexpected message type", f"{path}: topic '{conn.topic}' holds {conn.msgtype}, not {expected};"
@@ -657,7 +669,8 @@ class GrowingBag:
 
     def _finish(self, feed: "_Feed", records: list, before: TouchSet | None) -> TouchSet:
         """``before`` and the touches of ``feed``'s ``records`` after it, clustered."""
-        touches = touchset_from_records(records, feed.detector.part_names, feed.detector.joint_names)
+        touches = touchset_from_records(records, feed.detector.part_names, feed.detector.joint_names,
+                                        fingertips=feed.detector.fingertip_names)
         if self.cluster:
             touches = cluster_contacts(touches, self.skin, None, self.max_neighbor_dist)
         return touches if before is None else TouchSet.concatenate([before, touches])
@@ -819,6 +832,8 @@ def _decoded(store, topic: str, msgtype: str, raw, skin: SkinModel, path: Path,
         if joint_states is not None:
             joint_states[stamp] += 1
         return stamp, ("add_joint_state", (stamp, msg.name, msg.position))
+    if topic == FINGERTIP_TOUCH_TOPIC:
+        return stamp, ("add_fingertip", (stamp, msg.header.frame_id))
     part, what = skin_topic(topic)
     if what == "contacts":
         return stamp, ("add_contacts", (stamp, part, *read_contacts(msg, skin.parts[part], where)))

@@ -14,6 +14,9 @@ Topics (standard message types only; metres, radians, REP-103 frames):
   geometric centre, ``fx fy fz`` force, ``mx my mz`` moment, ``pressure``
   average pressure (float32, NaN unknown), ``contact`` int32 id. Same stamp
   as the taxels message of that sample.
+* ``/nao_skin/fingertip_touch`` - geometry_msgs/msg/PointStamped, in a touch bag: the touch at its stamp was
+  a fingertip's (only one skin part fires); ``header.frame_id`` names the fingertip (a fingertip of the robot
+  config, also the TF frame at its contact sphere's centre), ``point`` the sphere's centre in it (zero).
 
 Clouds are encoded from and decoded to numpy structured arrays in one copy,
 never point by point. Encoding and decoding work on plain attributes, so the
@@ -31,6 +34,7 @@ from nao_skin.errors import DataError
 from nao_skin.model.skin import SkinPart
 
 JOINT_STATES_TOPIC = "/joint_states"
+FINGERTIP_TOUCH_TOPIC = "/nao_skin/fingertip_touch"
 _SKIN_TOPIC = re.compile(r"^/skin/([^/]+)/(taxels|contacts)$")
 
 TAXEL_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("slot", "<u4"),

@@ -77,6 +77,11 @@ def part_rank(name: str) -> tuple:
     return (PART_NAMES.index(name) if name in PART_NAMES else len(PART_NAMES), name)
 
 
+def scene_label(fingertip: str, part: str) -> str:
+    """The name of a fingertip scene in reports and status messages: 'r_finger-torso'."""
+    return f"{fingertip}-{part}"
+
+
 def pair_label(parts) -> str:
     """The name of a set of touching parts in reports and status messages: 'r_hand+torso' (:func:`part_rank` order)."""
     return "+".join(sorted(parts, key=part_rank))
@@ -970,10 +975,11 @@ def _fingertip_touch(spec, parts: Mapping, robot: RobotModel, where: str) -> Fin
     return FingertipTouch(tuple(spec["touching"]), tuple(spec["touched"]), same_arm)
 
 
-def parse_pairs(items, parts=None, where: str = "pair") -> tuple:
-    """``'hand-part'`` strings (e.g. ``'l_hand-torso'``) as ``(hand, part)`` tuples; empty strings are skipped.
+def parse_pairs(items, parts=None, where: str = "pair", fingertips=()) -> tuple:
+    """``'hand-part'`` strings (e.g. ``'l_hand-torso'``, or ``'r_finger-torso'`` with a fingertip of ``fingertips``
+    pressing) as ``(hand, part)`` tuples; empty strings are skipped.
 
-    ``parts``: the skin parts both sides must name (None: not checked here).
+    ``parts``: the skin parts both sides must name (the first may be one of ``fingertips``; None: not checked here).
     """
     out = []
     for item in items:
@@ -981,9 +987,12 @@ def parse_pairs(items, parts=None, where: str = "pair") -> tuple:
         if not item:
             continue
         hand, sep, part = item.partition("-")
-        if not sep or not hand or not part or hand == part or (parts is not None and not {hand, part} <= set(parts)):
+        if not sep or not hand or not part or hand == part or (
+                parts is not None and not (part in parts and (hand in parts or hand in fingertips))):
             of = f" of two skin parts ({', '.join(parts)})" if parts is not None else " of two skin parts"
-            raise ConfigError(f"{where} {item!r}: expected HAND-PART{of}, e.g. l_hand-torso")
+            tips = f" or a fingertip ({', '.join(fingertips)}) and a part, e.g. {next(iter(fingertips))}-torso" \
+                if fingertips else ""
+            raise ConfigError(f"{where} {item!r}: expected HAND-PART{of}, e.g. l_hand-torso{tips}")
         if (hand, part) in out:
             raise ConfigError(f"{where} {item!r} is given twice")
         out.append((hand, part))

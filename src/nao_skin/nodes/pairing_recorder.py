@@ -42,9 +42,11 @@ from nao_skin.nodes.messages import header_stamp, joint_state_arrays
 from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.topics import PROGRESS_TOPIC, STREAM_DEPTH, relative
-from nao_skin.session.params import PAIRING_RECORDER, skin_from_params
+from nao_skin.model.skin import SkinCalibration
+from nao_skin.session.params import PAIRING_RECORDER, fingertip_scenes, skin_from_params
 from nao_skin.session.recording import TouchRecording
 from nao_skin.touch.events import EventConfig
+from nao_skin.touch.fingertip import FingertipJudge
 
 
 class PairingRecorder(Node):
@@ -54,8 +56,13 @@ class PairingRecorder(Node):
         self.skin = skin_from_params(p)
         config = EventConfig(skin_tolerance=p["skin_tolerance"], joint_tolerance=p["joint_tolerance"],
                              min_interval=p["min_interval"], release_gap=p["release_gap"])
+        scenes = fingertip_scenes(p, self.skin)
+        judge = None
+        if scenes:
+            calibration = SkinCalibration.load(p["calibration"], self.skin) if p["calibration"] else None
+            judge = FingertipJudge(self.skin, scenes, calibration, p["fingertip_gate_mm"] / 1000.0)
         self.recording = TouchRecording(self.skin, config, p["bag_path"] or default_bag_name(), p["storage"],
-                                        p["recorded_from"], [path for path in p["continues"] if path])
+                                        p["recorded_from"], [path for path in p["continues"] if path], judge)
         self.get_logger().info(f"recording touches to {self.recording.bag_path}")
         self._crowded_said: set = set()
         self._started = time.monotonic()

@@ -20,6 +20,7 @@ from nao_skin.model.skin import SkinModel, load_skin, parse_pairs, parse_taxel_f
 from nao_skin.rules import (AT_LEAST_ONE, HOST, JOINT_NAMES, NON_NEGATIVE, PORT, POSITIVE, RATE, SECONDS,
                             SECONDS_OR_ZERO, WHOLE, YARP_PORT, YARP_PORT_OR_NONE, Rule)
 from nao_skin.sim.params import check_pairs, default_params_file, load_params, pair_list
+from nao_skin.touch import DEFAULT_FINGERTIP_GATE
 from nao_skin.touch.events import LIVE_CONFIG
 
 MAX_FLOAT = 1.7976931348623157e308    # a float range's open side (sys.float_info.max)
@@ -116,6 +117,11 @@ PAIRING_RECORDER = {
     "min_interval": (LIVE_CONFIG.min_interval, "s: during one continuous press, at most one touch per interval",
                      NON_NEGATIVE),
     "release_gap": (LIVE_CONFIG.release_gap, "s: a part silent this long counts as released", NON_NEGATIVE),
+    "fingertip_scenes": ([""], "fingertip scenes recorded, 'fingertip-part' (e.g. r_finger-torso): a part firing alone"
+                               " while that fingertip is where it fired; empty: self-touches only"),
+    "calibration": ("", "calibration that places the skin and the fingertips for fingertip_scenes (empty: nominal)"),
+    "fingertip_gate_mm": (DEFAULT_FINGERTIP_GATE * 1000.0, "mm: a fingertip within this of the fired taxels' centre pressed them"
+                                                 " (fingertip_scenes)", POSITIVE),
 }
 
 
@@ -230,10 +236,10 @@ def options_from_params(params: dict) -> CalibrationOptions:
                                            where="parameter {name}:={value!r}")
 
 
-def sim_overrides(touches_per_pair: int, pairs, parts=None) -> dict:
+def sim_overrides(touches_per_pair: int, pairs, parts=None, fingertips=()) -> dict:
     """Simulator parameter overrides from sim_robot's parameters (also used by tests to recompute)."""
     out = {"n_touches": int(touches_per_pair)}
-    pairs = parse_pairs(pairs, parts, where="parameter pairs:")
+    pairs = parse_pairs(pairs, parts, where="parameter pairs:", fingertips=fingertips)
     if pairs:
         out["pairs"] = [list(p) for p in pairs]
     return out
@@ -250,7 +256,8 @@ def check_sim_robot(p: dict, where: str = "sim_robot") -> tuple:
     parameters)`` of the node."""
     check_timing(p["touch_period"], p["press_duration"], p["hold"], where)
     skin = skin_from_params(p)
-    params = load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], skin.parts))
+    params = load_params(p["preset"], sim_overrides(p["touches_per_pair"], p["pairs"], skin.parts,
+                                                    tuple(skin.robot.fingertips)))
     # the pairs that press, the preset's or the parameter's, against what the skin config makes touch: said
     # before a session starts, naming where they come from
     check_pairs(pair_list(params), skin, where=f"{where}: parameter pairs" if any(p["pairs"])
@@ -271,6 +278,26 @@ def guidance_pairs(p: dict, skin: SkinModel) -> tuple:
     return given or touching
 
 
+def fingertip_scenes(p: dict, skin: SkinModel) -> tuple:
+    """The pairing_recorder's ``fingertip_scenes``: 'fingertip-part' strings as ``(fingertip, part)`` scenes of the
+    skin config's ``fingertip_touch``."""
+    given = parse_pairs(p["fingertip_scenes"], skin.parts, "parameter fingertip_scenes:", tuple(skin.robot.fingertips))
+    known = skin.fingertip_touch.pairs()
+    for tip, part in given:
+        if (tip, part) not in known:
+            raise ConfigError(f"parameter fingertip_scenes: '{tip}-{part}' is not a fingertip scene of the skin config"
+                              f" (fingertip_touch: {', '.join(f'{f}-{b}' for f, b in known) or 'none'})")
+    return given
+
+
+def check_pairing_recorder(p: dict, where: str = "pairing_recorder") -> None:
+    """Fingertip scenes of the skin the node reads."""
+    try:
+        fingertip_scenes(p, skin_from_params(p))
+    except NaoSkinError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+
+
 def check_calibrate(p: dict, where: str = "calibrate") -> None:
     """Guidance pairs of the skin the node reads."""
     try:
@@ -281,4 +308,5 @@ def check_calibrate(p: dict, where: str = "calibrate") -> None:
 
 # what no single parameter's rule can say: checked by `nao-skin record` before any node starts, by the node
 # again at its start
-CHECKS = {"calibrate": check_calibrate, "naoqi_bridge": check_naoqi_bridge, "sim_robot": check_sim_robot}
+CHECKS = {"calibrate": check_calibrate, "naoqi_bridge": check_naoqi_bridge, "sim_robot": check_sim_robot,
+          "pairing_recorder": check_pairing_recorder}

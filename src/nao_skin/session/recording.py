@@ -25,7 +25,7 @@ from nao_skin.formats.bag import SIMULATED, BagWriter, detected_touch_messages
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, contacts_topic, taxels_topic
 from nao_skin.live.clocks import SKEW_LIMIT_S, ArrivalLags
 from nao_skin.live.heatmap import ActivationCounts
-from nao_skin.model.skin import SkinModel, pair_label
+from nao_skin.model.skin import SkinModel, pair_label, scene_label
 from nao_skin.touch.events import EventConfig, EventDetector
 from nao_skin.touch.inorder import InOrder
 
@@ -49,9 +49,11 @@ class TouchRecording:
     """The touches of one session into the touch bag ``bag_path`` (a new directory, opened here)."""
 
     def __init__(self, skin: SkinModel, config: EventConfig, bag_path: str | Path, storage: str,
-                 recorded_from: str = "", continues=()):
+                 recorded_from: str = "", continues=(), judge=None):
+        """``judge``: a :class:`~nao_skin.touch.fingertip.FingertipJudge` of the session's fingertip scenes (None:
+        self-touches only)."""
         self.skin = skin
-        self.detector = EventDetector.for_skin(skin, config)
+        self.detector = EventDetector.for_skin(skin, config, judge)
         self.in_order = InOrder()    # the streams to the detector in the order of their stamps
         self.parts = list(skin.parts)
         self.joint_names = list(skin.robot.joint_names)
@@ -115,17 +117,18 @@ class TouchRecording:
     # ------------------------------------------------------------------ output
     def _write(self, records) -> None:
         touches = detected_touch_messages(records, self.skin, self.detector.part_names, self.joint_names,
-                                          self.bag_path)
-        for stamp_ns, joint_names, joints, parts in touches:
+                                          self.bag_path, self.detector.fingertip_names)
+        for stamp_ns, joint_names, joints, parts, fingertip in touches:
             if self.closed:
                 return
             try:
-                self.bag.write_touch(stamp_ns, joint_names, joints, parts)
+                self.bag.write_touch(stamp_ns, joint_names, joints, parts, fingertip)
             except OutputError as exc:
                 self._cannot_write(exc)
             for part, taxels, _ in parts:
                 self.touched.update(part.name, taxels["slot"])
-            self.pairs[pair_label(part.name for part, _, _ in parts)] += 1
+            names = [part.name for part, _, _ in parts]
+            self.pairs[pair_label(names) if fingertip is None else scene_label(fingertip, names[0])] += 1
             self.n_touches += 1
             self._dirty = True
 

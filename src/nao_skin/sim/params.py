@@ -61,6 +61,12 @@ class SimParams:
     pressure_spots: list                  # spots per touch (inclusive)
     spot_size: list                       # radius of one spot (m)
     press_reach: list                     # fires up to this beyond the gap (m)
+    # ------------------------------------------------------------ fingertip touches (pairs [fingertip, part])
+    fingertip_offset: float               # the true fingertip's sphere centre off the config's, up to this per axis (m)
+    fingertip_radius_error: float         # its radius off the config's (m)
+    fingertip_footprint: list             # a fingertip's pressure spots spread (m)
+    fingertip_spots: list                 # its spots per touch (inclusive)
+    fingertip_spot_size: list             # radius of one of its spots (m)
     cluster_distance: float = DEFAULT_MAX_NEIGHBOR_DIST   # taxels closer than this form one contact
     # ------------------------------------------------------------ noise and defects (scaled by noise_scale)
     noise_scale: float                    # multiplies every noise and defect rate below
@@ -81,25 +87,30 @@ class SimParams:
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
-    def record(self) -> dict:
-        """The fields a recording's simulation.yaml lists: the true robot's only when it is not the config's,
-        so recordings of a true robot that is the config read as they did before those fields existed."""
+    def record(self, fingertips: bool = False) -> dict:
+        """The fields a recording's simulation.yaml lists: the true robot's only when it is not the config's, the
+        fingertips' only when a fingertip pressed (``fingertips``), so other recordings read as they did before
+        those fields existed."""
         out = self.to_dict()
         for name in TRUE_ROBOT:
             if not out[name]:
                 del out[name]
+        for name in () if fingertips else FINGERTIP_FIELDS:
+            del out[name]
         return out
 
 
 NOISES = ("joint_noise", "fabric_jitter", "missed_taxel", "spurious_taxel", "duplicate",
           "experimenter_hand", "non_self_contact")
 TRUE_ROBOT = ("joint_offset_deg", "link_errors")
+FINGERTIP_FIELDS = ("fingertip_offset", "fingertip_radius_error", "fingertip_footprint", "fingertip_spots",
+                    "fingertip_spot_size")
 PROBABILITIES = ("missed_taxel", "spurious_taxel", "duplicate", "experimenter_hand", "non_self_contact")
 _NON_NEGATIVE = NOISES + ("noise_scale", "hand_mount_rotation_deg", "hand_mount_axis_tilt_deg",
                           "hand_mount_shift", "hand_mount_radial", "body_mount_translation",
                           "body_mount_rotation", "patch_translation", "patch_rotation",
                           "triangle_translation", "triangle_rotation", "fabric_thickness", "planar_band",
-                          "joint_offset_deg")
+                          "joint_offset_deg", "fingertip_offset")
 _POSITIVE = ("pose_tolerance", "normal_tolerance_deg", "penetration_tolerance", "spot_radius",
              "cluster_distance")
 MAX_METRES = 10.0          # a Nao is half a metre tall
@@ -112,7 +123,8 @@ POSE_SEARCH_LIMITS = {"pose_restarts": 1000, "pose_iterations": 10_000}
 # seconds: 2033, leaving a recording of years before the int32 seconds of a ROS header end (2038)
 MAX_START_STAMP = 2.0e9
 MAX_TOUCHES_PER_PAIR = 100_000
-_RANGES = ("touch_interval", "footprint_radius", "pressure_spots", "spot_size", "press_reach")
+_RANGES = ("touch_interval", "footprint_radius", "pressure_spots", "spot_size", "press_reach", "fingertip_footprint",
+           "fingertip_spots", "fingertip_spot_size")
 
 
 PARAMS_FILE_KEYS = ("defaults", "presets")
@@ -269,7 +281,8 @@ def validate(p: SimParams, where: str = "simulation parameters") -> None:
     seen = set()
     for pair in p.pairs:
         if _as_pair(pair) is None:
-            raise ConfigError(f"{where}: pair {pair!r} must be two skin part names, e.g. [l_hand, torso]")
+            raise ConfigError(f"{where}: pair {pair!r} must be two skin part names, e.g. [l_hand, torso], or a"
+                              f" fingertip and a part, e.g. [r_finger, torso]")
         hand, target = _as_pair(pair)     # which parts can touch is the skin config's (simulate checks)
         if (hand, target) in seen:
             raise ConfigError(f"{where}: pair {hand}-{target} is listed twice")
@@ -278,10 +291,18 @@ def validate(p: SimParams, where: str = "simulation parameters") -> None:
 
 def check_pairs(pairs, skin: SkinModel, where: str | None = None) -> None:
     """Each ``(hand, target)`` of ``pairs`` two parts of ``skin``, a touching part pressed on a touched
-    one of its config's ``self_touch`` (what this simulator models); ``where``: the parameters' source."""
+    one of its config's ``self_touch``, or a fingertip of its robot pressed on a part of its ``fingertip_touch``
+    (what this simulator models); ``where``: the parameters' source."""
     roles = skin.self_touch
     at = f"{where}: " if where else ""
     for hand, target in pairs:
+        if hand in skin.robot.fingertips:
+            if (hand, target) not in skin.fingertip_touch.pairs():
+                pressed = [p for f, p in skin.fingertip_touch.pairs() if f == hand]
+                raise ConfigError(f"{at}the simulator cannot make {hand}-{target} touch: the skin config's"
+                                  f" fingertip_touch has fingertip {hand} press {', '.join(pressed) or 'no part'}"
+                                  f" ({skin.source})")
+            continue
         for part in (hand, target):
             if part not in skin.parts:
                 raise ConfigError(f"{at}simulation pair {hand}-{target}: skin part '{part}' is not in {skin.source}"

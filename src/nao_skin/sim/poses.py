@@ -115,6 +115,30 @@ def _residual(skin, hand_chain, target_chain, q, hs, hn, ts, tn, gap, hcols, tco
     return res, jac
 
 
+def levenberg_marquardt(residual, q: np.ndarray, cols: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                        iterations: int) -> tuple:
+    """Batched, projected Levenberg-Marquardt over the joint columns ``cols`` of every row of ``q`` at once:
+    ``residual(q) -> ((N, R) residuals, (N, R, len(cols)) Jacobian)``, each step kept within ``[lo, hi]``.
+    Returns the joint angles and their residuals."""
+    res, jac = residual(q)
+    cost = np.einsum("ij,ij->i", res, res)
+    lam = np.full(len(q), 1e-3)
+    eye = np.eye(len(cols))
+    for _ in range(iterations):
+        jtj = np.einsum("nri,nrj->nij", jac, jac)
+        jtr = np.einsum("nri,nr->ni", jac, res)
+        damp = lam[:, None, None] * (np.einsum("nii->ni", jtj)[:, :, None] * eye + 1e-6 * eye)
+        step = np.linalg.solve(jtj + damp, -jtr[:, :, None])[:, :, 0]
+        trial = q.copy()
+        trial[:, cols] = np.clip(q[:, cols] + step, lo, hi)
+        t_res, t_jac = residual(trial)
+        t_cost = np.einsum("ij,ij->i", t_res, t_res)
+        better = t_cost < cost
+        q[better], res[better], jac[better], cost[better] = trial[better], t_res[better], t_jac[better], t_cost[better]
+        lam = np.where(better, np.maximum(lam / 3.0, 1e-7), np.minimum(lam * 4.0, 1e7))
+    return q, res
+
+
 def solve_poses(skin: SkinModel, hand: str, target: str, hand_spots: Spots, target_spots: Spots,
                 gap: np.ndarray, q_idle: np.ndarray, truth: SkinCalibration, p: SimParams,
                 rng: np.random.Generator, hand_counts: np.ndarray | None = None):
@@ -142,22 +166,9 @@ def solve_poses(skin: SkinModel, hand: str, target: str, hand_spots: Spots, targ
     g = rep(gap)
     q = rep(q_idle).copy()
     q[:, cols] = rng.uniform(lo, hi, size=(n * k, len(cols)))
-    res, jac = _residual(skin, hand_chain, target_chain, q, hs, hn, ts, tn, g, hcols, tcols)
+    q, res = levenberg_marquardt(lambda qq: _residual(skin, hand_chain, target_chain, qq, hs, hn, ts, tn, g, hcols,
+                                                      tcols), q, cols, lo, hi, p.pose_iterations)
     cost = np.einsum("ij,ij->i", res, res)
-    lam = np.full(n * k, 1e-3)
-    eye = np.eye(len(cols))
-    for _ in range(p.pose_iterations):
-        jtj = np.einsum("nri,nrj->nij", jac, jac)
-        jtr = np.einsum("nri,nr->ni", jac, res)
-        damp = lam[:, None, None] * (np.einsum("nii->ni", jtj)[:, :, None] * eye + 1e-6 * eye)
-        step = np.linalg.solve(jtj + damp, -jtr[:, :, None])[:, :, 0]
-        trial = q.copy()
-        trial[:, cols] = np.clip(q[:, cols] + step, lo, hi)
-        t_res, t_jac = _residual(skin, hand_chain, target_chain, trial, hs, hn, ts, tn, g, hcols, tcols)
-        t_cost = np.einsum("ij,ij->i", t_res, t_res)
-        better = t_cost < cost
-        q[better], res[better], jac[better], cost[better] = trial[better], t_res[better], t_jac[better], t_cost[better]
-        lam = np.where(better, np.maximum(lam / 3.0, 1e-7), np.minimum(lam * 4.0, 1e7))
     pos_err = np.linalg.norm(res[:, :3], axis=1)
     # normal mismatch |nh + nt| = 2 sin(angle / 2)
     ang_err = 2.0 * np.arcsin(np.clip(np.linalg.norm(res[:, 3:], axis=1) / NORMAL_WEIGHT / 2.0, 0.0, 1.0))
@@ -195,15 +206,19 @@ def penetrates(skin: SkinModel, hand: str, target: str, q: np.ndarray, target_sp
     height = np.einsum("nsk,nk->ns", rel, normal)
     lateral = np.linalg.norm(rel - height[..., None] * normal[:, None], axis=2)
     behind = (lateral < 0.03) & (height < -p.penetration_tolerance)
-    bad = behind.any(axis=1)
+    return behind.any(axis=1) | ~outside_body(skin, hp.chain, q)
+
+
+def outside_body(skin: SkinModel, chain: str, q: np.ndarray) -> np.ndarray:
+    """(N,) True where the arm ``chain`` keeps out of the robot config's torso box: its end frame's origin (the
+    elbow) and the hand's far end (``body.hand_end``); all True without a box."""
     body = skin.robot.body
-    if body.box is None:          # a robot config without a torso box: only the penetration test
-        return bad
-    # the elbow (the hand chain's end frame origin) and the hand's far end
+    if body.box is None:
+        return np.ones(len(q), bool)
+    hand_end = skin.robot.fk(chain, q)
     far = [] if body.hand_end is None else [se3.transform_points(hand_end, body.hand_end)]
     probes = np.stack([hand_end[:, :3, 3]] + far, axis=1)
-    inside = np.all((probes >= body.box[:, 0]) & (probes <= body.box[:, 1]), axis=2)
-    return bad | inside.any(axis=1)
+    return ~np.all((probes >= body.box[:, 0]) & (probes <= body.box[:, 1]), axis=2).any(axis=1)
 
 
 @dataclass

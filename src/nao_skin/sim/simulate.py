@@ -20,6 +20,7 @@ import yaml
 from nao_skin.errors import ConfigError, OutputError, os_reason
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.sim import contact as sim_contact
+from nao_skin.sim.fingertip import find_fingertip_poses, fingertip_truth, fire_fingertip
 from nao_skin.sim.params import SimParams, check_pairs, make_params, pair_list
 from nao_skin.sim.poses import find_poses
 from nao_skin.sim.truth import draw_kinematics, draw_truth
@@ -55,6 +56,9 @@ def simulate(skin: SkinModel, params: SimParams | dict | None, seed: int) -> Sim
     truth = draw_truth(skin, list(skin.parts), p, rng_truth)
     # drawn after the skin's truth from the same stream: presets with the config's robot stay bit-identical
     truth.kinematics = draw_kinematics(skin, p, rng_truth)
+    # then the fingertips' (nothing drawn without fingertip pairs: self-touch presets stay bit-identical)
+    truth.fingertips = fingertip_truth(skin, dict.fromkeys(h for h, _ in pairs if h in skin.robot.fingertips), p,
+                                       rng_truth)
     # the true body poses and fires; the joints record as they read (the config's kinematics)
     body = skin.with_kinematics(truth)
 
@@ -62,10 +66,15 @@ def simulate(skin: SkinModel, params: SimParams | dict | None, seed: int) -> Sim
     for i, (hand, target) in enumerate(pairs):
         rng_pose = np.random.default_rng(streams[2 + 2 * i])
         rng_skin = np.random.default_rng(streams[3 + 2 * i])
-        # a few spare poses: a press that fires only one part is not a recorded touch
-        poses = find_poses(body, truth, hand, target, p.n_touches + p.n_touches // 10 + 2, p, rng_pose)
-        poses, silent = _keep_firing(body, truth, hand, target, poses, p.n_touches, p, rng_skin)
-        acts = _pair_activations(body, truth, hand, target, poses, p, rng_skin)
+        spare = p.n_touches + p.n_touches // 10 + 2      # a press that fires too little is no recorded touch
+        if hand in skin.robot.fingertips:
+            poses = find_fingertip_poses(body, truth, hand, target, spare, p, rng_pose)
+            poses, silent = _keep_fingertip_firing(body, truth, hand, target, poses, p.n_touches, p, rng_skin)
+            acts = _fingertip_activations(body, truth, hand, target, poses, p, rng_skin)
+        else:
+            poses = find_poses(body, truth, hand, target, spare, p, rng_pose)
+            poses, silent = _keep_firing(body, truth, hand, target, poses, p.n_touches, p, rng_skin)
+            acts = _pair_activations(body, truth, hand, target, poses, p, rng_skin)
         per_pair.append((hand, target, poses, acts))
         report[f"{hand}-{target}"] = {"touches": int(len(poses.q)), "attempted": poses.attempted,
                                       "unreachable": poses.unreachable, "silent": silent}
@@ -100,6 +109,50 @@ def _keep_firing(skin, truth, hand, target, poses, n, p: SimParams, rng):
     fires = both.all(axis=1)
     rows = np.flatnonzero(fires)[:n]
     return poses.take(rows), int(np.count_nonzero(~fires))
+
+
+def _keep_fingertip_firing(skin, truth, fingertip, target, poses, n, p: SimParams, rng):
+    """The first ``n`` poses whose press fires the touched part, and how many did not (as :func:`_keep_firing`)."""
+    probe = SimParams(**{**p.to_dict(), "fingertip_spots": [1, 1], "fingertip_spot_size": [p.fingertip_spot_size[0]] * 2,
+                         "press_reach": [p.press_reach[0]] * 2})
+    touch, *_ = fire_fingertip(skin, truth, fingertip, target, poses, probe, rng)
+    fires = np.zeros(len(poses.q), bool)
+    fires[touch] = True
+    return poses.take(np.flatnonzero(fires)[:n]), int(np.count_nonzero(~fires))
+
+
+def _fingertip_activations(skin, truth, fingertip, target, poses, p: SimParams, rng):
+    """Flat activations ``(touch, side, slot, pressure, event)`` (side 1: the touched part, the only one that
+    fires) and per-touch defect flags of one fingertip scene: the experimenter's hand pressing the part away from
+    the fingertip, a contact that is not the fingertip's (the part fired elsewhere), one stray taxel."""
+    n = len(poses.q)
+    touch, slot, pressure, event = fire_fingertip(skin, truth, fingertip, target, poses, p, rng)
+    side = np.ones(len(touch), int)
+    experimenter = rng.uniform(size=n) < p.scaled("experimenter_hand")
+    non_self = rng.uniform(size=n) < p.scaled("non_self_contact")
+    spurious = rng.uniform(size=n) < p.scaled("spurious_taxel")
+    extra = []
+    for flags, drop, event_no in ((experimenter, False, OTHER_EVENT), (non_self, True, OTHER_EVENT)):
+        if not flags.any():
+            continue
+        rows = np.flatnonzero(flags)
+        if drop:             # the fingertip's contact replaced by one elsewhere on the part
+            keep = ~np.isin(touch, rows)
+            touch, side, slot, pressure, event = (a[keep] for a in (touch, side, slot, pressure, event))
+        centre = poses.contact[rows]
+        t, s, pr = sim_contact.patch_activation(
+            skin, truth, target, poses.q[rows],
+            lambda pos, nor: np.linalg.norm(pos - centre[:, None], axis=2) > NON_SELF_MIN_DISTANCE + 0.015, rng)
+        extra.append((rows[t], np.ones(len(t), int), s, pr, np.full(len(t), event_no)))
+    if spurious.any():
+        rows = np.flatnonzero(spurious)
+        extra.append((rows, np.ones(len(rows), int), rng.choice(skin.parts[target].slots, size=len(rows)),
+                      np.round(rng.uniform(1.0, 60.0, size=len(rows))), np.full(len(rows), STRAY_EVENT)))
+    acts = (touch, side, slot, pressure, event)
+    if extra:
+        acts = tuple(np.concatenate([a, *(e[i] for e in extra)]) for i, a in enumerate(acts))
+    return _one_reading(acts, n, p, rng), {"experimenter_hand": experimenter, "non_self_contact": non_self,
+                                           "spurious": spurious}
 
 
 def _pair_activations(skin, truth, hand, target, poses, p: SimParams, rng):
@@ -139,7 +192,13 @@ def _pair_activations(skin, truth, hand, target, poses, p: SimParams, rng):
     acts = (touch, side, slot, pressure, event)
     if extra:
         acts = tuple(np.concatenate([a, *(e[i] for e in extra)]) for i, a in enumerate(acts))
-    # one reading per taxel: where two causes press the same taxel, the stronger wins
+    flags = {"experimenter_hand": experimenter, "non_self_contact": non_self, "spurious": spurious}
+    return _one_reading(acts, n, p, rng), flags
+
+
+def _one_reading(acts, n: int, p: SimParams, rng):
+    """Activations ``(touch, side, slot, pressure, event)`` with one reading per taxel (where two causes press the
+    same taxel, the stronger wins) and the missed taxels taken out, never the last one of a part in a touch."""
     order = np.lexsort((-acts[3], acts[2], acts[1], acts[0]))
     touch, side, slot, pressure, event = (a[order] for a in acts)
     first = np.ones(len(touch), bool)
@@ -153,30 +212,31 @@ def _pair_activations(skin, truth, hand, target, poses, p: SimParams, rng):
     keep_last = np.zeros(len(touch), bool)
     keep_last[len(touch) - 1 - last_of_group] = True
     keep = ~missed | (keep_last & (survivors[group] == 0))
-    flags = {"experimenter_hand": experimenter, "non_self_contact": non_self, "spurious": spurious}
-    return tuple(a[keep] for a in (touch, side, slot, pressure, event)), flags
+    return tuple(a[keep] for a in (touch, side, slot, pressure, event))
 
 
 # ---------------------------------------------------------------------------- recording
 def _assemble(skin: SkinModel, per_pair, p: SimParams, rng) -> TouchSet:
     """All pairs in recording order, with duplicates, stamps, noisy joints and contacts."""
-    used = {part for hand, target, _, _ in per_pair for part in (hand, target)}
+    used = {part for hand, target, _, _ in per_pair for part in (hand, target) if part in skin.parts}
     part_names = tuple(n for n in skin.parts if n in used)     # the skin config's order: names are data
     robot = skin.robot
-    pair_of, q_true, contact, normal, gap = [], [], [], [], []
+    pair_of, q_true, contact, normal, gap, tip_of = [], [], [], [], [], []
+    fingertips = tuple(dict.fromkeys(hand for hand, _, _, _ in per_pair if hand not in skin.parts))
     act = []
     flags = {"experimenter_hand": [], "non_self_contact": [], "spurious": []}
     offset = 0
     for hand, target, poses, ((touch, side, slot, pressure, event), fl) in per_pair:
         n = len(poses.q)
         pair_of += [f"{hand}-{target}"] * n
+        tip_of += [fingertips.index(hand) if hand in fingertips else -1] * n
         q_true.append(poses.q)
         contact.append(poses.contact)
         normal.append(poses.normal)
         gap.append(poses.gap)
         for k in flags:
             flags[k].append(fl[k])
-        part_idx = np.array([part_names.index(hand), part_names.index(target)])
+        part_idx = np.array([part_names.index(hand) if hand in skin.parts else -1, part_names.index(target)])
         act.append((touch + offset, part_idx[side], slot, pressure, event))
         offset += n
     n_total = offset
@@ -238,7 +298,8 @@ def _assemble(skin: SkinModel, per_pair, p: SimParams, rng) -> TouchSet:
     }
     return TouchSet(part_names, tuple(robot.joint_names), stamps, [f"{s:.6f}" for s in stamps],
                     joints[src], contact_touch, contact_part, np.arange(n_contacts), cop,
-                    comp, f_slot, f_pressure.astype(float), labels)
+                    comp, f_slot, f_pressure.astype(float), labels, fingertips,
+                    np.array(tip_of, int)[src] if fingertips else None)
 
 
 # ---------------------------------------------------------------------------- files
@@ -276,7 +337,8 @@ def write_outputs(result: SimResult, skin: SkinModel, out_dir: str | Path, prese
             part.write_taxel_file(path, result.truth.parts[name])
             written.append(path)
         meta = {"format": "nao_skin/simulation/1", "seed": result.seed, "preset": preset or "custom",
-                "skin": _skin_name(skin), "pairs": result.pairs, "params": result.params.record()}
+                "skin": _skin_name(skin), "pairs": result.pairs,
+                "params": result.params.record(fingertips=bool(result.truth.fingertips))}
         meta_path = tmp / "simulation.yaml"
         command = (f"nao-skin simulate --preset {preset or 'default'} --seed {result.seed}"
                    f" --touches-per-pair {result.params.n_touches} --out <this directory>")

@@ -28,6 +28,14 @@ Rules (each drop is counted in ``counts`` under its reason, never guessed):
   recorded once the joints are back. The drop is counted once per press, and
   taken back when a later moment of the press is recorded.
 
+A *fingertip touch* is a moment when one part fires that a fingertip of the scene presses (the skin
+config's ``fingertip_touch``): it waits ``skin_tolerance`` for another part as a self-touch's moment does,
+and becomes a touch when a fingertip pressed it: said by the recording (a touch bag's fingertip message at its
+stamp, :meth:`EventDetector.add_fingertip`), or judged live from the joint angles (``judge``, e.g.
+:class:`~nao_skin.touch.fingertip.FingertipJudge`: a fingertip is where the contact is). A part that fires while
+no fingertip is near is dropped ("no fingertip near": an experimenter's hand); one that fires while another part
+is pressed is part of that part's self-touch, not a fingertip's.
+
 Touch bags (one sample per part and one joint state per touch, all at the
 touch stamp) are read with :data:`TOUCH_BAG_CONFIG`: zero tolerances and
 every stamp a new press, so each stored touch comes back exactly once.
@@ -83,6 +91,7 @@ class TouchRecord:
     stamp: float
     joints: np.ndarray              # (J,) radians, detector joint order
     contacts: list = field(default_factory=list)
+    fingertip: str | None = None    # the fingertip that pressed it (a fingertip touch), None: a self-touch
 
 
 @dataclass
@@ -107,16 +116,29 @@ class EventDetector:
     reader put them in it: :class:`~nao_skin.touch.inorder.InOrder`); collect emitted touches."""
 
     def __init__(self, part_names: Sequence[str], joint_names: Sequence[str],
-                 needed_joints: Mapping[str, Sequence[str]] | None = None, config: EventConfig = LIVE_CONFIG):
+                 needed_joints: Mapping[str, Sequence[str]] | None = None, config: EventConfig = LIVE_CONFIG,
+                 fingertips: Mapping[str, Sequence[str]] | None = None, judge=None):
+        """``needed_joints``: per part and per fingertip, the joints its chain needs; ``fingertips``: per
+        fingertip, the parts it presses (their one-part moments are fingertip touches when a fingertip pressed
+        them); ``judge(part, slots, q)``: the fingertip pressing a part's moment live, None when none is near (no
+        judge: only a recording's fingertip messages say so)."""
         self.part_names = tuple(part_names)
         self.joint_names = tuple(joint_names)
         self.config = config
+        fingertips = dict(fingertips or {})
+        self.fingertip_names = tuple(fingertips)
+        self._pressed_alone = {self.part_names.index(p) for parts in fingertips.values() for p in parts
+                               if p in self.part_names}
+        self._judge = judge
+        self._markers: dict = {}              # stamp -> fingertip a recording says pressed the moment there
         self._part_index = {n: i for i, n in enumerate(self.part_names)}
         self._joint_index = {n: i for i, n in enumerate(self.joint_names)}
         needed_joints = needed_joints or {}
         self._needed = [tuple(self._joint_index[j] for j in needed_joints.get(p, ()) if j in self._joint_index)
                         for p in self.part_names]
         self._needed_names = [tuple(needed_joints.get(p, ())) for p in self.part_names]
+        self._tip_needed = {f: [(self._joint_index[j], j) for j in needed_joints.get(f, ()) if j in self._joint_index]
+                            for f in self.fingertip_names}
         self._columns_cache: dict = {}
         self._joint_stamps: list = []
         self._joint_values: list = []
@@ -134,11 +156,17 @@ class EventDetector:
         self.n_pressed = 0                    # skin samples with a taxel on: what a reader says when none paired
 
     @classmethod
-    def for_skin(cls, skin, config: EventConfig = LIVE_CONFIG) -> "EventDetector":
-        """A detector for the parts and joints of a :class:`~nao_skin.model.skin.SkinModel`."""
+    def for_skin(cls, skin, config: EventConfig = LIVE_CONFIG, judge=None) -> "EventDetector":
+        """A detector for the parts, joints and fingertip scenes of a :class:`~nao_skin.model.skin.SkinModel`
+        (``judge``: a :class:`~nao_skin.touch.fingertip.FingertipJudge` of the session's scenes)."""
         robot = skin.robot
         needed = {n: robot.chain_joint_names(p.chain) if p.chain else [] for n, p in skin.parts.items()}
-        return cls(tuple(skin.parts), tuple(robot.joint_names), needed, config)
+        fingertips: dict = {}
+        # the scenes a live judge takes fingertip touches of, or (reading a bag) every scene a recording may name
+        for tip, part in (judge.pairs if judge is not None else skin.fingertip_touch.pairs()):
+            fingertips.setdefault(tip, []).append(part)
+            needed[tip] = robot.chain_joint_names(robot.fingertip(tip).chain)
+        return cls(tuple(skin.parts), tuple(robot.joint_names), needed, config, fingertips, judge)
 
     # ------------------------------------------------------------------ bookkeeping
     def drops(self) -> dict:
@@ -203,6 +231,18 @@ class EventDetector:
             return len(stamps) - 1
         return len(stamps)
 
+    def add_fingertip(self, stamp: float, name: str) -> list:
+        """A recording's word that the moment at ``stamp`` was pressed by fingertip ``name`` (a touch bag's
+        fingertip message)."""
+        if name not in self.fingertip_names:
+            self._drop("unknown fingertip", f"fingertip message at {stamp:.6f}: fingertip '{name}' presses no part of"
+                                            f" this skin config (fingertips: {', '.join(self.fingertip_names) or 'none'})")
+            return []
+        self._markers[float(stamp)] = name
+        if len(self._markers) > MAX_PENDING:      # never matched: never pile up
+            self._markers.pop(next(iter(self._markers)))
+        return []
+
     def add_contacts(self, stamp: float, part: str, contact_ids: Sequence[int], cops: np.ndarray) -> list:
         """skinManager contacts of one skin sample (the ``/skin/<part>/contacts`` message).
 
@@ -266,7 +306,8 @@ class EventDetector:
         else:
             together = {q: s for q, s in self._latest.items()
                         if s is not None and q != p and abs(stamp - s.stamp) <= cfg.skin_tolerance}
-            if together:
+            # a part a fingertip presses may be a touch alone, where a judge or the recording can say whose
+            if together or (p in self._pressed_alone and (self._judge is not None or stamp in self._markers)):
                 together[p] = sample
                 self._open = _Candidate(stamp, together)
         return out + self._resolve_pending(final=False)
@@ -385,7 +426,35 @@ class EventDetector:
                 q[col] = values[b, col] + (values[a, col] - values[b, col]) * w
         return q
 
+    def _fingertip_of(self, cand: _Candidate, q: np.ndarray) -> str | None:
+        """The fingertip that pressed a one-part moment, or None (dropped and counted where a judge said none
+        was near; a part pressed while another is, is part of that one's self-touch)."""
+        named = self._markers.pop(cand.stamp, None)
+        if named is not None:
+            return named
+        if self._judge is None:
+            return None
+        (p, sample), = cand.samples.items()
+        gap = self.config.release_gap
+        if any(s is not None and q_ != p and abs(s.stamp - cand.stamp) <= gap for q_, s in self._latest.items()):
+            return None
+        tip = self._judge(self.part_names[p], sample.slots, q)
+        if tip is None:
+            self._drop("no fingertip near", f"touch at {cand.stamp:.6f}: part '{self.part_names[p]}' fired alone and"
+                                            f" no fingertip was near it (an experimenter's hand?)")
+        return tip
+
     def _record(self, cand: _Candidate, q: np.ndarray) -> TouchRecord | None:
+        fingertip = None
+        if len(cand.samples) == 1:
+            fingertip = self._fingertip_of(cand, q)
+            if fingertip is None:
+                return None
+            for col, name in self._tip_needed[fingertip]:
+                if not np.isfinite(q[col]):
+                    self._drop("missing joint", f"touch at {cand.stamp:.6f}: joint '{name}' needed by fingertip"
+                                                f" '{fingertip}' is missing or not finite ({q[col]})")
+                    return None
         for p in sorted(cand.samples):
             for col, name in zip(self._needed[p], self._needed_names[p]):
                 if not np.isfinite(q[col]):
@@ -404,14 +473,18 @@ class EventDetector:
                 cop = np.full(3, np.nan) if cop is None else np.asarray(cop, dtype=float)
                 contacts.append(ContactRecord(p, cid, cop, slots[sel], pressures[sel]))
         self.counts["touches"] += 1
-        return TouchRecord(cand.stamp, q.copy(), contacts)
+        return TouchRecord(cand.stamp, q.copy(), contacts, fingertip)
 
 
 def touchset_from_records(records: Sequence[TouchRecord], part_names: Sequence[str],
-                          joint_names: Sequence[str], keys: Sequence | None = None) -> TouchSet:
-    """Flat arrays from emitted touches (keys default to the stamps printed with ns resolution)."""
+                          joint_names: Sequence[str], keys: Sequence | None = None, fingertips: Sequence[str] = ()) -> TouchSet:
+    """Flat arrays from emitted touches (keys default to the stamps printed with ns resolution; ``fingertips``:
+    the detector's, the names a fingertip touch's ``fingertip`` is one of)."""
     if not records:
         return TouchSet.empty(part_names, joint_names)
+    fingertips = tuple(fingertips)
+    touch_fingertip = np.array([fingertips.index(r.fingertip) if r.fingertip is not None else -1 for r in records],
+                               dtype=int)
     contacts = [(t, c) for t, r in enumerate(records) for c in r.contacts]
     n_act = np.array([len(c.slots) for _, c in contacts], dtype=int)
     return TouchSet(
@@ -424,4 +497,5 @@ def touchset_from_records(records: Sequence[TouchRecord], part_names: Sequence[s
         np.stack([c.cop for _, c in contacts]).reshape(-1, 3),
         np.repeat(np.arange(len(contacts)), n_act),
         np.concatenate([c.slots for _, c in contacts]).astype(int),
-        np.concatenate([c.pressures for _, c in contacts]).astype(float))
+        np.concatenate([c.pressures for _, c in contacts]).astype(float),
+        fingertips=fingertips, touch_fingertip=touch_fingertip if fingertips else None)
