@@ -242,3 +242,46 @@ def test_a_recorder_held_up_for_seconds_still_records_every_touch_once(tmp_path)
         run.listener.spin_until(lambda: progress[-1]["touches"] >= run.want.n_touches, timeout=60, procs=nodes)
     assert_the_bag_holds_what_was_played(run)
     assert "not recorded" not in run.recorder.stderr()
+
+
+def test_a_simulated_session_says_what_it_calibrates_without_a_warning(tmp_path):
+    """`nao-skin record` of the simulated robot, a calibration requested mid-session (``ros2 service call
+    /calibrate/calibrate std_srvs/srv/Trigger``: the session's own bag, open). Each request warned that the bag
+    was "recorded from the simulated robot" and that "the recording is still open", as a session that asked for
+    the simulator and records that bag expects: said as information now (the lines stay, at INFO)."""
+    from std_srvs.srv import Trigger
+
+    from nao_skin.nodes.topics import LATCHED, PROGRESS_TOPIC, STATUS_TOPIC
+
+    domain = unique_domain_id()
+    bag = tmp_path / "touches"
+    listener = session = None
+    try:
+        listener = Listener(domain)
+        progress = listener.subscribe(String, PROGRESS_TOPIC, keep=lambda m: json.loads(m.data))
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        # a touch every 0.5 s, enough of them that the session still records when the calibration has read it
+        session = Proc(record_cmd(bag, seed=4, per_pair=30), ros_env(domain), tmp_path, "record")
+        assert listener.spin_until(lambda: progress and progress[-1]["touches"] >= 12, timeout=120,
+                                   procs=[session]), "the recorder reported no touches"
+        trigger = listener.node.create_client(Trigger, "/calibrate/calibrate")
+        seen = len(status)
+        answer = listener.ask(trigger, Trigger.Request(), procs=[session])
+        assert answer.success or "running" in answer.message, answer.message     # a live update may run
+        if not answer.success:      # asked again once that update ended
+            assert listener.spin_until(lambda: status[seen:] and status[-1]["state"] != "running", timeout=120,
+                                       procs=[session])
+            seen = len(status)
+            answer = listener.ask(trigger, Trigger.Request(), procs=[session])
+            assert answer.success, answer.message
+        assert listener.spin_until(lambda: any(s["state"] in ("done", "failed") and not s.get("live")
+                                               for s in status[seen:]), timeout=180, procs=[session]), status[seen:]
+    finally:
+        if listener is not None:
+            listener.close()
+        code = session.stop(signal.SIGINT, timeout=60) if session is not None else None
+    said = (session.stdout() + session.stderr()).splitlines()
+    assert code == 0, said[-30:]
+    for what in ("recorded from the simulated robot", "the recording is still open"):
+        assert not [line for line in said if what in line and "WARN" in line], what
+        assert [line for line in said if what in line and "[INFO]" in line and "[calibrate]" in line], what

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from nao_skin.formats.bag import read_touches
+from nao_skin.formats.inputs import load_touches
 from nao_skin.formats.pointcloud import xyz
 from nao_skin.live.clocks import MIN_MESSAGES, SKEW_LIMIT_S
 from nao_skin.live.playback import Playback
@@ -162,7 +163,13 @@ def test_a_bag_of_the_simulated_robot_says_so_on_every_read(skin, tmp_path):
         _, growing = GrowingBag(tmp_path / name, skin).read()
         recording.close()
         _, closed = read_touches(tmp_path / name, skin)
-        notes[name] = ([n for n in growing.notes if "recorded from" in n], [n for n in closed.notes if "recorded from" in n])
+        notes[name] = ([n for n in growing.info if "recorded from" in n], [n for n in closed.info if "recorded from" in n])
+        assert not any("recorded from" in n for n in growing.notes + closed.notes)     # what it is, no warning
     said = f"{tmp_path / 'sim'}: recorded from {SIMULATED}, not the robot"
     assert notes["sim"][1] == [said] and len(notes["sim"][0]) == 1 and "simulated robot" in notes["sim"][0][0]
     assert notes["robot"] == notes["unsaid"] == ([], [])
+    # nao-skin calibrate logs what it reads on stdout and summarises what is worth a look on stderr: there the
+    # line informs, with the input's summary line, and is no warning
+    logged, summarised = [], []
+    load_touches([tmp_path / "sim"], skin, log=logged.append, summary=summarised.append)
+    assert said in logged and not summarised, (logged, summarised)
