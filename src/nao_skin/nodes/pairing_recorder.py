@@ -133,7 +133,7 @@ class PairingRecorder(Node):
         progress = self.recording.progress()
         for warning in (self.recording.clock_warnings(progress["clock_skew_s"])
                         + self.recording.silence_warnings(time.monotonic() - self._started)
-                        + self.recording.outage_warnings(self._now())):
+                        + self.recording.outage_warnings()):
             self.get_logger().warning(warning)
         self._check_publishers()
         self.progress_pub.publish(String(data=json.dumps(progress, sort_keys=True)))
