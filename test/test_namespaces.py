@@ -93,3 +93,43 @@ def test_a_second_session_in_the_same_namespace_and_domain_is_refused(tmp_path):
     assert second.returncode == 2, second.stderr
     assert f"runs on ROS_DOMAIN_ID {domain} in namespace /nao1" in second.stderr, second.stderr
     assert not (tmp_path / "second").exists()
+
+
+def test_each_node_s_diagnostics_name_carries_its_namespace(tmp_path):
+    """Every namespace publishes on the one /diagnostics: two robots' nodes there were both "nao_skin: sim_robot"
+    (and "simulated robot"), one row in rqt_robot_monitor. Each status is now named by the node's fully
+    qualified name, as diagnostic_updater names them with use_fqn; the simulated robots are two pieces of
+    hardware."""
+    import sys
+
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from nao_skin.nodes.topics import DIAGNOSTICS_TOPIC
+
+    domain = unique_domain_id()
+    nodes = {"/nao1": "sim_robot", "/nao2": "sim_robot", "/": "skin_heatmap"}
+    procs, listener = [], None
+    try:
+        listener = Listener(domain)
+        seen = listener.subscribe(DiagnosticArray, DIAGNOSTICS_TOPIC,
+                                  keep=lambda m: [(s.name, s.hardware_id) for s in m.status])
+        for ns, node in nodes.items():
+            argv = [sys.executable, "-m", f"nao_skin.nodes.{node}", "--ros-args", "-r", f"__ns:={ns}"]
+            if node == "sim_robot":     # one touch: the robot's play is beside the point
+                argv += ["-p", "touches_per_pair:=1", "-p", "pairs:=['l_hand-torso']"]
+            procs.append(Proc(argv, ros_env(domain), tmp_path, f"{node}{ns.replace('/', '_')}"))
+        want = {"nao_skin: /nao1/sim_robot": "simulated robot /nao1",
+                "nao_skin: /nao2/sim_robot": "simulated robot /nao2", "nao_skin: /skin_heatmap": None}
+
+        def named():
+            return {name: hardware for statuses in seen for name, hardware in statuses}
+
+        assert listener.spin_until(lambda: set(want) <= set(named()), timeout=90, procs=procs), sorted(named())
+        got = named()
+        assert all(got[name] == hardware for name, hardware in want.items() if hardware), got
+        assert not [name for name in got if name.startswith("nao_skin: ") and not name.startswith("nao_skin: /")]
+    finally:
+        if listener is not None:
+            listener.close()
+        for proc in procs:
+            proc.stop(signal.SIGINT, timeout=30)

@@ -196,7 +196,7 @@ def test_trigger_diagnostics_and_parameters_of_a_running_session(tmp_path):
             found = [s for array in diagnostics for s in array.status if s.name == name]
             return found[-1] if found else None
 
-        assert listener.spin_until(lambda: latest("nao_skin: calibrate") and latest("nao_skin: pairing_recorder"),
+        assert listener.spin_until(lambda: latest("nao_skin: /calibrate") and latest("nao_skin: /pairing_recorder"),
                                    timeout=60, procs=procs)
         assert all(len(array.status) == 1 for array in diagnostics)
 
@@ -204,15 +204,15 @@ def test_trigger_diagnostics_and_parameters_of_a_running_session(tmp_path):
             return {kv.key: kv.value for kv in status.values}
 
         # the calibration's end reaches the node's next status
-        assert listener.spin_until(lambda: values(latest("nao_skin: calibrate")).get("state") == "done",
+        assert listener.spin_until(lambda: values(latest("nao_skin: /calibrate")).get("state") == "done",
                                    timeout=60, procs=procs)
-        mine = latest("nao_skin: calibrate")
+        mine = latest("nao_skin: /calibrate")
         assert mine.level == DiagnosticStatus.OK and mine.hardware_id, mine
         assert values(mine)["running"] == "no" and values(mine)["live"] == "yes"
         # the recorder gets no joint states here: an error saying so, with the free disk where the bag goes
-        assert listener.spin_until(lambda: latest("nao_skin: pairing_recorder").level == DiagnosticStatus.ERROR,
+        assert listener.spin_until(lambda: latest("nao_skin: /pairing_recorder").level == DiagnosticStatus.ERROR,
                                    timeout=60, procs=procs)
-        rec = latest("nao_skin: pairing_recorder")
+        rec = latest("nao_skin: /pairing_recorder")
         assert "no joint states (touch detection needs 10 Hz)" in rec.message, rec.message
         assert {"free disk (MiB)", "joint states rate (Hz)", "touch age (s)"} <= set(values(rec))
 

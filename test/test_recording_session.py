@@ -158,7 +158,8 @@ def test_joint_states_that_stay_away_are_said_while_they_are_away(skin, tmp_path
     touches, _ = deduplicate(sim.touches)
     recording = TouchRecording(skin, LIVE_CONFIG, tmp_path / "touches", "mcap")
     checked = Checked(recording, 100.0)
-    play_streams(checked, Playback(touches, skin, period=1.0, press=0.2, hold=0.1), start=100.0, no_joints=(2.8, 17.0))
+    play_streams(checked, Playback(touches, skin, period=1.0, press=0.2, hold=0.1), start=100.0,
+                 no_joints=(2.8, 17.0))
     (away_at, away), (back_at, back) = checked.said
     assert away.startswith("no joint states for 2 s of skin samples, and none came in the 10 s the recorder waits"
                            " for late ones: a touch pressed now has no arm pose and cannot be recorded; stop touching"

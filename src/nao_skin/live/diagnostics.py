@@ -1,9 +1,9 @@
 """What each live node says on ``/diagnostics``, pure: message rates, ages and free disk -> a level, a line, values.
 
-Every nao_skin node publishes one ``diagnostic_msgs/DiagnosticStatus`` a second (``nao_skin: <node>``, what
-rqt_robot_monitor shows): :mod:`nao_skin.nodes.diagnostics` only translates what is decided here. A node
-gathers its findings (:class:`Check`: a level, a line, key-values) and :func:`summary` folds them into its
-one status: the worst level, the lines said at that level, every key-value.
+Every nao_skin node publishes one ``diagnostic_msgs/DiagnosticStatus`` a second (``nao_skin: <node's fully
+qualified name>``, e.g. ``nao_skin: /nao2/calibrate``, what rqt_robot_monitor shows): :mod:`nao_skin.nodes.diagnostics`
+only translates what is decided here. A node gathers its findings (:class:`Check`: a level, a line, key-values) and
+:func:`summary` folds them into its one status: the worst level, the lines said at that level, every key-value.
 """
 from __future__ import annotations
 
