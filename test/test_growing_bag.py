@@ -41,7 +41,7 @@ def assert_same_read(got: tuple, want: tuple) -> None:
                  "act_contact", "act_slot", "act_pressure"):
         np.testing.assert_array_equal(getattr(g, name), getattr(w, name), err_msg=name)
     assert g_rep.summary() == w_rep.summary()
-    assert g_rep.messages == w_rep.messages and g_rep.notes == w_rep.notes
+    assert g_rep.messages == w_rep.messages and g_rep.notes == w_rep.notes and g_rep.info == w_rep.info
 
 
 @pytest.fixture
