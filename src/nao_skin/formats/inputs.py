@@ -314,7 +314,7 @@ def joint_limit_note(touches: TouchSet, robot, source: str) -> str | None:
     t, j = np.unravel_index(np.argmax(np.where(outside, past, -np.inf)), past.shape)
     name = touches.joint_names[cols[j]]
     return (f"{source}: {n} of {touches.n_touches} touches have joint angles outside the robot config's limits"
-            f" (by more than an encoder count, {JOINT_LIMIT_TOLERANCE:g} rad),"
+            f" by over {JOINT_LIMIT_TOLERANCE:g} rad,"
             f" kept (measured angles; the config's limits may be tighter than the joint); the farthest:"
             f" {name} = {q[t, j]:.4g} rad in touch {touches.keys[t]!r}, {past[t, j]:.4g} rad past"
             f" [{limits[j, 0]:.4f}, {limits[j, 1]:.4f}]; check the robot config if many are")
