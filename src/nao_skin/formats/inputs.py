@@ -124,7 +124,8 @@ def read_sitting(path: str | Path, skin: SkinModel) -> ReadOnce:
 def load_touches(paths, skin: SkinModel, log=print, summary=None, followed=None) -> tuple:
     """Touches of every input, concatenated; the load report; ground truth if a simulator wrote one.
 
-    ``log`` gets each input's summary and first skip reasons; ``summary`` (default
+    ``log`` gets each input's summary, what it is (:attr:`LoadReport.info <nao_skin.touch.datasets.LoadReport>`:
+    a recording of the simulated robot, one still open) and first skip reasons; ``summary`` (default
     ``log``) gets the one-line summary of every input that skipped something and
     the hints, so a quiet caller still says what was left out. Nothing already
     read is lost because of a bad touch elsewhere. ``followed``: bags read again
