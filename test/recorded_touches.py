@@ -26,12 +26,14 @@ def write_recorded(bag, skin, touches, rows) -> None:
 
 
 def play_streams(recording, playback, start: float, skin_hz: float = 50.0, joint_hz: float = 100.0,
-                 held: tuple | None = None) -> float:
+                 held: tuple | None = None, no_joints: tuple = (0.0, 0.0)) -> float:
     """The streams a robot sends while ``playback`` plays, in the order they arrive (stamps from ``start``); the
     last arrival. ``held`` ``(t0, t1, {topic: s})``: what would arrive from ``t0`` to ``t1`` (s of the play)
     arrives at ``t1``, a topic's that many s later still (a recorder held up, its topics' backlogs delivered one
-    after another); each topic keeps its order."""
-    times = sorted([(t, "joints") for t in np.arange(0.0, playback.duration, 1.0 / joint_hz)]
+    after another); each topic keeps its order. ``no_joints`` ``(t0, t1)``: no joint state is sent in these
+    seconds of the play (the joint states' driver stalled)."""
+    times = sorted([(t, "joints") for t in np.arange(0.0, playback.duration, 1.0 / joint_hz)
+                    if not no_joints[0] <= t < no_joints[1]]
                    + [(t, "skin") for t in np.arange(0.003, playback.duration, 1.0 / skin_hz)])
     sent = []                      # (arrival, topic, call, args)
     for t, kind in times:

@@ -264,6 +264,46 @@ def test_angles_outside_the_joint_limits_are_kept_counted_and_named(tmp_path, ca
     assert len(note) == 1 and "2 of 12 touches" in note[0] and "LElbowRoll" in note[0] and "kept" in note[0]
 
 
+def test_an_angle_an_encoder_count_past_a_limit_is_at_it(tmp_path, capsys, skin, thesis_touches):
+    """A joint at its hard stop reads a count past the documented limit: no note for that, one for a real excess."""
+    from nao_skin.model.robot import JOINT_LIMIT_TOLERANCE
+
+    touches = thesis_touches.subset(np.arange(thesis_touches.n_touches))
+    j = touches.joint_names.index("LElbowRoll")
+    low, high = skin.robot.limits[skin.robot.joint_index["LElbowRoll"]]
+    touches.joints[[0, 2, 3], j] = high + 0.5 * JOINT_LIMIT_TOLERANCE     # a count past it: at the stop
+    touches.joints[[5], j] = low - 2 * JOINT_LIMIT_TOLERANCE              # past it
+    path = tmp_path / "at_the_stops.txt"
+    write_thesis_file(path, touches, skin)
+    assert cli_main(["stats", str(path), "--json"]) == 0
+    note = [line for line in capsys.readouterr().err.splitlines() if "outside the robot config's limits" in line]
+    assert len(note) == 1 and "1 of 12 touches" in note[0] and f"{2 * JOINT_LIMIT_TOLERANCE:.4g} rad past" in note[0]
+    touches.joints[5, j] = low
+    write_thesis_file(path, touches, skin)
+    assert cli_main(["stats", str(path), "--json"]) == 0
+    assert "outside the robot config's limits" not in capsys.readouterr().err
+
+
+def test_the_real_recording_is_noted_only_for_its_real_excesses(capsys, real_recording, real_taxels, real):
+    """A third of the real recording's touches were said to be outside the limits, mostly for 0.00007 rad (the
+    wrists at their stops); the note now counts only the touches past them by more than an encoder count."""
+    from nao_skin.formats.inputs import joint_limit_note
+    from nao_skin.model.robot import JOINT_LIMIT_TOLERANCE
+
+    robot = load_skin().robot
+    cols = [i for i, n in enumerate(real.joint_names) if n in robot.joint_index]
+    limits = robot.limits[[robot.joint_index[real.joint_names[i]] for i in cols]]
+    with np.errstate(invalid="ignore"):
+        past = np.nan_to_num(np.fmax(limits[:, 0] - real.joints[:, cols], real.joints[:, cols] - limits[:, 1]),
+                             nan=-1.0).max(axis=1)
+    beyond = int((past > JOINT_LIMIT_TOLERANCE).sum())
+    assert 0 < beyond < int((past > 0).sum()), (beyond, int((past > 0).sum()))     # both kinds are in it
+    assert cli_main(["stats", str(real_recording), *real_taxels]) == 0
+    note = [line for line in capsys.readouterr().out.splitlines() if "outside the robot config's limits" in line]
+    assert len(note) == 1 and f": {beyond} of {real.n_touches} touches" in note[0], note
+    assert joint_limit_note(real.subset(np.flatnonzero(past <= JOINT_LIMIT_TOLERANCE)), robot, "x") is None
+
+
 def test_a_note_given_to_the_summary_is_not_logged_again(tmp_path, skin, thesis_touches):
     """calibrate logs to stdout and summarises to stderr: a note on both would be printed twice."""
     from nao_skin.formats.inputs import load_touches

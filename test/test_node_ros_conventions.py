@@ -29,6 +29,11 @@ def test_a_stream_is_ok_near_its_rate_slow_below_half_and_missing_at_zero():
     assert rate_check("joint states", None, 50.0).level == OK            # nothing measured yet
     assert rate_check("skin samples", 0.0, 0.0).level == OK              # no expected rate: said only
     assert dict(slow.values) == {"joint states rate (Hz)": "12.0", "joint states expected (Hz)": "50.0"}
+    # what a node needs, not what its publisher sends (the recorder's joint states: one per joint_tolerance)
+    needs = rate_check("joint states", 8.0, 10.0, needed="touch detection")
+    assert needs.level == WARN and needs.message == "joint states at 8.0 Hz, touch detection needs 10 Hz"
+    assert dict(needs.values) == {"joint states rate (Hz)": "8.0", "joint states needed (Hz)": "10.0"}
+    assert rate_check("joint states", 100.0, 10.0, needed="touch detection").level == OK
 
 
 def test_free_disk_warns_low_and_is_an_error_nearly_full():
@@ -191,7 +196,7 @@ def test_trigger_diagnostics_and_parameters_of_a_running_session(tmp_path):
             found = [s for array in diagnostics for s in array.status if s.name == name]
             return found[-1] if found else None
 
-        assert listener.spin_until(lambda: latest("nao_skin: calibrate") and latest("nao_skin: pairing_recorder"),
+        assert listener.spin_until(lambda: latest("nao_skin: /calibrate") and latest("nao_skin: /pairing_recorder"),
                                    timeout=60, procs=procs)
         assert all(len(array.status) == 1 for array in diagnostics)
 
@@ -199,16 +204,16 @@ def test_trigger_diagnostics_and_parameters_of_a_running_session(tmp_path):
             return {kv.key: kv.value for kv in status.values}
 
         # the calibration's end reaches the node's next status
-        assert listener.spin_until(lambda: values(latest("nao_skin: calibrate")).get("state") == "done",
+        assert listener.spin_until(lambda: values(latest("nao_skin: /calibrate")).get("state") == "done",
                                    timeout=60, procs=procs)
-        mine = latest("nao_skin: calibrate")
+        mine = latest("nao_skin: /calibrate")
         assert mine.level == DiagnosticStatus.OK and mine.hardware_id, mine
         assert values(mine)["running"] == "no" and values(mine)["live"] == "yes"
         # the recorder gets no joint states here: an error saying so, with the free disk where the bag goes
-        assert listener.spin_until(lambda: latest("nao_skin: pairing_recorder").level == DiagnosticStatus.ERROR,
+        assert listener.spin_until(lambda: latest("nao_skin: /pairing_recorder").level == DiagnosticStatus.ERROR,
                                    timeout=60, procs=procs)
-        rec = latest("nao_skin: pairing_recorder")
-        assert "no joint states (expected 10 Hz)" in rec.message, rec.message
+        rec = latest("nao_skin: /pairing_recorder")
+        assert "no joint states (touch detection needs 10 Hz)" in rec.message, rec.message
         assert {"free disk (MiB)", "joint states rate (Hz)", "touch age (s)"} <= set(values(rec))
 
         # descriptors: the rule as a range, read-only where a change cannot apply

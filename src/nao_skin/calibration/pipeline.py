@@ -114,7 +114,7 @@ def calibrate_loaded(loaded: LoadedInputs, skin: SkinModel, options: Calibration
     # what was read is counted in messages for a bag, in touches for the thesis' text format
     result.report.input = {"files": loaded.files, f"{report.unit.replace(' ', '_')}_read": report.n_read,
                            "touches_loaded": report.n_loaded, "skipped": dict(report.skipped),
-                           "notes": list(report.notes), "duplicates_removed": loaded.n_duplicates}
+                           "notes": [*report.info, *report.notes], "duplicates_removed": loaded.n_duplicates}
     return result
 
 

@@ -62,6 +62,7 @@ def run(args) -> int:
         fabric, report = _report_fabric(args.calibration, options)
     notes = []
     loaded = load_inputs(args.inputs, skin, summary=notes.append)
+    notes[:0] = loaded.load_report.info        # what the inputs are (simulated, still being recorded): said too
     try:
         result = check_calibration(loaded.touches, skin, calibration, args.tolerance, fabric, options)
     except DataError as exc:     # too few touches to judge anything: the line names the recordings

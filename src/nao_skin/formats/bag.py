@@ -53,7 +53,7 @@ from nao_skin.touch.touches import TouchSet
 
 BAG_KIND_KEY = "nao_skin.bag_kind"
 CLOCK_STEP_S = 1.0     # s a stream bag's clock moves at most per message read (_Feed)
-SOURCE_KEY = "nao_skin.recorded_from"     # what a recorder was fed: a simulated robot is said on every read
+SOURCE_KEY = "nao_skin.recorded_from"     # what a recorder was fed: a simulated robot is said on every read (info)
 SIMULATED = "the simulated robot (sim_robot)"
 CONTINUES_KEY = "nao_skin.continues"        # the earlier sittings' bags a record session continued: a JSON list
 CONTINUES_RELATIVE_KEY = "nao_skin.continues_relative"     # ... relative to the bag's folder (moved together)
@@ -489,7 +489,8 @@ def _custom_data(reader, path: Path) -> dict:
 
 
 def _source_note(custom: dict, path: Path) -> str | None:
-    """A note for every read of a bag recorded from the simulated robot: it is no recording of the robot."""
+    """A line for every read of a bag recorded from the simulated robot: it is no recording of the robot (said as
+    what the input is, :attr:`LoadReport.info`: a session that asked for the simulator expects it)."""
     if custom.get(SOURCE_KEY) == SIMULATED:
         return f"{path}: recorded from {SIMULATED}, not the robot"
     return None
@@ -662,9 +663,10 @@ class GrowingBag:
             report.skip(*lost)
         touches = now.apart(self._finish(now, extra, self._touches))
         now.account(touches)
-        for note in (bag.note(now.n_msgs, touches.n_touches), self._source):
-            if note is not None:
-                report.notes.append(note)
+        note = bag.note(now.n_msgs, touches.n_touches)
+        if note is not None:
+            report.notes.append(note)
+        report.info += [line for line in (bag.info(now.n_msgs, touches.n_touches), self._source) if line is not None]
         return touches, report
 
     def _finish(self, feed: "_Feed", records: list, before: TouchSet | None) -> TouchSet:
@@ -683,7 +685,7 @@ class GrowingBag:
                                                                             self.path), report)
             source = _source_note(custom, self.path)
             if source is not None:
-                report.notes.append(source)
+                report.info.append(source)
             wanted, unknown = [], {}
             for conn in reader.connections:
                 if not _is_read(conn.topic, conn.msgtype):

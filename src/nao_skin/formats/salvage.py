@@ -177,23 +177,31 @@ class UnclosedBag:
         return None
 
     def note(self, n_msgs: int, n_touches: int) -> str | None:
-        """The report note of a bag read from its storage file that lost nothing (so far): a recording read
-        while (maybe) still being written; None when it is not one."""
+        """The report note of a bag read from its storage file that lost nothing (so far): a rescued copy, or a
+        recording whose recorder cannot be told running or dead (an open one is :meth:`info`); None otherwise."""
         lock = self.lock
         if lock is None and self.rescued_from is not None and self.lost(n_msgs, "ends cleanly") is None:
             return (f"{self.path}: the copy of {self.rescued_from} its recorder made when that bag's directory was"
                     f" removed, moved or replaced while recording: {n_msgs} messages of {self.file.name},"
                     f" {n_touches} touches, every one written until then")
-        if lock is None or lock.state == "died":
+        if lock is None or lock.state in ("died", "open"):
             return None
         read = f"read {n_msgs} messages of {self.file.name} written so far: {n_touches} touches"
-        if lock.state == "open":
-            return f"{self.path}: the recording is still open (being recorded by pid {lock.pid} on {lock.host}); {read}"
         if lock.pid is None:
             return (f"{self.path}: {LOCK_FILE} is unreadable: the recording may still be open or its recorder died;"
                     f" {read}")
         return (f"{self.path}: {LOCK_FILE} names pid {lock.pid} on host {lock.host}, which cannot be checked from"
                 f" here: the recording is open if that recorder still runs, else it died; {read}")
+
+    def info(self, n_msgs: int, n_touches: int) -> str | None:
+        """What a recording read while its recorder (running) still writes it is: what was written so far. No
+        warning (:attr:`~nao_skin.touch.datasets.LoadReport.info`): a record session's own calibrations read their
+        open recording, as expected; None when it is not one."""
+        lock = self.lock
+        if lock is None or lock.state != "open":
+            return None
+        return (f"{self.path}: the recording is still open (being recorded by pid {lock.pid} on {lock.host}); read"
+                f" {n_msgs} messages of {self.file.name} written so far: {n_touches} touches")
 
 
 def _rescued_from(directory: Path) -> str | None:

@@ -1,9 +1,9 @@
 """What each live node says on ``/diagnostics``, pure: message rates, ages and free disk -> a level, a line, values.
 
-Every nao_skin node publishes one ``diagnostic_msgs/DiagnosticStatus`` a second (``nao_skin: <node>``, what
-rqt_robot_monitor shows): :mod:`nao_skin.nodes.diagnostics` only translates what is decided here. A node
-gathers its findings (:class:`Check`: a level, a line, key-values) and :func:`summary` folds them into its
-one status: the worst level, the lines said at that level, every key-value.
+Every nao_skin node publishes one ``diagnostic_msgs/DiagnosticStatus`` a second (``nao_skin: <node's fully
+qualified name>``, e.g. ``nao_skin: /nao2/calibrate``, what rqt_robot_monitor shows): :mod:`nao_skin.nodes.diagnostics`
+only translates what is decided here. A node gathers its findings (:class:`Check`: a level, a line, key-values) and
+:func:`summary` folds them into its one status: the worst level, the lines said at that level, every key-value.
 """
 from __future__ import annotations
 
@@ -41,17 +41,21 @@ def hz(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.1f}"
 
 
-def rate_check(label: str, rate: float | None, expected: float, required: bool = True) -> Check:
-    """A stream's measured ``rate`` (Hz; None: not measured yet) against the ``expected`` one: OK at
-    :data:`SLOW_FRACTION` of it or more, WARN below; none at all is ERROR for a ``required`` stream (the node
-    cannot do its work without it), WARN for another."""
-    values = ((f"{label} rate (Hz)", hz(rate)),) + (((f"{label} expected (Hz)", hz(expected)),) if expected > 0 else ())
+def rate_check(label: str, rate: float | None, expected: float, required: bool = True, needed: str = "") -> Check:
+    """A stream's measured ``rate`` (Hz; None: not measured yet) against the ``expected`` one (the rate its
+    publisher is set to): OK at :data:`SLOW_FRACTION` of it or more, WARN below; none at all is ERROR for a
+    ``required`` stream (the node cannot do its work without it), WARN for another. ``needed`` (what needs it):
+    ``expected`` is instead the least rate the node can work with, whatever its publisher sends (a recorder does
+    not know the robot's rate): said as such, slow below it."""
+    values = ((f"{label} rate (Hz)", hz(rate)),) + (
+        ((f"{label} {'needed' if needed else 'expected'} (Hz)", hz(expected)),) if expected > 0 else ())
     if rate is None or expected <= 0:
         return Check(OK, "", values)
+    wants = f"{needed} needs {expected:g} Hz" if needed else f"expected {expected:g} Hz"
     if rate <= 0:
-        return Check(ERROR if required else WARN, f"no {label} (expected {expected:g} Hz)", values)
-    if rate < SLOW_FRACTION * expected:
-        return Check(WARN, f"{label} at {rate:.1f} Hz, expected {expected:g} Hz", values)
+        return Check(ERROR if required else WARN, f"no {label} ({wants})", values)
+    if rate < (1.0 if needed else SLOW_FRACTION) * expected:
+        return Check(WARN, f"{label} at {rate:.1f} Hz, {wants}", values)
     return Check(OK, "", values)
 
 

@@ -89,6 +89,10 @@ class Chain:
 
 
 MAX_JOINT_LIMIT = 4 * np.pi    # rad: a humanoid's joint turns less than this either way
+# rad an angle may lie past a joint limit and still be at it: the Nao reads its joints with 12-bit magnetic rotary
+# encoders, 2 pi / 4096 = 0.0015 rad a count, and a reading at a hard stop overshoots the documented limit (given to
+# a tenth of a degree, 0.0017 rad) by up to a count; above one count, below two
+JOINT_LIMIT_TOLERANCE = 0.002
 MAX_FINGERTIP_RADIUS = 0.1     # m: a fingertip's contact sphere is centimetres across
 
 

@@ -2,7 +2,9 @@
 
 A node hands :func:`publish_diagnostics` a function returning its findings
 (:class:`~nao_skin.live.diagnostics.Check` list, from the pure checks there); this only translates them,
-as ``nao_skin: <node>`` with the node's ``hardware_id``, on the ROS clock's stamp.
+as ``nao_skin: <node's fully qualified name>`` (``nao_skin: /nao2/calibrate``) with the node's ``hardware_id``,
+on the ROS clock's stamp. ``/diagnostics`` is one topic for every namespace, so two robots' sessions on one
+domain (``namespace:=``) are told apart by the name alone, as diagnostic_updater's ``use_fqn`` names them.
 """
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ def publish_diagnostics(node, checks, hardware_id: str = ""):
     """Publish ``checks(now)``'s findings (``now``: monotonic seconds) every second; returns the timer.
     A check that raises is an ERROR status saying so, never a node stopped for its diagnostics."""
     publisher = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
-    name = f"nao_skin: {node.get_name()}"
+    name = f"nao_skin: {node.get_fully_qualified_name()}"
     hardware = hardware_id or socket.gethostname()
 
     def tick():

@@ -19,8 +19,9 @@ two come from different clocks, and the node says so once). It also says once
 per skin topic when a second publisher feeds it (another session on the same
 ROS_DOMAIN_ID).
 
-On ``/diagnostics`` (1 Hz): the joint states' rate against the one touch detection needs (one state per
-``joint_tolerance``), the skin samples' rate, the last touch's age, and the free disk where the bag is written
+On ``/diagnostics`` (1 Hz): the joint states' rate as received against the least one touch detection needs
+(``joint states needed (Hz)``: one state per ``joint_tolerance``; the robot's driver may send more), the skin
+samples' rate, the last touch's age, and the free disk where the bag is written
 (WARN below 1 GiB, ERROR below 100 MiB).
 """
 from __future__ import annotations
@@ -75,7 +76,8 @@ class PairingRecorder(Node):
         self.progress_pub = self.create_publisher(String, PROGRESS_TOPIC, 10)
         self.create_timer(float(p["flush_period"]), lambda: self.recording.flush(self._now()))
         self.create_timer(float(p["progress_period"]), self._publish_progress)
-        # the detector needs a joint state within joint_tolerance of each touch: at least that rate
+        # the detector needs a joint state within joint_tolerance of each touch: at least that rate, whatever the
+        # robot's driver sends (naoqi_bridge 50 Hz, the simulated robot 100 Hz: the recorder is not told which)
         self._joint_rate = 1.0 / p["joint_tolerance"] if p["joint_tolerance"] > 0 else 0.0
         self._rates = {"joint states": RateWindow(), "skin samples": RateWindow()}
         self._touches_seen, self._touch_at = 0, None
@@ -138,7 +140,7 @@ class PairingRecorder(Node):
         progress = self.recording.progress()
         for warning in (self.recording.clock_warnings(progress["clock_skew_s"])
                         + self.recording.silence_warnings(time.monotonic() - self._started)
-                        + self.recording.outage_warnings(self._now())):
+                        + self.recording.outage_warnings()):
             self.get_logger().warning(warning)
         self._check_publishers()
         self.progress_pub.publish(String(data=json.dumps(progress, sort_keys=True)))
@@ -156,7 +158,7 @@ class PairingRecorder(Node):
             disk = disk_check(str(self.recording.bag_path), usage.free, usage.total)
         except OSError as exc:
             disk = disk_check(str(self.recording.bag_path), None, None, error=str(exc))
-        return [rate_check("joint states", rates["joint states"], self._joint_rate),
+        return [rate_check("joint states", rates["joint states"], self._joint_rate, needed="touch detection"),
                 rate_check("skin samples", rates["skin samples"], 0.0),
                 age_check("touch", None if self._touch_at is None else now - self._touch_at),
                 count_check("bad messages", sum(self.recording.errors.values())),

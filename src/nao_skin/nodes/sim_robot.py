@@ -101,7 +101,9 @@ class SimRobot(Node):
         self._thread = threading.Thread(target=self._play, name="sim_play", daemon=True)
         self._thread.start()
         self.create_timer(1.0, self._publish_status)
-        publish_diagnostics(self, self._diagnostics, hardware_id="simulated robot")
+        # two simulated robots (a session each, in its namespace) are two pieces of hardware
+        robot = f"simulated robot {self.get_namespace()}".rstrip(" /")
+        publish_diagnostics(self, self._diagnostics, hardware_id=robot)
 
     def _subscribers_ready(self) -> bool:
         if self.wait_for <= 0:

@@ -27,11 +27,14 @@ from nao_skin.live.clocks import SKEW_LIMIT_S, ArrivalLags
 from nao_skin.live.heatmap import ActivationCounts
 from nao_skin.model.skin import SkinModel, pair_label, scene_label
 from nao_skin.touch.events import EventConfig, EventDetector
-from nao_skin.touch.inorder import InOrder
+from nao_skin.touch.inorder import WAIT_S, InOrder
 
 MAX_LOGGED_ERRORS = 5        # bad messages said one by one (all are counted)
 SILENCE_S = 10.0             # s without a joint state, or without any skin sample, before the operator is told
-OUTAGE_S = 2.0               # s a stream may pause mid-session while the other goes on (joints come at 10-100 Hz)
+# s of the joint states' own stamps they may lack mid-session while skin samples go on (they come at 10-100 Hz).
+# Judged on the stamps, in the order the merge (touch.inorder) lets them through, never on when they arrived: a
+# recorder held up (a starved process, a stopped one) gets each topic's backlog seconds apart, its stamps whole
+OUTAGE_S = 2.0
 
 # what the recorder reads, and where to look when it never comes
 SILENT_STREAMS = {
@@ -76,28 +79,25 @@ class TouchRecording:
         self._skew_seen: dict = {}   # skin topic -> progress checks in a row it was beyond the limit
         self.received: Counter = Counter()    # joint states and skin samples read
         self._silence_said: set = set()
-        self._last: dict = {}        # stream -> arrival time of its last message (the node's clock)
-        self._gap_open: dict = {}    # stream -> arrival time of its last message before a gap said as open
-        self._resumed: list = []     # (stream, gap s) of the gaps that closed since last said
+        # the joint states' gaps, on the stamps the merge lets through (the detector's order)
+        self._joints_at: float | None = None    # stamp of the latest joint state (in time)
+        self._skin_at: float | None = None      # ... and of the latest skin sample
+        self._skin_in_gap: float | None = None  # the first skin sample since stamped past the joint state's reach
+        self._gap_said: float | None = None     # the latest joint state's stamp when its gap was said as open
+        self._resumed: list = []                # s of the gaps that closed since last said
 
     # ------------------------------------------------------------------ input
     def joint_state(self, stamp: float, names, positions, arrived: float) -> None:
-        self._arrived("joint states", arrived)
+        self.received["joint states"] += 1
         self.lags.add(JOINT_STATES_TOPIC, stamp, arrived)
         self._detect(self.in_order.push(JOINT_STATES_TOPIC, stamp, arrived,
                                         ("add_joint_state", (stamp, names, positions))))
 
     def taxels(self, part: str, stamp: float, slots, pressures, contacts, arrived: float) -> None:
-        self._arrived("skin samples", arrived)
+        self.received["skin samples"] += 1
         self.lags.add(taxels_topic(part), stamp, arrived)
         self._detect(self.in_order.push(taxels_topic(part), stamp, arrived, (
             "add_skin", (stamp, part, slots.tolist(), pressures.tolist(), contacts.tolist()))))
-
-    def _arrived(self, stream: str, arrived: float) -> None:
-        self.received[stream] += 1
-        self._last[stream] = arrived
-        if stream in self._gap_open:
-            self._resumed.append((stream, arrived - self._gap_open.pop(stream)))
 
     def contacts(self, part: str, stamp: float, contact_ids, cops, arrived: float) -> None:
         self._detect(self.in_order.push(contacts_topic(part), stamp, arrived,
@@ -106,7 +106,27 @@ class TouchRecording:
     def _detect(self, calls) -> None:
         """The detector's ``(method, arguments)`` calls the merge let through, in order; their touches written."""
         for method, args in calls:
+            self._watch_gaps(method, args[0])
             self._write(getattr(self.detector, method)(*args))
+
+    def _watch_gaps(self, method: str, stamp: float) -> None:
+        """A gap of the joint states' stamps while skin samples go on, as the detector meets it: skin samples
+        stamped where no joint state is within ``joint_tolerance`` (no arm pose for a touch then) before the next
+        joint state, which comes :data:`OUTAGE_S` or more after the one before."""
+        reach = self.detector.config.joint_tolerance
+        if method == "add_skin":
+            self._skin_at = stamp
+            if self._joints_at is not None and self._skin_in_gap is None and stamp > self._joints_at + reach:
+                self._skin_in_gap = stamp
+        elif method == "add_joint_state":
+            last = self._joints_at
+            if last is not None and stamp - last >= OUTAGE_S and self._skin_in_gap is not None \
+                    and self._skin_in_gap < stamp - reach:
+                self._resumed.append(stamp - last)
+            # the greatest, but a stream gone back by more than the detector keeps is followed (as the detector
+            # does): one state stamped far ahead must not end the watch, one a little late must not open a gap
+            if last is None or stamp > last or stamp < last - self.detector.config.joint_history:
+                self._joints_at, self._skin_in_gap = stamp, None
 
     def bad_message(self) -> bool:
         """Count a message that could not be read; True while it is still to be said (the first few)."""
@@ -212,22 +232,23 @@ class TouchRecording:
                            f" stamp:=receive")
         return out
 
-    def outage_warnings(self, now: float) -> list:
-        """What to say when the joint states stop mid-session while skin samples go on (``now``: the clock of
-        the ``arrived`` times): a touch pressed then has no arm pose and is lost, and the detector counts it
-        only once the joint states are back. Said once when the gap reaches :data:`OUTAGE_S`, and once when
-        they are back. (Not the other way round: a skin driver may send nothing while nothing is pressed.)"""
-        out = [f"{stream} again after {gap:.1f} s without: touches pressed in the gap are not recorded (counted"
-               f" in 'dropped')" for stream, gap in self._resumed]
+    def outage_warnings(self) -> list:
+        """What to say when the joint states stop mid-session while skin samples go on: a touch pressed then
+        has no arm pose and is lost, and the detector counts it only once the joint states are back. Judged on
+        the stamps the merge let through (:data:`OUTAGE_S`), so said late: once the merge stops waiting for
+        joint states (``touch.inorder.WAIT_S``) with skin samples :data:`OUTAGE_S` past the last one, and once
+        when they are back (only that, when they came back before). A recorder held up, whose backlog comes
+        topic after topic with whole stamps, says nothing; nor the other way round: a skin driver may send
+        nothing while nothing is pressed."""
+        out = [f"joint states again after {gap:.1f} s without (by their stamps): touches pressed in the gap are not"
+               f" recorded (counted in 'dropped')" for gap in self._resumed]
         self._resumed.clear()
-        stream, other = "joint states", "skin samples"
-        last, other_last = self._last.get(stream), self._last.get(other)
-        if (last is not None and other_last is not None and stream not in self._gap_open
-                and now - last >= OUTAGE_S and now - other_last < OUTAGE_S):
-            self._gap_open[stream] = last
-            out.append(f"no {stream} for {now - last:.0f} s while {other} go on: a touch pressed now has no arm"
-                       f" pose and cannot be recorded; stop touching until they are back"
-                       f" ({SILENT_STREAMS[stream]})")
+        last, skin = self._joints_at, self._skin_at
+        if last is not None and skin is not None and skin - last >= OUTAGE_S and self._gap_said != last:
+            self._gap_said = last
+            out.append(f"no joint states for {skin - last:.0f} s of skin samples, and none came in the {WAIT_S:g} s"
+                       f" the recorder waits for late ones: a touch pressed now has no arm pose and cannot be"
+                       f" recorded; stop touching until they are back ({SILENT_STREAMS['joint states']})")
         return out
 
     def silence_warnings(self, elapsed: float) -> list:

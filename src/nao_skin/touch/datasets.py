@@ -29,6 +29,9 @@ class LoadReport:
     unit: str = "touches"          # what n_read counts: touches (text formats) or messages (bags)
     unknown_slots: Counter = field(default_factory=Counter)   # per part: skipped for slots not in its layout
     notes: list = field(default_factory=list)      # what was kept but is worth a look (one line each)
+    # what the input is, said with its summary and never as a warning: a recording of the simulated robot, one
+    # still being recorded (a record session's calibrate node reads its own, open, on every update and request)
+    info: list = field(default_factory=list)
 
     @property
     def n_skipped(self) -> int:
@@ -45,6 +48,7 @@ class LoadReport:
         self.skipped.update(other.skipped)
         self.unknown_slots.update(other.unknown_slots)
         self.notes.extend(other.notes)
+        self.info.extend(other.info)
         self.messages.extend(other.messages)
 
     def summary(self) -> str:
@@ -54,8 +58,8 @@ class LoadReport:
                 + (f"; skipped: {why}" if why else ""))
 
     def lines(self, limit: int = MAX_LISTED_MESSAGES) -> list:
-        """Summary then the first ``limit`` skip messages (and how many more there are)."""
-        out = [self.summary()] + self.notes + self.messages[:limit]
+        """Summary, what the input is, the notes, then the first ``limit`` skip messages (and how many more)."""
+        out = [self.summary()] + self.info + self.notes + self.messages[:limit]
         if len(self.messages) > limit:
             out.append(f"... and {len(self.messages) - limit} more")
         return out
