@@ -100,8 +100,26 @@ def linearise(skin: SkinModel, touches: TouchSet, truth: SkinCalibration, fabric
     parts = tuple(p for p in skin.parts if p in touches.part_names)
     layout, jac, row_touch, residuals = linearised_rows(skin, touches, truth, fabric, parts, options)
     prior = prior_information(layout, parts, initial_prior_sigma(options))
+    sigma = robust_sigma(residuals)
+    _hold_undetermined_fingertips(prior, layout, jac, sigma, options)
     g, taxel_part = taxel_jacobian(skin, layout, truth)
-    return LinearisedCapture(jac, row_touch, touches.n_touches, robust_sigma(residuals), prior, g, taxel_part, parts)
+    return LinearisedCapture(jac, row_touch, touches.n_touches, sigma, prior, g, taxel_part, parts)
+
+
+KNOWN = 1e16     # prior information (1/m^2) of an unknown held at its value: known
+
+
+def _hold_undetermined_fingertips(prior: np.ndarray, layout: ParameterLayout, jac, sigma: float, options) -> None:
+    """A fingertip sphere's component the pool determines no better than the engine asks
+    (:data:`~nao_skin.calibration.stages.FINGERTIP_DETERMINED`, at the calibration's row noise) is held at the
+    config's, as the engine holds it (its radius pressed on a flat part alone): known here too, in ``prior``."""
+    from nao_skin.calibration.stages import FINGERTIP_DETERMINED, inverse_diagonal
+
+    cols = [c for first in layout.fingertip_cols.values() for c in range(first, first + 4)]
+    if not cols or jac is None:
+        return
+    std = options.residual_sigma * np.sqrt(np.maximum(inverse_diagonal((jac.T @ jac).toarray() + np.diag(prior)), 0.0))
+    prior[[c for c in cols if not std[c] <= FINGERTIP_DETERMINED]] = KNOWN
 
 
 def random_touches_for(error: float, random_errors: dict) -> float:
@@ -120,12 +138,13 @@ def random_touches_for(error: float, random_errors: dict) -> float:
 
 
 def bound_rows(skin: SkinModel, seed: int, pool_per_pair: int, sizes, batch: int, draws: int = 2,
-               options: CalibrationOptions | None = None) -> list:
-    """One seed: the simulated pool, then per size the random draws' and the greedy choice's predicted error
-    (the rows ``options.closing_pairs`` names, linearised at the truth)."""
+               options: CalibrationOptions | None = None, preset: str = "default") -> list:
+    """One seed: the simulated pool (``preset``'s scenes), then per size the random draws' and the greedy choice's
+    predicted error (the rows ``options.closing_pairs`` names and the fingertip scenes', linearised at the
+    truth)."""
     from nao_skin.bench.hard import HardCaseSetup, simulate_case
 
-    sim, touches, _ = simulate_case(skin, "default", seed, HardCaseSetup(n_touches=pool_per_pair))
+    sim, touches, _ = simulate_case(skin, preset, seed, HardCaseSetup(n_touches=pool_per_pair))
     lin = linearise(skin, touches, sim.truth, sim.params.fabric_thickness, options)
     rng = np.random.default_rng(seed)
     worst = lambda err: (max(v[0] for v in err.values()), max(v[1] for v in err.values()))  # noqa: E731

@@ -34,7 +34,8 @@ import scipy.linalg.lapack
 import scipy.sparse
 
 from nao_skin.calibration.layout import LEVELS, ParameterLayout
-from nao_skin.calibration.pairing import KIND_NAMES, chain_end_poses, robot_joints
+from nao_skin.calibration.fingertip import fingertip_pairs
+from nao_skin.calibration.pairing import KIND_FINGERTIP, KIND_NAMES, chain_end_poses, robot_joints
 from nao_skin.calibration.plan import Step
 from nao_skin.calibration.residuals import ResidualModel
 from nao_skin.calibration.rows import pair_step, select_rows
@@ -77,21 +78,23 @@ def linearised_rows(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, 
     """``(layout, J, row of each Jacobian row's touch, residuals)``: the touches paired at ``calib`` as the
     closing stage pairs them (every part of ``parts`` against every other, ``options.closing_pairs``; only the
     ``inliers`` touches' rows when given), linearised there by every frame of ``parts``, the fabric and the
-    ``kinematic`` corrections (names of the robot config's joints and links; none by default: known).
+    ``kinematic`` corrections (names of the robot config's joints and links; none by default: known), and the
+    touches' fingertip scenes on ``parts`` of the fingertips ``calib`` holds a sphere of (its four unknowns each).
     ``J`` is sparse (3 rows per paired row); ``None`` for all but the layout when nothing pairs."""
     options = options.in_place()
-    layout = ParameterLayout(skin, parts, tuple(kinematic))
+    scenes = tuple((f, p) for f, p in fingertip_pairs(touches) if p in parts and f in calib.fingertips)
+    layout = ParameterLayout(skin, parts, tuple(kinematic), tuple(dict.fromkeys(f for f, _ in scenes)))
     kinds = fitted_kinds(options, {"triangle"})
-    pairing = pair_step(touches, skin, calib, Step(parts, ()), kinds, options.plane_rows())
+    pairing = pair_step(touches, skin, calib, Step(parts, (), scenes), kinds, options.plane_rows())
     if pairing is not None:
-        pairing = select_rows(pairing, tuple(KIND_NAMES[k] for k in kinds), inliers)
+        pairing = select_rows(pairing, tuple(KIND_NAMES[k] for k in kinds) + (KIND_FINGERTIP,), inliers)
     if pairing is None or len(pairing.row_touch) == 0:
         return layout, None, None, None
     # on the robot the calibration's kinematic corrections describe (none: the config's)
     model = ResidualModel(skin, partial(chain_end_poses, touches, skin.with_kinematics(calib)), pairing,
                           touches.part_names, layout, calib, fabric=fabric,
                           kinematic_poses=(lambda c: partial(chain_end_poses, touches, skin.with_kinematics(c)))
-                          if kinematic else None)
+                          if kinematic else None, fingertip_names=touches.fingertips)
     jac = scipy.sparse.csr_matrix(model.jacobian(calib, {p: set(LEVELS) for p in parts}))
     return layout, jac, np.repeat(pairing.row_touch, 3), model.residuals(calib)
 
@@ -356,6 +359,10 @@ def predicted_error(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, 
                 known[col] = prior[col] <= UNCONSTRAINED
     if not options.estimate_fabric:
         keep[layout.fabric_col], known[layout.fabric_col] = False, True
+    for name, first in layout.fingertip_cols.items():    # a sphere's component held at the config's: known
+        held = ~np.isfinite(calib.fingertips_std.get(name, np.full(4, np.nan)))
+        keep[first:first + 4] &= ~held
+        known[first:first + 4] |= held
     jac = jac[:, np.flatnonzero(keep)]
     information = np.zeros((layout.size, layout.size))
     information[np.ix_(keep, keep)] = (jac.T @ jac).toarray() / sigma ** 2

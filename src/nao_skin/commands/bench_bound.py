@@ -38,6 +38,9 @@ def add_arguments(parser) -> None:
                         help="instead: what an efficient estimator reaches with the arm and head kinematics free"
                              " (kinematic-error preset) against the skin alone (default preset), at these touches per"
                              " pair, comma-separated (e.g. 200,1000), each split 70/30 as a calibration splits it")
+    parser.add_argument("--preset", default="default",
+                        help="the simulator preset of the pools (default: default, all four thesis pairs; e.g."
+                             " fingertip-torso for the fingertip's rows alone)")
     parser.add_argument("--rows", default=None,
                         help="the rows linearised, as the calibration option closing_pairs takes them (default: that"
                              " option's default; e.g. cop+surface for the contact model's rows beside the COP pairs)")
@@ -158,10 +161,19 @@ def run(args) -> int:
     options = CalibrationOptions.from_mapping({} if args.rows is None else {"closing_pairs": args.rows},
                                               where="--rows {value!r}")
     skin = load_skin()
+    from nao_skin.sim.params import pair_list, preset_names
+
+    if args.preset not in preset_names():
+        raise DataError(f"--preset {args.preset}: unknown preset (known: {', '.join(preset_names())})")
     if args.kinematics is not None:
+        if args.preset != "default":
+            raise DataError(f"--kinematics with --preset {args.preset}: it simulates its own presets (default and"
+                            f" kinematic-error)")
         counts = _per_pair(args.kinematics)
     else:
-        sizes = _sizes(args.sizes, 4 * args.pool)
+        from nao_skin.sim.params import load_params
+
+        sizes = _sizes(args.sizes, len(pair_list(load_params(args.preset))) * args.pool)
         if args.batch > sizes[0]:     # the greedy choice adds this many at a time: beyond a size it never stops at it
             raise DataError(f"--batch {args.batch}: expected a whole number from 1 to the smallest size, {sizes[0]}")
     check_output_dir(args.out, BOUND_BENCHMARK, force=args.force)
@@ -175,7 +187,7 @@ def run(args) -> int:
                 rows.append(kinematic_bound_row(skin, seed, n, options))
         else:
             print(f"bench-bound: seed {seed}: {args.pool} touches per pair, sizes {sizes}", flush=True)
-            rows += bound_rows(skin, seed, args.pool, sizes, args.batch, options=options)
+            rows += bound_rows(skin, seed, args.pool, sizes, args.batch, options=options, preset=args.preset)
     argv = sys.argv[2:] + ([] if "--force" in sys.argv[2:] else ["--force"])
     seconds = time.perf_counter() - t0
     body = _kinematic_table(rows, options) if args.kinematics is not None else _choice_table(rows, args, options, sizes)
