@@ -534,8 +534,12 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     out["accepted"] = True
     held = entries[-1].get("kinematics_held", [])   # the last kinematic stage decides
     kin = fit.calibration.kinematics
-    out["held"] = [{"name": n, "reason": "not determined by the touches: a direction the skin frames stand for"
-                                         " too, or one the poses do not excite (Jacobi-scaled normal equations)"}
+    gauge = skin.robot.rotation_gauge(step.chains(skin))
+    out["held"] = [{"name": n, "reason": (f"the scene's gauge: every chain's first joint turns about one line, and"
+                                          f" turning them and the skins on the base about it changes no touch"
+                                          if n == gauge else
+                                          "not determined by the touches: a direction the skin frames stand for"
+                                          " too, or one the poses do not excite (Jacobi-scaled normal equations)")}
                    for n in candidates if n in held or n not in kin]
     out["corrections"] = {n: {"value": kin[n], "std": fit.calibration.kinematics_std.get(n, float("nan")),
                               "unit": "m" if n in skin.robot.links else "rad"} for n in candidates if n in kin}

@@ -146,6 +146,12 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
             for kname, col in layout.kinematic_cols.items():
                 bound = KINEMATIC_BOUNDS[kname in skin.robot.links]
                 lower[col], upper[col] = min(-bound, x[col]), max(bound, x[col])
+            # the scene's gauge (its chains' first joints about one line, turned with the base's skin): held at
+            # the config's; the touches' residuals alone pull it anywhere (docs/decisions.md, "One robot, every
+            # scene")
+            gauge = skin.robot.rotation_gauge(step.chains(skin)) if layout.kinematic_cols else None
+            if gauge in layout.kinematic_cols:
+                free[layout.kinematic_cols[gauge]] = False
             for fname, col in layout.fingertip_cols.items():    # a sphere of a radius >= 0, near the config's
                 radius = skin.robot.fingertip(fname).radius
                 lower[col:col + 4] = np.minimum([-FINGERTIP_SHIFT] * 3 + [-radius], x[col:col + 4])

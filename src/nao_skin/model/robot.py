@@ -330,6 +330,30 @@ class RobotModel:
             raise ConfigError(f"{self.source}: unknown fingertip '{name}' (fingertips:"
                               f" {', '.join(self.fingertips) or 'none'})") from None
 
+    def rotation_gauge(self, chains) -> str | None:
+        """The joint whose offset the touches of a scene on ``chains`` cannot tell from the skin: where the first
+        joint of every chain turns about one and the same line of the base frame (both arms' ShoulderPitch about
+        the shoulders' axis), turning each of those joints and every skin on the base about that line changes no
+        contact, so one of their offsets is held (the first chain's, of ``chains`` in the config's order); None
+        where the lines differ (the head's HeadYaw is vertical) or no chain has a joint."""
+        chains = [c for c in self.chains if c in set(chains)]
+        axes = []
+        for name in chains:
+            chain = self.chains[name]
+            rows = [r for r, j in enumerate(chain.joints) if j is not None]
+            if not rows:
+                return None
+            frames = self.fk_frames(name, np.zeros((1, len(self.joint_names))))[0]
+            before = frames[rows[0] - 1] if rows[0] > 0 else np.eye(4)     # no joint before it: fixed in the base
+            axes.append((chain.joints[rows[0]], before[:3, 3], before[:3, 2]))
+        if not axes:
+            return None
+        joint, point, direction = axes[0]
+        for _, p, d in axes[1:]:
+            if abs(abs(float(d @ direction)) - 1.0) > 1e-9 or np.linalg.norm(np.cross(p - point, direction)) > 1e-9:
+                return None
+        return joint
+
     # ------------------------------------------------------------------ joints
     def chain_joint_names(self, chain: str) -> list:
         return [j for j in self.chains[chain].joints if j is not None]
