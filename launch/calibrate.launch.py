@@ -15,7 +15,7 @@ from launch.substitutions import LaunchConfiguration
 
 
 def _node(context):
-    from nao_skin.nodes.launch_actions import ending_the_launch
+    from nao_skin.nodes.launch_actions import ending_the_launch, watching_the_launch
     from nao_skin.paths import config_dir
     from nao_skin.session.record import launch_namespace, launch_words
 
@@ -28,11 +28,15 @@ def _node(context):
         overrides["calibration"] = calibration
     namespace = launch_namespace(LaunchConfiguration("namespace").perform(context))    # one line for a bad one
     return ending_the_launch(Node(package="nao_skin", executable="calibrate", name="calibrate", output="screen",
-                                  namespace=namespace, parameters=[str(config_dir() / "record.yaml"), overrides]))
+                                  namespace=namespace, parameters=[str(config_dir() / "record.yaml"), overrides],
+                                  additional_env=watching_the_launch()))
 
 
 def generate_launch_description():
+    from nao_skin.nodes.launch_actions import stopping_as_on_ctrl_c
+
     return LaunchDescription([
+        stopping_as_on_ctrl_c(),
         DeclareLaunchArgument("inputs", description="bags (or legacy .txt), separated by spaces (quote a path"
                                                     " with a space: inputs:=\"'my sitting' sitting2\")"),
         DeclareLaunchArgument("out_dir", default_value="nao_skin_calibration", description="output directory"),

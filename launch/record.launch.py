@@ -55,7 +55,7 @@ ARGUMENTS = {
 
 
 def _nodes(context):
-    from nao_skin.nodes.launch_actions import ending_the_launch, installed
+    from nao_skin.nodes.launch_actions import ending_the_launch, installed, watching_the_launch
     from nao_skin.session.claim import claim_domain
     from nao_skin.session.record import check_needs, launch_flag, launch_words, record_session, robot_description
 
@@ -85,13 +85,16 @@ def _nodes(context):
             overrides[key] = value
         parameters = [str(f) for f in spec.params_files] + ([overrides] if overrides else [])
         node = Node(package=spec.package, executable=spec.executable, name=spec.name, namespace=spec.namespace,
-                    parameters=parameters, arguments=list(spec.arguments), output="screen")
+                    parameters=parameters, arguments=list(spec.arguments), output="screen",
+                    additional_env=watching_the_launch() if spec.ours else None)
         actions += ending_the_launch(node) if spec.ours else [node]
     return actions
 
 
 def generate_launch_description():
+    from nao_skin.nodes.launch_actions import stopping_as_on_ctrl_c
+
     return LaunchDescription(
         [DeclareLaunchArgument(name, default_value=default, description=text)
          for name, (default, text) in ARGUMENTS.items()]
-        + [OpaqueFunction(function=_nodes)])
+        + [stopping_as_on_ctrl_c(), OpaqueFunction(function=_nodes)])

@@ -5,8 +5,8 @@ initialises rclpy (``--ros-args`` from the command line, so ``ros2 run``,
 ``ros2 launch`` and ``nao-skin record`` pass parameters the same way), spins
 until SIGINT, SIGTERM or SIGHUP (terminal closed), then calls the node's
 ``close()`` so that buffered data is written before the process ends. A node
-started by ``nao-skin record`` (:data:`~nao_skin.session.record.PARENT_ENV`
-set) stops the same way when record is gone, however record ended.
+started by ``nao-skin record`` or by our launch files (:data:`~nao_skin.session.record.PARENT_ENV`
+set) stops the same way when that process is gone, however it ended.
 """
 from __future__ import annotations
 
@@ -237,7 +237,8 @@ def _rcl_reason(exc: Exception) -> str:
 
 
 def _parent_gone():
-    """A check "has ``nao-skin record`` gone?" for a node it started, else None.
+    """A check "has the process that started this node gone?" for a node ``nao-skin record`` or a launch file of
+    ours started (:data:`~nao_skin.session.record.PARENT_ENV`), else None.
 
     Reparenting (our parent died) or the named pid vanishing both mean gone:
     the fallback where the kernel's parent-death signal is not available.
@@ -332,7 +333,8 @@ def run_node(factory, args=None, interruptible_start: bool = False) -> int:
             while not stop.is_set() and rclpy.ok():
                 _spin_once(executor, node, failures)
                 if parent_gone is not None and parent_gone():
-                    node.get_logger().warning(f"nao-skin record (pid {os.environ[PARENT_ENV]}) is gone; stopping")
+                    node.get_logger().warning(f"the process that started this node (pid {os.environ[PARENT_ENV]}:"
+                                              f" nao-skin record or ros2 launch) is gone; stopping")
                     break
         except ExternalShutdownException:
             pass

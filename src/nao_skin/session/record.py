@@ -35,7 +35,8 @@ from nao_skin.session.params import CHECKS, NODE_PARAMS, PER_PART_NODES, per_par
 ROBOTS = ("sim", "nao")
 CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 SKIN_NODES = ("sim_robot", "yarp_skin_bridge", "pairing_recorder", "skin_heatmap", "calibrate")   # read the skin
-PARENT_ENV = "NAO_SKIN_PARENT_PID"     # set by `nao-skin record` for its nodes: they stop when it is gone
+# set by `nao-skin record` and our launch files for their nodes: they stop when that process is gone
+PARENT_ENV = "NAO_SKIN_PARENT_PID"
 # what stops record, bench-live and a node as Ctrl-C does: a closed terminal (SIGHUP), a kill or timeout (SIGTERM)
 YARP_HINT = ("yarp_skin_bridge needs YARP's Python bindings (pip package yarp-middleware, built from source): in"
              " the venv `make setup-test` or `docker/setup_venv.sh --with-yarp`, in a ROS workspace"
