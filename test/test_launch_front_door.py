@@ -2,6 +2,7 @@
 
 * a launch killed (SIGTERM, SIGKILL, SIGHUP) ends its nodes as Ctrl-C does: the bag closed with every touch,
   the session's last calibration written, the ROS domain free again;
+* a calibration that fails ends calibrate.launch.py with exit code 1 after the node's one line;
 """
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import signal
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from real_launch import require_launch
@@ -23,10 +25,11 @@ from std_msgs.msg import String  # noqa: E402
 from test_colcon import workspace  # noqa: E402,F401 - the workspace fixture
 from test_launch import WAIT_S, output, ros2_launch  # noqa: E402
 
-from nao_skin.formats.bag import read_touches  # noqa: E402
+from nao_skin.formats.bag import BagWriter, read_touches, write_touch_bag  # noqa: E402
 from nao_skin.formats.salvage import LOCK_FILE  # noqa: E402
 from nao_skin.model.skin import load_skin  # noqa: E402
 from nao_skin.nodes.topics import LATCHED, PROGRESS_TOPIC, STATUS_TOPIC  # noqa: E402
+from nao_skin.sim.simulate import simulate  # noqa: E402
 
 pytestmark = [pytest.mark.middleware, pytest.mark.slow]
 STARTED = re.compile(r"\[INFO\] \[(\w+)-\d+\]: process started with pid \[(\d+)\]")
@@ -118,3 +121,41 @@ def test_a_launch_killed_ends_its_nodes_as_ctrl_c_does(workspace, tmp_path, sig)
     if sig != signal.SIGKILL:       # the launch itself stopped them, as at Ctrl-C
         assert launch.popen.returncode == 0, output(launch)[-3000:]
         assert "Traceback" not in output(launch), output(launch)[-3000:]
+
+
+def failing_input(case: str, where: Path) -> tuple:
+    """``(path, what the node's line says)`` of an input whose calibration fails once read."""
+    path = where / case.replace(" ", "_")
+    if case == "not a recording":
+        path.write_text("vm-1\n")
+        return path, f"{path}: neither a rosbag2 recording"
+    if case == "no touch":
+        with BagWriter(path, "mcap", kind="touches"):     # a session that recorded nothing
+            pass
+        return path, f"{path}: no usable touch in the input"
+    skin = load_skin()
+    touches = simulate(skin, {"n_touches": 40, "pairs": [["l_hand", "torso"]]}, seed=5).touches
+    write_touch_bag(path, touches.subset(np.arange(3)), skin)
+    return path, "a mount needs at least 10"
+
+
+@pytest.mark.parametrize("case", ["not a recording", "no touch", "too few touches"])
+def test_a_calibration_that_fails_ends_the_calibrate_launch_with_exit_1(workspace, tmp_path, case):  # noqa: F811
+    """The input exists, so the node starts; its calibration then fails. It logged one [ERROR], published nominal
+    frames on and on, and Ctrl-C exited 0: now the node's one line, exit 2, and the launch ends with exit 1, as
+    its docstring and the README say."""
+    ws, _, _ = workspace
+    bad, says = failing_input(case, tmp_path)
+    out = tmp_path / "out"
+    launch = ros2_launch(ws, tmp_path, unique_domain_id(), "calibrate.launch.py", "calibrate_launch",
+                         inputs=str(bad), out_dir=str(out))
+    try:
+        code = launch.popen.wait(timeout=WAIT_S)
+    finally:
+        launch.stop(signal.SIGKILL)
+    err = output(launch)
+    said = [line for line in err.splitlines() if line.startswith("[calibrate-1]") and re.search("error", line, re.I)]
+    assert code == 1, err[-3000:]
+    assert len(said) == 1 and said[0].startswith("[calibrate-1] error: ") and says in said[0], said
+    assert "calibrate-1 ended with exit code 2; the launch ends" in err and "Traceback" not in err, err[-3000:]
+    assert not out.exists()

@@ -221,20 +221,24 @@ def request_out_dir(out_dir: str | Path, own: tuple | None) -> tuple:
                         f" another command's) and is left as it is; this one goes to {beside}")
 
 
-def session_end_out_dir(out_dir: str | Path, at_start, requested, requested_by: str) -> tuple:
-    """``(directory, warning or None)``: where the session's last live calibration is written when it ends.
+def session_end_out_dir(out_dir: str | Path, at_start, requested) -> tuple:
+    """``(directory, replacing, warning or None)``: where the session's last live calibration is written when it
+    ends, and what it may replace there (``replacing`` of :func:`~nao_skin.formats.outdir.replace_dir`).
 
-    ``out_dir`` when it is free. Else it holds a calibration that stays: the one requested of the node during
-    the session (``requested``: its :func:`output_stamp`, requested on ``requested_by``), an earlier one it held
-    when the session started (``at_start``: its stamp then), or another command's (e.g. a
-    calibrate --out of the bag so far); the live calibration goes beside it, and the warning says why.
+    ``out_dir`` when it is free, or when it holds the calibration requested of the node during the session
+    (``requested``: its :func:`output_stamp`), which it replaces: both are the node's, and the session's last is
+    the one to apply (its user finds it where the README says, ``<bag>_calibration/``). Else it holds a
+    calibration that stays: an earlier one it held when the session started (``at_start``: its stamp then), or
+    another command's (e.g. a calibrate --out of the bag so far); the live calibration goes beside it, and the
+    warning says why.
     """
     if is_free(os.path.realpath(out_dir)):
-        return out_dir, None
+        return out_dir, (), None
     now = output_stamp(out_dir)
+    if requested is not None and now == requested:
+        return out_dir, requested, None
     beside = free_sibling(out_dir, ".live")
-    what = (f"was written by the calibration requested on {requested_by} during the session" if now == requested
-            else "held an earlier calibration when the session started" if now == at_start
+    what = ("held an earlier calibration when the session started" if now == at_start
             else "was written by another command during the session")
-    return beside, (f"out_dir {out_dir} {what} and is left as it is; the session's last live calibration goes to"
-                    f" {beside}")
+    return beside, (), (f"out_dir {out_dir} {what} and is left as it is; the session's last live calibration goes to"
+                        f" {beside}")
