@@ -478,7 +478,8 @@ def test_a_session_end_that_cannot_write_its_calibration_says_the_bag_holds_ever
     (line,) = [x for x in err if x.startswith("error:")]
     assert line.startswith(f"error: out_dir {folder / 'cal'}: Not a directory"), line
     assert (f"the session's touches are in the recording {bag} (the recorder's last line says how many), and"
-            f" nao-skin calibrate {bag} --out DIR calibrates them again") in line, line
+            f" nao-skin calibrate {bag} --out DIR (or ros2 launch nao_skin calibrate.launch.py inputs:={bag}"
+            f" out_dir:=DIR) calibrates them again") in line, line
     assert status[-1]["state"] == "ended" and status[-1]["calibration"] is None, status[-1]
 
 

@@ -110,7 +110,9 @@ def test_descriptors_say_the_rule_and_only_changeable_parameters_are_applied():
 
         (refused,) = node.set_parameters([Parameter("gate_mm", value=5.0)])
         assert not refused.successful and refused.reason.startswith(
-            "'gate_mm' is read when the node starts: restart the node with -p gate_mm:=VALUE"), refused.reason
+            "'gate_mm' is read when the node starts: restart the node with it (ros2 run: -p gate_mm:=VALUE;"
+            " ros2 launch: params_file:=FILE holding calibrate: {ros__parameters: {gate_mm: VALUE}}; nao-skin record:"
+            " --param calibrate.gate_mm=VALUE)"), refused.reason
         (out,) = node.set_parameters([Parameter("live_every_touches", value=0)])
         assert not out.successful and out.reason == "parameter live_every_touches:=0: expected a whole number >= 1"
         assert applied == []

@@ -131,6 +131,7 @@ class CalibrateNode(Node):
             if self.live.read_earlier(log=self.get_logger().info, summary=self.get_logger().warning):
                 self.schedule.again()     # their calibration on /tf_static at once, before the first new touch
             self._recorded = 0            # touches the recorder reported so far
+            self._repeats_said = False    # the recording repeats the earlier sittings' touches: said once
             self._retried = False         # an update found no new touch in the bag and tries once more
             self._malformed = 0           # progress messages skipped
             self.create_subscription(String, PROGRESS_TOPIC, self._on_progress, 10)
@@ -244,6 +245,13 @@ class CalibrateNode(Node):
             out = self.live.update(log=log.debug, stop=self._stopping.is_set)
             if out.status.get("state") == "stopped":     # the session ends: the final update covers its touches
                 return
+            # (also when they add nothing to calibrate: all of them repeats, the update is skipped)
+            if self.live.repeated and not self._repeats_said:      # said while the operator can still act
+                self._repeats_said = True
+                log.warning(f"{self.live.repeated} of the {self.live.recorded} touches recorded so far repeat touches"
+                            f" of the earlier sittings' bags exactly and are left out: a simulated robot playing an"
+                            f" earlier sitting's seed again? (record.launch.py seed:=N, nao-skin record --seed N:"
+                            f" one no sitting played)")
             if not out.status:      # the bag has no touch since the last update yet (not flushed)
                 if not self._retried:       # once at the next tick; then the schedule as usual (a touch the
                     self._retried = True    # reading drops as a duplicate would keep the recorder's count ahead)
@@ -543,8 +551,8 @@ class CalibrateNode(Node):
             # the node's one line and exit 2; the touches are in the recording
             recording = self.p["recording"]
             error = (f"{exc}; the session's live calibration is not written: the session's touches are in the"
-                     f" recording {recording} (the recorder's last line says how many), and nao-skin calibrate"
-                     f" {recording} --out DIR calibrates them again")
+                     f" recording {recording} (the recorder's last line says how many), and"
+                     f" {calibrate_again([*self._earlier(), recording])} calibrates them again")
             self._ended = True
             self._final_status({"state": "ended", "generation": self.generation, "calibration": None,
                                 "error": error})
@@ -569,12 +577,12 @@ class CalibrateNode(Node):
         if not out.status:          # no touch since the last accepted update
             return closed
         if out.status["state"] == "stopped":
-            recording = " ".join([*self._earlier(), self.p["recording"]])
+            recording = [*self._earlier(), self.p["recording"]]
             had = (f"the last accepted update's, over {self.live.last_count} touches, is written" if self.live.last
                    is not None else "none is written")
             log.warning(f"the final live update over {out.status['touches']} touches was stopped after"
                         f" {out.status['seconds']:.1f} s ({FINAL_BUDGET_S:g} s of computing: the session's end waits"
-                        f" no longer); {had}; nao-skin calibrate {recording} --out DIR calibrates every touch")
+                        f" no longer); {had}; {calibrate_again(recording)} calibrates every touch")
             self._status({**out.status, "live": True, "generation": self.generation})
             return False
         if out.accepted is not None:
@@ -589,6 +597,15 @@ class CalibrateNode(Node):
         if out.accepted is not None:      # the guidance under the frames published last, as after every update
             self._try_guidance(out.status)
         return closed and out.accepted is not None
+
+
+def calibrate_again(paths: list) -> str:
+    """How a user calibrates ``paths`` again, whichever way they work (a node cannot know)."""
+    import shlex
+
+    words = shlex.join(str(p) for p in paths)
+    return (f"nao-skin calibrate {words} --out DIR (or ros2 launch nao_skin calibrate.launch.py"
+            f" inputs:={shlex.quote(words)} out_dir:=DIR)")
 
 
 def request_paths(text: str) -> list:

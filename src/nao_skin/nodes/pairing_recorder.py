@@ -55,7 +55,8 @@ class PairingRecorder(Node):
         config = EventConfig(skin_tolerance=p["skin_tolerance"], joint_tolerance=p["joint_tolerance"],
                              min_interval=p["min_interval"], release_gap=p["release_gap"])
         self.recording = TouchRecording(self.skin, config, p["bag_path"] or default_bag_name(), p["storage"],
-                                        p["recorded_from"], [path for path in p["continues"] if path])
+                                        p["recorded_from"], [path for path in p["continues"] if path],
+                                        p["sim_seed"] if p["sim_seed"] >= 0 else None)
         self.get_logger().info(f"recording touches to {self.recording.bag_path}")
         self._crowded_said: set = set()
         self._started = time.monotonic()

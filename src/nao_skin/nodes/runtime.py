@@ -28,7 +28,7 @@ from rclpy.parameter import Parameter
 
 from nao_skin.errors import STOP_SIGNALS, ConfigError, DataError, NaoSkinError, ignore_stop_signals
 from nao_skin.rules import did_you_mean
-from nao_skin.session.params import rule_range
+from nao_skin.session.params import at_start_said, rule_range
 from nao_skin.session.record import PARENT_ENV
 
 MAX_LOGGED_FAILURES = 5   # callback errors of one kind logged one by one (then every 100th)
@@ -110,7 +110,7 @@ def _describe(node, name: str, default, text: str, rule, read_only: bool) -> Non
                                      type=Parameter.Type.from_parameter_value(default).value)
     said = [rule.describe()] if rule is not None else []
     if read_only:
-        said.append(f"read when the node starts: -p {name}:=VALUE")
+        said.append(f"read when the node starts ({at_start_said(node.get_name(), name)})")
     descriptor.additional_constraints = "; ".join(said)
     bounds = rule_range(default, rule)
     if bounds is not None and isinstance(default, int):
@@ -200,7 +200,7 @@ def _checked(changed, numeric: dict, rules: dict, declared: set, changeable: set
         if p.name not in changeable:
             return SetParametersResult(successful=False,
                                        reason=f"'{p.name}' is read when the node starts: restart the node with"
-                                              f" -p {p.name}:=VALUE (nao-skin record: --param {node_name}.{p.name}=VALUE)")
+                                              f" it ({at_start_said(node_name, p.name)})")
     return SetParametersResult(successful=True)
 
 

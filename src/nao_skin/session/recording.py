@@ -49,7 +49,7 @@ class TouchRecording:
     """The touches of one session into the touch bag ``bag_path`` (a new directory, opened here)."""
 
     def __init__(self, skin: SkinModel, config: EventConfig, bag_path: str | Path, storage: str,
-                 recorded_from: str = "", continues=()):
+                 recorded_from: str = "", continues=(), sim_seed: int | None = None):
         self.skin = skin
         self.detector = EventDetector.for_skin(skin, config)
         self.in_order = InOrder()    # the streams to the detector in the order of their stamps
@@ -58,7 +58,7 @@ class TouchRecording:
         self.bag_path = Path(bag_path).expanduser().resolve()
         self.recorded_from = recorded_from
         self.bag = BagWriter(self.bag_path, storage, kind="touches", live=True, source=recorded_from,
-                             continues=continues)
+                             continues=continues, sim_seed=sim_seed)
         self.bag.__enter__()
         self.n_touches = 0
         self.pairs: Counter = Counter()
