@@ -217,14 +217,17 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     # a node given a skin of its own (--param NODE.taxels=..., or in the user's parameters file): the session's
     # (--taxels) is checked with the files
     own_skin = {node for node, values in (overrides or {}).items() if {"skin_config", "taxels"} & set(values)}
+    own_skin |= {spec.name for spec in specs if {"skin_config", "taxels"} & set(_file_given(spec, user_file))}
+
+    def set_by_session(node: str, name: str) -> str | None:
+        return _set_by_session(node, name, spelling) if (node, name) in SESSION_SET else None
+
     for spec in specs:
         _check_printable(spec)
         if spec.ours:
             _check_file_values(spec)
-            _check_user_file(spec, user_file, lambda node, name: SESSION_SET.get((node, name)) and
-                             _set_by_session(node, name, spelling))
-            _check_together(spec, spec.name in own_skin or {"skin_config", "taxels"} & set(_file_given(spec, user_file)),
-                            spelling)
+            _check_user_file(spec, user_file, set_by_session)
+            _check_together(spec, spec.name in own_skin, spelling)
     _check_guided(by_name)
     if robot == "sim":
         _play_a_new_seed(by_name, earlier, seed, user_file, spelling, say)
@@ -270,10 +273,6 @@ def calibrate_on_inputs(inputs, out_dir: str, calibration: str = "", taxels=(), 
     except NaoSkinError as exc:
         raise ConfigError(str(exc)) from None
     _check_together(spec, True, spelling)
-    if values.get("calibration"):
-        from nao_skin.model.skin import SkinCalibration
-
-        SkinCalibration.load(values["calibration"], skin_from_params(values))
     return spec
 
 
