@@ -13,7 +13,14 @@ Starts (the same set as ``nao-skin record``, from nao_skin.session.record):
 * continue_from:="BAG ...": the session continues earlier sittings' bags (the
   calibrate node and the heat-map count their touches too);
 * namespace:=/nao2: every node in that namespace, TF frames prefixed with it
-  (a second robot on the same ROS domain).
+  (a second robot on the same ROS domain);
+* seed:=N (robot:=sim): the simulated robot's seed; continuing earlier sittings it
+  plays one none of them played unless given one (the same seed plays the same touches);
+* params_file:=FILE: a ROS 2 parameters file for the nodes, after config/record.yaml
+  and config/bridges.yaml (checked before any node starts, as they are).
+
+A launch ended by SIGTERM or SIGHUP stops its nodes as Ctrl-C does, and the nodes stop by
+themselves when the launch is gone (a SIGKILL): the bag is closed, the calibration written.
 
 A nao_skin node that ends ends the session (exit code 1 when it failed, after its own line saying why);
 robot_state_publisher and rviz2 are left out, with a line, where they are not installed (as
@@ -22,10 +29,10 @@ robot_state_publisher and rviz2 are left out, with a line, where they are not in
 Skin frames have exactly one publisher: the calibrate node publishes the
 current calibration (``calibration:=FILE``, nominal by default) on
 /tf_static and replaces it after each calibration
-(``ros2 topic pub --once /nao_skin/calibrate std_msgs/String "{data: ''}"``
-calibrates on this session's bag). robot_state_publisher gets
+(``ros2 service call /calibrate/calibrate std_srvs/srv/Trigger`` calibrates on this
+session's bag and answers with the result). robot_state_publisher gets
 ``skin_frames:=false``, so the two never disagree about a frame.
-Parameters: config/record.yaml and config/bridges.yaml.
+Parameters: config/record.yaml and config/bridges.yaml, then params_file:=.
 """
 import sys
 
@@ -51,11 +58,15 @@ ARGUMENTS = {
     "guided": ("false", "robot:=sim: the simulated robot's next touches follow /nao_skin/guidance"),
     "namespace": ("", "every node in this ROS namespace (e.g. /nao2): topics under it, TF frames prefixed with it, so"
                       " a second robot records on the same ROS domain"),
+    "seed": ("", "robot:=sim: the simulated robot's seed, the same seed plays the same touches (default:"
+                 " config/record.yaml's; continuing earlier sittings, one none of them played)"),
+    "params_file": ("", "a ROS 2 parameters file for the nodes, applied after config/record.yaml and"
+                        " config/bridges.yaml (e.g. calibrate: {ros__parameters: {gate_mm: 20.0}})"),
 }
 
 
 def _nodes(context):
-    from nao_skin.nodes.launch_actions import ending_the_launch, installed
+    from nao_skin.nodes.launch_actions import ending_the_launch, installed, watching_the_launch
     from nao_skin.session.claim import claim_domain
     from nao_skin.session.record import check_needs, launch_flag, launch_words, record_session, robot_description
 
@@ -65,11 +76,12 @@ def _nodes(context):
                            events_port=arg["events_port"], bag_path=arg["bag"], calibration=arg["calibration"],
                            rviz=flag["rviz"], taxels=launch_words("taxels", arg["taxels"]),
                            guided=flag["guided"], continue_from=launch_words("continue_from", arg["continue_from"]),
-                           namespace=arg["namespace"])
+                           namespace=arg["namespace"], params_file=arg["params_file"], seed=arg["seed"],
+                           say=lambda line: print(f"record.launch.py: {line}", file=sys.stderr))
     check_needs(specs)    # e.g. robot:=nao without YARP's Python bindings: one line before any node starts
     # one session per ROS domain and namespace on this machine (two would record each other's touches): held as long as the
     # launch context (the launch process) lives
-    claim = claim_domain(namespace=specs[0].namespace)
+    claim = claim_domain(namespace=specs[0].namespace, spelling="launch")
     if claim.problem:
         print(f"record.launch.py: {claim.problem}", file=sys.stderr)
     context.extend_globals({"nao_skin_domain_claim": claim})
@@ -85,13 +97,16 @@ def _nodes(context):
             overrides[key] = value
         parameters = [str(f) for f in spec.params_files] + ([overrides] if overrides else [])
         node = Node(package=spec.package, executable=spec.executable, name=spec.name, namespace=spec.namespace,
-                    parameters=parameters, arguments=list(spec.arguments), output="screen")
+                    parameters=parameters, arguments=list(spec.arguments), output="screen",
+                    additional_env=watching_the_launch() if spec.ours else None)
         actions += ending_the_launch(node) if spec.ours else [node]
     return actions
 
 
 def generate_launch_description():
+    from nao_skin.nodes.launch_actions import stopping_as_on_ctrl_c
+
     return LaunchDescription(
         [DeclareLaunchArgument(name, default_value=default, description=text)
          for name, (default, text) in ARGUMENTS.items()]
-        + [OpaqueFunction(function=_nodes)])
+        + [stopping_as_on_ctrl_c(), OpaqueFunction(function=_nodes)])

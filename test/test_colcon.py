@@ -161,7 +161,7 @@ def test_the_installed_calibrate_node_calibrates_the_installed_recording(workspa
                 if ((out / "calibration.yaml").is_file() and (out / "report.json").is_file()
                         and "calibrated from 1 input(s)" in err):
                     break
-                # a failed calibration leaves the node running (status "failed"): stop at its error line
+                # a failed calibration ends the node (exit 2): stop at its error line
                 assert "[ERROR]" not in err and proc.poll() is None, (proc.poll(), err[-3000:])
                 time.sleep(0.2)
             else:

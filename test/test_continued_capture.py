@@ -169,7 +169,8 @@ def test_calibrating_a_continuing_bag_without_the_bags_it_continues_says_so(skin
             bag.write_touch(*args)
     said: list = []
     alone = load_inputs([str(second)], skin, summary=said.append)
-    line = f"{second}: continues the capture of {first} (nao-skin record --continue-from), not among the inputs"
+    line = (f"{second}: continues the capture of {first} (record.launch.py continue_from:=, nao-skin record"
+            f" --continue-from), not among the inputs")
     assert alone.touches.n_touches == 30 and [s for s in said if s.startswith(line)], said
     said.clear()
     both = load_inputs([str(first / ""), str(second)], skin, summary=said.append)    # named another way: the same

@@ -41,7 +41,7 @@ def test_record_launch_refuses_a_bad_argument_in_one_line(argument, value):
 @pytest.mark.parametrize("argument,value", [("namespace", "é"), ("namespace", "a//b"), ("inputs", "'a.bag")])
 def test_calibrate_launch_refuses_a_bad_argument_in_one_line(argument, value):
     module = launch_file("calibrate.launch.py")
-    defaults = {"inputs": "a.bag", "out_dir": "out", "calibration": "", "namespace": ""}
+    defaults = {name: "a.bag" if default is None else default for name, (default, _) in module.ARGUMENTS.items()}
     with pytest.raises(ConfigError) as refused:
         module._node(context_with(defaults, **{argument: value}))
     assert f"{argument}:={value}" in str(refused.value) and "\n" not in str(refused.value)
@@ -63,3 +63,78 @@ def test_a_namespace_too_long_for_the_names_under_it_is_refused_before_any_node_
         validate_full_topic_name(f"{longest}/{node}/set_parameters_atomically", is_service=True)
     with pytest.raises(ConfigError, match=r"^--namespace /n+: \d+ characters"):
         record_session("sim", namespace=longest + "n", spelling="command")
+
+
+def _defaults(module) -> dict:
+    return {name: "a.bag" if default is None else default for name, (default, _) in module.ARGUMENTS.items()}
+
+
+@pytest.mark.parametrize("text, says", [
+    # a parameter of ours the section naming the node gives, which the node does not have
+    ("calibrate:\n  ros__parameters:\n    gate_m: 20\n",
+     "{file}: calibrate.gate_m (section calibrate): node 'calibrate' has no parameter 'gate_m' (did you mean"
+     " 'gate_mm'?)"),
+    ("/**/sim_robot:\n  ros__parameters:\n    touch_period: fast\n",
+     "{file}: sim_robot.touch_period=fast: expected a number like 1.0"),
+    ("pairing_recorder:\n  ros__parameters:\n    bag_path: /tmp/x\n",
+     "{file}: pairing_recorder.bag_path: the session's bag is set once, for the recorder and the calibrate node"
+     " together: give bag:=DIR instead"),
+    ("calibrate: [1, 2]\n", "{file}: 'calibrate' is a value where a node name maps to its ros__parameters"),
+])
+def test_record_launch_checks_its_parameters_file_before_any_node_starts(tmp_path, text, says):
+    """params_file:= of record.launch.py, checked as the package's own files are (and, where a section names one
+    of our nodes, a parameter it does not have): one line naming the argument."""
+    module = launch_file("record.launch.py")
+    path = tmp_path / "mine.yaml"
+    path.write_text(text)
+    context = context_with(_defaults(module), bag=str(tmp_path / "b"), params_file=str(path))
+    with pytest.raises(ConfigError) as refused:
+        module._nodes(context)
+    said = str(refused.value)
+    assert said.startswith(says.format(file=f"params_file:={path}").split(" (did")[0]) and "\n" not in said, said
+    if "did you mean" in says:
+        assert "did you mean 'gate_mm'?" in said
+
+
+def test_a_parameters_file_rcl_takes_is_never_refused_for_what_it_gives_other_nodes(tmp_path):
+    """A /** section gives every node the same set (use_sim_time, a parameter of one node only), and a section
+    of another namespace (a second robot's session) is not this session's: rcl takes both without a word; so
+    does a file that gives no parameter. (What the launch file calls, without claiming the ROS domain.)"""
+    path = tmp_path / "shared.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    use_sim_time: false\n    gate_mm: 20\n"
+                    "/nao2/calibrate:\n  ros__parameters:\n    no_such_parameter: 1\n"
+                    "calibrate:\n  ros__parameters:\n    use_sim_time: false\n")
+    specs = record_session("sim", bag_path=str(tmp_path / "b"), params_file=str(path))
+    assert all(path in spec.params_files for spec in specs)
+    (tmp_path / "empty.yaml").write_text("")
+    assert record_session("sim", bag_path=str(tmp_path / "b"), params_file=str(tmp_path / "empty.yaml"))
+
+
+@pytest.mark.parametrize("arguments, says", [
+    ({"robot": "nao", "seed": "3"}, "seed:=3: only the simulated robot (robot:=sim) plays a seed"),
+    ({"seed": "-1"}, "seed:=-1: expected a whole number >= 0"),
+    ({"seed": "two"}, "seed:=two: expected an integer like 1"),
+])
+def test_record_launch_refuses_a_seed_it_cannot_play(tmp_path, arguments, says):
+    module = launch_file("record.launch.py")
+    with pytest.raises(ConfigError) as refused:
+        module._nodes(context_with(_defaults(module), bag=str(tmp_path / "b"), **arguments))
+    assert str(refused.value).startswith(says) and "\n" not in str(refused.value), str(refused.value)
+
+
+@pytest.mark.parametrize("argument, value, says", [
+    ("taxels", "foot={layout}", "taxels:= foot={layout}: unknown skin part 'foot'"),
+    ("taxels", "l_hand={missing}", "taxels:= 'l_hand={missing}': {missing}: no such file"),
+    ("params_file", "{missing}", "params_file:={missing}: cannot read ROS parameters file"),
+    ("params_file", "{mine}", "params_file:={mine}: calibrate.out_dir: calibrate.launch.py sets it from out_dir:="),
+])
+def test_calibrate_launch_checks_its_taxels_and_parameters_file_in_one_line(tmp_path, argument, value, says):
+    from nao_skin.paths import config_dir
+
+    module = launch_file("calibrate.launch.py")
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("calibrate:\n  ros__parameters:\n    out_dir: elsewhere\n")
+    names = {"layout": config_dir() / "layouts" / "l_hand.txt", "missing": tmp_path / "none", "mine": mine}
+    with pytest.raises(ConfigError) as refused:
+        module._node(context_with(_defaults(module), **{argument: value.format(**names)}))
+    assert str(refused.value).startswith(says.format(**names)) and "\n" not in str(refused.value), str(refused.value)

@@ -385,6 +385,63 @@ def test_an_out_dir_another_command_writes_during_the_session_is_left_and_the_se
             f" last live calibration goes to {session}") in node.stderr()
 
 
+def test_the_session_end_replaces_the_calibration_requested_during_the_session(tmp_path):
+    """The Quick start's `ros2 service call /calibrate/calibrate std_srvs/srv/Trigger` in a session, then
+    Ctrl-C: the session's final calibration went to <bag>_calibration.live, beside the requested one, where the
+    README says <bag>_calibration/. Both are the node's: the last replaces the requested one there."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from std_srvs.srv import Trigger
+
+    from nao_skin.formats.outdir import MARKER
+    from nao_skin.nodes.topics import DIAGNOSTICS_TOPIC
+
+    skin = load_skin()
+    touches = simulate(skin, {"pairs": [["r_hand", "torso"]], "n_touches": 40}, seed=6).touches
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, touches, skin)
+    out = tmp_path / "touches_calibration"
+    domain = unique_domain_id()
+    listener = node = None
+    code = None
+    try:
+        listener = Listener(domain)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        progress = listener.node.create_publisher(String, PROGRESS_TOPIC, 10)
+        trigger = listener.node.create_client(Trigger, "/calibrate/calibrate")
+        diagnostics = listener.subscribe(DiagnosticArray, DIAGNOSTICS_TOPIC)
+        # one live update (the first comes at once), then none: the request finds the node idle
+        node = node_process("calibrate", {"live": True, "recording": str(bag), "live_every_touches": 1000,
+                                          "live_period": 86400.0, "out_dir": str(out)}, ros_env(domain), tmp_path)
+        assert listener.spin_until(lambda: progress.get_subscription_count() >= 1 and trigger.service_is_ready()
+                                   and status, procs=[node])
+        progress.publish(String(data=json.dumps({"touches": touches.n_touches})))
+        assert listener.spin_until(lambda: any(s["state"] == "updated" for s in status), timeout=90, procs=[node])
+
+        def idle():
+            said = [{kv.key: kv.value for kv in s.values} for a in diagnostics for s in a.status
+                    if s.name == "nao_skin: calibrate"]
+            return said and said[-1].get("running") == "no" and said[-1].get("state") == "updated"
+
+        assert listener.spin_until(idle, timeout=60, procs=[node])
+        called = trigger.call_async(Trigger.Request())
+        assert listener.spin_until(called.done, timeout=120, procs=[node])
+        assert called.result().success and called.result().message.endswith(f"-> {out}"), called.result().message
+        assert json.loads((out / MARKER).read_text())["command"] == "nao-skin calibrate (node)"
+        code = node.stop(signal.SIGINT, timeout=60)
+        listener.spin_until(lambda: status[-1]["state"] == "ended", timeout=10)
+    finally:
+        if listener is not None:
+            listener.close()
+        if node is not None and code is None:
+            node.stop()
+    assert code == 0, node.stderr()[-3000:]
+    assert json.loads((out / MARKER).read_text())["command"] == "nao-skin calibrate (node, live)"
+    assert not (tmp_path / "touches_calibration.live").exists(), sorted(p.name for p in tmp_path.iterdir())
+    assert any("the last live calibration (all " in line and line.endswith(f" -> {out}")
+               for line in node.stderr().splitlines()), node.stderr()[-3000:]
+    SkinCalibration.load(out / "calibration.yaml", skin)
+
+
 def test_a_session_end_that_cannot_write_its_calibration_says_the_bag_holds_every_touch(tmp_path):
     """out_dir's folder replaced by a file during the session: the end is one line, exit 2, naming what failed
     and how to calibrate the recording's touches again (the session was over: "choose another place" alone
@@ -421,7 +478,8 @@ def test_a_session_end_that_cannot_write_its_calibration_says_the_bag_holds_ever
     (line,) = [x for x in err if x.startswith("error:")]
     assert line.startswith(f"error: out_dir {folder / 'cal'}: Not a directory"), line
     assert (f"the session's touches are in the recording {bag} (the recorder's last line says how many), and"
-            f" nao-skin calibrate {bag} --out DIR calibrates them again") in line, line
+            f" nao-skin calibrate {bag} --out DIR (or ros2 launch nao_skin calibrate.launch.py inputs:={bag}"
+            f" out_dir:=DIR) calibrates them again") in line, line
     assert status[-1]["state"] == "ended" and status[-1]["calibration"] is None, status[-1]
 
 

@@ -341,22 +341,22 @@ def test_a_live_session_updates_waits_and_fails_without_raising(skin, session, t
 
 
 def test_the_session_end_writes_beside_an_out_dir_written_during_the_session(tmp_path):
-    """The last live calibration goes to out_dir unless something wrote there meanwhile: then it goes beside it,
-    and the warning names who wrote it (the node's own requested calibration, or another command)."""
+    """The last live calibration goes to out_dir unless another command wrote there meanwhile: then it goes
+    beside it, and the warning says so; the calibration requested of the node during the session is the node's
+    own, and the session's last replaces it there (it went to <out_dir>.live, where the README did not say)."""
     from nao_skin.formats.outdir import output_stamp
     from nao_skin.session.live import session_end_out_dir
 
     out = tmp_path / "bag_calibration"
-    assert session_end_out_dir(out, output_stamp(out), None, "/nao_skin/calibrate") == (out, None)   # still absent
+    assert session_end_out_dir(out, output_stamp(out), None) == (out, (), None)   # still absent
     at_start = output_stamp(out)
     out.mkdir()
     (out / "calibration.yaml").write_text("parts: {}\n")
-    beside, said = session_end_out_dir(out, at_start, None, "/nao_skin/calibrate")
-    assert beside == f"{out}.live" and not Path(beside).exists()
+    beside, replacing, said = session_end_out_dir(out, at_start, None)
+    assert beside == f"{out}.live" and not Path(beside).exists() and replacing == ()
     assert said == (f"out_dir {out} was written by another command during the session and is left as it is; the"
                     f" session's last live calibration goes to {beside}")
-    _, said = session_end_out_dir(out, at_start, output_stamp(out), "/nao_skin/calibrate")
-    assert said.startswith(f"out_dir {out} was written by the calibration requested on /nao_skin/calibrate")
+    assert session_end_out_dir(out, at_start, output_stamp(out)) == (out, output_stamp(out), None)
 
 
 def test_the_node_never_replaces_a_calibration_it_did_not_write(tmp_path):
@@ -376,7 +376,7 @@ def test_the_node_never_replaces_a_calibration_it_did_not_write(tmp_path):
     Path(target).mkdir()
     own = (target, output_stamp(target))
     assert request_out_dir(out, own) == (target, own[1], None)    # its own output: replaced by the next request
-    beside, said = session_end_out_dir(out, at_start, output_stamp(target), "/nao_skin/calibrate")
+    beside, _, said = session_end_out_dir(out, at_start, output_stamp(target))
     assert beside == f"{out}.live" and said == (f"out_dir {out} held an earlier calibration when the session started"
                                                 f" and is left as it is; the session's last live calibration goes"
                                                 f" to {beside}")
@@ -406,7 +406,6 @@ def test_a_chmod_of_the_nodes_output_leaves_it_the_nodes_own(tmp_path):
     own = (out, output_stamp(out))
     os.chmod(out, 0o775)
     assert request_out_dir(out, own) == (out, own[1], None)
-    assert session_end_out_dir(out, None, output_stamp(out), "/nao_skin/calibrate")[1].startswith(
-        f"out_dir {out} was written by the calibration requested on /nao_skin/calibrate")
+    assert session_end_out_dir(out, None, output_stamp(out)) == (out, output_stamp(out), None)
     write_marker(out, "calibrate", "calibration")      # another command's output, written in the same place
     assert request_out_dir(out, own)[0] == f"{out}.new"

@@ -67,6 +67,53 @@ def test_a_calibration_at_start_that_cannot_run_stops_the_node_in_one_line(tmp_p
     assert (tmp_path / "notes" / "mine.txt").read_text() == "the user's\n"
 
 
+def test_a_calibration_at_start_that_fails_ends_the_node_in_its_one_line_with_exit_2(tmp_path, small_bag):
+    """The inputs are there, so the node starts; the calibration then fails (too few touches). The node logged
+    one error and published nominal frames on until Ctrl-C, exit 0: ros2 run ... calibrate_on_start:=true
+    could not tell a failed calibration from one that worked. Now its one line and exit 2."""
+    import numpy as np
+
+    skin = load_skin()
+    few = tmp_path / "few"
+    write_touch_bag(few, simulate(skin, {"n_touches": 32}, seed=5).touches.subset(np.arange(3)), skin)
+    node = node_process("calibrate", {"inputs": [str(few)], "calibrate_on_start": True,
+                                      "out_dir": str(tmp_path / "cal")}, ros_env(unique_domain_id()), tmp_path)
+    try:
+        code = node.popen.wait(timeout=120)
+    finally:
+        node.stop()
+    said = [line for line in node.stderr().splitlines() if "error" in line.lower()]
+    assert code == 2 and len(said) == 1 and said[0].startswith("error: ") and "a mount needs at least 10" in said[0], \
+        node.stderr()[-3000:]
+    assert "Traceback" not in node.stderr() and not (tmp_path / "cal").exists()
+
+
+def test_a_request_that_fails_in_a_live_session_leaves_the_session_running(tmp_path, small_bag):
+    """The calibration at start ends the node when it fails; a request in a record session does not: the
+    session records on, and says the failure in its status."""
+    domain = unique_domain_id()
+    listener = node = None
+    try:
+        listener = Listener(domain)
+        status = listener.subscribe(String, STATUS_TOPIC, qos=LATCHED, keep=lambda m: json.loads(m.data))
+        node = node_process("calibrate", {"live": True, "recording": str(small_bag), "live_every_touches": 1000,
+                                          "live_period": 86400.0, "out_dir": str(tmp_path / "cal")},
+                            ros_env(domain), tmp_path)
+        request = listener.node.create_publisher(String, REQUEST_TOPIC, 10)
+        assert listener.spin_until(lambda: request.get_subscription_count() >= 1 and status, procs=[node])
+        request.publish(String(data=str(tmp_path / "no_such_bag")))
+        assert listener.spin_until(lambda: status[-1]["state"] == "failed", timeout=120, procs=[node]), status[-1:]
+        n = len(status)
+        request.publish(String(data=""))          # the session's recording: still calibrated
+        assert listener.spin_until(lambda: any(s["state"] == "done" for s in status[n:]), timeout=120,
+                                   procs=[node]), status[-1:]
+    finally:
+        if listener is not None:
+            listener.close()
+        code = node.stop() if node is not None else None
+    assert code == 0, node.stderr()[-3000:]
+
+
 def test_any_failure_of_a_calibration_ends_in_a_failed_status(tmp_path, small_bag):
     blocker = tmp_path / "notes.txt"
     blocker.write_text("a file where the output's parent should be\n")

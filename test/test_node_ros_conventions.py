@@ -115,7 +115,9 @@ def test_descriptors_say_the_rule_and_only_changeable_parameters_are_applied():
 
         (refused,) = node.set_parameters([Parameter("gate_mm", value=5.0)])
         assert not refused.successful and refused.reason.startswith(
-            "'gate_mm' is read when the node starts: restart the node with -p gate_mm:=VALUE"), refused.reason
+            "'gate_mm' is read when the node starts: restart the node with it (ros2 run: -p gate_mm:=VALUE;"
+            " ros2 launch: params_file:=FILE holding calibrate: {ros__parameters: {gate_mm: VALUE}}; nao-skin record:"
+            " --param calibrate.gate_mm=VALUE)"), refused.reason
         (out,) = node.set_parameters([Parameter("live_every_touches", value=0)])
         assert not out.successful and out.reason == "parameter live_every_touches:=0: expected a whole number >= 1"
         assert applied == []
@@ -179,12 +181,12 @@ def test_trigger_diagnostics_and_parameters_of_a_running_session(tmp_path):
             assert listener.spin_until(future.done, timeout=60, procs=procs)
             return future.result()
 
-        # ~/calibrate: two requests at once; the first starts a calibration of the recording, the second is
-        # answered that one is running (a calibration takes seconds, the two requests are handled in a row)
+        # ~/calibrate: two requests at once; the first calibrates the recording and is answered when that is
+        # done, the second is answered that one is running (a calibration takes seconds)
         seen = len(status)
         first, second = (trigger.call_async(Trigger.Request()) for _ in range(2))
-        started, busy = answer(first), answer(second)
-        assert started.success and str(bag) in started.message, started.message
+        busy, calibrated = answer(second), answer(first)
+        assert calibrated.success and str(tmp_path / "cal") in calibrated.message, calibrated.message
         assert not busy.success and "running" in busy.message, busy.message
         assert listener.spin_until(lambda: any(s["state"] in ("done", "failed") for s in status[seen:]),
                                    timeout=120, procs=procs), status[seen:]
@@ -251,3 +253,68 @@ def test_trigger_diagnostics_and_parameters_of_a_running_session(tmp_path):
         codes = {p.name: p.stop() for p in (calibrate, recorder) if p is not None}
     assert codes == {"calibrate": 0, "pairing_recorder": 0}, (calibrate.stderr()[-3000:], recorder.stderr()[-3000:])
     assert "applied live_every_touches:=1" in calibrate.stderr()
+
+
+@pytest.mark.middleware
+def test_the_trigger_answers_with_the_calibrations_result_and_the_node_goes_on_meanwhile(tmp_path):
+    """``success=True`` meant "started", also for a calibration that then failed, and the reply named the status
+    topic without the node's namespace. Now the reply is the result, once the calibration has ended (where it
+    was written, or the one line why not), names topics as the node resolves them, and the node answers other
+    requests meanwhile."""
+    import shutil
+    import sys
+
+    import numpy as np
+
+    pytest.importorskip("rclpy")
+    from rcl_interfaces.srv import GetParameters
+    from ros_harness import Listener, Proc, ros_env, unique_domain_id
+    from std_srvs.srv import Trigger
+
+    from nao_skin.formats.bag import write_touch_bag
+    from nao_skin.model.skin import load_skin
+    from nao_skin.sim.simulate import simulate
+
+    skin = load_skin()
+    touches = simulate(skin, {"pairs": [["r_hand", "torso"]], "n_touches": 40}, seed=6).touches
+    bag = tmp_path / "touches"
+    write_touch_bag(bag, touches, skin)
+    out = tmp_path / "cal"
+    domain = unique_domain_id()
+    listener = node = None
+    try:
+        listener = Listener(domain)
+        node = Proc([sys.executable, "-m", "nao_skin.nodes.calibrate", "--ros-args", "-r", "__ns:=/nao7",
+                     "-p", f"inputs:=['{bag}']", "-p", f"out_dir:={out}", "-p", "plots:=true"],   # plots: seconds
+                    ros_env(domain), tmp_path, "calibrate")
+        trigger = listener.node.create_client(Trigger, "/nao7/calibrate/calibrate")
+        getter = listener.node.create_client(GetParameters, "/nao7/calibrate/get_parameters")
+        assert listener.spin_until(lambda: trigger.service_is_ready() and getter.service_is_ready(), timeout=90,
+                                   procs=[node])
+
+        def answer(future):
+            assert listener.spin_until(future.done, timeout=120, procs=[node])
+            return future.result()
+
+        first = trigger.call_async(Trigger.Request())
+        assert listener.spin_until(lambda: "touches after removing" in node.stderr(), timeout=60, procs=[node])
+        # while it calibrates: a second request is refused at once (handled after the first had ended, it would
+        # have calibrated again), and the node answers other services
+        busy = answer(trigger.call_async(Trigger.Request()))
+        plots = answer(getter.call_async(GetParameters.Request(names=["plots"])))
+        assert not busy.success and "running" in busy.message and "/nao7/nao_skin/calibration/status" in busy.message, \
+            busy.message
+        assert plots.values[0].bool_value
+        done = answer(first)
+        assert done.success and done.message.endswith(f"touches -> {out}"), done.message
+        assert (out / "calibration.yaml").is_file()
+        # the same bag with too few touches now: the answer is the failure's line
+        shutil.rmtree(bag)
+        write_touch_bag(bag, touches.subset(np.arange(3)), skin)
+        failed = answer(trigger.call_async(Trigger.Request()))
+        assert not failed.success and "a mount needs at least 10" in failed.message, failed.message
+    finally:
+        if listener is not None:
+            listener.close()
+        code = node.stop() if node is not None else None
+    assert code == 0, node.stderr()[-3000:]

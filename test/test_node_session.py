@@ -146,7 +146,8 @@ def test_every_default_keeps_its_own_rule_and_a_later_change_is_held_to_it():
         # without effect would tell the user it did
         (valid,) = node.set_parameters([Parameter("rate", Parameter.Type.DOUBLE, 2.5)])
         assert not valid.successful and node.get_parameter("rate").value == 10.0
-        assert valid.reason.startswith("'rate' is read when the node starts: restart the node with -p rate:=")
+        assert valid.reason.startswith("'rate' is read when the node starts: restart the node with it (ros2 run:"
+                                       " -p rate:=")
         # a double array arrives as array.array: judged by its values
         declare(node, {"legend_origin": NODE_PARAMS["skin_heatmap"]["legend_origin"]})
         for values, rule_ok in (([1.0, 2.0, 3.0], True), ([1.0, 2.0], False)):

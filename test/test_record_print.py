@@ -29,3 +29,27 @@ def test_record_print_puts_every_node_in_the_namespace(tmp_path):
                           "--namespace", "/2nao"], capture_output=True, text=True, timeout=60, cwd=str(tmp_path))
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1, bad.stderr
     assert "--namespace /2nao: expected a ROS namespace such as /nao2" in bad.stderr, bad.stderr
+
+
+def test_record_takes_a_parameters_file_and_a_seed_as_the_launch_file_does(tmp_path):
+    """--params-file FILE (record.launch.py's params_file:=) goes to every node after the package's own files,
+    the session's overrides after it; --seed N to the simulated robot and, kept in the bag, to the recorder."""
+    import subprocess
+
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("calibrate:\n  ros__parameters:\n    gate_mm: 20\n")
+    run = subprocess.run([sys.executable, "-m", "nao_skin.cli", "record", "--print", "--bag", str(tmp_path / "b"),
+                          "--params-file", str(mine), "--seed", "7"], capture_output=True, text=True, timeout=60,
+                         cwd=str(tmp_path))
+    assert run.returncode == 0, run.stderr
+    printed = {line.split(": ", 1)[0]: shlex.split(line.split(": ", 1)[1]) for line in run.stdout.splitlines()
+               if ": " in line}
+    for name in ("sim_robot", "pairing_recorder", "skin_heatmap", "calibrate"):
+        files = [argv for i, argv in enumerate(printed[name]) if printed[name][i - 1] == "--params-file"]
+        assert files[-1] == str(mine) and files[0].endswith("record.yaml"), printed[name]
+    assert "seed:=7" in printed["sim_robot"] and "sim_seed:=7" in printed["pairing_recorder"]
+    mine.write_text("calibrate:\n  ros__parameters:\n    gate_mm: far\n")
+    bad = subprocess.run([sys.executable, "-m", "nao_skin.cli", "record", "--print", "--bag", str(tmp_path / "b"),
+                          "--params-file", str(mine)], capture_output=True, text=True, timeout=60, cwd=str(tmp_path))
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1, bad.stderr
+    assert f"--params-file {mine}: calibrate.gate_mm=far: expected a number like 15.0" in bad.stderr, bad.stderr

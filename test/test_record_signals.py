@@ -251,7 +251,8 @@ def test_node_stops_when_its_parent_is_killed_without_a_death_signal(tmp_path):
         if parent is not None:
             parent.stop()
         kill_left(nodes)
-    assert f"nao-skin record (pid {parent.popen.pid}) is gone; stopping" in parent.stderr()
+    assert f"the process that started this node (pid {parent.popen.pid}: nao-skin record or ros2 launch) is gone;" \
+           f" stopping" in parent.stderr()
     assert not (bag / LOCK_FILE).exists()
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert info["files"], "the recorder did not close its bag"

@@ -50,6 +50,12 @@ def add_arguments(parser) -> None:
                              " prefixed with it, so a second robot records on the same ROS domain")
     parser.add_argument("--guided", action="store_true",
                         help="robot sim: the simulated robot's next touches follow the guidance (/nao_skin/guidance)")
+    parser.add_argument("--seed", type=int, default=None, metavar="N",
+                        help="robot sim: the simulated robot's seed, the same seed plays the same touches (default:"
+                             " config/record.yaml's; continuing earlier sittings, one none of them played)")
+    parser.add_argument("--params-file", default="", metavar="FILE",
+                        help="a ROS 2 parameters file for the nodes, applied after config/record.yaml and"
+                             " config/bridges.yaml (as record.launch.py's params_file:=); --param still wins")
     parser.add_argument("--param", action="append", default=[], metavar="NODE.NAME=VALUE",
                         help="override a node parameter, e.g. sim_robot.touches_per_pair=5 (repeatable; a later one"
                              " wins, as with ros2's -p); checked against the parameters the node declares before"
@@ -89,7 +95,8 @@ def run(args) -> int:
     specs = record_session(args.robot, nao_ip=args.nao_ip, naoqi=not args.no_naoqi, events_port=args.events_port,
                            bag_path=args.bag, calibration=args.calibration, rviz=args.rviz, taxels=args.taxels,
                            overrides=parse_overrides(args.param), guided=args.guided,
-                           continue_from=args.continue_from, namespace=args.namespace, spelling="command")
+                           continue_from=args.continue_from, namespace=args.namespace, spelling="command",
+                           params_file=args.params_file, seed=args.seed, say=lambda line: _say(f"record: {line}"))
     claim = None
     if not args.print:
         check_needs(specs)

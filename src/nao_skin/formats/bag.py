@@ -57,6 +57,8 @@ SOURCE_KEY = "nao_skin.recorded_from"     # what a recorder was fed: a simulated
 SIMULATED = "the simulated robot (sim_robot)"
 CONTINUES_KEY = "nao_skin.continues"        # the earlier sittings' bags a record session continued: a JSON list
 CONTINUES_RELATIVE_KEY = "nao_skin.continues_relative"     # ... relative to the bag's folder (moved together)
+SIM_SEED_KEY = "nao_skin.sim_seed"          # the seed the simulated robot played: a session continuing the bag
+                                             # plays another (the same seed plays the same touches again)
 BAG_VERSION = 9              # rosbag2 metadata version ROS 2 Jazzy's rosbag2 writes (rosbags writes 8 or 9)
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
@@ -117,7 +119,7 @@ class BagWriter:
     """
 
     def __init__(self, path: str | Path, storage: str = "sqlite3", kind: str = "stream", live: bool = False,
-                 source: str = "", continues=()):
+                 source: str = "", continues=(), sim_seed: int | None = None):
         from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 
         plugins = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}
@@ -137,6 +139,8 @@ class BagWriter:
             self._custom[CONTINUES_KEY] = json.dumps([os.path.abspath(p) for p in continues])
             self._custom[CONTINUES_RELATIVE_KEY] = json.dumps([os.path.relpath(os.path.abspath(p), folder)
                                                                for p in continues])
+        if sim_seed is not None:
+            self._custom[SIM_SEED_KEY] = str(int(sim_seed))
         for key, value in self._custom.items():
             self._writer.set_custom_data(key, value)
         self._kind = kind
@@ -501,6 +505,13 @@ def recorded_from(path: Path) -> str | None:
     (a bag converted from a text file, one whose metadata is gone)."""
     source = _provisional_custom(path).get(SOURCE_KEY)
     return str(source) if source else None
+
+
+def simulator_seed(path: Path) -> int | None:
+    """The seed the simulated robot played into a record session's bag (its metadata's ``nao_skin.sim_seed``),
+    None when it does not say (another source, a bag recorded before the seed was kept)."""
+    text = str(_provisional_custom(path).get(SIM_SEED_KEY, "")).strip()
+    return int(text) if text.isascii() and text.isdigit() else None
 
 
 def continued_bags(path: Path) -> list:

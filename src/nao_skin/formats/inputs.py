@@ -9,7 +9,7 @@ import numpy as np
 
 from nao_skin.errors import DataError, NaoSkinError
 from nao_skin.model.robot import JOINT_LIMIT_TOLERANCE
-from nao_skin.model.skin import SkinCalibration, SkinModel
+from nao_skin.model.skin import SkinCalibration, SkinModel, taxels_said
 from nao_skin.paths import read_text
 from nao_skin.touch.datasets import LoadReport
 from nao_skin.touch.touches import TouchSet
@@ -140,7 +140,7 @@ def read_sitting(path: str | Path, skin: SkinModel) -> ReadOnce:
     misfit = [*layout_hints(touches, report, skin), *cop_layout_notes(touches, skin, str(path))]
     if misfit:
         raise DataError(f"{misfit[0]} (a session continues only sittings recorded with the taxel files it reads:"
-                        f" give that sitting's, --taxels PART=FILE)")
+                        f" give that sitting's, {taxels_said()})")
     return sitting
 
 
@@ -248,7 +248,8 @@ def continuation_notes(paths, followed=None) -> list:
             if recording not in named:
                 missing.append(earlier)
         if missing:
-            out.append(f"{raw}: continues the capture of {', '.join(missing)} (nao-skin record --continue-from),"
+            out.append(f"{raw}: continues the capture of {', '.join(missing)} (record.launch.py continue_from:=,"
+                       f" nao-skin record --continue-from),"
                        f" not among the inputs: name {'it' if len(missing) == 1 else 'them'} too to calibrate the"
                        f" whole capture")
     return out
@@ -284,7 +285,7 @@ def layout_hints(touches: TouchSet, report: LoadReport, skin: SkinModel) -> list
             source = skin.parts[part].layout_file if part in skin.parts else "?"
             out.append(f"{report.source}: {n_bad} {report.unit} of part '{part}' name taxels that its layout"
                        f" ({source}) does not have, {kept} touches of it were kept: pass the recording's own"
-                       f" layout with --taxels {part}=FILE")
+                       f" layout with {taxels_said(part)}")
     return out
 
 

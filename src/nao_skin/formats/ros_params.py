@@ -180,12 +180,24 @@ def parameters_for(doc: dict, node: str, namespace: str = "/") -> dict:
     """The parameters ``doc`` (from :func:`parse_params`) gives the node ``namespace/node``, their nested
     names dotted (``part_ids: {torso: 7}`` is ``part_ids.torso``), later sections winning, as rcl applies
     them: a section's name may be the node's name, its full name, or a pattern (``/**``, ``/*/node``)."""
-    full = "/".join(filter(None, namespace.strip("/").split("/") + [node]))
     out: dict = {}
-    for section, params in _sections(doc, ()):
-        if _matches(section, full):
-            out.update(_dotted(params))
+    for _, params in sections_for(doc, node, namespace):
+        out.update(params)
     return out
+
+
+def sections_for(doc: dict, node: str, namespace: str = "/") -> list:
+    """``[(section name, {dotted name: value})]``: each section of ``doc`` that rcl applies to the node
+    ``namespace/node``, in the order it applies them."""
+    full = "/".join(filter(None, namespace.strip("/").split("/") + [node]))
+    return [(section, _dotted(params)) for section, params in _sections(doc, ()) if _matches(section, full)]
+
+
+def names_the_node(section: str) -> bool:
+    """A section that names its node (``calibrate``, ``/**/calibrate``), not one for any node (``/**``,
+    ``/nao2/*``): a parameter there the node does not have is a mistake, not one meant for another node."""
+    tokens = [t for t in section.strip("/").split("/") if t]
+    return bool(tokens) and tokens[-1] not in ("*", "**")
 
 
 def _sections(doc: dict, trail: tuple):

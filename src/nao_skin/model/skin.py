@@ -912,7 +912,7 @@ def _check_layout(path: Path, name: str, recorded, part: SkinPart) -> None:
         raise ConfigError(f"{path}: part '{name}' was calibrated on the layout {recorded.get('file', '?')}"
                           f" (sha256 {str(recorded['sha256'])[:12]}), not on {Path(part.layout_file).name}"
                           f" (sha256 {part.layout_sha256[:12]}) used here; give the same layout"
-                          f" (--taxels {name}=FILE)")
+                          f" ({taxels_said(name)})")
 
 
 def part_from_layout(name: str, chain: str | None, robot: RobotModel, taxel_file: str | Path,
@@ -997,6 +997,11 @@ def parse_pairs(items, parts=None, where: str = "pair", fingertips=()) -> tuple:
             raise ConfigError(f"{where} {item!r} is given twice")
         out.append((hand, part))
     return tuple(out)
+
+
+def taxels_said(part: str = "PART") -> str:
+    """How a user names a part's own taxel file, whichever way they work (the core cannot know)."""
+    return f"--taxels {part}=FILE (ros2 launch: taxels:={part}=FILE)"
 
 
 def parse_taxel_files(items, where: str = "--taxels") -> dict:

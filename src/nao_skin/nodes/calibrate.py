@@ -1,9 +1,9 @@
 """calibrate (node): the calibration engine on bags or the recorder's bag, and the skin frames on /tf_static.
 
-``ros2 run nao_skin calibrate --ros-args -p inputs:=[bag, ...]`` calibrates at
-start; in a record session (``record.launch.py``) it waits for a request on
-``/nao_skin/calibrate`` (std_msgs/String: paths separated by spaces/newlines;
-empty = ``inputs``, else the recorder's bag ``recording``). Results go to
+``ros2 run nao_skin calibrate --ros-args -p inputs:=[bag, ...] -p calibrate_on_start:=true`` calibrates at
+start; in a record session (``record.launch.py``) it waits for a request: the ``~/calibrate`` service (below) or
+``nao_skin/calibrate`` (std_msgs/String: paths separated by spaces/newlines; empty = ``inputs``, else the
+recorder's bag ``recording``). Results go to
 ``out_dir`` (calibration.yaml, taxel files, report) through
 :func:`nao_skin.calibration.pipeline.calibrate_recordings`, exactly as ``nao-skin calibrate``.
 
@@ -24,9 +24,12 @@ With every calibration it publishes, the uncertainty map on ``/nao_skin/calibrat
 frame, coloured by its predicted error (:mod:`nao_skin.calibration.uncertainty_map`; namespace = part, id = triangle).
 
 ``~/calibrate`` (``std_srvs/srv/Trigger``, ``ros2 service call /calibrate/calibrate std_srvs/srv/Trigger``) is
-an empty request with an answer: whether a calibration started, and why not (one is running, no inputs). The
-live schedule (``live_every_touches``, ``live_period``), the guidance and ``plots`` apply when set
-(``ros2 param set``); the node's state is on ``/diagnostics``.
+an empty request answered with its result once the calibration has ended: ``success`` whether it succeeded,
+``message`` where it was written or the one line saying why not (one is running, no inputs, the calibration
+failed). The node's other callbacks go on meanwhile. The calibration at start (``calibrate_on_start``) that
+fails ends the node, in its one line and exit code 2, except in a live record session. The live schedule
+(``live_every_touches``, ``live_period``), the guidance and ``plots`` apply when set (``ros2 param set``); the
+node's state is on ``/diagnostics``.
 """
 from __future__ import annotations
 
@@ -36,15 +39,17 @@ import threading
 import time
 from pathlib import Path
 
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.duration import Duration
 from rclpy.node import Node
+from rclpy.task import Future
 from std_msgs.msg import ColorRGBA, String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
 from nao_skin.calibration.uncertainty_map import colours, triangle_discs
-from nao_skin.errors import NaoSkinError, one_line
+from nao_skin.errors import DataError, NaoSkinError, one_line
 from nao_skin.formats.outdir import output_stamp
 from nao_skin.live.diagnostics import age_check, live_check
 from nao_skin.live.updates import PartStates, UpdateSchedule
@@ -89,6 +94,7 @@ class CalibrateNode(Node):
         self.uncertainty_pub = self.create_publisher(MarkerArray, UNCERTAINTY_TOPIC, LATCHED)
         self.generation = 0
         self._busy = threading.Lock()
+        self._publishing = threading.Lock()   # a calibration's end is said before the next one's start
         self._worker = None
         self._requested_out = None        # (path, output_stamp) of the last requested calibration's output
         self._out_dir_at_start = output_stamp(self.p["out_dir"])
@@ -103,7 +109,10 @@ class CalibrateNode(Node):
         self._stopping = threading.Event()    # the session ends: a live update running stops at its next stage
         self.publish_calibration(self.prior, "initial" if self.p["calibration"] else "nominal")
         self.create_subscription(String, REQUEST_TOPIC, self._on_request, 10)
-        self.create_service(Trigger, "~/calibrate", self._on_trigger)
+        # its callback awaits the calibration's end: in a group of its own, reentrant, else the pending callback
+        # would hold back every other callback of the node's (mutually exclusive) default group, a second call
+        # too, until then (one executor thread: the callbacks still run one at a time)
+        self.create_service(Trigger, "~/calibrate", self._on_trigger, callback_group=ReentrantCallbackGroup())
         self._progress_at = None          # monotonic time of the last progress message (live)
         self._touch_at = None             # ... and of the last one that counted a new touch
         self._update_at = None            # ... and when the last live update started
@@ -122,15 +131,21 @@ class CalibrateNode(Node):
             if self.live.read_earlier(log=self.get_logger().info, summary=self.get_logger().warning):
                 self.schedule.again()     # their calibration on /tf_static at once, before the first new touch
             self._recorded = 0            # touches the recorder reported so far
+            self._repeats_said = False    # the recording repeats the earlier sittings' touches: said once
             self._retried = False         # an update found no new touch in the bag and tries once more
             self._malformed = 0           # progress messages skipped
             self.create_subscription(String, PROGRESS_TOPIC, self._on_progress, 10)
             self.create_timer(0.5, self._maybe_update)
         publish_diagnostics(self, self._diagnostics)
         inputs = [i for i in self.p["inputs"] if i]
+        # the calibration at start is the node's job (calibrate.launch.py, ros2 run ... calibrate_on_start:=true):
+        # when it fails the node ends, in its one line and exit 2, rather than publish nominal frames on as if it
+        # had worked; in a live record session the session goes on (the recording matters more)
+        self._failed = None               # the failure the node ends with (set by the worker thread)
+        self._end = self.create_guard_condition(self._end_failed)
         if self.p["calibrate_on_start"]:
             self._check_start(inputs)     # refused now, in one line and exit 2, not logged by a node that runs on
-            self._start(inputs)
+            self._start(inputs, ends_on_failure=not self._is_session())
 
     def publish_calibration(self, calib: SkinCalibration, source: str, quiet: bool = False, result=None) -> None:
         """All skin frames in ONE latched TFMessage: late joiners get exactly this set (in a namespace, the
@@ -230,6 +245,13 @@ class CalibrateNode(Node):
             out = self.live.update(log=log.debug, stop=self._stopping.is_set)
             if out.status.get("state") == "stopped":     # the session ends: the final update covers its touches
                 return
+            # (also when they add nothing to calibrate: all of them repeats, the update is skipped)
+            if self.live.repeated and not self._repeats_said:      # said while the operator can still act
+                self._repeats_said = True
+                log.warning(f"{self.live.repeated} of the {self.live.recorded} touches recorded so far repeat touches"
+                            f" of the earlier sittings' bags exactly and are left out: a simulated robot playing an"
+                            f" earlier sitting's seed again? (record.launch.py seed:=N, nao-skin record --seed N:"
+                            f" one no sitting played)")
             if not out.status:      # the bag has no touch since the last update yet (not flushed)
                 if not self._retried:       # once at the next tick; then the schedule as usual (a touch the
                     self._retried = True    # reading drops as a duplicate would keep the recorder's count ahead)
@@ -302,10 +324,14 @@ class CalibrateNode(Node):
             paths = [i for i in self.p["inputs"] if i] or self._session_inputs()
         self._start(paths)
 
-    def _on_trigger(self, request, response):
-        """``~/calibrate``: an empty request (the node's inputs, else the session's bags), answered."""
-        response.success, response.message = self._start([i for i in self.p["inputs"] if i]
-                                                         or self._session_inputs())
+    async def _on_trigger(self, request, response):
+        """``~/calibrate``: an empty request (the node's inputs, else the session's bags), answered with the
+        calibration's result once it has ended: success, and where it was written or the one line saying why
+        not. Awaited, not waited for: the executor goes on with the node's other callbacks meanwhile (rclpy
+        resumes the callback at its next turn once the worker has set the future)."""
+        answer = Future()
+        started, message = self._start([i for i in self.p["inputs"] if i] or self._session_inputs(), answer=answer)
+        response.success, response.message = (await answer) if started else (False, message)
         return response
 
     def _on_params(self, changed: dict) -> None:
@@ -339,8 +365,19 @@ class CalibrateNode(Node):
         earlier = self._earlier()
         return [*earlier, recording] if not earlier or os.path.lexists(recording) else earlier
 
-    def _start(self, paths: list) -> tuple:
-        """A calibration of ``paths`` started in the background: ``(True, what)``, or ``(False, why not)``."""
+    def _is_session(self) -> bool:
+        """A live record session's node (not calibrate.launch.py's, nor one started alone on its inputs)."""
+        return bool(self.p["live"] and self.p["recording"])
+
+    def _end_failed(self) -> None:
+        """The calibration at start failed: the node ends, its line said by run_node (exit 2)."""
+        if self._failed is not None:
+            raise self._failed
+
+    def _start(self, paths: list, ends_on_failure: bool = False, answer: Future | None = None) -> tuple:
+        """A calibration of ``paths`` started in the background: ``(True, what)``, or ``(False, why not)``.
+        ``ends_on_failure``: the node ends when it fails (the calibration at start); ``answer``: a future given
+        ``(succeeded, where it was written or why not)`` when it has ended."""
         if not paths:
             error = "no input: set 'inputs' or 'recording', or name bags"
             self.get_logger().error(f"calibration request refused: {error}")
@@ -351,21 +388,24 @@ class CalibrateNode(Node):
             # is counted in it and logged
             self._ignored += 1
             self._status({**self._latched, "ignored_requests": self._ignored})
-            self.get_logger().warning(f"a calibration or live update is running; request for {' '.join(paths)}"
-                                      f" ignored")
-            return False, f"a calibration or live update is running; request for {' '.join(paths)} ignored"
+            refused = f"a calibration or live update is running; request for {' '.join(paths)} ignored"
+            self.get_logger().warning(refused)
+            return False, f"{refused} (its result comes on {self.status_pub.topic_name})"
         self._ignored = 0
-        self._status({"state": "running", "inputs": paths})
-        self._worker = threading.Thread(target=self._run, args=(paths,), daemon=True,
+        with self._publishing:
+            self._status({"state": "running", "inputs": paths})
+        self._worker = threading.Thread(target=self._run, args=(paths, ends_on_failure, answer), daemon=True,
                                         name=f"calibration of {' '.join(paths)}")
         self._worker.start()
-        return True, f"calibrating {' '.join(paths)} -> {self.p['out_dir']} (status on {STATUS_TOPIC})"
+        return True, f"calibrating {' '.join(paths)} -> {self.p['out_dir']} (status on {self.status_pub.topic_name})"
 
-    def _run(self, paths: list) -> None:
+    def _run(self, paths: list, ends_on_failure: bool = False, answer: Future | None = None) -> None:
         from nao_skin.calibration.pipeline import calibrate_recordings, check_output
 
         p = self.p
         log = self.get_logger()
+        ended = None          # the status saying how it ended: published once the next request may start
+        result = None         # the answer: (succeeded, where it was written or why not)
         try:
             # the node replaces its own last output on every success (force), never a calibration it did not
             # write, one that holds an input or files nao-skin did not write; checked per request, before loading
@@ -385,23 +425,42 @@ class CalibrateNode(Node):
             calibration = str(run.out_dir / "calibration.yaml")
             self.publish_calibration(run.result.calibration, calibration, result=run.result)
             final = run.result.report.final
-            self._status({"state": "done", "generation": self.generation, "out_dir": str(run.out_dir),
-                          "calibration": calibration, "touches": run.n_touches,
-                          "final": {k: final.get(k) for k in ("train", "test") if k in final},
-                          "warnings": run.result.report.warnings})
-            self._try_guidance(self._latched)      # in a live session: under these frames
-            log.info(f"calibrated from {len(paths)} input(s): {run.n_touches} touches -> {run.out_dir}")
+            ended = {"state": "done", "generation": self.generation, "out_dir": str(run.out_dir),
+                     "calibration": calibration, "touches": run.n_touches,
+                     "final": {k: final.get(k) for k in ("train", "test") if k in final},
+                     "warnings": run.result.report.warnings}
+            self._try_guidance(ended)      # in a live session: under these frames
+            said = f"calibrated from {len(paths)} input(s): {run.n_touches} touches -> {run.out_dir}"
+            log.info(said)
             for line in run.result.report.warnings:
                 log.warning(line)
+            result = (True, said + (f" ({len(run.result.report.warnings)} warnings: {self.status_pub.topic_name})"
+                                    if run.result.report.warnings else ""))
         except NaoSkinError as exc:
-            log.error(str(exc))
-            self._status({"state": "failed", "error": str(exc)})
+            ended, result = self._failed_with(exc, str(exc), ends_on_failure)
         except Exception as exc:  # noqa: BLE001 - whatever breaks, the latched status must not stay "running"
-            line = one_line(exc)
-            log.error(f"calibration failed: {line}")
-            self._status({"state": "failed", "error": f"internal error: {line}"})
+            ended, result = self._failed_with(exc, f"calibration failed: internal error: {one_line(exc)}",
+                                              ends_on_failure)
         finally:
-            self._busy.release()
+            # its end is said before the next request's "running", and only once that request may start
+            with self._publishing:
+                self._busy.release()
+                if ended is not None:
+                    self._status(ended)
+            if self._failed is not None:
+                self._end.trigger()
+            if answer is not None:
+                answer.set_result(result or (False, "stopped"))
+
+    def _failed_with(self, exc: Exception, line: str, ends: bool) -> tuple:
+        """A calibration failed: ``(the status saying so, the answer)``; the node logs the line and goes on, or
+        (``ends``) ends with it as its one line."""
+        if ends:
+            self._failed = exc if isinstance(exc, NaoSkinError) else DataError(line)
+        else:
+            self.get_logger().error(line)
+        error = line if isinstance(exc, NaoSkinError) else f"internal error: {one_line(exc)}"
+        return {"state": "failed", "error": error}, (False, line)
 
     def close(self) -> None:
         """End of the session: the last accepted live calibration is written where users apply it, at once
@@ -420,6 +479,8 @@ class CalibrateNode(Node):
                                           f" removed, an earlier output it had moved aside put back, by the next"
                                           f" calibration written there)")
         if not session:
+            if self._failed is not None:      # the failed status reaches its subscribers before the node goes
+                self.status_pub.wait_for_all_acked(Duration(seconds=FINAL_ACK_S))
             return
         complete = False                  # what is written covers every touch of the closed recording
         if not (self._worker is not None and self._worker.is_alive()):
@@ -465,19 +526,18 @@ class CalibrateNode(Node):
         ``written``: where this session's end wrote one already, replaced."""
         from nao_skin.calibration.report import write_outputs
 
-        out_dir = written
+        out_dir, replacing = written, (self._written_stamp or ())
         if out_dir is None:
             requested = self._requested_out[1] if self._requested_out else None
-            out_dir, moved = session_end_out_dir(self.p["out_dir"], self._out_dir_at_start, requested, REQUEST_TOPIC)
+            out_dir, replacing, moved = session_end_out_dir(self.p["out_dir"], self._out_dir_at_start, requested)
             if moved:
                 self.get_logger().warning(moved)
         try:
             self._check_live_out_dir(out_dir)
-            # a new place must still be free, the end's first write is the one to replace: another process's
-            # output written there meanwhile stays, this one goes beside it
+            # a new place must still be free, the node's own requested calibration or the end's first write is the
+            # one to replace: another process's output written there meanwhile stays, this one goes beside it
             wrote = write_outputs(result, self.skin, out_dir, plots=False, command="calibrate (node, live)",
-                                  replacing=(self._written_stamp or ()) if written is not None else (),
-                                  beside=".live")
+                                  replacing=replacing, beside=".live")
             if Path(wrote) != Path(out_dir):
                 self.get_logger().warning(f"{out_dir}: another output was written there during the session's end"
                                           f" and is left as it is; the session's live calibration goes to {wrote}")
@@ -491,8 +551,8 @@ class CalibrateNode(Node):
             # the node's one line and exit 2; the touches are in the recording
             recording = self.p["recording"]
             error = (f"{exc}; the session's live calibration is not written: the session's touches are in the"
-                     f" recording {recording} (the recorder's last line says how many), and nao-skin calibrate"
-                     f" {recording} --out DIR calibrates them again")
+                     f" recording {recording} (the recorder's last line says how many), and"
+                     f" {calibrate_again([*self._earlier(), recording])} calibrates them again")
             self._ended = True
             self._final_status({"state": "ended", "generation": self.generation, "calibration": None,
                                 "error": error})
@@ -517,12 +577,12 @@ class CalibrateNode(Node):
         if not out.status:          # no touch since the last accepted update
             return closed
         if out.status["state"] == "stopped":
-            recording = " ".join([*self._earlier(), self.p["recording"]])
+            recording = [*self._earlier(), self.p["recording"]]
             had = (f"the last accepted update's, over {self.live.last_count} touches, is written" if self.live.last
                    is not None else "none is written")
             log.warning(f"the final live update over {out.status['touches']} touches was stopped after"
                         f" {out.status['seconds']:.1f} s ({FINAL_BUDGET_S:g} s of computing: the session's end waits"
-                        f" no longer); {had}; nao-skin calibrate {recording} --out DIR calibrates every touch")
+                        f" no longer); {had}; {calibrate_again(recording)} calibrates every touch")
             self._status({**out.status, "live": True, "generation": self.generation})
             return False
         if out.accepted is not None:
@@ -537,6 +597,15 @@ class CalibrateNode(Node):
         if out.accepted is not None:      # the guidance under the frames published last, as after every update
             self._try_guidance(out.status)
         return closed and out.accepted is not None
+
+
+def calibrate_again(paths: list) -> str:
+    """How a user calibrates ``paths`` again, whichever way they work (a node cannot know)."""
+    import shlex
+
+    words = shlex.join(str(p) for p in paths)
+    return (f"nao-skin calibrate {words} --out DIR (or ros2 launch nao_skin calibrate.launch.py"
+            f" inputs:={shlex.quote(words)} out_dir:=DIR)")
 
 
 def request_paths(text: str) -> list:

@@ -63,7 +63,8 @@ class PairingRecorder(Node):
             calibration = SkinCalibration.load(p["calibration"], self.skin) if p["calibration"] else None
             judge = FingertipJudge(self.skin, scenes, calibration, p["fingertip_gate_mm"] / 1000.0)
         self.recording = TouchRecording(self.skin, config, p["bag_path"] or default_bag_name(), p["storage"],
-                                        p["recorded_from"], [path for path in p["continues"] if path], judge)
+                                        p["recorded_from"], [path for path in p["continues"] if path],
+                                        p["sim_seed"] if p["sim_seed"] >= 0 else None, judge)
         self.get_logger().info(f"recording touches to {self.recording.bag_path}")
         self._crowded_said: set = set()
         self._started = time.monotonic()

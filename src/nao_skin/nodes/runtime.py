@@ -5,8 +5,8 @@ initialises rclpy (``--ros-args`` from the command line, so ``ros2 run``,
 ``ros2 launch`` and ``nao-skin record`` pass parameters the same way), spins
 until SIGINT, SIGTERM or SIGHUP (terminal closed), then calls the node's
 ``close()`` so that buffered data is written before the process ends. A node
-started by ``nao-skin record`` (:data:`~nao_skin.session.record.PARENT_ENV`
-set) stops the same way when record is gone, however record ended.
+started by ``nao-skin record`` or by our launch files (:data:`~nao_skin.session.record.PARENT_ENV`
+set) stops the same way when that process is gone, however it ended.
 """
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ from rclpy.parameter import Parameter
 
 from nao_skin.errors import STOP_SIGNALS, ConfigError, DataError, NaoSkinError, ignore_stop_signals
 from nao_skin.rules import did_you_mean
-from nao_skin.session.params import rule_range
+from nao_skin.session.params import at_start_said, rule_range
 from nao_skin.session.record import PARENT_ENV
 
 MAX_LOGGED_FAILURES = 5   # callback errors of one kind logged one by one (then every 100th)
@@ -110,7 +110,7 @@ def _describe(node, name: str, default, text: str, rule, read_only: bool) -> Non
                                      type=Parameter.Type.from_parameter_value(default).value)
     said = [rule.describe()] if rule is not None else []
     if read_only:
-        said.append(f"read when the node starts: -p {name}:=VALUE")
+        said.append(f"read when the node starts ({at_start_said(node.get_name(), name)})")
     descriptor.additional_constraints = "; ".join(said)
     bounds = rule_range(default, rule)
     if bounds is not None and isinstance(default, int):
@@ -200,7 +200,7 @@ def _checked(changed, numeric: dict, rules: dict, declared: set, changeable: set
         if p.name not in changeable:
             return SetParametersResult(successful=False,
                                        reason=f"'{p.name}' is read when the node starts: restart the node with"
-                                              f" -p {p.name}:=VALUE (nao-skin record: --param {node_name}.{p.name}=VALUE)")
+                                              f" it ({at_start_said(node_name, p.name)})")
     return SetParametersResult(successful=True)
 
 
@@ -237,7 +237,8 @@ def _rcl_reason(exc: Exception) -> str:
 
 
 def _parent_gone():
-    """A check "has ``nao-skin record`` gone?" for a node it started, else None.
+    """A check "has the process that started this node gone?" for a node ``nao-skin record`` or a launch file of
+    ours started (:data:`~nao_skin.session.record.PARENT_ENV`), else None.
 
     Reparenting (our parent died) or the named pid vanishing both mean gone:
     the fallback where the kernel's parent-death signal is not available.
@@ -332,7 +333,8 @@ def run_node(factory, args=None, interruptible_start: bool = False) -> int:
             while not stop.is_set() and rclpy.ok():
                 _spin_once(executor, node, failures)
                 if parent_gone is not None and parent_gone():
-                    node.get_logger().warning(f"nao-skin record (pid {os.environ[PARENT_ENV]}) is gone; stopping")
+                    node.get_logger().warning(f"the process that started this node (pid {os.environ[PARENT_ENV]}:"
+                                              f" nao-skin record or ros2 launch) is gone; stopping")
                     break
         except ExternalShutdownException:
             pass

@@ -66,11 +66,13 @@ class DomainClaim:
                 pass
 
 
-def claim_domain(domain: int | None = None, lock_dir: Path | None = None, namespace: str = "/") -> DomainClaim:
+def claim_domain(domain: int | None = None, lock_dir: Path | None = None, namespace: str = "/",
+                 spelling: str = "command") -> DomainClaim:
     """Claim ``domain`` (default :func:`domain_id`) for this process's record session, or raise
     :class:`~nao_skin.errors.ConfigError` naming the session that holds it. When the lock file cannot be
     opened at all (``/tmp`` not writable) the session goes on unclaimed: the returned claim's ``problem``
-    says why, for the caller to say."""
+    says why, for the caller to say. ``spelling``: how the refusal says to start the session elsewhere, as its
+    user started it (``command``: nao-skin record, ``launch``: record.launch.py)."""
     domain = domain_id() if domain is None else domain
     path = lock_path(domain, lock_dir, namespace)
     where = f"ROS_DOMAIN_ID {domain}" + (f" in namespace {namespace}" if namespace != "/" else "")
@@ -83,12 +85,13 @@ def claim_domain(domain: int | None = None, lock_dir: Path | None = None, namesp
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         holder = _holder(fd)
+        start = "ros2 launch nao_skin record.launch.py" if spelling == "launch" else "nao-skin record"
         os.close(fd)
         raise ConfigError(
             f"another nao-skin session{f' (pid {holder})' if holder else ''} runs on {where} on"
             f" this machine: the two would record each other's touches; stop it first, or give each robot its own"
-            f" domain (e.g. ROS_DOMAIN_ID={_free_neighbour(domain, lock_dir)} nao-skin record ...) or namespace"
-            f" (nao-skin record --namespace /nao2)") from None
+            f" domain (e.g. ROS_DOMAIN_ID={_free_neighbour(domain, lock_dir)} {start} ...) or namespace"
+            f" ({start} {'namespace:=' if spelling == 'launch' else '--namespace '}/nao2)") from None
     try:                              # the pid, for the line another session is refused with
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)

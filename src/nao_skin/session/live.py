@@ -38,6 +38,7 @@ from nao_skin.formats.salvage import recording_lock
 from nao_skin.live.updates import LiveUpdates, PartStates, WarmStart
 from nao_skin.model.skin import SkinCalibration, SkinModel, pair_label
 from nao_skin.paths import free_sibling
+from nao_skin.touch.datasets import repeats_of
 from nao_skin.touch.touches import TouchSet
 
 
@@ -89,6 +90,9 @@ class LiveCalibration:
         self.last_count = 0                             # how many touches it calibrated
         self.read_count = 0                             # how many touches the recording held at the last read
         self.duplicates = 0                             # ... after leaving out this many exact duplicates
+        self.recorded = 0                               # touches the recording held at the last read (all)
+        self.repeated = 0                               # ... of them exact repeats of the earlier sittings' touches
+        self._earlier_touches: TouchSet | None = None   # the earlier sittings' touches (duplicates left out)
         self._last_touches = -1                         # touches the last update calibrated (-1: it failed)
         # input -> its reader: each earlier sitting held once read (ReadOnce), the recording read as it grows
         self._followed: dict = {p: ReadOnce(p, skin) for p in self.earlier}
@@ -108,8 +112,9 @@ class LiveCalibration:
                 raise DataError(f"{self.recording}: the recording is among the earlier sittings it continues;"
                                 f" name only the earlier ones")
             self._followed.update({path: read_sitting(path, self.skin) for path in self.earlier})
-            self.earlier_count = load_inputs(self.earlier, self.skin, log=log, summary=summary or log,
-                                             followed=self._followed).touches.n_touches
+            self._earlier_touches = load_inputs(self.earlier, self.skin, log=log, summary=summary or log,
+                                                followed=self._followed).touches
+            self.earlier_count = self._earlier_touches.n_touches
         return self.earlier_count
 
     def parts_state(self) -> dict:
@@ -132,12 +137,17 @@ class LiveCalibration:
             if self.recording not in self._followed and (not self.earlier or self.recording_exists()):
                 bag = find_bag(Path(self.recording))     # the recorder has created the bag by its first touch
                 self._bag_dir = bag if bag.is_dir() else bag.parent
-                self._followed[self.recording] = GrowingBag(bag, self.skin)
+                self._followed[self.recording] = _Kept(GrowingBag(bag, self.skin))
             # a session continuing earlier sittings calibrates their touches before its own first one
             inputs = [*self.earlier, *([self.recording] if self.recording in self._followed else [])]
             loaded = load_inputs(inputs, self.skin, log=log, summary=log, followed=self._followed)
             touches = loaded.touches
             self.read_count, self.duplicates = touches.n_touches, loaded.n_duplicates
+            recorded = getattr(self._followed.get(self.recording), "touches", None)
+            if recorded is not None:
+                self.recorded = recorded.n_touches
+                if self._earlier_touches is not None:
+                    self.repeated = repeats_of(recorded, self._earlier_touches)
             if touches.n_touches == self._last_touches and (final or self._being_recorded()):
                 # the recorder counts a touch before its next flush puts it in the bag: an update now would
                 # repeat the last one (a closed bag, e.g. bench-live's --update-input, is calibrated again each
@@ -206,6 +216,19 @@ class LiveCalibration:
         return True
 
 
+class _Kept:
+    """The recording's reader (a :class:`~nao_skin.formats.bag.GrowingBag`), keeping the touches it read last,
+    before the calibration leaves out their duplicates: how many of them repeat the earlier sittings' is said."""
+
+    def __init__(self, reader):
+        self.reader, self.touches = reader, None
+
+    def read(self) -> tuple:
+        touches, report = self.reader.read()
+        self.touches = touches
+        return touches, report
+
+
 def request_out_dir(out_dir: str | Path, own: tuple | None) -> tuple:
     """``(directory, replacing, note or None)``: where the calibrate node writes a requested calibration, and what
     it may replace there (``replacing`` of :func:`~nao_skin.formats.outdir.replace_dir`). ``own``: ``(path,
@@ -221,20 +244,24 @@ def request_out_dir(out_dir: str | Path, own: tuple | None) -> tuple:
                         f" another command's) and is left as it is; this one goes to {beside}")
 
 
-def session_end_out_dir(out_dir: str | Path, at_start, requested, requested_by: str) -> tuple:
-    """``(directory, warning or None)``: where the session's last live calibration is written when it ends.
+def session_end_out_dir(out_dir: str | Path, at_start, requested) -> tuple:
+    """``(directory, replacing, warning or None)``: where the session's last live calibration is written when it
+    ends, and what it may replace there (``replacing`` of :func:`~nao_skin.formats.outdir.replace_dir`).
 
-    ``out_dir`` when it is free. Else it holds a calibration that stays: the one requested of the node during
-    the session (``requested``: its :func:`output_stamp`, requested on ``requested_by``), an earlier one it held
-    when the session started (``at_start``: its stamp then), or another command's (e.g. a
-    calibrate --out of the bag so far); the live calibration goes beside it, and the warning says why.
+    ``out_dir`` when it is free, or when it holds the calibration requested of the node during the session
+    (``requested``: its :func:`output_stamp`), which it replaces: both are the node's, and the session's last is
+    the one to apply (its user finds it where the README says, ``<bag>_calibration/``). Else it holds a
+    calibration that stays: an earlier one it held when the session started (``at_start``: its stamp then), or
+    another command's (e.g. a calibrate --out of the bag so far); the live calibration goes beside it, and the
+    warning says why.
     """
     if is_free(os.path.realpath(out_dir)):
-        return out_dir, None
+        return out_dir, (), None
     now = output_stamp(out_dir)
+    if requested is not None and now == requested:
+        return out_dir, requested, None
     beside = free_sibling(out_dir, ".live")
-    what = (f"was written by the calibration requested on {requested_by} during the session" if now == requested
-            else "held an earlier calibration when the session started" if now == at_start
+    what = ("held an earlier calibration when the session started" if now == at_start
             else "was written by another command during the session")
-    return beside, (f"out_dir {out_dir} {what} and is left as it is; the session's last live calibration goes to"
-                    f" {beside}")
+    return beside, (), (f"out_dir {out_dir} {what} and is left as it is; the session's last live calibration goes to"
+                        f" {beside}")

@@ -106,6 +106,9 @@ PAIRING_RECORDER = {
                           " of the simulated robot is said as such on every read)"),
     "continues": ([""], "the earlier sittings' bags the session continues, kept in the bag's metadata (a record"
                         " session sets it: nao-skin calibrate says when one of them is not among its inputs)"),
+    "sim_seed": (-1, "the seed the simulated robot plays, kept in the bag's metadata (a record session with the"
+                     " simulated robot sets it: a session continuing the bag plays another); -1: none",
+                 Rule(int, low=-1)),
     "storage": ("mcap", "bag storage: mcap (survives kill -9 up to the last flush) or sqlite3",
                 Rule(str, ("mcap", "sqlite3"))),
     "flush_period": (1.0, "seconds between flushes of the bag to disk", SECONDS),
@@ -172,6 +175,21 @@ YARP_SKIN_BRIDGE = {
     "status_period": (1.0, "seconds between /skin/bridge_status messages", SECONDS),
 }
 
+
+def params_file_said(node: str, name: str, value: str = "VALUE") -> str:
+    """How a launch user gives one node's parameter: a ROS 2 parameters file (``params_file:=`` of our launch
+    files) with the node's section."""
+    return f"params_file:=FILE holding {node}: {{ros__parameters: {{{name}: {value}}}}}"
+
+
+def at_start_said(node: str, name: str, value: str = "VALUE") -> str:
+    """How a user gives one node's parameter when it starts, whichever way they started it (a node cannot know)."""
+    return (f"ros2 run: -p {name}:={value}; ros2 launch: {params_file_said(node, name, value)}; nao-skin record:"
+            f" --param {node}.{name}={value}")
+
+
+# the parameters every rclpy node declares itself (rclpy 7): a parameters file may give them to any node
+ROS_NODE_PARAMS = ("use_sim_time", "start_type_description_service")
 
 NODE_PARAMS = {"calibrate": CALIBRATE, "naoqi_bridge": NAOQI_BRIDGE, "pairing_recorder": PAIRING_RECORDER,
                "sim_robot": SIM_ROBOT, "skin_heatmap": SKIN_HEATMAP, "yarp_skin_bridge": YARP_SKIN_BRIDGE}

@@ -24,22 +24,32 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from nao_skin.errors import ConfigError, NaoSkinError
-from nao_skin.formats.ros_params import parameters_for, read_params_file
+from nao_skin.formats.ros_params import names_the_node, parameters_for, read_params_file, sections_for
 from nao_skin.model.skin import parse_taxel_files
 from nao_skin.model.urdf import expand_xacro
 from nao_skin.paths import (config_dir, default_skin_config, parse_yaml, read_yaml,
                             yaml_value)
 from nao_skin.rules import did_you_mean
-from nao_skin.session.params import CHECKS, NODE_PARAMS, PER_PART_NODES, per_part_params, skin_from_params
+from nao_skin.session.params import (CHECKS, NODE_PARAMS, PER_PART_NODES, ROS_NODE_PARAMS, params_file_said,
+                                     per_part_params, skin_from_params)
 
 ROBOTS = ("sim", "nao")
 CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 SKIN_NODES = ("sim_robot", "yarp_skin_bridge", "pairing_recorder", "skin_heatmap", "calibrate")   # read the skin
-PARENT_ENV = "NAO_SKIN_PARENT_PID"     # set by `nao-skin record` for its nodes: they stop when it is gone
+# set by `nao-skin record` and our launch files for their nodes: they stop when that process is gone
+PARENT_ENV = "NAO_SKIN_PARENT_PID"
 # what stops record, bench-live and a node as Ctrl-C does: a closed terminal (SIGHUP), a kill or timeout (SIGTERM)
 YARP_HINT = ("yarp_skin_bridge needs YARP's Python bindings (pip package yarp-middleware, built from source): in"
              " the venv `make setup-test` or `docker/setup_venv.sh --with-yarp`, in a ROS workspace"
              " `pip install --break-system-packages yarp-middleware` or YARP built with its Python bindings")
+# parameters a record session sets itself, with the argument that says it (launch spelling): given in a parameters
+# file or by --param they would be overridden without a word
+SESSION_SET = {("pairing_recorder", "bag_path"): "bag", ("calibrate", "recording"): "bag",
+               ("pairing_recorder", "continues"): "continue_from", ("calibrate", "earlier_recordings"): "continue_from",
+               ("skin_heatmap", "earlier_recordings"): "continue_from", ("pairing_recorder", "sim_seed"): "seed",
+               ("pairing_recorder", "recorded_from"): "robot"}
+
+
 def check_needs(specs) -> None:
     """Every Python module a node needs imports here (the nodes run on this interpreter): else one line saying
     what to install, before any node starts (``nao-skin record`` and the launch file)."""
@@ -64,6 +74,7 @@ class NodeSpec:
     optional: bool = False         # skipped by `nao-skin record` when the executable is not installed
     needs: dict = field(default_factory=dict)   # Python module the node imports -> what to install
     namespace: str = "/"           # the session's namespace: its topics and (as a prefix) its frames
+    said: dict = field(default_factory=dict)    # how a message names a parameter file (the user's: params_file:=)
 
     @property
     def ours(self) -> bool:
@@ -78,7 +89,8 @@ def robot_description(calibration: str = "", skin_frames: bool = False) -> str:
 def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, events_port: str = "",
                    bag_path: str = "", calibration: str = "", rviz: bool = False, taxels=(),
                    overrides: dict | None = None, with_robot_state_publisher: bool = True,
-                   guided: bool = False, continue_from=(), namespace: str = "", spelling: str = "launch") -> list:
+                   guided: bool = False, continue_from=(), namespace: str = "", spelling: str = "launch",
+                   params_file: str = "", seed=None, say=None) -> list:
     """The nodes of ``record.launch.py`` for these launch arguments.
 
     ``spelling``: how a message names the arguments, as the caller's user gave them: ``launch``
@@ -91,10 +103,24 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     ``overrides``: ``{node name: {parameter: value}}`` applied last (tests, CLI ``--param``).
     ``namespace``: every node's namespace (``/nao2``): a second robot's session on the same ROS domain, its
     topics under the namespace and its TF frames prefixed with it (robot_state_publisher's ``frame_prefix``).
+    ``params_file``: the user's ROS 2 parameters file, given to every node after the package's own files (so it
+    overrides them) and before the session's own overrides; checked as they are, and a parameter of ours a
+    section naming the node gives that the node does not have is one line too.
+    ``seed``: the simulated robot's seed (None or "": not given; a session continuing earlier sittings then picks
+    one none of them played, so that it plays new touches). ``say``: where a line worth a look goes (stderr).
     """
+    say = say or (lambda line: print(line, file=sys.stderr))
     namespace = _namespace(namespace, spelling)
     if robot not in ROBOTS:
         raise ConfigError(f"{_said('robot', repr(robot), spelling)}: expected one of {', '.join(ROBOTS)}")
+    seed = None if seed is None or str(seed).strip() == "" else seed
+    if seed is not None and robot != "sim":
+        raise ConfigError(f"{_said('seed', seed, spelling)}: only the simulated robot ({_said('robot', 'sim', spelling)})"
+                          f" plays a seed; {_said('robot', robot, spelling)} records the robot's own touches")
+    if seed is not None:     # the node's own rule (_checked says where=value)
+        seed = _checked(seed, *_declared(NodeSpec("sim_robot", "sim_robot"))["seed"],
+                        "seed:" if spelling == "launch" else "--seed")
+    user_file = _user_params_file(params_file, spelling)
     if robot == "sim":       # said, not ignored: an operator who gave the robot's address meant the robot
         for given, name in ((nao_ip, "nao_ip"), (events_port, "events_port"), (not naoqi, "naoqi")):
             if given:
@@ -154,13 +180,20 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
         specs.append(NodeSpec("rviz2", "rviz2", package="rviz2", optional=True,
                               arguments=["-d", str(cfg / "nao_skin.rviz")]))
     if taxels:       # checked here: a mistake is one line before anything starts; absolute for every node
-        resolved = [f"{part}={path.resolve()}" for part, path in parse_taxel_files(taxels, "taxels").items()]
+        resolved = taxel_items(taxels, spelling)
         for spec in specs:
             if spec.name in SKIN_NODES:
                 spec.overrides["taxels"] = resolved
     for spec in specs:
         spec.namespace = namespace
+        if user_file is not None:
+            spec.params_files.append(user_file[0])
+            spec.said[str(user_file[0])] = user_file[1]
     by_name = {spec.name: spec for spec in specs}
+    # the session's calibration goes beside its bag, unless the user's parameters file names another place
+    out_dir = _file_given(by_name["calibrate"], user_file).get("out_dir")
+    if out_dir is not None:
+        by_name["calibrate"].overrides["out_dir"] = out_dir
     for node, values in (overrides or {}).items():
         # one bag for both: the calibrate node follows what the recorder writes, and the checks below (never
         # overwrite a bag) see the one --bag names
@@ -173,21 +206,197 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
         if earlier_param in values:       # one list for both, checked before any node starts
             raise ConfigError(f"--param {node}.{earlier_param}: give --continue-from BAG (launch: continue_from:=BAG)"
                               f" instead")
+        for name in values:
+            if (node, name) in SESSION_SET:
+                raise ConfigError(f"--param {node}.{name}: {_set_by_session(node, name, 'command')}")
         if node not in by_name:
             raise ConfigError(f"--param {node}.{next(iter(values), '')}: no node '{node}' in this session"
                               f" (robot {robot}: {', '.join(by_name)})")
         spec = by_name[node]
         spec.overrides.update(typed_overrides(spec, values) if spec.ours else _as_yaml(values))
-    # a node given a skin of its own (--param NODE.taxels=...): the session's (--taxels) is checked with the files
+    # a node given a skin of its own (--param NODE.taxels=..., or in the user's parameters file): the session's
+    # (--taxels) is checked with the files
     own_skin = {node for node, values in (overrides or {}).items() if {"skin_config", "taxels"} & set(values)}
+    own_skin |= {spec.name for spec in specs if {"skin_config", "taxels"} & set(_file_given(spec, user_file))}
+
+    def set_by_session(node: str, name: str) -> str | None:
+        return _set_by_session(node, name, spelling) if (node, name) in SESSION_SET else None
+
     for spec in specs:
         _check_printable(spec)
         if spec.ours:
             _check_file_values(spec)
-            _check_together(spec, spec.name in own_skin)
+            _check_user_file(spec, user_file, set_by_session)
+            _check_together(spec, spec.name in own_skin, spelling)
     _check_guided(by_name)
-    _check_files(bag_path, calibration, by_name["calibrate"].overrides)
+    if robot == "sim":
+        _play_a_new_seed(by_name, earlier, seed, user_file, spelling, say)
+    _check_files(bag_path, calibration, _start_values(by_name["calibrate"]), spelling)
     return specs
+
+
+def calibrate_on_inputs(inputs, out_dir: str, calibration: str = "", taxels=(), namespace: str = "",
+                        params_file: str = "", spelling: str = "launch") -> NodeSpec:
+    """The calibrate node of ``calibrate.launch.py`` for these launch arguments: it calibrates ``inputs`` once at
+    start (config/record.yaml's section without its live updates: no recorder runs), writes ``out_dir`` and
+    publishes the result. ``taxels``, ``namespace`` and ``params_file`` as :func:`record_session` takes them,
+    checked as it checks them, before the node starts."""
+    namespace = _namespace(namespace, spelling)
+    # record.yaml's calibrate section is a record session's: here no live updates (no recorder runs)
+    spec = NodeSpec("calibrate", "calibrate", [config_dir() / "record.yaml"],
+                    {"inputs": list(inputs) or [""], "calibrate_on_start": True, "live": False, "out_dir": out_dir},
+                    namespace=namespace)
+    if calibration:
+        spec.overrides["calibration"] = calibration
+    if taxels:
+        spec.overrides["taxels"] = taxel_items(taxels, spelling)
+    user_file = _user_params_file(params_file, spelling)
+    if user_file is not None:
+        spec.params_files.append(user_file[0])
+        spec.said[str(user_file[0])] = user_file[1]
+    # what the launch file sets itself: from its arguments, or fixed (it calibrates once, no recorder runs)
+    from_arguments = {"inputs", "out_dir", *(["calibration"] if calibration else []), *(["taxels"] if taxels else [])}
+
+    def set_here(node: str, name: str) -> str | None:
+        if name in from_arguments:
+            return f"calibrate.launch.py sets it from {_said(name, '...', spelling)}: give it there"
+        if name in ("calibrate_on_start", "live", "recording", "earlier_recordings"):
+            return "calibrate.launch.py calibrates its inputs once at start, without a record session"
+        return None
+
+    _check_printable(spec)
+    _check_file_values(spec)
+    _check_user_file(spec, user_file, set_here)
+    values = _start_values(spec)
+    try:     # the skin the node reads, with the taxel files named where the user named them
+        load_skin_files(values, spelling)
+    except NaoSkinError as exc:
+        raise ConfigError(str(exc)) from None
+    _check_together(spec, True, spelling)
+    return spec
+
+
+def taxel_items(taxels, spelling: str) -> list:
+    """``PART=FILE`` items of ``--taxels`` / ``taxels:=`` as a node's ``taxels`` parameter: each checked with the
+    skin config (one line naming it), the files absolute (every node reads them from its own directory)."""
+    items = [f"{part}={path.resolve()}" for part, path in parse_taxel_files(taxels, _taxels_said(spelling)).items()]
+    try:
+        load_skin_files({"taxels": items}, spelling)
+    except NaoSkinError as exc:
+        raise ConfigError(str(exc)) from None
+    return items
+
+
+def _taxels_said(spelling: str) -> str:
+    return "taxels:=" if spelling == "launch" else "--taxels"
+
+
+def load_skin_files(values: dict, spelling: str):
+    """The skin of a node's ``skin_config`` and ``taxels`` values, a mistake in the files named as its user gave
+    them (``taxels:=``, ``--taxels``)."""
+    from nao_skin.model.skin import load_skin
+
+    where = _taxels_said(spelling)
+    return load_skin(values.get("skin_config") or None, parse_taxel_files(values.get("taxels") or [], where),
+                     where=where)
+
+
+def _set_by_session(node: str, name: str, spelling: str) -> str:
+    """Why a parameter the session sets itself is refused where the user gave it, and what to give instead."""
+    arg = SESSION_SET[(node, name)]
+    value = {"bag": "DIR", "continue_from": "BAG", "seed": "N", "robot": "sim|nao"}[arg]
+    why = {"bag": "the session's bag is set once, for the recorder and the calibrate node together",
+           "continue_from": "the session's earlier sittings are named once, for every node that reads them",
+           "seed": "the session keeps the simulated robot's seed in the bag",
+           "robot": "the session says what it records from"}[arg]
+    return f"{why}: give {_said(arg, value, spelling)} instead"
+
+
+def _user_params_file(path: str, spelling: str) -> tuple | None:
+    """``(absolute path, how a message names it)`` of the user's parameters file (``params_file:=`` /
+    ``--params-file``), read as rcl reads it: one line naming it when it cannot be read or rcl would refuse it
+    (every node would fail to start on it), None when none is given."""
+    if not str(path).strip():
+        return None
+    said = _said("params_file", path, spelling)
+    try:
+        read_params_file(Path(path).expanduser())
+    except NaoSkinError as exc:
+        text = str(exc)
+        for name in (str(Path(path).expanduser()), str(path)):
+            text = text.removeprefix(f"{name}: ")
+        raise ConfigError(f"{said}: {text}") from None
+    return Path(path).expanduser().resolve(), said
+
+
+def _file_given(spec: NodeSpec, user_file: tuple | None) -> dict:
+    """What the user's parameters file gives the node, as rcl applies it."""
+    if user_file is None:
+        return {}
+    return parameters_for(read_params_file(user_file[0]), spec.name, spec.namespace)
+
+
+def _check_user_file(spec: NodeSpec, user_file: tuple | None, set_here) -> None:
+    """What the user's parameters file gives one of our nodes, beyond the checks of every file's values: a
+    parameter the starter sets itself (``set_here(node, name)``: why, and what to give instead; None: not one),
+    which would be overridden without a word, and, in a section naming the node (not ``/**``: that one gives
+    every node the same set), a parameter the node does not have, which ROS ignores without a word."""
+    if user_file is None:
+        return
+    path, said = user_file
+    known = _declared(spec)
+    for section, given in sections_for(read_params_file(path), spec.name, spec.namespace):
+        for name in given:
+            why = set_here(spec.name, name)
+            if why:
+                raise ConfigError(f"{said}: {spec.name}.{name}: {why}")
+            if names_the_node(section) and name not in known and name not in ROS_NODE_PARAMS:
+                raise ConfigError(f"{said}: {spec.name}.{name} (section {section}): node '{spec.name}' has no"
+                                  f" parameter '{name}'{did_you_mean(name, known)}; its parameters:"
+                                  f" {', '.join(known)}")
+
+
+def _play_a_new_seed(by_name: dict, earlier: list, seed, user_file: tuple | None, spelling: str, say) -> None:
+    """The seed the simulated robot plays, kept in the bag's metadata (the recorder's ``sim_seed``). The same
+    seed plays the same touches: a session continuing earlier sittings replayed their touches, every one an
+    exact duplicate left out, so it plays the first seed from the package's that none of them played, unless
+    the user gave one (``seed``, ``--param sim_robot.seed``, the parameters file): then a seed played before is
+    said in one line."""
+    from nao_skin.formats.bag import SIMULATED, recorded_from, simulator_seed
+    from nao_skin.formats.inputs import is_text_input
+
+    robot = by_name["sim_robot"]
+    package = _start_values(NodeSpec("sim_robot", "sim_robot", [p for p in robot.params_files
+                                                                if str(p) not in robot.said],
+                                      namespace=robot.namespace))["seed"]
+    played: dict = {}              # seed -> the earlier sitting that played it
+    for path in earlier:
+        if is_text_input(path):
+            continue
+        was = simulator_seed(Path(path))
+        if was is None and recorded_from(Path(path)) == SIMULATED:
+            was = package          # recorded before the seed was kept: the package's, as every session played then
+        if was is not None:
+            played.setdefault(was, path)
+    given = None                   # (seed, as the user gave it)
+    if seed is not None:
+        given = (seed, _said("seed", seed, spelling))
+    elif "seed" in robot.overrides:
+        given = (robot.overrides["seed"], f"--param sim_robot.seed={robot.overrides['seed']}")
+    elif "seed" in _file_given(robot, user_file):
+        given = (_start_values(robot)["seed"], f"{user_file[1]}: sim_robot.seed")
+    if given is not None:
+        chosen = given[0]
+        if chosen in played:
+            say(f"{given[1]}: the earlier sitting {played[chosen]} played this seed too: the simulated robot plays"
+                f" its touches again, each an exact duplicate left out; give another seed, or none (a continued"
+                f" session picks one no sitting played)")
+    else:
+        chosen = package
+        while chosen in played:
+            chosen += 1
+    robot.overrides["seed"] = chosen
+    by_name["pairing_recorder"].overrides["sim_seed"] = chosen
 
 
 _NAMESPACE_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -315,16 +524,17 @@ def _check_printable(spec: NodeSpec) -> None:
                                   f" parameter does not carry as it is; use printable characters")
 
 
-def _check_together(spec: NodeSpec, own_skin: bool = False) -> None:
+def _check_together(spec: NodeSpec, own_skin: bool = False, spelling: str = "command") -> None:
     """The node's own check of its parameters taken together (:data:`~nao_skin.session.params.CHECKS`) on the
     values it will start with: declared defaults, then its parameter files, then the overrides; and, with
-    ``own_skin``, the skin it reads (``--param NODE.taxels=...``)."""
+    ``own_skin``, the skin it reads (``--param NODE.taxels=...``, a parameters file's)."""
     check = CHECKS.get(spec.executable)
     reads_own_skin = own_skin and spec.name in SKIN_NODES
     if check is None and not reads_own_skin:
         return
     values = _start_values(spec)
-    where = f"node {spec.name} (parameters from {', '.join(map(str, spec.params_files)) or 'its defaults'} and --param)"
+    files = ", ".join(spec.said.get(str(f), str(f)) for f in spec.params_files) or "its defaults"
+    where = f"node {spec.name} (parameters from {files}{' and --param' if spelling == 'command' else ''})"
     if reads_own_skin:
         try:
             skin_from_params(values)
@@ -358,7 +568,7 @@ def _check_file_values(spec: NodeSpec) -> None:
         for name, value in given.items():
             if name not in known or name in spec.overrides:
                 continue
-            _checked(value, *known[name], f"{path}: {spec.name}.{name}")
+            _checked(value, *known[name], f"{spec.said.get(str(path), path)}: {spec.name}.{name}")
 
 
 def _check_guided(by_name: dict) -> None:
@@ -375,13 +585,18 @@ def _check_guided(by_name: dict) -> None:
                           f" {' and '.join(o.split('=')[0] for o in off)} setting")
 
 
-def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> None:
+def _param_said(node: str, name: str, value: str, spelling: str) -> str:
+    """How the user sets one node's parameter in a session: ``--param`` of nao-skin record, a parameters file of
+    the launch (its section for the node)."""
+    return f"--param {node}.{name}={value}" if spelling == "command" else params_file_said(node, name, value)
+
+
+def _check_files(bag_path: str, calibration: str, calibrate_params: dict, spelling: str = "command") -> None:
     """What the nodes read and write first, checked before any starts: one line here instead of a node dying
     after the others are up (a bag is never overwritten; a calibration must fit the skin the nodes read)."""
     from nao_skin.formats.bag import enclosing_bag
     from nao_skin.formats.inputs import read_sitting
     from nao_skin.formats.outdir import check_writable
-    from nao_skin.model.skin import load_skin
     from nao_skin.model.urdf import check_calibration_origins
 
     bag = Path(bag_path)
@@ -395,26 +610,27 @@ def _check_files(bag_path: str, calibration: str, calibrate_params: dict) -> Non
     # the session's calibration is written there at its end, replacing what the session itself wrote:
     # anything there before (an earlier `nao-skin calibrate --out` of that name) would be lost
     if "out_dir" in calibrate_params and not str(calibrate_params["out_dir"]).strip():
-        raise ConfigError("--param calibrate.out_dir='': the session's calibration needs a directory (default:"
-                          " <bag>_calibration)")
+        raise ConfigError(f"{_param_said('calibrate', 'out_dir', repr(''), spelling)}: the session's calibration needs"
+                          f" a directory (default: <bag>_calibration)")
+    earlier = [path for path in calibrate_params.get("earlier_recordings") or [] if path]
     out = Path(calibrate_params["out_dir"]).expanduser() if calibrate_params.get("out_dir") else None
     if out is not None:
         # the node refuses an out_dir that is, lies in or holds what it reads: said here, before the bag is made
         o = Path(os.path.abspath(out))
-        for read in (bag, *calibrate_params.get("earlier_recordings", [])):
+        for read in (bag, *earlier):
             b = Path(os.path.abspath(read))
             relation = "is" if o == b else "lies inside" if b in o.parents else "holds" if o in b.parents else None
             if relation:
                 raise ConfigError(f"calibration output {out}: {relation} the bag {read}; the calibration is written"
-                                  f" beside the recordings, not in them: choose another --param calibrate.out_dir")
+                                  f" beside the recordings, not in them: choose another"
+                                  f" ({_param_said('calibrate', 'out_dir', 'NEW_DIR', spelling)})")
         if out.exists() or out.is_symlink():
             raise ConfigError(f"calibration output {out}: exists already; the session writes its calibration there"
-                              f" and replaces nothing it did not write: name another bag, or --param"
-                              f" calibrate.out_dir=NEW_DIR")
+                              f" and replaces nothing it did not write: name another bag, or"
+                              f" {_param_said('calibrate', 'out_dir', 'NEW_DIR', spelling)}")
         check_writable(out, f"calibration output {out}")
-    skin = load_skin(calibrate_params.get("skin_config") or None,
-                     parse_taxel_files(calibrate_params.get("taxels") or [], "taxels"))
-    for path in calibrate_params.get("earlier_recordings") or []:
+    skin = load_skin_files(calibrate_params, spelling)
+    for path in earlier:
         try:     # read as the calibrate node will at its start: one that holds no touch or fits another skin
             read_sitting(path, skin)
         except NaoSkinError as exc:

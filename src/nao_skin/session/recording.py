@@ -52,7 +52,7 @@ class TouchRecording:
     """The touches of one session into the touch bag ``bag_path`` (a new directory, opened here)."""
 
     def __init__(self, skin: SkinModel, config: EventConfig, bag_path: str | Path, storage: str,
-                 recorded_from: str = "", continues=(), judge=None):
+                 recorded_from: str = "", continues=(), sim_seed: int | None = None, judge=None):
         """``judge``: a :class:`~nao_skin.touch.fingertip.FingertipJudge` of the session's fingertip scenes (None:
         self-touches only)."""
         self.skin = skin
@@ -63,7 +63,7 @@ class TouchRecording:
         self.bag_path = Path(bag_path).expanduser().resolve()
         self.recorded_from = recorded_from
         self.bag = BagWriter(self.bag_path, storage, kind="touches", live=True, source=recorded_from,
-                             continues=continues)
+                             continues=continues, sim_seed=sim_seed)
         self.bag.__enter__()
         self.n_touches = 0
         self.pairs: Counter = Counter()

@@ -93,6 +93,16 @@ def duplicate_mask(touches: TouchSet) -> np.ndarray:
     return mask
 
 
+def repeats_of(touches: TouchSet, earlier: TouchSet) -> int:
+    """How many of ``touches`` exactly repeat a touch of ``earlier`` (same angles, same part/slot sets): a
+    simulated robot playing the seed of an earlier sitting again repeats every one of its touches."""
+    if touches.n_touches == 0 or earlier.n_touches == 0:
+        return 0
+    _, ids = np.unique(_touch_signatures(TouchSet.concatenate([earlier, touches])), axis=0, return_inverse=True)
+    ids = np.asarray(ids).reshape(-1)
+    return int(np.isin(ids[earlier.n_touches:], ids[:earlier.n_touches]).sum())
+
+
 def deduplicate(touches: TouchSet) -> tuple:
     """``(touches without exact repeats, n_removed)``; the first occurrence is kept, order preserved."""
     dup = duplicate_mask(touches)
