@@ -412,7 +412,7 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
     last_step, last_kinds, last_inliers, last_cost = fit.last_cost
     cost_before = (last_cost if last_step is step and last_inliers == int(fit.inliers.sum()) and last_kinds == kinds
                    else fitted_pair_cost(train, skin, fit.calibration, step, fit.inliers, kinds, fit.fabric, started,
-                                     options.plane_rows(), fit.press))
+                                     options.row_rules(fit.press)))
     entry = stage.report(prefix + stage.name)
     entry["rows"] = list(kinds)
     if KINEMATICS in levels:
@@ -422,7 +422,7 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
     fit.fingertips_held |= set(stage.fingertips_held)
     fit.fingertips_estimated |= fitted - set(stage.fingertips_held)
     cost_after = fitted_pair_cost(train, skin, stage.calibration, step, fit.inliers, kinds,
-                                  stage.fabric_thickness_mm / 1000.0, ended, options.plane_rows(), fit.press)
+                                  stage.fabric_thickness_mm / 1000.0, ended, options.row_rules(fit.press))
     if cost_after > 1.25 * cost_before and not (round_no == 0 and "mount" in levels):
         # never silently diverge: a stage that leaves the touches much farther apart is undone
         entry["reverted"] = (f"undone: mean closest {'/'.join(kinds)} pair (at the fabric surfaces)"

@@ -111,7 +111,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     result = None
     for repairings in range(1, limit + 1):
         current = layout.to_calibration(x, calib)
-        pairing_all = pair_step(touches, skin, current, step, pair_kinds, options.plane_rows(), press)
+        pairing_all = pair_step(touches, skin, current, step, pair_kinds, options.row_rules(press))
         if pairing_all is None:
             raise DataError(f"{name}: no touch pairs the parts {', '.join(parts_in)}")
         pairing = select_rows(pairing_all, kinds, inliers)

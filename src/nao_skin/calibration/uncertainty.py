@@ -82,7 +82,7 @@ def linearised_rows(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, 
     options = options.in_place()
     layout = ParameterLayout(skin, parts, tuple(kinematic))
     kinds = fitted_kinds(options, {"triangle"})
-    pairing = pair_step(touches, skin, calib, Step(parts, ()), kinds, options.plane_rows())
+    pairing = pair_step(touches, skin, calib, Step(parts, ()), kinds, options.row_rules())
     if pairing is not None:
         pairing = select_rows(pairing, tuple(KIND_NAMES[k] for k in kinds), inliers)
     if pairing is None or len(pairing.row_touch) == 0:
