@@ -33,13 +33,11 @@ NEIGHBOURS = 6            # nearest taxels of the other part searched for one th
 PREDICT_RADIUS = 0.004
 
 
-def _facing_neighbours(ctx: FitContext, other: int, act: np.ndarray, radius: float = np.inf) -> tuple:
-    """The other part's :data:`NEIGHBOURS` nearest taxels to each activation of ``act`` (within ``radius``), in
-    that part's chain-end frame, where its taxels are one fixed cloud (one tree per call, every touch at once):
-    ``(slots, local, local_n, rot, x, n_own, near, facing)`` -- the other part's present slots with their
-    calibrated positions and normals there, its chain-end rotation in each activation's touch, the activations'
-    positions and normals in that frame, the neighbours' rows ``(A, k)`` and whether each faces its activation
-    (a neighbour past ``radius`` does not)."""
+def _in_other_frame(ctx: FitContext, other: int, act: np.ndarray) -> tuple:
+    """The activations ``act`` in the other part's chain-end frame, where its taxels are one fixed cloud (one tree
+    per call, every touch at once): ``(slots, local, local_n, tree, rot, x, n_own)`` -- the other part's present
+    slots with their calibrated positions and normals there and a tree of those positions, its chain-end rotation
+    in each activation's touch, the activations' positions and normals in that frame."""
     part = ctx.skin.part(ctx.touches.part_names[other])
     pos_all, nor_all = ctx.placed.slots(part.name)
     slots = part.slots
@@ -48,13 +46,31 @@ def _facing_neighbours(ctx: FitContext, other: int, act: np.ndarray, radius: flo
     rot, trans = fk[:, :3, :3], fk[:, :3, 3]
     x = np.einsum("aji,aj->ai", rot, ctx.positions[act] - trans)
     n_own = np.einsum("aji,aj->ai", rot, ctx.normals[act])
-    k = min(NEIGHBOURS, len(slots))
-    dist, near = scipy.spatial.cKDTree(local).query(x, k=k, distance_upper_bound=radius)
-    dist, near = dist.reshape(len(act), k), near.reshape(len(act), k)
+    return slots, local, local_n, scipy.spatial.cKDTree(local), rot, x, n_own
+
+
+def _nearest(tree, x: np.ndarray, k: int, radius: float = np.inf) -> tuple:
+    """``(near, within)``: the rows ``(A, k)`` of the ``k`` points of ``tree`` nearest each of ``x`` (0 where none
+    is within ``radius``) and whether each is."""
+    dist, near = tree.query(x, k=k, distance_upper_bound=radius)
+    dist, near = dist.reshape(len(x), k), near.reshape(len(x), k)
     within = np.isfinite(dist)
-    near = np.where(within, near, 0)
-    facing = within & (np.einsum("ak,aik->ai", n_own, local_n[near]) < 0.0)
-    return slots, local, local_n, rot, x, n_own, near, facing
+    return np.where(within, near, 0), within
+
+
+def _facing(n_own: np.ndarray, local_n: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """``(A, k)``: whether each neighbour ``near`` faces its activation (their normals ``n_own``)."""
+    return np.einsum("ak,aik->ai", n_own, local_n[near]) < 0.0
+
+
+def _facing_neighbours(ctx: FitContext, other: int, act: np.ndarray, radius: float = np.inf) -> tuple:
+    """The other part's :data:`NEIGHBOURS` nearest taxels to each activation of ``act`` (within ``radius``), in
+    that part's chain-end frame (:func:`_in_other_frame`): ``(slots, local, local_n, rot, x, n_own, near,
+    facing)`` -- as :func:`_in_other_frame`'s, the neighbours' rows ``(A, k)`` and whether each faces its
+    activation (a neighbour past ``radius`` does not)."""
+    slots, local, local_n, tree, rot, x, n_own = _in_other_frame(ctx, other, act)
+    near, within = _nearest(tree, x, min(NEIGHBOURS, len(slots)), radius)
+    return slots, local, local_n, rot, x, n_own, near, within & _facing(n_own, local_n, near)
 
 
 def surface_rows(ctx: FitContext, pa: int, pb: int, lateral: float = SURFACE_LATERAL) -> list:
@@ -117,15 +133,29 @@ def predicted_firing(ctx: FitContext, own: int, other: int, radius: float = PRED
 
 
 def skin_beside(ctx: FitContext, other: int, act: np.ndarray, lateral: float = SURFACE_LATERAL) -> np.ndarray:
-    """Per activation of ``act``: whether part ``other``'s skin lies beside it, a facing taxel of the other part
-    within ``lateral`` sideways (measured along that taxel's normal). A press at the edge of a hand's skin fires
-    the torso beyond the edge too; those torso taxels have no hand skin beside them, and a COP that counts them
-    is not the hand's (docs/method.md, "The contact model")."""
+    """Per activation of ``act``: whether part ``other``'s skin lies beside it, one of the other part's
+    :data:`NEIGHBOURS` taxels nearest it facing it within ``lateral`` sideways (measured along that taxel's
+    normal). A press at the edge of a hand's skin fires the torso beyond the edge too; those torso taxels have no
+    hand skin beside them, and a COP that counts them is not the hand's (docs/method.md, "The contact model")."""
     if len(act) == 0:
         return np.zeros(0, bool)
-    _, local, local_n, _, x, _, near, facing = _facing_neighbours(ctx, other, act)
+    slots, local, local_n, tree, _, x, n_own = _in_other_frame(ctx, other, act)
+    # the nearest taxel settles most (on the real recording five in six): when it is beside, one of the
+    # neighbours is; the others are searched among all of them
+    beside = _beside_among(local, local_n, x, n_own, _nearest(tree, x, 1)[0], lateral)
+    rest = np.flatnonzero(~beside)
+    if len(rest):
+        near, _ = _nearest(tree, x[rest], min(NEIGHBOURS, len(slots)))
+        beside[rest] = _beside_among(local, local_n, x[rest], n_own[rest], near, lateral)
+    return beside
+
+
+def _beside_among(local: np.ndarray, local_n: np.ndarray, x: np.ndarray, n_own: np.ndarray, near: np.ndarray,
+                  lateral: float) -> np.ndarray:
+    """Per activation (at ``x``, normal ``n_own``): whether one of its neighbours ``near`` faces it within
+    ``lateral`` sideways."""
     n = local_n[near]
     d = x[:, None] - local[near]
     along = np.einsum("aik,aik->ai", d, n)
     side = np.linalg.norm(d - along[..., None] * n, axis=2)
-    return np.any(facing & (side <= lateral), axis=1)
+    return np.any(_facing(n_own, local_n, near) & (side <= lateral), axis=1)

@@ -7,9 +7,14 @@ activations. A :class:`FitContext` computes each of these once, when a kind of r
 reads them from it (:mod:`~nao_skin.calibration.row_kinds`, :mod:`~nao_skin.calibration.fingertip`). A
 :class:`PlacedSkin` holds what does not depend on the touches (each part's slots placed under the calibration),
 shared by the contexts of one calibration: a step pairs each part pair on its own touches.
+
+A touch set keeps the contexts of the last :data:`CONTEXTS_KEPT` calibrations it was paired under: a stage ends
+where its cost is measured, its touches set aside and the next stage starts, and the figures of that
+calibration are measured on the same touches, each pairing the touches under it again.
 """
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -24,13 +29,33 @@ from nao_skin.touch.contacts import activations_by_part, cop_weights, segment_me
 from nao_skin.touch.touches import TouchSet
 
 
+# the contexts a touch set keeps, of the calibrations it was paired under last
+CONTEXTS_KEPT = 3
+
+
+def calibration_key(calib: SkinCalibration | None) -> tuple | None:
+    """What a fit context reads from a calibration, as bytes: equal keys, equal contexts of the same touches.
+
+    Every part's corrections, the kinematic corrections that are not zero (a zero one is the robot without it,
+    :meth:`SkinModel.with_kinematics`), the fingertips' spheres and the fabric (a fingertip's rows lift the taxels
+    by it); None for the nominal skin."""
+    if calib is None:
+        return None
+    parts = tuple((name, c.mount.tobytes(), c.patches.tobytes(), c.triangles.tobytes())
+                  for name, c in sorted(calib.parts.items()))
+    return (parts, tuple(sorted((k, float(v)) for k, v in calib.kinematics.items() if v != 0.0)),
+            tuple((k, np.asarray(v, float).tobytes()) for k, v in sorted(calib.fingertips.items())),
+            calib.fabric_thickness)
+
+
 class PlacedSkin:
     """A skin under one calibration (None: nominal): each part's slots placed in its chain-end frame, computed
-    once per part when first asked, on the robot the calibration's kinematic corrections describe."""
+    once per part when first asked, on the robot the calibration's kinematic corrections describe. It keeps a
+    copy of the calibration: what it computed stays that calibration's whatever happens to the one it was given."""
 
     def __init__(self, skin: SkinModel, calib: SkinCalibration | None = None):
         self.skin = skin
-        self.calib = calib
+        self.calib = None if calib is None else calib.copy()
         self.robot_skin = skin.with_kinematics(calib)
         self._slots: dict = {}
 
@@ -66,9 +91,19 @@ class FitContext:
     @classmethod
     def of(cls, touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None = None,
            placed: PlacedSkin | None = None) -> "FitContext":
-        """The context of ``touches`` under ``calib``; ``placed``: the skin already placed under it (shared with
-        other touch sets paired under the same calibration)."""
-        return cls(touches, placed if placed is not None else PlacedSkin(skin, calib))
+        """The context of ``touches`` under ``calib``: the one the touches keep for that calibration (module
+        docstring), else a new one, kept. ``placed``: the skin already placed under it (shared with other touch
+        sets paired under the same calibration)."""
+        kept = touches.derived(("fit contexts",), OrderedDict, (skin,))
+        key = calibration_key(calib)
+        ctx = kept.get(key)
+        if ctx is None:
+            ctx = kept[key] = cls(touches, placed if placed is not None else PlacedSkin(skin, calib))
+            if len(kept) > CONTEXTS_KEPT:
+                kept.popitem(last=False)
+        else:
+            kept.move_to_end(key)
+        return ctx
 
     @property
     def skin(self) -> SkinModel:

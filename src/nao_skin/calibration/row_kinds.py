@@ -55,7 +55,7 @@ def taxel_rows(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
         pick = _thesis_pick(ctx, pair, rules.cop_radius)
         found = (pair_group[pick], a_act[pick], b_act[pick], dpair[pick])
     elif rules.taxel_rule == "touch":
-        found = _closest_in_touch(ctx, pair)
+        found = ctx.memo(("closest in touch", pair.pa, pair.pb), lambda: _closest_in_touch(ctx, pair))
     else:
         closest = pair.closest
         found = (pair_group[closest], a_act[closest], b_act[closest], dpair[closest])
@@ -127,7 +127,8 @@ def cop_skin_rows(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
     each row's expectation at the true skin (the rows' :attr:`~.pairing.Pairing.row_offset`)."""
     n_g = len(pair.touch)
     act_slot, coords = ctx.touches.act_slot, ctx.coordinates
-    beside = [skin_beside(ctx, other, act) for act, other in ((pair.act_a, pair.pb), (pair.act_b, pair.pa))]
+    beside = ctx.memo(("skin beside", pair.pa, pair.pb),
+                      lambda: [skin_beside(ctx, other, act) for act, other in ((pair.act_a, pair.pb), (pair.act_b, pair.pa))])
     on_skin = ((np.bincount(pair.group_a, weights=beside[0], minlength=n_g) > 0)
                & (np.bincount(pair.group_b, weights=beside[1], minlength=n_g) > 0))
     sides, cops = [], []
@@ -148,7 +149,8 @@ def surface_rows_of(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBloc
     """The contact model's rows (:func:`~nao_skin.calibration.contact.surface_rows`) of the pair, A's taxels first."""
     touches = ctx.touches
     blocks = []
-    for own, other, act, slot, normal, along in surface_rows(ctx, pair.pa, pair.pb):
+    for own, other, act, slot, normal, along in ctx.memo(("surface rows", pair.pa, pair.pb),
+                                                         lambda: surface_rows(ctx, pair.pa, pair.pb)):
         m = len(act)
         if m == 0:
             continue
