@@ -205,6 +205,15 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
         fit = _Fit(start.copy(), options.fabric_thickness, initial_prior_sigma(options), np.ones(train.n_touches, bool),
                    truth_poses=fit.truth_poses, press=press)
         _run_all(run, fit, "press model: ")
+    posterior = _final_report(run, fit)
+    report.total_seconds = time.perf_counter() - t_start
+    return CalibrationResult(fit.calibration, report, train, test, fit.set_aside, posterior)
+
+
+def _final_report(run: _Run, fit: _Fit) -> Posterior | None:
+    """The report's entries on the final calibration: its figures, what it held and set aside, the fingertips, its
+    warnings (said); the posterior its predicted error came from."""
+    train, skin, options, report, say = run.train, run.skin, run.options, run.report, run.say
     report.final = _final_figures(run, fit)
     _kept_apart(run, fit)
     posterior = _predicted(run, fit)
@@ -225,8 +234,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
                       contact_figure(report.final["train_kept"]), options.gate_mm)
     for line in report.warnings:
         say(f"warning: {line}")
-    report.total_seconds = time.perf_counter() - t_start
-    return CalibrationResult(fit.calibration, report, train, test, fit.set_aside, posterior)
+    return posterior
 
 
 @dataclass
@@ -470,20 +478,27 @@ def _fit_stage(run: _Run, stage: Stage, fit: _Fit, round_no: int, prefix: str,
     if "mount" in levels and KINEMATICS not in levels and options.gate_mm > 0:
         paired = result.pairings.get(pairing_key(fit.calibration)) if "cop" in kinds else None   # its COP pairs
         entry["set_aside"] = _gate(run, step, prefix, fit, paired)
-    if not stage.condition:
+    if stage.condition:
+        _measure(run, step, fit, entry)
+    else:
         run.say(f"{entry['name']}: {entry['iterations']} iterations, {entry['repairings']} pairings,"
                 f" {entry['seconds']:.2f} s")
-        return entry
-    entry["train"] = evaluate(train, skin, fit.calibration, [step])
-    entry["test"] = evaluate(run.test, skin, fit.calibration, [step])
+    return entry
+
+
+def _measure(run: _Run, step: Step, fit: _Fit, entry: dict) -> None:
+    """A stage's figures on both splits at the calibration it left (and its true taxel error, with a truth), in its
+    report ``entry``; said."""
+    entry["train"] = evaluate(run.train, run.skin, fit.calibration, [step])
+    entry["test"] = evaluate(run.test, run.skin, fit.calibration, [step])
     fit.last_measured = (fit.calibration, plan_pairs([step]), entry["train"], entry["test"])
     if run.truth is not None:
-        entry["truth_taxel_error_mm"] = truth_error(skin, fit.calibration, run.truth, step.targets, fit.truth_poses)
+        entry["truth_taxel_error_mm"] = truth_error(run.skin, fit.calibration, run.truth, step.targets,
+                                                    fit.truth_poses)
     label, near = contact_figure(entry["train"])
     run.say(f"{entry['name']}: train {label} {near:.2f} mm,"
             f" taxel {entry['train'].get('taxel_mean_mm', float('nan')):.2f} mm"
             f" ({entry['iterations']} iterations, {entry['repairings']} pairings, {entry['seconds']:.2f} s)")
-    return entry
 
 
 KINEMATICS_SETTLED = 2e-4   # rad / m: no kinematic correction moved more in a pass (0.01 deg, 0.2 mm)
@@ -503,11 +518,46 @@ def _fit_kinematics(run: _Run, fit: _Fit) -> dict:
     closer by ``kinematics_min_gain``; otherwise the calibration is the skin-only one, unchanged, and
     every kinematic unknown is listed as held with the figures. ``on`` keeps it whatever the figures.
     """
-    skin, test, say = run.skin, run.test, run.say
-    # every stage of this path fits the rows of kinematics_pairs (docs/method.md, "The contact model")
-    options = replace(run.options, pairs=run.options.kinematics_pairs)
+    skin, test, say, options = run.skin, run.test, run.say, run.options
     step = joint_step(run.steps)
     test_before = _held_out_surface_mm(test, skin, fit, step)
+    kfit, entries = _kinematic_path(run, fit)
+    held_out = paired_gain(test_before, _held_out_surface_mm(test, skin, kfit, step), KINEMATICS_GAIN_Z)
+    candidates = skin.robot.kinematic_names(step.chains(skin))
+    out = {"mode": options.kinematics, "test_taxel_surface_mm": held_out}
+    if options.kinematics == "auto" and not held_out["gain_low"] >= options.kinematics_min_gain:
+        asked = f"{100 * options.kinematics_min_gain:.0f} %"
+        figures = (f"{held_out['before']:.3f} mm without, {held_out['after']:.3f} mm with the kinematic unknowns,"
+                   f" {_percent(held_out['gain'])} closer, at least {_percent(held_out['gain_low'])} at 95 %"
+                   f" confidence over {held_out['touches']} touches")
+        run.report.stages.extend(dict(e, reverted=f"kinematics={options.kinematics}: the test split's closest taxel"
+                                              f" distance (fabric surfaces) is not {asked} closer at 95 % confidence")
+                             for e in entries)
+        out["accepted"] = False
+        out["held"] = [{"name": n, "reason": f"kinematics={options.kinematics}: test closest taxel pairs (fabric"
+                                             f" surfaces) {figures}; kept from {asked}"} for n in candidates]
+        out["corrections"] = {}
+        say(f"kinematics: not kept (test closest taxel, fabric surfaces {figures}; kept from {asked})")
+        return out
+    vars(fit).update(vars(kfit))
+    run.report.stages.extend(entries)
+    out["accepted"] = True
+    held = entries[-1].get("kinematics_held", [])   # the last kinematic stage decides
+    kin = fit.calibration.kinematics
+    out["held"] = [{"name": n, "reason": "not determined by the touches: a direction the skin frames stand for"
+                                         " too, or one the poses do not excite (Jacobi-scaled normal equations)"}
+                   for n in candidates if n in held or n not in kin]
+    out["corrections"] = {n: {"value": kin[n], "std": fit.calibration.kinematics_std.get(n, float("nan")),
+                              "unit": "m" if n in skin.robot.links else "rad"} for n in candidates if n in kin}
+    return out
+
+
+def _kinematic_path(run: _Run, fit: _Fit) -> tuple:
+    """``(fit, report entries)`` of the kinematic path beside the skin-only calibration ``fit`` (its inliers and
+    rows' expectations): :func:`_fit_kinematics`' stages, every one fitting the rows of ``kinematics_pairs``
+    (docs/method.md, "The contact model")."""
+    options = replace(run.options, pairs=run.options.kinematics_pairs)
+    step = joint_step(run.steps)
     # The skin-only plan is no starting point: its patches and triangles have absorbed what the kinematics
     # get wrong, and a kinematic stage after it only takes back what the mounts cannot (docs/method.md,
     # "Kinematics"). So a path of its own: the mounts alone (first guesses, the plan at mount level), then
@@ -542,34 +592,7 @@ def _fit_kinematics(run: _Run, fit: _Fit) -> dict:
         moved = max((abs(v - last.get(k, 0.0)) for k, v in kfit.calibration.kinematics.items()), default=0.0)
         if moved < KINEMATICS_SETTLED:
             break
-    held_out = paired_gain(test_before, _held_out_surface_mm(test, skin, kfit, step), KINEMATICS_GAIN_Z)
-    candidates = skin.robot.kinematic_names(step.chains(skin))
-    out = {"mode": options.kinematics, "test_taxel_surface_mm": held_out}
-    if options.kinematics == "auto" and not held_out["gain_low"] >= options.kinematics_min_gain:
-        asked = f"{100 * options.kinematics_min_gain:.0f} %"
-        figures = (f"{held_out['before']:.3f} mm without, {held_out['after']:.3f} mm with the kinematic unknowns,"
-                   f" {_percent(held_out['gain'])} closer, at least {_percent(held_out['gain_low'])} at 95 %"
-                   f" confidence over {held_out['touches']} touches")
-        run.report.stages.extend(dict(e, reverted=f"kinematics={options.kinematics}: the test split's closest taxel"
-                                              f" distance (fabric surfaces) is not {asked} closer at 95 % confidence")
-                             for e in entries)
-        out["accepted"] = False
-        out["held"] = [{"name": n, "reason": f"kinematics={options.kinematics}: test closest taxel pairs (fabric"
-                                             f" surfaces) {figures}; kept from {asked}"} for n in candidates]
-        out["corrections"] = {}
-        say(f"kinematics: not kept (test closest taxel, fabric surfaces {figures}; kept from {asked})")
-        return out
-    vars(fit).update(vars(kfit))
-    run.report.stages.extend(entries)
-    out["accepted"] = True
-    held = entries[-1].get("kinematics_held", [])   # the last kinematic stage decides
-    kin = fit.calibration.kinematics
-    out["held"] = [{"name": n, "reason": "not determined by the touches: a direction the skin frames stand for"
-                                         " too, or one the poses do not excite (Jacobi-scaled normal equations)"}
-                   for n in candidates if n in held or n not in kin]
-    out["corrections"] = {n: {"value": kin[n], "std": fit.calibration.kinematics_std.get(n, float("nan")),
-                              "unit": "m" if n in skin.robot.links else "rad"} for n in candidates if n in kin}
-    return out
+    return kfit, entries
 
 
 def _percent(share: float) -> str:
