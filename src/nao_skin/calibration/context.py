@@ -22,8 +22,8 @@ import numpy as np
 
 from nao_skin import se3
 from nao_skin.calibration.pairing import chain_end_poses
-from nao_skin.calibration.segments import argmin_per_group, contact_activations, cross_pairs, gathered_distances, \
-    segment_max
+from nao_skin.calibration.segments import (argmin_per_group, contact_activations, cross_pairs, gathered_distances,
+                                           segment_max)
 from nao_skin.model.skin import SkinCalibration, SkinModel
 from nao_skin.touch.contacts import activations_by_part, cop_weights, segment_mean
 from nao_skin.touch.touches import TouchSet

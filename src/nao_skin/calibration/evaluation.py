@@ -177,7 +177,8 @@ def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float, 
 
     Taxel-centre distances alone grow when the fabric estimate grows, however good the fit.
     ``pairing``: that pairing, when a stage already made it (:attr:`StageResult.pairings`); ``rules``: how the
-    stage made its rows (with the rows' expectations it fitted them with, :func:`~nao_skin.calibration.press.press_offsets`).
+    stage made its rows (with the rows' expectations it fitted them with,
+    :func:`~nao_skin.calibration.press.press_offsets`).
     """
     fitted = _fitted_distances(touches, skin, calib, step, kinds, fabric, pairing, rules)
     if fitted is None:

@@ -22,7 +22,7 @@ the closest COP pair is among every contact: a figure that does not depend on wh
 selected. Kind 4 reports the fitted pair beside it; kind 2 stays the selected contacts' (eq. 2.5 counts their
 taxels).
 
-Each kind is a function ``(context, pair, rules) -> RowBlock`` (:func:`~.rows.pair_touches` calls the ones
+Each kind is a builder ``(context, pair, rules) -> RowBlock`` (:func:`~.rows.pair_touches` calls the ones
 asked for, as it calls a fingertip's, :mod:`~.fingertip`); re-pairing is a few vectorised passes over all
 touches (segment minima), cheap enough to repeat after every calibration step.
 """
@@ -40,7 +40,7 @@ from nao_skin.calibration.segments import argmin_per_group, contact_activations,
 MAX_TAXEL_PAIRS = 5
 
 
-def cop_rows(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
+def cop_block(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
     """The selected contacts' COPs (kind 0)."""
     act_slot, weight = ctx.touches.act_slot, ctx.cop_weights
     return RowBlock.between(pair.parts, pair.touch, pair.cop_distance,
@@ -48,7 +48,7 @@ def cop_rows(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
                             (pair.group_b, act_slot[pair.act_b], weight[pair.act_b]))
 
 
-def taxel_rows(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
+def taxel_block(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
     """The closest taxel pair, as ``rules.taxel_rule`` searches it (kind 1)."""
     pair_group, a_act, b_act, dpair = pair.taxel_pairs
     if rules.taxel_rule == "thesis":
@@ -59,10 +59,10 @@ def taxel_rows(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
     else:
         closest = pair.closest
         found = (pair_group[closest], a_act[closest], b_act[closest], dpair[closest])
-    return _taxel_pair_rows(ctx, pair, *found)
+    return _taxel_pair_block(ctx, pair, *found)
 
 
-def taxel5_rows(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
+def taxel5_block(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
     """Up to :data:`MAX_TAXEL_PAIRS` closest taxel pairs of the selected contacts, greedily, each taxel used once
     (kind 2); each row's step says which round found it."""
     pair_group, a_act, b_act, dpair = pair.taxel_pairs
@@ -79,20 +79,20 @@ def taxel5_rows(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
         used[b_act[pick]] = True
         valid &= ~used[a_act] & ~used[b_act]
     if not picks:
-        return _taxel_pair_rows(ctx, pair, *(np.zeros(0, int),) * 3, np.zeros(0))
+        return _taxel_pair_block(ctx, pair, *(np.zeros(0, int),) * 3, np.zeros(0))
     pick = np.concatenate([p for p, _ in picks])
     step = np.concatenate([np.full(len(p), s) for p, s in picks])
-    return _taxel_pair_rows(ctx, pair, pair_group[pick], a_act[pick], b_act[pick], dpair[pick], step=step)
+    return _taxel_pair_block(ctx, pair, pair_group[pick], a_act[pick], b_act[pick], dpair[pick], step=step)
 
 
-def contact_taxel_rows(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
+def contact_taxel_block(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
     """The closest taxel pair of the selected contacts, whatever the taxel rule (kind 4)."""
     pair_group, a_act, b_act, dpair = pair.taxel_pairs
     closest = pair.closest
-    return _taxel_pair_rows(ctx, pair, pair_group[closest], a_act[closest], b_act[closest], dpair[closest])
+    return _taxel_pair_block(ctx, pair, pair_group[closest], a_act[closest], b_act[closest], dpair[closest])
 
 
-def _plane_rows(ctx: FitContext, pair: SkinPair, rules: RowRules, own_side: int) -> RowBlock:
+def _plane_block(ctx: FitContext, pair: SkinPair, rules: RowRules, own_side: int) -> RowBlock:
     """Point-to-plane rows: every taxel of one side's selected contact (``own_side`` 0: A's, kind 5; 1: B's, kind
     6) with the closest taxel of the other side's, measured along that closest taxel's normal."""
     sides = ((pair.group_a, pair.act_a), (pair.group_b, pair.act_b))
@@ -113,14 +113,14 @@ def _plane_rows(ctx: FitContext, pair: SkinPair, rules: RowRules, own_side: int)
     normal = ctx.normals[other]
     coords = ctx.coordinates
     along = np.abs(np.einsum("ij,ij->i", coords[:, a_act].T - coords[:, b_act].T, normal))
-    return _taxel_pair_rows(ctx, pair, group, a_act, b_act, along, weight=w, normal=normal)
+    return _taxel_pair_block(ctx, pair, group, a_act, b_act, along, weight=w, normal=normal)
 
 
-plane_b_rows = partial(_plane_rows, own_side=0)
-plane_a_rows = partial(_plane_rows, own_side=1)
+plane_b_block = partial(_plane_block, own_side=0)
+plane_a_block = partial(_plane_block, own_side=1)
 
 
-def cop_skin_rows(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
+def cop_skin_block(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
     """The closest COP pair's contacts, each COP over its taxels with the other part's skin beside them
     (:func:`~nao_skin.calibration.contact.skin_beside`). Where one side has no such taxel (the frames are still
     far off, or the contacts lie apart), the whole contacts' COPs: no touch loses its row. With ``rules.press``,
@@ -128,7 +128,7 @@ def cop_skin_rows(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
     n_g = len(pair.touch)
     act_slot, coords = ctx.touches.act_slot, ctx.coordinates
     beside = ctx.memo(("skin beside", pair.pa, pair.pb),
-                      lambda: [skin_beside(ctx, other, act) for act, other in ((pair.act_a, pair.pb), (pair.act_b, pair.pa))])
+                      lambda: [skin_beside(ctx, pair.pb, pair.act_a), skin_beside(ctx, pair.pa, pair.act_b)])
     on_skin = ((np.bincount(pair.group_a, weights=beside[0], minlength=n_g) > 0)
                & (np.bincount(pair.group_b, weights=beside[1], minlength=n_g) > 0))
     sides, cops = [], []
@@ -145,7 +145,7 @@ def cop_skin_rows(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
                             offset=None if expected is None else np.nan_to_num(expected[pair.touch]))
 
 
-def surface_rows_of(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
+def surface_block(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBlock:
     """The contact model's rows (:func:`~nao_skin.calibration.contact.surface_rows`) of the pair, A's taxels first."""
     touches = ctx.touches
     blocks = []
@@ -166,11 +166,10 @@ def surface_rows_of(ctx: FitContext, pair: SkinPair, rules: RowRules) -> RowBloc
     return RowBlock.joined(pair.parts, blocks)
 
 
-def _taxel_pair_rows(ctx: FitContext, pair: SkinPair, group: np.ndarray, a_act: np.ndarray, b_act: np.ndarray,
-                     dist: np.ndarray, **extras) -> RowBlock:
+def _taxel_pair_block(ctx: FitContext, pair: SkinPair, group: np.ndarray, a_act: np.ndarray, b_act: np.ndarray,
+                      dist: np.ndarray, *, weight: np.ndarray | None = None, **extras) -> RowBlock:
     """One row per taxel pair: activation ``a_act[i]`` against ``b_act[i]``, of the touch of group ``group[i]``
-    (``weight``: each row's, default 1; other ``extras``: the block's optional row arrays)."""
-    weight = extras.pop("weight", None)
+    (``weight``: each row's, default 1; ``extras``: the block's optional row arrays)."""
     w = np.ones(len(group)) if weight is None else weight
     local_row = np.arange(len(group))
     act_slot = ctx.touches.act_slot

@@ -42,13 +42,14 @@ class RowKind:
 
 
 # every kind of row, in the order a touch's rows of one pair are put (the solver sums them in that order)
-ROW_KINDS = (RowKind(KIND_COP, SkinPair, row_kinds.cop_rows), RowKind(KIND_TAXEL, SkinPair, row_kinds.taxel_rows),
-             RowKind(KIND_TAXEL5, SkinPair, row_kinds.taxel5_rows),
-             RowKind(KIND_PLANE_B, SkinPair, row_kinds.plane_b_rows),
-             RowKind(KIND_PLANE_A, SkinPair, row_kinds.plane_a_rows),
-             RowKind(KIND_SURFACE, SkinPair, row_kinds.surface_rows_of),
-             RowKind(KIND_COP_SKIN, SkinPair, row_kinds.cop_skin_rows),
-             RowKind(KIND_CONTACT_TAXEL, SkinPair, row_kinds.contact_taxel_rows),
+ROW_KINDS = (RowKind(KIND_COP, SkinPair, row_kinds.cop_block),
+             RowKind(KIND_TAXEL, SkinPair, row_kinds.taxel_block),
+             RowKind(KIND_TAXEL5, SkinPair, row_kinds.taxel5_block),
+             RowKind(KIND_PLANE_B, SkinPair, row_kinds.plane_b_block),
+             RowKind(KIND_PLANE_A, SkinPair, row_kinds.plane_a_block),
+             RowKind(KIND_SURFACE, SkinPair, row_kinds.surface_block),
+             RowKind(KIND_COP_SKIN, SkinPair, row_kinds.cop_skin_block),
+             RowKind(KIND_CONTACT_TAXEL, SkinPair, row_kinds.contact_taxel_block),
              RowKind(KIND_FINGERTIP, FingertipScene, fingertip_block))
 
 
