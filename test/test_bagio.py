@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 import yaml
 
-from nao_skin.calibration.pairing import metrics, pair_touches
+from nao_skin.calibration.pairing import metrics
+from nao_skin.calibration.rows import pair_touches
 from nao_skin.errors import DataError
 from nao_skin.formats.bag import BagWriter, detected_touch_messages, read_touches, touch_messages, write_touch_bag
 from nao_skin.touch.events import LIVE_CONFIG, ContactRecord, TouchRecord

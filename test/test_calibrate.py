@@ -312,10 +312,10 @@ def test_a_stage_that_drives_the_touches_apart_is_undone(skin, left_hand_sim, mo
     touches, truth = left_hand_sim
     real_stage = engine.run_stage
 
-    def patch_stage_diverges(train, skin_, calib, step, parts, levels, *args, **kwargs):
-        out = real_stage(train, skin_, calib, step, parts, levels, *args, **kwargs)
-        if levels == {"patch"}:
-            out.calibration.parts[parts[0]].patches[:, 0] += 0.02         # every patch 2 cm off
+    def patch_stage_diverges(train, skin_, stage, start, say):
+        out = real_stage(train, skin_, stage, start, say)
+        if stage.levels == {"patch"}:
+            out.calibration.parts[stage.step.targets[0]].patches[:, 0] += 0.02         # every patch 2 cm off
         return out
 
     monkeypatch.setattr(engine, "run_stage", patch_stage_diverges)
@@ -542,9 +542,9 @@ def test_solves_a_re_pairing_replaces_stop_early_and_a_stages_last_allowed_one_r
     allowed = []    # what each stage may use: whether it uses it depends on when its pairing settles
     real_run_stage = engine.run_stage
 
-    def run_stage(*args, **kwargs):
-        allowed.append(kwargs["max_repairings"])
-        return real_run_stage(*args, **kwargs)
+    def run_stage(touches_, skin_, stage, start, say):
+        allowed.append(stage.max_repairings)
+        return real_run_stage(touches_, skin_, stage, start, say)
 
     monkeypatch.setattr(engine, "run_stage", run_stage)
     result = calibrate(touches, skin, options, truth=truth)

@@ -7,7 +7,8 @@ import pytest
 
 from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.calibration.evaluation import firing_prediction
-from nao_skin.calibration.pairing import KIND_COP, KIND_COP_SKIN, KIND_SURFACE, pair_touches
+from nao_skin.calibration.pairing import KIND_COP, KIND_COP_SKIN, KIND_SURFACE
+from nao_skin.calibration.rows import pair_touches
 from nao_skin.cli import main as cli_main
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate

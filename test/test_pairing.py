@@ -8,8 +8,9 @@ recording, under the nominal layout and under a moved calibration.
 import numpy as np
 import pytest
 
-from nao_skin.calibration.pairing import (KIND_CONTACT_TAXEL, KIND_COP, KIND_TAXEL, KIND_TAXEL5, activation_positions,
-                                          metrics, pair_for_metrics, pair_touches, residuals)
+from nao_skin.calibration.context import activation_positions
+from nao_skin.calibration.pairing import KIND_CONTACT_TAXEL, KIND_COP, KIND_TAXEL, KIND_TAXEL5, RowRules, metrics, residuals
+from nao_skin.calibration.rows import pair_for_metrics, pair_touches
 from nao_skin.sim.params import load_params
 from nao_skin.sim.simulate import simulate
 from nao_skin.touch.touches import TouchSet
@@ -122,7 +123,7 @@ def test_rows_rebuild_their_distances(real, real_skin):
 def test_thesis_taxel_rule_is_never_closer_than_closest_pair(real, real_skin):
     """prepareData.m's rule picks one of the candidate pairs, so it can only be farther."""
     closest = pair_touches(real, real_skin, kinds=("taxel",))
-    thesis = pair_touches(real, real_skin, kinds=("taxel",), taxel_rule="thesis")
+    thesis = pair_touches(real, real_skin, kinds=("taxel",), rules=RowRules(taxel_rule="thesis"))
     np.testing.assert_array_equal(closest.row_touch, thesis.row_touch)
     assert np.all(thesis.distance >= closest.distance - 1e-15)
     assert np.any(thesis.distance > closest.distance + 1e-6)
@@ -280,7 +281,7 @@ def test_normal_rows_ask_the_touching_normals_to_cancel(real_skin, real):
 def test_argmin_per_group_matches_its_definition_sorted_or_not():
     """The sort-free path (groups already contiguous) and the sorting path agree with a plain loop,
     ties going to the lowest index."""
-    from nao_skin.calibration.pairing import _argmin_per_group
+    from nao_skin.calibration.segments import argmin_per_group
 
     rng = np.random.default_rng(0)
     for trial in range(200):
@@ -288,4 +289,4 @@ def test_argmin_per_group_matches_its_definition_sorted_or_not():
         group = np.sort(rng.integers(0, 20, n)) if trial % 2 == 0 else rng.integers(0, 20, n)
         key = rng.integers(0, 4, n).astype(float) if trial % 3 == 0 else rng.normal(size=n)
         expected = [np.flatnonzero(group == g)[np.argmin(key[group == g])] for g in np.unique(group)]
-        assert np.array_equal(_argmin_per_group(group, key), expected), trial
+        assert np.array_equal(argmin_per_group(group, key), expected), trial

@@ -8,7 +8,8 @@ import pytest
 import nao_skin.calibration.residuals as residuals_module
 from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.calibration.layout import ParameterLayout
-from nao_skin.calibration.pairing import KIND_PLANE_A, KIND_PLANE_B, KIND_TAXEL, PlaneRows, chain_end_poses, pair_touches
+from nao_skin.calibration.pairing import KIND_PLANE_A, KIND_PLANE_B, KIND_TAXEL, PlaneRows, RowRules, chain_end_poses
+from nao_skin.calibration.rows import pair_touches
 from nao_skin.calibration.residuals import ResidualModel
 from nao_skin.model.skin import load_skin
 from nao_skin.sim.params import load_params
@@ -35,7 +36,7 @@ def _model(skin, touches, pairing, calib, fabric):
 
 def test_plane_rows_vanish_at_the_truth_where_closest_taxels_do_not(skin, ideal_sim):
     touches, truth = ideal_sim.touches, ideal_sim.truth
-    pairing = pair_touches(touches, skin, truth, KINDS, plane=PlaneRows("equal"))
+    pairing = pair_touches(touches, skin, truth, KINDS, rules=RowRules(plane=PlaneRows("equal")))
     plane = np.isin(pairing.row_kind, (KIND_PLANE_B, KIND_PLANE_A))
     assert plane.sum() > 5 * np.sum(pairing.row_kind == KIND_TAXEL)      # a row per activated taxel, both ways
     assert np.all(np.isnan(pairing.row_normal[~plane]))
@@ -56,7 +57,7 @@ def test_projected_jacobian_is_the_derivative_with_the_normals_held(skin, ideal_
     touches, truth = ideal_sim.touches, ideal_sim.truth
     if not dense:
         monkeypatch.setattr(residuals_module, "DENSE_LIMIT", 0)
-    pairing = pair_touches(touches, skin, truth, kinds, parts=("l_hand", "torso"), plane=PlaneRows("pressure"))
+    pairing = pair_touches(touches, skin, truth, kinds, parts=("l_hand", "torso"), rules=RowRules(plane=PlaneRows("pressure")))
     model = _model(skin, touches, pairing, truth, 0.001)
     layout = model.layout
     rng = np.random.default_rng(0)

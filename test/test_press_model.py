@@ -8,7 +8,8 @@ import pytest
 from nao_skin.calibration.engine import CalibrationOptions, calibrate
 from nao_skin.calibration.evaluation import truth_error
 from nao_skin.calibration.layout import ParameterLayout
-from nao_skin.calibration.pairing import KIND_COP, KIND_COP_SKIN, chain_end_poses, pair_touches, robot_joints
+from nao_skin.calibration.pairing import KIND_COP, KIND_COP_SKIN, RowRules, chain_end_poses, robot_joints
+from nao_skin.calibration.rows import pair_touches
 from nao_skin.calibration.press import expected_cop_difference, press_offsets
 from nao_skin.calibration.residuals import ResidualModel
 from nao_skin.errors import DataError
@@ -33,7 +34,7 @@ def test_the_press_model_expects_most_of_a_cop_row_at_the_true_skin(skin, ideal_
     press = press_offsets(touches, skin, truth, fabric, touches.part_names)
     assert set(press) == {("r_hand", "torso"), ("l_hand", "torso"), ("r_hand", "head"), ("l_hand", "head")}
     raw = _residuals(skin, touches, pair_touches(touches, skin, truth, ("cop_skin",)), truth, fabric)
-    fitted = _residuals(skin, touches, pair_touches(touches, skin, truth, ("cop_skin",), press=press), truth, fabric)
+    fitted = _residuals(skin, touches, pair_touches(touches, skin, truth, ("cop_skin",), rules=RowRules(press=press)), truth, fabric)
     row = np.median(np.linalg.norm(raw, axis=1))
     assert row > 5e-4
     # measured: 1.02 mm, 0.55 mm less the expectation (0.73 mm without leaving out what other contacts fired)
@@ -48,7 +49,7 @@ def test_a_row_carries_its_touchs_expectation_and_its_residual_is_less_by_it(ski
              [("r_hand", "torso"), ("l_hand", "torso"), ("r_hand", "head"), ("l_hand", "head")]}
     press[("r_hand", "torso")][:] = np.nan        # a pair without expectations: its rows are fitted as they are
     plain = pair_touches(touches, skin, truth, ("cop", "cop_skin"))
-    pairing = pair_touches(touches, skin, truth, ("cop", "cop_skin"), press=press)
+    pairing = pair_touches(touches, skin, truth, ("cop", "cop_skin"), rules=RowRules(press=press))
     assert plain.row_offset is None
     names = touches.part_names
     for i in range(pairing.n_rows):

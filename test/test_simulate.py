@@ -16,7 +16,7 @@ import pytest
 import yaml
 from real_data import LAYOUTS, RECORDING  # noqa: E402
 
-from nao_skin.calibration.pairing import activation_positions
+from nao_skin.calibration.context import activation_positions
 from nao_skin.cli import main as cli_main
 from nao_skin.errors import ConfigError
 from nao_skin.model.skin import SkinModel, load_skin

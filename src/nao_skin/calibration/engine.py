@@ -46,7 +46,8 @@ from nao_skin.calibration.plan import (Step, joint_step, left_out_pairs, pairs_o
 from nao_skin.calibration.plausibility import implausible
 from nao_skin.calibration.rows import pairing_key
 from nao_skin.calibration.press import press_offsets
-from nao_skin.calibration.stages import compress_held, fitted_kinds, initial_prior_sigma, run_stage
+from nao_skin.calibration.stages import (Stage, StageStart, compress_held, fitted_kinds, initial_prior_sigma,
+                                         run_stage)
 from nao_skin.calibration.uncertainty import Posterior, predicted_error
 from nao_skin.errors import DataError, TooFewTouches
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
@@ -179,9 +180,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
                np.ones(train.n_touches, bool))
     # with kinematic corrections the true taxel error is measured at the touches' poses
     fit.truth_poses = robot_joints(train, skin) if truth is not None else None
-    anchor = (anchor or skin.zero_calibration()) if warm else None
     schedule = _schedule(steps, options, warm)
-    refined = _refines(schedule)
     report = CalibrationReport(
         options=options.as_mapping(),
         plan=[(prefix if prefix in (JOINT, CLOSING) else "") + step.name
@@ -193,25 +192,9 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
                   for pair, n, k in left_out_pairs(train, options)])
     for entry in report.left_out:
         say(f"{entry['pair']}: left out ({entry['reason']})")
-    def run(entries, fit, label=""):
-        for round_no, step, prefix in entries:
-            if options.initial_guess == "rigid-fit" and round_no == 0 and not warm.issuperset(step.targets) \
-                    and (step.references or step.fingertips or options.reference == "simultaneous"):
-                _first_guess(train, skin, step, options, fit, say, label + prefix)
-            warm_step = bool(warm) and warm.issuperset(step.targets)
-            for levels in _stage_levels(step, options, prefix):
-                report.stages.append(_fit_stage(train, test, skin, step, levels, round_no, label + prefix,
-                                                _stage_options(options, prefix, warm_step), fit,
-                                                truth, say, measure=not warm, anchor=anchor,
-                                                warm=warm_step, refined=refined))
-
-    def run_all(fit, label=""):
-        run(schedule, fit, label)
-        if options.kinematics != "off":
-            report.kinematics = _fit_kinematics(train, test, skin, steps, schedule, start, options, fit, truth, say,
-                                                report)
-
-    run_all(fit)
+    run = _Run(train, test, skin, options, steps, schedule, start, truth, say, report, warm,
+               (anchor or skin.zero_calibration()) if warm else None)
+    _run_all(run, fit)
     if options.press_model and not warm:
         # the whole plan again, from the start: the rows' expectations at the calibration just reached (on the
         # robot it describes) are a fixed part of each row (run from the joint refinement on only, it loses on
@@ -221,10 +204,19 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
         say(f"press model: the rows' expectations at this calibration ({time.perf_counter() - t0:.2f} s)")
         fit = _Fit(start.copy(), options.fabric_thickness, initial_prior_sigma(options), np.ones(train.n_touches, bool),
                    truth_poses=fit.truth_poses, press=press)
-        run_all(fit, "press model: ")
-    report.final = _final_figures(train, test, skin, steps, options, fit, truth, explained_too=not warm)
-    _kept_apart(train, skin, steps, fit, report.final)
-    posterior = _predicted(train, skin, steps, options, fit, report, say)
+        _run_all(run, fit, "press model: ")
+    posterior = _final_report(run, fit)
+    report.total_seconds = time.perf_counter() - t_start
+    return CalibrationResult(fit.calibration, report, train, test, fit.set_aside, posterior)
+
+
+def _final_report(run: _Run, fit: _Fit) -> Posterior | None:
+    """The report's entries on the final calibration: its figures, what it held and set aside, the fingertips, its
+    warnings (said); the posterior its predicted error came from."""
+    train, skin, options, report, say = run.train, run.skin, run.options, run.report, run.say
+    report.final = _final_figures(run, fit)
+    _kept_apart(run, fit)
+    posterior = _predicted(run, fit)
     report.fabric_thickness_mm = 1000.0 * fit.fabric
     fit.calibration.fabric_thickness = fit.fabric      # with the frames: what their closest pairs were measured at
     report.prior_sigma = fit.prior_sigma
@@ -242,8 +234,7 @@ def _calibrate(touches: TouchSet, skin: SkinModel, options: CalibrationOptions |
                       contact_figure(report.final["train_kept"]), options.gate_mm)
     for line in report.warnings:
         say(f"warning: {line}")
-    report.total_seconds = time.perf_counter() - t_start
-    return CalibrationResult(fit.calibration, report, train, test, fit.set_aside, posterior)
+    return posterior
 
 
 @dataclass
@@ -267,6 +258,59 @@ class _Fit:
     # each touch's expected cop_skin row at the true skin, subtracted from the rows (calibration/press.py)
     press: dict | None = None
     fabric_stands_in: bool = False                      # the fabric so far was fitted to a fixed reference
+
+
+@dataclass
+class _Run:
+    """What every stage of one calibration reads and none changes: the touches (split), the skin, the options, the
+    plan and its schedule, the calibration it started from, the truth (a simulator's, or None), where progress is
+    said and the report the stages are entered in. ``warm``: the parts a live update's prior already calibrated
+    (:func:`calibrate`); ``anchor``: with ``warm``, where the prior of the patches and triangles is centred."""
+
+    train: TouchSet
+    test: TouchSet
+    skin: SkinModel
+    options: CalibrationOptions
+    steps: list
+    schedule: list                          # (round, step, name prefix), _schedule's
+    start: SkinCalibration
+    truth: SkinCalibration | None
+    say: Callable[[str], None]
+    report: CalibrationReport
+    warm: frozenset = frozenset()
+    anchor: SkinCalibration | None = None
+
+    @property
+    def refined(self) -> bool:
+        return _refines(self.schedule)
+
+
+def _run_all(run: _Run, fit: _Fit, label: str = "") -> None:
+    """The schedule's stages from ``fit`` on, each with its first guess, then the kinematic path (``label``: a
+    prefix of every stage's name)."""
+    options, warm = run.options, run.warm
+    for round_no, step, prefix in run.schedule:
+        if options.initial_guess == "rigid-fit" and round_no == 0 and not warm.issuperset(step.targets) \
+                and (step.references or step.fingertips or options.reference == "simultaneous"):
+            _first_guess(run, step, fit, label + prefix)
+        warm_step = bool(warm) and warm.issuperset(step.targets)
+        stage_options = _stage_options(options, prefix, warm_step)
+        for levels in _stage_levels(step, options, prefix):
+            stage = Stage(step, frozenset(levels), stage_options,
+                          _repairings(stage_options, step, warm_step, run.refined), condition=not warm)
+            run.report.stages.append(_fit_stage(run, stage, fit, round_no, label + prefix, run.anchor))
+    if options.kinematics != "off":
+        run.report.kinematics = _fit_kinematics(run, fit)
+
+
+def _repairings(options: CalibrationOptions, step: Step, warm: bool, refined: bool) -> int:
+    """How many re-pairings a stage of ``step`` makes at most: ``options.warm_repairings`` where every part it fits
+    was calibrated by the last update (``warm``; a part new to the session gets all ``max_repairings``),
+    ``options.reference_repairings`` for a fixed-reference step a joint refinement follows (``refined``: it frees
+    the step's frames again), else ``options.max_repairings``."""
+    limit = (options.warm_repairings if warm else options.reference_repairings if refined and step.references
+             else options.max_repairings)
+    return min(limit, options.max_repairings)
 
 
 def _fingertips_entry(skin: SkinModel, fit: _Fit) -> dict:
@@ -366,9 +410,9 @@ def _stage_options(options: CalibrationOptions, prefix: str, warm: bool) -> Cali
     return options.in_place() if prefix == CLOSING else options
 
 
-def _first_guess(train: TouchSet, skin: SkinModel, step: Step, options: CalibrationOptions, fit: _Fit, say,
-                 prefix: str) -> None:
+def _first_guess(run: _Run, step: Step, fit: _Fit, prefix: str) -> None:
     """Closed-form first guess of each mount that has a reference to be fitted to, kept if it pairs closer."""
+    train, skin, options = run.train, run.skin, run.options
     t0 = time.perf_counter()
     for target, refs, tips in guess_targets(step, skin.self_touch):
         guess_step = Step((target,), refs, tuple((f, target) for f in tips))
@@ -379,18 +423,16 @@ def _first_guess(train: TouchSet, skin: SkinModel, step: Step, options: Calibrat
         guess.parts[target].mount = rigid_mount_guess(train, skin, fit.calibration, target, refs, fingertips=tips)
         if closest_cop_cost(train, skin, guess, guess_step, fit.inliers) < before:
             fit.calibration = guess
-    say(f"{prefix}{step.name}: rigid-fit first guess ({time.perf_counter() - t0:.2f} s)")
+    run.say(f"{prefix}{step.name}: rigid-fit first guess ({time.perf_counter() - t0:.2f} s)")
 
 
-def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, levels: set, round_no: int,
-               prefix: str, options: CalibrationOptions, fit: _Fit, truth, say, measure: bool = True,
-               anchor: SkinCalibration | None = None, warm: bool = False, refined: bool = False) -> dict:
-    """One stage: solve, keep it unless it drove the touches apart, gate after a mount fit; its report entry.
-
-    ``warm``: every part the stage fits was calibrated by the last update: ``options.warm_repairings``
-    re-pairings at most (a part new to the session gets all ``max_repairings``). ``refined``: a joint
-    refinement follows, which frees the frames of a fixed-reference step again: such a step's stages
-    re-pair ``options.reference_repairings`` times at most."""
+def _fit_stage(run: _Run, stage: Stage, fit: _Fit, round_no: int, prefix: str,
+               anchor: SkinCalibration | None = None) -> dict:
+    """One stage: solve, keep it unless it drove the touches apart, gate after a mount fit; its report entry (named
+    with ``prefix``; the stages of ``round_no`` 0 that free the mounts may leave the touches farther apart).
+    ``anchor``: where the prior of the patches and triangles is centred (:class:`~.stages.StageStart`). A stage
+    that does not report its condition (``stage.condition``) is not measured either."""
+    train, skin, step, levels, options = run.train, run.skin, stage.step, set(stage.levels), stage.options
     # a stage is judged on what it fits, as it fits it (closest COP and taxel pairs, at the fabric
     # surfaces): taxel-centre distances grow with the fabric estimate however good the fit
     # (test_calibrate: a stage that drives the touches apart is undone)
@@ -401,58 +443,62 @@ def _fit_stage(train: TouchSet, test: TouchSet, skin: SkinModel, step: Step, lev
         # from the configured thickness (measured: docs/method.md, "7. The fabric over the taxels").
         fit.fabric, fit.fabric_stands_in = options.fabric_thickness, False
     kinds = fitted_kinds(options, levels)
-    limit = (options.warm_repairings if warm else options.reference_repairings if refined and step.references
-             else options.max_repairings)
-    stage = run_stage(train, skin, fit.calibration, step, step.targets, levels, options, fit.inliers, say,
-                      fit.fabric, fit.prior_sigma, anchor, max_repairings=min(limit, options.max_repairings),
-                      condition=measure, press=fit.press)
+    result = run_stage(train, skin, stage, StageStart(fit.calibration, fit.fabric, fit.inliers, fit.prior_sigma,
+                                                      anchor, fit.press), run.say)
     # the costs are measured on the pairings the stage made where it started and (when its pairing
     # settled) where it ended, else the touches are paired for them
-    started, ended = (stage.pairings.get(pairing_key(c)) for c in (fit.calibration, stage.calibration))
+    started, ended = (result.pairings.get(pairing_key(c)) for c in (fit.calibration, result.calibration))
     last_step, last_kinds, last_inliers, last_cost = fit.last_cost
     cost_before = (last_cost if last_step is step and last_inliers == int(fit.inliers.sum()) and last_kinds == kinds
                    else fitted_pair_cost(train, skin, fit.calibration, step, fit.inliers, kinds, fit.fabric, started,
-                                     options.plane_rows(), fit.press))
-    entry = stage.report(prefix + stage.name)
+                                         options.row_rules(fit.press)))
+    entry = result.report(prefix + result.name)
     entry["rows"] = list(kinds)
     if KINEMATICS in levels:
-        entry["kinematics_held"] = list(stage.kinematics_held)
-    fit.held |= stage.held_components
+        entry["kinematics_held"] = list(result.kinematics_held)
+    fit.held |= result.held_components
     fitted = {f"{f}/{c}" for f in step.fingertip_names if f in train.fingertips for c in FINGERTIP_COMPONENTS}
-    fit.fingertips_held |= set(stage.fingertips_held)
-    fit.fingertips_estimated |= fitted - set(stage.fingertips_held)
-    cost_after = fitted_pair_cost(train, skin, stage.calibration, step, fit.inliers, kinds,
-                                  stage.fabric_thickness_mm / 1000.0, ended, options.plane_rows(), fit.press)
+    fit.fingertips_held |= set(result.fingertips_held)
+    fit.fingertips_estimated |= fitted - set(result.fingertips_held)
+    cost_after = fitted_pair_cost(train, skin, result.calibration, step, fit.inliers, kinds,
+                                  result.fabric_thickness_mm / 1000.0, ended, options.row_rules(fit.press))
     if cost_after > 1.25 * cost_before and not (round_no == 0 and "mount" in levels):
         # never silently diverge: a stage that leaves the touches much farther apart is undone
         entry["reverted"] = (f"undone: mean closest {'/'.join(kinds)} pair (at the fabric surfaces)"
                              f" {1000 * cost_after:.2f} mm after vs {1000 * cost_before:.2f} mm before")
-        say(f"{entry['name']}: {entry['reverted']}")
+        run.say(f"{entry['name']}: {entry['reverted']}")
     else:
-        fit.fabric = stage.fabric_thickness_mm / 1000.0
-        fit.fabric_stands_in |= bool(refined and step.references)
-        fit.prior_sigma = stage.prior_sigma
-        fit.calibration = stage.calibration
-        fit.estimated |= stage.estimated_components
+        fit.fabric = result.fabric_thickness_mm / 1000.0
+        fit.fabric_stands_in |= bool(run.refined and step.references)
+        fit.prior_sigma = result.prior_sigma
+        fit.calibration = result.calibration
+        fit.estimated |= result.estimated_components
         cost_before = cost_after
     fit.last_cost = (step, kinds, int(fit.inliers.sum()), cost_before)
     if "mount" in levels and KINEMATICS not in levels and options.gate_mm > 0:
-        paired = stage.pairings.get(pairing_key(fit.calibration)) if "cop" in kinds else None   # its COP pairs
-        entry["set_aside"] = _gate(train, skin, step, prefix, options, fit, paired)
-    if not measure:
-        say(f"{entry['name']}: {entry['iterations']} iterations, {entry['repairings']} pairings,"
-            f" {entry['seconds']:.2f} s")
-        return entry
-    entry["train"] = evaluate(train, skin, fit.calibration, [step])
-    entry["test"] = evaluate(test, skin, fit.calibration, [step])
-    fit.last_measured = (fit.calibration, plan_pairs([step]), entry["train"], entry["test"])
-    if truth is not None:
-        entry["truth_taxel_error_mm"] = truth_error(skin, fit.calibration, truth, step.targets, fit.truth_poses)
-    label, near = contact_figure(entry["train"])
-    say(f"{entry['name']}: train {label} {near:.2f} mm,"
-        f" taxel {entry['train'].get('taxel_mean_mm', float('nan')):.2f} mm"
-        f" ({entry['iterations']} iterations, {entry['repairings']} pairings, {entry['seconds']:.2f} s)")
+        paired = result.pairings.get(pairing_key(fit.calibration)) if "cop" in kinds else None   # its COP pairs
+        entry["set_aside"] = _gate(run, step, prefix, fit, paired)
+    if stage.condition:
+        _measure(run, step, fit, entry)
+    else:
+        run.say(f"{entry['name']}: {entry['iterations']} iterations, {entry['repairings']} pairings,"
+                f" {entry['seconds']:.2f} s")
     return entry
+
+
+def _measure(run: _Run, step: Step, fit: _Fit, entry: dict) -> None:
+    """A stage's figures on both splits at the calibration it left (and its true taxel error, with a truth), in its
+    report ``entry``; said."""
+    entry["train"] = evaluate(run.train, run.skin, fit.calibration, [step])
+    entry["test"] = evaluate(run.test, run.skin, fit.calibration, [step])
+    fit.last_measured = (fit.calibration, plan_pairs([step]), entry["train"], entry["test"])
+    if run.truth is not None:
+        entry["truth_taxel_error_mm"] = truth_error(run.skin, fit.calibration, run.truth, step.targets,
+                                                    fit.truth_poses)
+    label, near = contact_figure(entry["train"])
+    run.say(f"{entry['name']}: train {label} {near:.2f} mm,"
+            f" taxel {entry['train'].get('taxel_mean_mm', float('nan')):.2f} mm"
+            f" ({entry['iterations']} iterations, {entry['repairings']} pairings, {entry['seconds']:.2f} s)")
 
 
 KINEMATICS_SETTLED = 2e-4   # rad / m: no kinematic correction moved more in a pass (0.01 deg, 0.2 mm)
@@ -462,9 +508,7 @@ KINEMATICS_SETTLED = 2e-4   # rad / m: no kinematic correction moved more in a p
 KINEMATICS_GAIN_Z = 1.645
 
 
-def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: list, schedule: list,
-                    start: SkinCalibration, options: CalibrationOptions, fit: _Fit, truth, say,
-                    report: CalibrationReport) -> dict:
+def _fit_kinematics(run: _Run, fit: _Fit) -> dict:
     """The kinematic path beside the skin-only calibration ``fit`` holds: the plan at mount level only, one
     stage freeing every mount with the joint-angle offsets and link lengths of their chains, then the whole
     plan on the corrected robot and the kinematic stage again until the kinematics settle. What the touches
@@ -474,44 +518,10 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     closer by ``kinematics_min_gain``; otherwise the calibration is the skin-only one, unchanged, and
     every kinematic unknown is listed as held with the figures. ``on`` keeps it whatever the figures.
     """
-    # every stage of this path fits the rows of kinematics_pairs (docs/method.md, "The contact model")
-    options = replace(options, pairs=options.kinematics_pairs)
-    step = joint_step(steps)
+    skin, test, say, options = run.skin, run.test, run.say, run.options
+    step = joint_step(run.steps)
     test_before = _held_out_surface_mm(test, skin, fit, step)
-    # The skin-only plan is no starting point: its patches and triangles have absorbed what the kinematics
-    # get wrong, and a kinematic stage after it only takes back what the mounts cannot (docs/method.md,
-    # "Kinematics"). So a path of its own: the mounts alone (first guesses, the plan at mount level), then
-    # the kinematics with every mount, the patches and triangles still at their prior.
-    kfit = _Fit(start.copy(), options.fabric_thickness, initial_prior_sigma(options), fit.inliers.copy(),
-                list(fit.set_aside), press=fit.press)
-    entries = []
-    refined = _refines(schedule)
-    for round_no, st, stage_prefix in schedule:
-        prefix = "kinematics, mounts: " + stage_prefix
-        if options.initial_guess == "rigid-fit" and round_no == 0 and (st.references or st.fingertips
-                                                                       or options.reference == "simultaneous"):
-            _first_guess(train, skin, st, options, kfit, say, prefix)
-        if any("mount" in levels for levels in _stage_levels(st, options, stage_prefix)):
-            entries.append(_fit_stage(train, test, skin, st, {"mount"}, round_no, prefix, options, kfit, truth, say,
-                                      refined=refined))
-    entries.append(_fit_stage(train, test, skin, step, {"mount", KINEMATICS}, options.rounds, "kinematics: ", options,
-                              kfit, truth, say))
-    for n in range(1, options.kinematics_passes + 1):
-        last = dict(kfit.calibration.kinematics)
-        calib = kfit.calibration.copy()
-        for name, corr in calib.parts.items():   # the skin on the corrected robot, from its prior
-            corr.patches, corr.triangles = start.parts[name].patches.copy(), start.parts[name].triangles.copy()
-        kfit.calibration = calib
-        kfit.last_cost = (None, (), -1, np.inf)
-        for round_no, st, prefix in schedule:
-            for levels in _stage_levels(st, options, prefix):
-                entries.append(_fit_stage(train, test, skin, st, levels, round_no, f"kinematics pass {n}: " + prefix,
-                                          options, kfit, truth, say, refined=refined))
-        entries.append(_fit_stage(train, test, skin, step, {"mount", KINEMATICS}, options.rounds,
-                                  f"kinematics pass {n}: ", options, kfit, truth, say))
-        moved = max((abs(v - last.get(k, 0.0)) for k, v in kfit.calibration.kinematics.items()), default=0.0)
-        if moved < KINEMATICS_SETTLED:
-            break
+    kfit, entries = _kinematic_path(run, fit)
     held_out = paired_gain(test_before, _held_out_surface_mm(test, skin, kfit, step), KINEMATICS_GAIN_Z)
     candidates = skin.robot.kinematic_names(step.chains(skin))
     out = {"mode": options.kinematics, "test_taxel_surface_mm": held_out}
@@ -520,7 +530,7 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
         figures = (f"{held_out['before']:.3f} mm without, {held_out['after']:.3f} mm with the kinematic unknowns,"
                    f" {_percent(held_out['gain'])} closer, at least {_percent(held_out['gain_low'])} at 95 %"
                    f" confidence over {held_out['touches']} touches")
-        report.stages.extend(dict(e, reverted=f"kinematics={options.kinematics}: the test split's closest taxel"
+        run.report.stages.extend(dict(e, reverted=f"kinematics={options.kinematics}: the test split's closest taxel"
                                               f" distance (fabric surfaces) is not {asked} closer at 95 % confidence")
                              for e in entries)
         out["accepted"] = False
@@ -530,7 +540,7 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
         say(f"kinematics: not kept (test closest taxel, fabric surfaces {figures}; kept from {asked})")
         return out
     vars(fit).update(vars(kfit))
-    report.stages.extend(entries)
+    run.report.stages.extend(entries)
     out["accepted"] = True
     held = entries[-1].get("kinematics_held", [])   # the last kinematic stage decides
     kin = fit.calibration.kinematics
@@ -544,6 +554,49 @@ def _fit_kinematics(train: TouchSet, test: TouchSet, skin: SkinModel, steps: lis
     out["corrections"] = {n: {"value": kin[n], "std": fit.calibration.kinematics_std.get(n, float("nan")),
                               "unit": "m" if n in skin.robot.links else "rad"} for n in candidates if n in kin}
     return out
+
+
+def _kinematic_path(run: _Run, fit: _Fit) -> tuple:
+    """``(fit, report entries)`` of the kinematic path beside the skin-only calibration ``fit`` (its inliers and
+    rows' expectations): :func:`_fit_kinematics`' stages, every one fitting the rows of ``kinematics_pairs``
+    (docs/method.md, "The contact model")."""
+    options = replace(run.options, pairs=run.options.kinematics_pairs)
+    step = joint_step(run.steps)
+    # The skin-only plan is no starting point: its patches and triangles have absorbed what the kinematics
+    # get wrong, and a kinematic stage after it only takes back what the mounts cannot (docs/method.md,
+    # "Kinematics"). So a path of its own: the mounts alone (first guesses, the plan at mount level), then
+    # the kinematics with every mount, the patches and triangles still at their prior.
+    kfit = _Fit(run.start.copy(), options.fabric_thickness, initial_prior_sigma(options), fit.inliers.copy(),
+                list(fit.set_aside), press=fit.press)
+    entries = []
+
+    def fit_stage(st, levels, round_no, prefix):
+        stage = Stage(st, frozenset(levels), options, _repairings(options, st, False, run.refined))
+        entries.append(_fit_stage(run, stage, kfit, round_no, prefix))
+
+    for round_no, st, stage_prefix in run.schedule:
+        prefix = "kinematics, mounts: " + stage_prefix
+        if options.initial_guess == "rigid-fit" and round_no == 0 and (st.references or st.fingertips
+                                                                       or options.reference == "simultaneous"):
+            _first_guess(run, st, kfit, prefix)
+        if any("mount" in levels for levels in _stage_levels(st, options, stage_prefix)):
+            fit_stage(st, {"mount"}, round_no, prefix)
+    fit_stage(step, {"mount", KINEMATICS}, options.rounds, "kinematics: ")
+    for n in range(1, options.kinematics_passes + 1):
+        last = dict(kfit.calibration.kinematics)
+        calib = kfit.calibration.copy()
+        for name, corr in calib.parts.items():   # the skin on the corrected robot, from its prior
+            corr.patches, corr.triangles = run.start.parts[name].patches.copy(), run.start.parts[name].triangles.copy()
+        kfit.calibration = calib
+        kfit.last_cost = (None, (), -1, np.inf)
+        for round_no, st, prefix in run.schedule:
+            for levels in _stage_levels(st, options, prefix):
+                fit_stage(st, levels, round_no, f"kinematics pass {n}: " + prefix)
+        fit_stage(step, {"mount", KINEMATICS}, options.rounds, f"kinematics pass {n}: ")
+        moved = max((abs(v - last.get(k, 0.0)) for k, v in kfit.calibration.kinematics.items()), default=0.0)
+        if moved < KINEMATICS_SETTLED:
+            break
+    return kfit, entries
 
 
 def _percent(share: float) -> str:
@@ -564,16 +617,16 @@ def _held_out_surface_mm(test: TouchSet, skin: SkinModel, fit: _Fit, step: Step)
     return 1000.0 * fitted_touch_distances(test, skin, fit.calibration, step, ("taxel",), fit.fabric)
 
 
-def _gate(train: TouchSet, skin: SkinModel, step: Step, prefix: str, options: CalibrationOptions, fit: _Fit,
-          pairing=None) -> int:
+def _gate(run: _Run, step: Step, prefix: str, fit: _Fit, pairing=None) -> int:
     """Set aside the touches no self-contact explains after a mount fit; how many (``pairing``: the
     touches' COP pairs under ``fit.calibration``, when at hand)."""
-    gate = gate_touches(train, skin, fit.calibration, step, options.gate_mm, fit.inliers, pairing)
+    gate_mm = run.options.gate_mm
+    gate = gate_touches(run.train, run.skin, fit.calibration, step, gate_mm, fit.inliers, pairing)
     for row, dist in gate:
         fit.inliers[row] = False
-        fit.set_aside.append({"touch": str(train.keys[row]), "step": prefix + step.name,
+        fit.set_aside.append({"touch": str(run.train.keys[row]), "step": prefix + step.name,
                               "reason": f"closest COP pair {dist:.1f} mm after the mount fit > gate"
-                                        f" {options.gate_mm:.0f} mm"})
+                                        f" {gate_mm:.0f} mm"})
     return len(gate)
 
 
@@ -590,8 +643,10 @@ def _targets(steps: list) -> list:
     return sorted({p for s in steps for p in s.targets}, key=part_rank)
 
 
-def _final_figures(train: TouchSet, test: TouchSet, skin: SkinModel, steps: list, options: CalibrationOptions,
-                   fit: _Fit, truth, explained_too: bool = True) -> dict:
+def _final_figures(run: _Run, fit: _Fit) -> dict:
+    """The final calibration's figures on each split; but for a warm update, also on the touches a self-contact
+    explains (``train_accepted``, ``test_accepted``)."""
+    train, test, skin, steps, truth = run.train, run.test, run.skin, run.steps, run.truth
     calib, (measured, pairs, m_train, m_test) = fit.calibration, fit.last_measured
     if measured is calib and pairs == plan_pairs(steps):
         final = {"train": dict(m_train), "test": dict(m_test)}     # the last stage measured this very calibration
@@ -603,8 +658,8 @@ def _final_figures(train: TouchSet, test: TouchSet, skin: SkinModel, steps: list
                  "test": evaluate(test, skin, calib, steps, fired=True)}
     # the same gate on both splits: touches whose closest COP pair stays farther than gate_mm
     # are not explained by a self-contact (experimenter's hand, stray activations)
-    for split_name, ts in ((("train", train), ("test", test)) if explained_too else ()):
-        ok = explained(ts, skin, calib, steps, options.gate_mm)
+    for split_name, ts in ((("train", train), ("test", test)) if not run.warm else ()):
+        ok = explained(ts, skin, calib, steps, run.options.gate_mm)
         final[f"{split_name}_accepted"] = evaluate(ts.subset(ok), skin, calib, steps)
         final[f"{split_name}_accepted"]["n_not_explained"] = int((~ok).sum())
     if truth is not None:
@@ -614,11 +669,12 @@ def _final_figures(train: TouchSet, test: TouchSet, skin: SkinModel, steps: list
     return final
 
 
-def _kept_apart(train: TouchSet, skin: SkinModel, steps: list, fit: _Fit, final: dict) -> None:
+def _kept_apart(run: _Run, fit: _Fit) -> None:
     """``final["train_kept"]``: the figures of the training touches the calibration kept, and
     ``final["train_set_aside"]`` those its gate set aside (experimenter's touches, stray activations: far apart
     under any calibration), each measured apart. The calibration is judged by the touches it kept; the
     training figures of every touch mix the two."""
+    train, skin, steps, final = run.train, run.skin, run.steps, run.report.final
     aside = ~fit.inliers
     if not aside.any():
         final["train_kept"] = dict(final["train"])
@@ -627,19 +683,19 @@ def _kept_apart(train: TouchSet, skin: SkinModel, steps: list, fit: _Fit, final:
     final["train_set_aside"] = evaluate(train.subset(aside), skin, fit.calibration, steps)
 
 
-def _predicted(train: TouchSet, skin: SkinModel, steps: list, options: CalibrationOptions, fit: _Fit,
-               report: CalibrationReport, say) -> Posterior | None:
+def _predicted(run: _Run, fit: _Fit) -> Posterior | None:
     """The predicted taxel error at the estimate (:func:`~.uncertainty.predicted_error`): per calibrated part
     and ``all``, median and p95 (mm), in ``report.final`` (with the rows' noise it assumed) and on the
     calibration (calibration.yaml). The rows of the touches the gate kept, the prior the stages ended with."""
+    train, report = run.train, run.report
     t0 = time.perf_counter()
-    parts = tuple(sorted({p for s in steps for p in s.targets + s.references if p in train.part_names},
+    parts = tuple(sorted({p for s in run.steps for p in s.targets + s.references if p in train.part_names},
                          key=part_rank))
     # the kinematic corrections the calibration estimated are unknowns of the prediction too
     kin = report.kinematics or {}
     held = {h["name"] for h in kin.get("held", [])}
     kinematic = tuple(n for n in kin.get("corrections", {}) if n not in held) if kin.get("accepted") else ()
-    prediction = predicted_error(skin, train, fit.calibration, fit.fabric, parts, report.parts, options,
+    prediction = predicted_error(run.skin, train, fit.calibration, fit.fabric, parts, report.parts, run.options,
                                  fit.prior_sigma, fit.inliers, fit.estimated, kinematic)
     figures, sigma = prediction.figures, prediction.sigma
     report.final["predicted_taxel_error_mm"] = figures
@@ -647,7 +703,7 @@ def _predicted(train: TouchSet, skin: SkinModel, steps: list, options: Calibrati
     report.final["predicted_noise_mm"] = 1000.0 * sigma
     fit.calibration.predicted_error_mm = {p: dict(v) for p, v in figures.items() if p != "all"}
     if figures:
-        say(f"predicted taxel error median {figures['all']['median']:.2f} mm, p95 {figures['all']['p95']:.2f} mm"
+        run.say(f"predicted taxel error median {figures['all']['median']:.2f} mm, p95 {figures['all']['p95']:.2f} mm"
             f" (rows' noise {1000.0 * sigma:.2f} mm; {time.perf_counter() - t0:.2f} s)")
     return prediction.posterior
 

@@ -6,12 +6,12 @@ from functools import partial
 import numpy as np
 
 from nao_skin.calibration.contact import predicted_firing
-from nao_skin.calibration.fingertip import fingertip_firing, fingertip_rows
+from nao_skin.calibration.context import FitContext, PlacedSkin
+from nao_skin.calibration.fingertip import fingertip_firing
 from nao_skin.calibration.layout import ParameterLayout
-from nao_skin.calibration.pairing import (COP_LIKE, METRIC_KINDS, METRIC_TAXEL_RULE, PlaneRows, activation_normals,
-                                          activation_positions, chain_end_poses, metrics)
+from nao_skin.calibration.pairing import COP_LIKE, METRIC_KINDS, METRIC_TAXEL_RULE, RowRules, chain_end_poses, metrics
 from nao_skin.calibration.residuals import ResidualModel
-from nao_skin.calibration.rows import concat_pairings, pair_parts, pair_step
+from nao_skin.calibration.rows import concat_pairings, fingertip_rows, pair_parts, pair_step
 from nao_skin.model.skin import SkinCalibration, SkinModel, part_rank
 from nao_skin.touch.touches import TouchSet
 
@@ -46,8 +46,9 @@ def evaluate(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: 
     if touches.n_touches == 0:
         return {"n_touches": 0}
     pairs = plan_pairs(steps)
-    placed: dict = {}   # each part's slots placed once for all its part pairs
-    pairings = [pair_parts(touches, skin, calib, p[0], p[1], METRIC_KINDS, METRIC_TAXEL_RULE, placed) for p in pairs
+    placed = PlacedSkin(skin, calib)   # each part's slots placed once for all its part pairs
+    rules = RowRules(taxel_rule=METRIC_TAXEL_RULE)
+    pairings = [pair_parts(touches, skin, calib, p[0], p[1], METRIC_KINDS, rules, placed) for p in pairs
                 if p[0] in touches.part_names and p[1] in touches.part_names]
     pairings += [fingertip_rows(touches, skin, calib, tip, part, placed) for tip, part in plan_fingertips(steps)]
     pairings = [p for p in pairings if len(p.row_touch)]
@@ -72,16 +73,14 @@ def firing_prediction(touches: TouchSet, skin: SkinModel, calib: SkinCalibration
     of each fingertip scene ``(fingertip, part)``, the fingertip's sphere predicts the part's
     (:func:`~nao_skin.calibration.fingertip.fingertip_firing`), pooled with the rest.
     """
-    pos = activation_positions(touches, skin, calib)
-    normals = activation_normals(touches, skin, calib)
-    poses = partial(chain_end_poses, touches, skin.with_kinematics(calib))
+    ctx = FitContext.of(touches, skin, calib)
     hits = predicted = fired = 0
     for a, b in pairs:
         if a not in touches.part_names or b not in touches.part_names:
             continue
         ia, ib = touches.part_names.index(a), touches.part_names.index(b)
         for own, other in ((ia, ib), (ib, ia)):
-            pred, fire = predicted_firing(touches, skin, calib, own, other, pos, normals, poses)
+            pred, fire = predicted_firing(ctx, own, other)
             hits += int(np.isin(pred, fire, assume_unique=True).sum())
             predicted += len(pred)
             fired += len(fire)
@@ -171,16 +170,17 @@ def closest_cop_cost(touches, skin, calib, step, inliers) -> float:
 
 
 def fitted_pair_cost(touches, skin, calib, step, inliers, kinds, fabric: float, pairing=None,
-                     plane: PlaneRows = PlaneRows(), press: dict | None = None) -> float:
+                     rules: RowRules = RowRules()) -> float:
     """What a stage fits, measured as it fits it: the touches paired under ``calib`` for ``kinds``,
     distances between the paired points lifted to the fabric surfaces (``fabric`` m over the
     taxels), each kind's capped mean (50 mm), averaged over the kinds.
 
     Taxel-centre distances alone grow when the fabric estimate grows, however good the fit.
-    ``pairing``: that pairing, when a stage already made it (:attr:`StageResult.pairings`); ``press``: the
-    rows' expectations the stage fitted them with (:func:`~nao_skin.calibration.press.press_offsets`).
+    ``pairing``: that pairing, when a stage already made it (:attr:`StageResult.pairings`); ``rules``: how the
+    stage made its rows (with the rows' expectations it fitted them with,
+    :func:`~nao_skin.calibration.press.press_offsets`).
     """
-    fitted = _fitted_distances(touches, skin, calib, step, kinds, fabric, pairing, plane, press)
+    fitted = _fitted_distances(touches, skin, calib, step, kinds, fabric, pairing, rules)
     if fitted is None:
         return np.inf
     dist, pairing = fitted
@@ -202,11 +202,10 @@ def fitted_touch_distances(touches, skin, calib, step, kinds, fabric: float, pai
     return np.divide(total, rows, out=np.full(touches.n_touches, np.nan), where=rows > 0)
 
 
-def _fitted_distances(touches, skin, calib, step, kinds, fabric, pairing=None, plane: PlaneRows = PlaneRows(),
-                      press: dict | None = None):
+def _fitted_distances(touches, skin, calib, step, kinds, fabric, pairing=None, rules: RowRules = RowRules()):
     """``(distance per row capped at 50 mm, pairing)``, or None when nothing pairs."""
     if pairing is None:
-        pairing = pair_step(touches, skin, calib, step, kinds, plane, press)
+        pairing = pair_step(touches, skin, calib, step, kinds, rules)
     if pairing is None or len(pairing.row_touch) == 0:
         return None
     parts = tuple(p for p in step.targets + step.references if p in touches.part_names)

@@ -13,17 +13,23 @@ frame, fixed while the pairing is (as a point-to-plane row's normal, ICP's rule)
 contact's taxels (terms, as any row's), side B the fingertip: :attr:`Pairing.row_fingertip` names it and
 :attr:`Pairing.row_direction` holds ``n``. The distance of a row is the fingertip's contact point (on its sphere,
 facing the skin) from the contact's COP at the fabric surface: what a fingertip scene reports.
+
+The rows are built as every kind of row is (:func:`~nao_skin.calibration.rows.pair_touches`): from a fit context
+(:class:`~nao_skin.calibration.context.FitContext`), the scene (:class:`FingertipScene`) standing where a pair
+of skin parts stands for the others.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from nao_skin import se3
-from nao_skin.calibration.kinds import KIND_FINGERTIP
-from nao_skin.calibration.pairing import (Pairing, _argmin_per_group, _contact_activations, activation_normals,
-                                          activation_positions, chain_end_poses)
+from nao_skin.calibration.context import FitContext
+from nao_skin.calibration.pairing import RowBlock, RowRules, chain_end_poses
+from nao_skin.calibration.segments import argmin_per_group, contact_activations
 from nao_skin.model.skin import SkinCalibration, SkinModel
-from nao_skin.touch.contacts import cop_weights, segment_mean
+from nao_skin.touch.contacts import segment_mean
 from nao_skin.touch.touches import TouchSet
 
 DEFAULT_FABRIC = 0.001      # m: a calibration that has not estimated the fabric (CalibrationOptions' default)
@@ -44,44 +50,72 @@ def fingertip_centres(touches: TouchSet, skin: SkinModel, calib: SkinCalibration
     return se3.transform_points(poses, centre), radius
 
 
-def fingertip_rows(touches: TouchSet, skin: SkinModel, calib: SkinCalibration | None, fingertip: str,
-                   part: str, placed: dict | None = None) -> Pairing:
-    """One row per touch of ``fingertip`` that fires ``part``: its contact nearest the fingertip against the
-    fingertip's sphere (module docstring); ``placed``: see :func:`~nao_skin.calibration.pairing.activation_positions`."""
-    if fingertip not in touches.fingertips or part not in touches.part_names:
-        return _empty()
-    f, p = touches.fingertips.index(fingertip), touches.part_index(part)
-    contacts = np.flatnonzero((touches.contact_part == p)
-                              & (touches.fingertip_of_touch[touches.contact_touch] == f))
-    if len(contacts) == 0:
-        return _empty()
-    fabric = fabric_of(calib)
-    pos = activation_positions(touches, skin, calib, placed)
-    normals = activation_normals(touches, skin, calib)
-    group, act = _contact_activations(touches, contacts)
-    weight = cop_weights(touches)[act]
-    lifted = segment_mean(pos[act] + fabric * normals[act], group, len(contacts), weight)
-    normal = segment_mean(normals[act], group, len(contacts), weight)
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
-    touch = touches.contact_touch[contacts]
-    centre, radius = fingertip_centres(touches, skin, calib, fingertip, touch)
-    residual = lifted + radius * normal - centre
-    distance = np.linalg.norm(residual, axis=1)
-    best = _argmin_per_group(touch, distance)          # the contact nearest the fingertip, per touch
-    keep = np.isin(group, best)
-    row_of = np.full(len(contacts), -1)
-    row_of[best] = np.arange(len(best))
-    m = len(best)
-    return Pairing(row_touch=touch[best], row_kind=np.full(m, KIND_FINGERTIP, np.int8),
-                   row_parts=np.column_stack([np.full(m, p), np.full(m, -1)]), term_row=row_of[group[keep]],
-                   term_part=np.full(int(keep.sum()), p), term_slot=touches.act_slot[act[keep]],
-                   term_weight=weight[keep], distance=distance[best], row_fingertip=np.full(m, f),
-                   row_direction=normal[best])
+@dataclass(frozen=True, eq=False)
+class FingertipScene:
+    """A fingertip pressing a part, under a fit context's calibration: in each of its touches that fire the part,
+    the part's contact nearest the fingertip (as a skin pair selects its closest COPs), with its activations.
+
+    ``touch`` the touches (one row each), ``group``/``act``/``weight`` the selected contacts' activations (the
+    row of each, the activation, its COP weight), ``direction`` each contact's mean normal and ``distance`` the
+    fingertip's contact point from the contact's COP at the fabric surface (module docstring)."""
+
+    fingertip: int          # index into the touches' fingertips (-1: not among them)
+    part: int
+    touch: np.ndarray
+    group: np.ndarray
+    act: np.ndarray
+    weight: np.ndarray
+    direction: np.ndarray
+    distance: np.ndarray
+
+    @property
+    def parts(self) -> tuple:
+        return (self.part, -1)
+
+    @classmethod
+    def select(cls, ctx: FitContext, fingertip: str, part: str) -> "FingertipScene":
+        touches = ctx.touches
+        if fingertip not in touches.fingertips or part not in touches.part_names:
+            return cls._none(-1, -1)
+        f, p = touches.fingertips.index(fingertip), touches.part_index(part)
+        contacts = np.flatnonzero((touches.contact_part == p)
+                                  & (touches.fingertip_of_touch[touches.contact_touch] == f))
+        if len(contacts) == 0:
+            return cls._none(f, p)
+        group, act = contact_activations(touches, contacts)
+        weight = ctx.cop_weights[act]
+        pos, normals = ctx.positions, ctx.normals
+        lifted = segment_mean(pos[act] + fabric_of(ctx.calib) * normals[act], group, len(contacts), weight)
+        normal = segment_mean(normals[act], group, len(contacts), weight)
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+        touch = touches.contact_touch[contacts]
+        centre, radius = (ctx.calib or SkinCalibration()).fingertip_sphere(ctx.skin.robot, fingertip)
+        residual = lifted + radius * normal - se3.transform_points(ctx.chain_poses(fingertip)[touch], centre)
+        distance = np.linalg.norm(residual, axis=1)
+        best = argmin_per_group(touch, distance)          # the contact nearest the fingertip, per touch
+        keep = np.isin(group, best)
+        row_of = np.full(len(contacts), -1)
+        row_of[best] = np.arange(len(best))
+        return cls(f, p, touch[best], row_of[group[keep]], act[keep], weight[keep], normal[best], distance[best])
+
+    @classmethod
+    def _none(cls, f: int, p: int) -> "FingertipScene":
+        z = np.zeros(0, int)
+        return cls(f, p, z, z, z, np.zeros(0), np.zeros((0, 3)), np.zeros(0))
 
 
-def _empty() -> Pairing:
-    z = np.zeros(0, dtype=int)
-    return Pairing(z, z.astype(np.int8), np.zeros((0, 2), int), z, z, z, np.zeros(0), np.zeros(0))
+def fingertip_scene(ctx: FitContext, fingertip: str, part: str) -> FingertipScene:
+    """The scene of ``fingertip`` pressing ``part`` under the context's calibration (kept while it lives)."""
+    return ctx.memo(("fingertip scene", fingertip, part), lambda: FingertipScene.select(ctx, fingertip, part))
+
+
+def fingertip_block(ctx: FitContext, scene: FingertipScene, rules: RowRules) -> RowBlock:
+    """One row per touch of the scene: its selected contact's taxels (side A, the COP's weights) against the
+    fingertip's sphere (side B, :attr:`~.pairing.Pairing.row_fingertip`, along the contact's normal)."""
+    m = len(scene.touch)
+    return RowBlock(scene.touch, scene.parts, scene.distance, scene.group, np.full(len(scene.act), scene.part),
+                    ctx.touches.act_slot[scene.act], scene.weight, fingertip=np.full(m, scene.fingertip),
+                    direction=scene.direction)
 
 
 def fingertip_pairs(touches: TouchSet) -> dict:

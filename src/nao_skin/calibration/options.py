@@ -18,7 +18,7 @@ from nao_skin.paths import yaml_value
 from nao_skin.rules import Rule
 
 if TYPE_CHECKING:       # the engine's own types: imported where a run builds them, not for the help text
-    from nao_skin.calibration.pairing import PlaneRows
+    from nao_skin.calibration.pairing import RowRules
     from nao_skin.calibration.solver import SolveOptions
 
 # what each value of the ``pairs`` and ``mount_pairs`` options puts into the residuals: rows of these kinds
@@ -218,10 +218,12 @@ class CalibrationOptions:
         return SolveOptions(loss=self.loss, f_scale=self.f_scale, max_iterations=iterations,
                             jacobian=self.jacobian)
 
-    def plane_rows(self) -> PlaneRows:
-        from nao_skin.calibration.pairing import PlaneRows
+    def row_rules(self, press: dict | None = None) -> RowRules:
+        """How the stages make their rows: point-to-plane rows weighted as ``plane_weight`` and ``plane_scale``
+        say; ``press``: the rows' expectations (:func:`~nao_skin.calibration.press.press_offsets`)."""
+        from nao_skin.calibration.pairing import PlaneRows, RowRules
 
-        return PlaneRows(self.plane_weight, self.plane_scale)
+        return RowRules(plane=PlaneRows(self.plane_weight, self.plane_scale), press=press)
 
     def in_place(self) -> "CalibrationOptions":
         """The options of the closing stage, and of a linearisation at an estimate or the truth (the predicted

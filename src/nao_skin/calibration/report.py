@@ -18,9 +18,9 @@ from nao_skin.calibration.engine import CalibrationResult
 from nao_skin.calibration.evaluation import contact_figure, measured
 from nao_skin.calibration.layout import COMPONENTS
 from nao_skin.calibration.options import KIND_ROWS, CalibrationOptions
-from nao_skin.calibration.pairing import KIND_NAMES, pair_for_metrics
+from nao_skin.calibration.pairing import KIND_NAMES
 from nao_skin.calibration.plan import touching_pairs
-from nao_skin.calibration.rows import concat_pairings, pair_parts
+from nao_skin.calibration.rows import concat_pairings, pair_for_metrics, pair_parts
 from nao_skin.calibration.splits import kinematics_kept_text, spread_table
 from nao_skin.calibration.stages import held_frames
 from nao_skin.errors import OutputError, OutputTaken, os_reason

@@ -67,13 +67,14 @@ def _figures(touches: TouchSet, skin: SkinModel, calib: SkinCalibration, steps: 
 def _fit_own(train: TouchSet, skin: SkinModel, calib: SkinCalibration, tips: tuple, options: CalibrationOptions) \
         -> SkinCalibration:
     """``calib`` with the spheres of ``tips`` (fingertips no other scene saw) fitted on ``train``, every frame held."""
-    from nao_skin.calibration.stages import run_stage
+    from nao_skin.calibration.stages import Stage, StageStart, run_stage
 
     parts = tuple(p for p in train.part_names if p in skin.parts)
-    step = Step(parts, (), tuple((f, p) for f in tips for p in parts if (f, p) in skin.fingertip_touch.pairs()))
+    # the parts as references (held where the others put them), the spheres of the step's fingertips free
+    step = Step((), parts, tuple((f, p) for f in tips for p in parts if (f, p) in skin.fingertip_touch.pairs()))
     fabric = calib.fabric_thickness if calib.fabric_thickness is not None else options.fabric_thickness
-    stage = run_stage(train, skin, calib, step, (), {"mount"}, options, np.ones(train.n_touches, bool),
-                      lambda msg: None, fabric)
+    stage = run_stage(train, skin, Stage(step, frozenset({"mount"}), options), StageStart(calib, fabric),
+                      lambda msg: None)
     return stage.calibration
 
 

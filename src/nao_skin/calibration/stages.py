@@ -12,6 +12,7 @@ import scipy.linalg.lapack
 
 from nao_skin.calibration.layout import COMPONENTS, FINGERTIPS, KINEMATICS, ParameterLayout
 from nao_skin.calibration.options import KIND_ROWS
+from nao_skin.calibration.plan import Step
 from nao_skin.calibration.pairing import KIND_FINGERTIP, KIND_NAMES, Pairing, chain_end_poses
 from nao_skin.calibration.residuals import ResidualModel, condition_number, gram
 from nao_skin.calibration.rows import (pair_step, pairing_key, select_rows, touch_hashes, weighted_by_touch,
@@ -62,26 +63,47 @@ class StageResult:
                 "prior_sigma": self.prior_sigma, "seconds": self.seconds}
 
 
-def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, say, fabric,
-              prior_sigma: dict | None = None, anchor: SkinCalibration | None = None,
-              max_repairings: int | None = None, condition: bool = True, press: dict | None = None) -> StageResult:
+@dataclass(frozen=True)
+class Stage:
+    """What one stage fits and how: the targets of ``step`` (paired with its references and fingertip scenes) at
+    ``levels``, with ``options``. ``max_repairings``: instead of ``options.max_repairings`` (a warm update's
+    ``options.warm_repairings``, a fixed-reference step's ``options.reference_repairings``); the last of them
+    solves to ``options.max_iterations``, the others stop after ``options.repair_iterations``. ``condition``:
+    report the condition number of the final normal equations (a Jacobian and an eigendecomposition more: a live
+    update, which reports no stage, skips it)."""
+
+    step: Step
+    levels: frozenset
+    options: "CalibrationOptions"
+    max_repairings: int | None = None
+    condition: bool = True
+
+
+@dataclass(frozen=True)
+class StageStart:
+    """Where a stage starts: the calibration, the fabric estimate (m), the touches the gate kept (None: all), the
+    prior std per group (:data:`PRIOR_GROUPS`; None: the options'), where the prior of the patches and triangles
+    is centred (``anchor``; None: the calibration: a warm-started update centres it where its session started,
+    or each update would count the touches of the one before again) and each touch's expected ``cop_skin`` row at
+    the true skin (``press``, :func:`~nao_skin.calibration.press.press_offsets`), subtracted from the rows."""
+
+    calibration: SkinCalibration
+    fabric: float
+    inliers: np.ndarray | None = None
+    prior_sigma: dict | None = None
+    anchor: SkinCalibration | None = None
+    press: dict | None = None
+
+
+def run_stage(touches: TouchSet, skin: SkinModel, stage: Stage, start: StageStart, say) -> StageResult:
     """One stage: pair, solve, re-pair under the new calibration, until the pairing settles.
 
-    ``prior_sigma``: prior std per group (:data:`PRIOR_GROUPS`); with
-    ``options.prior_scale == 'empirical'`` a stage that frees every part it
-    pairs (the joint refinement) re-estimates it from the touches after each
-    solve. The stage returns the last estimate. ``anchor``: where the prior of
-    the patches and triangles is centred (default: ``calib``, where the stage
-    starts); a warm-started update centres it where its session started, or
-    each update would count the touches of the one before again. ``max_repairings``: instead of
-    ``options.max_repairings`` (a warm update's ``options.warm_repairings``, a fixed-reference step's
-    ``options.reference_repairings``); the last of them solves to ``options.max_iterations``, the others
-    stop after ``options.repair_iterations``. ``condition``: report the
-    condition number of the final normal equations (a Jacobian and an eigendecomposition more: a live
-    update, which reports no stage, skips it). ``press``: each touch's expected ``cop_skin`` row at the true
-    skin (:func:`~nao_skin.calibration.press.press_offsets`), subtracted from the rows.
+    With ``options.prior_scale == 'empirical'`` a stage that frees every part it pairs (the joint refinement)
+    re-estimates the prior's widths from the touches after each solve; the stage returns the last estimate.
     """
     t0 = time.perf_counter()
+    step, levels, options, calib = stage.step, set(stage.levels), stage.options, start.calibration
+    free_parts, inliers = step.targets, start.inliers
     name = f"{step.name}: {'+'.join(sorted(levels, key=['mount', 'patch', 'triangle', KINEMATICS].index))}"
     parts_in = tuple(p for p in step.targets + step.references if p in touches.part_names)
     # kinematic unknowns: the joint offsets and named links of the chains the stage's parts hang off
@@ -91,37 +113,33 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     # a step's fingertip scenes are fitted in each of its stages, whatever the options' rows of two parts
     kinds = tuple(KIND_NAMES[k] for k in kind_names) + ((KIND_FINGERTIP,) if layout.fingertip_names else ())
     # normal rows are built from the closest taxel (or COP) pairs: pair COPs too if neither is fitted
-    normal_weight = options.normal_weight if set(levels) & set(options.normal_levels) else 0.0
+    normal_weight = options.normal_weight if levels & set(options.normal_levels) else 0.0
     pair_kinds = (kind_names if normal_weight <= 0 or {"cop", "taxel"} & set(kind_names)
                   else kind_names + ("cop",))
     free_levels = {p: set(levels) for p in free_parts}
-    prior_x = layout.to_vector(calib, fabric)
+    prior_x = layout.to_vector(calib, start.fabric)
     x = prior_x.copy()
-    centre = prior_x if anchor is None else _anchored(layout, prior_x, anchor)
+    centre = prior_x if start.anchor is None else _anchored(layout, prior_x, start.anchor)
     hashes = None
     iterations = repairings = 0
     free = None
     held_names: list = []
     model = None
     last_cost = np.inf
-    prior_sigma = dict(initial_prior_sigma(options) if prior_sigma is None else prior_sigma)
+    prior_sigma = dict(initial_prior_sigma(options) if start.prior_sigma is None else start.prior_sigma)
     pairings = {}
-    limit = max_repairings or options.max_repairings
+    limit = stage.max_repairings or options.max_repairings
     touch_weight = pose_weights(touches, options.pose_weight)
+    rules = options.row_rules(start.press)
     result = None
     for repairings in range(1, limit + 1):
         current = layout.to_calibration(x, calib)
-        pairing_all = pair_step(touches, skin, current, step, pair_kinds, options.plane_rows(), press)
+        pairing_all = pair_step(touches, skin, current, step, pair_kinds, rules)
         if pairing_all is None:
             raise DataError(f"{name}: no touch pairs the parts {', '.join(parts_in)}")
         pairing = select_rows(pairing_all, kinds, inliers)
         if len(pairing.row_touch) == 0:
-            if len(pairing_all.row_touch) and inliers is not None and not np.any(inliers[pairing_all.row_touch]):
-                raise DataError(f"{name}: the gate set aside every touch that pairs these parts (farther apart than"
-                                f" {options.gate_mm:g} mm after the mount fit): a gate that tight, or a recording"
-                                f" that does not fit the robot config, the taxel files or the starting calibration"
-                                f" (--gate-mm 0: no gate)")
-            raise DataError(f"{name}: no paired activations left to fit")
+            _nothing_to_fit(name, pairing_all, inliers, options)
         pairing = weighted_by_touch(with_normal_rows(pairing, pairing_all, normal_weight, inliers), touch_weight)
         new_hashes = touch_hashes(pairing, touches.n_touches)
         settled = hashes is not None and np.mean(np.abs(new_hashes - hashes) > 1e-9) < options.repair_tolerance
@@ -137,39 +155,14 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
                               kinematic_poses=(lambda c: partial(chain_end_poses, touches, skin.with_kinematics(c)))
                               if kinematic else None, fingertip_names=touches.fingertips)
         if free is None:   # what the data determines is decided once, on the first pairing
-            free, lower, upper = _bounds(layout, free_parts, levels, x, options)
-            # the fabric is a property of the whole skin: estimated once the mounts are in place, from rows of two
-            # skins (against a fingertip alone it is one unknown with the fingertip's radius)
-            free[layout.fabric_col] = (options.estimate_fabric and levels != {"mount"}
-                                       and bool(np.any(pairing.row_kind != KIND_FINGERTIP)))
-            lower[layout.fabric_col], upper[layout.fabric_col] = options.fabric_bounds
-            for kname, col in layout.kinematic_cols.items():
-                bound = KINEMATIC_BOUNDS[kname in skin.robot.links]
-                lower[col], upper[col] = min(-bound, x[col]), max(bound, x[col])
+            free, lower, upper = _bounds(layout, free_parts, levels, x, options, pairing)
+            _hold_thin_frames(free, layout, stage, pairing, touches, skin, lambda msg: say(f"{name}: {msg}"))
             # the scene's gauge (its chains' first joints about one line, turned with the base's skin): held at
             # the config's; the touches' residuals alone pull it anywhere (docs/decisions.md, "One robot, every
             # scene")
             gauge = skin.robot.rotation_gauge(step.chains(skin)) if layout.kinematic_cols else None
             if gauge in layout.kinematic_cols:
                 free[layout.kinematic_cols[gauge]] = False
-            for fname, col in layout.fingertip_cols.items():    # a sphere of a radius >= 0, near the config's
-                radius = skin.robot.fingertip(fname).radius
-                lower[col:col + 4] = np.minimum([-FINGERTIP_SHIFT] * 3 + [-radius], x[col:col + 4])
-                upper[col:col + 4] = np.maximum([FINGERTIP_SHIFT] * 3 + [MAX_FINGERTIP_RADIUS - radius], x[col:col + 4])
-            if "patch" in levels:   # patches need about twice the mount's data (thesis 2.5)
-                for p in free_parts:
-                    pidx = touches.part_index(p)
-                    n_with = len(np.unique(pairing.row_touch[pairing.term_row[pairing.term_part == pidx]]))
-                    if n_with < options.min_patch_touches:
-                        _, pp, t, _ = layout.offsets[p]
-                        free[pp:t] = False
-                        say(f"{name}: {p} has {n_with} paired touches (< {options.min_patch_touches}): patches held")
-            if "triangle" in levels:
-                for p in free_parts:
-                    counts = _activation_counts(pairing, touches, skin, p)
-                    _, _, t, _ = layout.offsets[p]
-                    for tr in np.flatnonzero(counts < options.min_triangle_activations):
-                        free[t + 6 * tr: t + 6 * tr + 6] = False
         # directions the touches do not excite are held; checked again after each re-pairing
         # because a new pairing can lose what the last one excited (holds only accumulate).
         # Held means at the prior: what an earlier solve of this stage moved there goes back.
@@ -198,7 +191,7 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
         last_cost = result.cost
     calib_out = layout.to_calibration(x, calib)
     cond = (condition_number(model, calib_out, free_levels, np.flatnonzero(free))
-            if condition and model is not None and free is not None and np.any(free) else None)
+            if stage.condition and model is not None and free is not None and np.any(free) else None)
     kinematics_held = [h.split("/", 1)[1] for h in held_names if h.startswith(f"{KINEMATICS}/")]
     for kname in kinematics_held:   # held at nominal: not a correction of the calibration
         calib_out.kinematics.pop(kname, None)
@@ -218,6 +211,38 @@ def run_stage(touches, skin, calib, step, free_parts, levels, options, inliers, 
     return StageResult(name, calib_out, iterations, repairings, cond, compress_held(held), set(held), estimated,
                        1000.0 * float(x[layout.fabric_col]), prior_sigma, time.perf_counter() - t0,
                        kinematics_held, std, pairings, fingertips_held)
+
+
+def _nothing_to_fit(name: str, pairing_all: Pairing, inliers: np.ndarray | None, options) -> None:
+    """Raise why a stage's pairing left no row to fit: the gate set every touch aside, or nothing paired."""
+    if len(pairing_all.row_touch) and inliers is not None and not np.any(inliers[pairing_all.row_touch]):
+        raise DataError(f"{name}: the gate set aside every touch that pairs these parts (farther apart than"
+                        f" {options.gate_mm:g} mm after the mount fit): a gate that tight, or a recording"
+                        f" that does not fit the robot config, the taxel files or the starting calibration"
+                        f" (--gate-mm 0: no gate)")
+    raise DataError(f"{name}: no paired activations left to fit")
+
+
+def _hold_thin_frames(free: np.ndarray, layout: ParameterLayout, stage: Stage, pairing: Pairing, touches: TouchSet,
+                      skin: SkinModel, say) -> None:
+    """Hold (in ``free``) the patches of a part with fewer than ``min_patch_touches`` paired touches (patches need
+    about twice the mount's data, thesis 2.5) and the triangles with fewer than ``min_triangle_activations``
+    paired activations, where the stage frees them."""
+    options = stage.options
+    if "patch" in stage.levels:
+        for p in stage.step.targets:
+            pidx = touches.part_index(p)
+            n_with = len(np.unique(pairing.row_touch[pairing.term_row[pairing.term_part == pidx]]))
+            if n_with < options.min_patch_touches:
+                _, pp, t, _ = layout.offsets[p]
+                free[pp:t] = False
+                say(f"{p} has {n_with} paired touches (< {options.min_patch_touches}): patches held")
+    if "triangle" in stage.levels:
+        for p in stage.step.targets:
+            counts = _activation_counts(pairing, touches, skin, p)
+            _, _, t, _ = layout.offsets[p]
+            for tr in np.flatnonzero(counts < options.min_triangle_activations):
+                free[t + 6 * tr: t + 6 * tr + 6] = False
 
 
 # how far a kinematic correction may go: (m of a link length, rad of a joint offset); a real error is
@@ -275,7 +300,11 @@ def _anchored(layout: ParameterLayout, prior_x: np.ndarray, anchor: SkinCalibrat
     return centre
 
 
-def _bounds(layout: ParameterLayout, targets: tuple, levels: set, x: np.ndarray, options: "CalibrationOptions"):
+def _bounds(layout: ParameterLayout, targets: tuple, levels: set, x: np.ndarray, options: "CalibrationOptions",
+            pairing: Pairing) -> tuple:
+    """``(free, lower, upper)`` of a stage on its first pairing: the columns of ``targets`` at ``levels`` (the
+    patches and triangles bounded where ``options.bounded``), the fabric where it is estimated, the kinematic
+    corrections and the fingertips' spheres within their bounds."""
     lower = np.full(layout.size, -np.inf)
     upper = np.full(layout.size, np.inf)
     free = free_mask(layout, targets, levels)
@@ -289,6 +318,18 @@ def _bounds(layout: ParameterLayout, targets: tuple, levels: set, x: np.ndarray,
     # values already beyond a bound (e.g. from a previous free run) stay feasible
     lower = np.minimum(lower, x)
     upper = np.maximum(upper, x)
+    # the fabric is a property of the whole skin: estimated once the mounts are in place, from rows of two
+    # skins (against a fingertip alone it is one unknown with the fingertip's radius)
+    free[layout.fabric_col] = (options.estimate_fabric and levels != {"mount"}
+                               and bool(np.any(pairing.row_kind != KIND_FINGERTIP)))
+    lower[layout.fabric_col], upper[layout.fabric_col] = options.fabric_bounds
+    for kname, col in layout.kinematic_cols.items():
+        bound = KINEMATIC_BOUNDS[kname in layout.skin.robot.links]
+        lower[col], upper[col] = min(-bound, x[col]), max(bound, x[col])
+    for fname, col in layout.fingertip_cols.items():    # a sphere of a radius >= 0, near the config's
+        radius = layout.skin.robot.fingertip(fname).radius
+        lower[col:col + 4] = np.minimum([-FINGERTIP_SHIFT] * 3 + [-radius], x[col:col + 4])
+        upper[col:col + 4] = np.maximum([FINGERTIP_SHIFT] * 3 + [MAX_FINGERTIP_RADIUS - radius], x[col:col + 4])
     return free, lower, upper
 
 def _activation_counts(pairing: Pairing, touches: TouchSet, skin: SkinModel, part: str) -> np.ndarray:

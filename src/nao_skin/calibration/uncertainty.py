@@ -85,7 +85,7 @@ def linearised_rows(skin: SkinModel, touches: TouchSet, calib: SkinCalibration, 
     scenes = tuple((f, p) for f, p in fingertip_pairs(touches) if p in parts and f in calib.fingertips)
     layout = ParameterLayout(skin, parts, tuple(kinematic), tuple(dict.fromkeys(f for f, _ in scenes)))
     kinds = fitted_kinds(options, {"triangle"})
-    pairing = pair_step(touches, skin, calib, Step(parts, (), scenes), kinds, options.plane_rows())
+    pairing = pair_step(touches, skin, calib, Step(parts, (), scenes), kinds, options.row_rules())
     if pairing is not None:
         pairing = select_rows(pairing, tuple(KIND_NAMES[k] for k in kinds) + (KIND_FINGERTIP,), inliers)
     if pairing is None or len(pairing.row_touch) == 0:

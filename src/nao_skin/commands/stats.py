@@ -25,8 +25,9 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     import numpy as np
 
-    from nao_skin.calibration.fingertip import fingertip_pairs, fingertip_rows
-    from nao_skin.calibration.pairing import metrics, pair_for_metrics
+    from nao_skin.calibration.fingertip import fingertip_pairs
+    from nao_skin.calibration.pairing import metrics
+    from nao_skin.calibration.rows import fingertip_rows, pair_for_metrics
     from nao_skin.calibration.plan import pair_counts, scene_label
     from nao_skin.calibration.rows import concat_pairings
     from nao_skin.formats.inputs import Inputs, check_inputs, load_touches, parse_fingertips
