@@ -419,7 +419,7 @@ def test_the_session_end_replaces_the_calibration_requested_during_the_session(t
 
         def idle():
             said = [{kv.key: kv.value for kv in s.values} for a in diagnostics for s in a.status
-                    if s.name == "nao_skin: calibrate"]
+                    if s.name == "nao_skin: /calibrate"]
             return said and said[-1].get("running") == "no" and said[-1].get("state") == "updated"
 
         assert listener.spin_until(idle, timeout=60, procs=[node])

@@ -274,13 +274,14 @@ def test_a_simulated_session_says_what_it_calibrates_without_a_warning(tmp_path)
         trigger = listener.node.create_client(Trigger, "/calibrate/calibrate")
         seen = len(status)
         answer = listener.ask(trigger, Trigger.Request(), procs=[session])
-        assert answer.success or "running" in answer.message, answer.message     # a live update may run
-        if not answer.success:      # asked again once that update ended
+        # the reply is the calibration's result: done, failed (too few touches of a pair yet, which this test
+        # does not judge) or refused while a live update runs
+        if "running" in answer.message:      # asked again once that update ended
             assert listener.spin_until(lambda: status[seen:] and status[-1]["state"] != "running", timeout=120,
                                        procs=[session])
             seen = len(status)
             answer = listener.ask(trigger, Trigger.Request(), procs=[session])
-            assert answer.success, answer.message
+            assert "running" not in answer.message, answer.message
         assert listener.spin_until(lambda: any(s["state"] in ("done", "failed") and not s.get("live")
                                                for s in status[seen:]), timeout=180, procs=[session]), status[seen:]
     finally:

@@ -59,3 +59,28 @@ def test_a_fingertip_no_other_scene_sees_is_fitted_for_its_prediction(three_scen
     assert tip.fitted == ["the sphere of r_finger"]
     assert "r_finger" not in results["all but r_finger-torso"].calibration.fingertips
     assert 0 < tip.predicted["fingertip_mean_mm"] < 3 * tip.own["test"]["fingertip_mean_mm"]
+
+
+def test_calibrate_cross_scene_writes_each_scene_s_prediction_in_report_json_and_md(three_scenes, default_skin,
+                                                                                     tmp_path):
+    """`nao-skin calibrate BAG --cross-scene`: report.json's ``scenes`` and report.md's section, from a real bag of
+    the three scenes; the calibration written is every scene's together (the same as without the option)."""
+    import json
+
+    from nao_skin.cli import main as cli_main
+    from nao_skin.formats.bag import write_touch_bag
+
+    sim, touches = three_scenes
+    bag = tmp_path / "scenes"
+    write_touch_bag(bag, touches, default_skin)
+    assert cli_main(["calibrate", str(bag), "--out", str(tmp_path / "with"), "--cross-scene", "--no-plots",
+                     "--quiet"]) == 0
+    assert cli_main(["calibrate", str(bag), "--out", str(tmp_path / "without"), "--no-plots", "--quiet"]) == 0
+    report = json.loads((tmp_path / "with" / "report.json").read_text())
+    assert [s["scene"] for s in report["scenes"]["scenes"]] == ["l_hand+torso", "r_finger-l_hand", "r_finger-torso"]
+    assert all(s["predicted"] and s["ratio"] for s in report["scenes"]["scenes"])
+    assert set(report["scenes"]["placement_spread_mm"]) == {"l_hand", "torso"}
+    assert "## Each scene predicted from the others" in (tmp_path / "with" / "report.md").read_text()
+    assert "scenes" not in json.loads((tmp_path / "without" / "report.json").read_text()) or \
+        not json.loads((tmp_path / "without" / "report.json").read_text())["scenes"]
+    assert (tmp_path / "with" / "calibration.yaml").read_text() == (tmp_path / "without" / "calibration.yaml").read_text()

@@ -82,6 +82,7 @@ class CalibrationReport:
     total_seconds: float = 0.0                          # the engine's, from touches to calibration
     input: dict = field(default_factory=dict)           # what was read (set by the pipeline)
     splits: dict = field(default_factory=dict)          # figures over repeated splits (pipeline, splits > 1)
+    scenes: dict = field(default_factory=dict)          # each scene predicted from the others (pipeline, cross_scene)
     warnings: list = field(default_factory=list)        # why the result cannot be the skin's pose (plausibility)
 
     @property

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
+from nao_skin.calibration import scenes
 from nao_skin.calibration.engine import CalibrationResult, FitState, calibrate
 from nao_skin.calibration.options import CalibrationOptions
 from nao_skin.calibration.report import write_outputs
@@ -42,6 +43,7 @@ def check_output(out_dir, inputs: Sequence, force: bool = False, label: str = "-
 def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: CalibrationOptions, out_dir,
                          prior: SkinCalibration | None = None, truth: SkinCalibration | None = None,
                          force: bool = False, plots: bool = True, protected: Sequence = (), splits: int = 1,
+                         cross_scene: bool = False,
                          command: str = "calibrate", label: str = "--out", extra=None, replacing=None,
                          beside: str | None = None,
                          log: Callable[[str], None] | None = None,
@@ -59,6 +61,9 @@ def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: Calibration
     ``splits`` > 1: the report also gives each figure's mean and spread over that
     many seeded splits (:func:`~nao_skin.calibration.splits.split_spread`); the
     calibration written is the first split's.
+    ``cross_scene``: the report also predicts each scene of the inputs from the others and gives each part's
+    placement spread (:func:`~nao_skin.calibration.scenes.cross_scene`); the calibration written is every
+    scene's together.
     """
     log = log or (lambda msg: None)
     check_output(out_dir, [*inputs, *protected, *skin.source_files()], force=force, label=label)
@@ -68,6 +73,10 @@ def calibrate_recordings(inputs: Sequence, skin: SkinModel, options: Calibration
     if splits > 1:
         log(f"the same calibration on {splits - 1} more splits (seeds {options.seed + 1}..{options.seed + splits - 1})")
         result.report.splits = split_spread(touches, skin, options, splits, prior=prior, first=result)
+    if cross_scene:
+        log("each scene predicted from the others")
+        predictions, results = scenes.cross_scene(touches, skin, options, prior=prior, together=result, say=log)
+        result.report.scenes = scenes.scenes_report(predictions, scenes.placement_spread(skin, results))
     out = write_outputs(result, skin, out_dir, prior=prior, plots=plots, command=command, extra=extra,
                         replacing=replacing, beside=beside)
     if Path(out) != Path(out_dir) and summary is not None:

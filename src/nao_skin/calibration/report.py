@@ -21,6 +21,7 @@ from nao_skin.calibration.options import KIND_ROWS, CalibrationOptions
 from nao_skin.calibration.pairing import KIND_NAMES
 from nao_skin.calibration.plan import touching_pairs
 from nao_skin.calibration.rows import concat_pairings, pair_for_metrics, pair_parts
+from nao_skin.calibration.scenes import scenes_markdown
 from nao_skin.calibration.splits import kinematics_kept_text, spread_table
 from nao_skin.calibration.stages import held_frames
 from nao_skin.errors import OutputError, OutputTaken, os_reason
@@ -246,6 +247,7 @@ def markdown_report(report: dict, coverage: dict | None = None, pictures: bool =
                               for s in spread["per_seed"])
             lines += ["", f"{kinematics_kept_text(spread).capitalize()} splits; each split's held-out gain with"
                           f" them (its 95 % bound): {gains}."]
+    lines += scenes_markdown(report.get("scenes") or {})
     lines += ["", "## What the touches say about the skin", "",
               f"- fabric over the taxels (each skin): {_fmt(report.get('fabric_thickness_mm'))} mm"]
     sigma = report.get("prior_sigma") or {}

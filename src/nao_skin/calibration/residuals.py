@@ -111,17 +111,7 @@ class ResidualModel:
             fk = chain_poses(name)[term_touch[sel]]
             self.groups.append((sel, name, part, fk, slots, tri, part.triangle_patch[tri]))
         self._term_touch = term_touch
-        # fingertip rows: per fingertip, its rows, their touches' chain-end poses, the rows' directions and the
-        # weight the row's skin side carries (its terms' weights sum to it: 1, or the touch's weight), which the
-        # fingertip's side carries too
-        self._tips = []
-        if pairing.row_fingertip is not None:
-            side_a = np.bincount(pairing.term_row, weights=pairing.term_weight, minlength=self.n_rows)
-            for f in np.unique(pairing.row_fingertip[pairing.row_fingertip >= 0]):
-                rows = np.flatnonzero(pairing.row_fingertip == f)
-                name = fingertip_names[f]
-                self._tips.append((name, rows, chain_poses(name)[pairing.row_touch[rows]],
-                                   pairing.row_direction[rows], side_a[rows]))
+        self._tips = _fingertip_sides(pairing, chain_poses, fingertip_names, self.n_rows)
         self._row_touch = pairing.row_touch
         # terms of normal rows carry a direction (rotated, never translated, no fabric)
         self.term_is_dir = pairing.row_kind[pairing.term_row] == KIND_NORMAL
@@ -495,6 +485,21 @@ class ResidualModel:
         if hit is None:
             hit = self._per_pairing[key] = fk[first, :3, :3] @ part.mount_nominal[:3, :3]
         return hit
+
+
+def _fingertip_sides(pairing, chain_poses, fingertip_names: tuple, n_rows: int) -> list:
+    """The fingertip side of the fingertip rows: per fingertip, its rows, their touches' chain-end poses, the rows'
+    directions and the weight the row's skin side carries (its terms' weights sum to it: 1, or the touch's
+    weight), which the fingertip's side carries too."""
+    if pairing.row_fingertip is None:
+        return []
+    side_a = np.bincount(pairing.term_row, weights=pairing.term_weight, minlength=n_rows)
+    out = []
+    for f in np.unique(pairing.row_fingertip[pairing.row_fingertip >= 0]):
+        rows = np.flatnonzero(pairing.row_fingertip == f)
+        name = fingertip_names[f]
+        out.append((name, rows, chain_poses(name)[pairing.row_touch[rows]], pairing.row_direction[rows], side_a[rows]))
+    return out
 
 
 def condition_number(model: ResidualModel, calib: SkinCalibration, free_levels: dict, cols: np.ndarray) -> float:

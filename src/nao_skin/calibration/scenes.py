@@ -51,6 +51,7 @@ class ScenePrediction:
     own: dict                            # the scene alone: {"train": figures, "test": figures}
     predicted: dict = field(default_factory=dict)    # test figures under the others' calibration (empty: none)
     fitted: list = field(default_factory=list)       # what belongs to the scene alone, fitted on its training split
+    together: dict = field(default_factory=dict)     # test figures of its touches in every scene's calibration
     reason: str = ""                     # why there is no prediction, if there is none
 
     def ratios(self) -> dict:
@@ -119,7 +120,14 @@ def cross_scene(touches: TouchSet, skin: SkinModel, options: CalibrationOptions 
         row.predicted = _figures(alone.test, skin, calib, steps)
     if len(names) > 1:
         say(f"every scene together ({touches.n_touches} touches)")
-        results["all"] = together or calibrate(touches, skin, options, prior=prior)
+        together = results["all"] = together or calibrate(touches, skin, options, prior=prior)
+        # each scene's touches in the test split of every scene's calibration (split by pose over them all)
+        steps = plan_steps(together.train, options, skin.self_touch)
+        test_labels = scene_labels(together.test)
+        for row in out:
+            if np.any(test_labels == row.scene):
+                row.together = _figures(together.test.subset(test_labels == row.scene), skin, together.calibration,
+                                        steps)
     return out, results
 
 
@@ -146,7 +154,8 @@ def scenes_report(predictions: list, spread: dict) -> dict:
     """What ``report.json`` holds of :func:`cross_scene` (``scenes``): per scene its own, predicted figures and
     their ratios, and each part's placement spread."""
     return {"scenes": [{"scene": p.scene, "touches": p.touches, "own": p.own, "predicted": p.predicted,
-                        "ratio": p.ratios(), "fitted": p.fitted, **({"reason": p.reason} if p.reason else {})}
+                        "ratio": p.ratios(), "together": p.together, "fitted": p.fitted,
+                        **({"reason": p.reason} if p.reason else {})}
                        for p in predictions],
             "placement_spread_mm": spread}
 
@@ -157,16 +166,17 @@ def scenes_markdown(scenes: dict) -> list:
         return []
     lines = ["", "## Each scene predicted from the others", "",
              "Own: the scene calibrated alone, its test split; predicted: every other scene calibrated together (what"
-             " belongs to the scene alone fitted on its training split), the same test split. Ratio: predicted / own.",
-             "", "| scene | touches | figure | own test | predicted | ratio |", "|---|---|---|---|---|---|"]
+             " belongs to the scene alone fitted on its training split), the same test split. Ratio: predicted / own."
+             " Together: the scene's touches in the test split of every scene calibrated together.",
+             "", "| scene | touches | figure | own test | predicted | ratio | together |", "|---|---|---|---|---|---|---|"]
     for s in scenes["scenes"]:
         figures = [f for f in SCENE_FIGURES if f != "fired_f1" and f in s["own"].get("test", {})]
         for f in figures:
             pred, ratio = s["predicted"].get(f), s["ratio"].get(f)
             lines.append(f"| {s['scene']} | {s['touches']} | {FIGURES[f]} | {s['own']['test'][f]:.2f} |"
-                         f" {_number(pred)} | {_number(ratio)} |")
+                         f" {_number(pred)} | {_number(ratio)} | {_number(s.get('together', {}).get(f))} |")
         if s.get("reason"):
-            lines.append(f"| {s['scene']} | {s['touches']} | not predicted: {s['reason']} | | | |")
+            lines.append(f"| {s['scene']} | {s['touches']} | not predicted: {s['reason']} | | | | |")
     if scenes.get("placement_spread_mm"):
         lines += ["", "Placement spread: each part's taxels from where every scene together places them (median, mm):", ""]
         for part, by in scenes["placement_spread_mm"].items():

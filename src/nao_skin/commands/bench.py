@@ -24,8 +24,8 @@ REAL_LEFT_OUT = (f"real section left out: no --real PATH, and {REAL_DATA_VARIABL
                  f" recording and its layouts) is not set")
 HELP = "benchmark calibration strategies (seconds against error) and the simulator's hard cases"
 
-SECTIONS = ("speed", "real", "hard", "live", "kinematics", "fingertip")
-# what runs without --only: the kinematics and fingertip sections (seeds x sizes x calibrations) are asked for by name
+SECTIONS = ("speed", "real", "hard", "live", "kinematics", "fingertip", "scenes")
+# what runs without --only: the kinematics, fingertip and scenes sections (seeds x sizes x calibrations) are asked for by name
 DEFAULT_SECTIONS = ("speed", "real", "hard", "live")
 # where the project keeps the tables `--readme` fills (between its BENCH markers), from the repository root
 RESULTS_DOC = "docs/results.md"
@@ -51,7 +51,9 @@ def add_arguments(parser) -> None:
                              " recording, kinematics = presets calibrated with kinematics off / on / auto, fingertip ="
                              " the real fingertip recordings ($NAO_SKIN_REAL_FINGERTIP, else real_fingertip beside"
                              " $NAO_SKIN_REAL_DATA) and the simulator's fingertip scenes, alone and mixed with"
-                             " self-touches (the last two only when asked for)")
+                             " self-touches, scenes = the three real recordings each predicted from the other two and"
+                             " the scenes-kinematic preset, every scene together against alone (the last three only"
+                             " when asked for)")
     parser.add_argument("--repeat", type=int, help="timed repetitions per strategy, median quoted (default 3)")
     parser.add_argument("--seeds", type=int, help="seeds per hard-case preset (default 20)")
     parser.add_argument("--sim", help="simulated recording with truth_calibration.yaml (default: bags/sim_default)")
@@ -433,6 +435,27 @@ def run(args) -> int:
             md += ["## Fingertip scenes", "", fingertip.__doc__.split("\n\n", 1)[1].replace("\n", " ").strip(), "",
                    *fingertip.tables(real, sim_rows, mixed)]
             failures += sum(not r["met"] for r in real)
+            _write(results_dir(), md, results, listing)
+
+        if "scenes" in sections:
+            from nao_skin.bench import scenes
+
+            directory = _fingertip_directory()
+            real = []
+            if directory is not None:
+                from nao_skin.paths import REAL_RECORDING
+
+                say("scenes: the real self-touch and fingertip recordings, each predicted from the others")
+                real = scenes.real_rows(Path(os.environ[REAL_DATA_VARIABLE]) / REAL_RECORDING, directory,
+                                        _real_layouts(), say=say)
+            else:
+                md += [f"Real recordings left out: {FINGERTIP_LEFT_OUT}.", ""]
+            say(f"scenes: simulated scenes-kinematic, {seeds} seeds")
+            sim_rows = scenes.sim_rows(load_skin(), range(seeds), say=say)
+            results["scenes"] = {"real": real, "sim": sim_rows}
+            md += ["## Every scene at once", "", scenes.__doc__.split("\n\n", 1)[1].replace("\n", " ").strip(), "",
+                   *scenes.tables(real, sim_rows)]
+            failures += sum(not s["met"] for r in real for s in r["scenes"])
             _write(results_dir(), md, results, listing)
 
         if "kinematics" in sections:

@@ -52,6 +52,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--splits", type=int, default=1, metavar="K",
                         help="also calibrate on K-1 more seeded train/test splits and report each figure's mean and"
                              " spread over the K (the calibration written is the first split's; default 1)")
+    parser.add_argument("--cross-scene", action="store_true",
+                        help="also predict each scene of the inputs (a self-touch pair, a fingertip scene) from the"
+                             " others, and give each part's placement spread between scenes (report.json 'scenes')")
     parser.add_argument("--no-plots", action="store_true", help="do not draw the report's plots (faster)")
     parser.add_argument("--quiet", action="store_true",
                         help="print only the final line (and what loading skipped, if anything)")
@@ -103,7 +106,7 @@ def run(args) -> int:
     truth = SkinCalibration.load(args.truth, skin) if args.truth else None
     inputs = Inputs(tuple(args.inputs), parse_fingertips(args.fingertip, args.inputs))
     run = calibrate_recordings(inputs, skin, options, args.out, prior=prior, truth=truth, force=args.force,
-                               plots=not args.no_plots, log=log, splits=args.splits,
+                               plots=not args.no_plots, log=log, splits=args.splits, cross_scene=args.cross_scene,
                                protected=[args.skin, args.robot, args.prior, args.truth,
                                           *(item.partition("=")[2] for item in args.taxels)],
                                summary=lambda msg: print(msg, file=sys.stderr, flush=True))

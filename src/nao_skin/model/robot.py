@@ -183,6 +183,29 @@ def _body(spec, joints, where: str) -> Body:
     return Body(rest, box, hand_end)
 
 
+def _fingertips(spec, chains: dict, taken: set, path: Path) -> dict:
+    """A robot config's ``fingertips``: ``{name: Fingertip}``, none named as a frame, chain or joint is."""
+    if not isinstance(spec, dict):
+        raise ConfigError(f"{path}: 'fingertips' must map fingertip names to {{chain, point, radius}}")
+    out = {str(n): _fingertip(n, entry, chains, f"{path}: fingertip '{n}'") for n, entry in spec.items()}
+    for n in out:
+        if n in taken:
+            raise ConfigError(f"{path}: fingertip '{n}' has the name of a frame, chain or joint of the robot")
+    return out
+
+
+def _links(spec: dict, path: Path) -> dict:
+    """A robot config's ``links``: ``{name: Link}`` (checked against the chains by the model)."""
+    links = {}
+    for lname, entry in spec.items():
+        if not isinstance(entry, dict) or not {"chain", "row", "param"} <= set(entry) \
+                or not isinstance(entry["row"], int) or isinstance(entry["row"], bool):
+            raise ConfigError(f"{path}: link '{lname}' needs chain, row (a whole number) and param (a or d)")
+        known_keys(entry, ("chain", "row", "param"), f"{path}: link '{lname}'")
+        links[str(lname)] = Link(str(entry["chain"]), int(entry["row"]), str(entry["param"]))
+    return links
+
+
 class RobotModel:
     """Kinematic model of the robot's upper body.
 
@@ -273,24 +296,11 @@ class RobotModel:
                 if frame in named:
                     raise ConfigError(f"{path}: chain '{cname}' row {i}: frame '{frame}' is also {named[frame]}")
                 named[frame] = f"chain '{cname}' row {i}'s"
-        links = {}
-        for lname, spec in (doc.get("links") or {}).items():
-            if not isinstance(spec, dict) or not {"chain", "row", "param"} <= set(spec) \
-                    or not isinstance(spec["row"], int) or isinstance(spec["row"], bool):
-                raise ConfigError(f"{path}: link '{lname}' needs chain, row (a whole number) and param (a or d)")
-            known_keys(spec, ("chain", "row", "param"), f"{path}: link '{lname}'")
-            links[str(lname)] = Link(str(spec["chain"]), int(spec["row"]), str(spec["param"]))
+        links = _links(doc.get("links") or {}, path)
         body = _body(doc["body"], limits, f"{path}: body") if "body" in doc else None
         robot = cls(frame_name(doc.get("name", path.stem), f"{path}: name", "robot name"), base_frame,
                     limits, chains, source=str(path), links=links, body=body)
-        fingertips = doc.get("fingertips") or {}
-        if not isinstance(fingertips, dict):
-            raise ConfigError(f"{path}: 'fingertips' must map fingertip names to {{chain, point, radius}}")
-        robot.fingertips = {str(n): _fingertip(n, spec, chains, f"{path}: fingertip '{n}'")
-                            for n, spec in fingertips.items()}
-        for n in robot.fingertips:
-            if n in named or n in chains or n in limits:
-                raise ConfigError(f"{path}: fingertip '{n}' has the name of a frame, chain or joint of the robot")
+        robot.fingertips = _fingertips(doc.get("fingertips") or {}, chains, {*named, *chains, *limits}, path)
         return robot
 
     # ------------------------------------------------------------------ corrections

@@ -599,18 +599,19 @@ class SkinCalibration:
                        **({"std": round(float(self.kinematics_std[name]), 10)} if name in self.kinematics_std else {})}
                 for name, v in self.kinematics.items()}
         if self.fingertips:   # absent without fingertip touches: such files read as before
-            out["fingertips"] = {}
-            for name, corr in self.fingertips.items():
-                centre, radius = self.fingertip_sphere(skin.robot, name)
-                std = self.fingertips_std.get(name)
-                out["fingertips"][name] = {
-                    "chain": skin.robot.fingertip(name).chain,
-                    "correction": {"point": [_written(v) for v in corr[:3]], "radius": _written(corr[3])},
-                    # the contact sphere it gives, in the chain's end frame (what a user reads)
-                    "point": [_written(v) for v in centre], "radius": _written(radius),
-                    **({"std": {"point": [_written(v) for v in std[:3]], "radius": _written(std[3])}}
-                       if std is not None else {})}
+            out["fingertips"] = {name: self._fingertip_entry(skin.robot, name) for name in self.fingertips}
         return out
+
+    def _fingertip_entry(self, robot: RobotModel, name: str) -> dict:
+        """A fingertip's entry of calibration.yaml: its correction, the contact sphere it gives (in the chain's end
+        frame: what a user reads) and their std where estimated."""
+        corr, std = self.fingertips[name], self.fingertips_std.get(name)
+        centre, radius = self.fingertip_sphere(robot, name)
+        return {"chain": robot.fingertip(name).chain,
+                "correction": {"point": [_written(v) for v in corr[:3]], "radius": _written(corr[3])},
+                "point": [_written(v) for v in centre], "radius": _written(radius),
+                **({"std": {"point": [_written(v) for v in std[:3]], "radius": _written(std[3])}}
+                   if std is not None else {})}
 
     def save(self, path: str | Path, skin: SkinModel, comment: str = "") -> None:
         header = (f"{CALIBRATION_HEADER}\n"
