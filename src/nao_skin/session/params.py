@@ -158,6 +158,9 @@ SKIN_HEATMAP = {
                       Rule(tuple, length=3)),
     "earlier_recordings": ([""], "bags of earlier sittings the record session continues: their touches count"
                                  " as presses from the start"),
+    "fingertip_scenes": ([""], "fingertip scenes of the session, 'fingertip-part' (e.g. r_finger-torso): each"
+                               " fingertip's contact sphere shown in its arm's end frame; empty: none"),
+    "calibration": ("", "calibration that places the fingertips of fingertip_scenes (empty: the robot config's)"),
 }
 
 
@@ -316,6 +319,11 @@ def check_pairing_recorder(p: dict, where: str = "pairing_recorder") -> None:
         raise ConfigError(f"{where}: {exc}") from None
 
 
+def check_skin_heatmap(p: dict, where: str = "skin_heatmap") -> None:
+    """Fingertip scenes of the skin the node reads."""
+    check_pairing_recorder(p, where)
+
+
 def check_calibrate(p: dict, where: str = "calibrate") -> None:
     """Guidance pairs of the skin the node reads."""
     try:
@@ -327,4 +335,4 @@ def check_calibrate(p: dict, where: str = "calibrate") -> None:
 # what no single parameter's rule can say: checked by `nao-skin record` before any node starts, by the node
 # again at its start
 CHECKS = {"calibrate": check_calibrate, "naoqi_bridge": check_naoqi_bridge, "sim_robot": check_sim_robot,
-          "pairing_recorder": check_pairing_recorder}
+          "pairing_recorder": check_pairing_recorder, "skin_heatmap": check_skin_heatmap}
