@@ -49,7 +49,8 @@ SESSION_SET = {("pairing_recorder", "bag_path"): "bag", ("calibrate", "recording
                ("skin_heatmap", "earlier_recordings"): "continue_from", ("pairing_recorder", "sim_seed"): "seed",
                ("pairing_recorder", "recorded_from"): "robot"}
 # parameters the scenes set (scene:=, --scene) when they are given: given as well, one would be overridden
-SCENE_SET = {("sim_robot", "pairs"), ("pairing_recorder", "fingertip_scenes"), ("skin_heatmap", "fingertip_scenes")}
+SCENE_SET = {("sim_robot", "pairs"), ("pairing_recorder", "fingertip_scenes"), ("skin_heatmap", "fingertip_scenes"),
+             ("calibrate", "guidance_pairs")}
 
 
 def check_needs(specs) -> None:
@@ -265,11 +266,13 @@ def session_scenes(items, spelling: str) -> tuple:
 
 
 def _set_scenes(by_name: dict, scenes: tuple, tips: tuple, calibration: str) -> None:
-    """The scenes' parameters: the simulated robot plays every scene, the recorder and the heat-map take the
-    fingertip scenes (a self-touch the recorder takes whichever pair fired), placing the fingertips by the
-    session's calibration as the calibrate node places the skin."""
+    """The scenes' parameters: the simulated robot plays every scene and the guidance asks for them, the recorder
+    and the heat-map take the fingertip scenes (a self-touch the recorder takes whichever pair fired), placing
+    the fingertips by the session's calibration as the calibrate node places the skin."""
+    said = [f"{hand}-{part}" for hand, part in scenes]
+    by_name["calibrate"].overrides["guidance_pairs"] = said
     if "sim_robot" in by_name:
-        by_name["sim_robot"].overrides["pairs"] = [f"{hand}-{part}" for hand, part in scenes]
+        by_name["sim_robot"].overrides["pairs"] = said
     if tips:
         for node in ("pairing_recorder", "skin_heatmap"):
             by_name[node].overrides["fingertip_scenes"] = [f"{tip}-{part}" for tip, part in tips]
