@@ -250,8 +250,6 @@ def session_scenes(items, spelling: str) -> tuple:
     comma (or space) separated list of ``HAND-PART``, a self-touch pair of the skin config (``r_hand-torso``) or a
     fingertip scene of its ``fingertip_touch`` (``r_finger-torso``); anything else is one line naming the item.
     The skin config's scenes: a part's own taxel files (``--taxels``) change no scene."""
-    from nao_skin.sim.params import check_pairs
-
     words = [w for item in ([items] if isinstance(items, str) else items) for w in re.split(r"[,\s]+", str(item))]
     if not any(words):
         return (), ()
@@ -259,9 +257,14 @@ def session_scenes(items, spelling: str) -> tuple:
     try:
         skin = load_skin_files({}, spelling)
         scenes = parse_pairs(words, skin.parts, where, tuple(skin.robot.fingertips))
-        check_pairs(scenes, skin, where=where)
     except NaoSkinError as exc:
         raise ConfigError(str(exc)) from None
+    known = skin.self_touch.pairs() + skin.fingertip_touch.pairs()
+    for hand, part in scenes:       # what neither the robot nor the simulated one presses
+        if (hand, part) not in known:
+            raise ConfigError(f"{where} '{hand}-{part}': not a scene of {skin.source} (self_touch:"
+                              f" {', '.join(f'{h}-{b}' for h, b in skin.self_touch.pairs())}; fingertip_touch:"
+                              f" {', '.join(f'{t}-{b}' for t, b in skin.fingertip_touch.pairs()) or 'none'})")
     return scenes, tuple((hand, part) for hand, part in scenes if hand in skin.robot.fingertips)
 
 
