@@ -16,6 +16,8 @@ Starts (the same set as ``nao-skin record``, from nao_skin.session.record):
   (a second robot on the same ROS domain);
 * seed:=N (robot:=sim): the simulated robot's seed; continuing earlier sittings it
   plays one none of them played unless given one (the same seed plays the same touches);
+* scene:=r_finger-torso,r_hand-torso: the scenes recorded (the simulated robot plays them;
+  the recorder takes the fingertip scenes' touches, the heat-map shows their fingertips);
 * params_file:=FILE: a ROS 2 parameters file for the nodes, after config/record.yaml
   and config/bridges.yaml (checked before any node starts, as they are).
 
@@ -60,6 +62,9 @@ ARGUMENTS = {
                       " a second robot records on the same ROS domain"),
     "seed": ("", "robot:=sim: the simulated robot's seed, the same seed plays the same touches (default:"
                  " config/record.yaml's; continuing earlier sittings, one none of them played)"),
+    "scene": ("", "the scenes recorded, HAND-PART separated by commas: self-touch pairs (r_hand-torso) and fingertip"
+                  " scenes (r_finger-torso); the simulated robot plays them, the recorder takes the fingertip"
+                  " scenes' touches (default: the simulated robot's preset, self-touches only)"),
     "params_file": ("", "a ROS 2 parameters file for the nodes, applied after config/record.yaml and"
                         " config/bridges.yaml (e.g. calibrate: {ros__parameters: {gate_mm: 20.0}})"),
 }
@@ -77,6 +82,7 @@ def _nodes(context):
                            rviz=flag["rviz"], taxels=launch_words("taxels", arg["taxels"]),
                            guided=flag["guided"], continue_from=launch_words("continue_from", arg["continue_from"]),
                            namespace=arg["namespace"], params_file=arg["params_file"], seed=arg["seed"],
+                           scene=arg["scene"],
                            say=lambda line: print(f"record.launch.py: {line}", file=sys.stderr))
     check_needs(specs)    # e.g. robot:=nao without YARP's Python bindings: one line before any node starts
     # one session per ROS domain and namespace on this machine (two would record each other's touches): held as long as the

@@ -53,6 +53,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seed", type=int, default=None, metavar="N",
                         help="robot sim: the simulated robot's seed, the same seed plays the same touches (default:"
                              " config/record.yaml's; continuing earlier sittings, one none of them played)")
+    parser.add_argument("--scene", action="append", default=[], metavar="HAND-PART",
+                        help="the scenes recorded, as record.launch.py's scene:=: self-touch pairs (r_hand-torso) and"
+                             " fingertip scenes (r_finger-torso), comma separated or repeated; the simulated robot"
+                             " plays them, the recorder takes the fingertip scenes' touches (default: the simulated"
+                             " robot's preset, self-touches only)")
     parser.add_argument("--params-file", default="", metavar="FILE",
                         help="a ROS 2 parameters file for the nodes, applied after config/record.yaml and"
                              " config/bridges.yaml (as record.launch.py's params_file:=); --param still wins")
@@ -96,7 +101,7 @@ def run(args) -> int:
                            bag_path=args.bag, calibration=args.calibration, rviz=args.rviz, taxels=args.taxels,
                            overrides=parse_overrides(args.param), guided=args.guided,
                            continue_from=args.continue_from, namespace=args.namespace, spelling="command",
-                           params_file=args.params_file, seed=args.seed, say=lambda line: _say(f"record: {line}"))
+                           params_file=args.params_file, seed=args.seed, scene=args.scene, say=lambda line: _say(f"record: {line}"))
     claim = None
     if not args.print:
         check_needs(specs)

@@ -178,7 +178,10 @@ def targets_from_json(text: str, skin: SkinModel, limit: int = MAX_READ_TARGETS)
     out = []
     for t in targets:
         if not isinstance(t, dict) or not all(isinstance(t.get(k), str) and t[k] in skin.parts
-                                              for k in ("part", "hand", "touched")):
+                                              for k in ("part", "touched")):
+            continue
+        # the hand: a skin part, or a fingertip of the robot pressing (a fingertip scene's target)
+        if not isinstance(t.get("hand"), str) or not (t["hand"] in skin.parts or t["hand"] in skin.robot.fingertips):
             continue
         if triangle(t["part"], t.get("triangle_id")) is None:
             continue
@@ -187,7 +190,8 @@ def targets_from_json(text: str, skin: SkinModel, limit: int = MAX_READ_TARGETS)
             isinstance(k, str) and finite_float(v) is not None for k, v in pose.items()) else None)
         out.append({"part": t["part"], "triangle_id": t["triangle_id"], "hand": t["hand"], "touched": t["touched"],
                     "reason": t["reason"] if isinstance(t.get("reason"), str) else "",
-                    "hand_triangle_id": triangle(t["hand"], t.get("hand_triangle_id")),
+                    "hand_triangle_id": (triangle(t["hand"], t.get("hand_triangle_id")) if t["hand"] in skin.parts
+                                         else None),
                     "touched_triangle_id": triangle(t["touched"], t.get("touched_triangle_id")), "pose": pose})
     return out, len(targets) - len(out)
 
@@ -232,6 +236,7 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
     calib, rep_held, rep_parts, fabric, posterior = _state(state)
     calib = calib or skin.zero_calibration()
     held_map = held_frames(held if held is not None else rep_held)
+    tip_scenes = [(h, b) for h, b in (pairs or ()) if h in skin.robot.fingertips and b in skin.parts]
     pairs = [(h, b) for h, b in (skin.self_touch.pairs() if pairs is None else pairs)
              if h in skin.parts and b in skin.parts]
     parts = sorted({p for pair in pairs for p in pair}, key=part_rank)
@@ -323,7 +328,34 @@ def guidance(touches: TouchSet, skin: SkinModel, state=None, options: Calibratio
             notes.append(f"{len(unreachable)} of {len(targets)} candidate targets unreachable under the current"
                          f" calibration")
         targets = reachable + unreachable
+    if tip_scenes:    # first: a taxel no touch reached is held at the prior, and a fingertip reaches where hands cannot
+        targets = fingertip_targets(touches, skin, tip_scenes, needed) + targets
     return Guidance(targets[:max_targets], coverage, pair_n, touches.n_touches, time.perf_counter() - t0, notes)
+
+
+def fingertip_targets(touches: TouchSet, skin: SkinModel, scenes, needed: int = 0) -> list:
+    """Targets for fingertip ``scenes`` (``(fingertip, part)``): the triangles of each pressed part with taxels no
+    touch (of any kind) has activated yet, most such taxels first (ties: the part's order, then the triangle's).
+    A fingertip presses nearly a point, so it reaches taxels a hand's broad contact does not: where it helps most.
+    ``reason`` says how many taxels of the triangle no touch reached; no pose (a fingertip's is the operator's)."""
+    out = []
+    for tip, name in scenes:
+        sp = skin.parts[name]
+        slots = sp.slots
+        reached = np.zeros(sp.n_slots, bool)
+        if name in touches.part_names:
+            reached[touches.act_slot[touches.act_part == touches.part_index(name)]] = True
+        rows = sp.slot_triangle[slots]
+        total = np.bincount(rows, minlength=len(sp.triangle_ids))
+        never = np.bincount(rows, weights=~reached[slots], minlength=len(sp.triangle_ids)).astype(int)
+        active = np.bincount(rows, weights=reached[slots], minlength=len(sp.triangle_ids)).astype(int)
+        for row in np.flatnonzero(never):
+            share = never[row] / max(total[row], 1)
+            out.append(Target(name, int(sp.triangle_ids[row]), int(sp.patch_ids[sp.triangle_patch[row]]),
+                              f"{never[row]} of {total[row]} taxels never reached", TIER_NEW + DEFICIT_SPAN * share,
+                              int(active[row]), needed, tip, name, None, []))
+    out.sort(key=lambda t: (-t.score, part_rank(t.part), t.triangle_id))
+    return out
 
 
 def _expected_gains(targets: list, skin: SkinModel, calib: SkinCalibration, posterior) -> None:

@@ -116,3 +116,20 @@ def triangle_outline(part, triangle_id: int, lift: float = 0.002) -> np.ndarray:
     ring = centre + 1.25 * (ring - centre)          # a little outside the taxel centres
     ring = np.vstack([ring, ring[:1]])
     return np.column_stack([ring, np.full(len(ring), lift)])
+
+
+FINGERTIP_COLOUR = (1.0, 0.55, 0.0, 0.8)        # orange: the fingertip pressing, beside the skin's scale
+
+
+def fingertip_spheres(skin, scenes, calibration=None) -> list:
+    """``[(fingertip, frame, centre (3,), radius)]`` of the fingertips of the fingertip ``scenes`` (``(fingertip,
+    part)``), each once: its contact sphere under ``calibration`` (None: the robot config's) in its chain's end
+    frame, where TF (the joint states through robot_state_publisher) carries it with the arm, so a marker there
+    shows where the fingertip presses without the node following the joints itself."""
+    robot = skin.robot
+    calibration = calibration if calibration is not None else skin.zero_calibration()
+    out = []
+    for tip in dict.fromkeys(tip for tip, _ in scenes):
+        centre, radius = calibration.fingertip_sphere(robot, tip)
+        out.append((tip, robot.chains[robot.fingertip(tip).chain].end_frame, np.asarray(centre, float), float(radius)))
+    return out

@@ -1,7 +1,8 @@
 """sim_robot: the simulated robot live, on the same topics as the real bridges.
 
-Runs the self-touch simulator (:func:`nao_skin.sim.simulate.simulate`, seeded, so
-a test can recompute exactly what was played) and plays its touches with
+Runs the simulator (:func:`nao_skin.sim.play.live_touches`: ``simulate``'s touches of the pairs and fingertip
+scenes played, seeded, so a test can recompute exactly what was played, and among fingertip touches the
+experimenter's stray presses, a part firing with no fingertip near) and plays its touches with
 :class:`nao_skin.live.playback.Playback`: ``/joint_states`` at ``joint_rate`` Hz,
 ``/skin/<part>/taxels`` and ``/skin/<part>/contacts`` for every part at
 ``skin_rate`` Hz (empty clouds = released, as the YARP bridge sends), one
@@ -10,7 +11,7 @@ clock at its start plus the tick's time), not when the thread got to send it:
 a stall of the machine delays messages but never opens a gap between the
 samples of one press, which a detector would rightly take for a release and
 a second press (a touch recorded twice). Publishes ``/sim_robot/status``
-(std_msgs/String, JSON: touches ``played`` of ``total``, ``done`` once every
+(std_msgs/String, JSON: touches ``played`` of ``total``, stray presses among them ``strays``, ``done`` once every
 touch is played, ``stopped`` when the node was stopped before: its last status
 says so) once per second.
 
@@ -49,7 +50,7 @@ from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.topics import GUIDANCE_TOPIC, LATCHED, SIM_STATUS_TOPIC, STREAM_DEPTH, frame_prefix, relative
 from nao_skin.session.params import SIM_ROBOT, check_sim_robot
 from nao_skin.sim.capture import Aim, CaptureSim
-from nao_skin.sim.simulate import simulate
+from nao_skin.sim.play import live_touches
 
 
 class SimRobot(Node):
@@ -60,6 +61,7 @@ class SimRobot(Node):
         self.timing = (p["touch_period"], p["press_duration"], p["hold"])
         self.guided = bool(p["guided"])
         self.targets: list = []           # the latest guidance's targets, best first
+        self.strays = 0                   # presses of a part with no fingertip near (an experimenter's hand)
         if self.guided:
             self.capture = CaptureSim(self.skin, params, int(p["seed"]))
             self.total = int(p["touches_per_pair"]) * len(self.capture.pairs)
@@ -70,10 +72,12 @@ class SimRobot(Node):
             self.get_logger().info(f"guided: {self.batch[0]} random touches, then batches of {self.batch[1]} aimed"
                                    f" at the guidance, {self.total} in all (seed {p['seed']})")
         else:
-            result = simulate(self.skin, params, int(p["seed"]))
+            result = live_touches(self.skin, params, int(p["seed"]))
             self.playback = Playback(result.touches, self.skin, *self.timing)
             self.total = len(self.playback)
-            self.get_logger().info(f"simulated {len(self.playback)} touches (seed {p['seed']}); playing them,"
+            self.strays = int(result.pairs.get("stray", {}).get("touches", 0))
+            among = f", {self.strays} of them stray presses (no fingertip near)" if self.strays else ""
+            self.get_logger().info(f"simulated {len(self.playback)} touches{among} (seed {p['seed']}); playing them,"
                                    f" one every {p['touch_period']:g} s")
         self.joint_period = 1.0 / float(p["joint_rate"])
         self.skin_every = max(1, round(float(p["joint_rate"]) / float(p["skin_rate"])))
@@ -230,7 +234,7 @@ class SimRobot(Node):
         return k
 
     def _publish_status(self) -> None:
-        status = {"played": self.played, "total": self.total, "done": self.done}
+        status = {"played": self.played, "total": self.total, "strays": self.strays, "done": self.done}
         if self.stopped:
             status["stopped"] = True
         if self.guided:       # how the touches were chosen: aimed at the guidance, or random

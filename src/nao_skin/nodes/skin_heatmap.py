@@ -7,7 +7,10 @@ viridis-like log scale), currently pressed taxels red. One SPHERE_LIST marker
 per triangle, in the triangle's own frame (``<part>_skin_triangle_<t>``,
 namespace = part, id = triangle number, points in slot order), so the
 positions follow the current calibration through TF without this node
-knowing it. A colour-bar legend (namespace ``legend``) sits next to the torso.
+knowing it. A colour-bar legend (namespace ``legend``) sits next to the torso. Each fingertip of the session's
+``fingertip_scenes`` is an orange sphere (namespace ``fingertip``): its contact sphere, the calibration's
+(``calibration``, else the robot config's), in its arm's end frame, so TF moves it with the joint states and
+it shows where the fingertip presses.
 Published at ``rate`` Hz (default 10).
 
 Guided capture on ``/nao_skin/guidance/markers`` (MarkerArray, latched,
@@ -36,13 +39,14 @@ from nao_skin.formats.inputs import load_touches
 from nao_skin.formats.pointcloud import read_taxels, taxels_topic
 from nao_skin.guidance.capture import targets_from_json
 from nao_skin.live.diagnostics import RateWindow, count_check, rate_check
-from nao_skin.live.heatmap import (GUIDANCE_COLOUR, SCALE_LEVELS, ActivationCounts, palette, triangle_outline,
-                                   triangle_slots)
+from nao_skin.live.heatmap import (FINGERTIP_COLOUR, GUIDANCE_COLOUR, SCALE_LEVELS, ActivationCounts,
+                                   fingertip_spheres, palette, triangle_outline, triangle_slots)
 from nao_skin.nodes.diagnostics import publish_diagnostics
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.topics import (GUIDANCE_MARKERS_TOPIC, GUIDANCE_TOPIC, HEATMAP_TOPIC, LATCHED, MAX_SKIPPED_SAID,
                                    STATUS_TOPIC, STREAM_DEPTH, frame_prefix, relative)
-from nao_skin.session.params import SKIN_HEATMAP, skin_from_params
+from nao_skin.model.skin import SkinCalibration
+from nao_skin.session.params import SKIN_HEATMAP, fingertip_scenes, skin_from_params
 from nao_skin.touch.datasets import deduplicate
 
 STATE_COLOURS = {"collecting": (0.6, 0.6, 0.6, 1.0), "converging": (1.0, 0.8, 0.2, 1.0), "done": (0.2, 1.0, 0.4, 1.0)}
@@ -77,6 +81,9 @@ class SkinHeatmap(Node):
                 m.points = [Point(x=float(v[0]), y=float(v[1]), z=float(v[2])) for v in part.taxel_local[slots]]
                 self.markers.append((name, slots, m))
         self.legend = self._legend(np.asarray(p["legend_origin"], float), d)
+        calibration = SkinCalibration.load(p["calibration"], self.skin) if p["calibration"] else None
+        self.fingertips = [self._fingertip(i, tip, frame, centre, radius) for i, (tip, frame, centre, radius)
+                           in enumerate(fingertip_spheres(self.skin, fingertip_scenes(p, self.skin), calibration))]
         self.publisher = self.create_publisher(MarkerArray, HEATMAP_TOPIC, 10)
         for n in self.skin.parts:
             self.create_subscription(PointCloud2, relative(taxels_topic(n)), lambda m, n=n: self._on_taxels(n, m),
@@ -173,12 +180,23 @@ class SkinHeatmap(Node):
 
     def _marker(self, frame: str, ns: str, mid: int, kind: int, stamp, colour: ColorRGBA) -> Marker:
         m = Marker()
-        m.header.frame_id, m.header.stamp = self.frames + frame, stamp
+        m.header.frame_id = self.frames + frame
+        if stamp is not None:
+            m.header.stamp = stamp
         m.ns, m.id, m.type, m.action = ns, mid, kind, Marker.ADD
         m.pose.orientation.w = 1.0
         m.scale.x = m.scale.y = m.scale.z = 0.01
         m.color = colour
         m.frame_locked = True
+        return m
+
+    def _fingertip(self, mid: int, name: str, frame: str, centre: np.ndarray, radius: float) -> Marker:
+        """A fingertip's contact sphere in its arm's end frame (TF moves it with the arm)."""
+        c = FINGERTIP_COLOUR
+        m = self._marker(frame, "fingertip", mid, Marker.SPHERE, None, ColorRGBA(r=c[0], g=c[1], b=c[2], a=c[3]))
+        m.pose.position.x, m.pose.position.y, m.pose.position.z = (float(v) for v in centre)
+        m.scale.x = m.scale.y = m.scale.z = 2.0 * radius
+        m.text = name
         return m
 
     def _legend(self, origin: np.ndarray, d: float) -> list:
@@ -216,9 +234,9 @@ class SkinHeatmap(Node):
             m.colors = list(map(get, colours[name][slots].tolist()))
         self.legend[1].text = "0 activations (grey: never)"
         self.legend[2].text = f"{self.counts.max_count()} activations (red: pressed now)"
-        for m in self.legend:
+        for m in self.legend + self.fingertips:
             m.header.stamp = stamp
-        self.publisher.publish(MarkerArray(markers=[m for _, _, m in self.markers] + self.legend))
+        self.publisher.publish(MarkerArray(markers=[m for _, _, m in self.markers] + self.legend + self.fingertips))
         self.published += 1
 
 

@@ -71,8 +71,9 @@ CALIBRATE = {
     "guidance": (True, "live: after each update, publish where touches would help most on /nao_skin/guidance"),
     "guidance_targets": (5, "live: how many targets the guidance names (its readers take the first 100)",
                          Rule(int, low=1, high=MAX_READ_TARGETS)),
-    "guidance_pairs": ([""], "live: the pairs the guidance may ask for, as 'hand-part' (e.g. l_hand-torso);"
-                             " empty: the skin config's self_touch pairs"),
+    "guidance_pairs": ([""], "live: the pairs the guidance may ask for, as 'hand-part' (e.g. l_hand-torso), or"
+                             " fingertip scenes (r_finger-torso: the taxels no touch reached); empty: the skin"
+                             " config's self_touch pairs"),
     "live_refresh": (WarmStart.refresh, "live: an update from scratch (the whole plan) beside the warm one whenever"
                                         " the touches grew this many times since the last such; the one the held-out"
                                         " touches pair closer is published (1: every update from scratch)",
@@ -158,6 +159,9 @@ SKIN_HEATMAP = {
                       Rule(tuple, length=3)),
     "earlier_recordings": ([""], "bags of earlier sittings the record session continues: their touches count"
                                  " as presses from the start"),
+    "fingertip_scenes": ([""], "fingertip scenes of the session, 'fingertip-part' (e.g. r_finger-torso): each"
+                               " fingertip's contact sphere shown in its arm's end frame; empty: none"),
+    "calibration": ("", "calibration that places the fingertips of fingertip_scenes (empty: the robot config's)"),
 }
 
 
@@ -284,15 +288,18 @@ def check_sim_robot(p: dict, where: str = "sim_robot") -> tuple:
 
 
 def guidance_pairs(p: dict, skin: SkinModel) -> tuple:
-    """The calibrate node's ``guidance_pairs``: 'hand-part' strings to (hand, part) pairs of the skin's parts;
+    """The calibrate node's ``guidance_pairs``: 'hand-part' strings to (hand, part) pairs of the skin's parts, or
+    fingertip scenes of its ``fingertip_touch`` ('r_finger-torso': the guidance names the taxels no touch reached);
     none given: the skin config's self-touch pairs (the four thesis pairs on the Nao)."""
-    given = parse_pairs(p["guidance_pairs"], skin.parts, "parameter guidance_pairs:")
+    given = parse_pairs(p["guidance_pairs"], skin.parts, "parameter guidance_pairs:", tuple(skin.robot.fingertips))
     touching = skin.self_touch.pairs()
+    scenes = skin.fingertip_touch.pairs()
     for hand, part in given:
-        if (hand, part) not in touching:     # the guidance would ask for a press no pose makes
+        if (hand, part) not in touching and (hand, part) not in scenes:   # a press no pose (or operator) makes
             raise ConfigError(f"parameter guidance_pairs: '{hand}-{part}' is not a self-touch pair of the skin config"
                               f" (a hand of its 'touching' pressed on a part it touches: "
-                              f"{', '.join(f'{h}-{b}' for h, b in touching)})")
+                              f"{', '.join(f'{h}-{b}' for h, b in touching)}) nor one of its fingertip scenes"
+                              f" ({', '.join(f'{f}-{b}' for f, b in scenes) or 'none'})")
     return given or touching
 
 
@@ -316,6 +323,11 @@ def check_pairing_recorder(p: dict, where: str = "pairing_recorder") -> None:
         raise ConfigError(f"{where}: {exc}") from None
 
 
+def check_skin_heatmap(p: dict, where: str = "skin_heatmap") -> None:
+    """Fingertip scenes of the skin the node reads."""
+    check_pairing_recorder(p, where)
+
+
 def check_calibrate(p: dict, where: str = "calibrate") -> None:
     """Guidance pairs of the skin the node reads."""
     try:
@@ -327,4 +339,4 @@ def check_calibrate(p: dict, where: str = "calibrate") -> None:
 # what no single parameter's rule can say: checked by `nao-skin record` before any node starts, by the node
 # again at its start
 CHECKS = {"calibrate": check_calibrate, "naoqi_bridge": check_naoqi_bridge, "sim_robot": check_sim_robot,
-          "pairing_recorder": check_pairing_recorder}
+          "pairing_recorder": check_pairing_recorder, "skin_heatmap": check_skin_heatmap}

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from nao_skin.errors import ConfigError, NaoSkinError
 from nao_skin.formats.ros_params import names_the_node, parameters_for, read_params_file, sections_for
-from nao_skin.model.skin import parse_taxel_files
+from nao_skin.model.skin import parse_pairs, parse_taxel_files
 from nao_skin.model.urdf import expand_xacro
 from nao_skin.paths import (config_dir, default_skin_config, parse_yaml, read_yaml,
                             yaml_value)
@@ -48,6 +48,9 @@ SESSION_SET = {("pairing_recorder", "bag_path"): "bag", ("calibrate", "recording
                ("pairing_recorder", "continues"): "continue_from", ("calibrate", "earlier_recordings"): "continue_from",
                ("skin_heatmap", "earlier_recordings"): "continue_from", ("pairing_recorder", "sim_seed"): "seed",
                ("pairing_recorder", "recorded_from"): "robot"}
+# parameters the scenes set (scene:=, --scene) when they are given: given as well, one would be overridden
+SCENE_SET = {("sim_robot", "pairs"), ("pairing_recorder", "fingertip_scenes"), ("skin_heatmap", "fingertip_scenes"),
+             ("calibrate", "guidance_pairs")}
 
 
 def check_needs(specs) -> None:
@@ -90,7 +93,7 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                    bag_path: str = "", calibration: str = "", rviz: bool = False, taxels=(),
                    overrides: dict | None = None, with_robot_state_publisher: bool = True,
                    guided: bool = False, continue_from=(), namespace: str = "", spelling: str = "launch",
-                   params_file: str = "", seed=None, say=None) -> list:
+                   params_file: str = "", seed=None, scene=(), say=None) -> list:
     """The nodes of ``record.launch.py`` for these launch arguments.
 
     ``spelling``: how a message names the arguments, as the caller's user gave them: ``launch``
@@ -107,7 +110,9 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     overrides them) and before the session's own overrides; checked as they are, and a parameter of ours a
     section naming the node gives that the node does not have is one line too.
     ``seed``: the simulated robot's seed (None or "": not given; a session continuing earlier sittings then picks
-    one none of them played, so that it plays new touches). ``say``: where a line worth a look goes (stderr).
+    one none of them played, so that it plays new touches). ``scene``: the scenes recorded, ``HAND-PART`` items
+    (a comma list each, :func:`session_scenes`): the simulated robot plays them, the recorder takes the fingertip
+    scenes' touches and the heat-map shows their fingertips. ``say``: where a line worth a look goes (stderr).
     """
     say = say or (lambda line: print(line, file=sys.stderr))
     namespace = _namespace(namespace, spelling)
@@ -138,6 +143,7 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                 rule.check(_said(name, value, spelling), value)
             except NaoSkinError as exc:
                 raise ConfigError(str(exc)) from None
+    scenes, tips = session_scenes(scene, spelling)
     cfg = config_dir()
     # one name for the recorder and the calibrate node (which calibrates on that bag on request)
     from nao_skin.formats.bag import SIMULATED, default_bag_name
@@ -179,6 +185,8 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     if rviz:
         specs.append(NodeSpec("rviz2", "rviz2", package="rviz2", optional=True,
                               arguments=["-d", str(cfg / "nao_skin.rviz")]))
+    if scenes:
+        _set_scenes({spec.name: spec for spec in specs}, scenes, tips, calibration)
     if taxels:       # checked here: a mistake is one line before anything starts; absolute for every node
         resolved = taxel_items(taxels, spelling)
         for spec in specs:
@@ -209,6 +217,8 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
         for name in values:
             if (node, name) in SESSION_SET:
                 raise ConfigError(f"--param {node}.{name}: {_set_by_session(node, name, 'command')}")
+            if scenes and (node, name) in SCENE_SET:
+                raise ConfigError(f"--param {node}.{name}: --scene sets it; give the scenes once, with --scene")
         if node not in by_name:
             raise ConfigError(f"--param {node}.{next(iter(values), '')}: no node '{node}' in this session"
                               f" (robot {robot}: {', '.join(by_name)})")
@@ -233,6 +243,44 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
         _play_a_new_seed(by_name, earlier, seed, user_file, spelling, say)
     _check_files(bag_path, calibration, _start_values(by_name["calibrate"]), spelling)
     return specs
+
+
+def session_scenes(items, spelling: str) -> tuple:
+    """``(scenes, fingertip scenes)``: ``(hand or fingertip, part)`` of ``scene:=`` / ``--scene`` items, each a
+    comma (or space) separated list of ``HAND-PART``, a self-touch pair of the skin config (``r_hand-torso``) or a
+    fingertip scene of its ``fingertip_touch`` (``r_finger-torso``); anything else is one line naming the item.
+    The skin config's scenes: a part's own taxel files (``--taxels``) change no scene."""
+    words = [w for item in ([items] if isinstance(items, str) else items) for w in re.split(r"[,\s]+", str(item))]
+    if not any(words):
+        return (), ()
+    where = "scene:=" if spelling == "launch" else "--scene"
+    try:
+        skin = load_skin_files({}, spelling)
+        scenes = parse_pairs(words, skin.parts, where, tuple(skin.robot.fingertips))
+    except NaoSkinError as exc:
+        raise ConfigError(str(exc)) from None
+    known = skin.self_touch.pairs() + skin.fingertip_touch.pairs()
+    for hand, part in scenes:       # what neither the robot nor the simulated one presses
+        if (hand, part) not in known:
+            raise ConfigError(f"{where} '{hand}-{part}': not a scene of {skin.source} (self_touch:"
+                              f" {', '.join(f'{h}-{b}' for h, b in skin.self_touch.pairs())}; fingertip_touch:"
+                              f" {', '.join(f'{t}-{b}' for t, b in skin.fingertip_touch.pairs()) or 'none'})")
+    return scenes, tuple((hand, part) for hand, part in scenes if hand in skin.robot.fingertips)
+
+
+def _set_scenes(by_name: dict, scenes: tuple, tips: tuple, calibration: str) -> None:
+    """The scenes' parameters: the simulated robot plays every scene and the guidance asks for them, the recorder
+    and the heat-map take the fingertip scenes (a self-touch the recorder takes whichever pair fired), placing
+    the fingertips by the session's calibration as the calibrate node places the skin."""
+    said = [f"{hand}-{part}" for hand, part in scenes]
+    by_name["calibrate"].overrides["guidance_pairs"] = said
+    if "sim_robot" in by_name:
+        by_name["sim_robot"].overrides["pairs"] = said
+    if tips:
+        for node in ("pairing_recorder", "skin_heatmap"):
+            by_name[node].overrides["fingertip_scenes"] = [f"{tip}-{part}" for tip, part in tips]
+            if calibration:
+                by_name[node].overrides["calibration"] = calibration
 
 
 def calibrate_on_inputs(inputs, out_dir: str, calibration: str = "", taxels=(), namespace: str = "",
