@@ -22,6 +22,8 @@ ARGUMENTS = {
     "calibration": ("", "prior calibration (default: nominal)"),
     "taxels": ("", "the robot's own taxel files the bags were recorded with, PART=FILE separated by spaces, shell"
                    " quoting for a path with a space (default: config/nao_skin.yaml's)"),
+    "fingertip": ("", "the fingertip that pressed the legacy .txt inputs' touches (the format does not say; a bag"
+                      " does): NAME for every such input, or INPUT=NAME each, separated by spaces (e.g. r_finger)"),
     "namespace": ("", "the node's ROS namespace (e.g. /nao2): its topics under it, its frames prefixed"),
     "params_file": ("", "a ROS 2 parameters file for the node, applied after config/record.yaml (e.g. calibrate:"
                         " {ros__parameters: {gate_mm: 20.0}})"),
@@ -36,7 +38,7 @@ def _node(context):
     # every argument checked before the node starts, one line for a mistake
     spec = calibrate_on_inputs(launch_words("inputs", arg["inputs"]), arg["out_dir"], calibration=arg["calibration"],
                                taxels=launch_words("taxels", arg["taxels"]), namespace=arg["namespace"],
-                               params_file=arg["params_file"])
+                               params_file=arg["params_file"], fingertip=launch_words("fingertip", arg["fingertip"]))
     return ending_the_launch(Node(package=spec.package, executable=spec.executable, name=spec.name, output="screen",
                                   namespace=spec.namespace,
                                   parameters=[str(f) for f in spec.params_files] + [spec.overrides],

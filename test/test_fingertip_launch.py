@@ -77,3 +77,46 @@ def test_record_launch_records_a_fingertip_scene_beside_a_self_touch_pair(worksp
     tips = got.fingertip_of_touch
     assert (tips >= 0).sum() >= 2 and (tips < 0).sum() >= 2, tips
     assert set(got.fingertips[t] for t in tips[tips >= 0]) == {"r_finger"}
+
+
+@pytest.mark.parametrize("value,says", [("r_finger-torso.txt=r_finger", "is not among the inputs"),
+                                        ("r_finger", "no text input to name it for")])
+def test_calibrate_launch_refuses_a_fingertip_it_cannot_name_in_one_line(value, says):
+    """calibrate.launch.py fingertip:= names the fingertip of the text inputs' touches; one a bag input cannot take,
+    or naming a file that is not an input, is one line before the node starts."""
+    module = launch_file("calibrate.launch.py")
+    defaults = {name: "a.bag" if default is None else default for name, (default, _) in module.ARGUMENTS.items()}
+    with pytest.raises(ConfigError) as refused:
+        module._node(context_with(defaults, fingertip=value))
+    assert str(refused.value).startswith(f"fingertip:={value}: ") and says in str(refused.value), refused.value
+    assert "\n" not in str(refused.value)
+
+
+def test_calibrate_launch_calibrates_a_fingertip_recording_named_by_its_fingertip(workspace, tmp_path,  # noqa: F811
+                                                                                  real_dir, real_fingertip_dir):
+    """The thesis' text format does not say which fingertip pressed: calibrate.launch.py refused such a file
+    ("no touch has two skin parts active together"); fingertip:=r_finger reads it as the right fingertip's touches,
+    as nao-skin calibrate --fingertip does, and the calibration places the fingertip."""
+    import time
+
+    import yaml
+
+    ws, _, _ = workspace
+    src = real_fingertip_dir / "r_finger_l_hand.legacy.txt"
+    out = tmp_path / "out"
+    launch = ros2_launch(ws, tmp_path, unique_domain_id(), "calibrate.launch.py", "calibrate_launch",
+                         inputs=str(src), out_dir=str(out), taxels=f"'l_hand={real_dir / 'l_hand.taxels.txt'}'",
+                         fingertip="r_finger")
+    try:
+        deadline = time.monotonic() + WAIT_S
+        while not (out / "calibration.yaml").is_file() and time.monotonic() < deadline:
+            assert launch.alive(), output(launch)[-3000:]
+            time.sleep(0.2)
+        code = launch.stop(signal.SIGINT, timeout=60)
+    finally:
+        launch.stop(signal.SIGKILL)
+    assert code == 0 and "Traceback" not in output(launch), output(launch)[-3000:]
+    calibration = yaml.safe_load((out / "calibration.yaml").read_text())
+    assert set(calibration["fingertips"]) == {"r_finger"}
+    report = json.loads((out / "report.json").read_text())
+    assert report["final"]["test"]["fingertip_mean_mm"] > 0

@@ -320,33 +320,34 @@ def cop_layout_notes(touches: TouchSet, skin, source: str) -> list:
     return out
 
 
-def parse_fingertips(items, inputs) -> dict:
+def parse_fingertips(items, inputs, said=lambda item: f"--fingertip {item!r}") -> dict:
     """``--fingertip [INPUT=]NAME`` items as ``{input: fingertip}``: an ``INPUT=NAME`` item names the fingertip that
     pressed one text input's touches, a bare ``NAME`` every text input no item names (the thesis' text format
-    does not say which fingertip pressed; a bag does)."""
+    does not say which fingertip pressed; a bag does). ``said(item)``: an item as its lines name it (a node's
+    parameter, a launch argument)."""
     named, default = {}, None
     texts = [str(p) for p in inputs if is_text_input(p)]
     for item in items:
         path, sep, name = str(item).rpartition("=")
         if not name:
-            raise DataError(f"--fingertip {item!r}: expected NAME or INPUT=NAME, e.g. r_finger")
+            raise DataError(f"{said(item)}: expected NAME or INPUT=NAME, e.g. r_finger")
         if not sep:
             if default is not None:
-                raise DataError(f"--fingertip {item!r}: a fingertip for every text input is given twice ({default},"
+                raise DataError(f"{said(item)}: a fingertip for every text input is given twice ({default},"
                                 f" {name}); name each input's with INPUT=NAME")
             default = name
             continue
         if path not in [str(p) for p in inputs]:
-            raise DataError(f"--fingertip {item!r}: {path} is not among the inputs ({', '.join(map(str, inputs))})")
+            raise DataError(f"{said(item)}: {path} is not among the inputs ({', '.join(map(str, inputs))})")
         if path not in texts:
-            raise DataError(f"--fingertip {item!r}: {path} is a bag; a bag says which fingertip pressed each of its"
-                            f" touches, --fingertip names a text input's")
+            raise DataError(f"{said(item)}: {path} is a bag; a bag says which fingertip pressed each of its"
+                            f" touches, it names a text input's")
         if path in named:
-            raise DataError(f"--fingertip {item!r}: {path} is given a fingertip twice")
+            raise DataError(f"{said(item)}: {path} is given a fingertip twice")
         named[path] = name
     if default is not None:
         if not texts:
-            raise DataError(f"--fingertip {default}: no text input to name it for (a bag says which fingertip pressed"
+            raise DataError(f"{said(default)}: no text input to name it for (a bag says which fingertip pressed"
                             f" each of its touches)")
         named.update({p: default for p in texts if p not in named})
     return named

@@ -222,8 +222,16 @@ class CalibrateNode(Node):
             if not os.path.exists(path):
                 what = "a link to nothing" if os.path.lexists(path) else "no such file or directory"
                 raise DataError(f"parameter inputs: {path}: {what}")
+        self._inputs(inputs)
         check_output(self.p["out_dir"], [*inputs, self.p["skin_config"], self.p["calibration"],
                                          *self.skin.source_files()], force=True, label="out_dir")
+
+    def _inputs(self, paths: list):
+        """``paths`` with the fingertips that pressed their text inputs' touches (parameter ``fingertips``)."""
+        from nao_skin.formats.inputs import Inputs, parse_fingertips
+
+        named = [f for f in self.p["fingertips"] if f]
+        return Inputs(tuple(paths), parse_fingertips(named, paths, said=lambda item: f"parameter fingertips: {item!r}") if named else {})
 
     def _maybe_update(self) -> None:
         now = time.monotonic()
@@ -417,7 +425,7 @@ class CalibrateNode(Node):
                 log.warning(beside)
             # every request starts where the node did (``calibration``, or nominal), as nao-skin calibrate does:
             # the same request gives the same calibration; only the place written may be the node's last output
-            run = calibrate_recordings(paths, self.skin, self.options, out_dir, prior=self.prior,
+            run = calibrate_recordings(self._inputs(paths), self.skin, self.options, out_dir, prior=self.prior,
                                        force=True, plots=bool(p["plots"]), label="out_dir", protected=protected,
                                        command="calibrate (node)", log=log.info, summary=log.warning,
                                        replacing=replacing, beside=".new")

@@ -49,6 +49,9 @@ CALIBRATE = {
     **SKIN_PARAMS,
     "calibration": ("", "calibration published at start and used as prior (empty: nominal skin)"),
     "inputs": ([""], "bags (or legacy .txt) to calibrate from; empty entries are ignored"),
+    "fingertips": ([""], "the fingertip that pressed the legacy .txt inputs' touches (the format does not say; a bag"
+                         " does): NAME for every such input, or INPUT=NAME each (e.g. r_finger); empty entries are"
+                         " ignored"),
     "recording": ("", "the recorder's bag: calibrated on an empty request when 'inputs' is empty"),
     "earlier_recordings": ([""], "bags of earlier sittings this record session continues: its live updates, guidance"
                                  " and empty requests calibrate their touches with the recording's"),

@@ -284,11 +284,12 @@ def _set_scenes(by_name: dict, scenes: tuple, tips: tuple, calibration: str) -> 
 
 
 def calibrate_on_inputs(inputs, out_dir: str, calibration: str = "", taxels=(), namespace: str = "",
-                        params_file: str = "", spelling: str = "launch") -> NodeSpec:
+                        params_file: str = "", spelling: str = "launch", fingertip=()) -> NodeSpec:
     """The calibrate node of ``calibrate.launch.py`` for these launch arguments: it calibrates ``inputs`` once at
     start (config/record.yaml's section without its live updates: no recorder runs), writes ``out_dir`` and
     publishes the result. ``taxels``, ``namespace`` and ``params_file`` as :func:`record_session` takes them,
-    checked as it checks them, before the node starts."""
+    checked as it checks them, before the node starts; ``fingertip``: the fingertip that pressed the text inputs'
+    touches, NAME or INPUT=NAME items (``nao-skin calibrate --fingertip``)."""
     namespace = _namespace(namespace, spelling)
     # record.yaml's calibrate section is a record session's: here no live updates (no recorder runs)
     spec = NodeSpec("calibrate", "calibrate", [config_dir() / "record.yaml"],
@@ -298,16 +299,26 @@ def calibrate_on_inputs(inputs, out_dir: str, calibration: str = "", taxels=(), 
         spec.overrides["calibration"] = calibration
     if taxels:
         spec.overrides["taxels"] = taxel_items(taxels, spelling)
+    if fingertip:
+        from nao_skin.formats.inputs import parse_fingertips
+
+        try:    # the items as given: an INPUT=NAME names the input as the inputs do
+            parse_fingertips(fingertip, list(inputs), said=lambda item: _said("fingertip", item, spelling))
+        except NaoSkinError as exc:
+            raise ConfigError(str(exc)) from None
+        spec.overrides["fingertips"] = list(fingertip)
     user_file = _user_params_file(params_file, spelling)
     if user_file is not None:
         spec.params_files.append(user_file[0])
         spec.said[str(user_file[0])] = user_file[1]
     # what the launch file sets itself: from its arguments, or fixed (it calibrates once, no recorder runs)
-    from_arguments = {"inputs", "out_dir", *(["calibration"] if calibration else []), *(["taxels"] if taxels else [])}
+    from_arguments = {"inputs", "out_dir", *(["calibration"] if calibration else []), *(["taxels"] if taxels else []),
+                      *(["fingertips"] if fingertip else [])}
 
     def set_here(node: str, name: str) -> str | None:
         if name in from_arguments:
-            return f"calibrate.launch.py sets it from {_said(name, '...', spelling)}: give it there"
+            argument = {"fingertips": "fingertip"}.get(name, name)      # the node's parameter, the launch's argument
+            return f"calibrate.launch.py sets it from {_said(argument, '...', spelling)}: give it there"
         if name in ("calibrate_on_start", "live", "recording", "earlier_recordings"):
             return "calibrate.launch.py calibrates its inputs once at start, without a record session"
         return None
