@@ -119,8 +119,11 @@ def test_a_launch_killed_ends_its_nodes_as_ctrl_c_does(workspace, tmp_path, sig)
     assert info["files"] and info["message_count"] > 0
     touches, report = read_touches(bag, load_skin())
     assert touches.n_touches >= reported and not report.skipped, report.lines()
-    # the session's end calibrated the closed bag: every touch the recorder wrote
-    assert ended["recorded"] == touches.n_touches and ended["complete"], (ended, touches.n_touches)
+    # the session's end calibrated the closed bag: every touch the recorder wrote ('recorded' leaves out the exact
+    # duplicates a busy machine can make the recorder write, counted apart: docs/decisions.md, "A touch recorded
+    # twice on a busy machine")
+    assert ended["recorded"] + ended["duplicates"] == touches.n_touches and ended["complete"], \
+        (ended, touches.n_touches)
     assert Path(ended["calibration"]) == tmp_path / "session_calibration" / "calibration.yaml", ended
     assert Path(ended["calibration"]).is_file()
     if sig != signal.SIGKILL:       # the launch itself stopped them, as at Ctrl-C
