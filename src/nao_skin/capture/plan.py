@@ -168,7 +168,10 @@ class Planner:
                 q = np.clip(q + jac.T @ np.linalg.solve(jac @ jac.T + FOLLOW_DAMPING * np.eye(3), err),
                             self.arm.lo, self.arm.hi)
             if np.linalg.norm(self.fingertip(q)[0] - goal) > IK_TOLERANCE:
-                return None
+                # a joint at its limit stalls the clipped steps: the bounded solver finds the way along it
+                q = self.solve(goal, path[-1][None])
+                if q is None:
+                    return None
             path.append(q)
         return np.array(path)
 
