@@ -25,14 +25,15 @@ class Abort(Exception):
 class SafetyGate:
     """The checks of :mod:`nao_skin.capture`: see each method. ``stop_requested()`` is True once anybody asked
     the capture to stop (Ctrl-C, the ``~/stop`` service); ``joint_age()`` is the age (s) of the newest joint
-    state, None before the first."""
+    state, None before the first; ``lost()`` says why NAOqi is gone, None while it is there."""
 
     def __init__(self, arm: Arm, stale_after: float, stop_requested: Callable[[], bool],
-                 joint_age: Callable[[], float | None]):
+                 joint_age: Callable[[], float | None], lost: Callable[[], str | None] = lambda: None):
         self.arm = arm
         self.stale_after = float(stale_after)
         self.stop_requested = stop_requested
         self.joint_age = joint_age
+        self.lost = lost
 
     def command(self, q_arm: np.ndarray) -> np.ndarray:
         """``q_arm`` as a command, or an Abort when a joint lies beyond its limits less the margin (a plan that
@@ -47,9 +48,12 @@ class SafetyGate:
         return q_arm
 
     def running(self) -> None:
-        """Abort (the session) when a stop was requested or the joint states went stale."""
+        """Abort (the session) when a stop was requested, NAOqi is gone or the joint states went stale."""
         if self.stop_requested():
             raise Abort("stop requested", session=True)
+        lost = self.lost()
+        if lost:
+            raise Abort(f"NAOqi lost ({lost})", session=True)
         age = self.joint_age()
         if age is None or age > self.stale_after:
             said = "no joint states" if age is None else f"joint states {age:.2f} s old"
