@@ -94,7 +94,7 @@ class SimBody:
         self.log: list = []           # ("command", t, names, angles, fraction) / ("stiffness", t, names, value, q)
         self.presses: list = []       # per press: the deepest height (m, negative: below the fabric surface)
         self._press_min: float | None = None
-        self._press_key = 0
+        self.press_key = 0
         self.lost = False             # set by a test: every call raises as a vanished robot's proxy does
 
     # ------------------------------------------------------------------ ALMotion
@@ -182,7 +182,7 @@ class SimBody:
             elif self._press_min is not None:
                 self.presses.append(self._press_min)
                 self._press_min = None
-                self._press_key += 1
+                self.press_key += 1
 
     def fired(self, since: float = -np.inf) -> dict:
         """``{part: (slots, max pressure)}`` the skin reads now (the ``Contacts`` of the capture loop: the skin
@@ -199,7 +199,7 @@ class SimBody:
         c = self.sphere_centre(q)
         poses = PoseSet(q, c - self.radius * normal, normal, np.array([self.gap]), np.array([-1]), np.array([-1]),
                         1, 0)
-        rng = np.random.default_rng([self.seed, self._press_key])
+        rng = np.random.default_rng([self.seed, self.press_key])
         _, slot, pressure, _ = fire_fingertip(self.body, self.truth, self.fingertip, self.part, poses, self.p, rng)
         return slot.astype(int), pressure
 
