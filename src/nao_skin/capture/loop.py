@@ -55,6 +55,7 @@ class TouchResult:
     fired: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     contact_travel: float | None = None      # m from the standoff to the first contact
     deepest_travel: float | None = None      # m from the standoff to where the press stopped
+    pressed: np.ndarray | None = None        # (V,) the arm's commanded angles where the press was held
 
 
 class CaptureLoop:
@@ -174,7 +175,7 @@ class CaptureLoop:
         slots = np.unique(np.concatenate(fired_slots)) if fired_slots else np.zeros(0, int)
         self.chooser.record(slots)
         return TouchResult(plan.slot, "touched", fired=slots, contact_travel=float(plan.travel[first]),
-                           deepest_travel=float(plan.travel[k]))
+                           deepest_travel=float(plan.travel[k]), pressed=plan.path[k].copy())
 
     def _fired(self) -> dict:
         """What fired since this moment less ``contact_wait`` (the skin's readings of the step just made)."""

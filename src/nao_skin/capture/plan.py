@@ -111,6 +111,7 @@ class Planner:
         self.slots = sp.slots
         self.points, self.normals = pos[self.slots], nor[self.slots]
         self._cols = _chain_joint_columns(skin, self.arm.chain)
+        self._plans: dict = {}
         self.rest = np.array([robot.body.rest_posture.get(n, (0.0, 0.0))[0] for n in robot.joint_names])
         self.rest[self.arm.cols] = np.clip(self.rest[self.arm.cols], self.arm.lo, self.arm.hi)
         # where the IK starts after the arm's own posture: the rest, then a fixed spread over the limits (one
@@ -211,7 +212,14 @@ class Planner:
     # ------------------------------------------------------------------ a touch
     def plan(self, row: int, q_now: np.ndarray) -> Approach | str:
         """The approach to taxel row ``row`` (of :attr:`slots`) from the arm at ``q_now``, or why none: from each
-        IK start in turn (the arm's own posture first), the standoff pose, then the line down the normal."""
+        IK start in turn (the arm's own posture first), the standoff pose, then the line down the normal. A
+        taxel's answer is kept: a second touch there takes the same approach (the move to its standoff is
+        checked on its own), where solving again cost a few tenths of a second a touch."""
+        if row not in self._plans:
+            self._plans[row] = self._plan(row, q_now)
+        return self._plans[row]
+
+    def _plan(self, row: int, q_now: np.ndarray) -> Approach | str:
         o = self.options
         point, normal = self.points[row], self.normals[row]
         lift = self.fabric + self.radius

@@ -203,6 +203,25 @@ class SimBody:
         _, slot, pressure, _ = fire_fingertip(self.body, self.truth, self.fingertip, self.part, poses, self.p, rng)
         return slot.astype(int), pressure
 
+    def full(self, names, q_arm: np.ndarray) -> np.ndarray:
+        """(N, J) the body's joint angles now with the joints ``names`` set to ``q_arm`` (N, V)."""
+        q = np.repeat(self._now_q()[None], len(q_arm), axis=0)
+        q[:, [self.index[n] for n in names]] = q_arm
+        return q
+
+    def record(self, q: np.ndarray, rng: np.random.Generator):
+        """The touches the recorder would store of presses held at the true joint angles ``q`` (N, J): fired by
+        the fingertip rule, with the simulator's recording defects (encoder noise, stray taxels, duplicates, the
+        experimenter's hand), as :func:`~nao_skin.sim.simulate.simulate` records its own (a TouchSet)."""
+        from nao_skin.sim.simulate import _assemble, _fingertip_activations
+
+        height, normal = self.height(q)
+        contact = self.sphere_centre(q) - self.radius * normal
+        n = len(q)
+        poses = PoseSet(q, contact, normal, np.full(n, self.gap), np.full(n, -1), np.full(n, -1), n, 0)
+        acts = _fingertip_activations(self.body, self.truth, self.fingertip, self.part, poses, self.p, rng)
+        return _assemble(self.skin, [(self.fingertip, self.part, poses, acts)], self.p, rng)
+
     def commands(self) -> np.ndarray:
         """(N, V) every commanded angle vector (the arm's joints), in order."""
         return np.array([angles for kind, _, _, angles, _ in self.log if kind == "command"])

@@ -1,0 +1,133 @@
+"""Benchmark of autonomous fingertip capture in the pure simulator, against a random manual session.
+
+Per seed one simulated robot (:class:`~nao_skin.sim.body.SimBody`: the seed's true skin and fingertip, the
+``fingertip-torso`` preset, its virtual clock) is driven by the capture loop (:mod:`nao_skin.capture`, planned
+under the NOMINAL skin, as on a robot never calibrated) until ``touches`` presses, then ``cap``; the presses
+are recorded as the simulator records (:meth:`SimBody.record`). The random manual session of the same seed is
+:func:`~nao_skin.sim.simulate.simulate` of the same scene (its truth is the same draw).
+
+Figures per seed:
+
+* ``to_target``: touches (duplicates removed) until the torso's TRUE taxel error has median <= ``median_mm``
+  and p95 <= ``p95_mm``, calibrating every ``every`` touches from scratch (as the live calibrate node does
+  below 1000 touches); ``to_done``: until the calibration's own predicted error, times the live status's
+  margin, meets the same target (the status's "done");
+* ``fired``: the share of the taxels the capture found a pose for that fired at least once, by ``touches``;
+* ``press_mm``: the deepest press beyond the first contact (the fingertip below the true fabric surface, mm);
+* ``robot_min``: the body's clock at the ``touches``-th press (moves, approaches, holds; planning is free);
+* ``beyond``: commands beyond the joint limits less the margin (must be 0).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from nao_skin.calibration.engine import CalibrationOptions, calibrate
+from nao_skin.calibration.evaluation import truth_error
+from nao_skin.capture.loop import CaptureLoop
+from nao_skin.capture.plan import CaptureOptions, Planner, TargetChooser
+from nao_skin.capture.safety import SafetyGate
+from nao_skin.errors import NaoSkinError
+from nao_skin.live.updates import PartStates
+from nao_skin.model.skin import SkinModel
+from nao_skin.sim.body import SimBody
+from nao_skin.sim.params import load_params
+from nao_skin.sim.simulate import simulate
+from nao_skin.touch.datasets import deduplicate
+from nao_skin.touch.touches import TouchSet
+
+PRESET, FINGERTIP, PART = "fingertip-torso", "r_finger", "torso"
+RECORD_STREAM = 0xA070       # the recording's random stream of a seed
+
+
+@dataclass(frozen=True)
+class AutonomousSetup:
+    touches: int = 250          # presses the figures are taken at
+    cap: int = 500              # presses and random touches at most, for the touches to the target
+    every: int = 25             # touches between two calibrations
+    median_mm: float = 0.5
+    p95_mm: float = 1.5
+
+
+def autonomous_capture(skin: SkinModel, seed: int, presses: int, options: CaptureOptions | None = None) -> dict:
+    """Drive the simulated body through ``presses`` touches: ``{body, loop, results, q, robot_s}`` (``q``: the
+    true joint angles of each press, ``robot_s``: the body's clock after each)."""
+    options = options or CaptureOptions()
+    body = SimBody(skin, FINGERTIP, PART, load_params(PRESET), seed=seed)
+    planner = Planner(skin, skin.zero_calibration(), FINGERTIP, PART, options)
+    chooser = TargetChooser(planner.points, planner.slots)
+    gate = SafetyGate(planner.arm, options.stale_after, lambda: False, lambda: 0.0)
+    loop = CaptureLoop(planner, chooser, body, body, gate, body.clock)
+    q, robot_s, fired_by = [], [], None
+    loop.start()
+    while len(q) < presses:
+        result = loop.touch()
+        if result is None:
+            break
+        if result.outcome == "touched":
+            q.append(body.full(planner.arm.names, result.pressed[None])[0])
+            robot_s.append(body.clock.now())
+            if len(q) == presses:
+                fired_by = chooser.fired.copy()
+    loop.finish()
+    return {"body": body, "loop": loop, "chooser": chooser, "planner": planner, "q": np.array(q),
+            "robot_s": np.array(robot_s), "fired_by": fired_by if fired_by is not None else chooser.fired.copy()}
+
+
+def _to_target(skin: SkinModel, touches: TouchSet, truth, setup: AutonomousSetup) -> tuple:
+    """``(to_target, to_done)``: touches of ``touches`` (in order) until the torso meets the target by its true
+    error, and by its predicted error times the live status's margin (None: not within them)."""
+    margin = PartStates().margin
+    target = done = None
+    for n in range(setup.every, touches.n_touches + 1, setup.every):
+        sub, _ = deduplicate(touches.subset(np.arange(n)))
+        try:
+            result = calibrate(sub, skin, CalibrationOptions(), truth=truth)
+        except NaoSkinError:           # too few touches yet
+            continue
+        err = truth_error(skin, result.calibration, truth, [PART]).get(PART)
+        if target is None and err and err["median"] <= setup.median_mm and err["p95"] <= setup.p95_mm:
+            target = sub.n_touches
+        pred = (result.report.final.get("predicted_taxel_error_mm") or {}).get(PART)
+        if done is None and pred and pred["median"] * margin <= setup.median_mm and \
+                pred["p95"] * margin <= setup.p95_mm:
+            done = sub.n_touches
+        if target is not None and done is not None:
+            break
+    return target, done
+
+
+def run_seed(skin: SkinModel, seed: int, setup: AutonomousSetup) -> dict:
+    run = autonomous_capture(skin, seed, setup.cap)
+    body, chooser, planner = run["body"], run["chooser"], run["planner"]
+    auto = body.record(run["q"], np.random.default_rng([seed, RECORD_STREAM]))
+    manual = simulate(skin, {**load_params(PRESET).to_dict(), "n_touches": setup.cap}, seed=seed).touches
+    reachable = ~chooser.unreachable
+    outcomes = [r.outcome for r in run["loop"].results]
+    k = min(setup.touches, len(run["robot_s"])) - 1
+    return {"seed": seed, "presses": len(run["q"]), "unreachable": int(chooser.unreachable.sum()),
+            "aborted": outcomes.count("aborted"), "reachable": int(reachable.sum()), "taxels": len(chooser.slots),
+            "fired": float(np.mean(run["fired_by"][reachable] > 0)) if reachable.any() else 0.0,
+            "press_mm": 1000.0 * max(0.0, -min(body.presses)) if body.presses else None,
+            "robot_min": float(run["robot_s"][k]) / 60.0 if k >= 0 else None,
+            "beyond": int(np.count_nonzero(~planner.arm.within(body.commands()))),
+            "auto": dict(zip(("to_target", "to_done"), _to_target(skin, auto, body.truth, setup))),
+            "manual": dict(zip(("to_target", "to_done"), _to_target(skin, manual, body.truth, setup)))}
+
+
+def summary(rows: list, setup: AutonomousSetup) -> dict:
+    def med(values):
+        values = [v for v in values if v is not None]
+        return float(np.median(values)) if values else None
+
+    out = {"seeds": len(rows), "fired_min": min(r["fired"] for r in rows), "fired_median": med(r["fired"] for r in rows),
+           "press_mm_max": max((r["press_mm"] or 0.0) for r in rows), "robot_min_max": max(r["robot_min"] or 0.0
+                                                                                          for r in rows),
+           "beyond": sum(r["beyond"] for r in rows), "reachable_median": med(r["reachable"] for r in rows)}
+    for what in ("to_target", "to_done"):
+        a, m = [r["auto"][what] for r in rows], [r["manual"][what] for r in rows]
+        out[what] = {"auto_median": med(a), "manual_median": med(m),
+                     "auto_not_more": sum(x is not None and (y is None or x <= y) for x, y in zip(a, m)),
+                     "auto_reached": sum(x is not None for x in a), "manual_reached": sum(y is not None for y in m)}
+    return out
