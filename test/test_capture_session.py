@@ -80,7 +80,7 @@ def test_the_capture_touches_records_and_retracts_at_ctrl_c(skin, tmp_path):
         assert "capture stopped: stop requested" in err
         # never a command beyond the limits less the margin; no press deeper than 2 mm beyond the first contact
         assert arm.within(body.commands()).all()
-        assert body.presses and -min(body.presses) <= 0.002
+        assert body.beyond and max(body.beyond) <= 0.002
 
         # nothing recorded is lost: each press the capture made is in the bag, as a fingertip touch
         said = re.search(r"capture stopped: (\d+) touches; arm rest", err)

@@ -2,8 +2,8 @@
 
 A touch goes through the states ``to_standoff`` (a joint-space move to the standoff pose, over the rest pose when
 the direct move would not keep clear of the body) -> ``approach`` (one step of ``step`` metres along the normal
-at a time, the contact checked after each) -> ``press`` (after the first contact, on until a taxel reads
-``press_pressure`` or ``press_max`` beyond it) -> ``hold`` -> ``retract`` (back to the standoff pose). An
+at a time, the contact checked after each) -> ``press`` (after the first contact, on while the highest pressure
+still rises, at most ``press_max`` beyond it) -> ``hold`` -> ``retract`` (back to the standoff pose). An
 :class:`~nao_skin.capture.safety.Abort` in any state retracts; one of the session (stop requested, stale
 joint states, a command beyond the limits, NAOqi gone) then ends the capture with :meth:`CaptureLoop.finish`,
 which lowers the arm to its rest pose and drops the stiffness only once the arm is seen there.
@@ -23,6 +23,7 @@ from nao_skin.capture.plan import Approach, Planner, TargetChooser
 from nao_skin.capture.safety import Abort, SafetyGate
 from nao_skin.errors import one_line
 
+PRESSURE_RISE = 2.0   # of 255: a step of the press that adds less has met the skin (the pressure saturated)
 AT_REST = 0.05        # rad: the arm is at rest when every joint is this close to the rest pose
 
 
@@ -131,26 +132,26 @@ class CaptureLoop:
             return result
         self.on_plan(plan)
         try:
-            result = self._press(plan, q_now)
+            result = self._press(plan, q_now, row)
         except Abort as abort:
             self._retract(plan)
             if abort.session:
                 raise
             self._abort(abort, session=False)
-            # a touch stopped on the way is not tried again at once: the next target is another taxel
-            self.chooser.mark_unreachable(row)
+            # a touch stopped on the way is not tried again: the next target is another taxel
+            self.chooser.skip(row)
             result = TouchResult(plan.slot, "aborted", abort.reason)
         self.results.append(result)
         return result
 
-    def _press(self, plan: Approach, q_now: np.ndarray) -> TouchResult:
+    def _press(self, plan: Approach, q_now: np.ndarray, row: int) -> TouchResult:
         o, gate = self.options, self.gate
         self.state = "to_standoff"
         if not self.planner.transit_clear(q_now, plan.path[0]):
             self._move(self.planner.rest[self.planner.arm.cols], o.move_speed)
         self._move(plan.path[0], o.move_speed)
         self.state = "approach"
-        fired_slots, first, k = [], None, 0
+        fired_slots, first, k, last = [], None, 0, -np.inf
         for k in range(1, len(plan.path)):
             gate.running()
             self._move(plan.path[k], o.approach_speed)
@@ -161,10 +162,15 @@ class CaptureLoop:
                 if first is None:
                     first = k
                     self.state = "press"
-                if pressure >= o.press_pressure or plan.travel[k] - plan.travel[first] >= o.press_max - 1e-9:
+                # the fabric stopped giving (the pressure no longer rises): the fingertip is on the skin
+                if pressure <= last + PRESSURE_RISE:
                     break
+                last = pressure
             elif first is None:
                 gate.approach(plan.travel[k], plan.budget, self.part)
+            # never deeper than press_max beyond the first contact, whether or not the skin still reads it
+            if first is not None and plan.travel[k] - plan.travel[first] >= o.press_max - 1e-9:
+                break
         self.state = "hold"
         gate.running()
         self.clock.sleep(o.hold)
@@ -173,7 +179,8 @@ class CaptureLoop:
             fired_slots.append(fired[self.part][0])
         self._retract(plan)
         slots = np.unique(np.concatenate(fired_slots)) if fired_slots else np.zeros(0, int)
-        self.chooser.record(slots)
+        self.chooser.record(slots, row)
+        self.planner.aim_again(row, slots)
         return TouchResult(plan.slot, "touched", fired=slots, contact_travel=float(plan.travel[first]),
                            deepest_travel=float(plan.travel[k]), pressed=plan.path[k].copy())
 

@@ -36,8 +36,9 @@ class CaptureOptions:
     standoff: float = 0.02          # m: the fingertip's surface this far off the skin before the approach
     approach_margin: float = 0.008  # m: the approach goes at most this far beyond the believed surface
     step: float = 0.001             # m of fingertip travel between two contact checks of the approach
-    press_pressure: float = 200.0   # after the first contact, press on until a taxel reads this (0-255) ...
-    press_max: float = 0.003        # ... or this far (m) beyond the first contact, whichever first
+    # after the first contact, press on while the highest pressure still rises (the fabric gives: the fingertip
+    # is not on the skin yet), at most this far (m) beyond the first contact
+    press_max: float = 0.0015
     hold: float = 0.3               # s the press is held
     move_speed: float = 0.2         # fraction of the joints' maximum speed: moves between standoffs
     approach_speed: float = 0.05    # ... the approach and the press
@@ -112,6 +113,7 @@ class Planner:
         self.points, self.normals = pos[self.slots], nor[self.slots]
         self._cols = _chain_joint_columns(skin, self.arm.chain)
         self._plans: dict = {}
+        self._aim: dict = {}          # row -> (3,) m added to where a taxel's touch aims (aim_again)
         self.rest = np.array([robot.body.rest_posture.get(n, (0.0, 0.0))[0] for n in robot.joint_names])
         self.rest[self.arm.cols] = np.clip(self.rest[self.arm.cols], self.arm.lo, self.arm.hi)
         # where the IK starts after the arm's own posture: the rest, then a fixed spread over the limits (one
@@ -219,9 +221,21 @@ class Planner:
             self._plans[row] = self._plan(row, q_now)
         return self._plans[row]
 
+    def aim_again(self, row: int, fired_slots) -> None:
+        """A touch aimed at ``row`` fired ``fired_slots`` but not the taxel itself (the skin lies a few millimetres
+        off the belief): the next touch there aims as far the other way in the skin's plane, where the
+        fingertip then lands on the taxel. The taxel's plan is made again."""
+        rows = np.flatnonzero(np.isin(self.slots, fired_slots))
+        if not len(rows) or np.isin(self.slots[row], fired_slots):
+            return
+        miss = self.points[rows].mean(axis=0) - (self.points[row] + self._aim.get(row, 0.0))
+        miss -= (miss @ self.normals[row]) * self.normals[row]
+        self._aim[row] = self._aim.get(row, 0.0) - miss
+        self._plans.pop(row, None)
+
     def _plan(self, row: int, q_now: np.ndarray) -> Approach | str:
         o = self.options
-        point, normal = self.points[row], self.normals[row]
+        point, normal = self.points[row] + self._aim.get(row, 0.0), self.normals[row]
         lift = self.fabric + self.radius
         length = o.standoff + o.approach_margin
         solved = np.linspace(0.0, length, max(int(np.ceil(length / WAYPOINT_SPACING)), 1) + 1)
@@ -264,26 +278,38 @@ class TargetChooser:
 
     def __post_init__(self):
         self.fired = np.zeros(len(self.slots), int)
+        self.tried = np.zeros(len(self.slots), int)
         self.unreachable = np.zeros(len(self.slots), bool)
+        self.skipped = np.zeros(len(self.slots), bool)
         self._row = {int(s): r for r, s in enumerate(self.slots)}
         self.last: int | None = None
 
-    def record(self, slots) -> None:
+    def record(self, slots, target: int | None = None) -> None:
+        """The part's ``slots`` fired in a touch aimed at row ``target``: that target counts as touched once even
+        where its own taxel did not fire (the skin a little off the belief), so it is not chosen again and
+        again while every other taxel has been."""
         rows = [self._row[int(s)] for s in np.unique(slots) if int(s) in self._row]
         self.fired[rows] += 1
+        if target is not None:
+            self.tried[target] += 1
 
     def mark_unreachable(self, row: int) -> None:
+        """No pose reaches the taxel."""
         self.unreachable[row] = True
 
+    def skip(self, row: int) -> None:
+        """A pose reaches it, but a touch there was aborted (no contact, or one elsewhere): not again."""
+        self.skipped[row] = True
+
     def reachable_unreached(self) -> int:
-        return int(np.count_nonzero((self.fired == 0) & ~self.unreachable))
+        return int(np.count_nonzero((self.fired == 0) & ~self.unreachable & ~self.skipped))
 
     def next(self, priority=None) -> int | None:
-        """The row of the next target, None when every taxel is unreachable."""
-        open_ = ~self.unreachable
+        """The row of the next target, None when every taxel is unreachable or skipped."""
+        open_ = ~self.unreachable & ~self.skipped
         if not open_.any():
             return None
-        score = self.fired.astype(float)
+        score = np.maximum(self.fired, self.tried).astype(float)
         if priority is not None:          # the guidance's triangles first among the least fired
             score = score - 0.5 * np.isin(self.slots // 12, list(priority))
         best = open_ & (score == score[open_].min())

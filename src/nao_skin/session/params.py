@@ -175,8 +175,8 @@ FINGERTIP_CAPTURE = {
                  Rule(float, low=0.005, high=0.1)),
     "approach_margin": (_CAPTURE.approach_margin, "m: the approach goes at most this far beyond the believed"
                                                   " surface, then stops (no contact)", Rule(float, low=0.0, high=0.02)),
-    "press_max": (_CAPTURE.press_max, "m the press goes on beyond the first contact at most (until a taxel reads"
-                                      " 200 of 255)", Rule(float, low=0.0, high=0.005)),
+    "press_max": (_CAPTURE.press_max, "m the press goes on beyond the first contact at most (while the highest"
+                                      " pressure still rises)", Rule(float, low=0.0, high=0.005)),
     "hold": (_CAPTURE.hold, "s the press is held", Rule(float, low=0.0, high=10.0)),
     "move_speed": (_CAPTURE.move_speed, "speed fraction of the moves between targets", _fraction(0.5)),
     "approach_speed": (_CAPTURE.approach_speed, "speed fraction of the approach and the press", _fraction(0.2)),

@@ -16,8 +16,12 @@ the end-to-end test behind a real libqi session (``test/capture_body.py``).
   fingertip is: its spots and reach are drawn once per press (a new press once the fingertip has lifted
   :data:`LIFTED` off the skin), so a press's taxels do not flicker from one reading to the next.
 * **Ground truth.** The fingertip's height over the true fabric surface (along the nearest facing taxel's
-  normal), followed along every move; per press the deepest (``presses``), which a press below the surface
-  (a negative height) is how far it went beyond the first contact.
+  normal), followed along every move; per press the deepest (``presses``: negative, below the surface), and
+  for a press the skin was read firing, how far the fingertip went on along the true normal from where it
+  first fired (``beyond``). A
+  sphere landing between taxels fires late or not at all under the simulator's rule (nothing fires beyond
+  the sphere's radius sideways), so the depth below the surface of such a press says more about that rule
+  than about the capture: ``beyond`` is what the capture controls.
 """
 from __future__ import annotations
 
@@ -93,7 +97,10 @@ class SimBody:
         self.stiffness: dict = {}
         self.log: list = []           # ("command", t, names, angles, fraction) / ("stiffness", t, names, value, q)
         self.presses: list = []       # per press: the deepest height (m, negative: below the fabric surface)
+        self.beyond: list = []        # per press that fired: how far (m) it went on beyond its first firing
         self._press_min: float | None = None
+        self._first_fire: tuple | None = None      # (centre, normal) of the fingertip at the press's first firing
+        self._beyond = 0.0
         self.press_key = 0
         self.lost = False             # set by a test: every call raises as a vanished robot's proxy does
 
@@ -172,16 +179,24 @@ class SimBody:
         return up[np.arange(len(c)), near] - self.radius - self.gap, self._normals[near]
 
     def _follow(self, q0: np.ndarray, q1: np.ndarray) -> None:
-        """Ground truth along a move (sampled every half millimetre of the fingertip): the presses' depths."""
+        """Ground truth along a move (sampled every half millimetre of the fingertip): each press's deepest
+        height, and how far the true fingertip went on along the true normal since the press first fired."""
         way = float(np.linalg.norm(self.sphere_centre(q1)[0] - self.sphere_centre(q0)[0]))
         s = np.linspace(0.0, 1.0, max(int(way * 1000 * SAMPLES_PER_MM), 1) + 1)[:, None]
-        heights, _ = self.height(q0 + s * (q1 - q0))
-        for h in heights:
+        q = q0 + s * (q1 - q0)
+        heights, _ = self.height(q)
+        centres = self.sphere_centre(q)
+        for h, c in zip(heights, centres):
             if h < LIFTED:
                 self._press_min = h if self._press_min is None else min(self._press_min, h)
+                if self._first_fire is not None:
+                    at, normal = self._first_fire
+                    self._beyond = max(self._beyond, float((at - c) @ normal))
             elif self._press_min is not None:
                 self.presses.append(self._press_min)
-                self._press_min = None
+                if self._first_fire is not None:
+                    self.beyond.append(self._beyond)
+                self._press_min, self._first_fire, self._beyond = None, None, 0.0
                 self.press_key += 1
 
     def fired(self, since: float = -np.inf) -> dict:
@@ -201,6 +216,8 @@ class SimBody:
                         1, 0)
         rng = np.random.default_rng([self.seed, self.press_key])
         _, slot, pressure, _ = fire_fingertip(self.body, self.truth, self.fingertip, self.part, poses, self.p, rng)
+        if len(slot) and self._first_fire is None:     # the press's first contact, as the skin reads it
+            self._first_fire = (c[0], normal[0])
         return slot.astype(int), pressure
 
     def full(self, names, q_arm: np.ndarray) -> np.ndarray:
