@@ -57,6 +57,7 @@ class TouchResult:
     contact_travel: float | None = None      # m from the standoff to the first contact
     deepest_travel: float | None = None      # m from the standoff to where the press stopped
     pressed: np.ndarray | None = None        # (V,) the arm's commanded angles where the press was held
+    contact: np.ndarray | None = None        # (V,) ... where the skin first fired
 
 
 class CaptureLoop:
@@ -168,8 +169,10 @@ class CaptureLoop:
                 last = pressure
             elif first is None:
                 gate.approach(plan.travel[k], plan.budget, self.part)
-            # never deeper than press_max beyond the first contact, whether or not the skin still reads it
-            if first is not None and plan.travel[k] - plan.travel[first] >= o.press_max - 1e-9:
+            # never deeper than press_max beyond the first contact, whether or not the skin still reads it: the
+            # next step is not made when it would go farther
+            if first is not None and (k + 1 == len(plan.path)
+                                      or plan.travel[k + 1] - plan.travel[first] > o.press_max + 1e-9):
                 break
         self.state = "hold"
         gate.running()
@@ -182,7 +185,8 @@ class CaptureLoop:
         self.chooser.record(slots, row)
         self.planner.aim_again(row, slots)
         return TouchResult(plan.slot, "touched", fired=slots, contact_travel=float(plan.travel[first]),
-                           deepest_travel=float(plan.travel[k]), pressed=plan.path[k].copy())
+                           deepest_travel=float(plan.travel[k]), pressed=plan.path[k].copy(),
+                           contact=plan.path[first].copy())
 
     def _fired(self) -> dict:
         """What fired since this moment less ``contact_wait`` (the skin's readings of the step just made)."""

@@ -98,6 +98,7 @@ class SimBody:
         self.log: list = []           # ("command", t, names, angles, fraction) / ("stiffness", t, names, value, q)
         self.presses: list = []       # per press: the deepest height (m, negative: below the fabric surface)
         self.beyond: list = []        # per press that fired: how far (m) it went on beyond its first firing
+        self.fired_presses: list = []  # per press: whether the skin fired in it
         self._press_min: float | None = None
         self._first_fire: tuple | None = None      # (centre, normal) of the fingertip at the press's first firing
         self._beyond = 0.0
@@ -194,6 +195,7 @@ class SimBody:
                     self._beyond = max(self._beyond, float((at - c) @ normal))
             elif self._press_min is not None:
                 self.presses.append(self._press_min)
+                self.fired_presses.append(self._first_fire is not None)
                 if self._first_fire is not None:
                     self.beyond.append(self._beyond)
                 self._press_min, self._first_fire, self._beyond = None, None, 0.0
