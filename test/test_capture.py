@@ -50,7 +50,7 @@ class Session:
         self.age = 0.0
         self.aborts = []
         self.chooser = TargetChooser(planner.points, planner.slots)
-        self.gate = SafetyGate(planner.arm, OPTIONS.stale_after, lambda: self.stop, lambda: self.age)
+        self.gate = SafetyGate(OPTIONS.stale_after, lambda: self.stop, lambda: self.age)
         self.loop = CaptureLoop(planner, self.chooser, self.body, contacts or self.body, self.gate, self.body.clock,
                                 on_abort=self.aborts.append)
 
@@ -115,7 +115,7 @@ def test_a_taxel_out_of_reach_gets_a_reason_not_a_pose(skin):
         Planner(skin, skin.zero_calibration(), "r_finger", "torso", dataclasses.replace(OPTIONS, limit_margin=1.0))
 
 
-def test_the_chooser_takes_unreached_taxels_nearest_first_and_never_an_unreachable_one(planner):
+def test_the_chooser_takes_unreached_taxels_farthest_first_and_never_an_unreachable_one(planner):
     chooser = TargetChooser(planner.points, planner.slots)
     first = chooser.next()
     chooser.record(planner.slots[[first]])
@@ -123,7 +123,7 @@ def test_the_chooser_takes_unreached_taxels_nearest_first_and_never_an_unreachab
     assert second != first and chooser.fired[second] == 0
     d = np.linalg.norm(planner.points - planner.points[first], axis=1)
     d[chooser.fired > 0] = np.inf
-    assert d[second] == d.min()                                   # the nearest unreached one
+    assert d[second] == d[np.isfinite(d)].max()                   # the farthest unreached one: spread
     chooser.mark_unreachable(second)
     assert all(chooser.next() != second for _ in range(5))
     chooser.fired[:] = 1
@@ -132,21 +132,29 @@ def test_the_chooser_takes_unreached_taxels_nearest_first_and_never_an_unreachab
     assert chooser.next(priority=[int(planner.slots[other] // 12)]) == other    # the guidance's triangle first
     assert chooser.next(priority=[int(planner.slots[7] // 12)]) == 7
     chooser.unreachable[:] = True
-    assert chooser.next() is None and chooser.reachable_unreached() == 0
+    assert chooser.next() is None and chooser.reachable_unreached() == 0 and chooser.arm() is None
+
+
+def test_the_other_arm_takes_the_taxels_one_cannot_reach(planner):
+    chooser = TargetChooser(planner.points, planner.slots, arms=2)
+    assert chooser.arm(0) == 0 and chooser.arm(1) == 1            # the arm in use while it has targets
+    chooser.unreachable[0, :200] = True
+    chooser.fired[200:] = 1                                       # arm 0 has touched all it reaches
+    assert chooser.arm(0) == 1 and chooser.next(arm=1) < 200      # arm 1 takes what arm 0 cannot reach
 
 
 # ---------------------------------------------------------------------------- the gate
 def test_the_gate_refuses_a_command_beyond_the_limits_less_the_margin(planner):
-    gate = SafetyGate(planner.arm, 0.5, lambda: False, lambda: 0.0)
+    gate = SafetyGate(0.5, lambda: False, lambda: 0.0)
     inside = 0.5 * (planner.arm.lo + planner.arm.hi)
-    assert np.array_equal(gate.command(inside), inside)
+    assert np.array_equal(gate.command(inside, planner.arm), inside)
     beyond = inside.copy()
     beyond[1] = planner.arm.hi[1] + 0.001                     # within the joint's limit, not the margin
     with pytest.raises(Abort, match="beyond its limits less the margin") as caught:
-        gate.command(beyond)
+        gate.command(beyond, planner.arm)
     assert caught.value.session
     with pytest.raises(Abort):
-        gate.command(np.full(len(inside), np.nan))
+        gate.command(np.full(len(inside), np.nan), planner.arm)
 
 
 def test_a_plan_beyond_the_limits_is_never_sent(skin, planner, approach, monkeypatch):
@@ -173,7 +181,8 @@ def test_an_approach_without_contact_stops_at_its_distance_plus_margin_and_retra
     row, plan = approach
     s = Session(skin, planner, contacts=NoSkin()).only(row)
     result = s.loop.touch()
-    assert result.outcome == "aborted" and "no contact on torso within 28.0 mm" in result.reason
+    budget = 1000 * (OPTIONS.standoff + OPTIONS.approach_margin)
+    assert result.outcome == "aborted" and f"no contact on torso within {budget:.1f} mm" in result.reason
     sent = s.body.commands()
     # the deepest command is the plan's last waypoint, never beyond; then back at the standoff
     tip = planner.fingertip(sent)

@@ -61,16 +61,23 @@ class TouchResult:
 
 
 class CaptureLoop:
-    def __init__(self, planner: Planner, chooser: TargetChooser, motion: Motion, contacts: Contacts,
-                 gate: SafetyGate, clock: Clock, contact_wait: float = 0.0,
+    """The loop over one fingertip's ``Planner`` or several (one per arm, each its own fingertip: the torso's
+    side one arm cannot reach the other does); ``chooser`` with as many ``arms``. One arm moves at a time: the
+    other waits at its rest pose, stiff."""
+
+    def __init__(self, planners, chooser: TargetChooser, motion: Motion, contacts: Contacts,
+                 gate: SafetyGate, clock: Clock,
                  log: Callable[[str], None] = lambda line: None,
                  on_abort: Callable[[str], None] = lambda reason: None,
                  on_plan: Callable[[Approach], None] = lambda approach: None):
-        self.planner, self.chooser, self.motion, self.contacts = planner, chooser, motion, contacts
-        self.gate, self.clock, self.contact_wait = gate, clock, float(contact_wait)
-        self.options = planner.options
-        self.names = list(planner.arm.names)
-        self.part = planner.part
+        self.planners = [planners] if isinstance(planners, Planner) else list(planners)
+        if chooser.arms != len(self.planners):
+            raise ValueError(f"a chooser of {chooser.arms} arms for {len(self.planners)} planners")
+        self.active = 0
+        self.chooser, self.motion, self.contacts = chooser, motion, contacts
+        self.gate, self.clock = gate, clock
+        self.options = self.planners[0].options
+        self.part = self.planners[0].part
         self.log, self.on_abort, self.on_plan = log, on_abort, on_plan
         self.state = "idle"
         self.results: list = []
@@ -78,18 +85,28 @@ class CaptureLoop:
         self.stopped: str | None = None       # why the session stopped
         self.priority = None                  # the guidance's triangles of the part, best first
 
+    @property
+    def planner(self) -> Planner:
+        """The planner of the arm in use."""
+        return self.planners[self.active]
+
+    @property
+    def names(self) -> list:
+        return list(self.planner.arm.names)
+
     # ------------------------------------------------------------------ motion through the gate
-    def _move(self, q_arm: np.ndarray, fraction: float) -> None:
-        q_arm = self.gate.command(q_arm)          # nothing beyond the limits less the margin is ever sent
+    def _move(self, q_arm: np.ndarray, fraction: float, planner: Planner | None = None) -> None:
+        arm = (planner or self.planner).arm
+        q_arm = self.gate.command(q_arm, arm)     # nothing beyond the limits less the margin is ever sent
         try:
-            self.motion.angleInterpolationWithSpeed(self.names, [float(v) for v in q_arm], float(fraction))
+            self.motion.angleInterpolationWithSpeed(list(arm.names), [float(v) for v in q_arm], float(fraction))
         except Exception as exc:  # noqa: BLE001 - libqi raises RuntimeError and others: the robot is gone
             raise Abort(f"NAOqi lost ({one_line(exc)})", session=True) from None
         self.commands += 1
 
-    def _angles(self) -> np.ndarray:
+    def _angles(self, planner: Planner | None = None) -> np.ndarray:
         try:
-            return np.asarray(self.motion.getAngles(self.names, True), float)
+            return np.asarray(self.motion.getAngles(list((planner or self.planner).arm.names), True), float)
         except Exception as exc:  # noqa: BLE001 - as in _move
             raise Abort(f"NAOqi lost ({one_line(exc)})", session=True) from None
 
@@ -97,7 +114,8 @@ class CaptureLoop:
     def start(self) -> None:
         self.gate.running()
         try:
-            self.motion.setStiffnesses(self.names, float(self.options.stiffness))
+            for planner in self.planners:
+                self.motion.setStiffnesses(list(planner.arm.names), float(self.options.stiffness))
         except Exception as exc:  # noqa: BLE001
             raise Abort(f"NAOqi lost ({one_line(exc)})", session=True) from None
         self.state = "started"
@@ -121,13 +139,18 @@ class CaptureLoop:
     def touch(self) -> TouchResult | None:
         """One target, None when no target is left."""
         self.gate.running()
-        row = self.chooser.next(self.priority)
-        if row is None:
+        arm = self.chooser.arm(self.active, self.priority)
+        if arm is None:
             return None
+        if arm != self.active:        # the arm in use goes to rest (stiff) before the other one moves
+            self.state = "to_rest"
+            self._move(self.planner.rest[self.planner.arm.cols], self.options.move_speed)
+            self.active = arm
+        row = self.chooser.next(self.priority, self.active)
         q_now = self._angles()
         plan = self.planner.plan(row, q_now)
         if isinstance(plan, str):
-            self.chooser.mark_unreachable(row)
+            self.chooser.mark_unreachable(row, self.active)
             result = TouchResult(int(self.chooser.slots[row]), "unreachable", plan)
             self.results.append(result)
             return result
@@ -152,28 +175,35 @@ class CaptureLoop:
             self._move(self.planner.rest[self.planner.arm.cols], o.move_speed)
         self._move(plan.path[0], o.move_speed)
         self.state = "approach"
-        fired_slots, first, k, last = [], None, 0, -np.inf
-        for k in range(1, len(plan.path)):
+        steps = list(zip(plan.path[1:], plan.travel[1:]))      # (arm angles, travel from the standoff)
+        fired_slots, first, last, i = [], None, -np.inf, 0
+        contact = pressed = deepest = None
+        while i < len(steps):
+            q, travel = steps[i]
             gate.running()
-            self._move(plan.path[k], o.approach_speed)
+            self._move(q, o.approach_speed)
+            pressed, deepest = q, travel
             fired = self._fired()
             if gate.contact(fired, self.part):
                 slots, pressure = fired[self.part]
                 fired_slots.append(slots)
                 if first is None:
-                    first = k
+                    first, contact = travel, q
                     self.state = "press"
+                    # the press in half steps: the fabric's last millimetres decide how far beyond the skin goes
+                    halves = [((a + b) / 2, (ta + tb) / 2) for (a, ta), (b, tb) in zip(steps[i:], steps[i + 1:])]
+                    steps = steps[:i + 1] + [x for pair in zip(halves, steps[i + 1:]) for x in pair]
                 # the fabric stopped giving (the pressure no longer rises): the fingertip is on the skin
                 if pressure <= last + PRESSURE_RISE:
                     break
                 last = pressure
             elif first is None:
-                gate.approach(plan.travel[k], plan.budget, self.part)
+                gate.approach(travel, plan.budget, self.part)
             # never deeper than press_max beyond the first contact, whether or not the skin still reads it: the
             # next step is not made when it would go farther
-            if first is not None and (k + 1 == len(plan.path)
-                                      or plan.travel[k + 1] - plan.travel[first] > o.press_max + 1e-9):
+            if first is not None and (i + 1 == len(steps) or steps[i + 1][1] - first > o.press_max + 1e-9):
                 break
+            i += 1
         self.state = "hold"
         gate.running()
         self.clock.sleep(o.hold)
@@ -184,15 +214,13 @@ class CaptureLoop:
         slots = np.unique(np.concatenate(fired_slots)) if fired_slots else np.zeros(0, int)
         self.chooser.record(slots, row)
         self.planner.aim_again(row, slots)
-        return TouchResult(plan.slot, "touched", fired=slots, contact_travel=float(plan.travel[first]),
-                           deepest_travel=float(plan.travel[k]), pressed=plan.path[k].copy(),
-                           contact=plan.path[first].copy())
+        return TouchResult(plan.slot, "touched", fired=slots, contact_travel=float(first),
+                           deepest_travel=float(deepest), pressed=np.array(pressed), contact=np.array(contact))
 
     def _fired(self) -> dict:
-        """What fired since this moment less ``contact_wait`` (the skin's readings of the step just made)."""
+        """What fired since this moment, read ``contact_wait`` later (the skin's readings of the step just made)."""
         since = self.clock.now()
-        if self.contact_wait > 0:
-            self.clock.sleep(self.contact_wait)
+        self.clock.sleep(self.options.contact_wait)
         return self.contacts.fired(since)
 
     def _retract(self, plan: Approach) -> None:
@@ -212,45 +240,53 @@ class CaptureLoop:
         self.on_abort(line)
 
     def finish(self) -> None:
-        """Lower the arm to its rest pose, then drop the stiffness, only once the arm is seen there: a raised
+        """Lower each arm to its rest pose, then drop its stiffness, only once the arm is seen there: a raised
         arm without stiffness falls on whatever is below it."""
         if self.state == "idle":
             return
         self.state = "to_rest"
-        rest = self.planner.rest[self.planner.arm.cols]
-        try:
-            self._move(rest, self.options.move_speed)
-            at = self._angles()
-        except Abort as abort:
-            self.log(f"stiffness kept: the arm could not be lowered ({abort.reason})")
-            self.on_abort(f"stiffness kept: {abort.reason}")
+        order = [self.active] + [a for a in range(len(self.planners)) if a != self.active]
+        kept = []
+        for a in order:
+            planner = self.planners[a]
+            rest = planner.rest[planner.arm.cols]
+            try:
+                self._move(rest, self.options.move_speed, planner)
+                off = float(np.max(np.abs(self._angles(planner) - rest)))
+            except Abort as abort:
+                kept.append(f"{planner.arm.chain} could not be lowered ({abort.reason})")
+                continue
+            if off > AT_REST:
+                kept.append(f"{planner.arm.chain} is not at rest ({off:.2f} rad off)")
+                continue
+            try:
+                self.motion.setStiffnesses(list(planner.arm.names), 0.0)
+            except Exception as exc:  # noqa: BLE001
+                self.log(f"stiffness not dropped: NAOqi lost ({one_line(exc)})")
+        if kept:
+            line = "stiffness kept: " + "; ".join(kept)
+            self.log(line)
+            self.on_abort(line)
             self.state = "stiff"
             return
-        if np.max(np.abs(at - rest)) > AT_REST:
-            self.log(f"stiffness kept: the arm is not at rest ({np.max(np.abs(at - rest)):.2f} rad off)")
-            self.on_abort("stiffness kept: the arm is not at rest")
-            self.state = "stiff"
-            return
-        try:
-            self.motion.setStiffnesses(self.names, 0.0)
-        except Exception as exc:  # noqa: BLE001
-            self.log(f"stiffness not dropped: NAOqi lost ({one_line(exc)})")
         self.state = "rest"
 
     def plan_only(self, n: int) -> list:
         """Dry run: the approaches to the next ``n`` targets (as if each fired its own taxel), nothing moved."""
-        q = self.planner.rest[self.planner.arm.cols]
+        q = [p.rest[p.arm.cols] for p in self.planners]
         out = []
         while len(out) < n:
-            row = self.chooser.next(self.priority)
-            if row is None:
+            arm = self.chooser.arm(self.active, self.priority)
+            if arm is None:
                 break
-            plan = self.planner.plan(row, q)
+            self.active = arm
+            row = self.chooser.next(self.priority, arm)
+            plan = self.planner.plan(row, q[arm])
             if isinstance(plan, str):
-                self.chooser.mark_unreachable(row)
+                self.chooser.mark_unreachable(row, arm)
                 continue
             self.chooser.record([plan.slot])
             self.on_plan(plan)
             out.append(plan)
-            q = plan.path[0]
+            q[arm] = plan.path[0]
         return out

@@ -36,9 +36,11 @@ class CaptureOptions:
     standoff: float = 0.02          # m: the fingertip's surface this far off the skin before the approach
     approach_margin: float = 0.005  # m: the approach goes at most this far beyond the believed surface
     step: float = 0.001             # m of fingertip travel between two contact checks of the approach
-    # after the first contact, press on while the highest pressure still rises (the fabric gives: the fingertip
-    # is not on the skin yet), at most this far (m) beyond the first contact
-    press_max: float = 0.0015
+    # after the first contact, press on (in half steps) while the highest pressure still rises (the fabric gives:
+    # the fingertip is not on the skin yet), at most this far (m) beyond the first contact (the simulator's
+    # fabric fires 2-5 mm before the fingertip is on it: the press ends about on it)
+    press_max: float = 0.0019
+    contact_wait: float = 0.05      # s the skin is read after each step (skinManager's 50 Hz and the transport)
     hold: float = 0.3               # s the press is held
     move_speed: float = 0.2         # fraction of the joints' maximum speed: moves between standoffs
     approach_speed: float = 0.05    # ... the approach and the press
@@ -243,7 +245,13 @@ class Planner:
         # the steps between solved waypoints, interpolated in joint space: over 5 mm the line bends by microns
         travel = np.r_[np.arange(0.0, length, o.step), length]
         why = "no pose within the joint limits less the margin"
-        for start in np.concatenate([q_now[None], self.starts]):
+        # a start of the taxel's own first (seeded by it), then the arm's posture, then the fixed spread: the
+        # fingertip reaches each taxel with the hand turned its own way, which the calibration needs to tell the
+        # fingertip's sphere from the skin's place (every touch from one posture left the sphere's centre 4 mm
+        # off and the torso 3 mm: a sphere offset along the hand looks like a shifted skin)
+        own = self.arm.lo + np.random.default_rng([IK_STARTS_SEED, row]).uniform(size=len(self.arm.cols)) * (
+            self.arm.hi - self.arm.lo)
+        for start in np.concatenate([own[None], q_now[None], self.starts]):
             path = [self.solve(goals[0], start[None])]
             if path[0] is None:
                 continue
@@ -267,19 +275,24 @@ class Planner:
 
 @dataclass
 class TargetChooser:
-    """Which taxel of the part to press next: one no touch has reached first (of ``priority`` triangles first:
-    the guidance's), then the least fired; among equals the one farthest from every taxel touched so far.
-    Taxels no pose reaches are marked and never chosen again, as are those a touch was aborted at."""
+    """Which taxel of the part to press next, and with which arm (``arms``: one per fingertip of the session).
+
+    One no touch has reached first (of ``priority`` triangles first: the guidance's), then the least fired;
+    among equals the one farthest from every taxel touched so far. An arm takes the targets it has not found
+    out of its reach; the arm to use is the one whose best target is the least touched (the arm in use on a
+    tie: an arm changes only when the other one has taxels to press that this one cannot reach). Taxels no
+    pose of an arm reaches are marked for that arm; a taxel a touch was aborted at is not chosen again."""
 
     points: np.ndarray                # (S,) believed positions of the part's present taxels
     slots: np.ndarray                 # (S,) their slots
+    arms: int = 1
     fired: np.ndarray = field(init=False)
     unreachable: np.ndarray = field(init=False)
 
     def __post_init__(self):
         self.fired = np.zeros(len(self.slots), int)
         self.tried = np.zeros(len(self.slots), int)
-        self.unreachable = np.zeros(len(self.slots), bool)
+        self.unreachable = np.zeros((self.arms, len(self.slots)), bool)     # per arm
         self.skipped = np.zeros(len(self.slots), bool)
         self._row = {int(s): r for r, s in enumerate(self.slots)}
         self.last: int | None = None
@@ -293,25 +306,42 @@ class TargetChooser:
         if target is not None:
             self.tried[target] += 1
 
-    def mark_unreachable(self, row: int) -> None:
-        """No pose reaches the taxel."""
-        self.unreachable[row] = True
+    def mark_unreachable(self, row: int, arm: int = 0) -> None:
+        """No pose of ``arm`` reaches the taxel."""
+        self.unreachable[arm, row] = True
 
     def skip(self, row: int) -> None:
         """A pose reaches it, but a touch there was aborted (no contact, or one elsewhere): not again."""
         self.skipped[row] = True
 
-    def reachable_unreached(self) -> int:
-        return int(np.count_nonzero((self.fired == 0) & ~self.unreachable & ~self.skipped))
+    @property
+    def out_of_reach(self) -> np.ndarray:
+        """(S,) no arm reaches the taxel."""
+        return self.unreachable.all(axis=0)
 
-    def next(self, priority=None) -> int | None:
-        """The row of the next target, None when every taxel is unreachable or skipped."""
-        open_ = ~self.unreachable & ~self.skipped
-        if not open_.any():
-            return None
+    def reachable_unreached(self) -> int:
+        return int(np.count_nonzero((self.fired == 0) & ~self.out_of_reach & ~self.skipped))
+
+    def _score(self, priority=None) -> np.ndarray:
         score = np.maximum(self.fired, self.tried).astype(float)
         if priority is not None:          # the guidance's triangles first among the least fired
             score = score - 0.5 * np.isin(self.slots // 12, list(priority))
+        return score
+
+    def arm(self, current: int = 0, priority=None) -> int | None:
+        """The arm to press with next (None: no target is left for any)."""
+        score = self._score(priority)
+        best = [score[~self.unreachable[a] & ~self.skipped].min(initial=np.inf) for a in range(self.arms)]
+        if not np.isfinite(min(best)):
+            return None
+        return current if best[current] <= min(best) else int(np.argmin(best))
+
+    def next(self, priority=None, arm: int = 0) -> int | None:
+        """The row of ``arm``'s next target, None when it has none left."""
+        open_ = ~self.unreachable[arm] & ~self.skipped
+        if not open_.any():
+            return None
+        score = self._score(priority)
         best = open_ & (score == score[open_].min())
         rows = np.flatnonzero(best)
         touched = np.flatnonzero((self.fired > 0) | (self.tried > 0))

@@ -27,24 +27,24 @@ class SafetyGate:
     the capture to stop (Ctrl-C, the ``~/stop`` service); ``joint_age()`` is the age (s) of the newest joint
     state, None before the first; ``lost()`` says why NAOqi is gone, None while it is there."""
 
-    def __init__(self, arm: Arm, stale_after: float, stop_requested: Callable[[], bool],
+    def __init__(self, stale_after: float, stop_requested: Callable[[], bool],
                  joint_age: Callable[[], float | None], lost: Callable[[], str | None] = lambda: None):
-        self.arm = arm
         self.stale_after = float(stale_after)
         self.stop_requested = stop_requested
         self.joint_age = joint_age
         self.lost = lost
 
-    def command(self, q_arm: np.ndarray) -> np.ndarray:
-        """``q_arm`` as a command, or an Abort when a joint lies beyond its limits less the margin (a plan that
-        would: nothing of it is sent)."""
+    @staticmethod
+    def command(q_arm: np.ndarray, arm: Arm) -> np.ndarray:
+        """``q_arm`` as a command of ``arm``, or an Abort when a joint lies beyond its limits less the margin (a
+        plan that would: nothing of it is sent)."""
         q_arm = np.asarray(q_arm, float)
-        if q_arm.shape != (len(self.arm.names),) or not np.all(np.isfinite(q_arm)):
-            raise Abort(f"command {q_arm!r} is not {len(self.arm.names)} finite angles", session=True)
-        if not self.arm.within(q_arm)[0]:
-            bad = int(np.flatnonzero(~((q_arm >= self.arm.lo - 1e-12) & (q_arm <= self.arm.hi + 1e-12)))[0])
-            raise Abort(f"command {self.arm.names[bad]}={q_arm[bad]:.3f} rad beyond its limits less the margin"
-                        f" [{self.arm.lo[bad]:.3f}, {self.arm.hi[bad]:.3f}]", session=True)
+        if q_arm.shape != (len(arm.names),) or not np.all(np.isfinite(q_arm)):
+            raise Abort(f"command {q_arm!r} is not {len(arm.names)} finite angles", session=True)
+        if not arm.within(q_arm)[0]:
+            bad = int(np.flatnonzero(~((q_arm >= arm.lo - 1e-12) & (q_arm <= arm.hi + 1e-12)))[0])
+            raise Abort(f"command {arm.names[bad]}={q_arm[bad]:.3f} rad beyond its limits less the margin"
+                        f" [{arm.lo[bad]:.3f}, {arm.hi[bad]:.3f}]", session=True)
         return q_arm
 
     def running(self) -> None:

@@ -35,7 +35,6 @@ from nao_skin.session.params import FINGERTIP_CAPTURE, capture_setup
 
 MARKERS_TOPIC = "nao_skin/capture/markers"
 STATUS_TOPIC = "nao_skin/capture/status"
-CONTACT_WAIT = 0.05       # s the skin is read after each step: skinManager's 50 Hz and the transport
 READINGS_KEPT = 500       # skin readings kept for the loop's questions (10 s of a part at 50 Hz)
 JOINTS_WAIT = 10.0        # s the capture waits for the first joint states before it gives up
 CLOSE_WAIT = 60.0         # s Ctrl-C waits for the arm to retract and reach its rest pose
@@ -146,7 +145,7 @@ class FingertipCapture(Node):
         self.gate = SafetyGate(self.planner.arm, options.stale_after, self._stop.is_set, self._joint_age,
                                lost=self._lost)
         self.loop = CaptureLoop(self.planner, self.chooser, None, self.readings, self.gate, WallClock(),
-                                contact_wait=CONTACT_WAIT, log=self.get_logger().warning, on_abort=self._on_abort,
+                                log=self.get_logger().warning, on_abort=self._on_abort,
                                 on_plan=self._on_plan)
         self._thread = threading.Thread(target=self._run, name="capture", daemon=True)
         self._thread.start()

@@ -176,7 +176,7 @@ FINGERTIP_CAPTURE = {
     "approach_margin": (_CAPTURE.approach_margin, "m: the approach goes at most this far beyond the believed"
                                                   " surface, then stops (no contact)", Rule(float, low=0.0, high=0.02)),
     "press_max": (_CAPTURE.press_max, "m the press goes on beyond the first contact at most (while the highest"
-                                      " pressure still rises)", Rule(float, low=0.0, high=0.005)),
+                                      " pressure still rises)", Rule(float, low=0.0, high=0.01)),
     "hold": (_CAPTURE.hold, "s the press is held", Rule(float, low=0.0, high=10.0)),
     "move_speed": (_CAPTURE.move_speed, "speed fraction of the moves between targets", _fraction(0.5)),
     "approach_speed": (_CAPTURE.approach_speed, "speed fraction of the approach and the press", _fraction(0.2)),

@@ -40,6 +40,7 @@ from nao_skin.sim.poses import PoseSet
 MAX_SPEED = 7.0          # rad/s of every arm joint at fraction 1 (a Nao's arm joints turn about 7-9 rad/s)
 CYCLE = 0.02             # s: one ALMotion cycle per interpolation call (its start and end)
 LIFTED = 0.006           # m over the skin: beyond the press's reach, the next press is a new one
+OVER_SKIN = 0.02         # m sideways from the nearest taxel within which a fingertip is over the skin
 SAMPLES_PER_MM = 2       # ground-truth samples along a move, per mm of fingertip travel
 
 
@@ -70,22 +71,26 @@ class SimClock:
 
 
 class SimBody:
-    """MOCK of the robot's body (see the module docstring): the arm of ``fingertip`` over the part ``part``."""
+    """MOCK of the robot's body (see the module docstring): the arms of ``fingertips`` (one name or several)
+    over the part ``part``."""
 
-    def __init__(self, skin: SkinModel, fingertip: str, part: str, params: SimParams | dict | None = None,
+    def __init__(self, skin: SkinModel, fingertips, part: str, params: SimParams | dict | None = None,
                  seed: int = 0, realtime: bool = False):
         from nao_skin.sim.simulate import true_robot
 
-        self.skin, self.fingertip, self.part = skin, fingertip, part
+        self.fingertips = (fingertips,) if isinstance(fingertips, str) else tuple(fingertips)
+        self.skin, self.part = skin, part
         self.p = make_params(params or {}) if not isinstance(params, SimParams) else params
         streams = np.random.SeedSequence(int(seed)).spawn(2)
-        self.truth = true_robot(skin, self.p, [(fingertip, part)], np.random.default_rng(streams[0]))
+        self.truth = true_robot(skin, self.p, [(f, part) for f in self.fingertips], np.random.default_rng(streams[0]))
         self.body = skin.with_kinematics(self.truth)
         self.seed = int(seed)
         robot = skin.robot
         self.index = {n: i for i, n in enumerate(robot.joint_names)}
-        self.chain = robot.fingertip(fingertip).chain
-        self.centre, self.radius = self.truth.fingertip_sphere(robot, fingertip)
+        self.chains = [robot.fingertip(f).chain for f in self.fingertips]
+        spheres = [self.truth.fingertip_sphere(robot, f) for f in self.fingertips]
+        self.centres = [c for c, _ in spheres]
+        self.radii = np.array([r for _, r in spheres])
         self.q = np.array([robot.body.rest_posture.get(n, (0.0, 0.0))[0] for n in robot.joint_names])
         self.q = np.clip(self.q, robot.limits[:, 0], robot.limits[:, 1])
         self.gap = float(self.p.fabric_thickness)
@@ -165,28 +170,46 @@ class SimBody:
                 self.q = q if stop or self.clock.realtime else self._move[3].copy()
             self._move = None
 
-    def sphere_centre(self, q: np.ndarray) -> np.ndarray:
-        """(N, 3) the true fingertip sphere's centre, base frame."""
-        return se3.transform_points(self.body.robot.fk(self.chain, np.atleast_2d(q)), self.centre)
+    def sphere_centre(self, q: np.ndarray, tip=0) -> np.ndarray:
+        """(N, 3) the true sphere's centre of fingertip ``tip`` (an index, or (N,) of them), base frame."""
+        q = np.atleast_2d(q)
+        tip = np.broadcast_to(np.asarray(tip, int), (len(q),))
+        out = np.empty((len(q), 3))
+        for k in np.unique(tip):        # one FK per arm (two at most)
+            rows = tip == k
+            out[rows] = se3.transform_points(self.body.robot.fk(self.chains[k], q[rows]), self.centres[k])
+        return out
 
     def height(self, q: np.ndarray) -> tuple:
-        """(N,) the true fingertip's height over the true fabric surface, and (N, 3) the normal there: along the
-        normal of the nearest taxel that faces the fingertip."""
-        c = self.sphere_centre(q)
-        rel = c[:, None] - self._taxels[None]
-        up = np.einsum("nsk,sk->ns", rel, self._normals)
-        d = np.where(up > -0.01, np.linalg.norm(rel, axis=2), np.inf)
-        near = np.argmin(d, axis=1)
-        return up[np.arange(len(c)), near] - self.radius - self.gap, self._normals[near]
+        """``(h, normal, tip)``: (N,) the height of the true fingertip nearest the skin over the true fabric
+        surface, (N, 3) the normal there (of the nearest taxel that faces it) and (N,) which fingertip."""
+        q = np.atleast_2d(q)
+        per_tip = []
+        for k in range(len(self.fingertips)):
+            c = self.sphere_centre(q, k)
+            rel = c[:, None] - self._taxels[None]
+            up = np.einsum("nsk,sk->ns", rel, self._normals)
+            d = np.where(up > -0.01, np.linalg.norm(rel, axis=2), np.inf)
+            near = np.argmin(d, axis=1)
+            rows = np.arange(len(c))
+            lateral = np.linalg.norm(rel[rows, near] - up[rows, near, None] * self._normals[near], axis=1)
+            # a fingertip not over the skin (the other arm at rest beside the body) is no height over it
+            h = np.where(lateral <= OVER_SKIN, up[rows, near] - self.radii[k] - self.gap, np.inf)
+            per_tip.append((h, self._normals[near]))
+        h = np.stack([t[0] for t in per_tip])
+        tip = np.argmin(h, axis=0)
+        n = np.arange(len(q))
+        return h[tip, n], np.stack([t[1] for t in per_tip])[tip, n], tip
 
     def _follow(self, q0: np.ndarray, q1: np.ndarray) -> None:
         """Ground truth along a move (sampled every half millimetre of the fingertip): each press's deepest
         height, and how far the true fingertip went on along the true normal since the press first fired."""
-        way = float(np.linalg.norm(self.sphere_centre(q1)[0] - self.sphere_centre(q0)[0]))
+        way = max(float(np.linalg.norm(self.sphere_centre(q1, k)[0] - self.sphere_centre(q0, k)[0]))
+                  for k in range(len(self.fingertips)))
         s = np.linspace(0.0, 1.0, max(int(way * 1000 * SAMPLES_PER_MM), 1) + 1)[:, None]
         q = q0 + s * (q1 - q0)
-        heights, _ = self.height(q)
-        centres = self.sphere_centre(q)
+        heights, _, tips = self.height(q)
+        centres = self.sphere_centre(q, tips)
         for h, c in zip(heights, centres):
             if h < LIFTED:
                 self._press_min = h if self._press_min is None else min(self._press_min, h)
@@ -210,14 +233,16 @@ class SimBody:
     def skin_now(self) -> tuple:
         """(slots, pressures) of the part's taxels that fire at the arm's angles now."""
         q = self._now_q()[None]
-        h, normal = self.height(q)
+        h, normal, tip = self.height(q)
         if h[0] >= LIFTED:
             return np.zeros(0, int), np.zeros(0)
-        c = self.sphere_centre(q)
-        poses = PoseSet(q, c - self.radius * normal, normal, np.array([self.gap]), np.array([-1]), np.array([-1]),
-                        1, 0)
+        k = int(tip[0])
+        c = self.sphere_centre(q, k)
+        poses = PoseSet(q, c - self.radii[k] * normal, normal, np.array([self.gap]), np.array([-1]),
+                        np.array([-1]), 1, 0)
         rng = np.random.default_rng([self.seed, self.press_key])
-        _, slot, pressure, _ = fire_fingertip(self.body, self.truth, self.fingertip, self.part, poses, self.p, rng)
+        _, slot, pressure, _ = fire_fingertip(self.body, self.truth, self.fingertips[k], self.part, poses, self.p,
+                                              rng)
         if len(slot) and self._first_fire is None:     # the press's first contact, as the skin reads it
             self._first_fire = (c[0], normal[0])
         return slot.astype(int), pressure
@@ -229,17 +254,24 @@ class SimBody:
         return q
 
     def record(self, q: np.ndarray, rng: np.random.Generator):
-        """The touches the recorder would store of presses held at the true joint angles ``q`` (N, J): fired by
-        the fingertip rule, with the simulator's recording defects (encoder noise, stray taxels, duplicates, the
-        experimenter's hand), as :func:`~nao_skin.sim.simulate.simulate` records its own (a TouchSet)."""
+        """The touches the recorder would store of presses held at the true joint angles ``q`` (N, J) (each by
+        the fingertip nearest the skin there): fired by the fingertip rule, with the simulator's recording
+        defects (encoder noise, stray taxels, duplicates, the experimenter's hand), as
+        :func:`~nao_skin.sim.simulate.simulate` records its own (a TouchSet, the fingertips' touches in turn)."""
         from nao_skin.sim.simulate import _assemble, _fingertip_activations
 
-        height, normal = self.height(q)
-        contact = self.sphere_centre(q) - self.radius * normal
-        n = len(q)
-        poses = PoseSet(q, contact, normal, np.full(n, self.gap), np.full(n, -1), np.full(n, -1), n, 0)
-        acts = _fingertip_activations(self.body, self.truth, self.fingertip, self.part, poses, self.p, rng)
-        return _assemble(self.skin, [(self.fingertip, self.part, poses, acts)], self.p, rng)
+        height, normal, tips = self.height(q)
+        per_tip = []
+        for k, name in enumerate(self.fingertips):
+            rows = np.flatnonzero(tips == k)
+            if not len(rows):
+                continue
+            contact = self.sphere_centre(q[rows], k) - self.radii[k] * normal[rows]
+            n = len(rows)
+            poses = PoseSet(q[rows], contact, normal[rows], np.full(n, self.gap), np.full(n, -1), np.full(n, -1), n, 0)
+            acts = _fingertip_activations(self.body, self.truth, name, self.part, poses, self.p, rng)
+            per_tip.append((name, self.part, poses, acts))
+        return _assemble(self.skin, per_tip, self.p, rng)
 
     def commands(self) -> np.ndarray:
         """(N, V) every commanded angle vector (the arm's joints), in order."""
