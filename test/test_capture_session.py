@@ -34,7 +34,7 @@ PRESSES = 2          # touches made before the Ctrl-C
 
 
 def test_the_capture_touches_records_and_retracts_at_ctrl_c(skin, tmp_path):
-    body = qi_body(skin, "r_finger", "torso", load_params("fingertip-torso"), seed=0)
+    body = qi_body(skin, ("r_finger", "l_finger"), "torso", load_params("fingertip-torso"), seed=0)
     port = free_port()
     robot = serve_motion(port, body)
     domain = unique_domain_id()
@@ -67,20 +67,26 @@ def test_the_capture_touches_records_and_retracts_at_ctrl_c(skin, tmp_path):
         procs.remove(capture)
         err = capture.stderr()
 
-        # the arm: from the approach back to the standoff, to rest, and only then no stiffness
-        arm = arm_of(skin, "r_finger", OPTIONS.limit_margin)
+        # each arm: from the approach back to the standoff, to rest, and only then no stiffness
+        arms = [arm_of(skin, tip, OPTIONS.limit_margin) for tip in ("r_finger", "l_finger")]
         after = body.log[made:]
-        kinds = [k[0] for k in after]
-        assert kinds[-1] == "stiffness" and after[-1][3] == 0.0, after
         fractions = [k[4] for k in after if k[0] == "command"]
-        assert fractions[-2:] == [OPTIONS.retract_speed, OPTIONS.move_speed], fractions
-        rest = np.array([skin.robot.body.rest_posture[n][0] for n in arm.names])
-        q_off = after[-1][4][[body.index[n] for n in arm.names]]
-        assert np.max(np.abs(q_off - rest)) <= AT_REST
+        # stopped in an approach: its last step, the retract, then both arms to rest
+        assert fractions[-4:] == [OPTIONS.approach_speed, OPTIONS.retract_speed, OPTIONS.move_speed,
+                                  OPTIONS.move_speed], fractions
+        for arm in arms:
+            mine = [k for k in after if tuple(k[2]) == arm.names]
+            assert mine[-1][0] == "stiffness" and mine[-1][3] == 0.0, mine
+            rest = np.array([skin.robot.body.rest_posture[n][0] for n in arm.names])
+            q_off = mine[-1][4][[body.index[n] for n in arm.names]]
+            assert np.max(np.abs(q_off - rest)) <= AT_REST
         assert "capture stopped: stop requested" in err
-        # never a command beyond the limits less the margin; no press deeper than 2 mm beyond the first contact
-        assert arm.within(body.commands()).all()
-        assert body.beyond and max(body.beyond) <= 0.002
+        # never a command beyond the limits less the margin; no press on more than press_max beyond its first
+        # contact, give or take the step in which the skin read it (in real time the skin reads during a step,
+        # the capture knows at its end)
+        by_names = {a.names: a for a in arms}
+        assert all(by_names[tuple(k[2])].within(np.array(k[3]))[0] for k in body.log if k[0] == "command")
+        assert body.beyond and max(body.beyond) <= OPTIONS.press_max + OPTIONS.step
 
         # nothing recorded is lost: each press the capture made is in the bag, as a fingertip touch
         said = re.search(r"capture stopped: (\d+) touches; arm rest", err)

@@ -56,7 +56,7 @@ def test_capture_starts_the_capture_node_and_the_recorder_takes_its_touches(tmp_
                                                with_robot_state_publisher=False)}
     assert specs["fingertip_capture"].overrides == {"dry_run": False, "nao_ip": "10.0.0.7"}
     assert specs["naoqi_bridge"].overrides["nao_ip"] == "10.0.0.7"
-    assert specs["pairing_recorder"].overrides["fingertip_scenes"] == ["r_finger-torso"]
+    assert specs["pairing_recorder"].overrides["fingertip_scenes"] == ["r_finger-torso", "l_finger-torso"]
     specs = {s.name: s for s in record_session("sim", bag_path=bag, capture="dry", with_robot_state_publisher=False)}
     assert specs["fingertip_capture"].overrides == {"dry_run": True}
     assert "fingertip_scenes" not in specs["pairing_recorder"].overrides

@@ -119,9 +119,9 @@ class FingertipCapture(Node):
     def __init__(self, **kwargs):
         super().__init__("fingertip_capture", **kwargs)
         p = declare(self, FINGERTIP_CAPTURE)
-        self.skin, calibration, tip, self.part, options = capture_setup(p)
-        self.planner = Planner(self.skin, calibration, tip, self.part, options)
-        self.chooser = TargetChooser(self.planner.points, self.planner.slots)
+        self.skin, calibration, tips, self.part, options = capture_setup(p)
+        self.planners = [Planner(self.skin, calibration, tip, self.part, options) for tip in tips]
+        self.chooser = TargetChooser(self.planners[0].points, self.planners[0].slots, arms=len(self.planners))
         self.url = f"tcp://{p['nao_ip']}:{int(p['nao_port'])}"
         self.timeout = float(p["naoqi_timeout"])
         self.dry_run, self.max_touches = bool(p["dry_run"]), int(p["max_touches"])
@@ -142,9 +142,8 @@ class FingertipCapture(Node):
         self.create_service(Trigger, "~/stop", self._on_stop)
         self.create_timer(0.5, self._publish_status)
         publish_diagnostics(self, self._diagnostics, hardware_id=f"NAOqi {self.url}")
-        self.gate = SafetyGate(self.planner.arm, options.stale_after, self._stop.is_set, self._joint_age,
-                               lost=self._lost)
-        self.loop = CaptureLoop(self.planner, self.chooser, None, self.readings, self.gate, WallClock(),
+        self.gate = SafetyGate(options.stale_after, self._stop.is_set, self._joint_age, lost=self._lost)
+        self.loop = CaptureLoop(self.planners, self.chooser, None, self.readings, self.gate, WallClock(),
                                 log=self.get_logger().warning, on_abort=self._on_abort,
                                 on_plan=self._on_plan)
         self._thread = threading.Thread(target=self._run, name="capture", daemon=True)
@@ -181,7 +180,7 @@ class FingertipCapture(Node):
         motion = self.motion
         if motion is not None:      # a move in progress ends where it is; the loop then retracts
             try:
-                motion.killTasksUsingResources(list(self.planner.arm.names))
+                motion.killTasksUsingResources([n for p in self.planners for n in p.arm.names])
             except Exception as exc:  # noqa: BLE001 - NAOqi gone: the loop finds out and says so
                 self.get_logger().warning(f"cannot stop the move: {one_line(exc)}")
 
@@ -202,8 +201,8 @@ class FingertipCapture(Node):
         while self._joints_at is None and time.monotonic() < deadline and not self._stop.is_set():
             time.sleep(0.05)
         self.state = "capturing"
-        self.get_logger().info(f"capturing {self.planner.part} with {self.planner.arm.chain}'s fingertip through"
-                               f" NAOqi at {self.url}")
+        self.get_logger().info(f"capturing {self.part} with the fingertips of"
+                               f" {', '.join(p.arm.chain for p in self.planners)} through NAOqi at {self.url}")
         self.loop.run(self.max_touches)
         self.state = "stopped" if self.loop.stopped else "done"
         done = sum(r.outcome == "touched" for r in self.loop.results)
@@ -216,7 +215,7 @@ class FingertipCapture(Node):
             self.state = "stopped"
 
     def _on_plan(self, plan) -> None:
-        ends = self.planner.fingertip(plan.path[[0, -1]])
+        ends = self.loop.planner.fingertip(plan.path[[0, -1]])
         frame = self.frames + self.skin.robot.base_frame
         k = len(self.markers)
         arrow = Marker(ns="approach", id=k, type=Marker.ARROW, action=Marker.ADD)

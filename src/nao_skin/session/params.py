@@ -163,8 +163,9 @@ FINGERTIP_CAPTURE = {
     **SKIN_PARAMS,
     "nao_ip": ("127.0.0.1", "IP address or host name of the robot running NAOqi", HOST),
     "nao_port": (9559, "NAOqi port", PORT),
-    "scene": ("r_finger-torso", "what presses what, 'fingertip-part': a fingertip scene of the skin config on a part"
-                                " fixed to the base (the torso)"),
+    "scenes": (["r_finger-torso", "l_finger-torso"], "what presses what, 'fingertip-part': fingertip scenes of the"
+                                                     " skin config on one part fixed to the base (the torso); each"
+                                                     " arm takes the taxels the other cannot reach"),
     "calibration": ("", "calibration the poses are planned under (empty: nominal)"),
     "dry_run": (False, "only plan: the poses and approaches as markers on nao_skin/capture/markers, nothing moves"),
     "max_touches": (250, "targets tried at most (touched, unreachable or aborted), then the arm goes to rest",
@@ -365,27 +366,30 @@ def check_calibrate(p: dict, where: str = "calibrate") -> None:
 
 
 def capture_setup(p: dict, where: str = "fingertip_capture") -> tuple:
-    """``(skin, calibration, fingertip, part, options)`` of the fingertip_capture node's parameters: the scene one
-    of the skin config's fingertip scenes, on a part fixed to the base; the calibration read against the skin."""
+    """``(skin, calibration, fingertips, part, options)`` of the fingertip_capture node's parameters: the scenes
+    fingertip scenes of the skin config, each fingertip once, all on one part fixed to the base; the calibration
+    read against the skin."""
     import dataclasses
 
     from nao_skin.model.skin import SkinCalibration
 
     try:
         skin = skin_from_params(p)
-        scenes = fingertip_scenes({"fingertip_scenes": [p["scene"]]}, skin)
-        if len(scenes) != 1:
-            raise ConfigError(f"parameter scene:={p['scene']!r}: expected one 'fingertip-part', e.g. r_finger-torso")
-        (tip, part), = scenes
+        scenes = fingertip_scenes({"fingertip_scenes": list(p["scenes"])}, skin)
+        tips, parts = [t for t, _ in scenes], {part for _, part in scenes}
+        if not scenes or len(parts) != 1 or len(set(tips)) != len(tips):
+            raise ConfigError(f"parameter scenes:={list(p['scenes'])!r}: expected 'fingertip-part' scenes of one part,"
+                              f" each fingertip once, e.g. ['r_finger-torso', 'l_finger-torso']")
+        part, = parts
         if skin.parts[part].chain is not None:
-            raise ConfigError(f"parameter scene:={p['scene']!r}: the capture presses a part fixed to the base (the"
-                              f" torso), not {part}")
+            raise ConfigError(f"parameter scenes:={list(p['scenes'])!r}: the capture presses a part fixed to the base"
+                              f" (the torso), not {part}")
         calibration = SkinCalibration.load(p["calibration"], skin) if p["calibration"] else skin.zero_calibration()
         fields = {f.name for f in dataclasses.fields(CaptureOptions)}
         options = CaptureOptions(**{k: float(v) for k, v in p.items() if k in fields})
     except NaoSkinError as exc:
         raise ConfigError(f"{where}: {exc}") from None
-    return skin, calibration, tip, part, options
+    return skin, calibration, tips, part, options
 
 
 def check_fingertip_capture(p: dict, where: str = "fingertip_capture") -> None:

@@ -231,8 +231,8 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     if capture == "true":    # the recorder takes the touches of the scene the capture presses
         from nao_skin.session.params import FINGERTIP_CAPTURE
 
-        scene = by_name["fingertip_capture"].overrides.get("scene", FINGERTIP_CAPTURE["scene"][0])
-        by_name["pairing_recorder"].overrides.setdefault("fingertip_scenes", [scene])
+        scenes = by_name["fingertip_capture"].overrides.get("scenes", FINGERTIP_CAPTURE["scenes"][0])
+        by_name["pairing_recorder"].overrides.setdefault("fingertip_scenes", list(scenes))
     # a node given a skin of its own (--param NODE.taxels=..., or in the user's parameters file): the session's
     # (--taxels) is checked with the files
     own_skin = {node for node, values in (overrides or {}).items() if {"skin_config", "taxels"} & set(values)}

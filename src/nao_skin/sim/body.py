@@ -243,7 +243,9 @@ class SimBody:
         rng = np.random.default_rng([self.seed, self.press_key])
         _, slot, pressure, _ = fire_fingertip(self.body, self.truth, self.fingertips[k], self.part, poses, self.p,
                                               rng)
-        if len(slot) and self._first_fire is None:     # the press's first contact, as the skin reads it
+        # the press's first contact, as the skin reads it (a reading of a press already ended, the arm on its way
+        # up while another thread reads the skin, starts none)
+        if len(slot) and self._first_fire is None and self._press_min is not None:
             self._first_fire = (c[0], normal[0])
         return slot.astype(int), pressure
 
