@@ -62,6 +62,7 @@ setup(
             'sim_robot = nao_skin.entry:sim_robot',
             'pairing_recorder = nao_skin.entry:pairing_recorder',
             'skin_heatmap = nao_skin.entry:skin_heatmap',
+            'fingertip_capture = nao_skin.entry:fingertip_capture',
         ],
     },
 )

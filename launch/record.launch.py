@@ -18,6 +18,8 @@ Starts (the same set as ``nao-skin record``, from nao_skin.session.record):
   plays one none of them played unless given one (the same seed plays the same touches);
 * scene:=r_finger-torso,r_hand-torso: the scenes recorded (the simulated robot plays them;
   the recorder takes the fingertip scenes' touches, the heat-map shows their fingertips);
+* capture:=true (robot:=nao): fingertip_capture presses the robot's fingertip on the torso
+  through NAOqi, the recorder takes those touches; capture:=dry only plans (RViz markers);
 * params_file:=FILE: a ROS 2 parameters file for the nodes, after config/record.yaml
   and config/bridges.yaml (checked before any node starts, as they are).
 
@@ -58,6 +60,8 @@ ARGUMENTS = {
     "taxels": ("", "the robot's own taxel files, PART=FILE separated by spaces, shell quoting for a path with a"
                    " space (default: config/nao_skin.yaml's)"),
     "guided": ("false", "robot:=sim: the simulated robot's next touches follow /nao_skin/guidance"),
+    "capture": ("false", "fingertip capture: true: the robot presses its fingertip on the torso by itself"
+                         " (robot:=nao, through NAOqi); dry: only the planned approaches in RViz; false: none"),
     "namespace": ("", "every node in this ROS namespace (e.g. /nao2): topics under it, TF frames prefixed with it, so"
                       " a second robot records on the same ROS domain"),
     "seed": ("", "robot:=sim: the simulated robot's seed, the same seed plays the same touches (default:"
@@ -82,7 +86,7 @@ def _nodes(context):
                            rviz=flag["rviz"], taxels=launch_words("taxels", arg["taxels"]),
                            guided=flag["guided"], continue_from=launch_words("continue_from", arg["continue_from"]),
                            namespace=arg["namespace"], params_file=arg["params_file"], seed=arg["seed"],
-                           scene=arg["scene"],
+                           scene=arg["scene"], capture=arg["capture"],
                            say=lambda line: print(f"record.launch.py: {line}", file=sys.stderr))
     check_needs(specs)    # e.g. robot:=nao without YARP's Python bindings: one line before any node starts
     # one session per ROS domain and namespace on this machine (two would record each other's touches): held as long as the

@@ -29,7 +29,8 @@ def context_with(defaults: dict, **arguments) -> LaunchContext:
 
 
 @pytest.mark.parametrize("argument,value", [("guided", "maybe"), ("rviz", "yes please"), ("naoqi", "ture"),
-                                            ("taxels", "l_hand='my file"), ("continue_from", '"a.bag')])
+                                            ("taxels", "l_hand='my file"), ("continue_from", '"a.bag'),
+                                            ("capture", "maybe"), ("capture", "true")])
 def test_record_launch_refuses_a_bad_argument_in_one_line(argument, value):
     module = launch_file("record.launch.py")
     defaults = {name: default for name, (default, _) in module.ARGUMENTS.items()}
@@ -45,6 +46,21 @@ def test_calibrate_launch_refuses_a_bad_argument_in_one_line(argument, value):
     with pytest.raises(ConfigError) as refused:
         module._node(context_with(defaults, **{argument: value}))
     assert f"{argument}:={value}" in str(refused.value) and "\n" not in str(refused.value)
+
+
+def test_capture_starts_the_capture_node_and_the_recorder_takes_its_touches(tmp_path):
+    """capture:=true with robot:=nao: fingertip_capture at the robot's address, the recorder told its scene;
+    capture:=dry plans with the simulated robot too and moves nothing (dry_run), the recorder as without it."""
+    bag = str(tmp_path / "touches")
+    specs = {s.name: s for s in record_session("nao", nao_ip="10.0.0.7", bag_path=bag, capture="true",
+                                               with_robot_state_publisher=False)}
+    assert specs["fingertip_capture"].overrides == {"dry_run": False, "nao_ip": "10.0.0.7"}
+    assert specs["naoqi_bridge"].overrides["nao_ip"] == "10.0.0.7"
+    assert specs["pairing_recorder"].overrides["fingertip_scenes"] == ["r_finger-torso", "l_finger-torso"]
+    specs = {s.name: s for s in record_session("sim", bag_path=bag, capture="dry", with_robot_state_publisher=False)}
+    assert specs["fingertip_capture"].overrides == {"dry_run": True}
+    assert "fingertip_scenes" not in specs["pairing_recorder"].overrides
+    assert "fingertip_capture" not in {s.name for s in record_session("sim", bag_path=bag)}
 
 
 def test_a_launch_flag_reads_as_launch_conditions_read_it():

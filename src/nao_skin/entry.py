@@ -33,6 +33,10 @@ def yarp_skin_bridge() -> int:
     return _run("yarp_skin_bridge", "nao_skin.nodes.yarp_skin_bridge")
 
 
+def fingertip_capture() -> int:
+    return _run("fingertip_capture", "nao_skin.nodes.fingertip_capture")
+
+
 def sim_robot() -> int:
     return _run("sim_robot", "nao_skin.nodes.sim_robot")
 

@@ -50,6 +50,11 @@ def add_arguments(parser) -> None:
                         help="comma-separated, of random, guided, oracle (default: all three; oracle splits random"
                              " touches over the pairs by the true error: an upper bound, not a capture policy)")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes (runs are independent)")
+    parser.add_argument("--autonomous", action="store_true",
+                        help="instead: the robot's autonomous fingertip capture on the torso against a random manual"
+                             " session of it (nao_skin.bench.autonomous): coverage, press depth, robot time; --cap"
+                             " (default 400) and --touches (default 250) apply")
+    parser.add_argument("--touches", type=int, default=250, help="--autonomous: presses the figures are taken at")
     parser.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
                         help="a calibration option of every update (YAML value), e.g. --set pairs=cop+plane;"
                              " repeatable, as nao-skin calibrate takes it")
@@ -59,7 +64,44 @@ _HOW = {True: "as the live calibrate node updates: warm-started, from scratch wh
         False: "from nominal each time"}
 
 
+def run_autonomous(args) -> int:
+    from nao_skin.bench import autonomous as bench
+    from nao_skin.errors import DataError
+    from nao_skin.formats.outdir import CAPTURE_BENCHMARK, check_output_dir, clear_for_writing
+    from nao_skin.model.skin import load_skin
+    from nao_skin.plain import jsonable
+
+    setup = bench.AutonomousSetup(touches=args.touches, cap=args.cap if args.cap is not None else 400)
+    seeds = args.seeds if args.seeds is not None else 10
+    if seeds < 1 or args.first_seed < 0 or setup.touches < 1 or setup.cap < setup.touches:
+        raise DataError(f"--seeds {seeds}, --first-seed {args.first_seed}, --touches {setup.touches}, --cap"
+                        f" {setup.cap}: expected at least one seed from 0 and 1 <= touches <= cap")
+    check_output_dir(args.out, CAPTURE_BENCHMARK, force=args.force)
+    t0, skin, rows = time.perf_counter(), load_skin(), []
+    for seed in range(args.first_seed, args.first_seed + seeds):
+        rows.append(bench.run_seed(skin, seed, setup))
+        print(f"seed {seed}: {json.dumps(jsonable(rows[-1]))}", flush=True)
+    summary = bench.summary(rows, setup)
+    out = Path(args.out)
+    clear_for_writing(out, NAME, CAPTURE_BENCHMARK, AUTONOMOUS_OUTPUTS)
+    argv = sys.argv[2:] + ([] if "--force" in sys.argv[2:] else ["--force"])
+    text = "\n".join([f"# nao-skin bench-capture --autonomous", "", f"Command: `nao-skin bench-capture {' '.join(argv)}`",
+                      "", bench.__doc__.split("\n\n", 1)[1].strip(), "", bench.table(rows), "",
+                      f"Summary: `{json.dumps(jsonable(summary))}`", "",
+                      f"Wall time: {time.perf_counter() - t0:.0f} s.", ""])
+    (out / "autonomous_results.md").write_text(text)
+    (out / "autonomous_results.json").write_text(json.dumps(jsonable({"setup": setup.__dict__, "rows": rows,
+                                                                      "summary": summary}), indent=1) + "\n")
+    print(text)
+    return 0
+
+
+AUTONOMOUS_OUTPUTS = ("autonomous_results.md", "autonomous_results.json")
+
+
 def run(args) -> int:
+    if args.autonomous:
+        return run_autonomous(args)
     from dataclasses import replace
 
     from nao_skin.bench import capture as bench

@@ -50,6 +50,9 @@ def add_arguments(parser) -> None:
                              " prefixed with it, so a second robot records on the same ROS domain")
     parser.add_argument("--guided", action="store_true",
                         help="robot sim: the simulated robot's next touches follow the guidance (/nao_skin/guidance)")
+    parser.add_argument("--capture", choices=["false", "true", "dry"], default="false",
+                        help="fingertip capture: true: the robot presses its fingertip on the torso by itself (robot"
+                             " nao, through NAOqi); dry: only the planned approaches in RViz")
     parser.add_argument("--seed", type=int, default=None, metavar="N",
                         help="robot sim: the simulated robot's seed, the same seed plays the same touches (default:"
                              " config/record.yaml's; continuing earlier sittings, one none of them played)")
@@ -101,7 +104,8 @@ def run(args) -> int:
                            bag_path=args.bag, calibration=args.calibration, rviz=args.rviz, taxels=args.taxels,
                            overrides=parse_overrides(args.param), guided=args.guided,
                            continue_from=args.continue_from, namespace=args.namespace, spelling="command",
-                           params_file=args.params_file, seed=args.seed, scene=args.scene, say=lambda line: _say(f"record: {line}"))
+                           params_file=args.params_file, seed=args.seed, scene=args.scene,
+                           say=lambda line: _say(f"record: {line}"), capture=args.capture)
     claim = None
     if not args.print:
         check_needs(specs)

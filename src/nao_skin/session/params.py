@@ -12,6 +12,7 @@ theirs (``CalibrationOptions``, ``UpdateSchedule``, ``PartStates``, ``WarmStart`
 from __future__ import annotations
 
 from nao_skin.calibration.options import OPTION_FIELDS, CalibrationOptions
+from nao_skin.capture.plan import CaptureOptions
 from nao_skin.errors import ConfigError, NaoSkinError
 from nao_skin.guidance.capture import MAX_READ_TARGETS
 from nao_skin.live.playback import check_timing
@@ -154,6 +155,45 @@ SIM_ROBOT = {
 }
 
 
+_CAPTURE = CaptureOptions()     # the capture's defaults are its options': defined once
+
+
+def _fraction(high: float) -> Rule:
+    """A speed fraction of NAOqi's interpolation, in (0, ``high``]: a capture never asks for more."""
+    return Rule(float, low=0.0, low_open=True, high=high)
+
+
+FINGERTIP_CAPTURE = {
+    **SKIN_PARAMS,
+    "nao_ip": ("127.0.0.1", "IP address or host name of the robot running NAOqi", HOST),
+    "nao_port": (9559, "NAOqi port", PORT),
+    "scenes": (["r_finger-torso", "l_finger-torso"], "what presses what, 'fingertip-part': fingertip scenes of the"
+                                                     " skin config on one part fixed to the base (the torso); each"
+                                                     " arm takes the taxels the other cannot reach"),
+    "calibration": ("", "calibration the poses are planned under (empty: nominal)"),
+    "dry_run": (False, "only plan: the poses and approaches as markers on nao_skin/capture/markers, nothing moves"),
+    "max_touches": (250, "targets tried at most (touched, unreachable or aborted), then the arm goes to rest",
+                    AT_LEAST_ONE),
+    "limit_margin": (_CAPTURE.limit_margin, "rad kept from every joint limit in every command",
+                     Rule(float, low=0.0, high=0.5)),
+    "standoff": (_CAPTURE.standoff, "m: the fingertip this far off the skin before the approach",
+                 Rule(float, low=0.005, high=0.1)),
+    "approach_margin": (_CAPTURE.approach_margin, "m: the approach goes at most this far beyond the believed"
+                                                  " surface, then stops (no contact)", Rule(float, low=0.0, high=0.02)),
+    "press_max": (_CAPTURE.press_max, "m the press goes on beyond the first contact at most (while the highest"
+                                      " pressure still rises)", Rule(float, low=0.0, high=0.01)),
+    "hold": (_CAPTURE.hold, "s the press is held", Rule(float, low=0.0, high=10.0)),
+    "move_speed": (_CAPTURE.move_speed, "speed fraction of the moves between targets", _fraction(0.5)),
+    "approach_speed": (_CAPTURE.approach_speed, "speed fraction of the approach and the press", _fraction(0.2)),
+    "retract_speed": (_CAPTURE.retract_speed, "speed fraction of the retract", _fraction(0.5)),
+    "stiffness": (_CAPTURE.stiffness, "the arm's stiffness while it moves", Rule(float, low=0.1, high=1.0)),
+    "stale_after": (_CAPTURE.stale_after, "s: joint states older than this stop the capture",
+                    Rule(float, low=0.02, high=10.0)),
+    "naoqi_timeout": (20.0, "s a NAOqi call may take (a move at the slowest speed: up to ~12 s) before NAOqi"
+                            " counts as lost", Rule(float, low=0.1, high=120.0)),
+}
+
+
 SKIN_HEATMAP = {
     **SKIN_PARAMS,
     "rate": (10.0, "marker updates per second (Hz)", RATE),
@@ -199,7 +239,8 @@ def at_start_said(node: str, name: str, value: str = "VALUE") -> str:
 ROS_NODE_PARAMS = ("use_sim_time", "start_type_description_service")
 
 NODE_PARAMS = {"calibrate": CALIBRATE, "naoqi_bridge": NAOQI_BRIDGE, "pairing_recorder": PAIRING_RECORDER,
-               "sim_robot": SIM_ROBOT, "skin_heatmap": SKIN_HEATMAP, "yarp_skin_bridge": YARP_SKIN_BRIDGE}
+               "sim_robot": SIM_ROBOT, "skin_heatmap": SKIN_HEATMAP, "yarp_skin_bridge": YARP_SKIN_BRIDGE,
+               "fingertip_capture": FINGERTIP_CAPTURE}
 
 
 # the parameters a node applies when they are set while it runs (ros2 param set), with the boolean parameter
@@ -339,7 +380,39 @@ def check_calibrate(p: dict, where: str = "calibrate") -> None:
         raise ConfigError(f"{where}: {exc}") from None
 
 
+def capture_setup(p: dict, where: str = "fingertip_capture") -> tuple:
+    """``(skin, calibration, fingertips, part, options)`` of the fingertip_capture node's parameters: the scenes
+    fingertip scenes of the skin config, each fingertip once, all on one part fixed to the base; the calibration
+    read against the skin."""
+    import dataclasses
+
+    from nao_skin.model.skin import SkinCalibration
+
+    try:
+        skin = skin_from_params(p)
+        scenes = fingertip_scenes({"fingertip_scenes": list(p["scenes"])}, skin)
+        tips, parts = [t for t, _ in scenes], {part for _, part in scenes}
+        if not scenes or len(parts) != 1 or len(set(tips)) != len(tips):
+            raise ConfigError(f"parameter scenes:={list(p['scenes'])!r}: expected 'fingertip-part' scenes of one part,"
+                              f" each fingertip once, e.g. ['r_finger-torso', 'l_finger-torso']")
+        part, = parts
+        if skin.parts[part].chain is not None:
+            raise ConfigError(f"parameter scenes:={list(p['scenes'])!r}: the capture presses a part fixed to the base"
+                              f" (the torso), not {part}")
+        calibration = SkinCalibration.load(p["calibration"], skin) if p["calibration"] else skin.zero_calibration()
+        fields = {f.name for f in dataclasses.fields(CaptureOptions)}
+        options = CaptureOptions(**{k: float(v) for k, v in p.items() if k in fields})
+    except NaoSkinError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    return skin, calibration, tips, part, options
+
+
+def check_fingertip_capture(p: dict, where: str = "fingertip_capture") -> None:
+    capture_setup(p, where)
+
+
 # what no single parameter's rule can say: checked by `nao-skin record` before any node starts, by the node
 # again at its start
 CHECKS = {"calibrate": check_calibrate, "naoqi_bridge": check_naoqi_bridge, "sim_robot": check_sim_robot,
-          "pairing_recorder": check_pairing_recorder, "skin_heatmap": check_skin_heatmap}
+          "pairing_recorder": check_pairing_recorder, "skin_heatmap": check_skin_heatmap,
+          "fingertip_capture": check_fingertip_capture}

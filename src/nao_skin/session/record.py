@@ -35,7 +35,7 @@ from nao_skin.session.params import (CHECKS, NODE_PARAMS, PER_PART_NODES, ROS_NO
 
 ROBOTS = ("sim", "nao")
 CONTROL = re.compile(r"[\x00-\x1f\x7f]")
-SKIN_NODES = ("sim_robot", "yarp_skin_bridge", "pairing_recorder", "skin_heatmap", "calibrate")   # read the skin
+SKIN_NODES = ("sim_robot", "yarp_skin_bridge", "pairing_recorder", "skin_heatmap", "calibrate", "fingertip_capture")   # read the skin
 # set by `nao-skin record` and our launch files for their nodes: they stop when that process is gone
 PARENT_ENV = "NAO_SKIN_PARENT_PID"
 # what stops record, bench-live and a node as Ctrl-C does: a closed terminal (SIGHUP), a kill or timeout (SIGTERM)
@@ -47,7 +47,8 @@ YARP_HINT = ("yarp_skin_bridge needs YARP's Python bindings (pip package yarp-mi
 SESSION_SET = {("pairing_recorder", "bag_path"): "bag", ("calibrate", "recording"): "bag",
                ("pairing_recorder", "continues"): "continue_from", ("calibrate", "earlier_recordings"): "continue_from",
                ("skin_heatmap", "earlier_recordings"): "continue_from", ("pairing_recorder", "sim_seed"): "seed",
-               ("pairing_recorder", "recorded_from"): "robot"}
+               ("pairing_recorder", "recorded_from"): "robot", ("fingertip_capture", "dry_run"): "capture"}
+CAPTURE_MODES = ("false", "true", "dry")   # capture:=: no capture, the robot presses by itself, only plans
 # parameters the scenes set (scene:=, --scene) when they are given: given as well, one would be overridden
 SCENE_SET = {("sim_robot", "pairs"), ("pairing_recorder", "fingertip_scenes"), ("skin_heatmap", "fingertip_scenes"),
              ("calibrate", "guidance_pairs")}
@@ -93,7 +94,7 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                    bag_path: str = "", calibration: str = "", rviz: bool = False, taxels=(),
                    overrides: dict | None = None, with_robot_state_publisher: bool = True,
                    guided: bool = False, continue_from=(), namespace: str = "", spelling: str = "launch",
-                   params_file: str = "", seed=None, scene=(), say=None) -> list:
+                   params_file: str = "", seed=None, scene=(), say=None, capture: str = "false") -> list:
     """The nodes of ``record.launch.py`` for these launch arguments.
 
     ``spelling``: how a message names the arguments, as the caller's user gave them: ``launch``
@@ -109,6 +110,9 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     ``params_file``: the user's ROS 2 parameters file, given to every node after the package's own files (so it
     overrides them) and before the session's own overrides; checked as they are, and a parameter of ours a
     section naming the node gives that the node does not have is one line too.
+    ``capture``: ``true``: the fingertip_capture node presses the robot's fingertip on the torso through NAOqi
+    (robot nao only) and the recorder takes its scene's fingertip touches; ``dry``: it only plans (markers in
+    RViz), with either robot; ``false``: no capture.
     ``seed``: the simulated robot's seed (None or "": not given; a session continuing earlier sittings then picks
     one none of them played, so that it plays new touches). ``scene``: the scenes recorded, ``HAND-PART`` items
     (a comma list each, :func:`session_scenes`): the simulated robot plays them, the recorder takes the fingertip
@@ -133,7 +137,14 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                 nao, sim = _said("robot", "nao", spelling), _said("robot", "sim", spelling)
                 raise ConfigError(f"{_said(name, value, spelling)}: only {nao} reads it ({sim}, the default,"
                                   f" simulates the robot); give {nao} for the real one")
-    if nao_ip and not naoqi:
+    capture = str(capture).strip().lower()
+    if capture not in CAPTURE_MODES:
+        raise ConfigError(f"{_said('capture', capture, spelling)}: expected one of {', '.join(CAPTURE_MODES)}")
+    if capture == "true" and robot != "nao":
+        raise ConfigError(f"{_said('capture', 'true', spelling)}: moves the robot's arm through NAOqi, with"
+                          f" {_said('robot', 'nao', spelling)} only; {_said('capture', 'dry', spelling)} plans with"
+                          f" either robot")
+    if nao_ip and not naoqi and capture == "false":
         raise ConfigError(f"{_said('nao_ip', nao_ip, spelling)}: only naoqi_bridge reads it, and"
                           f" {_said('naoqi', 'false', spelling)} leaves it out (another driver publishes /joint_states)")
     for value, node, name in ((nao_ip, "naoqi_bridge", "nao_ip"), (events_port, "yarp_skin_bridge", "events_port")):
@@ -168,6 +179,9 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
     specs.append(NodeSpec("pairing_recorder", "pairing_recorder", [record_yaml],
                           {"bag_path": bag_path, "recorded_from": source,
                            **({"continues": earlier} if earlier else {})}))
+    if capture != "false":
+        specs.append(NodeSpec("fingertip_capture", "fingertip_capture", [bridges_yaml],
+                              {"dry_run": capture == "dry", **({"nao_ip": nao_ip} if nao_ip else {})}))
     specs.append(NodeSpec("skin_heatmap", "skin_heatmap", [record_yaml],
                           {"earlier_recordings": earlier} if earlier else {}))
     # the calibration of the session is written beside its recording
@@ -224,6 +238,11 @@ def record_session(robot: str = "sim", nao_ip: str = "", naoqi: bool = True, eve
                               f" (robot {robot}: {', '.join(by_name)})")
         spec = by_name[node]
         spec.overrides.update(typed_overrides(spec, values) if spec.ours else _as_yaml(values))
+    if capture == "true":    # the recorder takes the touches of the scene the capture presses
+        from nao_skin.session.params import FINGERTIP_CAPTURE
+
+        scenes = by_name["fingertip_capture"].overrides.get("scenes", FINGERTIP_CAPTURE["scenes"][0])
+        by_name["pairing_recorder"].overrides.setdefault("fingertip_scenes", list(scenes))
     # a node given a skin of its own (--param NODE.taxels=..., or in the user's parameters file): the session's
     # (--taxels) is checked with the files
     own_skin = {node for node, values in (overrides or {}).items() if {"skin_config", "taxels"} & set(values)}

@@ -45,6 +45,18 @@ class SimResult:
     pairs: dict = field(default_factory=dict)   # "hand-target" -> {touches, attempted, unreachable, ...}
 
 
+def true_robot(skin: SkinModel, p: SimParams, pairs, rng_truth: np.random.Generator) -> SkinCalibration:
+    """The true skin, kinematics and fingertips of a simulated robot, drawn from ``rng_truth`` (the first of a
+    seed's streams): what :func:`simulate` and the simulated body (:mod:`nao_skin.sim.body`) share."""
+    truth = draw_truth(skin, list(skin.parts), p, rng_truth)
+    # drawn after the skin's truth from the same stream: presets with the config's robot stay bit-identical
+    truth.kinematics = draw_kinematics(skin, p, rng_truth)
+    # then the fingertips' (nothing drawn without fingertip pairs: self-touch presets stay bit-identical)
+    truth.fingertips = fingertip_truth(skin, dict.fromkeys(h for h, _ in pairs if h in skin.robot.fingertips), p,
+                                       rng_truth)
+    return truth
+
+
 def simulate(skin: SkinModel, params: SimParams | dict | None, seed: int) -> SimResult:
     """Simulate ``params.n_touches`` self-touches for each pair; see the module docstring."""
     p = make_params(params or {}) if not isinstance(params, SimParams) else make_params(params)
@@ -53,12 +65,7 @@ def simulate(skin: SkinModel, params: SimParams | dict | None, seed: int) -> Sim
     # independent streams: the truth does not change when touch counts or pairs change
     streams = np.random.SeedSequence(int(seed)).spawn(2 + 2 * len(pairs))
     rng_truth, rng_record = (np.random.default_rng(s) for s in streams[:2])
-    truth = draw_truth(skin, list(skin.parts), p, rng_truth)
-    # drawn after the skin's truth from the same stream: presets with the config's robot stay bit-identical
-    truth.kinematics = draw_kinematics(skin, p, rng_truth)
-    # then the fingertips' (nothing drawn without fingertip pairs: self-touch presets stay bit-identical)
-    truth.fingertips = fingertip_truth(skin, dict.fromkeys(h for h, _ in pairs if h in skin.robot.fingertips), p,
-                                       rng_truth)
+    truth = true_robot(skin, p, pairs, rng_truth)
     # the true body poses and fires; the joints record as they read (the config's kinematics)
     body = skin.with_kinematics(truth)
 
