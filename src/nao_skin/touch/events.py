@@ -344,7 +344,9 @@ class EventDetector:
     def _resolve_pending(self, final: bool) -> list:
         out = []
         stamps = self._joint_stamps
-        n = self._confirmed()
+        # at the end of the input no later joint state can show the latest one mis-stamped: it counts (a touch
+        # bag holds joint states at its touches only, so its last touch's came seconds after the one before)
+        n = len(stamps) if final else self._confirmed()
         while self._pending:
             cand = self._pending[0]
             t = cand.stamp
