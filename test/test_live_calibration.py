@@ -109,11 +109,18 @@ def test_updates_arrive_while_touches_are_recorded(tmp_path):
         assert live[0]["parts"]["r_hand"] == "converging" and live[0]["parts"]["l_hand"] == "collecting"
         assert all(set(s["displacement_mm"]) <= {"r_hand", "l_hand", "torso"} for s in live)
         assert any(s["left_out"] for s in live) or live[0]["parts"]["l_hand"] == "collecting"
-        # a late joiner gets exactly one TFMessage: the latest update
+        # a late joiner gets exactly one TFMessage for what was published before it joined (the latest update),
+        # then one per calibration published since (a live update can still come while it joins)
+        joined = len(status)
         joiner = listener.subscribe(TFMessage, TF_STATIC_TOPIC, qos=LATCHED)
         assert listener.spin_until(lambda: joiner, procs=[session])
         listener.spin_for(0.5)
-        assert len(joiner) == 1
+
+        def since() -> int:
+            return sum(s["state"] in ("updated", "published") for s in status[joined:])
+
+        assert listener.spin_until(lambda: len(joiner) == 1 + since(), timeout=10, procs=[session]), \
+            (len(joiner), status[joined:])
     finally:
         if listener is not None:
             listener.close()
