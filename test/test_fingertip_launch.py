@@ -15,7 +15,8 @@ pytest.importorskip("rclpy")
 from ros_harness import Listener, unique_domain_id  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 from test_colcon import workspace  # noqa: E402,F401 - the workspace fixture
-from test_launch import WAIT_S, as_record_would, assert_started_as, output, ros2_launch  # noqa: E402
+from test_launch import (WAIT_S, as_record_would, assert_started_as, output, ros2_launch,  # noqa: E402
+                         stopped_once_written)
 from test_launch_arguments import context_with, launch_file  # noqa: E402
 
 from nao_skin.errors import ConfigError  # noqa: E402
@@ -97,8 +98,6 @@ def test_calibrate_launch_calibrates_a_fingertip_recording_named_by_its_fingerti
     """The thesis' text format does not say which fingertip pressed: calibrate.launch.py refused such a file
     ("no touch has two skin parts active together"); fingertip:=r_finger reads it as the right fingertip's touches,
     as nao-skin calibrate --fingertip does, and the calibration places the fingertip."""
-    import time
-
     import yaml
 
     ws, _, _ = workspace
@@ -107,14 +106,7 @@ def test_calibrate_launch_calibrates_a_fingertip_recording_named_by_its_fingerti
     launch = ros2_launch(ws, tmp_path, unique_domain_id(), "calibrate.launch.py", "calibrate_launch",
                          inputs=str(src), out_dir=str(out), taxels=f"'l_hand={real_dir / 'l_hand.taxels.txt'}'",
                          fingertip="r_finger")
-    try:
-        deadline = time.monotonic() + WAIT_S
-        while not (out / "calibration.yaml").is_file() and time.monotonic() < deadline:
-            assert launch.alive(), output(launch)[-3000:]
-            time.sleep(0.2)
-        code = launch.stop(signal.SIGINT, timeout=60)
-    finally:
-        launch.stop(signal.SIGKILL)
+    code = stopped_once_written(launch, out / "calibration.yaml")
     assert code == 0 and "Traceback" not in output(launch), output(launch)[-3000:]
     calibration = yaml.safe_load((out / "calibration.yaml").read_text())
     assert set(calibration["fingertips"]) == {"r_finger"}

@@ -41,6 +41,22 @@ def ros2_launch(ws, tmp_path, domain: int, file_name: str, name: str, **argument
     return Proc(argv, _sourced_env(ws, domain), tmp_path, name)
 
 
+def stopped_once_written(launch: Proc, path) -> int:
+    """Ctrl-C to ``launch`` once ``path`` exists (a calibrate.launch.py that wrote its calibration): its exit code.
+    The launch is killed whatever happens."""
+    import time
+    from pathlib import Path
+
+    try:
+        deadline = time.monotonic() + WAIT_S
+        while not Path(path).is_file() and time.monotonic() < deadline:
+            assert launch.alive(), output(launch)[-3000:]
+            time.sleep(0.2)
+        return launch.stop(signal.SIGINT, timeout=60)
+    finally:
+        launch.stop(signal.SIGKILL)
+
+
 def output(proc: Proc) -> str:
     """What the launch printed: its own log and the nodes' lines (``output="screen"``) go to stdout."""
     return proc.stdout() + proc.stderr()

@@ -28,7 +28,8 @@ require_launch()
 pytest.importorskip("rclpy")
 from std_msgs.msg import String  # noqa: E402
 from test_colcon import workspace  # noqa: E402,F401 - the workspace fixture
-from test_launch import WAIT_S, as_record_would, assert_started_as, output, ros2_launch  # noqa: E402
+from test_launch import (WAIT_S, as_record_would, assert_started_as, output, ros2_launch,  # noqa: E402
+                         stopped_once_written)
 
 from nao_skin.formats.bag import BagWriter, read_touches, write_touch_bag  # noqa: E402
 from nao_skin.formats.salvage import LOCK_FILE  # noqa: E402
@@ -196,14 +197,7 @@ def test_calibrate_launch_calibrates_on_the_taxel_files_given(workspace, tmp_pat
     out = tmp_path / "out"
     launch = ros2_launch(ws, tmp_path, unique_domain_id(), "calibrate.launch.py", "calibrate_launch",
                          inputs=str(bag), out_dir=str(out), taxels=f"'l_hand={mine}'")
-    try:
-        deadline = time.monotonic() + WAIT_S
-        while not (out / "calibration.yaml").is_file() and time.monotonic() < deadline:
-            assert launch.alive(), output(launch)[-3000:]
-            time.sleep(0.2)
-        code = launch.stop(signal.SIGINT, timeout=60)
-    finally:
-        launch.stop(signal.SIGKILL)
+    code = stopped_once_written(launch, out / "calibration.yaml")
     assert code == 0 and "Traceback" not in output(launch), output(launch)[-3000:]
     layout = yaml.safe_load((out / "calibration.yaml").read_text())["parts"]["l_hand"]["layout"]
     assert layout == {"file": mine.name, "sha256": skin.parts["l_hand"].layout_sha256}, layout
@@ -222,14 +216,7 @@ def test_calibrate_launch_takes_a_parameters_file_and_refuses_a_mistake_in_it(wo
     out = tmp_path / "out"
     launch = ros2_launch(ws, tmp_path, unique_domain_id(), "calibrate.launch.py", "calibrate_launch",
                          inputs=str(bag), out_dir=str(out), params_file=str(mine))
-    try:
-        deadline = time.monotonic() + WAIT_S
-        while not (out / "report.json").is_file() and time.monotonic() < deadline:
-            assert launch.alive(), output(launch)[-3000:]
-            time.sleep(0.2)
-        code = launch.stop(signal.SIGINT, timeout=60)
-    finally:
-        launch.stop(signal.SIGKILL)
+    code = stopped_once_written(launch, out / "report.json")
     assert code == 0, output(launch)[-3000:]
     options = json.loads((out / "report.json").read_text())["options"]
     assert (options["gate_mm"], options["pose_weight"]) == (20.0, 0.25), options
