@@ -4,9 +4,9 @@ A thin adapter of :mod:`nao_skin.capture`: it connects to ALMotion over libqi (`
 and hands the loop that proxy as its ``Motion`` (every call with ``naoqi_timeout``), the skin's
 ``/skin/<part>/taxels`` as its contacts and the age of ``/joint_states`` to its gate; the loop runs in a
 thread of its own. Each planned approach is a marker on ``nao_skin/capture/markers`` (latched; ``dry_run``:
-only those, nothing moves). ``~/stop`` (std_srvs/Trigger), Ctrl-C, a lost NAOqi and stale joint states stop
-the capture: the arm retracts, goes to rest, and only then loses its stiffness. Every abort is one log line
-and the diagnostics' status; ``nao_skin/capture/status`` (std_msgs/String JSON) says how far it got.
+only those, nothing moves). ``~/stop`` (std_srvs/Trigger), Ctrl-C, a lost NAOqi, stale joint states and
+late skin readings stop the capture: the arm retracts, goes to rest, and only then loses its stiffness. Every
+abort is one log line and the diagnostics' status; ``nao_skin/capture/status`` (std_msgs/String JSON) says how far it got.
 """
 from __future__ import annotations
 
@@ -24,11 +24,12 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from nao_skin.capture.loop import CaptureLoop
 from nao_skin.capture.plan import Planner, TargetChooser
-from nao_skin.capture.safety import SafetyGate
+from nao_skin.capture.safety import Abort, SafetyGate
 from nao_skin.errors import NaoSkinError, one_line
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, read_taxels, taxels_topic
 from nao_skin.live.diagnostics import ERROR, OK, WARN, Check
 from nao_skin.nodes.diagnostics import publish_diagnostics
+from nao_skin.nodes.messages import header_stamp
 from nao_skin.nodes.runtime import declare, run_node
 from nao_skin.nodes.topics import LATCHED, STREAM_DEPTH, frame_prefix, relative
 from nao_skin.session.params import FINGERTIP_CAPTURE, capture_setup
@@ -94,18 +95,49 @@ class WallClock:
 
 class SkinReadings:
     """The skin messages as the loop asks for them: which parts fired after a moment, their slots, the highest
-    pressure (thread-safe: the executor writes, the capture thread reads)."""
+    pressure (thread-safe: the executor writes, the capture thread reads).
 
-    def __init__(self):
-        self._lock = threading.Lock()
+    A reading counts from when it was taken, not from when its message came: its stamp, placed on this
+    process's monotonic clock by the least ``receipt - stamp`` seen so far (the transport's shortest delay and
+    whatever offset the stamping clock has). :meth:`fired` first waits until the ``target`` part has a reading
+    taken at or after the moment of the call, at most ``late_after`` s (beyond it the skin is late: an
+    :class:`~nao_skin.capture.safety.Abort` of the session), or until ``stopping`` is set. On a loaded machine
+    the skin's messages come a few steps of the approach late; read by their receipt, the press went on 4.5 mm
+    past the first contact (the capture's end-to-end test on a loaded machine, 2026-12-08), where the options
+    allow 1.9. The other parts are read as far as they came: a contact there aborts the touch a step later."""
+
+    def __init__(self, target: str, late_after: float, stopping: threading.Event):
+        self.target, self.late_after, self.stopping = target, float(late_after), stopping
+        self._lock = threading.Condition()
         self._kept: deque = deque(maxlen=READINGS_KEPT)
+        self._offset = np.inf          # least receipt - stamp (s)
+        self._newest = -np.inf         # when the target's newest reading was taken (monotonic s)
 
-    def add(self, part: str, slots: np.ndarray, pressures: np.ndarray) -> None:
+    def add(self, part: str, stamp: float, slots: np.ndarray, pressures: np.ndarray) -> None:
+        received = time.monotonic()
         with self._lock:
-            self._kept.append((time.monotonic(), part, slots, pressures))
+            self._offset = min(self._offset, received - stamp)
+            taken = stamp + self._offset
+            self._kept.append((taken, part, slots, pressures))
+            if part == self.target:
+                self._newest = max(self._newest, taken)
+            self._lock.notify_all()
+
+    def wake(self) -> None:
+        """A stop was requested: a wait in :meth:`fired` ends now."""
+        with self._lock:
+            self._lock.notify_all()
 
     def fired(self, since: float) -> dict:
+        until = time.monotonic()
         with self._lock:
+            fresh = self._lock.wait_for(lambda: self._newest >= until or self.stopping.is_set(),
+                                        timeout=self.late_after)
+            if self.stopping.is_set():
+                raise Abort("stop requested", session=True)
+            if not fresh:
+                raise Abort(f"skin readings late: none of {self.target} taken in the {self.late_after:g} s since"
+                            f" the arm stopped (stale after {self.late_after:g} s)", session=True)
             kept = [r for r in self._kept if r[0] > since and len(r[2])]
         out = {}
         for _, part, slots, pressures in kept:
@@ -126,9 +158,9 @@ class FingertipCapture(Node):
         self.timeout = float(p["naoqi_timeout"])
         self.dry_run, self.max_touches = bool(p["dry_run"]), int(p["max_touches"])
         self.frames = frame_prefix(self)
-        self.readings = SkinReadings()
         self._joints_at: float | None = None
         self._stop = threading.Event()
+        self.readings = SkinReadings(self.part, options.stale_after, self._stop)
         self.motion: NaoqiMotion | None = None
         self.aborts: list = []             # (monotonic time, line)
         self.state = "starting"
@@ -153,9 +185,10 @@ class FingertipCapture(Node):
     def _on_taxels(self, part: str, msg: PointCloud2) -> None:
         try:
             slots, pressures, _ = read_taxels(msg, self.skin.parts[part], f"{taxels_topic(part)}")
+            stamp = header_stamp(msg, taxels_topic(part))
         except NaoSkinError:
             return          # the recorder says what is wrong with a skin message; here it fires nothing
-        self.readings.add(part, slots, pressures)
+        self.readings.add(part, stamp, slots, pressures)
 
     def _on_joints(self, msg: JointState) -> None:
         self._joints_at = time.monotonic()
@@ -177,6 +210,7 @@ class FingertipCapture(Node):
         if not self._stop.is_set():
             self.get_logger().info(why)
         self._stop.set()
+        self.readings.wake()
         motion = self.motion
         if motion is not None:      # a move in progress ends where it is; the loop then retracts
             try:
