@@ -135,6 +135,22 @@ def test_the_chooser_takes_unreached_taxels_farthest_first_and_never_an_unreacha
     assert chooser.next() is None and chooser.reachable_unreached() == 0 and chooser.arm() is None
 
 
+def test_a_target_that_fired_only_its_neighbours_is_aimed_at_again_once_before_a_second_touch_anywhere(planner):
+    chooser = TargetChooser(planner.points, planner.slots)
+    chooser.fired[:] = 1
+    chooser.fired[[3, 9]] = 0
+    chooser.tried[:] = 1
+    assert chooser.next() in (3, 9)            # tried once, its taxel never fired: before every taxel fired once
+    missed = chooser.next()
+    chooser.record(planner.slots[[missed + 1]], target=missed)    # the neighbour fired again, not the target
+    assert chooser.next() == ({3, 9} - {missed}).pop()
+    chooser.tried[[3, 9]] = 2                  # its retries used up: a taxel like any touched one
+    assert chooser.next() not in (3, 9) and chooser.reachable_unreached() == 2
+    once = TargetChooser(planner.points, planner.slots, retries=0)    # no retry: tried once is touched once
+    once.tried[3] = 1
+    assert once._score()[3] == 1.0
+
+
 def test_the_other_arm_takes_the_taxels_one_cannot_reach(planner):
     chooser = TargetChooser(planner.points, planner.slots, arms=2)
     assert chooser.arm(0) == 0 and chooser.arm(1) == 1            # the arm in use while it has targets

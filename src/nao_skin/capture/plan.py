@@ -277,7 +277,8 @@ class Planner:
 class TargetChooser:
     """Which taxel of the part to press next, and with which arm (``arms``: one per fingertip of the session).
 
-    One no touch has reached first (of ``priority`` triangles first: the guidance's), then the least fired;
+    One no touch has reached first (of ``priority`` triangles first: the guidance's), then one whose touch fired
+    only its neighbours (aimed again, up to ``retries`` times), then the least fired;
     among equals the one farthest from every taxel touched so far. An arm takes the targets it has not found
     out of its reach; the arm to use is the one whose best target is the least touched (the arm in use on a
     tie: an arm changes only when the other one has taxels to press that this one cannot reach). Taxels no
@@ -286,6 +287,7 @@ class TargetChooser:
     points: np.ndarray                # (S,) believed positions of the part's present taxels
     slots: np.ndarray                 # (S,) their slots
     arms: int = 1
+    retries: int = 1                  # touches more at a target whose own taxel did not fire
     fired: np.ndarray = field(init=False)
     unreachable: np.ndarray = field(init=False)
 
@@ -324,6 +326,10 @@ class TargetChooser:
 
     def _score(self, priority=None) -> np.ndarray:
         score = np.maximum(self.fired, self.tried).astype(float)
+        # a target whose touch fired only its neighbours (the skin a little off the belief) is aimed at again,
+        # shifted (Planner.aim_again), before any taxel is touched a second time, up to ``retries`` times
+        again = (self.fired == 0) & (self.tried >= 1) & (self.tried <= self.retries)
+        score[again] = 1.0 - 1.0 / (1.0 + self.tried[again])
         if priority is not None:          # the guidance's triangles first among the least fired
             score = score - 0.5 * np.isin(self.slots // 12, list(priority))
         return score
