@@ -173,6 +173,28 @@ def test_the_gate_refuses_a_command_beyond_the_limits_less_the_margin(planner):
         gate.command(np.full(len(inside), np.nan), planner.arm)
 
 
+def test_stale_joint_states_hold_the_arm_still_then_stop_the_capture():
+    """With a clock to wait on (a robot's session), joint states late for a moment hold the arm (no Abort once
+    fresh ones come within the hold); late for longer, the capture stops, saying it held."""
+    clock = {"t": 0.0}
+    fresh_at = {"t": 0.3}
+
+    def age():
+        return 0.8 if clock["t"] < fresh_at["t"] else 0.01
+
+    def sleep(s):
+        clock["t"] += s
+
+    gate = SafetyGate(0.5, lambda: False, age, sleep=sleep, hold=2.0)
+    gate.running()                                          # fresh after 0.3 s of holding: on
+    assert 0.3 <= clock["t"] < 0.4
+    clock["t"], fresh_at["t"] = 0.0, 10.0
+    with pytest.raises(Abort, match=r"joint states 0.80 s old \(stale after 0.5 s, held 2.0 s\)"):
+        gate.running()
+    with pytest.raises(Abort, match="joint states 0.80 s old"):      # no clock (the pure loop): at once
+        SafetyGate(0.5, lambda: False, lambda: 0.8).running()
+
+
 def test_a_plan_beyond_the_limits_is_never_sent(skin, planner, approach, monkeypatch):
     row, plan = approach
     bad = plan.path.copy()

@@ -22,17 +22,27 @@ class Abort(Exception):
         self.session = session
 
 
+# s the arm holds still, between two steps, for joint states (or skin readings) newer than stale_after before
+# the capture stops: a loaded robot PC delays a stream for tenths of a second now and then (0.55 s seen on the
+# 2-core test machine under load), where holding still harms nothing and a stopped capture costs the session
+STALE_HOLD = 2.0
+HOLD_POLL = 0.05             # s between two looks while holding
+
+
 class SafetyGate:
     """The checks of :mod:`nao_skin.capture`: see each method. ``stop_requested()`` is True once anybody asked
     the capture to stop (Ctrl-C, the ``~/stop`` service); ``joint_age()`` is the age (s) of the newest joint
-    state, None before the first; ``lost()`` says why NAOqi is gone, None while it is there."""
+    state, None before the first; ``lost()`` says why NAOqi is gone, None while it is there; ``sleep(s)``
+    (given: a real robot's session) lets :meth:`running` hold still up to ``hold`` s for fresh joint states."""
 
     def __init__(self, stale_after: float, stop_requested: Callable[[], bool],
-                 joint_age: Callable[[], float | None], lost: Callable[[], str | None] = lambda: None):
+                 joint_age: Callable[[], float | None], lost: Callable[[], str | None] = lambda: None,
+                 sleep: Callable[[float], None] | None = None, hold: float = STALE_HOLD):
         self.stale_after = float(stale_after)
         self.stop_requested = stop_requested
         self.joint_age = joint_age
         self.lost = lost
+        self.sleep, self.hold = sleep, float(hold) if sleep is not None else 0.0
 
     @staticmethod
     def command(q_arm: np.ndarray, arm: Arm) -> np.ndarray:
@@ -48,16 +58,24 @@ class SafetyGate:
         return q_arm
 
     def running(self) -> None:
-        """Abort (the session) when a stop was requested, NAOqi is gone or the joint states went stale."""
+        """Abort (the session) when a stop was requested, NAOqi is gone or the joint states went stale (and
+        stayed so while the arm held still for ``hold`` s)."""
         if self.stop_requested():
             raise Abort("stop requested", session=True)
         lost = self.lost()
         if lost:
             raise Abort(f"NAOqi lost ({lost})", session=True)
-        age = self.joint_age()
+        age, held = self.joint_age(), 0.0
+        while (age is None or age > self.stale_after) and held < self.hold and not self.stop_requested():
+            self.sleep(HOLD_POLL)
+            held += HOLD_POLL
+            age = self.joint_age()
+        if self.stop_requested():
+            raise Abort("stop requested", session=True)
         if age is None or age > self.stale_after:
             said = "no joint states" if age is None else f"joint states {age:.2f} s old"
-            raise Abort(f"{said} (stale after {self.stale_after:g} s)", session=True)
+            raise Abort(f"{said} (stale after {self.stale_after:g} s{f', held {held:.1f} s' if held else ''})",
+                        session=True)
 
     @staticmethod
     def contact(fired: dict, target: str) -> bool:

@@ -24,7 +24,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from nao_skin.capture.loop import CaptureLoop
 from nao_skin.capture.plan import Planner, TargetChooser
-from nao_skin.capture.safety import Abort, SafetyGate
+from nao_skin.capture.safety import STALE_HOLD, Abort, SafetyGate
 from nao_skin.errors import NaoSkinError, one_line
 from nao_skin.formats.pointcloud import JOINT_STATES_TOPIC, read_taxels, taxels_topic
 from nao_skin.live.diagnostics import ERROR, OK, WARN, Check
@@ -100,7 +100,8 @@ class SkinReadings:
     A reading counts from when it was taken, not from when its message came: its stamp, placed on this
     process's monotonic clock by the least ``receipt - stamp`` seen so far (the transport's shortest delay and
     whatever offset the stamping clock has). :meth:`fired` first waits until the ``target`` part has a reading
-    taken at or after the moment of the call, at most ``late_after`` s (beyond it the skin is late: an
+    taken at or after the moment of the call, at most ``late_after`` s (the node's: ``stale_after`` plus the
+    arm's hold, :data:`~nao_skin.capture.safety.STALE_HOLD`; beyond it the skin is late: an
     :class:`~nao_skin.capture.safety.Abort` of the session), or until ``stopping`` is set. On a loaded machine
     the skin's messages come a few steps of the approach late; read by their receipt, the press went on 4.5 mm
     past the first contact (the capture's end-to-end test on a loaded machine, 2026-12-08), where the options
@@ -160,7 +161,7 @@ class FingertipCapture(Node):
         self.frames = frame_prefix(self)
         self._joints_at: float | None = None
         self._stop = threading.Event()
-        self.readings = SkinReadings(self.part, options.stale_after, self._stop)
+        self.readings = SkinReadings(self.part, options.stale_after + STALE_HOLD, self._stop)
         self.motion: NaoqiMotion | None = None
         self.aborts: list = []             # (monotonic time, line)
         self.state = "starting"
@@ -174,7 +175,8 @@ class FingertipCapture(Node):
         self.create_service(Trigger, "~/stop", self._on_stop)
         self.create_timer(0.5, self._publish_status)
         publish_diagnostics(self, self._diagnostics, hardware_id=f"NAOqi {self.url}")
-        self.gate = SafetyGate(options.stale_after, self._stop.is_set, self._joint_age, lost=self._lost)
+        self.gate = SafetyGate(options.stale_after, self._stop.is_set, self._joint_age, lost=self._lost,
+                               sleep=WallClock.sleep)
         self.loop = CaptureLoop(self.planners, self.chooser, None, self.readings, self.gate, WallClock(),
                                 log=self.get_logger().warning, on_abort=self._on_abort,
                                 on_plan=self._on_plan)

@@ -188,7 +188,7 @@ FINGERTIP_CAPTURE = {
     "retract_speed": (_CAPTURE.retract_speed, "speed fraction of the retract", _fraction(0.5)),
     "stiffness": (_CAPTURE.stiffness, "the arm's stiffness while it moves", Rule(float, low=0.1, high=1.0)),
     "stale_after": (_CAPTURE.stale_after, "s: joint states, or the skin's readings after a step, older than this"
-                                          " stop the capture",
+                                          " hold the arm still; still so 2 s later, the capture stops",
                     Rule(float, low=0.02, high=10.0)),
     "naoqi_timeout": (20.0, "s a NAOqi call may take (a move at the slowest speed: up to ~12 s) before NAOqi"
                             " counts as lost", Rule(float, low=0.1, high=120.0)),
