@@ -526,8 +526,12 @@ class CalibrateNode(Node):
         """The session's last status, delivered before the node goes (the process ends right after: a
         subscriber missed it now and then)."""
         self._status(info)
+        # one deadline for all three: a subscriber that is going too (the session's other nodes, when the
+        # session's process died) acknowledges nothing, and a wait per publisher kept a node 3 s after
+        # nao-skin record was killed (the bound is 2 s)
+        deadline = time.monotonic() + FINAL_ACK_S
         for publisher in (self.status_pub, self.tf_pub, self.guidance_pub):
-            publisher.wait_for_all_acked(Duration(seconds=FINAL_ACK_S))
+            publisher.wait_for_all_acked(Duration(seconds=max(0.0, deadline - time.monotonic())))
 
     def _write_live(self, result, written: Path | None = None) -> Path:
         """A live calibration ``result``, written to out_dir (or beside it: :func:`session_end_out_dir`);
