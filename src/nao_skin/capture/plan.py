@@ -47,7 +47,7 @@ class CaptureOptions:
     retract_speed: float = 0.1      # ... the retract
     stiffness: float = 0.8          # the arm's stiffness while it moves (0-1)
     clearance: float = 0.015        # m the elbow, forearm and hand keep off the target's surface
-    stale_after: float = 0.5        # s: joint states, or the skin's readings after a step, older stop the capture
+    stale_after: float = 0.5        # s: joint states or skin readings older hold the arm (STALE_HOLD), then stop
 
 
 @dataclass(frozen=True)
